@@ -1,0 +1,1 @@
+//! tofprox file formats: recordings (version 1) and calibration sets

@@ -1,0 +1,1 @@
+//! tofprox model lab: compare the model with measurements and find the missing effect

@@ -1,0 +1,91 @@
+//! `tofprox`: the command-line tool. A thin binary: every command group lives
+//! in its own module under `cmd/` and calls into the library crates.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cmd;
+
+/// tofprox: low-power time-of-flight proximity sensing and the sensor model lab.
+#[derive(Parser, Debug)]
+#[command(name = "tofprox", version, about, propagate_version = true)]
+struct Cli {
+    /// More log output (repeat for more).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Summarise a recording (captures by mode/exposure/conditions, saturation share).
+    Info(cmd::recording::InfoArgs),
+    /// Extract a calibration (fpn, wiggling, fppn) from a recording.
+    Calibrate(cmd::recording::CalibrateArgs),
+    /// Process a recording's captures to depth and amplitude.
+    Process(cmd::recording::ProcessArgs),
+    /// Simulate recordings with the physical model.
+    #[command(subcommand)]
+    Sim(cmd::sim::SimCommand),
+    /// The physical model's effect catalogue and model files.
+    #[command(subcommand)]
+    Model(cmd::sim::ModelCommand),
+    /// The model lab: compare, diagnose, add effects.
+    #[command(subcommand)]
+    Lab(cmd::lab::LabCommand),
+    /// Talk to the sensor through the CX3 bridge (or the emulated device).
+    #[command(subcommand)]
+    Device(cmd::device::DeviceCommand),
+    /// Modelled power of the low-power loop beside commercial proximity sensors.
+    Power(cmd::daemon::PowerArgs),
+    /// Claim proximity from tofproxd and print near/far transitions.
+    Monitor(cmd::daemon::MonitorArgs),
+    /// Print every property of a running tofproxd.
+    Status(cmd::daemon::StatusArgs),
+    /// Record depth frames published by tofproxd.
+    Record(cmd::daemon::RecordArgs),
+    /// Run the daemon loop against the emulated device with injected faults.
+    Soak(cmd::daemon::SoakArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let filter = match cli.verbose {
+        0 => "warn",
+        1 => "info",
+        2 => "debug",
+        _ => "trace",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(filter)),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let result = match cli.command {
+        Command::Info(a) => cmd::recording::info(a),
+        Command::Calibrate(a) => cmd::recording::calibrate(a),
+        Command::Process(a) => cmd::recording::process(a),
+        Command::Sim(c) => cmd::sim::run_sim(c),
+        Command::Model(c) => cmd::sim::run_model(c),
+        Command::Lab(c) => cmd::lab::run(c),
+        Command::Device(c) => cmd::device::run(c),
+        Command::Power(a) => cmd::daemon::power(a),
+        Command::Monitor(a) => cmd::daemon::monitor(a),
+        Command::Status(a) => cmd::daemon::status(a),
+        Command::Record(a) => cmd::daemon::record(a),
+        Command::Soak(a) => cmd::daemon::soak(a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(err) => {
+            // Every failure is reported as one clear line chain, never a panic
+            // trace. Exit code 2: bad input or a failed operation (see README).
+            eprintln!("error: {err:#}");
+            ExitCode::from(2)
+        }
+    }
+}
