@@ -1,1 +1,110 @@
-//! tofprox processing core: raw phase images to calibrated depth (thesis ch. 2.2, 3.3, 4.3)
+//! tofprox processing core: raw phase images to calibrated depth (thesis ch. 2.2, 3.3, 4.3).
+//!
+//! Pure math, no I/O, no async. The modules follow the processing chain of the thesis:
+//!
+//! - [`phasor`]: scalar phasor math (eqs. 2.2–2.9), N-phase DFT, dual-frequency range extension.
+//! - [`calib`]: extraction of offset (FPN, 2.3.1.3 / 3.3.7.1), wiggling LUT (3.3.6 / 3.3.7.2 /
+//!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
+//! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
+//!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
+//! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
+//!
+//! # Conventions (shared by every tofprox crate)
+//! A raw image taken with phase shift `theta_k` of a pixel whose total phase is `phi` is, ideally,
+//! `code_k = mid + offset_pixel + A * cos(phi - theta_k)` with `mid = 2^(adc_bits-1)` (offset binary).
+//! Hence `phi = atan2(u90, u0)` (eq. 2.2) with `u = code - offset`, wrapped to `[0, 2π)`.
+//! `phi = phi_tof + phi_delay`, `phi_tof = 4π f d / c`.
+
+pub mod calib;
+mod error;
+mod fastmath;
+pub mod phasor;
+pub mod pipeline;
+pub mod proximity;
+
+pub use error::CoreError;
+pub use fastmath::{FAST_ATAN2_MAX_ERROR_RAD, fast_atan2_f32};
+
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::str::FromStr;
+
+/// Speed of light in vacuum, m/s (used by eq. 2.6 / 2.7).
+pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
+
+/// Depth evaluation algorithm (thesis 2.2.1).
+///
+/// Serialised (serde, [`Display`](fmt::Display), [`FromStr`]) as `"2phase"` / `"4phase"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Algorithm {
+    /// Two raw images at 0° and 90° (eq. 2.2). Sensitive to offset and even harmonics.
+    #[serde(rename = "2phase")]
+    TwoPhase,
+    /// Four raw images at 0°, 90°, 180°, 270° (eq. 2.3). Cancels offsets and even harmonics.
+    #[serde(rename = "4phase")]
+    FourPhase,
+}
+
+impl Algorithm {
+    /// Both algorithms, in a fixed order.
+    pub const ALL: [Algorithm; 2] = [Algorithm::TwoPhase, Algorithm::FourPhase];
+
+    /// The canonical string (`"2phase"` / `"4phase"`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Algorithm::TwoPhase => "2phase",
+            Algorithm::FourPhase => "4phase",
+        }
+    }
+
+    /// Number of raw images the algorithm consumes (2 or 4).
+    pub fn raw_images(self) -> usize {
+        match self {
+            Algorithm::TwoPhase => 2,
+            Algorithm::FourPhase => 4,
+        }
+    }
+
+    /// Phase shifts (degrees) of the raw images the algorithm consumes, in order.
+    pub fn phases_deg(self) -> &'static [f64] {
+        match self {
+            Algorithm::TwoPhase => &[0.0, 90.0],
+            Algorithm::FourPhase => &[0.0, 90.0, 180.0, 270.0],
+        }
+    }
+}
+
+impl fmt::Display for Algorithm {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Algorithm {
+    type Err = CoreError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "2phase" | "2-phase" | "two-phase" => Ok(Algorithm::TwoPhase),
+            "4phase" | "4-phase" | "four-phase" => Ok(Algorithm::FourPhase),
+            _ => Err(CoreError::InvalidParameter {
+                name: "algorithm",
+                reason: format!("unknown algorithm {s:?}, expected \"2phase\" or \"4phase\""),
+            }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn algorithm_strings_roundtrip() {
+        for a in Algorithm::ALL {
+            assert_eq!(a.to_string().parse::<Algorithm>().ok(), Some(a));
+            assert_eq!(a.phases_deg().len(), a.raw_images());
+        }
+        assert!("3phase".parse::<Algorithm>().is_err());
+    }
+}

@@ -1,0 +1,718 @@
+//! Per-frame processing: raw phase images → calibrated depth (thesis 4.3.3, fig. 3.20).
+//!
+//! One pass over the pixels, in this order per pixel:
+//! 1. validity of the RAW codes: saturation (any used image at a rail: `≤ 0` or `≥ 2^bits − 1`),
+//!    non-finite input;
+//! 2. offset correction (4.3.3.1): `u_k = code_k − dark[p]` (per-pixel dark frame, or the mid code
+//!    `2^(bits−1)` when no dark frame is given);
+//! 3. phase: eq. 2.2 (2-phase, images 0°, 90°) or eq. 2.3 (4-phase, 0°, 90°, 180°, 270°), with a
+//!    branch-free polynomial `atan2` ([`crate::fast_atan2_f32`], error ≤ 1e-4 rad ≈ 0.03 mm);
+//! 4. wiggling correction (3.3.7.2 / 4.3.3.3): `phase − LUT(phase)`, linear periodic interpolation
+//!    (the table is resampled once to 4096 bins of value + slope; exact for power-of-two tables up to
+//!    4096 bins);
+//! 5. FPPN (2.3.1.4): `− fppn[p]`, then wrap into `[0, 2π)`;
+//! 6. amplitude (eq. 2.4 or its 2-phase form `|z|`), low-amplitude check;
+//! 7. depth (eq. 2.6) in metres and `u16` millimetres (0 = invalid; a valid depth that would round
+//!    to 0 mm is reported as 1 mm; beyond 65535 mm → invalid).
+//!
+//! Invalid pixels have `depth_m = 0`, `depth_mm = 0` — never NaN. Buffers are allocated in
+//! [`Pipeline::new`]; [`Pipeline::process`] does not allocate.
+
+use crate::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use crate::phasor::{self, wrap_to_pi};
+use crate::{Algorithm, CoreError, fast_atan2_f32};
+use ndarray::{Array2, ArrayView3, Axis};
+use std::f32::consts::TAU;
+
+/// Flag bit: at least one used raw image of the pixel is at a rail (0 or `2^bits − 1`).
+pub const FLAG_SATURATED: u8 = 1 << 0;
+/// Flag bit: amplitude below [`PipelineConfig::min_amplitude_lsb`].
+pub const FLAG_LOW_AMPLITUDE: u8 = 1 << 1;
+/// Flag bit: depth invalid (set whenever any other flag is set, or the depth is out of range).
+pub const FLAG_INVALID: u8 = 1 << 2;
+/// Flag bit: a used raw value is NaN or infinite.
+pub const FLAG_NON_FINITE: u8 = 1 << 3;
+
+/// Size of the internal wiggling table (power of two so the index is a mask, no bounds checks).
+const LUT_BINS: usize = 4096;
+
+/// A raw sample type the pipeline accepts: `u16` codes, or `f32`/`f64` averaged codes.
+pub trait RawSample: Copy + Send + Sync + 'static {
+    /// The value as `f32` (exact for `u16`; NaN/∞ propagate and are flagged).
+    fn to_f32(self) -> f32;
+}
+
+impl RawSample for u16 {
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+}
+
+impl RawSample for f32 {
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self
+    }
+}
+
+impl RawSample for f64 {
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+}
+
+/// Processing parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PipelineConfig {
+    /// 2- or 4-phase evaluation.
+    pub algorithm: Algorithm,
+    /// Modulation frequency, Hz (80 MHz on the IRS1645).
+    pub modulation_hz: f64,
+    /// ADC resolution, bits (1..=16; 12 on the IRS1645).
+    pub adc_bits: u8,
+    /// Pixels with amplitude (eq. 2.4, in LSB) below this are flagged low-amplitude and invalid.
+    pub min_amplitude_lsb: f32,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            algorithm: Algorithm::TwoPhase,
+            modulation_hz: 80e6,
+            adc_bits: 12,
+            min_amplitude_lsb: 10.0,
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// Checks ranges: `modulation_hz` finite > 0, `adc_bits` in 1..=16, `min_amplitude_lsb` finite ≥ 0.
+    pub fn validate(&self) -> Result<(), CoreError> {
+        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
+            return Err(CoreError::param(
+                "modulation_hz",
+                format!("must be finite and > 0, got {}", self.modulation_hz),
+            ));
+        }
+        if !(1..=16).contains(&self.adc_bits) {
+            return Err(CoreError::param(
+                "adc_bits",
+                format!("must be 1..=16, got {}", self.adc_bits),
+            ));
+        }
+        if !(self.min_amplitude_lsb.is_finite() && self.min_amplitude_lsb >= 0.0) {
+            return Err(CoreError::param(
+                "min_amplitude_lsb",
+                format!("must be finite and ≥ 0, got {}", self.min_amplitude_lsb),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Mid code `2^(adc_bits − 1)` (zero differential voltage).
+    pub fn mid_code(&self) -> f32 {
+        (1u32 << (self.adc_bits.clamp(1, 16) - 1)) as f32
+    }
+
+    /// Upper rail `2^adc_bits − 1`.
+    pub fn max_code(&self) -> f32 {
+        ((1u32 << self.adc_bits.clamp(1, 16)) - 1) as f32
+    }
+}
+
+/// The calibrations a pipeline applies; each is optional.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Calibration {
+    /// Per-pixel dark frame; without it the mid code is subtracted.
+    pub offset: Option<OffsetCalibration>,
+    /// Wiggling LUT; must be for the pipeline's algorithm.
+    pub wiggling: Option<WigglingLut>,
+    /// Per-pixel phase offsets.
+    pub fppn: Option<FppnMap>,
+}
+
+/// Output of one [`Pipeline::process`] call, all arrays `(rows, cols)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthFrame {
+    /// Depth in metres (eq. 2.6); 0 where invalid, never NaN.
+    pub depth_m: Array2<f32>,
+    /// Depth in millimetres; 0 = invalid.
+    pub depth_mm: Array2<u16>,
+    /// Amplitude in LSB (eq. 2.4 / `|z|`); 0 where the input was non-finite.
+    pub amplitude_lsb: Array2<f32>,
+    /// Corrected phase in `[0, 2π)`; 0 where the input was non-finite.
+    pub phase_rad: Array2<f32>,
+    /// Per-pixel flags: [`FLAG_SATURATED`], [`FLAG_LOW_AMPLITUDE`], [`FLAG_INVALID`], [`FLAG_NON_FINITE`].
+    pub flags: Array2<u8>,
+}
+
+impl DepthFrame {
+    /// A zeroed frame (every pixel `depth_mm = 0`, flags 0).
+    pub fn zeros(rows: usize, cols: usize) -> Self {
+        DepthFrame {
+            depth_m: Array2::zeros((rows, cols)),
+            depth_mm: Array2::zeros((rows, cols)),
+            amplitude_lsb: Array2::zeros((rows, cols)),
+            phase_rad: Array2::zeros((rows, cols)),
+            flags: Array2::zeros((rows, cols)),
+        }
+    }
+
+    /// `(rows, cols)`.
+    pub fn dim(&self) -> (usize, usize) {
+        self.depth_mm.dim()
+    }
+
+    /// Whether pixel `(row, col)` has a valid depth (`false` outside the frame).
+    pub fn is_valid(&self, row: usize, col: usize) -> bool {
+        self.flags
+            .get((row, col))
+            .is_some_and(|f| f & FLAG_INVALID == 0)
+    }
+
+    /// Fraction of pixels with valid depth (0 for an empty frame).
+    pub fn valid_fraction(&self) -> f32 {
+        let n = self.flags.len();
+        if n == 0 {
+            return 0.0;
+        }
+        self.flags
+            .iter()
+            .filter(|&&f| f & FLAG_INVALID == 0)
+            .count() as f32
+            / n as f32
+    }
+
+    /// Median of valid `depth_m` (metres) over the whole frame, `None` if nothing is valid.
+    /// Allocates (not for the hot path).
+    pub fn median_valid_depth_m(&self) -> Option<f64> {
+        let mut v: Vec<f32> = self
+            .depth_m
+            .iter()
+            .zip(self.flags.iter())
+            .filter(|(_, f)| **f & FLAG_INVALID == 0)
+            .map(|(d, _)| *d)
+            .collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_unstable_by(f32::total_cmp);
+        let n = v.len();
+        let m = if n % 2 == 1 {
+            v[n / 2] as f64
+        } else {
+            0.5 * (v[n / 2 - 1] as f64 + v[n / 2] as f64)
+        };
+        Some(m)
+    }
+}
+
+/// Constants of the per-pixel kernel.
+#[derive(Debug, Clone, Copy)]
+struct KernelParams {
+    rail_hi: f32,
+    min_amp: f32,
+    lut_scale: f32,
+    rad_to_m: f32,
+}
+
+/// The processing pipeline: owns its calibration tables and output buffers; `process` is
+/// allocation-free.
+#[derive(Debug, Clone)]
+pub struct Pipeline {
+    rows: usize,
+    cols: usize,
+    config: PipelineConfig,
+    calibration: Calibration,
+    params: KernelParams,
+    /// Per-pixel value subtracted from each raw image (dark frame, or mid code).
+    dark: Vec<f32>,
+    /// Per-pixel FPPN phase (zeros when none), wrapped to (−π, π].
+    fppn: Vec<f32>,
+    lut_val: Box<[f32; LUT_BINS]>,
+    lut_slope: Box<[f32; LUT_BINS]>,
+    /// Staging for non-contiguous input (4 × rows × cols).
+    staging: Vec<f32>,
+    frame: DepthFrame,
+    use_avx2: bool,
+}
+
+impl Pipeline {
+    /// Builds a pipeline for `rows × cols` frames. Validates the configuration and that every
+    /// calibration matches (`(rows, cols)` shapes, finite values, LUT for this algorithm).
+    pub fn new(
+        rows: usize,
+        cols: usize,
+        config: PipelineConfig,
+        calibration: Calibration,
+    ) -> Result<Self, CoreError> {
+        config.validate()?;
+        if rows == 0 || cols == 0 {
+            return Err(CoreError::shape(
+                "pipeline frame",
+                "rows ≥ 1 and cols ≥ 1",
+                format!("({rows}, {cols})"),
+            ));
+        }
+        let n = rows.checked_mul(cols).ok_or_else(|| {
+            CoreError::shape(
+                "pipeline frame",
+                "rows × cols to fit in memory",
+                format!("({rows}, {cols})"),
+            )
+        })?;
+        let params = KernelParams {
+            rail_hi: config.max_code(),
+            min_amp: config.min_amplitude_lsb,
+            lut_scale: LUT_BINS as f32 / TAU,
+            rad_to_m: (phasor::unambiguous_range_m(config.modulation_hz) / std::f64::consts::TAU)
+                as f32,
+        };
+        let mut p = Pipeline {
+            rows,
+            cols,
+            config,
+            calibration: Calibration::default(),
+            params,
+            dark: vec![0.0; n],
+            fppn: vec![0.0; n],
+            lut_val: Box::new([0.0; LUT_BINS]),
+            lut_slope: Box::new([0.0; LUT_BINS]),
+            staging: vec![0.0; 4 * n],
+            frame: DepthFrame::zeros(rows, cols),
+            use_avx2: detect_avx2(),
+        };
+        p.set_calibration(calibration)?;
+        Ok(p)
+    }
+
+    /// Replaces the calibration (validated as in [`Pipeline::new`]; on error nothing changes).
+    pub fn set_calibration(&mut self, calibration: Calibration) -> Result<(), CoreError> {
+        let shape = (self.rows, self.cols);
+        let mut dark = vec![self.config.mid_code(); self.rows * self.cols];
+        if let Some(off) = &calibration.offset {
+            if off.dark_lsb.dim() != shape {
+                return Err(CoreError::shape(
+                    "offset calibration (dark_lsb)",
+                    format!("{shape:?}"),
+                    format!("{:?}", off.dark_lsb.dim()),
+                ));
+            }
+            if off.dark_lsb.iter().any(|v| !v.is_finite()) {
+                return Err(CoreError::Calibration(
+                    "offset calibration contains non-finite values".into(),
+                ));
+            }
+            for (d, v) in dark.iter_mut().zip(off.dark_lsb.iter()) {
+                *d = *v;
+            }
+        }
+        let mut fppn = vec![0.0f32; self.rows * self.cols];
+        if let Some(f) = &calibration.fppn {
+            if f.phase_offset_rad.dim() != shape {
+                return Err(CoreError::shape(
+                    "FPPN map (phase_offset_rad)",
+                    format!("{shape:?}"),
+                    format!("{:?}", f.phase_offset_rad.dim()),
+                ));
+            }
+            if f.phase_offset_rad.iter().any(|v| !v.is_finite()) {
+                return Err(CoreError::Calibration(
+                    "FPPN map contains non-finite values".into(),
+                ));
+            }
+            for (d, v) in fppn.iter_mut().zip(f.phase_offset_rad.iter()) {
+                *d = wrap_to_pi(*v as f64) as f32;
+            }
+        }
+        let mut lut_val = Box::new([0.0f32; LUT_BINS]);
+        let mut lut_slope = Box::new([0.0f32; LUT_BINS]);
+        if let Some(w) = &calibration.wiggling {
+            if w.algorithm != self.config.algorithm {
+                return Err(CoreError::Calibration(format!(
+                    "wiggling LUT is for {} but the pipeline runs {}",
+                    w.algorithm, self.config.algorithm
+                )));
+            }
+            w.validate()?;
+            let step = std::f64::consts::TAU / LUT_BINS as f64;
+            let vals: Vec<f64> = (0..LUT_BINS)
+                .map(|j| w.correction_at(j as f64 * step))
+                .collect();
+            for j in 0..LUT_BINS {
+                let v = vals[j];
+                let next = vals[(j + 1) % LUT_BINS];
+                lut_val[j] = wrap_to_pi(v) as f32;
+                lut_slope[j] = wrap_to_pi(next - v) as f32;
+            }
+        }
+        self.dark = dark;
+        self.fppn = fppn;
+        self.lut_val = lut_val;
+        self.lut_slope = lut_slope;
+        self.calibration = calibration;
+        Ok(())
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
+    }
+
+    /// The calibration in use.
+    pub fn calibration(&self) -> &Calibration {
+        &self.calibration
+    }
+
+    /// `(rows, cols)` this pipeline processes.
+    pub fn dim(&self) -> (usize, usize) {
+        (self.rows, self.cols)
+    }
+
+    /// The last processed frame (zeros before the first `process`).
+    pub fn frame(&self) -> &DepthFrame {
+        &self.frame
+    }
+
+    /// Processes one capture `(K, rows, cols)`: the first 2 (2-phase, phases 0°, 90°) or 4
+    /// (4-phase, 0°, 90°, 180°, 270°) images are used, extra images are ignored (so a 4-phase
+    /// capture can be processed as 2-phase). Errors on a shape mismatch; never panics, never
+    /// allocates.
+    pub fn process<T: RawSample>(
+        &mut self,
+        raw: ArrayView3<'_, T>,
+    ) -> Result<&DepthFrame, CoreError> {
+        let need = self.config.algorithm.raw_images();
+        let (k, r, c) = raw.dim();
+        if k < need || r != self.rows || c != self.cols {
+            return Err(CoreError::shape(
+                "raw frames",
+                format!(
+                    "({}{need}, {}, {})",
+                    if k > need { "≥" } else { "" },
+                    self.rows,
+                    self.cols
+                ),
+                format!("({k}, {r}, {c})"),
+            ));
+        }
+        let n = self.rows * self.cols;
+        let contiguous = (0..need).all(|i| raw.index_axis(Axis(0), i).as_slice().is_some());
+        let mut views: [&[T]; 4] = [&[]; 4];
+        if contiguous {
+            for (i, v) in views.iter_mut().enumerate().take(need) {
+                *v = raw.index_axis_move(Axis(0), i).to_slice().unwrap_or(&[]);
+            }
+            self.run(views, need, n);
+        } else {
+            // Non-standard layout: stage as f32 (buffer preallocated in `new`).
+            let staging = &mut self.staging;
+            for i in 0..need {
+                let dst = &mut staging[i * n..(i + 1) * n];
+                for (d, s) in dst.iter_mut().zip(raw.index_axis(Axis(0), i).iter()) {
+                    *d = s.to_f32();
+                }
+            }
+            let st = std::mem::take(&mut self.staging);
+            {
+                let mut sv: [&[f32]; 4] = [&[]; 4];
+                for (i, v) in sv.iter_mut().enumerate().take(need) {
+                    *v = &st[i * n..(i + 1) * n];
+                }
+                self.run(sv, need, n);
+            }
+            self.staging = st;
+        }
+        Ok(&self.frame)
+    }
+
+    fn run<T: RawSample>(&mut self, raw: [&[T]; 4], need: usize, n: usize) {
+        let out = Outputs {
+            phase: self.frame.phase_rad.as_slice_mut().unwrap_or(&mut []),
+            amp: self.frame.amplitude_lsb.as_slice_mut().unwrap_or(&mut []),
+            depth_m: self.frame.depth_m.as_slice_mut().unwrap_or(&mut []),
+            depth_mm: self.frame.depth_mm.as_slice_mut().unwrap_or(&mut []),
+            flags: self.frame.flags.as_slice_mut().unwrap_or(&mut []),
+        };
+        let tabs = Tables {
+            dark: &self.dark,
+            fppn: &self.fppn,
+            lut_val: &self.lut_val,
+            lut_slope: &self.lut_slope,
+        };
+        let p = self.params;
+        let four = need == 4;
+        #[cfg(target_arch = "x86_64")]
+        if self.use_avx2 {
+            // SAFETY: `use_avx2` is only true when the CPU reports AVX2 and FMA at runtime.
+            unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) };
+            return;
+        }
+        kernel_generic(raw, four, n, &p, &tabs, out);
+    }
+}
+
+struct Outputs<'a> {
+    phase: &'a mut [f32],
+    amp: &'a mut [f32],
+    depth_m: &'a mut [f32],
+    depth_mm: &'a mut [u16],
+    flags: &'a mut [u8],
+}
+
+struct Tables<'a> {
+    dark: &'a [f32],
+    fppn: &'a [f32],
+    lut_val: &'a [f32; LUT_BINS],
+    lut_slope: &'a [f32; LUT_BINS],
+}
+
+fn detect_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn kernel_avx2<T: RawSample>(
+    raw: [&[T]; 4],
+    four: bool,
+    n: usize,
+    p: &KernelParams,
+    t: &Tables<'_>,
+    out: Outputs<'_>,
+) {
+    kernel_generic(raw, four, n, p, t, out)
+}
+
+#[inline(always)]
+fn kernel_generic<T: RawSample>(
+    raw: [&[T]; 4],
+    four: bool,
+    n: usize,
+    p: &KernelParams,
+    t: &Tables<'_>,
+    out: Outputs<'_>,
+) {
+    if four {
+        kernel::<T, true>(raw, n, p, t, out)
+    } else {
+        kernel::<T, false>(raw, n, p, t, out)
+    }
+}
+
+/// The per-pixel loop. All slices are re-sliced to `n` up front so the loop has no bounds checks
+/// and no branches (selects only), which lets LLVM vectorise it.
+#[inline(always)]
+fn kernel<T: RawSample, const FOUR: bool>(
+    raw: [&[T]; 4],
+    n: usize,
+    p: &KernelParams,
+    t: &Tables<'_>,
+    out: Outputs<'_>,
+) {
+    let n = n
+        .min(raw[0].len())
+        .min(raw[1].len())
+        .min(t.dark.len())
+        .min(t.fppn.len())
+        .min(out.phase.len())
+        .min(out.amp.len())
+        .min(out.depth_m.len())
+        .min(out.depth_mm.len())
+        .min(out.flags.len());
+    let n = if FOUR {
+        n.min(raw[2].len()).min(raw[3].len())
+    } else {
+        n
+    };
+    let r0 = &raw[0][..n];
+    let r1 = &raw[1][..n];
+    let (r2, r3) = if FOUR {
+        (&raw[2][..n], &raw[3][..n])
+    } else {
+        (r0, r1)
+    };
+    let dark = &t.dark[..n];
+    let fppn = &t.fppn[..n];
+    let phase = &mut out.phase[..n];
+    let amp = &mut out.amp[..n];
+    let depth_m = &mut out.depth_m[..n];
+    let depth_mm = &mut out.depth_mm[..n];
+    let flags = &mut out.flags[..n];
+    let lv = t.lut_val;
+    let ls = t.lut_slope;
+    let rail = p.rail_hi;
+    for i in 0..n {
+        let a0 = r0[i].to_f32();
+        let a1 = r1[i].to_f32();
+        // Saturation and finiteness on the RAW codes (non-short-circuit `|`/`&`: no branches).
+        let mut sat = (a0 <= 0.0) | (a0 >= rail) | (a1 <= 0.0) | (a1 >= rail);
+        let mut finite = a0.is_finite() & a1.is_finite();
+        let (x, y, amp_v);
+        if FOUR {
+            let a2 = r2[i].to_f32();
+            let a3 = r3[i].to_f32();
+            sat = sat | (a2 <= 0.0) | (a2 >= rail) | (a3 <= 0.0) | (a3 >= rail);
+            finite = finite & a2.is_finite() & a3.is_finite();
+            // eq. 2.3: the per-pixel offset cancels in the differences.
+            x = a0 - a2;
+            y = a1 - a3;
+            amp_v = 0.5 * (x * x + y * y).sqrt(); // eq. 2.4
+        } else {
+            // Offset correction (4.3.3.1) then eq. 2.2.
+            x = a0 - dark[i];
+            y = a1 - dark[i];
+            amp_v = (x * x + y * y).sqrt(); // |z|, 2-phase form of eq. 2.4
+        }
+        let m = fast_atan2_f32(y, x); // eq. 2.2 / 2.3, [0, 2π)
+        // Wiggling LUT (3.3.7.2), linear periodic interpolation.
+        let xf = m * p.lut_scale;
+        let xi = xf as i32; // m ≥ 0 so truncation is floor; NaN → 0
+        let fr = xf - xi as f32;
+        let idx = (xi as usize) & (LUT_BINS - 1);
+        let corr = lv[idx] + ls[idx] * fr;
+        // FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
+        let mut ph = m - corr - fppn[i];
+        ph = if ph < 0.0 { ph + TAU } else { ph };
+        ph = if ph < 0.0 { ph + TAU } else { ph };
+        ph = if ph >= TAU { ph - TAU } else { ph };
+        ph = if ph >= TAU { ph - TAU } else { ph };
+        let d = ph * p.rad_to_m; // eq. 2.6
+        let mm_f = d * 1000.0 + 0.5;
+        let in_range = mm_f < 65_535.5; // false for NaN
+        let low = amp_v < p.min_amp;
+        let invalid = sat | low | !finite | !in_range;
+        flags[i] =
+            (sat as u8) | ((low as u8) << 1) | ((invalid as u8) << 2) | ((!finite as u8) << 3);
+        let mm = (mm_f as u32).max(1) as u16; // saturating float→int cast; in range when valid
+        depth_mm[i] = if invalid { 0 } else { mm };
+        depth_m[i] = if invalid { 0.0 } else { d };
+        phase[i] = if finite { ph } else { 0.0 };
+        amp[i] = if finite { amp_v } else { 0.0 };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::{Array3, ShapeBuilder};
+
+    fn synth(phi: f64, amp: f64, rows: usize, cols: usize, phases: &[f64]) -> Array3<f64> {
+        Array3::from_shape_fn((phases.len(), rows, cols), |(k, _, _)| {
+            2048.0 + amp * (phi - phases[k].to_radians()).cos()
+        })
+    }
+
+    #[test]
+    fn ideal_2phase_and_4phase_depth() {
+        for algo in Algorithm::ALL {
+            let cfg = PipelineConfig {
+                algorithm: algo,
+                ..Default::default()
+            };
+            let mut p = Pipeline::new(3, 5, cfg, Calibration::default()).unwrap();
+            for d in [0.1, 0.5, 0.93, 1.5, 1.8] {
+                let phi = phasor::distance_to_phase_rad(d, 80e6);
+                let raw = synth(phi, 800.0, 3, 5, algo.phases_deg());
+                let f = p.process(raw.view()).unwrap();
+                for (&dm, &fl) in f.depth_m.iter().zip(f.flags.iter()) {
+                    assert_eq!(fl, 0);
+                    assert!((dm as f64 - d).abs() < 2e-4, "{algo}: {dm} vs {d}");
+                }
+                let mm = f.depth_mm[(1, 2)] as f64;
+                assert!((mm - d * 1000.0).abs() <= 1.0);
+                assert!((f.amplitude_lsb[(0, 0)] as f64 - 800.0).abs() < 0.5);
+            }
+        }
+    }
+
+    #[test]
+    fn u16_f32_f64_and_noncontiguous_agree() {
+        let cfg = PipelineConfig::default();
+        let mut p = Pipeline::new(4, 6, cfg, Calibration::default()).unwrap();
+        let phi = 2.2;
+        let raw = synth(phi, 700.0, 4, 6, &[0.0, 90.0]).mapv(|v| v.round());
+        let a = p.process(raw.view()).unwrap().clone();
+        let b = p.process(raw.mapv(|v| v as u16).view()).unwrap().clone();
+        let c = p.process(raw.mapv(|v| v as f32).view()).unwrap().clone();
+        assert_eq!(a, b);
+        assert_eq!(a, c);
+        // Fortran-order (non-contiguous per image) input goes through the staging path.
+        let mut f = Array3::<f64>::zeros((2, 4, 6).f());
+        f.assign(&raw);
+        let d = p.process(f.view()).unwrap().clone();
+        assert_eq!(a, d);
+    }
+
+    #[test]
+    fn validity_flags() {
+        let cfg = PipelineConfig {
+            min_amplitude_lsb: 50.0,
+            ..Default::default()
+        };
+        let mut p = Pipeline::new(1, 5, cfg, Calibration::default()).unwrap();
+        let mut raw = Array3::<f64>::from_elem((2, 1, 5), 2048.0 + 300.0);
+        raw[(0, 0, 0)] = 4095.0; // saturated high
+        raw[(1, 0, 1)] = 0.0; // saturated low
+        raw[(0, 0, 2)] = f64::NAN;
+        raw[(0, 0, 3)] = 2048.0; // low amplitude
+        raw[(1, 0, 3)] = 2050.0;
+        let f = p.process(raw.view()).unwrap();
+        assert_eq!(f.flags[(0, 0)], FLAG_SATURATED | FLAG_INVALID);
+        assert_eq!(f.flags[(0, 1)], FLAG_SATURATED | FLAG_INVALID);
+        assert_ne!(f.flags[(0, 2)] & (FLAG_NON_FINITE | FLAG_INVALID), 0);
+        assert_eq!(f.flags[(0, 3)], FLAG_LOW_AMPLITUDE | FLAG_INVALID);
+        assert_eq!(f.flags[(0, 4)], 0);
+        for i in 0..4 {
+            assert_eq!(f.depth_mm[(0, i)], 0);
+            assert_eq!(f.depth_m[(0, i)], 0.0);
+        }
+        assert!(f.depth_m.iter().all(|v| v.is_finite()));
+        assert!(f.depth_mm[(0, 4)] > 0);
+    }
+
+    #[test]
+    fn shape_errors_not_panics() {
+        let cfg = PipelineConfig {
+            algorithm: Algorithm::FourPhase,
+            ..Default::default()
+        };
+        let mut p = Pipeline::new(2, 2, cfg, Calibration::default()).unwrap();
+        assert!(matches!(
+            p.process(Array3::<u16>::zeros((2, 2, 2)).view()),
+            Err(CoreError::ShapeMismatch { .. })
+        ));
+        assert!(p.process(Array3::<u16>::zeros((4, 3, 2)).view()).is_err());
+        assert!(p.process(Array3::<u16>::zeros((0, 0, 0)).view()).is_err());
+        let bad = Calibration {
+            offset: Some(OffsetCalibration {
+                dark_lsb: Array2::zeros((3, 3)),
+            }),
+            ..Default::default()
+        };
+        assert!(Pipeline::new(2, 2, cfg, bad).is_err());
+        assert!(Pipeline::new(0, 2, cfg, Calibration::default()).is_err());
+        let bad_cfg = PipelineConfig {
+            modulation_hz: f64::NAN,
+            ..cfg
+        };
+        assert!(Pipeline::new(2, 2, bad_cfg, Calibration::default()).is_err());
+        let wrong_algo = Calibration {
+            wiggling: Some(WigglingLut {
+                algorithm: Algorithm::TwoPhase,
+                correction_rad: ndarray::Array1::zeros(16),
+            }),
+            ..Default::default()
+        };
+        assert!(Pipeline::new(2, 2, cfg, wrong_algo).is_err());
+    }
+}
