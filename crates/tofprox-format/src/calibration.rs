@@ -1,0 +1,913 @@
+//! Calibration sets: `CALIB/calibration.toml` + one `.npy` array per part,
+//! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
+//!
+//! Parts and their dependencies (thesis order of application, 4.3.3):
+//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map.
+//! Each dependent part records the checksum of the parts it was extracted
+//! with; loading refuses a set whose parts do not fit together, and
+//! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
+//! parts that were derived from what they replace.
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use ndarray::{Array1, Array2, Ix1, Ix2};
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use tofprox_core::Algorithm;
+use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use tofprox_core::pipeline::Calibration;
+
+use crate::error::{ErrorKind, FormatError, from_toml, invalid};
+use crate::fsutil;
+use crate::npy::{self, NpyArray, shape_str};
+use crate::recording::SensorInfo;
+
+/// `format` value of a calibration set.
+pub const CALIBRATION_FORMAT: &str = "tofprox-calibration";
+/// The calibration format version this crate reads and writes.
+pub const CALIBRATION_VERSION: i64 = 1;
+/// File name of the calibration header.
+pub const CALIBRATION_TOML: &str = "calibration.toml";
+
+/// One part of a calibration set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum CalibPart {
+    /// Per-pixel dark frame (FPN).
+    Offset,
+    /// Wiggling LUT for 2-phase evaluation.
+    Wiggling2Phase,
+    /// Wiggling LUT for 4-phase evaluation.
+    Wiggling4Phase,
+    /// Per-pixel phase offsets (FPPN).
+    Fppn,
+}
+
+impl CalibPart {
+    /// All parts, in order of application.
+    pub const ALL: [CalibPart; 4] = [
+        CalibPart::Offset,
+        CalibPart::Wiggling2Phase,
+        CalibPart::Wiggling4Phase,
+        CalibPart::Fppn,
+    ];
+    /// The table name in `calibration.toml` (also the array's file stem).
+    pub fn name(self) -> &'static str {
+        match self {
+            CalibPart::Offset => "offset",
+            CalibPart::Wiggling2Phase => "wiggling_2phase",
+            CalibPart::Wiggling4Phase => "wiggling_4phase",
+            CalibPart::Fppn => "fppn",
+        }
+    }
+    /// The array file name.
+    pub fn file_name(self) -> String {
+        format!("{}.npy", self.name())
+    }
+    /// The wiggling part for an algorithm.
+    pub fn wiggling(algorithm: Algorithm) -> CalibPart {
+        match algorithm {
+            Algorithm::TwoPhase => CalibPart::Wiggling2Phase,
+            Algorithm::FourPhase => CalibPart::Wiggling4Phase,
+        }
+    }
+}
+
+impl fmt::Display for CalibPart {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What a calibration set is valid for: the sensor setup and window it was
+/// extracted on. Applying it to anything else is refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationValidity {
+    /// Modulation frequency the wiggling/FPPN tables belong to.
+    pub modulation_hz: f64,
+    /// ADC resolution (offsets are in codes of this ADC).
+    pub adc_bits: u8,
+    /// Window rows.
+    pub rows: usize,
+    /// Window columns.
+    pub cols: usize,
+    /// (row, col) of the window on the full array.
+    pub roi_origin: [usize; 2],
+    /// Full array rows.
+    pub full_rows: usize,
+    /// Full array columns.
+    pub full_cols: usize,
+}
+
+impl CalibrationValidity {
+    /// The validity of a calibration extracted from a recording of `sensor`.
+    pub fn from_sensor(s: &SensorInfo) -> Self {
+        CalibrationValidity {
+            modulation_hz: s.modulation_hz,
+            adc_bits: s.adc_bits,
+            rows: s.rows,
+            cols: s.cols,
+            roi_origin: s.roi_origin,
+            full_rows: s.full_rows,
+            full_cols: s.full_cols,
+        }
+    }
+}
+
+/// Where a part came from.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct PartSource {
+    /// The recording directory it was extracted from (as given on the command line).
+    pub recording: String,
+    /// That recording's description.
+    pub recording_description: Option<String>,
+    /// Indices of the captures used.
+    pub captures: Vec<usize>,
+    /// Ground-truth distance of the capture used (wiggling, FPPN).
+    pub distance_m: Option<f64>,
+    /// When it was extracted (RFC 3339, UTC).
+    pub created: String,
+    /// Program and version that extracted it.
+    pub tool: String,
+}
+
+/// A loaded (or being built) calibration set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CalibrationSet {
+    /// Per-pixel dark frame.
+    pub offset: Option<OffsetCalibration>,
+    /// 2-phase wiggling LUT.
+    pub wiggling_2phase: Option<WigglingLut>,
+    /// 4-phase wiggling LUT.
+    pub wiggling_4phase: Option<WigglingLut>,
+    /// FPPN map (extracted with 4-phase evaluation, applied to both algorithms).
+    pub fppn: Option<FppnMap>,
+    /// What the set is valid for.
+    pub validity: CalibrationValidity,
+    /// Provenance of each present part.
+    pub sources: BTreeMap<CalibPart, PartSource>,
+    /// Free text.
+    pub description: Option<String>,
+    /// The directory it was loaded from, if any.
+    pub dir: Option<PathBuf>,
+    deps: BTreeMap<CalibPart, Deps>,
+}
+
+/// Checksums of the parts a part was extracted with ("none" when absent).
+#[derive(Debug, Clone, PartialEq, Default)]
+struct Deps {
+    offset: Option<String>,
+    wiggling: Option<String>,
+}
+
+// ---------------------------------------------------------------- TOML schema
+
+#[derive(Debug, Deserialize)]
+struct Header {
+    format: Option<toml::Value>,
+    version: Option<toml::Value>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CalibToml {
+    format: String,
+    version: i64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    description: Option<String>,
+    /// Last time the set was written (RFC 3339).
+    updated: String,
+    valid_for: CalibrationValidity,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    offset: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    wiggling_2phase: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    wiggling_4phase: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fppn: Option<PartToml>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PartToml {
+    file: String,
+    sha256: String,
+    /// Array shape, for humans and checked on load.
+    shape: Vec<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    algorithm: Option<Algorithm>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    lut_size: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    distance_m: Option<f64>,
+    /// sha256 of the offset array this part was extracted with, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    offset_sha256: Option<String>,
+    /// sha256 of the wiggling array this part was extracted with, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    wiggling_sha256: Option<String>,
+    source_recording: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    source_description: Option<String>,
+    source_captures: Vec<usize>,
+    created: String,
+    tool: String,
+}
+
+const NONE: &str = "none";
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    let d = Sha256::digest(bytes);
+    d.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Current UTC time as RFC 3339 (`2026-11-21T05:30:00Z`).
+pub fn now_rfc3339() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs())
+        .unwrap_or(0);
+    rfc3339_from_unix(secs)
+}
+
+/// Format seconds since the Unix epoch as RFC 3339 UTC.
+pub fn rfc3339_from_unix(secs: u64) -> String {
+    // days-from-civil inverse (H. Hinnant's algorithm, public domain)
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let y = yoe + era * 400;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = if m <= 2 { y + 1 } else { y };
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        (rem % 3600) / 60,
+        rem % 60
+    )
+}
+
+impl CalibrationSet {
+    /// An empty set for data of `sensor`.
+    pub fn new(sensor: &SensorInfo) -> Self {
+        CalibrationSet {
+            offset: None,
+            wiggling_2phase: None,
+            wiggling_4phase: None,
+            fppn: None,
+            validity: CalibrationValidity::from_sensor(sensor),
+            sources: BTreeMap::new(),
+            description: None,
+            dir: None,
+            deps: BTreeMap::new(),
+        }
+    }
+
+    /// The wiggling LUT for an algorithm.
+    pub fn wiggling(&self, algorithm: Algorithm) -> Option<&WigglingLut> {
+        match algorithm {
+            Algorithm::TwoPhase => self.wiggling_2phase.as_ref(),
+            Algorithm::FourPhase => self.wiggling_4phase.as_ref(),
+        }
+    }
+
+    /// Which parts are present.
+    pub fn parts(&self) -> Vec<CalibPart> {
+        CalibPart::ALL
+            .into_iter()
+            .filter(|p| self.has(*p))
+            .collect()
+    }
+
+    /// Whether a part is present.
+    pub fn has(&self, part: CalibPart) -> bool {
+        match part {
+            CalibPart::Offset => self.offset.is_some(),
+            CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
+            CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
+            CalibPart::Fppn => self.fppn.is_some(),
+        }
+    }
+
+    fn part_bytes(&self, part: CalibPart) -> Option<Vec<u8>> {
+        match part {
+            CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
+            CalibPart::Wiggling2Phase => self
+                .wiggling_2phase
+                .as_ref()
+                .map(|w| npy::encode_f32(&w.correction_rad)),
+            CalibPart::Wiggling4Phase => self
+                .wiggling_4phase
+                .as_ref()
+                .map(|w| npy::encode_f32(&w.correction_rad)),
+            CalibPart::Fppn => self
+                .fppn
+                .as_ref()
+                .map(|f| npy::encode_f32(&f.phase_offset_rad)),
+        }
+    }
+
+    /// SHA-256 (hex) of a part's array file as it would be saved.
+    pub fn checksum(&self, part: CalibPart) -> Option<String> {
+        self.part_bytes(part).map(|b| sha256_hex(&b))
+    }
+
+    fn checksum_or_none(&self, part: CalibPart) -> String {
+        self.checksum(part).unwrap_or_else(|| NONE.to_string())
+    }
+
+    fn remove(&mut self, part: CalibPart) {
+        match part {
+            CalibPart::Offset => self.offset = None,
+            CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
+            CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
+            CalibPart::Fppn => self.fppn = None,
+        }
+        self.sources.remove(&part);
+        self.deps.remove(&part);
+    }
+
+    /// Parts whose recorded dependencies no longer match the set.
+    pub fn stale_parts(&self) -> Vec<CalibPart> {
+        let mut out = Vec::new();
+        let off = self.checksum_or_none(CalibPart::Offset);
+        for part in [
+            CalibPart::Wiggling2Phase,
+            CalibPart::Wiggling4Phase,
+            CalibPart::Fppn,
+        ] {
+            if !self.has(part) {
+                continue;
+            }
+            let Some(d) = self.deps.get(&part) else {
+                continue;
+            };
+            if d.offset.as_deref().is_some_and(|o| o != off) {
+                out.push(part);
+                continue;
+            }
+            if part == CalibPart::Fppn {
+                let w = self.checksum_or_none(CalibPart::Wiggling4Phase);
+                if d.wiggling.as_deref().is_some_and(|x| x != w) {
+                    out.push(part);
+                }
+            }
+        }
+        out
+    }
+
+    /// Remove parts that were extracted with a different version of the
+    /// parts they depend on; returns what was dropped.
+    fn drop_stale(&mut self) -> Vec<CalibPart> {
+        let mut dropped = Vec::new();
+        loop {
+            let stale = self.stale_parts();
+            if stale.is_empty() {
+                return dropped;
+            }
+            for p in stale {
+                self.remove(p);
+                dropped.push(p);
+            }
+        }
+    }
+
+    /// Set (or replace) the offset. Returns the parts dropped because they
+    /// were extracted with the previous offset.
+    pub fn set_offset(
+        &mut self,
+        offset: OffsetCalibration,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        self.check_map_shape(&offset.dark_lsb, "offset")?;
+        if let Some((r, c)) = first_non_finite(&offset.dark_lsb) {
+            return Err(
+                invalid(format!("dark level at (row {r}, col {c}) is not finite")).key("offset"),
+            );
+        }
+        self.offset = Some(offset);
+        self.sources.insert(CalibPart::Offset, source);
+        self.deps.insert(CalibPart::Offset, Deps::default());
+        Ok(self.drop_stale())
+    }
+
+    /// Set (or replace) the wiggling LUT of `lut.algorithm`, recording the
+    /// current offset as its dependency. Returns the parts dropped.
+    pub fn set_wiggling(
+        &mut self,
+        lut: WigglingLut,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let part = CalibPart::wiggling(lut.algorithm);
+        lut.validate()
+            .map_err(|e| invalid(e.to_string()).key(part.name()))?;
+        let deps = Deps {
+            offset: Some(self.checksum_or_none(CalibPart::Offset)),
+            wiggling: None,
+        };
+        match lut.algorithm {
+            Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
+            Algorithm::FourPhase => self.wiggling_4phase = Some(lut),
+        }
+        self.sources.insert(part, source);
+        self.deps.insert(part, deps);
+        Ok(self.drop_stale())
+    }
+
+    /// Set (or replace) the FPPN map, recording the current offset and
+    /// 4-phase wiggling LUT as its dependencies.
+    pub fn set_fppn(
+        &mut self,
+        fppn: FppnMap,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        self.check_map_shape(&fppn.phase_offset_rad, "fppn")?;
+        if let Some((r, c)) = first_non_finite(&fppn.phase_offset_rad) {
+            return Err(
+                invalid(format!("phase offset at (row {r}, col {c}) is not finite")).key("fppn"),
+            );
+        }
+        let deps = Deps {
+            offset: Some(self.checksum_or_none(CalibPart::Offset)),
+            wiggling: Some(self.checksum_or_none(CalibPart::Wiggling4Phase)),
+        };
+        self.fppn = Some(fppn);
+        self.sources.insert(CalibPart::Fppn, source);
+        self.deps.insert(CalibPart::Fppn, deps);
+        Ok(self.drop_stale())
+    }
+
+    fn check_map_shape(&self, a: &Array2<f32>, key: &str) -> Result<(), FormatError> {
+        let want = (self.validity.rows, self.validity.cols);
+        if a.dim() != want {
+            return Err(invalid(format!(
+                "map is {}×{} but the set is for a {}×{} window",
+                a.nrows(),
+                a.ncols(),
+                want.0,
+                want.1
+            ))
+            .key(key.to_string()));
+        }
+        Ok(())
+    }
+
+    /// Refuse to apply this set to data of another sensor setup.
+    pub fn check_compatible(&self, sensor: &SensorInfo) -> Result<(), FormatError> {
+        let v = &self.validity;
+        let mut problems = Vec::new();
+        let rel =
+            (v.modulation_hz - sensor.modulation_hz).abs() / sensor.modulation_hz.abs().max(1.0);
+        if rel.is_nan() || rel > 1e-9 {
+            problems.push(format!(
+                "modulation_hz: calibration is for {} Hz, the data is {} Hz",
+                v.modulation_hz, sensor.modulation_hz
+            ));
+        }
+        if v.adc_bits != sensor.adc_bits {
+            problems.push(format!(
+                "adc_bits: calibration is for {} bit, the data is {} bit",
+                v.adc_bits, sensor.adc_bits
+            ));
+        }
+        if (v.rows, v.cols) != (sensor.rows, sensor.cols) {
+            problems.push(format!(
+                "window size: calibration is for {}×{} pixels, the data is {}×{}",
+                v.rows, v.cols, sensor.rows, sensor.cols
+            ));
+        }
+        if v.roi_origin != sensor.roi_origin {
+            problems.push(format!(
+                "roi_origin: calibration is for a window at {:?}, the data's window is at {:?}",
+                v.roi_origin, sensor.roi_origin
+            ));
+        }
+        if (v.full_rows, v.full_cols) != (sensor.full_rows, sensor.full_cols) {
+            problems.push(format!(
+                "full array: calibration is for {}×{}, the data is from a {}×{} array",
+                v.full_rows, v.full_cols, sensor.full_rows, sensor.full_cols
+            ));
+        }
+        if problems.is_empty() {
+            return Ok(());
+        }
+        let mut e = FormatError::new(
+            ErrorKind::Incompatible,
+            format!("calibration does not fit the data: {}", problems.join("; ")),
+        )
+        .key("valid_for");
+        if let Some(d) = &self.dir {
+            e = e.at(&d.join(CALIBRATION_TOML));
+        }
+        Err(e)
+    }
+
+    /// The calibration the pipeline applies for `algorithm`.
+    pub fn to_pipeline_calibration(&self, algorithm: Algorithm) -> Calibration {
+        Calibration {
+            offset: self.offset.clone(),
+            wiggling: self.wiggling(algorithm).cloned(),
+            fppn: self.fppn.clone(),
+        }
+    }
+
+    // ------------------------------------------------------------ save
+
+    /// Write the set to `dir` (created if needed): every array via a
+    /// temporary file + fsync + rename, then `calibration.toml` the same way,
+    /// then arrays of parts no longer present are removed.
+    pub fn save(&self, dir: &Path) -> Result<(), FormatError> {
+        fs::create_dir_all(dir).map_err(|e| FormatError::io(dir, "cannot create directory", e))?;
+        let stale = self.stale_parts();
+        if let Some(p) = stale.first() {
+            return Err(invalid(format!(
+                "{p} was extracted with other versions of the parts it depends on"
+            ))
+            .key(p.name()));
+        }
+        let mut t = CalibToml {
+            format: CALIBRATION_FORMAT.into(),
+            version: CALIBRATION_VERSION,
+            description: self.description.clone(),
+            updated: now_rfc3339(),
+            valid_for: self.validity.clone(),
+            offset: None,
+            wiggling_2phase: None,
+            wiggling_4phase: None,
+            fppn: None,
+        };
+        for part in CalibPart::ALL {
+            let Some(bytes) = self.part_bytes(part) else {
+                continue;
+            };
+            let file = part.file_name();
+            fsutil::write_atomic(&dir.join(&file), &bytes)?;
+            let src = self.sources.get(&part).cloned().unwrap_or_default();
+            let deps = self.deps.get(&part).cloned().unwrap_or_default();
+            let (shape, algorithm, lut_size) = match part {
+                CalibPart::Offset => (
+                    self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
+                    None,
+                    None,
+                ),
+                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+                    let w = match part {
+                        CalibPart::Wiggling2Phase => self.wiggling_2phase.as_ref(),
+                        _ => self.wiggling_4phase.as_ref(),
+                    };
+                    (
+                        w.map(|w| vec![w.len()]),
+                        w.map(|w| w.algorithm),
+                        w.map(|w| w.len()),
+                    )
+                }
+                CalibPart::Fppn => (
+                    self.fppn
+                        .as_ref()
+                        .map(|f| f.phase_offset_rad.shape().to_vec()),
+                    Some(Algorithm::FourPhase),
+                    None,
+                ),
+            };
+            let pt = PartToml {
+                file,
+                sha256: sha256_hex(&bytes),
+                shape: shape.unwrap_or_default(),
+                algorithm,
+                lut_size,
+                distance_m: src.distance_m,
+                offset_sha256: deps.offset,
+                wiggling_sha256: deps.wiggling,
+                source_recording: src.recording,
+                source_description: src.recording_description,
+                source_captures: src.captures,
+                created: src.created,
+                tool: src.tool,
+            };
+            match part {
+                CalibPart::Offset => t.offset = Some(pt),
+                CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
+                CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
+                CalibPart::Fppn => t.fppn = Some(pt),
+            }
+        }
+        let path = dir.join(CALIBRATION_TOML);
+        let text =
+            toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise: {e}")).at(&path))?;
+        fsutil::write_atomic(&path, text.as_bytes())?;
+        for part in CalibPart::ALL {
+            if !self.has(part) {
+                let _ = fs::remove_file(dir.join(part.file_name()));
+            }
+        }
+        Ok(())
+    }
+
+    // ------------------------------------------------------------ load
+
+    /// Load a calibration set and verify it: format and version, every key,
+    /// each array's SHA-256, dtype and shape, finite values, and that the
+    /// parts were extracted with each other.
+    pub fn load(dir: &Path) -> Result<Self, FormatError> {
+        let path = dir.join(CALIBRATION_TOML);
+        if !dir.is_dir() {
+            return Err(FormatError::new(
+                ErrorKind::Io,
+                "is not a directory (a calibration set is a directory with calibration.toml)",
+            )
+            .at(dir));
+        }
+        let text =
+            fs::read_to_string(&path).map_err(|e| FormatError::io(&path, "cannot read", e))?;
+        check_header(&path, &text)?;
+        let t: CalibToml = toml::from_str(&text).map_err(|e| from_toml(&path, &text, &e))?;
+        let v = &t.valid_for;
+        let sensor = SensorInfo {
+            rows: v.rows,
+            cols: v.cols,
+            roi_origin: v.roi_origin,
+            full_rows: v.full_rows,
+            full_cols: v.full_cols,
+            adc_bits: v.adc_bits,
+            modulation_hz: v.modulation_hz,
+        };
+        sensor.validate().map_err(|e| {
+            let k = e.key_name().unwrap_or("").replace("sensor.", "valid_for.");
+            e.at(&path).key(k)
+        })?;
+        let mut set = CalibrationSet::new(&sensor);
+        set.description = t.description.clone();
+        set.dir = Some(dir.to_path_buf());
+        let parts = [
+            (CalibPart::Offset, &t.offset),
+            (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
+            (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
+            (CalibPart::Fppn, &t.fppn),
+        ];
+        for (part, pt) in parts {
+            let Some(pt) = pt else { continue };
+            let arr = load_part(dir, &path, part, pt, &sensor)?;
+            let key = part.name();
+            let k = |sub: &str| format!("{key}.{sub}");
+            match (part, arr) {
+                (CalibPart::Offset, LoadedArray::Map(a)) => {
+                    set.offset = Some(OffsetCalibration { dark_lsb: a })
+                }
+                (CalibPart::Fppn, LoadedArray::Map(a)) => {
+                    if pt.algorithm.is_some_and(|a| a != Algorithm::FourPhase) {
+                        return Err(invalid("FPPN maps are extracted with 4-phase evaluation")
+                            .at(&path)
+                            .key(k("algorithm")));
+                    }
+                    set.fppn = Some(FppnMap {
+                        phase_offset_rad: a,
+                    })
+                }
+                (CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase, LoadedArray::Lut(a)) => {
+                    let want = if part == CalibPart::Wiggling2Phase {
+                        Algorithm::TwoPhase
+                    } else {
+                        Algorithm::FourPhase
+                    };
+                    match pt.algorithm {
+                        Some(alg) if alg == want => {}
+                        Some(alg) => {
+                            return Err(invalid(format!("is \"{alg}\" but the table is [{key}]"))
+                                .at(&path)
+                                .key(k("algorithm")));
+                        }
+                        None => {
+                            return Err(FormatError::new(
+                                ErrorKind::MissingKey,
+                                "missing (\"2phase\" or \"4phase\")",
+                            )
+                            .at(&path)
+                            .key(k("algorithm")));
+                        }
+                    }
+                    match pt.lut_size {
+                        Some(n) if n == a.len() => {}
+                        Some(n) => {
+                            return Err(invalid(format!(
+                                "is {n} but {} holds {} bins",
+                                pt.file,
+                                a.len()
+                            ))
+                            .at(&path)
+                            .key(k("lut_size")));
+                        }
+                        None => {
+                            return Err(FormatError::new(ErrorKind::MissingKey, "missing")
+                                .at(&path)
+                                .key(k("lut_size")));
+                        }
+                    }
+                    let lut = WigglingLut {
+                        algorithm: want,
+                        correction_rad: a,
+                    };
+                    lut.validate()
+                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
+                    match want {
+                        Algorithm::TwoPhase => set.wiggling_2phase = Some(lut),
+                        Algorithm::FourPhase => set.wiggling_4phase = Some(lut),
+                    }
+                }
+                _ => return Err(invalid("internal: array kind mismatch").at(&path).key(key)),
+            }
+            set.sources.insert(
+                part,
+                PartSource {
+                    recording: pt.source_recording.clone(),
+                    recording_description: pt.source_description.clone(),
+                    captures: pt.source_captures.clone(),
+                    distance_m: pt.distance_m,
+                    created: pt.created.clone(),
+                    tool: pt.tool.clone(),
+                },
+            );
+            set.deps.insert(
+                part,
+                Deps {
+                    offset: pt.offset_sha256.clone(),
+                    wiggling: pt.wiggling_sha256.clone(),
+                },
+            );
+        }
+        if let Some(p) = set.stale_parts().first() {
+            return Err(invalid(format!(
+                "[{p}] was extracted with a different {} than the one in this set; re-run `tofprox calibrate` for it",
+                if set.deps.get(p).and_then(|d| d.offset.as_deref())
+                    != Some(set.checksum_or_none(CalibPart::Offset).as_str())
+                {
+                    "offset"
+                } else {
+                    "4-phase wiggling table"
+                }
+            ))
+            .at(&path)
+            .key(p.name()));
+        }
+        Ok(set)
+    }
+}
+
+enum LoadedArray {
+    Map(Array2<f32>),
+    Lut(Array1<f32>),
+}
+
+fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
+    let header: Header = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    match &header.format {
+        None => {
+            return Err(FormatError::new(
+                ErrorKind::MissingKey,
+                format!("missing; a calibration set starts with format = \"{CALIBRATION_FORMAT}\""),
+            )
+            .at(path)
+            .key("format"));
+        }
+        Some(toml::Value::String(s)) if s == CALIBRATION_FORMAT => {}
+        Some(v) => {
+            return Err(FormatError::new(
+                ErrorKind::Unsupported,
+                format!("{v} is not a tofprox calibration set (expected \"{CALIBRATION_FORMAT}\")"),
+            )
+            .at(path)
+            .key("format"));
+        }
+    }
+    match &header.version {
+        None => Err(FormatError::new(ErrorKind::MissingKey, "missing (expected 1)")
+            .at(path)
+            .key("version")),
+        Some(toml::Value::Integer(CALIBRATION_VERSION)) => Ok(()),
+        Some(v) => Err(FormatError::new(
+            ErrorKind::Unsupported,
+            format!("calibration format version {v} is not supported (this tofprox reads version {CALIBRATION_VERSION})"),
+        )
+        .at(path)
+        .key("version")),
+    }
+}
+
+fn load_part(
+    dir: &Path,
+    toml_path: &Path,
+    part: CalibPart,
+    pt: &PartToml,
+    sensor: &SensorInfo,
+) -> Result<LoadedArray, FormatError> {
+    let key = part.name();
+    if pt.file != part.file_name() {
+        return Err(
+            invalid(format!("\"{}\" must be \"{}\"", pt.file, part.file_name()))
+                .at(toml_path)
+                .key(format!("{key}.file")),
+        );
+    }
+    let file = dir.join(&pt.file);
+    let bytes = fs::read(&file).map_err(|e| FormatError::io(&file, "cannot read", e).key(key))?;
+    let sum = sha256_hex(&bytes);
+    if !sum.eq_ignore_ascii_case(pt.sha256.trim()) {
+        return Err(FormatError::new(
+            ErrorKind::Checksum,
+            format!(
+                "SHA-256 mismatch: the file's is {sum}, {CALIBRATION_TOML} records {} — the array was modified or damaged; re-create the calibration",
+                pt.sha256
+            ),
+        )
+        .at(&file)
+        .key(format!("{key}.sha256")));
+    }
+    let arr = npy::decode(&bytes).map_err(|e| e.at(&file).key(key))?;
+    let NpyArray::F32(a) = arr else {
+        return Err(
+            FormatError::new(ErrorKind::Npy, "calibration arrays must be float32 ('<f4')")
+                .at(&file)
+                .key(key),
+        );
+    };
+    if a.shape() != pt.shape.as_slice() {
+        return Err(invalid(format!(
+            "{} records shape {} but the file holds {}",
+            CALIBRATION_TOML,
+            shape_str(&pt.shape),
+            shape_str(a.shape())
+        ))
+        .at(&file)
+        .key(format!("{key}.shape")));
+    }
+    if let Some(i) = a.iter().position(|v| !v.is_finite()) {
+        return Err(invalid(format!("element {i} is not finite"))
+            .at(&file)
+            .key(key));
+    }
+    match part {
+        CalibPart::Offset | CalibPart::Fppn => {
+            let a = a.into_dimensionality::<Ix2>().map_err(|_| {
+                invalid(format!(
+                    "expected a (rows, cols) = ({}, {}) map, found shape {}",
+                    sensor.rows,
+                    sensor.cols,
+                    shape_str(&pt.shape)
+                ))
+                .at(&file)
+                .key(key)
+            })?;
+            if a.dim() != (sensor.rows, sensor.cols) {
+                return Err(invalid(format!(
+                    "map is {}×{} but valid_for says the window is {}×{}",
+                    a.nrows(),
+                    a.ncols(),
+                    sensor.rows,
+                    sensor.cols
+                ))
+                .at(&file)
+                .key(key));
+            }
+            if part == CalibPart::Offset {
+                let max = sensor.max_code() as f32;
+                if let Some(v) = a.iter().find(|v| !(0.0..=max).contains(*v)) {
+                    return Err(invalid(format!(
+                        "dark level {v} is outside the ADC range 0..={max}"
+                    ))
+                    .at(&file)
+                    .key(key));
+                }
+            }
+            Ok(LoadedArray::Map(a))
+        }
+        CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+            let a = a.into_dimensionality::<Ix1>().map_err(|_| {
+                invalid(format!(
+                    "expected a 1-dimensional table, found shape {}",
+                    shape_str(&pt.shape)
+                ))
+                .at(&file)
+                .key(key)
+            })?;
+            Ok(LoadedArray::Lut(a))
+        }
+    }
+}
+
+fn first_non_finite(a: &Array2<f32>) -> Option<(usize, usize)> {
+    a.indexed_iter()
+        .find(|(_, v)| !v.is_finite())
+        .map(|(i, _)| i)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,268 @@
+use super::*;
+use ndarray::Array2;
+
+fn sensor() -> SensorInfo {
+    SensorInfo {
+        rows: 3,
+        cols: 4,
+        roi_origin: [5, 6],
+        full_rows: 172,
+        full_cols: 224,
+        adc_bits: 12,
+        modulation_hz: 80e6,
+    }
+}
+
+fn src(name: &str) -> PartSource {
+    PartSource {
+        recording: name.into(),
+        recording_description: Some("desc".into()),
+        captures: vec![0, 2],
+        distance_m: Some(0.5),
+        created: now_rfc3339(),
+        tool: "test".into(),
+    }
+}
+
+fn offset(v: f32) -> OffsetCalibration {
+    OffsetCalibration {
+        dark_lsb: Array2::from_shape_fn((3, 4), |(r, c)| v + (r * 4 + c) as f32),
+    }
+}
+
+fn lut(alg: Algorithm, n: usize, scale: f32) -> WigglingLut {
+    WigglingLut {
+        algorithm: alg,
+        correction_rad: Array1::from_shape_fn(n, |i| scale * (i as f32 * 0.1).sin() + 0.3),
+    }
+}
+
+fn fppn() -> FppnMap {
+    FppnMap {
+        phase_offset_rad: Array2::from_shape_fn((3, 4), |(r, c)| 0.01 * (r as f32 - c as f32)),
+    }
+}
+
+fn full_set() -> CalibrationSet {
+    let mut s = CalibrationSet::new(&sensor());
+    assert!(
+        s.set_offset(offset(2000.0), src("dark"))
+            .unwrap()
+            .is_empty()
+    );
+    s.set_wiggling(lut(Algorithm::TwoPhase, 64, 0.05), src("corr"))
+        .unwrap();
+    s.set_wiggling(lut(Algorithm::FourPhase, 64, 0.02), src("corr"))
+        .unwrap();
+    s.set_fppn(fppn(), src("flat")).unwrap();
+    s
+}
+
+#[test]
+fn save_load_roundtrip() {
+    let t = tempfile::tempdir().unwrap();
+    let s = full_set();
+    s.save(t.path()).unwrap();
+    let l = CalibrationSet::load(t.path()).unwrap();
+    assert_eq!(l.offset, s.offset);
+    assert_eq!(l.wiggling_2phase, s.wiggling_2phase);
+    assert_eq!(l.wiggling_4phase, s.wiggling_4phase);
+    assert_eq!(l.fppn, s.fppn);
+    assert_eq!(l.validity, s.validity);
+    assert_eq!(l.sources[&CalibPart::Fppn].captures, vec![0, 2]);
+    assert_eq!(l.sources[&CalibPart::Wiggling2Phase].distance_m, Some(0.5));
+    assert_eq!(l.parts(), CalibPart::ALL.to_vec());
+    let c = l.to_pipeline_calibration(Algorithm::TwoPhase);
+    assert_eq!(c.wiggling.unwrap().algorithm, Algorithm::TwoPhase);
+    assert!(c.offset.is_some() && c.fppn.is_some());
+    let text = fs::read_to_string(t.path().join(CALIBRATION_TOML)).unwrap();
+    assert!(text.contains("sha256"), "{text}");
+    assert!(text.contains("lut_size = 64"), "{text}");
+}
+
+#[test]
+fn replacing_a_part_drops_what_depended_on_it() {
+    let mut s = full_set();
+    // a new 2-phase table does not touch the FPPN map (extracted with 4-phase)
+    assert!(
+        s.set_wiggling(lut(Algorithm::TwoPhase, 32, 0.04), src("c2"))
+            .unwrap()
+            .is_empty()
+    );
+    assert!(s.fppn.is_some());
+    // a new 4-phase table invalidates the FPPN map
+    let d = s
+        .set_wiggling(lut(Algorithm::FourPhase, 32, 0.01), src("c2"))
+        .unwrap();
+    assert_eq!(d, vec![CalibPart::Fppn]);
+    s.set_fppn(fppn(), src("flat")).unwrap();
+    // a new offset invalidates everything downstream
+    let d = s.set_offset(offset(1990.0), src("dark2")).unwrap();
+    assert_eq!(
+        d,
+        vec![
+            CalibPart::Wiggling2Phase,
+            CalibPart::Wiggling4Phase,
+            CalibPart::Fppn
+        ]
+    );
+    assert_eq!(s.parts(), vec![CalibPart::Offset]);
+    // saving removes the dropped arrays' files
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    assert!(t.path().join("fppn.npy").exists());
+    s.save(t.path()).unwrap();
+    assert!(!t.path().join("fppn.npy").exists());
+    assert_eq!(
+        CalibrationSet::load(t.path()).unwrap().parts(),
+        vec![CalibPart::Offset]
+    );
+}
+
+#[test]
+fn checksum_mismatch_is_refused() {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    let p = t.path().join("wiggling_4phase.npy");
+    let mut b = fs::read(&p).unwrap();
+    let n = b.len();
+    b[n - 1] ^= 0x01;
+    fs::write(&p, b).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Checksum);
+    assert_eq!(e.key_name(), Some("wiggling_4phase.sha256"));
+    assert!(e.to_string().contains("wiggling_4phase.npy"), "{e}");
+}
+
+#[test]
+fn stale_dependency_in_file_is_refused() {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    // someone swaps in an offset of another extraction, with a matching checksum
+    let mut other = CalibrationSet::new(&sensor());
+    other.set_offset(offset(1500.0), src("x")).unwrap();
+    let bytes = npy::encode_f32(&offset(1500.0).dark_lsb);
+    fs::write(t.path().join("offset.npy"), &bytes).unwrap();
+    let p = t.path().join(CALIBRATION_TOML);
+    let text = fs::read_to_string(&p).unwrap();
+    let old = full_set().checksum(CalibPart::Offset).unwrap();
+    let new = other.checksum(CalibPart::Offset).unwrap();
+    // replace only the [offset] table's sha256 (its first occurrence)
+    let text = text.replacen(
+        &format!("sha256 = \"{old}\""),
+        &format!("sha256 = \"{new}\""),
+        1,
+    );
+    fs::write(&p, text).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert!(e.to_string().contains("different offset"), "{e}");
+}
+
+fn load_err_after(edit: impl FnOnce(&str) -> String) -> FormatError {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    let p = t.path().join(CALIBRATION_TOML);
+    let text = fs::read_to_string(&p).unwrap();
+    let new = edit(&text);
+    assert_ne!(new, text);
+    fs::write(&p, new).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert!(
+        e.to_string().contains("calibration.toml") || e.to_string().contains(".npy"),
+        "{e}"
+    );
+    e
+}
+
+#[test]
+fn toml_errors_name_the_key() {
+    let e = load_err_after(|t| t.replace("version = 1", "version = 7"));
+    assert_eq!(e.key_name(), Some("version"));
+    let e = load_err_after(|t| t.replace("tofprox-calibration", "tofprox-recording"));
+    assert_eq!(e.key_name(), Some("format"));
+    let e = load_err_after(|t| t.replace("[valid_for]\n", "[valid_for]\nlens = 1\n"));
+    assert!(e.to_string().contains("lens"), "{e}");
+    let e = load_err_after(|t| t.replacen("lut_size = 64", "lut_size = 65", 1));
+    assert_eq!(e.key_name(), Some("wiggling_2phase.lut_size"));
+    let e = load_err_after(|t| t.replacen("adc_bits = 12\n", "", 1));
+    assert_eq!(e.kind(), ErrorKind::MissingKey);
+    assert!(e.to_string().contains("adc_bits"), "{e}");
+    let e = load_err_after(|t| t.replacen("file = \"offset.npy\"", "file = \"../x.npy\"", 1));
+    assert_eq!(e.key_name(), Some("offset.file"));
+}
+
+#[test]
+fn missing_array_file_names_it() {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    fs::remove_file(t.path().join("fppn.npy")).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Io);
+    assert!(e.to_string().contains("fppn.npy"), "{e}");
+}
+
+#[test]
+fn incompatible_data_is_refused_with_reason() {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    let s = CalibrationSet::load(t.path()).unwrap();
+    s.check_compatible(&sensor()).unwrap();
+    let mut other = sensor();
+    other.modulation_hz = 60e6;
+    let e = s.check_compatible(&other).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Incompatible);
+    assert!(e.to_string().contains("modulation_hz"), "{e}");
+    assert!(e.to_string().contains("calibration.toml"), "{e}");
+    let mut other = sensor();
+    other.adc_bits = 10;
+    assert!(
+        s.check_compatible(&other)
+            .unwrap_err()
+            .to_string()
+            .contains("adc_bits")
+    );
+    let mut other = sensor();
+    other.roi_origin = [0, 0];
+    assert!(
+        s.check_compatible(&other)
+            .unwrap_err()
+            .to_string()
+            .contains("roi_origin")
+    );
+    let mut other = sensor();
+    other.rows = 4;
+    other.full_rows = 200;
+    let msg = s.check_compatible(&other).unwrap_err().to_string();
+    assert!(
+        msg.contains("window size") && msg.contains("full array"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn wrong_shapes_are_refused_when_building() {
+    let mut s = CalibrationSet::new(&sensor());
+    let bad = OffsetCalibration {
+        dark_lsb: Array2::zeros((4, 3)),
+    };
+    assert_eq!(
+        s.set_offset(bad, src("x")).unwrap_err().key_name(),
+        Some("offset")
+    );
+    let nan = FppnMap {
+        phase_offset_rad: Array2::from_elem((3, 4), f32::NAN),
+    };
+    assert!(s.set_fppn(nan, src("x")).is_err());
+    let empty = WigglingLut {
+        algorithm: Algorithm::TwoPhase,
+        correction_rad: Array1::zeros(1),
+    };
+    assert!(s.set_wiggling(empty, src("x")).is_err());
+}
+
+#[test]
+fn rfc3339_known_dates() {
+    assert_eq!(rfc3339_from_unix(0), "1970-01-01T00:00:00Z");
+    assert_eq!(rfc3339_from_unix(951_782_400), "2000-02-29T00:00:00Z");
+    assert_eq!(rfc3339_from_unix(1_700_000_000), "2023-11-14T22:13:20Z");
+}

@@ -1,0 +1,143 @@
+//! The one public error type of this crate: every error names the file and,
+//! where there is one, the key (`sensor.rows`, `capture[3].phases_deg`,
+//! `arrays.offset.sha256`, …) it is about.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// What went wrong, for callers that want to react differently.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// Reading or writing a file failed (missing file, permissions, disk full).
+    Io,
+    /// A TOML file does not parse, or a key has the wrong type.
+    Syntax,
+    /// A required key is absent.
+    MissingKey,
+    /// A key that this format version does not define.
+    UnknownKey,
+    /// Another format name or an unsupported version.
+    Unsupported,
+    /// A value is out of range or inconsistent with another one.
+    Invalid,
+    /// A `.npy` file is malformed, truncated, or of an unsupported dtype/layout.
+    Npy,
+    /// An array's SHA-256 does not match the checksum recorded for it.
+    Checksum,
+    /// A calibration does not fit the data it is applied to.
+    Incompatible,
+    /// A file or directory that must not exist yet already exists.
+    AlreadyExists,
+}
+
+/// An error reading, validating or writing a recording or a calibration set.
+#[derive(Debug, thiserror::Error)]
+pub struct FormatError {
+    kind: ErrorKind,
+    path: Option<PathBuf>,
+    key: Option<String>,
+    message: String,
+    #[source]
+    source: Option<std::io::Error>,
+}
+
+impl fmt::Display for FormatError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if let Some(p) = &self.path {
+            write!(f, "{}: ", p.display())?;
+        }
+        if let Some(k) = &self.key {
+            write!(f, "{k}: ")?;
+        }
+        f.write_str(&self.message)
+    }
+}
+
+impl FormatError {
+    pub(crate) fn new(kind: ErrorKind, message: impl Into<String>) -> Self {
+        FormatError {
+            kind,
+            path: None,
+            key: None,
+            message: message.into(),
+            source: None,
+        }
+    }
+
+    pub(crate) fn io(path: &Path, what: &str, err: std::io::Error) -> Self {
+        FormatError {
+            kind: ErrorKind::Io,
+            path: Some(path.to_path_buf()),
+            key: None,
+            message: what.to_string(),
+            source: Some(err),
+        }
+    }
+
+    pub(crate) fn at(mut self, path: &Path) -> Self {
+        self.path = Some(path.to_path_buf());
+        self
+    }
+
+    pub(crate) fn key(mut self, key: impl Into<String>) -> Self {
+        self.key = Some(key.into());
+        self
+    }
+
+    /// Set the key only when none is set yet.
+    pub(crate) fn key_if_none(mut self, key: impl Into<String>) -> Self {
+        if self.key.is_none() {
+            self.key = Some(key.into());
+        }
+        self
+    }
+
+    /// What kind of failure this is.
+    pub fn kind(&self) -> ErrorKind {
+        self.kind
+    }
+
+    /// The file the error is about, if any.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+
+    /// The key (dotted path inside the TOML file) the error is about, if any.
+    pub fn key_name(&self) -> Option<&str> {
+        self.key.as_deref()
+    }
+
+    /// The message without file and key.
+    pub fn message(&self) -> &str {
+        &self.message
+    }
+}
+
+/// Shorthand constructors used throughout the crate.
+pub(crate) fn invalid(message: impl Into<String>) -> FormatError {
+    FormatError::new(ErrorKind::Invalid, message)
+}
+
+/// Turn a `toml` deserialisation error into a `FormatError` that says the line,
+/// the offending text and the key, without the multi-line ASCII art.
+pub(crate) fn from_toml(path: &Path, text: &str, err: &toml::de::Error) -> FormatError {
+    let msg = err.message().trim().to_string();
+    let kind = if msg.starts_with("missing field") {
+        ErrorKind::MissingKey
+    } else if msg.starts_with("unknown field") {
+        ErrorKind::UnknownKey
+    } else {
+        ErrorKind::Syntax
+    };
+    let mut out = FormatError::new(kind, msg);
+    if let Some(span) = err.span() {
+        let start = span.start.min(text.len());
+        let before = text.get(..start).unwrap_or("");
+        let line_no = before.matches('\n').count() + 1;
+        let line_text = text.lines().nth(line_no - 1).unwrap_or("").trim();
+        let shown: String = line_text.chars().take(60).collect();
+        out.message = format!("line {line_no} (`{shown}`): {}", out.message);
+    }
+    out.at(path)
+}
