@@ -1,0 +1,916 @@
+//! Layer 3: the sensor driver. One [`SensorDriver::cycle`] is one proximity
+//! reading of the thesis's low-power loop (3.5.3, fig. 3.23, listing 4.11):
+//! restart (reset low → high) → minimum configuration over I2C → load the
+//! configuration from flash (write it if missing or corrupt) → set exposure
+//! times (the flash image overwrites them every time) → start → read K raw
+//! frames → stop measurement → stop sensor (reset low).
+//!
+//! Every wait is a bounded poll that sleeps on the injected [`Clock`].
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Duration;
+
+use ndarray::Array3;
+use serde::{Deserialize, Serialize};
+
+use crate::clock::Clock;
+use crate::error::{BridgeError, ErrorKind, ResultExt};
+use crate::flash;
+use crate::frame::{ContentError, decode_frame};
+use crate::protocol::{Cx3, ProtocolConfig};
+use crate::regmap::{RegWrite, SensorMap, bursts};
+use crate::transport::UsbTransport;
+use crate::uvc::{FrameSpec, Push, Reassembler, ReassemblyStats};
+
+/// Measurement mode (a use case of the register map).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum SensorMode {
+    /// Two raw images, 0° and 90° (the thesis's low-power mode).
+    #[serde(rename = "2phase")]
+    TwoPhase,
+    /// Four raw images 0/90/180/270°.
+    #[serde(rename = "4phase")]
+    FourPhase,
+    /// Four phase images plus a grey (unilluminated) image.
+    #[serde(rename = "4phase-grey")]
+    FourPhaseGrey,
+    /// 24 raw images at 15° steps (correlation capture).
+    #[serde(rename = "correlation24")]
+    Correlation24,
+}
+
+impl SensorMode {
+    /// The use-case name in the register map (also the serde/CLI name).
+    pub fn use_case_name(self) -> &'static str {
+        match self {
+            SensorMode::TwoPhase => "2phase",
+            SensorMode::FourPhase => "4phase",
+            SensorMode::FourPhaseGrey => "4phase-grey",
+            SensorMode::Correlation24 => "correlation24",
+        }
+    }
+}
+
+impl std::fmt::Display for SensorMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.use_case_name())
+    }
+}
+
+impl std::str::FromStr for SensorMode {
+    type Err = BridgeError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "2phase" => Ok(SensorMode::TwoPhase),
+            "4phase" => Ok(SensorMode::FourPhase),
+            "4phase-grey" => Ok(SensorMode::FourPhaseGrey),
+            "correlation24" | "correlation" => Ok(SensorMode::Correlation24),
+            _ => Err(BridgeError::config(format!(
+                "unknown mode {s:?} (2phase, 4phase, 4phase-grey, correlation24)"
+            ))),
+        }
+    }
+}
+
+/// A window of rows for partial read-out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RowWindow {
+    /// First row.
+    pub row0: u16,
+    /// Number of rows.
+    pub rows: u16,
+}
+
+/// What one cycle should measure.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CycleRequest {
+    /// Use case.
+    pub mode: SensorMode,
+    /// Exposure of every raw image, µs.
+    pub exposure_us: f64,
+    /// Partial read-out window (None: full array).
+    pub row_window: Option<RowWindow>,
+}
+
+/// How long each state of a cycle took (clock time), for energy accounting.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct StateTimings {
+    /// Reset release until the sensor answered (start-up).
+    pub startup: Duration,
+    /// Minimum configuration + flash load(s) + exposure/use-case registers.
+    pub config_load: Duration,
+    /// Writing the flash (0 unless the image was missing or corrupt).
+    pub flash_write: Duration,
+    /// Illuminated integration: K × programmed exposure (bounded by the
+    /// measured capture time).
+    pub exposure: Duration,
+    /// Capture time beyond the exposure: read-out and transfer.
+    pub readout: Duration,
+    /// Stopping the measurement and putting the sensor in reset.
+    pub shutdown: Duration,
+    /// Whole cycle.
+    pub total: Duration,
+}
+
+/// Result of one cycle.
+#[derive(Debug, Clone)]
+pub struct CycleOutput {
+    /// Raw codes, (K, rows, cols).
+    pub frames: Array3<u16>,
+    /// Phase of each raw image, degrees.
+    pub phases_deg: Vec<f64>,
+    /// Illumination of each raw image (false = grey image).
+    pub illuminated: Vec<bool>,
+    /// Exposure actually programmed (after LSB rounding), µs.
+    pub exposure_us: f64,
+    /// Window origin `[row0, col0]` in the full array.
+    pub roi_origin: [usize; 2],
+    /// Full array rows.
+    pub full_rows: usize,
+    /// Full array columns.
+    pub full_cols: usize,
+    /// ADC resolution.
+    pub adc_bits: u8,
+    /// Modulation frequency, Hz.
+    pub modulation_hz: f64,
+    /// State durations.
+    pub timings: StateTimings,
+    /// True if this cycle (re)wrote the flash image.
+    pub flash_written: bool,
+    /// Clock time at the end of the capture (for time stamps).
+    pub captured_at: Duration,
+}
+
+/// Driver waits and policies. Every wait is bounded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DriverTiming {
+    /// Reset held low before release, µs.
+    pub reset_low_us: u64,
+    /// Sleep after reset release before the first chip-id read, µs.
+    pub startup_delay_us: u64,
+    /// Give up on the chip id after this long (→ `ResetStuck`), ms.
+    pub startup_timeout_ms: u64,
+    /// Sleep between status polls, µs.
+    pub poll_interval_us: u64,
+    /// Flash load must finish in this time, ms.
+    pub flash_load_timeout_ms: u64,
+    /// One sector erase must finish in this time, ms.
+    pub flash_erase_timeout_ms: u64,
+    /// One page program must finish in this time, ms.
+    pub flash_program_timeout_ms: u64,
+    /// One SPI forwarding transfer must finish in this time, ms.
+    pub spi_timeout_ms: u64,
+    /// Write the flash image when it is missing or corrupt (thesis 4.10).
+    pub write_flash_if_missing: bool,
+    /// Extra measurements to try within a cycle after a dropped frame
+    /// (0: the cycle fails with `CorruptFrame`).
+    pub frame_retries: u32,
+}
+
+impl Default for DriverTiming {
+    fn default() -> Self {
+        DriverTiming {
+            reset_low_us: 100,
+            startup_delay_us: 1000,
+            startup_timeout_ms: 20,
+            poll_interval_us: 200,
+            flash_load_timeout_ms: 50,
+            flash_erase_timeout_ms: 500,
+            flash_program_timeout_ms: 10,
+            spi_timeout_ms: 5,
+            write_flash_if_missing: true,
+            frame_retries: 0,
+        }
+    }
+}
+
+/// Driver configuration: protocol, register map, waits.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DriverConfig {
+    /// Bridge protocol.
+    pub protocol: ProtocolConfig,
+    /// Register map.
+    pub map: SensorMap,
+    /// Waits and policies.
+    pub timing: DriverTiming,
+}
+
+/// The file form of [`DriverConfig`] (`[driver]` table or a file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriverConfigFile {
+    /// Register map file, relative to the config file (default: the
+    /// built-in emulated map).
+    #[serde(default)]
+    pub sensor_map: Option<PathBuf>,
+    /// Bridge protocol.
+    #[serde(default)]
+    pub protocol: ProtocolConfig,
+    /// Waits and policies.
+    #[serde(default)]
+    pub timing: DriverTiming,
+}
+
+impl DriverConfigFile {
+    /// Resolve into a [`DriverConfig`]; relative map paths are taken from
+    /// `base_dir`.
+    pub fn resolve(&self, base_dir: &Path) -> Result<DriverConfig, BridgeError> {
+        let map = match &self.sensor_map {
+            Some(p) => SensorMap::load(&base_dir.join(p))?,
+            None => SensorMap::emulated(),
+        };
+        let c = DriverConfig {
+            protocol: self.protocol.clone(),
+            map,
+            timing: self.timing.clone(),
+        };
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+impl DriverConfig {
+    /// The built-in emulated map with default protocol and waits.
+    pub fn emulated_default() -> Self {
+        DriverConfig {
+            protocol: ProtocolConfig::default(),
+            map: SensorMap::emulated(),
+            timing: DriverTiming::default(),
+        }
+    }
+
+    /// Range checks of everything.
+    pub fn validate(&self) -> Result<(), BridgeError> {
+        self.protocol.validate()?;
+        self.map.validate()?;
+        let t = &self.timing;
+        if t.poll_interval_us == 0 {
+            return Err(BridgeError::config("timing.poll_interval_us must be > 0"));
+        }
+        let words = usize::from(self.map.spi.window_bytes) / 2;
+        if words > usize::from(u16::MAX) - usize::from(self.map.spi.tx_base) {
+            return Err(BridgeError::config(
+                "spi.window_bytes runs past register 0xffff",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Counters over the driver's life.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct DriverStats {
+    /// Cycles started.
+    pub cycles: u64,
+    /// Cycles that failed.
+    pub failed_cycles: u64,
+    /// Flash image writes.
+    pub flash_writes: u64,
+    /// Reopens after a disconnect.
+    pub reopens: u64,
+    /// Frames rejected after reassembly (status line, checksum, range,
+    /// order).
+    pub frames_rejected: u64,
+    /// Reassembly counters.
+    pub reassembly: ReassemblyStats,
+}
+
+/// The sensor driver over a transport.
+pub struct SensorDriver<T: UsbTransport> {
+    transport: T,
+    cx3: Cx3,
+    cfg: DriverConfig,
+    clock: Arc<dyn Clock>,
+    reasm: Reassembler,
+    payload: Vec<u8>,
+    needs_reopen: bool,
+    stats: DriverStats,
+}
+
+impl<T: UsbTransport> std::fmt::Debug for SensorDriver<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SensorDriver")
+            .field("device", &self.transport.describe())
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+fn us(v: u64) -> Duration {
+    Duration::from_micros(v)
+}
+fn ms(v: u64) -> Duration {
+    Duration::from_millis(v)
+}
+
+impl<T: UsbTransport> SensorDriver<T> {
+    /// A driver; does not touch the device until the first cycle.
+    pub fn new(
+        transport: T,
+        config: DriverConfig,
+        clock: Arc<dyn Clock>,
+    ) -> Result<Self, BridgeError> {
+        config.validate()?;
+        let cx3 = Cx3::new(config.protocol.clone())?;
+        let spec = FrameSpec {
+            frame_bytes: config.map.frame_bytes(usize::from(config.map.sensor.rows)),
+            pad_align: config.map.sensor.pad_align,
+        };
+        Ok(SensorDriver {
+            payload: vec![0u8; config.protocol.max_payload_bytes],
+            transport,
+            cx3,
+            reasm: Reassembler::new(spec),
+            cfg: config,
+            clock,
+            needs_reopen: false,
+            stats: DriverStats::default(),
+        })
+    }
+
+    /// The transport (e.g. the emulated device's fault log).
+    pub fn transport(&self) -> &T {
+        &self.transport
+    }
+
+    /// Mutable transport access.
+    pub fn transport_mut(&mut self) -> &mut T {
+        &mut self.transport
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DriverConfig {
+        &self.cfg
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> DriverStats {
+        let mut s = self.stats;
+        s.reassembly = self.reasm.stats();
+        s
+    }
+
+    /// Check a request against the map without touching the device.
+    pub fn check_request(&self, req: &CycleRequest) -> Result<(), BridgeError> {
+        let m = &self.cfg.map;
+        m.use_case(req.mode.use_case_name())?;
+        m.exposure_to_reg(req.exposure_us)?;
+        if let Some(w) = req.row_window {
+            let Some(wr) = &m.row_window else {
+                return Err(BridgeError::config(format!(
+                    "sensor map {} has no row window registers",
+                    m.sensor.name
+                )));
+            };
+            let end = u32::from(w.row0) + u32::from(w.rows);
+            if w.rows == 0 || end > u32::from(m.sensor.rows) {
+                return Err(BridgeError::config(format!(
+                    "row window {}+{} outside the array's {} rows",
+                    w.row0, w.rows, m.sensor.rows
+                )));
+            }
+            if w.row0 % wr.align != 0 || w.rows % wr.align != 0 {
+                return Err(BridgeError::config(format!(
+                    "row window {}+{} not aligned to {} rows",
+                    w.row0, w.rows, wr.align
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// One reading: the whole per-cycle sequence. On error the sensor is put
+    /// back in reset (best effort) and the next call starts clean (reopening
+    /// the device after a disconnect, clearing a stalled endpoint).
+    pub fn cycle(&mut self, req: &CycleRequest) -> Result<CycleOutput, BridgeError> {
+        self.check_request(req)?;
+        self.stats.cycles += 1;
+        let n = self.stats.cycles;
+        let r = self.recover().and_then(|()| self.cycle_inner(req));
+        match r {
+            Ok(o) => Ok(o),
+            Err(e) => {
+                self.stats.failed_cycles += 1;
+                self.after_error(&e);
+                Err(e.context_prefix(format!("cycle {n} ({})", req.mode)))
+            }
+        }
+    }
+
+    /// Put the sensor in reset (fully off) and stop streaming.
+    pub fn power_off(&mut self) -> Result<(), BridgeError> {
+        self.recover()?;
+        let _ = self.cx3.stream(&mut self.transport, false);
+        self.cx3
+            .set_reset(&mut self.transport, true)
+            .ctx(|| "power off")
+            .inspect_err(|e| self.after_error(e))
+    }
+
+    fn recover(&mut self) -> Result<(), BridgeError> {
+        if self.needs_reopen {
+            self.transport.reopen().ctx(|| "reopen after disconnect")?;
+            self.stats.reopens += 1;
+            self.needs_reopen = false;
+        }
+        Ok(())
+    }
+
+    fn after_error(&mut self, e: &BridgeError) {
+        match e.kind() {
+            ErrorKind::Disconnected => self.needs_reopen = true,
+            _ => {
+                let ep = self.cfg.protocol.bulk_in_endpoint;
+                if e.kind() == ErrorKind::Stall {
+                    let _ = self.transport.clear_halt(ep);
+                }
+                // Best effort: leave the sensor off. Errors here are
+                // secondary to the one reported.
+                let _ = self.cx3.stream(&mut self.transport, false);
+                match self.cx3.set_reset(&mut self.transport, true) {
+                    Err(e2) if e2.kind() == ErrorKind::Disconnected => self.needs_reopen = true,
+                    _ => {}
+                }
+            }
+        }
+    }
+
+    fn addr(&self) -> u8 {
+        self.cfg.map.sensor.i2c_address
+    }
+
+    fn write_seq(&mut self, seq: &[RegWrite]) -> Result<(), BridgeError> {
+        let addr = self.addr();
+        for (reg, vals) in bursts(seq) {
+            self.cx3.i2c_write(&mut self.transport, addr, reg, &vals)?;
+        }
+        Ok(())
+    }
+
+    fn write_reg(&mut self, reg: u16, value: u16) -> Result<(), BridgeError> {
+        let addr = self.addr();
+        self.cx3.i2c_write(&mut self.transport, addr, reg, &[value])
+    }
+
+    fn read_reg(&mut self, reg: u16) -> Result<u16, BridgeError> {
+        let addr = self.addr();
+        self.cx3.i2c_read1(&mut self.transport, addr, reg)
+    }
+
+    /// Poll `reg` until `done(value)` or `timeout`; sleeps between polls.
+    fn poll_reg(
+        &mut self,
+        reg: u16,
+        timeout: Duration,
+        what: &str,
+        mut done: impl FnMut(u16) -> bool,
+    ) -> Result<u16, BridgeError> {
+        let deadline = self.clock.now() + timeout;
+        let poll = us(self.cfg.timing.poll_interval_us);
+        loop {
+            let v = self.read_reg(reg)?;
+            if done(v) {
+                return Ok(v);
+            }
+            if self.clock.now() >= deadline {
+                return Err(BridgeError::new(
+                    ErrorKind::Timeout,
+                    format!("{what}: register {reg:#06x} still {v:#06x} after {timeout:?}"),
+                ));
+            }
+            self.clock.sleep(poll);
+        }
+    }
+
+    fn restart(&mut self) -> Result<(), BridgeError> {
+        let t = self.cfg.timing.clone();
+        self.cx3
+            .stream(&mut self.transport, false)
+            .ctx(|| "restart")?;
+        self.cx3
+            .set_reset(&mut self.transport, true)
+            .ctx(|| "restart: reset low")?;
+        self.clock.sleep(us(t.reset_low_us));
+        self.cx3
+            .set_reset(&mut self.transport, false)
+            .ctx(|| "restart: reset high")?;
+        self.clock.sleep(us(t.startup_delay_us));
+        let (reg, want) = (
+            self.cfg.map.sensor.chip_id_register,
+            self.cfg.map.sensor.chip_id_value,
+        );
+        let deadline = self.clock.now() + ms(t.startup_timeout_ms);
+        loop {
+            let last = match self.read_reg(reg) {
+                Ok(v) if v == want => return Ok(()),
+                Ok(v) => format!("chip id {v:#06x}, expected {want:#06x}"),
+                Err(e) if e.kind() == ErrorKind::Nak => "not answering on I2C (NAK)".to_string(),
+                Err(e) => return Err(e.context_prefix("start-up: chip id")),
+            };
+            if self.clock.now() >= deadline {
+                return Err(BridgeError::new(
+                    ErrorKind::ResetStuck,
+                    format!(
+                        "sensor did not come out of reset within {} ms: {last}",
+                        t.startup_timeout_ms
+                    ),
+                ));
+            }
+            self.clock.sleep(us(t.poll_interval_us));
+        }
+    }
+
+    /// Issue the flash load command and wait for its status.
+    fn load_from_flash(&mut self) -> Result<(), BridgeError> {
+        let f = self.cfg.map.flash.clone();
+        self.write_reg(f.load_register, f.load_value)
+            .ctx(|| "flash load command")?;
+        let v = self.poll_reg(
+            f.status_register,
+            ms(self.cfg.timing.flash_load_timeout_ms),
+            "flash load",
+            |v| v != f.status_busy,
+        )?;
+        if v == f.status_ok {
+            Ok(())
+        } else if v == f.status_empty {
+            Err(BridgeError::new(
+                ErrorKind::FlashEmpty,
+                "flash holds no configuration image",
+            ))
+        } else if v == f.status_corrupt {
+            Err(BridgeError::new(
+                ErrorKind::FlashCorrupt,
+                "flash configuration image is corrupt (checksum)",
+            ))
+        } else {
+            Err(BridgeError::new(
+                ErrorKind::Protocol,
+                format!("flash load status {v:#06x} unknown"),
+            ))
+        }
+    }
+
+    /// One SPI transfer through the forwarding registers; returns the bytes
+    /// clocked in (same length as `tx`) if `want_rx`.
+    fn spi_transfer(&mut self, tx: &[u8], want_rx: bool) -> Result<Vec<u8>, BridgeError> {
+        let s = self.cfg.map.spi.clone();
+        if tx.is_empty() || tx.len() > usize::from(s.window_bytes) {
+            return Err(BridgeError::config(format!(
+                "SPI transfer of {} bytes exceeds the {}-byte window",
+                tx.len(),
+                s.window_bytes
+            )));
+        }
+        let words: Vec<u16> = tx
+            .chunks(2)
+            .map(|c| u16::from_be_bytes([c[0], c.get(1).copied().unwrap_or(0)]))
+            .collect();
+        let addr = self.addr();
+        self.cx3
+            .i2c_write(&mut self.transport, addr, s.tx_base, &words)?;
+        let len = u16::try_from(tx.len()).unwrap_or(u16::MAX);
+        self.write_reg(s.length_register, len)?;
+        self.write_reg(s.trigger_register, 1)?;
+        self.poll_reg(
+            s.busy_register,
+            ms(self.cfg.timing.spi_timeout_ms),
+            "SPI forwarding",
+            |v| v & 1 == 0,
+        )?;
+        if !want_rx {
+            return Ok(Vec::new());
+        }
+        let rx = self
+            .cx3
+            .i2c_read(&mut self.transport, addr, s.rx_base, words.len())?;
+        let mut out = Vec::with_capacity(tx.len());
+        for w in rx {
+            out.extend_from_slice(&w.to_be_bytes());
+        }
+        out.truncate(tx.len());
+        Ok(out)
+    }
+
+    fn spi_wait_ready(&mut self, timeout: Duration, what: &str) -> Result<(), BridgeError> {
+        let deadline = self.clock.now() + timeout;
+        let poll = us(self.cfg.timing.poll_interval_us);
+        loop {
+            let rx = self.spi_transfer(&[flash::CMD_RDSR, 0], true)?;
+            let sr = rx.get(1).copied().unwrap_or(0xFF);
+            if sr & flash::SR_WIP == 0 {
+                return Ok(());
+            }
+            if self.clock.now() >= deadline {
+                return Err(BridgeError::new(
+                    ErrorKind::Timeout,
+                    format!("{what}: flash still busy (status {sr:#04x}) after {timeout:?}"),
+                ));
+            }
+            self.clock.sleep(poll);
+        }
+    }
+
+    /// Write the full configuration image to flash through the SPI
+    /// forwarding registers: erase, page program, busy poll, read-back
+    /// verify with CRC-32.
+    fn write_flash(&mut self) -> Result<(), BridgeError> {
+        let image = flash::encode_image(&self.cfg.map.sequences.flash_image);
+        let base = self.cfg.map.flash.image_address;
+        let s = self.cfg.map.spi.clone();
+        let t = self.cfg.timing.clone();
+        let len =
+            u32::try_from(image.len()).map_err(|_| BridgeError::config("flash image too large"))?;
+        // erase
+        let mut sector = base;
+        while sector < base + len {
+            self.spi_transfer(&[flash::CMD_WREN], false)?;
+            self.spi_transfer(&flash::cmd_addr(flash::CMD_SE, sector), false)?;
+            self.spi_wait_ready(
+                ms(t.flash_erase_timeout_ms),
+                &format!("erase sector {sector:#08x}"),
+            )?;
+            sector += s.sector_bytes;
+        }
+        // program, never crossing a page or the window
+        let max_data = u32::from(s.window_bytes) - 4;
+        let mut off = 0u32;
+        while off < len {
+            let addr = base + off;
+            let page_left = s.page_bytes - addr % s.page_bytes;
+            let n = page_left.min(max_data).min(len - off);
+            let mut tx = flash::cmd_addr(flash::CMD_PP, addr).to_vec();
+            tx.extend_from_slice(&image[off as usize..(off + n) as usize]);
+            self.spi_transfer(&[flash::CMD_WREN], false)?;
+            self.spi_transfer(&tx, false)?;
+            self.spi_wait_ready(
+                ms(t.flash_program_timeout_ms),
+                &format!("program {addr:#08x}"),
+            )?;
+            off += n;
+        }
+        // verify
+        let mut back = Vec::with_capacity(image.len());
+        let mut off = 0u32;
+        while off < len {
+            let n = max_data.min(len - off);
+            let mut tx = flash::cmd_addr(flash::CMD_READ, base + off).to_vec();
+            tx.resize(4 + n as usize, 0);
+            let rx = self.spi_transfer(&tx, true)?;
+            back.extend_from_slice(rx.get(4..).unwrap_or(&[]));
+            off += n;
+        }
+        let (want, got) = (crc32fast::hash(&image), crc32fast::hash(&back));
+        if back.len() != image.len() || want != got {
+            return Err(BridgeError::new(
+                ErrorKind::FlashCorrupt,
+                format!("flash verify failed: CRC-32 {got:#010x}, written {want:#010x}"),
+            ));
+        }
+        self.stats.flash_writes += 1;
+        Ok(())
+    }
+
+    fn cycle_inner(&mut self, req: &CycleRequest) -> Result<CycleOutput, BridgeError> {
+        let clock = Arc::clone(&self.clock);
+        let t0 = clock.now();
+        let mut timings = StateTimings::default();
+
+        // 1. restart
+        self.restart()?;
+        let t1 = clock.now();
+        timings.startup = t1 - t0;
+
+        // 2. minimum configuration
+        let minimum = self.cfg.map.sequences.minimum.clone();
+        self.write_seq(&minimum).ctx(|| "minimum configuration")?;
+
+        // 3. load from flash, write it if missing
+        let mut flash_written = false;
+        match self.load_from_flash() {
+            Ok(()) => {}
+            Err(e)
+                if matches!(e.kind(), ErrorKind::FlashEmpty | ErrorKind::FlashCorrupt)
+                    && self.cfg.timing.write_flash_if_missing =>
+            {
+                tracing::info!("{e}; writing the configuration image to flash");
+                let tw = clock.now();
+                self.write_flash()
+                    .ctx(|| format!("writing flash after: {e}"))?;
+                timings.flash_write = clock.now() - tw;
+                flash_written = true;
+                self.load_from_flash().ctx(|| "flash load after write")?;
+            }
+            Err(e) => return Err(e),
+        }
+
+        // 4. use case, exposure (overwritten by the flash image: thesis 3.5.3), window
+        let map = &self.cfg.map;
+        let uc = map.use_case(req.mode.use_case_name())?.clone();
+        let k = uc.phases_deg.len();
+        let exp_reg = map.exposure_to_reg(req.exposure_us)?;
+        let exposure_us = f64::from(exp_reg) * map.raw.exposure_lsb_us;
+        let mut regs: Vec<RegWrite> = uc.registers.clone();
+        let raw = map.raw.clone();
+        regs.push([raw.count_register, k as u16]);
+        for (i, ph) in uc.phases_deg.iter().enumerate() {
+            let i16 = i as u16; // k <= max_count <= 64
+            regs.push([raw.exposure_base + i16, exp_reg]);
+            regs.push([raw.phase_base + i16, map.phase_to_reg(*ph)]);
+            regs.push([raw.illumination_base + i16, u16::from(uc.illuminated(i))]);
+        }
+        let full_rows = usize::from(map.sensor.rows);
+        let cols = usize::from(map.sensor.cols);
+        let (row0, rows) = match req.row_window {
+            Some(w) => (usize::from(w.row0), usize::from(w.rows)),
+            None => (0, full_rows),
+        };
+        if let Some(wr) = &map.row_window {
+            let (r0, n) = match req.row_window {
+                Some(w) => (w.row0, w.rows),
+                None => (0, 0),
+            };
+            regs.push([wr.row0_register, r0]);
+            regs.push([wr.rows_register, n]);
+        }
+        // registers grouped by address so consecutive ones become bursts
+        regs.sort_by_key(|r| r[0]);
+        self.write_seq(&regs)
+            .ctx(|| "use case and exposure registers")?;
+        let t2 = clock.now();
+        timings.config_load = t2 - t1 - timings.flash_write;
+
+        // 5. start
+        let spec = FrameSpec {
+            frame_bytes: self.cfg.map.frame_bytes(rows),
+            pad_align: self.cfg.map.sensor.pad_align,
+        };
+        self.reasm.reset(spec);
+        self.cx3.stream(&mut self.transport, true)?;
+        let start = self.cfg.map.sequences.start_measurement.clone();
+        self.write_seq(&start).ctx(|| "start measurement")?;
+
+        // 6. read K frames
+        let frames = self.read_frames(k, rows, cols, row0, exp_reg)?;
+        let t3 = clock.now();
+        let capture = t3 - t2;
+        let exposure = Duration::from_secs_f64(exposure_us * 1e-6 * k as f64).min(capture);
+        timings.exposure = exposure;
+        timings.readout = capture - exposure;
+
+        // 7. stop measurement, 8. stop sensor (reset low)
+        let stop = self.cfg.map.sequences.stop_measurement.clone();
+        self.write_seq(&stop).ctx(|| "stop measurement")?;
+        self.cx3.stream(&mut self.transport, false)?;
+        self.cx3
+            .set_reset(&mut self.transport, true)
+            .ctx(|| "stop sensor")?;
+        let t4 = clock.now();
+        timings.shutdown = t4 - t3;
+        timings.total = t4 - t0;
+
+        let map = &self.cfg.map;
+        Ok(CycleOutput {
+            frames,
+            illuminated: (0..k).map(|i| uc.illuminated(i)).collect(),
+            phases_deg: uc.phases_deg,
+            exposure_us,
+            roi_origin: [row0, 0],
+            full_rows,
+            full_cols: cols,
+            adc_bits: map.sensor.adc_bits,
+            modulation_hz: map.sensor.modulation_hz,
+            timings,
+            flash_written,
+            captured_at: t3,
+        })
+    }
+
+    /// Read one measurement of `k` frames. A dropped or rejected frame fails
+    /// the cycle (or restarts the collection while retries remain). Bounded
+    /// by a clock deadline and a payload budget.
+    fn read_frames(
+        &mut self,
+        k: usize,
+        rows: usize,
+        cols: usize,
+        row0: usize,
+        exp_reg: u16,
+    ) -> Result<Array3<u16>, BridgeError> {
+        let mut out = Array3::<u16>::zeros((k, rows, cols));
+        let ep = self.cfg.protocol.bulk_in_endpoint;
+        let timeout = self.cfg.protocol.bulk_timeout();
+        let attempts = u64::from(self.cfg.timing.frame_retries) + 1;
+        let per_frame = self.reasm.spec().frame_bytes.div_ceil(
+            self.cfg
+                .protocol
+                .max_payload_bytes
+                .saturating_sub(crate::uvc::FULL_HEADER_LEN)
+                .max(1),
+        ) as u64
+            + 2;
+        let budget = per_frame * (k as u64 + 1) * attempts * 2 + 8;
+        let deadline = self.clock.now()
+            + timeout * u32::try_from((k + 1) * attempts as usize).unwrap_or(u32::MAX);
+        let (status_line, adc_bits) = (
+            self.cfg.map.sensor.status_line,
+            self.cfg.map.sensor.adc_bits,
+        );
+        let mut retries_left = attempts - 1;
+        let mut next = 0usize;
+        let mut resync = false;
+        let mut last_counter: Option<u16> = None;
+        for _ in 0..budget {
+            if next == k {
+                return Ok(out);
+            }
+            if self.clock.now() > deadline {
+                break;
+            }
+            let n = self
+                .transport
+                .bulk_in(ep, &mut self.payload, timeout)
+                .ctx(|| format!("reading raw frame {next} of {k}"))?;
+            let payload = &self.payload[..n.min(self.payload.len())];
+            let rejected: Option<String> = match self.reasm.push(payload) {
+                Push::Pending => None,
+                Push::Dropped(r) => Some(format!("frame dropped by reassembly: {r:?}")),
+                Push::Frame(bytes) => {
+                    let Some(mut slot) = out.index_axis_mut(ndarray::Axis(0), next).into_slice()
+                    else {
+                        return Err(BridgeError::new(
+                            ErrorKind::Io,
+                            "frame buffer not contiguous",
+                        ));
+                    };
+                    match decode_frame(bytes, cols, rows, adc_bits, status_line, &mut slot) {
+                        Err(e) => Some(format!(
+                            "frame content rejected: {}",
+                            match e {
+                                ContentError::Size => "size",
+                                ContentError::StatusLine => "bad status line",
+                                ContentError::Checksum => "pixel checksum mismatch",
+                                ContentError::PixelRange => "pixel value above ADC range",
+                            }
+                        )),
+                        Ok(None) => {
+                            next += 1;
+                            None
+                        }
+                        Ok(Some(s)) => {
+                            let idx = usize::from(s.raw_index);
+                            let consecutive =
+                                last_counter.is_none_or(|c| c.wrapping_add(1) == s.frame_counter);
+                            if resync && idx != 0 {
+                                // skipping to the start of the next measurement
+                                last_counter = Some(s.frame_counter);
+                                None
+                            } else if idx != next || (next > 0 && !consecutive) {
+                                Some(format!(
+                                    "raw image {idx} (counter {}) where {next} was expected",
+                                    s.frame_counter
+                                ))
+                            } else if usize::from(s.row0) != row0
+                                || usize::from(s.rows) != rows
+                                || s.exposure_reg != exp_reg
+                            {
+                                Some(format!(
+                                    "frame settings (rows {}+{}, exposure {}) differ from the request (rows {row0}+{rows}, exposure {exp_reg})",
+                                    s.row0, s.rows, s.exposure_reg
+                                ))
+                            } else {
+                                resync = false;
+                                last_counter = Some(s.frame_counter);
+                                next += 1;
+                                None
+                            }
+                        }
+                    }
+                }
+            };
+            if let Some(why) = rejected {
+                self.stats.frames_rejected += 1;
+                if retries_left == 0 {
+                    return Err(BridgeError::new(
+                        ErrorKind::CorruptFrame,
+                        format!("raw frame {next} of {k}: {why}"),
+                    ));
+                }
+                tracing::debug!("raw frame {next}: {why}; restarting collection");
+                retries_left -= 1;
+                next = 0;
+                resync = true;
+                last_counter = None;
+            }
+        }
+        if next == k {
+            return Ok(out);
+        }
+        Err(BridgeError::new(
+            ErrorKind::Timeout,
+            format!("measurement incomplete: {next} of {k} raw frames before the deadline"),
+        ))
+    }
+}

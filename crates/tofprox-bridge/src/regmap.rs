@@ -1,0 +1,493 @@
+//! The sensor's register map, loaded from a file in `config/sensor/`.
+//!
+//! The addresses and values of the real IRS1645 are in Infineon's
+//! datasheet, which is not public. The shipped map
+//! (`config/sensor/emulated-irs1645.toml`) describes the **emulated** sensor;
+//! a user with the datasheet writes a map of the same shape for the real
+//! part. Nothing in the driver hard-codes an address.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{BridgeError, ErrorKind};
+
+/// The map shipped for the emulated device (same text as
+/// `config/sensor/emulated-irs1645.toml`).
+pub const EMULATED_MAP_TOML: &str = include_str!("../../../config/sensor/emulated-irs1645.toml");
+
+/// One register write: `[register, value]`.
+pub type RegWrite = [u16; 2];
+
+/// Sensor geometry and I2C identity.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorSection {
+    /// Human-readable name of this map.
+    pub name: String,
+    /// 7-bit I2C address.
+    pub i2c_address: u8,
+    /// Full array rows.
+    pub rows: u16,
+    /// Full array columns.
+    pub cols: u16,
+    /// ADC resolution; pixel words above `2^adc_bits - 1` are corrupt.
+    pub adc_bits: u8,
+    /// Modulation frequency of the use cases, Hz.
+    pub modulation_hz: f64,
+    /// Register holding the chip id (read after reset to see it is alive).
+    pub chip_id_register: u16,
+    /// Expected chip id value.
+    pub chip_id_value: u16,
+    /// Every frame starts with one status line (see `docs/protocol.md`):
+    /// magic, frame counter, raw index, window, exposure, phase, CRC-32.
+    pub status_line: bool,
+    /// Zero padding allowed after a frame up to a multiple of this many bytes.
+    #[serde(default = "one")]
+    pub pad_align: usize,
+}
+
+fn one() -> usize {
+    1
+}
+
+/// Fixed register sequences.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sequences {
+    /// Minimum start-up configuration (clocks, PLL, interface) written over
+    /// I2C after every reset, before loading from flash (thesis 3.5.3).
+    pub minimum: Vec<RegWrite>,
+    /// The full configuration image stored in flash (written when the
+    /// flash is empty or corrupt, loaded by the load command every cycle).
+    pub flash_image: Vec<RegWrite>,
+    /// Start the measurement (sequencer on).
+    pub start_measurement: Vec<RegWrite>,
+    /// Stop the measurement.
+    pub stop_measurement: Vec<RegWrite>,
+}
+
+/// Per-raw-image registers: raw image `k` uses `base + k`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawImageRegs {
+    /// Exposure register of raw image 0.
+    pub exposure_base: u16,
+    /// Exposure LSB, microseconds.
+    pub exposure_lsb_us: f64,
+    /// Smallest allowed exposure, µs.
+    pub exposure_min_us: f64,
+    /// Largest allowed exposure, µs (eye safety / saturation).
+    pub exposure_max_us: f64,
+    /// Phase-step register of raw image 0.
+    pub phase_base: u16,
+    /// Phase step LSB, degrees.
+    pub phase_lsb_deg: f64,
+    /// Illumination-enable register of raw image 0 (1 = VCSEL on).
+    pub illumination_base: u16,
+    /// Register holding the number of raw images per measurement.
+    pub count_register: u16,
+    /// Most raw images per measurement.
+    pub max_count: u16,
+}
+
+/// Optional row window for partial read-out.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RowWindowRegs {
+    /// First row register.
+    pub row0_register: u16,
+    /// Row count register (0 = full array).
+    pub rows_register: u16,
+    /// Window start and size must be multiples of this.
+    pub align: u16,
+}
+
+/// Flash load command and status.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlashRegs {
+    /// Register the load command is written to.
+    pub load_register: u16,
+    /// Value that triggers "load configuration from flash".
+    pub load_value: u16,
+    /// Register with the load status.
+    pub status_register: u16,
+    /// Status: load in progress.
+    pub status_busy: u16,
+    /// Status: configuration loaded and its checksum matched.
+    pub status_ok: u16,
+    /// Status: flash erased (no image).
+    pub status_empty: u16,
+    /// Status: image present but corrupt (magic/length/checksum).
+    pub status_corrupt: u16,
+    /// Flash byte address of the configuration image.
+    pub image_address: u32,
+}
+
+/// SPI-forwarding registers: the sensor clocks the TX window out on its SPI
+/// bus to the flash and captures the answer in the RX window.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpiRegs {
+    /// First TX window register (2 bytes per register, big-endian).
+    pub tx_base: u16,
+    /// First RX window register.
+    pub rx_base: u16,
+    /// Size of each window, bytes (even).
+    pub window_bytes: u16,
+    /// Register: number of bytes to transfer.
+    pub length_register: u16,
+    /// Register: write 1 to start the transfer.
+    pub trigger_register: u16,
+    /// Register: bit 0 set while the transfer runs.
+    pub busy_register: u16,
+    /// Flash page size, bytes (page program limit).
+    pub page_bytes: u32,
+    /// Flash erase sector size, bytes.
+    pub sector_bytes: u32,
+}
+
+/// A use case: the raw images of one measurement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UseCase {
+    /// Phase of each raw image, degrees.
+    pub phases_deg: Vec<f64>,
+    /// Illumination per raw image (default: all on). A grey image is off.
+    #[serde(default)]
+    pub illumination: Option<Vec<bool>>,
+    /// Extra registers of the use case (written after the flash load).
+    #[serde(default)]
+    pub registers: Vec<RegWrite>,
+}
+
+impl UseCase {
+    /// Illumination of raw image `k`.
+    pub fn illuminated(&self, k: usize) -> bool {
+        self.illumination
+            .as_ref()
+            .and_then(|v| v.get(k).copied())
+            .unwrap_or(true)
+    }
+}
+
+/// The whole register map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorMap {
+    /// Geometry and identity.
+    pub sensor: SensorSection,
+    /// Fixed sequences.
+    pub sequences: Sequences,
+    /// Per-raw-image registers.
+    pub raw: RawImageRegs,
+    /// Row window (absent: the sensor reads the full array only).
+    #[serde(default)]
+    pub row_window: Option<RowWindowRegs>,
+    /// Flash load command/status.
+    pub flash: FlashRegs,
+    /// SPI forwarding.
+    pub spi: SpiRegs,
+    /// Use cases by name: `2phase`, `4phase`, `4phase-grey`, `correlation24`.
+    pub use_cases: BTreeMap<String, UseCase>,
+}
+
+impl SensorMap {
+    /// Parse and validate map text; `origin` names the file in errors.
+    pub fn from_toml_str(s: &str, origin: &str) -> Result<Self, BridgeError> {
+        let m: SensorMap = toml::from_str(s).map_err(|e| {
+            BridgeError::with_source(ErrorKind::Config, format!("sensor map {origin}"), e)
+        })?;
+        m.validate()
+            .map_err(|e| e.context_prefix(format!("sensor map {origin}")))?;
+        Ok(m)
+    }
+
+    /// Load a map file.
+    pub fn load(path: &Path) -> Result<Self, BridgeError> {
+        let s = std::fs::read_to_string(path).map_err(|e| {
+            BridgeError::with_source(
+                ErrorKind::Config,
+                format!("cannot read sensor map {}", path.display()),
+                e,
+            )
+        })?;
+        Self::from_toml_str(&s, &path.display().to_string())
+    }
+
+    /// The shipped map of the emulated sensor.
+    pub fn emulated() -> Self {
+        // The embedded file is covered by a test; a parse failure here is a
+        // build defect, reported as the documented fallback error path.
+        match Self::from_toml_str(EMULATED_MAP_TOML, "emulated-irs1645.toml (built in)") {
+            Ok(m) => m,
+            Err(e) => {
+                tracing::error!("built-in sensor map invalid: {e}");
+                Self::minimal_fallback()
+            }
+        }
+    }
+
+    fn minimal_fallback() -> Self {
+        // Never reached when the shipped file is valid (tested); kept so
+        // `emulated()` cannot panic.
+        SensorMap {
+            sensor: SensorSection {
+                name: "fallback".into(),
+                i2c_address: 0x3D,
+                rows: 172,
+                cols: 224,
+                adc_bits: 12,
+                modulation_hz: 80e6,
+                chip_id_register: 0xA0A4,
+                chip_id_value: 0x1645,
+                status_line: true,
+                pad_align: 1,
+            },
+            sequences: Sequences {
+                minimum: vec![],
+                flash_image: vec![[0x9100, 1]],
+                start_measurement: vec![[0x9400, 1]],
+                stop_measurement: vec![[0x9400, 0]],
+            },
+            raw: RawImageRegs {
+                exposure_base: 0x9000,
+                exposure_lsb_us: 1.0,
+                exposure_min_us: 10.0,
+                exposure_max_us: 4000.0,
+                phase_base: 0x9020,
+                phase_lsb_deg: 15.0,
+                illumination_base: 0x9040,
+                count_register: 0x9060,
+                max_count: 24,
+            },
+            row_window: None,
+            flash: FlashRegs {
+                load_register: 0xA000,
+                load_value: 1,
+                status_register: 0xA001,
+                status_busy: 1,
+                status_ok: 2,
+                status_empty: 3,
+                status_corrupt: 4,
+                image_address: 0,
+            },
+            spi: SpiRegs {
+                tx_base: 0xA100,
+                rx_base: 0xA200,
+                window_bytes: 264,
+                length_register: 0xA010,
+                trigger_register: 0xA011,
+                busy_register: 0xA012,
+                page_bytes: 256,
+                sector_bytes: 4096,
+            },
+            use_cases: BTreeMap::new(),
+        }
+    }
+
+    /// Range and consistency checks; errors name the key.
+    pub fn validate(&self) -> Result<(), BridgeError> {
+        let s = &self.sensor;
+        let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
+        if s.i2c_address > 0x7F {
+            return bad(
+                "sensor.i2c_address",
+                format!("{:#x} is not 7-bit", s.i2c_address),
+            );
+        }
+        if s.rows == 0 || s.cols == 0 {
+            return bad("sensor.rows/cols", "must be > 0".into());
+        }
+        if s.status_line && s.cols < 10 {
+            return bad("sensor.status_line", "needs at least 10 columns".into());
+        }
+        if !(1..=16).contains(&s.adc_bits) {
+            return bad("sensor.adc_bits", format!("{} not in 1..=16", s.adc_bits));
+        }
+        if !(s.modulation_hz.is_finite() && s.modulation_hz > 0.0) {
+            return bad("sensor.modulation_hz", "must be > 0".into());
+        }
+        if s.pad_align == 0 || s.pad_align > 65536 {
+            return bad("sensor.pad_align", "must be in 1..=65536".into());
+        }
+        let r = &self.raw;
+        if !(r.exposure_lsb_us.is_finite() && r.exposure_lsb_us > 0.0) {
+            return bad("raw.exposure_lsb_us", "must be > 0".into());
+        }
+        if !(r.exposure_min_us > 0.0
+            && r.exposure_min_us <= r.exposure_max_us
+            && r.exposure_max_us / r.exposure_lsb_us <= f64::from(u16::MAX))
+        {
+            return bad(
+                "raw.exposure_min_us/exposure_max_us",
+                "need 0 < min <= max and max/lsb <= 65535".into(),
+            );
+        }
+        if !(r.phase_lsb_deg.is_finite() && r.phase_lsb_deg > 0.0) {
+            return bad("raw.phase_lsb_deg", "must be > 0".into());
+        }
+        if r.max_count == 0 || r.max_count > 64 {
+            return bad("raw.max_count", "must be in 1..=64".into());
+        }
+        if self.sequences.flash_image.is_empty() {
+            return bad("sequences.flash_image", "must not be empty".into());
+        }
+        if self.sequences.start_measurement.is_empty() || self.sequences.stop_measurement.is_empty()
+        {
+            return bad(
+                "sequences.start_measurement/stop_measurement",
+                "must not be empty".into(),
+            );
+        }
+        let p = &self.spi;
+        if p.window_bytes < 8 || p.window_bytes % 2 != 0 {
+            return bad("spi.window_bytes", "must be even and >= 8".into());
+        }
+        if p.page_bytes == 0 || p.sector_bytes == 0 || p.sector_bytes % p.page_bytes != 0 {
+            return bad(
+                "spi.page_bytes/sector_bytes",
+                "sector must be a multiple of page".into(),
+            );
+        }
+        if self.flash.image_address % p.sector_bytes != 0 {
+            return bad("flash.image_address", "must be sector aligned".into());
+        }
+        if let Some(w) = &self.row_window
+            && (w.align == 0 || s.rows % w.align != 0)
+        {
+            return bad("row_window.align", "must divide sensor.rows".into());
+        }
+        for (name, uc) in &self.use_cases {
+            let k = uc.phases_deg.len();
+            if k == 0 || k > usize::from(r.max_count) {
+                return bad(
+                    &format!("use_cases.{name}.phases_deg"),
+                    format!("{k} raw images, allowed 1..={}", r.max_count),
+                );
+            }
+            if let Some(il) = &uc.illumination
+                && il.len() != k
+            {
+                return bad(
+                    &format!("use_cases.{name}.illumination"),
+                    format!("{} entries for {k} raw images", il.len()),
+                );
+            }
+            for ph in &uc.phases_deg {
+                if !(ph.is_finite() && (0.0..360.0).contains(ph)) {
+                    return bad(
+                        &format!("use_cases.{name}.phases_deg"),
+                        format!("{ph} not in [0, 360)"),
+                    );
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The use case `name`.
+    pub fn use_case(&self, name: &str) -> Result<&UseCase, BridgeError> {
+        self.use_cases.get(name).ok_or_else(|| {
+            BridgeError::config(format!(
+                "sensor map {} has no use case {name:?} (has: {})",
+                self.sensor.name,
+                self.use_cases
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })
+    }
+
+    /// Bytes of one frame with `rows` pixel rows (status line included).
+    pub fn frame_bytes(&self, rows: usize) -> usize {
+        (rows + usize::from(self.sensor.status_line)) * usize::from(self.sensor.cols) * 2
+    }
+
+    /// Exposure register value for `exposure_us` (rounded to the LSB).
+    pub fn exposure_to_reg(&self, exposure_us: f64) -> Result<u16, BridgeError> {
+        let r = &self.raw;
+        if !exposure_us.is_finite()
+            || exposure_us < r.exposure_min_us
+            || exposure_us > r.exposure_max_us
+        {
+            return Err(BridgeError::config(format!(
+                "exposure {exposure_us} µs outside {}..={} µs (raw.exposure_min_us/max_us)",
+                r.exposure_min_us, r.exposure_max_us
+            )));
+        }
+        let v = (exposure_us / r.exposure_lsb_us).round();
+        Ok(v.clamp(1.0, f64::from(u16::MAX)) as u16)
+    }
+
+    /// Phase register value for `phase_deg`.
+    pub fn phase_to_reg(&self, phase_deg: f64) -> u16 {
+        (phase_deg / self.raw.phase_lsb_deg)
+            .round()
+            .clamp(0.0, f64::from(u16::MAX)) as u16
+    }
+}
+
+/// Group consecutive-register writes into bursts `(first, values)`.
+pub fn bursts(writes: &[RegWrite]) -> Vec<(u16, Vec<u16>)> {
+    let mut out: Vec<(u16, Vec<u16>)> = Vec::new();
+    for &[reg, val] in writes {
+        if let Some((first, vals)) = out.last_mut()
+            && usize::from(*first) + vals.len() == usize::from(reg)
+        {
+            vals.push(val);
+            continue;
+        }
+        out.push((reg, vec![val]));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_map_parses_and_has_all_use_cases() {
+        let m = SensorMap::from_toml_str(EMULATED_MAP_TOML, "shipped").unwrap();
+        for uc in ["2phase", "4phase", "4phase-grey", "correlation24"] {
+            m.use_case(uc).unwrap();
+        }
+        assert_eq!(m.use_case("correlation24").unwrap().phases_deg.len(), 24);
+        assert!(!m.use_case("4phase-grey").unwrap().illuminated(4));
+        assert_eq!(m, SensorMap::emulated());
+        assert_eq!(m.frame_bytes(172), 173 * 224 * 2);
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_rejected() {
+        let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 12\nadc_bitz = 3");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(format!("{e:#}").contains("adc_bitz") || format!("{:?}", e).contains("adc_bitz"));
+        let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 0");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(e.to_string().contains("sensor.adc_bits"), "{e}");
+    }
+
+    #[test]
+    fn exposure_and_phase_conversion() {
+        let m = SensorMap::emulated();
+        assert_eq!(m.exposure_to_reg(250.0).unwrap(), 250);
+        assert!(m.exposure_to_reg(1e9).is_err());
+        assert!(m.exposure_to_reg(f64::NAN).is_err());
+        assert_eq!(m.phase_to_reg(90.0), 6);
+    }
+
+    #[test]
+    fn bursts_group_consecutive() {
+        let b = bursts(&[[1, 10], [2, 11], [3, 12], [7, 1], [8, 2], [4, 0]]);
+        assert_eq!(
+            b,
+            vec![(1, vec![10, 11, 12]), (7, vec![1, 2]), (4, vec![0])]
+        );
+    }
+}
