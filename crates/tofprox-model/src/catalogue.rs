@@ -1,0 +1,688 @@
+//! The effect catalogue: every physical effect of the model as a documented unit
+//! with a stable id, its physics, the thesis reference, its residual signature and
+//! its parameters (units, typical value, physical range).
+//!
+//! The implementation of each effect family lives in [`crate::effects`]; this file
+//! is the single table the config validation, `tofprox model effects` and the lab read.
+
+use serde::Serialize;
+
+/// One parameter of an effect.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ParamInfo {
+    /// Key in the model file (`[effects.<id>] <name> = value`).
+    pub name: &'static str,
+    /// Physical unit ("" for dimensionless).
+    pub unit: &'static str,
+    /// Typical value (thesis value where the thesis gives one).
+    pub typical: f64,
+    /// Smallest physically meaningful value (inclusive).
+    pub min: f64,
+    /// Largest physically meaningful value (inclusive).
+    pub max: f64,
+    /// One-line meaning.
+    pub doc: &'static str,
+}
+
+/// One effect of the catalogue.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct EffectInfo {
+    /// Stable id, used as `[effects.<id>]` in model files.
+    pub id: &'static str,
+    /// Short title.
+    pub title: &'static str,
+    /// One paragraph of physics with the equation used.
+    pub explanation: &'static str,
+    /// Where the thesis treats it.
+    pub thesis_ref: &'static str,
+    /// What the effect looks like in a residual (measured − model).
+    pub signature: &'static str,
+    /// Parameters with units, typical values and ranges.
+    pub params: &'static [ParamInfo],
+    /// Enabled in `config/model/baseline.toml` (what a usual calibration covers).
+    pub in_baseline: bool,
+}
+
+impl EffectInfo {
+    /// Parameter description by name.
+    pub fn param(&self, name: &str) -> Option<&'static ParamInfo> {
+        self.params.iter().find(|p| p.name == name)
+    }
+}
+
+const fn p(
+    name: &'static str,
+    unit: &'static str,
+    typical: f64,
+    min: f64,
+    max: f64,
+    doc: &'static str,
+) -> ParamInfo {
+    ParamInfo {
+        name,
+        unit,
+        typical,
+        min,
+        max,
+        doc,
+    }
+}
+
+/// Section name of the always-on sensor constants (`[sensor]` in a model file).
+pub const SENSOR_SECTION: &str = "sensor";
+
+/// Always-present sensor constants (not effects; `[sensor]` in a model file).
+pub static SENSOR_PARAMS: &[ParamInfo] = &[
+    p(
+        "signal_e_per_us",
+        "e-/us",
+        40.0,
+        1e-3,
+        1e6,
+        "photo-electrons per µs of exposure (both taps) from a reflectivity-1 target at 1 m at nominal optical power",
+    ),
+    p(
+        "lsb_per_ke",
+        "LSB/ke-",
+        3.0,
+        1e-3,
+        1e4,
+        "conversion gain of the differential read-out: ADC codes per 1000 electrons of tap difference",
+    ),
+];
+
+/// Harmonic parameters `h2_rel … h9_rel`, `h2_phase_deg … h9_phase_deg`.
+/// Typical values: the harmonics of the measured-like VCSEL/pulse correlation
+/// ([`crate::effects::optical::measured_like_waveforms`]), normalised to the fundamental.
+static HARMONIC_PARAMS: &[ParamInfo] = &[
+    p(
+        "h2_rel",
+        "",
+        0.010,
+        0.0,
+        0.5,
+        "2nd harmonic amplitude relative to the fundamental (duty-cycle asymmetry)",
+    ),
+    p(
+        "h2_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "2nd harmonic phase",
+    ),
+    p(
+        "h3_rel",
+        "",
+        0.030,
+        0.0,
+        0.5,
+        "3rd harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h3_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "3rd harmonic phase",
+    ),
+    p(
+        "h4_rel",
+        "",
+        0.004,
+        0.0,
+        0.5,
+        "4th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h4_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "4th harmonic phase",
+    ),
+    p(
+        "h5_rel",
+        "",
+        0.012,
+        0.0,
+        0.5,
+        "5th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h5_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "5th harmonic phase",
+    ),
+    p(
+        "h6_rel",
+        "",
+        0.002,
+        0.0,
+        0.5,
+        "6th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h6_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "6th harmonic phase",
+    ),
+    p(
+        "h7_rel",
+        "",
+        0.005,
+        0.0,
+        0.5,
+        "7th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h7_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "7th harmonic phase",
+    ),
+    p(
+        "h8_rel",
+        "",
+        0.001,
+        0.0,
+        0.5,
+        "8th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h8_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "8th harmonic phase",
+    ),
+    p(
+        "h9_rel",
+        "",
+        0.003,
+        0.0,
+        0.5,
+        "9th harmonic amplitude relative to the fundamental",
+    ),
+    p(
+        "h9_phase_deg",
+        "deg",
+        0.0,
+        -180.0,
+        180.0,
+        "9th harmonic phase",
+    ),
+];
+
+/// Optional string keys of `waveform_harmonics` (file paths, relative to the model file).
+pub static WAVEFORM_FILE_KEYS: &[&str] = &["illumination_file", "modulation_file"];
+
+/// The catalogue, in signal-chain order.
+pub static CATALOGUE: &[EffectInfo] = &[
+    EffectInfo {
+        id: "signal_falloff",
+        title: "Reflected signal vs distance",
+        explanation: "The optical power reaching a pixel from a diffuse target falls with the square of the distance: N_sig = signal_e_per_us · t_exp · ρ · (1 m / d)^n with n = 2 for a Lambertian wall. Disabled, the collected signal is that of 1 m at every distance (the constant-electron sweeps of fig. 3.9).",
+        thesis_ref: "2.2.1, 3.3.3 (fig. 3.7: signal loss with distance)",
+        signature: "amplitude ∝ d^-n; depth residuals of offset-like effects grow with distance",
+        params: &[p(
+            "exponent",
+            "",
+            2.0,
+            1.0,
+            3.0,
+            "distance exponent n of the falloff (2 = inverse square)",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "demodulation_contrast",
+        title: "Demodulation contrast",
+        explanation: "Only a share K of the photo-generated charge is separated by the modulation gates; the rest adds equally to both taps: N_A,B = N/2 · (1 ± K·C(φ−θ)). K is eq. 2.10/2.11's demodulation contrast. Disabled, K = 1.",
+        thesis_ref: "2.2.2.2, eq. 2.10-2.11",
+        signature: "amplitude scales by K at constant intensity; no phase change",
+        params: &[p("contrast", "", 0.8, 0.05, 1.0, "demodulation contrast K")],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "waveform_harmonics",
+        title: "Non-sinusoidal correlation (wiggling)",
+        explanation: "Illumination and modulation are rectangular-like, so the correlation is C(x) = cos x + Σ_{n=2..9} r_n cos(n x + ψ_n) (normalised to |C| ≤ 1) instead of cos x. 4-phase sampling aliases odd harmonics 3, 5 onto the fundamental and produces the circular 'wiggling' depth error with 4 periods per 2π; even harmonics (duty-cycle asymmetry) cancel in 4-phase but not in 2-phase. Alternatively C is computed from measured illumination and modulation waveforms (one period each, CSV or NPY) by circular cross-correlation C(τ) = ⟨s(t) · (2 r(t+τ) − 1)⟩.",
+        thesis_ref: "2.3.1.1, 3.2.2, 3.3.6, 5.1.2.1 (fig. 3.10, 3.11, 5.1)",
+        signature: "depth error periodic in phase (period π/2 for 4-phase, plus π for 2-phase), independent of exposure and amplitude",
+        params: HARMONIC_PARAMS,
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "multipath",
+        title: "Multipath return",
+        explanation: "A second, weaker return travels a longer path (e.g. via the floor or a side wall) and mixes into the pixel: N_2 = a · N_sig at phase φ₂ = 4π f (d + Δ/2) / c. The measured phasor is the sum of both, so the depth is pulled towards the longer path by an amount oscillating with distance.",
+        thesis_ref: "not treated in the thesis (extension; standard iToF error)",
+        signature: "depth error oscillating with distance with period c/(2f) scaled by path difference; same in 2- and 4-phase",
+        params: &[
+            p(
+                "relative_amplitude",
+                "",
+                0.08,
+                0.0,
+                1.0,
+                "amplitude of the second return relative to the direct one",
+            ),
+            p(
+                "extra_path_m",
+                "m",
+                0.4,
+                0.0,
+                20.0,
+                "additional round-trip path length of the second return",
+            ),
+        ],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "vcsel_droop",
+        title: "VCSEL power droop over successive raw images",
+        explanation: "The VCSEL heats while it emits; its optical power falls over successive raw images of one acquisition: P_k = P · (1 − D · (1 − exp(−k · t_exp / τ))) for raw image k in acquisition order. Unequal amplitudes of the images used together distort the phasor; 4-phase loses its 0/180 symmetry.",
+        thesis_ref: "3.3.7.2, 5.1.2.1 ('varying emission power during exposure of several raw images')",
+        signature: "raw residual grows with raw-image index and with exposure; depth error with period 2π in phase",
+        params: &[
+            p(
+                "droop_rel",
+                "",
+                0.03,
+                0.0,
+                0.5,
+                "asymptotic relative power loss D",
+            ),
+            p(
+                "tau_us",
+                "us",
+                3000.0,
+                1.0,
+                1e7,
+                "thermal time constant τ of the droop (in accumulated exposure)",
+            ),
+        ],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "prnu",
+        title: "Photo-response non-uniformity incl. vignetting",
+        explanation: "Each pixel converts light with its own gain g_p ~ N(1, σ) (fill factor, micro-lens, QE variation) and the lens and illumination profile fall off towards the corners: g_p · (1 − v · r²) with r the distance from the optical centre normalised to the corner. Multiplies signal and background electrons of both taps; never changes the phase.",
+        thesis_ref: "2.3.1.3 (PRNU)",
+        signature: "per-pixel amplitude ratio fixed over all captures, radial falloff; no depth effect",
+        params: &[
+            p(
+                "sigma_rel",
+                "",
+                0.01,
+                0.0,
+                0.3,
+                "per-pixel gain standard deviation",
+            ),
+            p(
+                "vignetting_rel",
+                "",
+                0.25,
+                0.0,
+                0.9,
+                "relative response loss at the array corner (quadratic in radius)",
+            ),
+        ],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "fppn",
+        title: "Fixed-pattern phase noise and global delay",
+        explanation: "The modulation signal reaches each pixel with its own delay: a global delay τ_g of driver and cabling, a delay growing along the distributed RC line of the column, τ(x) = τ_c · x (2 − x) (Elmore delay of a distributed line driven at x = 0, x = row/(rows − 1)), and a per-pixel random part. The phase offset is φ_delay = 2π f τ, added to φ_tof.",
+        thesis_ref: "2.3.1.4",
+        signature: "constant depth offset per pixel, growing down the columns; independent of distance",
+        params: &[
+            p(
+                "global_delay_ns",
+                "ns",
+                1.5,
+                -20.0,
+                20.0,
+                "global delay of driver and cabling",
+            ),
+            p(
+                "column_delay_ps",
+                "ps",
+                120.0,
+                0.0,
+                5000.0,
+                "extra delay at the far end of the column RC line",
+            ),
+            p(
+                "pixel_sigma_ps",
+                "ps",
+                15.0,
+                0.0,
+                1000.0,
+                "per-pixel random delay standard deviation",
+            ),
+        ],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "amplitude_phase_error",
+        title: "Amplitude-dependent phase error",
+        explanation: "Non-linearity of pixel and read-out makes the phase depend on the signal amplitude (dark vs bright surfaces, fig. 2.9): Δφ = φ_max · A_ref / (A_ref + A) with A the differential amplitude in electrons.",
+        thesis_ref: "2.3.1.2 (fig. 2.9)",
+        signature: "depth error depending on amplitude (reflectivity, distance, exposure), not on phase",
+        params: &[
+            p(
+                "max_rad",
+                "rad",
+                0.03,
+                -0.5,
+                0.5,
+                "phase error φ_max in the limit of zero amplitude",
+            ),
+            p(
+                "reference_e",
+                "e-",
+                3000.0,
+                1.0,
+                1e8,
+                "amplitude A_ref at which half of φ_max remains",
+            ),
+        ],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "temperature_drift",
+        title: "Temperature drift of phase and gain",
+        explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ · (T − T_ref), gain ×(1 + k_g · (T − T_ref)). T is the capture's temperature_c.",
+        thesis_ref: "3.1 (temperature compensation step of fig. 3.1)",
+        signature: "depth offset and amplitude change linear in temperature_c",
+        params: &[
+            p(
+                "phase_mrad_per_k",
+                "mrad/K",
+                1.5,
+                -100.0,
+                100.0,
+                "phase drift k_φ",
+            ),
+            p(
+                "gain_rel_per_k",
+                "1/K",
+                -0.002,
+                -0.05,
+                0.05,
+                "relative signal drift k_g",
+            ),
+            p(
+                "reference_c",
+                "degC",
+                25.0,
+                -40.0,
+                125.0,
+                "temperature T_ref without drift",
+            ),
+        ],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "ambient_light",
+        title: "Uncorrelated background light",
+        explanation: "Background light (sunlight, lamps) is not modulated: it adds N_amb = k · E · t_exp electrons equally to both taps (E in klux, after the optical filter). It carries no phase but adds shot noise and drives the taps towards the SBI threshold.",
+        thesis_ref: "2.2.2.1, 5.1.2.3",
+        signature: "noise grows with ambient_klux; with SBI mismatch a 2-phase-only depth error",
+        params: &[p(
+            "e_per_us_per_klux",
+            "e-/us/klux",
+            3.0,
+            0.0,
+            1e4,
+            "electrons per µs per tap per klux",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "dark_current",
+        title: "Dark current and its shot noise",
+        explanation: "Thermally generated electrons add N_dark = i_d · t_exp to both taps, doubling every ΔT_2 kelvin: i_d(T) = i_d,25 · 2^((T − 25 °C)/ΔT_2). Their Poisson noise σ² = N_dark per tap (eq. 2.17) is part of this effect.",
+        thesis_ref: "2.3.2.3, eq. 2.17",
+        signature: "noise floor growing with exposure and temperature; common mode only",
+        params: &[
+            p(
+                "e_per_us",
+                "e-/us",
+                0.05,
+                0.0,
+                1e4,
+                "dark electrons per µs per tap at 25 °C",
+            ),
+            p(
+                "doubling_c",
+                "K",
+                7.0,
+                1.0,
+                30.0,
+                "temperature increase that doubles the dark current",
+            ),
+        ],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "sbi_asymmetry",
+        title: "SBI circuit with mismatch",
+        explanation: "The suppression-of-background-illumination circuit (fig. 2.7) monitors both taps; once the fuller tap passes the threshold Q_th (at t_on = Q_th / r_max) it injects the smaller photo-current into both taps. Mismatch m between the two injection transistors leaves a differential error ΔN = −m · r_min · (t_exp − t_on). The error depends on |C(φ−θ)| and is identical in the 0°/180° (90°/270°) images, so 4-phase cancels it and 2-phase does not (fig. 5.6-5.8).",
+        thesis_ref: "2.2.2.1, 5.1.2.3 (fig. 5.6-5.8)",
+        signature: "2-phase-only depth error rising with ambient_klux and exposure above a threshold; 4-phase unaffected",
+        params: &[
+            p(
+                "threshold_e",
+                "e-",
+                60000.0,
+                100.0,
+                1e8,
+                "tap charge Q_th at which the SBI starts to inject",
+            ),
+            p(
+                "mismatch_rel",
+                "",
+                0.03,
+                -0.3,
+                0.3,
+                "relative mismatch m of the injected currents between tap A and B",
+            ),
+        ],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "fpn_offset",
+        title: "Fixed-pattern offset (FPN) of the read-out",
+        explanation: "Every pixel's differential code carries a fixed offset from its read-out path (fig. 3.12): 16 ADCs with even/odd ping-pong channels (column c maps to ADC channel by the 32-column mirrored pattern of 3.3.7.1: col 0 → ADC0 odd, col 15 → ADC0 even, col 31 ≡ col 0), the column source follower/amplifier, a term growing along the column line, and the pixel's reset transistor. offset = ch(c) + col(c) + line · row/(rows−1) + pix(r, c); overall σ ≈ 34 LSB (fig. 3.13). It is what a dark frame measures and what the offset calibration subtracts.",
+        thesis_ref: "2.3.1.3, 3.3.3, 3.3.7.1 (fig. 3.12-3.16)",
+        signature: "constant per-pixel code offset, present in dark frames; column stripes; 2-phase depth error growing with distance",
+        params: &[
+            p(
+                "adc_channel_sigma_lsb",
+                "LSB",
+                8.0,
+                0.0,
+                500.0,
+                "offset standard deviation between ADC channels",
+            ),
+            p(
+                "column_sigma_lsb",
+                "LSB",
+                15.0,
+                0.0,
+                500.0,
+                "offset standard deviation between column amplifiers",
+            ),
+            p(
+                "pixel_sigma_lsb",
+                "LSB",
+                29.0,
+                0.0,
+                500.0,
+                "per-pixel offset standard deviation",
+            ),
+            p(
+                "column_line_lsb",
+                "LSB",
+                4.0,
+                -500.0,
+                500.0,
+                "offset change from the top to the bottom of a column line",
+            ),
+            p(
+                "mean_lsb",
+                "LSB",
+                0.0,
+                -1000.0,
+                1000.0,
+                "mean offset over the array",
+            ),
+        ],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "adc_gain",
+        title: "ADC gain error",
+        explanation: "The converter slope deviates from ideal by a gain error in % of full-scale range: k_gain = 2^N / (FSR · (1 + e_gain)) (eq. 3.2). A common factor on all raw images never changes the phase (eq. 3.3) but scales amplitude and moves saturation.",
+        thesis_ref: "3.2.1 eq. 3.2, 3.3.2 eq. 3.3, table 3.2",
+        signature: "amplitude ratio, earlier saturation; no depth effect",
+        params: &[p(
+            "gain_error_pct_fsr",
+            "%FSR",
+            -4.713,
+            -30.0,
+            30.0,
+            "gain error e_gain (table 3.2: min -6.096, typ -4.713, max -2.176)",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "adc_offset",
+        title: "ADC offset error",
+        explanation: "A constant added to the transfer function: code = mid + k·u + o (3.2.1). Equal in all raw images, it adds a 45° phasor in 2-phase (eq. 3.4, fig. 3.7) and cancels in 4-phase; it is part of what dark frames measure.",
+        thesis_ref: "3.2.1, 3.3.3 eq. 3.4, fig. 3.7, table 3.2",
+        signature: "constant code offset; 2-phase depth error growing with distance (45° phasor)",
+        params: &[p(
+            "offset_lsb",
+            "LSB",
+            -10.84,
+            -500.0,
+            500.0,
+            "offset error o (table 3.2: min -13.94, typ -10.84, max 12.19)",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "adc_inl",
+        title: "ADC integral non-linearity",
+        explanation: "The differential converter's INL has opposite sign on the two half-ranges (fig. 3.4): INL(u) = I · sin(2π u / 2^N) for u the input in LSB around mid, zero at mid and at the rails, extremes ±I at half of each half-range. It distorts large phase-image voltages and gives a wiggling-like error with extremes at 22.5°/67.5° and zeros at multiples of 45° (fig. 3.8).",
+        thesis_ref: "3.2.1, 3.3.1, 3.3.4 (fig. 3.4, 3.8), table 3.2",
+        signature: "raw residual odd in (code − mid) with period 2^N; depth error with period π/2 growing with amplitude",
+        params: &[p(
+            "inl_lsb",
+            "LSB",
+            -1.744,
+            -500.0,
+            500.0,
+            "INL extreme I (table 3.2: min -2.392, typ -1.744, max 1.875)",
+        )],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "adc_dnl",
+        title: "ADC differential non-linearity",
+        explanation: "Code transition levels deviate randomly from their ideal positions, T_k = k − ½ + ε_k with ε_k Gaussian (σ = DNL/(3√2), clipped to ±DNL/2) from a fixed per-sensor table, so step widths 1 + ε_{k+1} − ε_k lie within 1 ± DNL LSB (a transition below its predecessor is a missing code).",
+        thesis_ref: "3.2.1, 3.3.1, 3.3.5 (fig. 3.9), table 3.2",
+        signature: "raw residual jumping from code to code, fixed per code; depth error well below 1 cm",
+        params: &[p(
+            "dnl_lsb",
+            "LSB",
+            1.906,
+            0.0,
+            4.0,
+            "maximum DNL (table 3.2: min 1.594, typ 1.906, max 2.438)",
+        )],
+        in_baseline: false,
+    },
+    EffectInfo {
+        id: "quantization",
+        title: "Quantisation to integer codes",
+        explanation: "The ADC outputs integer codes: uniform error in [−½, ½] LSB with σ = 1/√12 LSB (2.3.2.5). Averaged captures (averaged = n) return the mean of n quantised acquisitions, modelled as the continuous transfer plus noise of variance (σ² + 1/12)/n. Codes saturate at 0 and 2^N − 1 (the saturation flag of 3.2.1) whether or not this effect is on.",
+        thesis_ref: "2.3.2.5, eq. 2.20-2.21, 3.2.1",
+        signature: "integer codes; 1/12 LSB² noise floor",
+        params: &[],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "shot_noise",
+        title: "Photon shot noise",
+        explanation: "Photo-electrons arrive Poisson-distributed: σ² = N per tap (eq. 2.16) including the background-light electrons; the taps are independent so the differential variance is N_A + N_B (times an excess noise factor F). Scaled by 1/averaged for averaged captures. Together with read noise this gives the photon transfer curve var = g² F (N_A + N_B) + σ_read² (2.3.2.6).",
+        thesis_ref: "2.3.2.2 eq. 2.16, 2.3.2.6",
+        signature: "variance linear in the collected electrons (photon transfer curve)",
+        params: &[p(
+            "excess_noise_factor",
+            "",
+            1.0,
+            1.0,
+            5.0,
+            "excess noise factor F (1 = pure Poisson)",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "read_noise",
+        title: "Read-out noise",
+        explanation: "Thermal noise of source follower, column amplifier and ADC (eq. 2.18) referred to the output: Gaussian σ_read in LSB, independent of light; the floor of the photon transfer curve.",
+        thesis_ref: "2.3.2.4, 2.3.2.6",
+        signature: "constant noise floor in dark frames",
+        params: &[p(
+            "sigma_lsb",
+            "LSB",
+            1.2,
+            0.0,
+            100.0,
+            "read noise standard deviation",
+        )],
+        in_baseline: true,
+    },
+    EffectInfo {
+        id: "ktc_noise",
+        title: "Reset (kTC) noise",
+        explanation: "Resetting the integration capacitance leaves an uncertain charge σ = √(k T C_int)/e per tap (eq. 2.14-2.15), T the capture's temperature; both taps independent.",
+        thesis_ref: "2.3.2.1 eq. 2.14-2.15",
+        signature: "constant noise floor growing slowly with temperature",
+        params: &[p(
+            "c_int_ff",
+            "fF",
+            20.0,
+            0.01,
+            10000.0,
+            "integration capacitance C_int per tap",
+        )],
+        in_baseline: true,
+    },
+];
+
+/// Look up an effect by id.
+pub fn effect(id: &str) -> Option<&'static EffectInfo> {
+    CATALOGUE.iter().find(|e| e.id == id)
+}
+
+/// The catalogue of effects.
+pub fn catalogue() -> &'static [EffectInfo] {
+    CATALOGUE
+}

@@ -1,0 +1,490 @@
+//! Model files: one `[effects.<id>]` table per catalogue effect with `enabled` and
+//! its parameters, plus the always-on `[sensor]` constants. Everything is validated
+//! against the catalogue: unknown ids/parameters and values outside the physical
+//! range are errors naming the key and the allowed range.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
+use crate::error::{ErrorKind, ModelError};
+
+/// Settings of one effect.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectSettings {
+    /// Whether the effect is part of the model.
+    pub enabled: bool,
+    /// Parameter values by name (every catalogue parameter is present).
+    pub params: BTreeMap<&'static str, f64>,
+}
+
+/// Measured illumination and modulation waveforms (one period each, equally spaced).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeasuredWaveforms {
+    /// Optical power of the illumination over one period (arbitrary units, ≥ 0).
+    pub illumination: Vec<f64>,
+    /// Modulation gate signal over one period, 0 = tap B … 1 = tap A.
+    pub modulation: Vec<f64>,
+    /// Where the illumination was loaded from (kept for `to_toml_string`).
+    pub illumination_file: Option<PathBuf>,
+    /// Where the modulation was loaded from.
+    pub modulation_file: Option<PathBuf>,
+}
+
+/// A complete, validated model: which effects are on and their parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelConfig {
+    /// Free text description.
+    pub description: Option<String>,
+    sensor: BTreeMap<&'static str, f64>,
+    effects: BTreeMap<&'static str, EffectSettings>,
+    waveforms: Option<MeasuredWaveforms>,
+}
+
+fn typical_params(params: &'static [ParamInfo]) -> BTreeMap<&'static str, f64> {
+    params.iter().map(|p| (p.name, p.typical)).collect()
+}
+
+fn check_range(section: &str, info: &ParamInfo, v: f64) -> Result<(), ModelError> {
+    if !v.is_finite() || v < info.min || v > info.max {
+        return Err(ModelError::new(
+            ErrorKind::OutOfRange,
+            format!(
+                "`{section}.{}` = {v} is outside the physical range [{}, {}]{}",
+                info.name,
+                info.min,
+                info.max,
+                if info.unit.is_empty() {
+                    String::new()
+                } else {
+                    format!(" {}", info.unit)
+                }
+            ),
+        ));
+    }
+    Ok(())
+}
+
+fn allowed_names(params: &[ParamInfo]) -> String {
+    params.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
+}
+
+fn value_as_f64(key: &str, v: &toml::Value) -> Result<f64, ModelError> {
+    match v {
+        toml::Value::Float(f) => Ok(*f),
+        toml::Value::Integer(i) => Ok(*i as f64),
+        other => Err(ModelError::new(
+            ErrorKind::Parse,
+            format!("`{key}` must be a number, found {}", other.type_str()),
+        )),
+    }
+}
+
+impl ModelConfig {
+    fn with_all(enabled: impl Fn(&catalogue::EffectInfo) -> bool) -> Self {
+        Self {
+            description: None,
+            sensor: typical_params(SENSOR_PARAMS),
+            effects: CATALOGUE
+                .iter()
+                .map(|e| {
+                    (
+                        e.id,
+                        EffectSettings {
+                            enabled: enabled(e),
+                            params: typical_params(e.params),
+                        },
+                    )
+                })
+                .collect(),
+            waveforms: None,
+        }
+    }
+
+    /// Everything a usual calibration covers, typical parameters.
+    pub fn baseline() -> Self {
+        let mut m = Self::with_all(|e| e.in_baseline);
+        m.description = Some("baseline: what a usual calibration covers".into());
+        m
+    }
+    /// Every effect enabled with its typical parameters.
+    pub fn full() -> Self {
+        let mut m = Self::with_all(|_| true);
+        m.description = Some("full: every effect of the catalogue".into());
+        m
+    }
+    /// Every effect disabled: the ideal sinusoidal sensor of eq. 2.2/2.3.
+    pub fn ideal() -> Self {
+        let mut m = Self::with_all(|_| false);
+        m.description = Some("ideal: every effect off".into());
+        m
+    }
+
+    /// Load and validate a model file; waveform files are resolved relative to it.
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            ModelError::new(ErrorKind::Io, format!("cannot read model file: {e}")).with_path(path)
+        })?;
+        let base = path.parent().map(Path::to_path_buf);
+        Self::parse(&text, base.as_deref()).map_err(|e| e.with_path(path))
+    }
+
+    /// Parse and validate a model from TOML text (waveform files relative to the working directory).
+    pub fn from_toml_str(s: &str) -> Result<Self, ModelError> {
+        Self::parse(s, None)
+    }
+
+    fn parse(s: &str, base: Option<&Path>) -> Result<Self, ModelError> {
+        let table: toml::Table = toml::from_str(s)
+            .map_err(|e| ModelError::new(ErrorKind::Parse, format!("invalid TOML: {e}")))?;
+        // Tables not mentioned keep their defaults: effects disabled, typical parameters.
+        let mut m = Self::with_all(|_| false);
+        for (key, value) in &table {
+            match key.as_str() {
+                "description" => match value {
+                    toml::Value::String(d) => m.description = Some(d.clone()),
+                    _ => {
+                        return Err(ModelError::new(
+                            ErrorKind::Parse,
+                            "`description` must be a string",
+                        ));
+                    }
+                },
+                SENSOR_SECTION => {
+                    let t = value.as_table().ok_or_else(|| {
+                        ModelError::new(ErrorKind::Parse, "`sensor` must be a table")
+                    })?;
+                    for (name, v) in t {
+                        let info =
+                            SENSOR_PARAMS
+                                .iter()
+                                .find(|p| p.name == name)
+                                .ok_or_else(|| {
+                                    ModelError::new(
+                                        ErrorKind::UnknownParam,
+                                        format!(
+                                            "unknown parameter `sensor.{name}` (allowed: {})",
+                                            allowed_names(SENSOR_PARAMS)
+                                        ),
+                                    )
+                                })?;
+                        let f = value_as_f64(&format!("sensor.{name}"), v)?;
+                        check_range(SENSOR_SECTION, info, f)?;
+                        m.sensor.insert(info.name, f);
+                    }
+                }
+                "effects" => {
+                    let t = value.as_table().ok_or_else(|| {
+                        ModelError::new(ErrorKind::Parse, "`effects` must be a table of tables")
+                    })?;
+                    for (id, v) in t {
+                        m.parse_effect(id, v, base)?;
+                    }
+                }
+                other => {
+                    return Err(ModelError::new(
+                        ErrorKind::UnknownParam,
+                        format!(
+                            "unknown top-level key `{other}` (allowed: description, sensor, effects)"
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(m)
+    }
+
+    fn parse_effect(
+        &mut self,
+        id: &str,
+        v: &toml::Value,
+        base: Option<&Path>,
+    ) -> Result<(), ModelError> {
+        let info = catalogue::effect(id).ok_or_else(|| unknown_effect(id))?;
+        let t = v.as_table().ok_or_else(|| {
+            ModelError::new(ErrorKind::Parse, format!("`effects.{id}` must be a table"))
+        })?;
+        let section = format!("effects.{id}");
+        let mut illum: Option<(Vec<f64>, Option<PathBuf>)> = None;
+        let mut modul: Option<(Vec<f64>, Option<PathBuf>)> = None;
+        for (name, value) in t {
+            if name == "enabled" {
+                let b = value.as_bool().ok_or_else(|| {
+                    ModelError::new(
+                        ErrorKind::Parse,
+                        format!("`{section}.enabled` must be true or false"),
+                    )
+                })?;
+                if let Some(s) = self.effects.get_mut(info.id) {
+                    s.enabled = b;
+                }
+                continue;
+            }
+            if info.id == "waveform_harmonics" {
+                let key = format!("{section}.{name}");
+                match name.as_str() {
+                    "illumination_file" | "modulation_file" => {
+                        let rel = value.as_str().ok_or_else(|| {
+                            ModelError::new(
+                                ErrorKind::Parse,
+                                format!("`{key}` must be a file path"),
+                            )
+                        })?;
+                        let path = match base {
+                            Some(b) if Path::new(rel).is_relative() => b.join(rel),
+                            _ => PathBuf::from(rel),
+                        };
+                        let samples = crate::effects::optical::load_waveform(&path)
+                            .map_err(|e| ModelError::new(e.kind(), format!("`{key}`: {e}")))?;
+                        let slot = if name == "illumination_file" {
+                            &mut illum
+                        } else {
+                            &mut modul
+                        };
+                        *slot = Some((samples, Some(PathBuf::from(rel))));
+                        continue;
+                    }
+                    "illumination" | "modulation" => {
+                        let arr = value.as_array().ok_or_else(|| {
+                            ModelError::new(
+                                ErrorKind::Parse,
+                                format!("`{key}` must be an array of numbers"),
+                            )
+                        })?;
+                        let samples = arr
+                            .iter()
+                            .map(|x| value_as_f64(&key, x))
+                            .collect::<Result<Vec<_>, _>>()?;
+                        let slot = if name == "illumination" {
+                            &mut illum
+                        } else {
+                            &mut modul
+                        };
+                        *slot = Some((samples, None));
+                        continue;
+                    }
+                    _ => {}
+                }
+            }
+            let pinfo = info.param(name).ok_or_else(|| {
+                let extra = if info.id == "waveform_harmonics" {
+                    ", illumination_file, modulation_file, illumination, modulation"
+                } else {
+                    ""
+                };
+                ModelError::new(
+                    ErrorKind::UnknownParam,
+                    format!(
+                        "unknown parameter `{section}.{name}` (allowed: enabled, {}{extra})",
+                        allowed_names(info.params)
+                    ),
+                )
+            })?;
+            let f = value_as_f64(&format!("{section}.{name}"), value)?;
+            check_range(&section, pinfo, f)?;
+            if let Some(s) = self.effects.get_mut(info.id) {
+                s.params.insert(pinfo.name, f);
+            }
+        }
+        match (illum, modul) {
+            (None, None) => {}
+            (Some((i, ip)), Some((m, mp))) => {
+                crate::effects::optical::validate_waveforms(&i, &m)
+                    .map_err(|e| ModelError::new(e.kind(), format!("`{section}`: {e}")))?;
+                self.waveforms = Some(MeasuredWaveforms {
+                    illumination: i,
+                    modulation: m,
+                    illumination_file: ip,
+                    modulation_file: mp,
+                });
+            }
+            _ => {
+                return Err(ModelError::new(
+                    ErrorKind::InvalidInput,
+                    format!(
+                        "`{section}`: measured waveforms need both an illumination and a modulation waveform"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Serialise to a model file that parses back to the same model.
+    pub fn to_toml_string(&self) -> String {
+        let mut out = String::new();
+        if let Some(d) = &self.description {
+            let _ = writeln!(out, "description = {}", toml::Value::String(d.clone()));
+            out.push('\n');
+        }
+        let _ = writeln!(out, "[sensor]");
+        for p in SENSOR_PARAMS {
+            let v = self.sensor.get(p.name).copied().unwrap_or(p.typical);
+            let _ = writeln!(out, "{} = {:?}  # {}", p.name, v, p.unit);
+        }
+        for e in CATALOGUE {
+            let Some(s) = self.effects.get(e.id) else {
+                continue;
+            };
+            let _ = writeln!(
+                out,
+                "\n# {} ({})\n[effects.{}]",
+                e.title, e.thesis_ref, e.id
+            );
+            let _ = writeln!(out, "enabled = {}", s.enabled);
+            for p in e.params {
+                let v = s.params.get(p.name).copied().unwrap_or(p.typical);
+                let unit = if p.unit.is_empty() {
+                    String::new()
+                } else {
+                    format!("  # {}", p.unit)
+                };
+                let _ = writeln!(out, "{} = {:?}{unit}", p.name, v);
+            }
+            if let (true, Some(w)) = (e.id == "waveform_harmonics", &self.waveforms) {
+                write_wave(
+                    &mut out,
+                    "illumination",
+                    &w.illumination,
+                    w.illumination_file.as_deref(),
+                );
+                write_wave(
+                    &mut out,
+                    "modulation",
+                    &w.modulation,
+                    w.modulation_file.as_deref(),
+                );
+            }
+        }
+        out
+    }
+
+    /// Whether an effect is enabled (false for unknown ids).
+    pub fn is_enabled(&self, id: &str) -> bool {
+        self.effects.get(id).is_some_and(|s| s.enabled)
+    }
+
+    /// Switch an effect on or off.
+    pub fn set_enabled(&mut self, id: &str, on: bool) -> Result<(), ModelError> {
+        let s = self.effects.get_mut(id).ok_or_else(|| unknown_effect(id))?;
+        s.enabled = on;
+        Ok(())
+    }
+
+    /// A parameter value; `id` is an effect id or `"sensor"`.
+    pub fn param(&self, id: &str, name: &str) -> Option<f64> {
+        if id == SENSOR_SECTION {
+            return self.sensor.get(name).copied();
+        }
+        self.effects.get(id)?.params.get(name).copied()
+    }
+
+    /// Set a parameter (range-checked); `id` is an effect id or `"sensor"`.
+    pub fn set_param(&mut self, id: &str, name: &str, v: f64) -> Result<(), ModelError> {
+        let (section, params): (String, &'static [ParamInfo]) = if id == SENSOR_SECTION {
+            (SENSOR_SECTION.to_string(), SENSOR_PARAMS)
+        } else {
+            let info = catalogue::effect(id).ok_or_else(|| unknown_effect(id))?;
+            (format!("effects.{id}"), info.params)
+        };
+        let info = params.iter().find(|p| p.name == name).ok_or_else(|| {
+            ModelError::new(
+                ErrorKind::UnknownParam,
+                format!(
+                    "unknown parameter `{section}.{name}` (allowed: {})",
+                    allowed_names(params)
+                ),
+            )
+        })?;
+        check_range(&section, info, v)?;
+        let map = if id == SENSOR_SECTION {
+            &mut self.sensor
+        } else {
+            match self.effects.get_mut(id) {
+                Some(s) => &mut s.params,
+                None => return Err(unknown_effect(id)),
+            }
+        };
+        map.insert(info.name, v);
+        Ok(())
+    }
+
+    /// Settings of one effect.
+    pub fn effect(&self, id: &str) -> Option<&EffectSettings> {
+        self.effects.get(id)
+    }
+
+    /// Ids of the enabled effects, in catalogue order.
+    pub fn enabled_effects(&self) -> Vec<&'static str> {
+        CATALOGUE
+            .iter()
+            .filter(|e| self.is_enabled(e.id))
+            .map(|e| e.id)
+            .collect()
+    }
+
+    /// Measured waveforms used by `waveform_harmonics` instead of its harmonic parameters.
+    pub fn waveforms(&self) -> Option<&MeasuredWaveforms> {
+        self.waveforms.as_ref()
+    }
+
+    /// Use measured illumination/modulation waveforms (one period each) for the correlation.
+    pub fn set_waveforms(
+        &mut self,
+        illumination: Vec<f64>,
+        modulation: Vec<f64>,
+    ) -> Result<(), ModelError> {
+        crate::effects::optical::validate_waveforms(&illumination, &modulation)?;
+        self.waveforms = Some(MeasuredWaveforms {
+            illumination,
+            modulation,
+            illumination_file: None,
+            modulation_file: None,
+        });
+        Ok(())
+    }
+
+    /// Go back to the harmonic parameters for the correlation.
+    pub fn clear_waveforms(&mut self) {
+        self.waveforms = None;
+    }
+
+    /// Parameter value with the catalogue default as fallback (internal use).
+    pub(crate) fn p(&self, id: &str, name: &str) -> f64 {
+        self.param(id, name).unwrap_or(0.0)
+    }
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self::baseline()
+    }
+}
+
+fn write_wave(out: &mut String, name: &str, samples: &[f64], file: Option<&Path>) {
+    match file {
+        Some(f) => {
+            let _ = writeln!(
+                out,
+                "{name}_file = {}",
+                toml::Value::String(f.display().to_string())
+            );
+        }
+        None => {
+            let list: Vec<String> = samples.iter().map(|v| format!("{v:?}")).collect();
+            let _ = writeln!(out, "{name} = [{}]", list.join(", "));
+        }
+    }
+}
+
+fn unknown_effect(id: &str) -> ModelError {
+    let known: Vec<&str> = CATALOGUE.iter().map(|e| e.id).collect();
+    ModelError::new(
+        ErrorKind::UnknownEffect,
+        format!(
+            "unknown effect `effects.{id}` (known: {})",
+            known.join(", ")
+        ),
+    )
+}

@@ -1,0 +1,131 @@
+//! Fixed per-pixel patterns: `prnu`, `fpn_offset`, `fppn`.
+//!
+//! Every random draw is a pure function of (seed, effect tag, full-array position),
+//! so a read-out window sees exactly the same pixels as the full array.
+
+use crate::config::ModelConfig;
+use crate::geometry::SensorGeometry;
+
+/// SplitMix64 step: a well-mixed 64-bit hash.
+pub(crate) fn mix64(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Deterministic standard normal for (seed, tag, a, b) (Box-Muller on two hashed uniforms).
+pub(crate) fn hashed_normal(seed: u64, tag: u64, a: u64, b: u64) -> f64 {
+    let h1 = mix64(seed ^ mix64(tag.wrapping_mul(0x1000_0000_01B3) ^ mix64(a ^ (b << 32))));
+    let h2 = mix64(h1 ^ 0xD1B5_4A32_D192_ED03);
+    // uniforms in (0, 1]
+    let u1 = ((h1 >> 11) as f64 + 1.0) / (1u64 << 53) as f64;
+    let u2 = (h2 >> 11) as f64 / (1u64 << 53) as f64;
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+const TAG_PRNU: u64 = 1;
+const TAG_FPN_CH: u64 = 2;
+const TAG_FPN_COL: u64 = 3;
+const TAG_FPN_PIX: u64 = 4;
+const TAG_FPPN: u64 = 5;
+pub(crate) const TAG_DNL: u64 = 6;
+
+/// ADC channel (0..32: `2·adc + parity`) converting full-array column `col`.
+///
+/// Our reading of fig. 3.12 / 3.3.7.1: within a 32-column block the pattern is
+/// mirrored (column 31 has the read-out path of column 0); column j < 8 of the
+/// mirrored half goes to ADC j's odd channel, column 15 − j to ADC j's even
+/// channel (col 0 → ADC 0 odd, col 15 → ADC 0 even); alternate 32-column blocks
+/// use ADCs 8..15, so all 16 ADCs are used.
+pub fn adc_channel(col: usize) -> usize {
+    let p = col % 32;
+    let q = p.min(31 - p);
+    let (adc, odd) = if q < 8 { (q, 1) } else { (15 - q, 0) };
+    let adc = adc + 8 * ((col / 32) % 2);
+    2 * adc + odd
+}
+
+/// Per-pixel constants of one sensor, row-major over the window.
+#[derive(Debug, Clone)]
+pub struct FixedPatterns {
+    /// Differential offset at the ADC input in LSB (`fpn_offset`).
+    pub offset_lsb: Vec<f64>,
+    /// Response gain incl. vignetting (`prnu`), 1 when disabled.
+    pub gain: Vec<f64>,
+    /// Phase delay in rad (`fppn`, incl. global delay), 0 when disabled.
+    pub delay_rad: Vec<f64>,
+}
+
+impl FixedPatterns {
+    pub(crate) fn draw(model: &ModelConfig, g: &SensorGeometry, seed: u64) -> Self {
+        let n = g.rows * g.cols;
+        let mut offset_lsb = vec![0.0; n];
+        let mut gain = vec![1.0; n];
+        let mut delay_rad = vec![0.0; n];
+        let fr = g.full_rows.max(2) as f64 - 1.0;
+        let fc = g.full_cols.max(2) as f64 - 1.0;
+        let (cr, cc) = (fr / 2.0, fc / 2.0);
+        let corner2 = cr * cr + cc * cc;
+
+        let fpn = model.is_enabled("fpn_offset");
+        let (s_ch, s_col, s_pix, line, mean) = (
+            model.p("fpn_offset", "adc_channel_sigma_lsb"),
+            model.p("fpn_offset", "column_sigma_lsb"),
+            model.p("fpn_offset", "pixel_sigma_lsb"),
+            model.p("fpn_offset", "column_line_lsb"),
+            model.p("fpn_offset", "mean_lsb"),
+        );
+        let prnu = model.is_enabled("prnu");
+        let (s_gain, vig) = (
+            model.p("prnu", "sigma_rel"),
+            model.p("prnu", "vignetting_rel"),
+        );
+        let fppn = model.is_enabled("fppn");
+        let w = std::f64::consts::TAU * g.modulation_hz;
+        let (tg, tc, tp) = (
+            model.p("fppn", "global_delay_ns") * 1e-9,
+            model.p("fppn", "column_delay_ps") * 1e-12,
+            model.p("fppn", "pixel_sigma_ps") * 1e-12,
+        );
+
+        for r in 0..g.rows {
+            let fr_idx = r + g.roi_origin[0];
+            let x = fr_idx as f64 / fr; // position along the column line, 0 = top
+            for c in 0..g.cols {
+                let fc_idx = c + g.roi_origin[1];
+                let i = r * g.cols + c;
+                let (ru, cu) = (fr_idx as u64, fc_idx as u64);
+                if fpn {
+                    // 3.3.7.1: ADC channel + column amplifier + column line + pixel
+                    let ch = adc_channel(fc_idx) as u64;
+                    offset_lsb[i] = mean
+                        + s_ch * hashed_normal(seed, TAG_FPN_CH, ch, 0)
+                        + s_col * hashed_normal(seed, TAG_FPN_COL, cu, 0)
+                        + line * x
+                        + s_pix * hashed_normal(seed, TAG_FPN_PIX, ru, cu);
+                }
+                if prnu {
+                    let (dr, dc) = (fr_idx as f64 - cr, fc_idx as f64 - cc);
+                    let r2 = if corner2 > 0.0 {
+                        (dr * dr + dc * dc) / corner2
+                    } else {
+                        0.0
+                    };
+                    let gp = 1.0 + s_gain * hashed_normal(seed, TAG_PRNU, ru, cu);
+                    gain[i] = (gp * (1.0 - vig * r2)).max(0.0);
+                }
+                if fppn {
+                    // 2.3.1.4: distributed RC line (Elmore delay x(2 − x)) + global + pixel
+                    let tau = tg + tc * x * (2.0 - x) + tp * hashed_normal(seed, TAG_FPPN, ru, cu);
+                    delay_rad[i] = w * tau;
+                }
+            }
+        }
+        Self {
+            offset_lsb,
+            gain,
+            delay_rad,
+        }
+    }
+}

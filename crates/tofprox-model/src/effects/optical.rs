@@ -1,0 +1,323 @@
+//! Optical effects: `signal_falloff`, `demodulation_contrast`, `waveform_harmonics`,
+//! `multipath`, `vcsel_droop`, `ambient_light`.
+
+use std::f64::consts::TAU;
+use std::path::Path;
+
+use crate::config::ModelConfig;
+use crate::error::{ErrorKind, ModelError};
+
+/// Number of table entries per period of the correlation function.
+const TABLE_SIZE: usize = 8192;
+/// Harmonics kept when a measured waveform pair is correlated.
+const MEASURED_HARMONICS: usize = 31;
+
+/// The correlation function C(x) of illumination and modulation, normalised so that
+/// max |C| = 1 (or exactly `cos` when `waveform_harmonics` is disabled).
+#[derive(Debug, Clone)]
+pub struct Correlation {
+    /// `None`: exact cosine (ideal sinusoidal case of eq. 2.2/2.3).
+    table: Option<Vec<f64>>,
+    /// Fourier coefficients (a_n, b_n), n = 0.., of the normalised C: C = Σ a_n cos nx + b_n sin nx.
+    coefficients: Vec<(f64, f64)>,
+}
+
+impl Correlation {
+    /// The ideal sinusoidal correlation.
+    pub fn cosine() -> Self {
+        Self {
+            table: None,
+            coefficients: vec![(0.0, 0.0), (1.0, 0.0)],
+        }
+    }
+
+    /// From Fourier coefficients (a_n, b_n), normalised to max |C| = 1.
+    pub fn from_coefficients(mut coefficients: Vec<(f64, f64)>) -> Self {
+        let eval = |c: &[(f64, f64)], x: f64| -> f64 {
+            c.iter()
+                .enumerate()
+                .map(|(n, (a, b))| a * (n as f64 * x).cos() + b * (n as f64 * x).sin())
+                .sum()
+        };
+        let mut table: Vec<f64> = (0..=TABLE_SIZE)
+            .map(|i| eval(&coefficients, TAU * i as f64 / TABLE_SIZE as f64))
+            .collect();
+        let peak = table.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if peak > 0.0 {
+            for v in &mut table {
+                *v /= peak;
+            }
+            for c in &mut coefficients {
+                c.0 /= peak;
+                c.1 /= peak;
+            }
+        }
+        Self {
+            table: Some(table),
+            coefficients,
+        }
+    }
+
+    /// C(x) = cos x + Σ_{n=2..9} r_n cos(n x + ψ_n) (section 3.2.2).
+    pub fn from_harmonics(rel: &[(f64, f64)]) -> Self {
+        let mut c = vec![(0.0, 0.0), (1.0, 0.0)];
+        for &(r, psi_deg) in rel {
+            let psi = psi_deg.to_radians();
+            // r cos(nx + ψ) = r cos ψ cos nx − r sin ψ sin nx
+            c.push((r * psi.cos(), -r * psi.sin()));
+        }
+        Self::from_coefficients(c)
+    }
+
+    /// Circular cross-correlation of measured waveforms: C(τ) = ⟨s(t) · (2 r(t + τ) − 1)⟩.
+    pub fn from_waveforms(illumination: &[f64], modulation: &[f64]) -> Self {
+        let s = fourier(illumination, MEASURED_HARMONICS);
+        let m: Vec<(f64, f64)> = fourier(modulation, MEASURED_HARMONICS)
+            .iter()
+            .enumerate()
+            .map(|(n, &(re, im))| {
+                if n == 0 {
+                    (2.0 * re - 1.0, 0.0)
+                } else {
+                    (2.0 * re, 2.0 * im)
+                }
+            })
+            .collect();
+        // s(t) = Σ S_n e^{int}; ⟨s(t) m(t+τ)⟩ = Σ_n conj(S_n) M_n e^{inτ}
+        let mut coef = Vec::with_capacity(MEASURED_HARMONICS + 1);
+        for n in 0..=MEASURED_HARMONICS {
+            let (sr, si) = s[n];
+            let (mr, mi) = m[n];
+            // conj(S) M = (sr − i si)(mr + i mi)
+            let re = sr * mr + si * mi;
+            let im = sr * mi - si * mr;
+            if n == 0 {
+                coef.push((re, 0.0));
+            } else {
+                // 2 Re(z e^{inτ}) = 2 re cos nτ − 2 im sin nτ
+                coef.push((2.0 * re, -2.0 * im));
+            }
+        }
+        Self::from_coefficients(coef)
+    }
+
+    /// Build the correlation the model asks for.
+    pub fn from_model(model: &ModelConfig) -> Self {
+        if !model.is_enabled("waveform_harmonics") {
+            return Self::cosine();
+        }
+        if let Some(w) = model.waveforms() {
+            return Self::from_waveforms(&w.illumination, &w.modulation);
+        }
+        let rel: Vec<(f64, f64)> = (2..=9)
+            .map(|n| {
+                (
+                    model.p("waveform_harmonics", &format!("h{n}_rel")),
+                    model.p("waveform_harmonics", &format!("h{n}_phase_deg")),
+                )
+            })
+            .collect();
+        Self::from_harmonics(&rel)
+    }
+
+    /// C(x) for any real x (period 2π).
+    #[inline]
+    pub fn eval(&self, x: f64) -> f64 {
+        match &self.table {
+            None => x.cos(),
+            Some(t) => {
+                let u = x * (TABLE_SIZE as f64 / TAU);
+                let f = u - u.floor();
+                let pos = f * TABLE_SIZE as f64;
+                let i = (pos as usize).min(TABLE_SIZE - 1);
+                let w = pos - i as f64;
+                match (t.get(i), t.get(i + 1)) {
+                    (Some(a), Some(b)) => a + (b - a) * w,
+                    _ => x.cos(),
+                }
+            }
+        }
+    }
+
+    /// Fourier coefficients (a_n, b_n) of the normalised correlation.
+    pub fn coefficients(&self) -> &[(f64, f64)] {
+        &self.coefficients
+    }
+
+    /// Whether this is the exact cosine.
+    pub fn is_cosine(&self) -> bool {
+        self.table.is_none()
+    }
+}
+
+/// Complex Fourier coefficients c_n = (1/M) Σ x_k e^{−i n 2π k/M}, n = 0..=nmax.
+fn fourier(x: &[f64], nmax: usize) -> Vec<(f64, f64)> {
+    let m = x.len().max(1) as f64;
+    (0..=nmax)
+        .map(|n| {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (k, v) in x.iter().enumerate() {
+                let a = TAU * (n * k) as f64 / m;
+                re += v * a.cos();
+                im -= v * a.sin();
+            }
+            (re / m, im / m)
+        })
+        .collect()
+}
+
+/// Check a measured waveform pair.
+pub fn validate_waveforms(illumination: &[f64], modulation: &[f64]) -> Result<(), ModelError> {
+    for (name, w) in [("illumination", illumination), ("modulation", modulation)] {
+        if w.len() < 16 || w.len() > 1_000_000 {
+            return Err(ModelError::new(
+                ErrorKind::OutOfRange,
+                format!(
+                    "{name} waveform has {} samples, allowed [16, 1000000] (one period)",
+                    w.len()
+                ),
+            ));
+        }
+        if let Some(v) = w.iter().find(|v| !v.is_finite()) {
+            return Err(ModelError::new(
+                ErrorKind::OutOfRange,
+                format!("{name} waveform contains {v}"),
+            ));
+        }
+    }
+    if illumination.iter().any(|&v| v < 0.0) || illumination.iter().all(|&v| v == 0.0) {
+        return Err(ModelError::new(
+            ErrorKind::OutOfRange,
+            "illumination waveform must be optical power ≥ 0 and not all zero",
+        ));
+    }
+    if modulation.iter().any(|&v| !(0.0..=1.0).contains(&v)) {
+        return Err(ModelError::new(
+            ErrorKind::OutOfRange,
+            "modulation waveform must lie in [0, 1] (1 = charge to tap A, 0 = tap B)",
+        ));
+    }
+    let s = fourier(illumination, 1);
+    let m = fourier(modulation, 1);
+    if s[1].0.hypot(s[1].1) < 1e-9 || m[1].0.hypot(m[1].1) < 1e-9 {
+        return Err(ModelError::new(
+            ErrorKind::OutOfRange,
+            "waveform has no component at the modulation frequency",
+        ));
+    }
+    Ok(())
+}
+
+/// Load one period of a waveform from CSV (one value per line, or the last column
+/// of comma/whitespace separated rows; `#` comments and a header line allowed) or NPY (1-D float).
+pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
+    let is_npy = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    if is_npy {
+        let file = std::fs::File::open(path).map_err(|e| {
+            ModelError::new(
+                ErrorKind::Io,
+                format!("cannot open {}: {e}", path.display()),
+            )
+        })?;
+        use ndarray_npy::ReadNpyExt;
+        if let Ok(a) = ndarray::Array1::<f64>::read_npy(&file) {
+            return Ok(a.to_vec());
+        }
+        let file = std::fs::File::open(path).map_err(|e| {
+            ModelError::new(
+                ErrorKind::Io,
+                format!("cannot open {}: {e}", path.display()),
+            )
+        })?;
+        return ndarray::Array1::<f32>::read_npy(file)
+            .map(|a| a.iter().map(|&v| f64::from(v)).collect())
+            .map_err(|e| {
+                ModelError::new(
+                    ErrorKind::Parse,
+                    format!(
+                        "{}: not a 1-D float64/float32 NPY array: {e}",
+                        path.display()
+                    ),
+                )
+            });
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| {
+        ModelError::new(
+            ErrorKind::Io,
+            format!("cannot read {}: {e}", path.display()),
+        )
+    })?;
+    let mut out = Vec::new();
+    for (lineno, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let last = line
+            .split([',', ';', ' ', '\t'])
+            .rfind(|s| !s.is_empty())
+            .unwrap_or("");
+        match last.parse::<f64>() {
+            Ok(v) => out.push(v),
+            Err(_) if out.is_empty() => continue, // header line
+            Err(_) => {
+                return Err(ModelError::new(
+                    ErrorKind::Parse,
+                    format!(
+                        "{}:{}: `{last}` is not a number",
+                        path.display(),
+                        lineno + 1
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// A measured-like waveform pair (section 5.1.2.1): a VCSEL pulse train with
+/// first-order rise (0.9 ns) and slower fall (1.3 ns) at 50 % duty, and a
+/// pulse-shaped modulation gate with 1.6 ns edges, `n` samples per period at
+/// `modulation_hz`.
+pub fn measured_like_waveforms(modulation_hz: f64, n: usize) -> (Vec<f64>, Vec<f64>) {
+    let period = 1.0 / modulation_hz;
+    let dt = period / n as f64;
+    // first-order response to a 50 % square, iterated to periodic steady state
+    let shape = |tau_rise: f64, tau_fall: f64, duty: f64| -> Vec<f64> {
+        let mut y = 0.0;
+        let mut out = vec![0.0; n];
+        for _ in 0..3 {
+            for (k, o) in out.iter_mut().enumerate() {
+                let on = (k as f64) < duty * n as f64;
+                let (target, tau) = if on { (1.0, tau_rise) } else { (0.0, tau_fall) };
+                y += (target - y) * (1.0 - (-dt / tau).exp());
+                *o = y;
+            }
+        }
+        out
+    };
+    let illumination = shape(
+        0.9e-9 * 80e6 / modulation_hz,
+        1.3e-9 * 80e6 / modulation_hz,
+        0.5,
+    );
+    let modulation = shape(
+        1.6e-9 * 80e6 / modulation_hz,
+        1.6e-9 * 80e6 / modulation_hz,
+        0.5,
+    );
+    (illumination, modulation)
+}
+
+/// Relative optical power of raw image `k` (acquisition order) under `vcsel_droop`.
+pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
+    if !model.is_enabled("vcsel_droop") {
+        return 1.0;
+    }
+    let d = model.p("vcsel_droop", "droop_rel");
+    let tau = model.p("vcsel_droop", "tau_us").max(1e-9);
+    // P_k = P (1 − D (1 − e^{−k t_exp/τ}))  (3.3.7.2)
+    1.0 - d * (1.0 - (-(k as f64) * exposure_us / tau).exp())
+}

@@ -1,0 +1,137 @@
+//! Pixel effects: `sbi_asymmetry`, `amplitude_phase_error`, `temperature_drift`,
+//! `dark_current`, and the noise sources `shot_noise`, `ktc_noise`, `read_noise`.
+
+use crate::config::ModelConfig;
+
+/// Boltzmann constant in J/K.
+pub const BOLTZMANN_J_PER_K: f64 = 1.380_649e-23;
+/// Elementary charge in C.
+pub const ELEMENTARY_CHARGE_C: f64 = 1.602_176_634e-19;
+
+/// Per-capture constants of the pixel effects.
+#[derive(Debug, Clone, Copy)]
+pub struct PixelParams {
+    /// SBI on: threshold in electrons and mismatch.
+    pub sbi: Option<(f64, f64)>,
+    /// Amplitude-phase error: (max_rad, reference_e).
+    pub amp_phase: Option<(f64, f64)>,
+    /// Phase drift in rad for this temperature.
+    pub drift_rad: f64,
+    /// Signal gain for this temperature.
+    pub drift_gain: f64,
+    /// Dark electrons per tap for this exposure and temperature.
+    pub dark_e: f64,
+    /// Shot noise excess factor (0 = shot noise off).
+    pub shot_f: f64,
+    /// Whether dark shot noise is present.
+    pub dark_shot: bool,
+    /// kTC noise variance per tap in e².
+    pub ktc_var_e2: f64,
+    /// Read noise variance in LSB².
+    pub read_var_lsb2: f64,
+}
+
+impl PixelParams {
+    /// Constants for one capture at `exposure_us` and `temperature_c`.
+    pub fn new(model: &ModelConfig, exposure_us: f64, temperature_c: f64) -> Self {
+        let on = |id: &str| model.is_enabled(id);
+        let sbi = on("sbi_asymmetry").then(|| {
+            (
+                model.p("sbi_asymmetry", "threshold_e"),
+                model.p("sbi_asymmetry", "mismatch_rel"),
+            )
+        });
+        let amp_phase = on("amplitude_phase_error").then(|| {
+            (
+                model.p("amplitude_phase_error", "max_rad"),
+                model.p("amplitude_phase_error", "reference_e"),
+            )
+        });
+        let (drift_rad, drift_gain) = if on("temperature_drift") {
+            let dt = temperature_c - model.p("temperature_drift", "reference_c");
+            (
+                model.p("temperature_drift", "phase_mrad_per_k") * 1e-3 * dt,
+                (1.0 + model.p("temperature_drift", "gain_rel_per_k") * dt).max(0.0),
+            )
+        } else {
+            (0.0, 1.0)
+        };
+        // eq. 2.17 with i_d(T) = i_d,25 · 2^((T − 25)/ΔT₂)
+        let dark_e = if on("dark_current") {
+            model.p("dark_current", "e_per_us")
+                * exposure_us
+                * 2f64
+                    .powf((temperature_c - 25.0) / model.p("dark_current", "doubling_c").max(1e-6))
+        } else {
+            0.0
+        };
+        let shot_f = if on("shot_noise") {
+            model.p("shot_noise", "excess_noise_factor")
+        } else {
+            0.0
+        };
+        // eq. 2.15: σ_kTC = √(k T C) / e
+        let ktc_var_e2 = if on("ktc_noise") {
+            let t_k = temperature_c + 273.15;
+            BOLTZMANN_J_PER_K * t_k * model.p("ktc_noise", "c_int_ff") * 1e-15
+                / (ELEMENTARY_CHARGE_C * ELEMENTARY_CHARGE_C)
+        } else {
+            0.0
+        };
+        let read_var_lsb2 = if on("read_noise") {
+            model.p("read_noise", "sigma_lsb").powi(2)
+        } else {
+            0.0
+        };
+        Self {
+            sbi,
+            amp_phase,
+            drift_rad,
+            drift_gain,
+            dark_e,
+            shot_f,
+            dark_shot: on("dark_current"),
+            ktc_var_e2,
+            read_var_lsb2,
+        }
+    }
+
+    /// Amplitude-dependent phase error Δφ = φ_max A_ref / (A_ref + A) (2.3.1.2).
+    #[inline]
+    pub fn amplitude_phase_rad(&self, amplitude_e: f64) -> f64 {
+        match self.amp_phase {
+            Some((max_rad, reference_e)) => {
+                max_rad * reference_e / (reference_e + amplitude_e.max(0.0))
+            }
+            None => 0.0,
+        }
+    }
+
+    /// SBI differential error in electrons for tap charges `n_a`, `n_b` (2.2.2.1, 5.1.2.3):
+    /// the fuller tap reaches Q_th at t_on = Q_th/r_max; from then on the smaller
+    /// current is injected into both taps with mismatch m: ΔN = −m · N_min · (1 − Q_th/N_max).
+    #[inline]
+    pub fn sbi_error_e(&self, n_a: f64, n_b: f64) -> f64 {
+        match self.sbi {
+            Some((q_th, m)) => {
+                let hi = n_a.max(n_b);
+                if hi > q_th {
+                    -m * n_a.min(n_b) * (1.0 - q_th / hi)
+                } else {
+                    0.0
+                }
+            }
+            None => 0.0,
+        }
+    }
+
+    /// Variance in e² of the differential charge (both taps independent).
+    #[inline]
+    pub fn diff_var_e2(&self, photo_a: f64, photo_b: f64) -> f64 {
+        let mut v = self.shot_f * (photo_a + photo_b) + 2.0 * self.ktc_var_e2;
+        if self.dark_shot {
+            v += 2.0 * self.dark_e;
+        }
+        v
+    }
+}

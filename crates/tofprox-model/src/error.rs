@@ -1,0 +1,55 @@
+//! The one public error type of the model crate.
+
+use std::path::PathBuf;
+
+/// What went wrong, for callers that branch on it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ErrorKind {
+    /// A model file or table is malformed (TOML syntax, wrong type).
+    Parse,
+    /// An effect id that is not in the catalogue.
+    UnknownEffect,
+    /// A parameter name the effect does not have.
+    UnknownParam,
+    /// A value outside its physical range.
+    OutOfRange,
+    /// Sensor geometry, capture request or scene is inconsistent.
+    InvalidInput,
+    /// Reading a model or waveform file failed.
+    Io,
+}
+
+/// Error of the physical model: names the key (or file) and, for ranges, the allowed interval.
+#[derive(Debug, thiserror::Error)]
+#[error("{message}")]
+pub struct ModelError {
+    kind: ErrorKind,
+    message: String,
+    path: Option<PathBuf>,
+}
+
+impl ModelError {
+    pub(crate) fn new(kind: ErrorKind, message: impl Into<String>) -> Self {
+        Self {
+            kind,
+            message: message.into(),
+            path: None,
+        }
+    }
+    pub(crate) fn invalid(message: impl Into<String>) -> Self {
+        Self::new(ErrorKind::InvalidInput, message)
+    }
+    pub(crate) fn with_path(mut self, path: &std::path::Path) -> Self {
+        self.message = format!("{}: {}", path.display(), self.message);
+        self.path = Some(path.to_path_buf());
+        self
+    }
+    /// The kind of failure.
+    pub fn kind(&self) -> ErrorKind {
+        self.kind
+    }
+    /// The file the error refers to, if any.
+    pub fn path(&self) -> Option<&std::path::Path> {
+        self.path.as_deref()
+    }
+}

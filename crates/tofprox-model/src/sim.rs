@@ -1,0 +1,300 @@
+//! The forward model: scene → electrons per tap A/B → differential voltage → ADC codes.
+
+use std::f64::consts::{PI, TAU};
+
+use ndarray::{Array3, ArrayView2};
+use rand::Rng;
+use rand_distr::StandardNormal;
+
+use crate::config::ModelConfig;
+use crate::effects::adc::Adc;
+use crate::effects::fixed_pattern::FixedPatterns;
+use crate::effects::optical::{Correlation, droop_factor};
+use crate::effects::pixel::PixelParams;
+use crate::error::ModelError;
+use crate::geometry::{CaptureRequest, SensorGeometry};
+use crate::scene::Scene;
+
+/// Speed of light in m/s.
+pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
+
+/// A sensor instance: model + geometry + the fixed patterns drawn from one seed.
+#[derive(Debug, Clone)]
+pub struct Simulator {
+    model: ModelConfig,
+    geometry: SensorGeometry,
+    seed: u64,
+    patterns: FixedPatterns,
+    adc: Adc,
+    correlation: Correlation,
+}
+
+/// Per-capture constants.
+struct CaptureConsts {
+    thetas: Vec<f64>,
+    droop: Vec<f64>,
+    signal_e: f64,
+    ambient_e: f64,
+    contrast: f64,
+    falloff_n: Option<f64>,
+    multipath: Option<(f64, f64)>,
+    px: PixelParams,
+    lsb_per_e: f64,
+    tof_rad_per_m: f64,
+    averaged: f64,
+}
+
+impl Simulator {
+    /// Build a sensor: validates the geometry and draws FPN, PRNU, FPPN and the DNL
+    /// table from `seed` (as functions of full-array position: windows see the same pixels).
+    pub fn new(
+        model: &ModelConfig,
+        geometry: SensorGeometry,
+        seed: u64,
+    ) -> Result<Self, ModelError> {
+        geometry.validate()?;
+        Ok(Self {
+            model: model.clone(),
+            geometry,
+            seed,
+            patterns: FixedPatterns::draw(model, &geometry, seed),
+            adc: Adc::new(model, geometry.adc_bits, seed),
+            correlation: Correlation::from_model(model),
+        })
+    }
+
+    /// The model this sensor was built from.
+    pub fn model(&self) -> &ModelConfig {
+        &self.model
+    }
+    /// The simulated geometry.
+    pub fn geometry(&self) -> &SensorGeometry {
+        &self.geometry
+    }
+    /// The seed of the fixed patterns.
+    pub fn seed(&self) -> u64 {
+        self.seed
+    }
+    /// The correlation function in use.
+    pub fn correlation(&self) -> &Correlation {
+        &self.correlation
+    }
+    /// The fixed per-pixel patterns (offset in LSB at the ADC input, gain, phase delay).
+    pub fn patterns(&self) -> &FixedPatterns {
+        &self.patterns
+    }
+    /// The ADC model.
+    pub fn adc(&self) -> &Adc {
+        &self.adc
+    }
+
+    /// Simulate one capture: (K, rows, cols) codes, the mean of `req.averaged`
+    /// acquisitions (noise σ/√n), integer codes when `quantization` is on and averaged = 1.
+    pub fn capture(
+        &self,
+        scene: &Scene,
+        req: &CaptureRequest,
+        rng: &mut impl Rng,
+    ) -> Result<Array3<f64>, ModelError> {
+        self.run(scene, req, Some(rng))
+    }
+
+    /// One single acquisition as integer codes (the request's `averaged` is ignored).
+    pub fn capture_u16(
+        &self,
+        scene: &Scene,
+        req: &CaptureRequest,
+        rng: &mut impl Rng,
+    ) -> Result<Array3<u16>, ModelError> {
+        let single = CaptureRequest {
+            averaged: 1,
+            ..req.clone()
+        };
+        let codes = self.run(scene, &single, Some(rng))?;
+        let max = self.adc.max_code();
+        Ok(codes.mapv(|v| v.round().clamp(0.0, max) as u16))
+    }
+
+    /// Noise-free mean codes (quantisation as its mean): what the lab fits with.
+    pub fn expected(&self, scene: &Scene, req: &CaptureRequest) -> Result<Array3<f64>, ModelError> {
+        self.run::<rand::rngs::SmallRng>(scene, req, None)
+    }
+
+    fn consts(&self, req: &CaptureRequest) -> CaptureConsts {
+        let m = &self.model;
+        let t = req.exposure_us;
+        let px = PixelParams::new(m, t, req.temperature_c);
+        let illum = req.illumination;
+        CaptureConsts {
+            thetas: req.phases_deg.iter().map(|d| d.to_radians()).collect(),
+            droop: (0..req.phases_deg.len())
+                .map(|k| droop_factor(m, k, t))
+                .collect(),
+            signal_e: if illum {
+                m.p("sensor", "signal_e_per_us") * t * px.drift_gain
+            } else {
+                0.0
+            },
+            ambient_e: if m.is_enabled("ambient_light") {
+                m.p("ambient_light", "e_per_us_per_klux") * req.ambient_klux * t
+            } else {
+                0.0
+            },
+            contrast: if m.is_enabled("demodulation_contrast") {
+                m.p("demodulation_contrast", "contrast")
+            } else {
+                1.0
+            },
+            falloff_n: m
+                .is_enabled("signal_falloff")
+                .then(|| m.p("signal_falloff", "exponent")),
+            multipath: m.is_enabled("multipath").then(|| {
+                (
+                    m.p("multipath", "relative_amplitude"),
+                    TAU * self.geometry.modulation_hz * m.p("multipath", "extra_path_m")
+                        / SPEED_OF_LIGHT_M_PER_S,
+                )
+            }),
+            px,
+            lsb_per_e: m.p("sensor", "lsb_per_ke") * 1e-3,
+            // eq. 2.6 inverted: φ = 4π f d / c
+            tof_rad_per_m: 4.0 * PI * self.geometry.modulation_hz / SPEED_OF_LIGHT_M_PER_S,
+            averaged: f64::from(req.averaged.max(1)),
+        }
+    }
+
+    fn run<R: Rng>(
+        &self,
+        scene: &Scene,
+        req: &CaptureRequest,
+        mut rng: Option<&mut R>,
+    ) -> Result<Array3<f64>, ModelError> {
+        req.validate()?;
+        scene.validate()?;
+        let g = &self.geometry;
+        let (rows, cols) = (g.rows, g.cols);
+        // Scene accessor: constant, window-shaped or full-array-shaped map.
+        let (dmap, rmap, origin): (Option<ArrayView2<f64>>, Option<ArrayView2<f64>>, [usize; 2]) =
+            match scene {
+                Scene::FlatWall { .. } => (None, None, [0, 0]),
+                Scene::DepthMap {
+                    distance_m,
+                    reflectivity,
+                } => {
+                    let dim = distance_m.dim();
+                    let origin = if dim == (rows, cols) {
+                        [0, 0]
+                    } else if dim == (g.full_rows, g.full_cols) {
+                        g.roi_origin
+                    } else {
+                        return Err(ModelError::invalid(format!(
+                            "scene: depth map {}x{} matches neither the window {}x{} nor the full array {}x{}",
+                            dim.0, dim.1, rows, cols, g.full_rows, g.full_cols
+                        )));
+                    };
+                    (Some(distance_m.view()), Some(reflectivity.view()), origin)
+                }
+            };
+        let (wall_d, wall_r) = match scene {
+            Scene::FlatWall {
+                distance_m,
+                reflectivity,
+            } => (*distance_m, *reflectivity),
+            Scene::DepthMap { .. } => (1.0, 1.0),
+        };
+
+        let cc = self.consts(req);
+        let k_images = cc.thetas.len();
+        let mut out = Array3::<f64>::zeros((k_images, rows, cols));
+        let plane = rows * cols;
+        let Some(buf) = out.as_slice_mut() else {
+            return Err(ModelError::invalid("internal: output array not contiguous"));
+        };
+        let adc = &self.adc;
+        let quantize_each = adc.quantizes() && req.averaged == 1;
+        let extra_q_var = if adc.quantizes() && req.averaged > 1 {
+            1.0 / 12.0
+        } else {
+            0.0
+        };
+        let corr = &self.correlation;
+        let px = &cc.px;
+        let k_con = cc.contrast;
+
+        for r in 0..rows {
+            for c in 0..cols {
+                let i = r * cols + c;
+                let (d, refl) = match (&dmap, &rmap) {
+                    (Some(dm), Some(rm)) => {
+                        let idx = (r + origin[0], c + origin[1]);
+                        match (dm.get(idx), rm.get(idx)) {
+                            (Some(&d), Some(&rf)) => (d, rf),
+                            _ => {
+                                return Err(ModelError::invalid(
+                                    "scene: depth map index out of range",
+                                ));
+                            }
+                        }
+                    }
+                    _ => (wall_d, wall_r),
+                };
+                let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0);
+                let offset = self.patterns.offset_lsb.get(i).copied().unwrap_or(0.0);
+                let delay = self.patterns.delay_rad.get(i).copied().unwrap_or(0.0);
+
+                // signal_falloff: N ∝ ρ (1 m / d)^n; prnu multiplies all optical electrons
+                let falloff = match cc.falloff_n {
+                    Some(2.0) => 1.0 / (d * d),
+                    Some(n) => d.powf(-n),
+                    None => 1.0,
+                };
+                let s = cc.signal_e * refl * falloff * gain;
+                let amb = cc.ambient_e * gain;
+                let dark = px.dark_e;
+                let phi =
+                    cc.tof_rad_per_m * d + delay + px.drift_rad + px.amplitude_phase_rad(s * k_con);
+                let (s2, phi2) = match cc.multipath {
+                    Some((a, dphi)) => (a * s, phi + dphi),
+                    None => (0.0, phi),
+                };
+
+                for k in 0..k_images {
+                    let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
+                    let dr = cc.droop.get(k).copied().unwrap_or(1.0);
+                    let sk = s * dr;
+                    // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ))
+                    let mut corr_e = sk * corr.eval(phi - theta);
+                    let mut photo_total = sk;
+                    if s2 > 0.0 {
+                        let s2k = s2 * dr;
+                        corr_e += s2k * corr.eval(phi2 - theta);
+                        photo_total += s2k;
+                    }
+                    let photo_a = 0.5 * (photo_total + k_con * corr_e) + amb;
+                    let photo_b = 0.5 * (photo_total - k_con * corr_e) + amb;
+                    let mut diff = photo_a - photo_b;
+                    diff += px.sbi_error_e(photo_a + dark, photo_b + dark);
+                    let mut u = diff * cc.lsb_per_e + offset;
+                    let var = (px.diff_var_e2(photo_a, photo_b) * cc.lsb_per_e * cc.lsb_per_e
+                        + px.read_var_lsb2
+                        + extra_q_var)
+                        / cc.averaged;
+                    if let (Some(rng), true) = (rng.as_deref_mut(), var > 0.0) {
+                        let z: f64 = rng.sample(StandardNormal);
+                        u += var.sqrt() * z;
+                    }
+                    let y = adc.transfer(u);
+                    let code = if quantize_each && rng.is_some() {
+                        adc.quantize(y)
+                    } else {
+                        adc.mean_code(y)
+                    };
+                    if let Some(o) = buf.get_mut(k * plane + i) {
+                        *o = code;
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+}
