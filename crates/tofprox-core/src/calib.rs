@@ -7,7 +7,7 @@
 use crate::phasor::{self, wrap_phase, wrap_to_pi};
 use crate::{Algorithm, CoreError};
 use ndarray::{Array1, Array2, ArrayView3, Axis};
-use std::f64::consts::{FRAC_PI_2, TAU};
+use std::f64::consts::TAU;
 
 /// Per-pixel dark level (FPN, thesis 2.3.1.3 / 3.3.7.1).
 #[derive(Debug, Clone, PartialEq)]
@@ -77,7 +77,8 @@ impl WigglingLut {
         let frac = x - i0 as f64;
         let c0 = self.correction_rad[i0] as f64;
         let c1 = self.correction_rad[(i0 + 1) % n] as f64;
-        c0 + (c1 - c0) * frac
+        // Difference wrapped so tables stored wrapped to (−π, π] interpolate correctly too.
+        c0 + wrap_to_pi(c1 - c0) * frac
     }
 
     /// Applies the table: `wrap(measured - correction(measured))`, in `[0, 2π)`.
@@ -140,20 +141,150 @@ pub fn extract_wiggling(
     algorithm: Algorithm,
     lut_size: usize,
 ) -> Result<WigglingLut, CoreError> {
-    let _ = (
-        correlation,
-        phases_deg,
-        offset,
-        distance_m,
-        modulation_hz,
-        adc_bits,
+    let (n, rows, cols) = correlation.dim();
+    check_common(distance_m, modulation_hz, adc_bits)?;
+    if n < 4 || n != phases_deg.len() {
+        return Err(CoreError::shape(
+            "correlation capture",
+            format!("(N ≥ 4 matching {} phases, rows, cols)", phases_deg.len()),
+            format!("{:?}", correlation.dim()),
+        ));
+    }
+    if rows == 0 || cols == 0 {
+        return Err(CoreError::shape(
+            "correlation capture",
+            "rows ≥ 1 and cols ≥ 1",
+            format!("{:?}", correlation.dim()),
+        ));
+    }
+    let phases_rad: Vec<f64> = phases_deg.iter().map(|p| p.to_radians()).collect();
+    if !phasor::is_equally_spaced_circle(&phases_rad) {
+        return Err(CoreError::InvalidPhases {
+            phases_deg: phases_deg.to_vec(),
+            reason:
+                "a correlation capture needs N ≥ 4 equally spaced phase shifts over the full circle"
+                    .into(),
+        });
+    }
+    if !(8..=1 << 20).contains(&lut_size) {
+        return Err(CoreError::param(
+            "lut_size",
+            format!("must be in 8..=1048576, got {lut_size}"),
+        ));
+    }
+    check_offset(offset, rows, cols)?;
+    let mid = mid_code(adc_bits);
+    let max_code = max_code(adc_bits);
+
+    // Fourier coefficients X_h = (1/N) Σ_k g_k e^{-i h θ_k}, h = 0..=H (Nyquist term dropped for even
+    // N), so that g(θ) = X_0 + Σ_h 2 Re(X_h e^{i h θ}) interpolates the captured correlation.
+    let harmonics = (n - 1) / 2;
+    let (r0, r1) = centre_range(rows);
+    let (c0, c1) = centre_range(cols);
+    let mut per_coeff: Vec<Vec<f64>> = vec![Vec::new(); 2 * (harmonics + 1)];
+    let mut samples = vec![0.0; n];
+    for r in r0..r1 {
+        for c in c0..c1 {
+            let dark = offset.map_or(mid, |o| o.dark_lsb[(r, c)] as f64);
+            let mut ok = true;
+            for (k, s) in samples.iter_mut().enumerate() {
+                let code = correlation[(k, r, c)];
+                ok &= code.is_finite() && code > 0.0 && code < max_code;
+                *s = code - dark;
+            }
+            if !ok {
+                continue;
+            }
+            let coeffs = dft_coefficients(&samples, &phases_rad, harmonics);
+            let fundamental = coeffs[1].0.hypot(coeffs[1].1);
+            // Pixels without a usable fundamental (dead / dark) carry no wiggling information.
+            if !(fundamental.is_finite() && fundamental > 0.5) {
+                continue;
+            }
+            for (h, (re, im)) in coeffs.iter().enumerate() {
+                per_coeff[2 * h].push(re / fundamental);
+                per_coeff[2 * h + 1].push(im / fundamental);
+            }
+        }
+    }
+    if per_coeff[0].is_empty() {
+        return Err(CoreError::InvalidData(format!(
+            "correlation capture: no usable pixel in the centre region rows {r0}..{r1}, cols {c0}..{c1} \
+             (all saturated, non-finite or without signal)"
+        )));
+    }
+    // Robust combination: per-coefficient median over the centre region (3.3.6 used the centre pixel).
+    let coeffs: Vec<(f64, f64)> = (0..=harmonics)
+        .map(|h| {
+            (
+                median(&mut per_coeff[2 * h]),
+                median(&mut per_coeff[2 * h + 1]),
+            )
+        })
+        .collect();
+
+    // Upsampled correlation on a grid of U points (U multiple of 4 so 90° is an index offset U/4,
+    // as in the thesis' index-offset reading of the correlation).
+    let upsampled = (4 * lut_size).max(2048).div_ceil(4) * 4;
+    let grid: Vec<f64> = (0..upsampled)
+        .map(|j| eval_trig(&coeffs, TAU * j as f64 / upsampled as f64))
+        .collect();
+    let q = upsampled / 4;
+    let at = |j: usize| grid[j % upsampled];
+    // Measured phase of a target at total phase Φ0 − s_j: its raw values are g(s_j + θ_k).
+    let measured: Vec<f64> = (0..upsampled)
+        .map(|j| match algorithm {
+            Algorithm::TwoPhase => phasor::phase_2phase(at(j), at(j + q)), // eq. 2.2
+            Algorithm::FourPhase => {
+                phasor::phase_4phase(at(j), at(j + q), at(j + 2 * q), at(j + 3 * q))
+            } // eq. 2.3
+        })
+        .collect();
+    // Unwrap along s: the measured phase must decrease monotonically by exactly one turn.
+    let mut mu = Vec::with_capacity(upsampled + 1);
+    mu.push(measured[0]);
+    for j in 1..=upsampled {
+        let prev = mu[j - 1];
+        let step = wrap_to_pi(measured[j % upsampled] - measured[j - 1]);
+        if step.is_nan() || step >= 0.0 {
+            return Err(CoreError::Calibration(format!(
+                "{algorithm} measured phase is not monotone over the correlation (at shift {:.2}°): \
+                 correlation too distorted or too noisy for a wiggling LUT",
+                360.0 * j as f64 / upsampled as f64
+            )));
+        }
+        mu.push(prev + step);
+    }
+    if (mu[upsampled] - (mu[0] - TAU)).abs() > 1e-6 {
+        return Err(CoreError::Calibration(
+            "measured phase does not wind exactly once over the correlation".into(),
+        ));
+    }
+    // correction(measured) = measured − true, with true = φ0 − s (continuous along s).
+    let phi0 = phasor::distance_to_phase_rad(distance_m, modulation_hz);
+    let corr: Vec<f64> = (0..=upsampled)
+        .map(|j| mu[j] - (phi0 - TAU * j as f64 / upsampled as f64))
+        .collect();
+    // Invert the monotone map s → m(s) by linear interpolation: tabulate over measured-phase bins.
+    let mut table = Vec::with_capacity(lut_size);
+    for i in 0..lut_size {
+        let p = TAU * i as f64 / lut_size as f64;
+        // Representative of p in (mu_U, mu_0].
+        let qv = p - TAU * ((p - mu[0]) / TAU).ceil();
+        // First index with mu[j] < qv (mu is strictly decreasing).
+        let j1 = mu.partition_point(|&m| m >= qv).clamp(1, upsampled);
+        let j0 = j1 - 1;
+        let t = (mu[j0] - qv) / (mu[j0] - mu[j1]);
+        table.push(corr[j0] + (corr[j1] - corr[j0]) * t);
+    }
+    // Common 2π shift so the first bin lies in (−π, π]; the table stays continuous.
+    let shift = table[0] - wrap_to_pi(table[0]);
+    let lut = WigglingLut {
         algorithm,
-        lut_size,
-    );
-    let _ = (wrap_to_pi(0.0), FRAC_PI_2, phasor::wrap_phase(0.0));
-    Err(CoreError::Calibration(
-        "extract_wiggling: implementation in progress".into(),
-    ))
+        correction_rad: Array1::from_iter(table.iter().map(|v| (v - shift) as f32)),
+    };
+    lut.validate()?;
+    Ok(lut)
 }
 
 /// Extracts the fixed-pattern phase noise (2.3.1.4) from a flat-target capture at known
@@ -176,17 +307,200 @@ pub fn extract_fppn(
     adc_bits: u8,
     algorithm: Algorithm,
 ) -> Result<FppnMap, CoreError> {
-    let _ = (
-        capture,
-        phases_deg,
-        offset,
-        wiggling,
-        distance_m,
-        modulation_hz,
-        adc_bits,
-        algorithm,
-    );
-    Err(CoreError::Calibration(
-        "extract_fppn: implementation in progress".into(),
-    ))
+    let (k, rows, cols) = capture.dim();
+    check_common(distance_m, modulation_hz, adc_bits)?;
+    if k != phases_deg.len() || rows == 0 || cols == 0 {
+        return Err(CoreError::shape(
+            "FPPN capture",
+            format!("({} phases, rows ≥ 1, cols ≥ 1)", phases_deg.len()),
+            format!("{:?}", capture.dim()),
+        ));
+    }
+    check_offset(offset, rows, cols)?;
+    if let Some(w) = wiggling {
+        if w.algorithm != algorithm {
+            return Err(CoreError::Calibration(format!(
+                "wiggling LUT is for {} but FPPN extraction uses {algorithm}",
+                w.algorithm
+            )));
+        }
+        w.validate()?;
+    }
+    let idx = algorithm_indices(phases_deg, algorithm)?;
+    let used = algorithm.raw_images();
+    let mid = mid_code(adc_bits);
+    let max_code = max_code(adc_bits);
+    let phi_true = wrap_phase(phasor::distance_to_phase_rad(distance_m, modulation_hz));
+    let mut deviation = Array2::<f64>::from_elem((rows, cols), f64::NAN);
+    for r in 0..rows {
+        for c in 0..cols {
+            let dark = offset.map_or(mid, |o| o.dark_lsb[(r, c)] as f64);
+            let mut u = [0.0; 4];
+            let mut ok = true;
+            for (slot, &ki) in u.iter_mut().zip(&idx).take(used) {
+                let code = capture[(ki, r, c)];
+                ok &= code.is_finite() && code > 0.0 && code < max_code;
+                *slot = code - dark;
+            }
+            if !ok {
+                continue;
+            }
+            let (measured, amplitude) = match algorithm {
+                Algorithm::TwoPhase => (
+                    phasor::phase_2phase(u[0], u[1]),
+                    phasor::amplitude_2phase(u[0], u[1]),
+                ),
+                Algorithm::FourPhase => (
+                    phasor::phase_4phase(u[0], u[1], u[2], u[3]),
+                    phasor::amplitude_4phase(u[0], u[1], u[2], u[3]),
+                ),
+            };
+            if amplitude.is_nan() || amplitude <= 1.0 {
+                continue;
+            }
+            let corrected = wiggling.map_or(measured, |w| w.correct(measured));
+            deviation[(r, c)] = wrap_to_pi(corrected - phi_true);
+        }
+    }
+    let mut valid: Vec<f64> = deviation
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    if valid.is_empty() {
+        return Err(CoreError::InvalidData(
+            "FPPN capture: no usable pixel (all saturated, non-finite or without signal)".into(),
+        ));
+    }
+    let centre = median(&mut valid);
+    Ok(FppnMap {
+        phase_offset_rad: deviation.mapv(|v| {
+            if v.is_finite() {
+                wrap_to_pi(v - centre) as f32
+            } else {
+                0.0
+            }
+        }),
+    })
+}
+
+fn mid_code(adc_bits: u8) -> f64 {
+    (1u32 << (adc_bits - 1)) as f64
+}
+
+fn max_code(adc_bits: u8) -> f64 {
+    ((1u32 << adc_bits) - 1) as f64
+}
+
+fn check_common(distance_m: f64, modulation_hz: f64, adc_bits: u8) -> Result<(), CoreError> {
+    if !(distance_m.is_finite() && distance_m >= 0.0) {
+        return Err(CoreError::param(
+            "distance_m",
+            format!("must be finite and ≥ 0, got {distance_m}"),
+        ));
+    }
+    if !(modulation_hz.is_finite() && modulation_hz > 0.0) {
+        return Err(CoreError::param(
+            "modulation_hz",
+            format!("must be finite and > 0, got {modulation_hz}"),
+        ));
+    }
+    if !(1..=16).contains(&adc_bits) {
+        return Err(CoreError::param(
+            "adc_bits",
+            format!("must be 1..=16, got {adc_bits}"),
+        ));
+    }
+    Ok(())
+}
+
+fn check_offset(
+    offset: Option<&OffsetCalibration>,
+    rows: usize,
+    cols: usize,
+) -> Result<(), CoreError> {
+    if let Some(o) = offset {
+        if o.dark_lsb.dim() != (rows, cols) {
+            return Err(CoreError::shape(
+                "offset calibration (dark_lsb)",
+                format!("({rows}, {cols})"),
+                format!("{:?}", o.dark_lsb.dim()),
+            ));
+        }
+        if o.dark_lsb.iter().any(|v| !v.is_finite()) {
+            return Err(CoreError::Calibration(
+                "offset calibration contains non-finite values".into(),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Indices of the images at 0°, 90° (, 180°, 270°) within `phases_deg` (first match, ±1e-6°,
+/// modulo 360°). For 2-phase the last two slots are 0 and unused.
+pub fn algorithm_indices(
+    phases_deg: &[f64],
+    algorithm: Algorithm,
+) -> Result<[usize; 4], CoreError> {
+    let mut out = [0usize; 4];
+    for (slot, want) in out.iter_mut().zip(algorithm.phases_deg()) {
+        *slot = phases_deg
+            .iter()
+            .position(|p| {
+                let d = (p - want).rem_euclid(360.0);
+                p.is_finite() && d.min(360.0 - d) < 1e-6
+            })
+            .ok_or_else(|| CoreError::InvalidPhases {
+                phases_deg: phases_deg.to_vec(),
+                reason: format!("{algorithm} needs an image at {want}°"),
+            })?;
+    }
+    Ok(out)
+}
+
+/// Central half `[start, start + max(n/2, 1))` of an axis of length `n ≥ 1`.
+fn centre_range(n: usize) -> (usize, usize) {
+    let len = (n / 2).max(1);
+    let start = (n - len) / 2;
+    (start, start + len)
+}
+
+/// `X_h = (1/N) Σ_k g_k e^{-i h θ_k}` for `h = 0..=harmonics`, as (re, im).
+fn dft_coefficients(samples: &[f64], phases_rad: &[f64], harmonics: usize) -> Vec<(f64, f64)> {
+    let n = samples.len() as f64;
+    (0..=harmonics)
+        .map(|h| {
+            let (mut re, mut im) = (0.0, 0.0);
+            for (&g, &th) in samples.iter().zip(phases_rad) {
+                let a = h as f64 * th;
+                re += g * a.cos();
+                im -= g * a.sin();
+            }
+            (re / n, im / n)
+        })
+        .collect()
+}
+
+/// Trigonometric interpolant `g(θ) = X_0 + Σ_{h≥1} 2 Re(X_h e^{i h θ})`.
+fn eval_trig(coeffs: &[(f64, f64)], theta: f64) -> f64 {
+    let mut g = coeffs.first().map_or(0.0, |c| c.0);
+    for (h, &(re, im)) in coeffs.iter().enumerate().skip(1) {
+        let a = h as f64 * theta;
+        g += 2.0 * (re * a.cos() - im * a.sin());
+    }
+    g
+}
+
+/// Median (mean of the two middle values for even length); NaN for empty input.
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_unstable_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
