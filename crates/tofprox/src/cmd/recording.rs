@@ -1,19 +1,807 @@
-//! `tofprox info`, `calibrate`, `process` (issue: foundation).
+//! `tofprox info`, `calibrate`, `process`: recordings in, calibration sets and
+//! depth out (recording format: `docs/recording-format.md`, calibration sets:
+//! `docs/calibration.md`).
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Instant;
 
-#[derive(clap::Args, Debug)]
-pub struct InfoArgs {}
-#[derive(clap::Args, Debug)]
-pub struct CalibrateArgs {}
-#[derive(clap::Args, Debug)]
-pub struct ProcessArgs {}
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use ndarray::{Array2, Array3, Axis, s};
+use serde_json::json;
+use tofprox_core::Algorithm;
+use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
+use tofprox_core::phasor::unambiguous_range_m;
+use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_format::npy;
+use tofprox_format::{
+    CalibPart, CalibrationSet, CaptureMeta, PartSource, RawFrames, Recording, now_rfc3339,
+};
 
-pub fn info(_a: InfoArgs) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not yet implemented")
+const TOOL: &str = concat!("tofprox ", env!("CARGO_PKG_VERSION"));
+
+/// `tofprox info REC [--json]`
+#[derive(clap::Args, Debug)]
+pub struct InfoArgs {
+    /// Recording directory (holds recording.toml).
+    pub recording: PathBuf,
+    /// Print one JSON object on stdout instead of the text summary.
+    #[arg(long)]
+    pub json: bool,
 }
-pub fn calibrate(_a: CalibrateArgs) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not yet implemented")
+
+/// What `tofprox calibrate` extracts.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CalibKind {
+    /// Per-pixel dark frame (FPN) from the dark captures (illumination = false), averaged.
+    Fpn,
+    /// 2- and 4-phase wiggling tables from a correlation capture (24 × 15°) with distance_m.
+    Wiggling,
+    /// Per-pixel phase offsets from a flat-target 4-phase capture with distance_m.
+    Fppn,
 }
-pub fn process(_a: ProcessArgs) -> anyhow::Result<ExitCode> {
-    anyhow::bail!("not yet implemented")
+
+/// `tofprox calibrate fpn|wiggling|fppn REC --out CALIB`
+#[derive(clap::Args, Debug)]
+pub struct CalibrateArgs {
+    /// Which calibration to extract.
+    #[arg(value_enum)]
+    pub what: CalibKind,
+    /// Recording directory to extract it from.
+    pub recording: PathBuf,
+    /// Calibration directory to write. If it already holds a set, the part is
+    /// added or replaced (parts derived from a replaced one are dropped).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Number of bins of the wiggling tables.
+    #[arg(long, default_value_t = 256)]
+    pub lut_size: usize,
+    /// Start from this calibration set instead of the one in --out.
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    /// Use only this capture (index in the recording) instead of choosing automatically.
+    #[arg(long)]
+    pub capture: Option<usize>,
+}
+
+/// `tofprox process REC --calib CALIB --algo 2phase|4phase --out OUT [--json]`
+#[derive(clap::Args, Debug)]
+pub struct ProcessArgs {
+    /// Recording directory.
+    pub recording: PathBuf,
+    /// Calibration set to apply (without it: mid-code offset, no wiggling/FPPN correction).
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    /// Evaluation algorithm: 2phase (images at 0°, 90°) or 4phase (0°, 90°, 180°, 270°).
+    #[arg(long)]
+    pub algo: Algorithm,
+    /// Output directory for NNNNNN_depth_mm.npy, NNNNNN_amplitude_lsb.npy and NNNNNN_depth.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print one JSON object per processed capture on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Pixels with a lower amplitude (LSB) are invalid.
+    #[arg(long, default_value_t = PipelineConfig::default().min_amplitude_lsb)]
+    pub min_amplitude_lsb: f32,
+    /// Depth at the top of the PNG colour scale (default: the unambiguous range).
+    #[arg(long)]
+    pub png_max_m: Option<f64>,
+}
+
+fn progress(len: usize, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(len as u64);
+    if std::io::stderr().is_terminal() && len > 1 {
+        pb.set_draw_target(ProgressDrawTarget::stderr());
+        if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}") {
+            pb.set_style(style.progress_chars("=> "));
+        }
+        pb.set_message(what.to_string());
+    } else {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    pb
+}
+
+/// A short name for the acquisition mode of a capture.
+fn mode_label(c: &CaptureMeta) -> String {
+    let n = c.phases_deg.len();
+    if c.is_four_phase() {
+        "4phase".into()
+    } else if n == 2 && c.starts_two_phase() {
+        "2phase".into()
+    } else if c.is_correlation() {
+        format!("correlation-{n}")
+    } else {
+        let p: Vec<String> = c.phases_deg.iter().map(|p| format!("{p}")).collect();
+        format!("{n}-phase[{}]", p.join(","))
+    }
+}
+
+fn fmt_num(v: f64) -> String {
+    let s = format!("{v:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s.is_empty() || s == "-" {
+        "0".into()
+    } else {
+        s.to_string()
+    }
+}
+
+// ---------------------------------------------------------------- info
+
+pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
+    let rec = Recording::open(&a.recording)?;
+    let s = rec.sensor().clone();
+    let caps = rec.captures();
+    let pb = progress(caps.len(), "reading");
+    let mut sat = Vec::with_capacity(caps.len());
+    for i in 0..caps.len() {
+        let f = rec.load(i)?;
+        sat.push(f.saturated_fraction(s.adc_bits));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+
+    let mut by_mode: BTreeMap<String, usize> = BTreeMap::new();
+    let mut by_exposure: BTreeMap<String, usize> = BTreeMap::new();
+    let mut by_illum: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut by_dtype: BTreeMap<&str, usize> = BTreeMap::new();
+    let mut conds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for (i, c) in caps.iter().enumerate() {
+        let mode = if c.illumination {
+            mode_label(c)
+        } else {
+            format!("dark {}", mode_label(c))
+        };
+        *by_mode.entry(mode).or_default() += 1;
+        *by_exposure.entry(fmt_num(c.exposure_us)).or_default() += 1;
+        *by_illum
+            .entry(if c.illumination { "on" } else { "off" })
+            .or_default() += 1;
+        *by_dtype
+            .entry(rec.dtype(i).map_or("?", |d| d.name()))
+            .or_default() += 1;
+        for (k, v) in &c.conditions {
+            conds.entry(k.clone()).or_default().push(*v);
+        }
+    }
+    let total_sat = if sat.is_empty() {
+        0.0
+    } else {
+        sat.iter().sum::<f64>() / sat.len() as f64
+    };
+    let range_m = unambiguous_range_m(s.modulation_hz);
+
+    if a.json {
+        let per: Vec<_> = caps
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                json!({
+                    "index": i,
+                    "frames": c.frames,
+                    "mode": mode_label(c),
+                    "phases_deg": c.phases_deg,
+                    "exposure_us": c.exposure_us,
+                    "illumination": c.illumination,
+                    "averaged": c.averaged,
+                    "dtype": rec.dtype(i).map(|d| d.name()),
+                    "timestamp_ns": c.timestamp_ns,
+                    "conditions": c.conditions,
+                    "saturated_fraction": sat.get(i),
+                })
+            })
+            .collect();
+        let cond_json: BTreeMap<_, _> = conds
+            .iter()
+            .map(|(k, v)| {
+                let mut d = v.clone();
+                d.sort_by(f64::total_cmp);
+                d.dedup();
+                (k.clone(), json!({"captures": v.len(), "values": d}))
+            })
+            .collect();
+        let out = json!({
+            "recording": a.recording.display().to_string(),
+            "description": rec.description(),
+            "sensor": {
+                "rows": s.rows, "cols": s.cols, "roi_origin": s.roi_origin,
+                "full_rows": s.full_rows, "full_cols": s.full_cols,
+                "adc_bits": s.adc_bits, "modulation_hz": s.modulation_hz,
+                "unambiguous_range_m": range_m,
+            },
+            "captures": caps.len(),
+            "by_mode": by_mode,
+            "by_exposure_us": by_exposure,
+            "by_illumination": by_illum,
+            "by_dtype": by_dtype,
+            "conditions": cond_json,
+            "saturated_fraction": total_sat,
+            "per_capture": per,
+        });
+        println!("{out}");
+        return Ok(ExitCode::SUCCESS);
+    }
+
+    let mut o = String::new();
+    use std::fmt::Write as _;
+    let _ = writeln!(o, "recording   {}", a.recording.display());
+    if let Some(d) = rec.description() {
+        let _ = writeln!(o, "description {d}");
+    }
+    let _ = writeln!(
+        o,
+        "sensor      {}×{} window at (row {}, col {}) of a {}×{} array, {}-bit ADC (mid code {}), {} MHz (unambiguous range {:.3} m)",
+        s.rows,
+        s.cols,
+        s.roi_origin[0],
+        s.roi_origin[1],
+        s.full_rows,
+        s.full_cols,
+        s.adc_bits,
+        s.mid_code(),
+        fmt_num(s.modulation_hz / 1e6),
+        range_m
+    );
+    let join = |m: &BTreeMap<String, usize>, unit: &str| -> String {
+        m.iter()
+            .map(|(k, v)| format!("{k}{unit} ×{v}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let _ = writeln!(o, "captures    {}", caps.len());
+    let _ = writeln!(o, "  by mode         {}", join(&by_mode, ""));
+    let _ = writeln!(o, "  by exposure     {}", join(&by_exposure, " µs"));
+    let illum: BTreeMap<String, usize> =
+        by_illum.iter().map(|(k, v)| (k.to_string(), *v)).collect();
+    let _ = writeln!(o, "  illumination    {}", join(&illum, ""));
+    let dt: BTreeMap<String, usize> = by_dtype.iter().map(|(k, v)| (k.to_string(), *v)).collect();
+    let _ = writeln!(o, "  dtype           {}", join(&dt, ""));
+    for (k, v) in &conds {
+        let mut d = v.clone();
+        d.sort_by(f64::total_cmp);
+        d.dedup();
+        let shown: Vec<String> = d.iter().take(12).map(|x| fmt_num(*x)).collect();
+        let more = if d.len() > 12 { ", …" } else { "" };
+        let _ = writeln!(
+            o,
+            "  {k:<15} {} capture(s): {}{more}",
+            v.len(),
+            shown.join(", ")
+        );
+    }
+    let (worst_i, worst) =
+        sat.iter().copied().enumerate().fold(
+            (0, 0.0f64),
+            |acc, (i, v)| if v > acc.1 { (i, v) } else { acc },
+        );
+    let _ = write!(
+        o,
+        "saturation  {:.2} % of pixels have a raw image at a rail",
+        100.0 * total_sat
+    );
+    if worst > 0.0 {
+        let _ = write!(o, " (worst: capture {worst_i}, {:.2} %)", 100.0 * worst);
+    }
+    let _ = writeln!(o);
+    let _ = writeln!(o);
+    let _ = writeln!(
+        o,
+        "{:>5}  {:<20} {:<16} {:>11} {:>5} {:>4} {:>8} {:>7}  conditions",
+        "index", "frames", "mode", "exposure_us", "illum", "avg", "dtype", "sat %"
+    );
+    for (i, c) in caps.iter().enumerate() {
+        let cond: Vec<String> = c
+            .conditions
+            .iter()
+            .map(|(k, v)| format!("{k}={}", fmt_num(*v)))
+            .collect();
+        let _ = writeln!(
+            o,
+            "{:>5}  {:<20} {:<16} {:>11} {:>5} {:>4} {:>8} {:>7.2}  {}",
+            i,
+            c.frames,
+            mode_label(c),
+            fmt_num(c.exposure_us),
+            if c.illumination { "on" } else { "off" },
+            c.averaged,
+            rec.dtype(i).map_or("?", |d| d.name()),
+            100.0 * sat.get(i).copied().unwrap_or(0.0),
+            cond.join(" ")
+        );
+    }
+    print!("{o}");
+    Ok(ExitCode::SUCCESS)
+}
+
+// ---------------------------------------------------------------- calibrate
+
+fn source(
+    rec: &Recording,
+    path: &Path,
+    captures: Vec<usize>,
+    distance_m: Option<f64>,
+) -> PartSource {
+    PartSource {
+        recording: path.display().to_string(),
+        recording_description: rec.description().map(str::to_string),
+        captures,
+        distance_m,
+        created: now_rfc3339(),
+        tool: TOOL.to_string(),
+    }
+}
+
+fn pick_capture(
+    rec: &Recording,
+    wanted: Option<usize>,
+    what: &str,
+    ok: impl Fn(&CaptureMeta) -> Result<(), String>,
+) -> anyhow::Result<usize> {
+    let caps = rec.captures();
+    if let Some(i) = wanted {
+        let c = caps
+            .get(i)
+            .with_context(|| format!("--capture {i}: the recording has {} captures", caps.len()))?;
+        if let Err(why) = ok(c) {
+            bail!("--capture {i} is not usable as {what}: {why}");
+        }
+        return Ok(i);
+    }
+    caps.iter().position(|c| ok(c).is_ok()).with_context(|| {
+        format!(
+            "{} has no {what} (see `tofprox info {}`)",
+            rec.dir().display(),
+            rec.dir().display()
+        )
+    })
+}
+
+fn need_distance(c: &CaptureMeta) -> Result<f64, String> {
+    match c.distance_m() {
+        Some(d) if d > 0.0 => Ok(d),
+        Some(d) => Err(format!(
+            "conditions.distance_m = {d} is not a positive distance"
+        )),
+        None => Err("it has no conditions.distance_m (ground-truth distance)".into()),
+    }
+}
+
+pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
+    let rec = Recording::open(&a.recording)?;
+    let sensor = rec.sensor().clone();
+    let base_dir = a.calib.clone().or_else(|| {
+        a.out
+            .join(tofprox_format::CALIBRATION_TOML)
+            .exists()
+            .then(|| a.out.clone())
+    });
+    let mut set = match &base_dir {
+        Some(d) => {
+            let set = CalibrationSet::load(d)?;
+            set.check_compatible(&sensor)
+                .with_context(|| format!("cannot add to the calibration set in {}", d.display()))?;
+            set
+        }
+        None => CalibrationSet::new(&sensor),
+    };
+    let mut report = Vec::new();
+    let dropped = match a.what {
+        CalibKind::Fpn => {
+            let idx: Vec<usize> = match a.capture {
+                Some(i) => vec![pick_capture(&rec, Some(i), "a dark capture", |c| {
+                    if c.illumination {
+                        Err("illumination = true".into())
+                    } else {
+                        Ok(())
+                    }
+                })?],
+                None => (0..rec.captures().len())
+                    .filter(|&i| !rec.captures()[i].illumination)
+                    .collect(),
+            };
+            if idx.is_empty() {
+                bail!(
+                    "{} has no dark capture (illumination = false) to extract the FPN offset from",
+                    a.recording.display()
+                );
+            }
+            let exposures: Vec<f64> = idx.iter().map(|&i| rec.captures()[i].exposure_us).collect();
+            if exposures.iter().any(|e| (e - exposures[0]).abs() > 1e-9) {
+                eprintln!(
+                    "note: averaging dark captures of different exposures ({} µs)",
+                    exposures
+                        .iter()
+                        .map(|e| fmt_num(*e))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            }
+            let mut images: Vec<Array3<f64>> = Vec::new();
+            for &i in &idx {
+                images.push(rec.load(i)?.to_f64());
+            }
+            let views: Vec<_> = images.iter().map(|x| x.view()).collect();
+            let all =
+                ndarray::concatenate(Axis(0), &views).context("stacking the dark captures")?;
+            let off = extract_offset(all.view()).context("extracting the offset (FPN)")?;
+            let mean = off.dark_lsb.mean().unwrap_or(0.0);
+            let sd = off.dark_lsb.std(0.0);
+            report.push(format!(
+                "offset: {} dark capture(s) ({} images), mean dark level {:.1} LSB (mid code {}), FPN σ {:.1} LSB",
+                idx.len(),
+                all.len_of(Axis(0)),
+                mean,
+                sensor.mid_code(),
+                sd
+            ));
+            set.set_offset(off, source(&rec, &a.recording, idx, None))?
+        }
+        CalibKind::Wiggling => {
+            let i = pick_capture(
+                &rec,
+                a.capture,
+                "an illuminated correlation capture with distance_m",
+                |c| {
+                    if !c.illumination {
+                        return Err("it is a dark capture".into());
+                    }
+                    if !c.is_correlation() {
+                        return Err(format!(
+                            "its {} phases are not ≥ 8 equally spaced steps from 0° (a correlation capture is 24 × 15°)",
+                            c.phases_deg.len()
+                        ));
+                    }
+                    need_distance(c).map(|_| ())
+                },
+            )?;
+            let c = &rec.captures()[i];
+            let d = need_distance(c).map_err(anyhow::Error::msg)?;
+            let data = rec.load(i)?.to_f64();
+            if set.offset.is_none() {
+                eprintln!(
+                    "note: no offset (FPN) in the calibration set: the wiggling tables are extracted with the mid code subtracted; run `tofprox calibrate fpn` first for the best 2-phase result"
+                );
+            }
+            let mut dropped = Vec::new();
+            for alg in Algorithm::ALL {
+                let lut = extract_wiggling(
+                    data.view(),
+                    &c.phases_deg,
+                    set.offset.as_ref(),
+                    d,
+                    sensor.modulation_hz,
+                    sensor.adc_bits,
+                    alg,
+                    a.lut_size,
+                )
+                .with_context(|| format!("extracting the {alg} wiggling table from capture {i}"))?;
+                let lo = lut
+                    .correction_rad
+                    .iter()
+                    .copied()
+                    .fold(f32::INFINITY, f32::min);
+                let hi = lut
+                    .correction_rad
+                    .iter()
+                    .copied()
+                    .fold(f32::NEG_INFINITY, f32::max);
+                let mean = lut.correction_rad.mean().unwrap_or(0.0);
+                let mm_per_rad =
+                    1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
+                report.push(format!(
+                    "wiggling_{alg}: {} bins from capture {i} at {} m, mean correction {:.4} rad (global delay, {:.1} mm), wiggling peak-to-peak {:.4} rad ({:.1} mm)",
+                    lut.len(),
+                    fmt_num(d),
+                    mean,
+                    f64::from(mean) * mm_per_rad,
+                    hi - lo,
+                    f64::from(hi - lo) * mm_per_rad
+                ));
+                dropped
+                    .extend(set.set_wiggling(lut, source(&rec, &a.recording, vec![i], Some(d)))?);
+            }
+            dropped
+        }
+        CalibKind::Fppn => {
+            let i = pick_capture(
+                &rec,
+                a.capture,
+                "an illuminated 4-phase capture of a flat target with distance_m",
+                |c| {
+                    if !c.illumination {
+                        return Err("it is a dark capture".into());
+                    }
+                    if !c.is_four_phase() {
+                        return Err("its phases are not [0, 90, 180, 270]".into());
+                    }
+                    need_distance(c).map(|_| ())
+                },
+            )?;
+            let c = &rec.captures()[i];
+            let d = need_distance(c).map_err(anyhow::Error::msg)?;
+            if set.wiggling_4phase.is_none() {
+                eprintln!(
+                    "note: no 4-phase wiggling table in the calibration set: the FPPN map includes the wiggling error at {} m; run `tofprox calibrate wiggling` first",
+                    fmt_num(d)
+                );
+            }
+            let data = rec.load(i)?.to_f64();
+            let map = extract_fppn(
+                data.view(),
+                &c.phases_deg,
+                set.offset.as_ref(),
+                set.wiggling_4phase.as_ref(),
+                d,
+                sensor.modulation_hz,
+                sensor.adc_bits,
+                Algorithm::FourPhase,
+            )
+            .with_context(|| format!("extracting the FPPN map from capture {i}"))?;
+            let sd = map.phase_offset_rad.std(0.0);
+            let mm_per_rad =
+                1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
+            report.push(format!(
+                "fppn: from capture {i} at {} m, per-pixel phase offset σ {:.2} mrad ({:.2} mm)",
+                fmt_num(d),
+                1000.0 * sd,
+                f64::from(sd) * mm_per_rad
+            ));
+            set.set_fppn(map, source(&rec, &a.recording, vec![i], Some(d)))?
+        }
+    };
+    for p in &dropped {
+        eprintln!(
+            "note: dropped {p} from the set: it was extracted with the part just replaced; re-run `tofprox calibrate {}`",
+            match p {
+                CalibPart::Offset => "fpn",
+                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
+                CalibPart::Fppn => "fppn",
+            }
+        );
+    }
+    if set.description.is_none() {
+        set.description = Some(format!("calibration of {}", a.recording.display()));
+    }
+    set.save(&a.out)?;
+    println!("wrote {}", a.out.display());
+    for r in report {
+        println!("  {r}");
+    }
+    let parts: Vec<&str> = set.parts().iter().map(|p| p.name()).collect();
+    println!("  set now holds: {}", parts.join(", "));
+    Ok(ExitCode::SUCCESS)
+}
+
+// ---------------------------------------------------------------- process
+
+/// Perceptual colour map (viridis key colours, linear between them).
+const VIRIDIS: [[u8; 3]; 9] = [
+    [0x44, 0x01, 0x54],
+    [0x47, 0x2d, 0x7b],
+    [0x3b, 0x52, 0x8b],
+    [0x2c, 0x72, 0x8e],
+    [0x21, 0x91, 0x8c],
+    [0x28, 0xae, 0x80],
+    [0x5e, 0xc9, 0x62],
+    [0xad, 0xdc, 0x30],
+    [0xfd, 0xe7, 0x25],
+];
+
+fn colormap(t: f64) -> [u8; 3] {
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let x = t * (VIRIDIS.len() - 1) as f64;
+    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - i as f64;
+    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
+    let mut out = [0u8; 3];
+    for c in 0..3 {
+        out[c] = (f64::from(a[c]) + (f64::from(b[c]) - f64::from(a[c])) * f).round() as u8;
+    }
+    out
+}
+
+/// Write a colour-mapped depth preview: near = dark blue, far = yellow,
+/// invalid = black; each pixel scaled up so the image is at least ~256 px wide.
+fn write_depth_png(path: &Path, depth_mm: &Array2<u16>, max_m: f64) -> anyhow::Result<()> {
+    let (rows, cols) = depth_mm.dim();
+    let scale = (256 / cols.max(1)).clamp(1, 16);
+    let (w, h) = (cols * scale, rows * scale);
+    let mut data = vec![0u8; w * h * 3];
+    for ((r, c), &d) in depth_mm.indexed_iter() {
+        let rgb = if d == 0 {
+            [0, 0, 0]
+        } else {
+            colormap(f64::from(d) / 1000.0 / max_m)
+        };
+        for y in r * scale..(r + 1) * scale {
+            for x in c * scale..(c + 1) * scale {
+                let o = (y * w + x) * 3;
+                if let Some(px) = data.get_mut(o..o + 3) {
+                    px.copy_from_slice(&rgb);
+                }
+            }
+        }
+    }
+    let f = fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(f), w as u32, h as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut wr = enc
+        .write_header()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    wr.write_image_data(&data)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    wr.finish()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// Why a capture cannot be processed with `alg`, if it cannot.
+fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
+    if !c.illumination {
+        return Some("dark capture".into());
+    }
+    let need = alg.phases_deg();
+    let ok = c.phases_deg.len() >= need.len()
+        && c.phases_deg
+            .iter()
+            .zip(need)
+            .all(|(a, b)| (a - b).abs() < 1e-6);
+    if ok {
+        None
+    } else {
+        let need: Vec<String> = need.iter().map(|p| fmt_num(*p)).collect();
+        Some(format!(
+            "a {} capture; {alg} needs phases starting [{}]",
+            mode_label(c),
+            need.join(", ")
+        ))
+    }
+}
+
+pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
+    let rec = Recording::open(&a.recording)?;
+    let sensor = rec.sensor().clone();
+    let calibration = match &a.calib {
+        Some(dir) => {
+            let set = CalibrationSet::load(dir)?;
+            set.check_compatible(&sensor).with_context(|| {
+                format!(
+                    "refusing to apply {} to {}",
+                    dir.display(),
+                    a.recording.display()
+                )
+            })?;
+            if set.wiggling(a.algo).is_none() {
+                eprintln!(
+                    "note: {} has no {} wiggling table: depth is not wiggling corrected",
+                    dir.display(),
+                    a.algo
+                );
+            }
+            if set.offset.is_none() {
+                eprintln!(
+                    "note: {} has no offset (FPN): the mid code is subtracted instead",
+                    dir.display()
+                );
+            }
+            set.to_pipeline_calibration(a.algo)
+        }
+        None => {
+            eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
+            Default::default()
+        }
+    };
+    let max_m = match a.png_max_m {
+        Some(m) if m.is_finite() && m > 0.0 => m,
+        Some(m) => bail!("--png-max-m {m} is not a positive distance"),
+        None => unambiguous_range_m(sensor.modulation_hz),
+    };
+    let config = PipelineConfig {
+        algorithm: a.algo,
+        modulation_hz: sensor.modulation_hz,
+        adc_bits: sensor.adc_bits,
+        min_amplitude_lsb: a.min_amplitude_lsb,
+    };
+    let mut pipeline = Pipeline::new(sensor.rows, sensor.cols, config, calibration)
+        .context("setting up the processing pipeline")?;
+    fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+
+    let caps = rec.captures();
+    let todo: Vec<usize> = (0..caps.len())
+        .filter(|&i| match unusable_reason(&caps[i], a.algo) {
+            None => true,
+            Some(why) => {
+                if caps[i].illumination {
+                    eprintln!("note: skipping capture {i}: {why}");
+                }
+                false
+            }
+        })
+        .collect();
+    if todo.is_empty() {
+        bail!(
+            "{} has no illuminated capture that can be processed as {}",
+            a.recording.display(),
+            a.algo
+        );
+    }
+    let k = a.algo.raw_images();
+    let pb = progress(todo.len(), "processing");
+    let stdout = std::io::stdout();
+    if !a.json {
+        println!(
+            "{:>5}  {:>10}  {:>14}  {:>9}  {:>8}  {:>10}",
+            "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
+        );
+    }
+    for &i in &todo {
+        let raw = rec.load(i)?;
+        let t0 = Instant::now();
+        let frame = match &raw {
+            RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
+            RawFrames::F32(x) => pipeline.process(x.slice(s![..k, .., ..])),
+            RawFrames::F64(x) => pipeline.process(x.slice(s![..k, .., ..])),
+        }
+        .with_context(|| format!("processing capture {i}"))?;
+        let process_us = t0.elapsed().as_secs_f64() * 1e6;
+        let median = frame.median_valid_depth_m();
+        let valid = frame.valid_fraction();
+        let depth_mm = frame.depth_mm.clone();
+        let amplitude = frame.amplitude_lsb.clone();
+        let stem = format!("{i:06}");
+        let p = a.out.join(format!("{stem}_depth_mm.npy"));
+        fs::write(&p, npy::encode_u16(&depth_mm))
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
+        fs::write(&p, npy::encode_f32(&amplitude))
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        write_depth_png(&a.out.join(format!("{stem}_depth.png")), &depth_mm, max_m)?;
+        let mut out = stdout.lock();
+        if a.json {
+            let line = json!({
+                "index": i,
+                "median_depth_m": median,
+                "valid_fraction": valid,
+                "process_us": (process_us * 10.0).round() / 10.0,
+            });
+            writeln!(out, "{line}").context("writing to stdout")?;
+        } else {
+            let truth = caps[i].distance_m();
+            let err = match (truth, median) {
+                (Some(t), Some(m)) => format!("{:+.1}", (m - t) * 1000.0),
+                _ => "-".into(),
+            };
+            writeln!(
+                out,
+                "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
+                i,
+                truth.map_or("-".into(), fmt_num),
+                median.map_or("-".into(), |m| format!("{m:.4}")),
+                err,
+                100.0 * valid,
+                process_us
+            )
+            .context("writing to stdout")?;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if !a.json {
+        println!(
+            "wrote depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
+            a.out.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
 }
