@@ -1,0 +1,696 @@
+//! End-to-end tests of `tofprox info`, `calibrate` and `process` on the
+//! shipped example recording, and of every kind of bad input (exit code 2,
+//! a message naming the file/key, never a panic).
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use ndarray::Array3;
+use tofprox_format::{Recording, npy};
+
+fn bin() -> &'static str {
+    env!("CARGO_BIN_EXE_tofprox")
+}
+
+/// The repository root (holds `examples/recording` and `calib/example`).
+fn repo() -> PathBuf {
+    if let Ok(p) = std::env::var("TOFPROX_REPO_ROOT") {
+        return PathBuf::from(p);
+    }
+    let mut d = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    loop {
+        if d.join("examples/recording/recording.toml").is_file() {
+            return d;
+        }
+        if !d.pop() {
+            panic!(
+                "cannot find the repository root above {}",
+                env!("CARGO_MANIFEST_DIR")
+            );
+        }
+    }
+}
+
+fn example_rec() -> PathBuf {
+    repo().join("examples/recording")
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(bin())
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .expect("run tofprox")
+}
+
+fn p(path: &Path) -> &str {
+    path.to_str().expect("utf-8 path")
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn assert_ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "exit {:?}\nstdout:\n{}\nstderr:\n{}",
+        o.status.code(),
+        stdout(o),
+        stderr(o)
+    );
+}
+
+/// Exit code 2, one `error:` message containing every needle, no panic.
+fn assert_bad(o: &Output, needles: &[&str]) {
+    let err = stderr(o);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "stderr:\n{err}\nstdout:\n{}",
+        stdout(o)
+    );
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.contains("error: "), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
+    }
+}
+
+fn copy_dir(src: &Path, dst: &Path) {
+    fs::create_dir_all(dst).unwrap();
+    for e in fs::read_dir(src).unwrap() {
+        let e = e.unwrap();
+        let to = dst.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &to);
+        } else {
+            fs::copy(e.path(), to).unwrap();
+        }
+    }
+}
+
+/// A private copy of the example recording.
+fn rec_copy(t: &tempfile::TempDir) -> PathBuf {
+    let d = t.path().join("rec");
+    copy_dir(&example_rec(), &d);
+    d
+}
+
+fn edit(path: &Path, from: &str, to: &str) {
+    let text = fs::read_to_string(path).unwrap();
+    assert!(text.contains(from), "{from:?} not in {}", path.display());
+    fs::write(path, text.replacen(from, to, 1)).unwrap();
+}
+
+#[test]
+fn info_summarises_the_example() {
+    let o = run(&["info", p(&example_rec())]);
+    assert_ok(&o);
+    let s = stdout(&o);
+    for n in [
+        "captures    8",
+        "correlation-24 ×1",
+        "4phase ×5",
+        "dark 4phase ×1",
+        "2phase ×1",
+        "500 µs ×8",
+        "distance_m      7 capture(s): 0.25, 0.33, 0.4, 0.5, 0.55, 0.7, 0.9",
+        "saturation  0.00 %",
+        "16×16 window at (row 78, col 104) of a 172×224 array",
+    ] {
+        assert!(s.contains(n), "info lacks {n:?}:\n{s}");
+    }
+    let o = run(&["info", p(&example_rec()), "--json"]);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["captures"], 8);
+    assert_eq!(v["by_mode"]["4phase"], 5);
+    assert_eq!(v["by_illumination"]["off"], 1);
+    assert_eq!(v["sensor"]["adc_bits"], 12);
+    assert_eq!(v["per_capture"].as_array().unwrap().len(), 8);
+    assert_eq!(v["per_capture"][1]["mode"], "correlation-24");
+    assert_eq!(v["saturated_fraction"], 0.0);
+}
+
+#[test]
+fn info_reports_saturation_share() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    // saturate a quarter of the pixels of the 2-phase u16 capture
+    let r = Recording::open(&rec).unwrap();
+    let tofprox_format::RawFrames::U16(mut a) = r.load(7).unwrap() else {
+        panic!("capture 7 is uint16")
+    };
+    for row in 0..8 {
+        for col in 0..8 {
+            a[[1, row, col]] = 4095;
+        }
+    }
+    fs::write(rec.join("frames/000007.npy"), npy::encode_u16(&a)).unwrap();
+    let o = run(&["info", p(&rec), "--json"]);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["per_capture"][7]["saturated_fraction"], 0.25);
+    let total = v["saturated_fraction"].as_f64().unwrap();
+    assert!((total - 0.25 / 8.0).abs() < 1e-12, "{total}");
+}
+
+fn json_lines(o: &Output) -> Vec<serde_json::Value> {
+    stdout(o)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect()
+}
+
+/// Process with `calib` and return (index, median error m, valid fraction) per capture.
+fn process_errors(calib: Option<&Path>, algo: &str, out: &Path) -> Vec<(u64, f64, f64)> {
+    let rec = Recording::open(&example_rec()).unwrap();
+    let mut args = vec![
+        "process",
+        "examples/recording",
+        "--algo",
+        algo,
+        "--out",
+        p(out),
+        "--json",
+    ];
+    if let Some(c) = calib {
+        args.extend(["--calib", p(c)]);
+    }
+    let o = run(&args);
+    assert_ok(&o);
+    json_lines(&o)
+        .iter()
+        .map(|v| {
+            let keys: Vec<&str> = v.as_object().unwrap().keys().map(String::as_str).collect();
+            assert_eq!(
+                keys,
+                ["index", "median_depth_m", "process_us", "valid_fraction"]
+            );
+            let i = v["index"].as_u64().unwrap();
+            let truth = rec.captures()[i as usize].distance_m().unwrap();
+            assert!(v["process_us"].as_f64().unwrap() > 0.0);
+            let m = v["median_depth_m"].as_f64().unwrap_or(f64::NAN);
+            (i, m - truth, v["valid_fraction"].as_f64().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn calibrate_then_process_is_within_1_cm() {
+    let t = tempfile::tempdir().unwrap();
+    let calib = t.path().join("calib");
+    for what in ["fpn", "wiggling", "fppn"] {
+        let o = run(&["calibrate", what, "examples/recording", "--out", p(&calib)]);
+        assert_ok(&o);
+    }
+    let set = tofprox_format::CalibrationSet::load(&calib).unwrap();
+    assert_eq!(set.parts().len(), 4, "one set with every part");
+    for (algo, n) in [("2phase", 6), ("4phase", 5)] {
+        let out = t.path().join(algo);
+        let errs = process_errors(Some(&calib), algo, &out);
+        assert_eq!(errs.len(), n, "{algo}: {errs:?}");
+        for (i, e, valid) in &errs {
+            assert!(
+                e.abs() < 0.01,
+                "{algo} capture {i}: error {:.1} mm",
+                e * 1000.0
+            );
+            assert!(*valid > 0.95, "{algo} capture {i}: valid {valid}");
+        }
+        // outputs: depth (u16 mm), amplitude (f32), PNG preview per capture
+        let (i, e, _) = errs[0];
+        let d = npy::decode(&fs::read(out.join(format!("{i:06}_depth_mm.npy"))).unwrap()).unwrap();
+        let npy::NpyArray::U16(d) = d else {
+            panic!("depth is not uint16")
+        };
+        assert_eq!(d.shape(), &[16, 16]);
+        let truth_mm = (e + Recording::open(&example_rec()).unwrap().captures()[i as usize]
+            .distance_m()
+            .unwrap())
+            * 1000.0;
+        let mut v: Vec<u16> = d.iter().copied().collect();
+        v.sort_unstable();
+        assert!(
+            (f64::from(v[128]) - truth_mm).abs() < 3.0,
+            "{} vs {truth_mm}",
+            v[128]
+        );
+        let a =
+            npy::decode(&fs::read(out.join(format!("{i:06}_amplitude_lsb.npy"))).unwrap()).unwrap();
+        assert!(matches!(a, npy::NpyArray::F32(ref a) if a.iter().all(|x| *x > 10.0)));
+        let png = fs::read(out.join(format!("{i:06}_depth.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    }
+    // the shipped calibration gives the same quality
+    let shipped = repo().join("calib/example");
+    for algo in ["2phase", "4phase"] {
+        for (i, e, _) in process_errors(Some(&shipped), algo, &t.path().join("shipped")) {
+            assert!(
+                e.abs() < 0.01,
+                "calib/example {algo} capture {i}: error {:.1} mm",
+                e * 1000.0
+            );
+        }
+    }
+    // without calibration the 2-phase depth is unusable (FPN + delay + wiggling)
+    let raw = process_errors(None, "2phase", &t.path().join("raw"));
+    assert!(raw.iter().all(|(_, e, _)| e.abs() > 0.05), "{raw:?}");
+}
+
+#[test]
+fn calibrate_merges_and_drops_stale_parts() {
+    let t = tempfile::tempdir().unwrap();
+    let calib = t.path().join("c");
+    assert_ok(&run(&[
+        "calibrate",
+        "fpn",
+        "examples/recording",
+        "--out",
+        p(&calib),
+    ]));
+    let o = run(&[
+        "calibrate",
+        "wiggling",
+        "examples/recording",
+        "--out",
+        p(&calib),
+        "--lut-size",
+        "64",
+    ]);
+    assert_ok(&o);
+    assert!(
+        stdout(&o).contains("set now holds: offset, wiggling_2phase, wiggling_4phase"),
+        "{}",
+        stdout(&o)
+    );
+    let text = fs::read_to_string(calib.join("calibration.toml")).unwrap();
+    assert!(text.contains("lut_size = 64"), "{text}");
+    // a new offset invalidates the wiggling tables extracted with the old one
+    let o = run(&[
+        "calibrate",
+        "fpn",
+        "examples/recording",
+        "--out",
+        p(&calib),
+        "--capture",
+        "0",
+    ]);
+    assert_ok(&o);
+    // same data gives the same offset: nothing is dropped
+    assert!(!stderr(&o).contains("dropped"), "{}", stderr(&o));
+    // --calib reads from one set and writes another
+    let other = t.path().join("other");
+    let o = run(&[
+        "calibrate",
+        "fppn",
+        "examples/recording",
+        "--calib",
+        p(&calib),
+        "--out",
+        p(&other),
+    ]);
+    assert_ok(&o);
+    assert_eq!(
+        tofprox_format::CalibrationSet::load(&other)
+            .unwrap()
+            .parts()
+            .len(),
+        4
+    );
+    assert_eq!(
+        tofprox_format::CalibrationSet::load(&calib)
+            .unwrap()
+            .parts()
+            .len(),
+        3
+    );
+}
+
+#[test]
+fn calibrate_refuses_unsuitable_captures() {
+    let o = run(&[
+        "calibrate",
+        "wiggling",
+        "examples/recording",
+        "--out",
+        "/nonexistent/x",
+        "--capture",
+        "2",
+    ]);
+    assert_bad(&o, &["--capture 2", "correlation"]);
+    let o = run(&[
+        "calibrate",
+        "fpn",
+        "examples/recording",
+        "--out",
+        "/nonexistent/x",
+        "--capture",
+        "3",
+    ]);
+    assert_bad(&o, &["--capture 3", "illumination"]);
+    let o = run(&[
+        "calibrate",
+        "fppn",
+        "examples/recording",
+        "--out",
+        "/nonexistent/x",
+        "--capture",
+        "99",
+    ]);
+    assert_bad(&o, &["--capture 99"]);
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    // no ground truth: the wiggling table cannot be anchored
+    let toml = rec.join("recording.toml");
+    let text = fs::read_to_string(&toml)
+        .unwrap()
+        .replace("distance_m = 0.5\n", "");
+    fs::write(&toml, text).unwrap();
+    let o = run(&[
+        "calibrate",
+        "wiggling",
+        p(&rec),
+        "--out",
+        p(&t.path().join("c")),
+    ]);
+    assert_bad(&o, &["distance_m"]);
+    assert!(!t.path().join("c").exists(), "nothing written on error");
+}
+
+// ------------------------------------------------------------ bad input
+
+/// Run `info` and `process` (2phase: reads captures 2..=7) on a broken copy
+/// of the example; both must fail cleanly.
+fn broken(mutate: impl FnOnce(&Path), needles: &[&str]) {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    mutate(&rec);
+    assert_bad(&run(&["info", p(&rec)]), needles);
+    let out = t.path().join("out");
+    let calib = repo().join("calib/example");
+    assert_bad(
+        &run(&[
+            "process",
+            p(&rec),
+            "--calib",
+            p(&calib),
+            "--algo",
+            "2phase",
+            "--out",
+            p(&out),
+        ]),
+        needles,
+    );
+}
+
+#[test]
+fn bad_frames_files() {
+    // truncated
+    broken(
+        |r| {
+            let f = r.join("frames/000003.npy");
+            let b = fs::read(&f).unwrap();
+            fs::write(&f, &b[..b.len() - 100]).unwrap();
+        },
+        &["000003.npy", "capture[3].frames", "truncated"],
+    );
+    // wrong dtype (int16)
+    broken(
+        |r| {
+            let f = r.join("frames/000002.npy");
+            let b = npy::encode_u16(&Array3::<u16>::zeros((4, 16, 16)));
+            let s = b.windows(3).position(|w| w == b"<u2").unwrap();
+            let mut b = b.clone();
+            b[s..s + 3].copy_from_slice(b"<i2");
+            fs::write(f, b).unwrap();
+        },
+        &["000002.npy", "'<i2'"],
+    );
+    // NaN in a float capture
+    broken(
+        |r| {
+            let mut a = Array3::<f32>::from_elem((4, 16, 16), 2048.0);
+            a[[1, 2, 3]] = f32::NAN;
+            fs::write(r.join("frames/000004.npy"), npy::encode_f32(&a)).unwrap();
+        },
+        &["000004.npy", "NaN", "image 1, pixel (row 2, col 3)"],
+    );
+    // mismatched shape
+    broken(
+        |r| {
+            let a = Array3::<f32>::from_elem((4, 16, 15), 2048.0);
+            fs::write(r.join("frames/000005.npy"), npy::encode_f32(&a)).unwrap();
+        },
+        &["000005.npy", "(4, 16, 15)", "16×16"],
+    );
+    // missing frames file
+    broken(
+        |r| fs::remove_file(r.join("frames/000006.npy")).unwrap(),
+        &["000006.npy", "capture[6].frames"],
+    );
+    // code above 2^adc_bits - 1 in the uint16 capture
+    broken(
+        |r| {
+            let a = Array3::<u16>::from_elem((2, 16, 16), 5000);
+            fs::write(r.join("frames/000007.npy"), npy::encode_u16(&a)).unwrap();
+        },
+        &["000007.npy", "5000 exceeds"],
+    );
+    // random bytes
+    broken(
+        |r| fs::write(r.join("frames/000002.npy"), b"\x93NUMPY\x01\x00garbage").unwrap(),
+        &["000002.npy"],
+    );
+}
+
+#[test]
+fn bad_recording_toml() {
+    let toml = |r: &Path| r.join("recording.toml");
+    broken(
+        |r| edit(&toml(r), "adc_bits = 12\n", ""),
+        &["recording.toml", "missing field `adc_bits`"],
+    );
+    broken(
+        |r| edit(&toml(r), "averaged = 64\n", "averaged = 64\ngain = 2\n"),
+        &["recording.toml", "unknown field `gain`"],
+    );
+    broken(
+        |r| {
+            edit(
+                &toml(r),
+                "format = \"tofprox-recording\"",
+                "format = \"something\"",
+            )
+        },
+        &["recording.toml", "format", "not a tofprox recording"],
+    );
+    broken(
+        |r| edit(&toml(r), "version = 1", "version = 3"),
+        &["recording.toml", "version", "version 3 is not supported"],
+    );
+    broken(
+        |r| {
+            edit(
+                &toml(r),
+                "phases_deg = [0.0, 90.0]\n",
+                "phases_deg = [0.0, 90.0, 180.0, 270.0]\n",
+            )
+        },
+        &["000007.npy", "capture[7].frames", "phases_deg lists 4"],
+    );
+    broken(
+        |r| edit(&toml(r), "rows = 16", "rows = 8"),
+        &["000000.npy", "sensor window is 8×16"],
+    );
+    broken(
+        |r| edit(&toml(r), "adc_bits = 12", "adc_bits = 40"),
+        &["recording.toml", "sensor.adc_bits"],
+    );
+    broken(
+        |r| edit(&toml(r), "distance_m = 0.5", "distance_m = \"far\""),
+        &["recording.toml", "distance_m"],
+    );
+    broken(
+        |r| fs::write(toml(r), "this is [not toml").unwrap(),
+        &["recording.toml"],
+    );
+    broken(|r| fs::remove_file(toml(r)).unwrap(), &["recording.toml"]);
+    assert_bad(
+        &run(&["info", "/nonexistent/recording"]),
+        &["/nonexistent/recording"],
+    );
+}
+
+#[test]
+fn bad_calibration() {
+    let t = tempfile::tempdir().unwrap();
+    let calib = t.path().join("calib");
+    copy_dir(&repo().join("calib/example"), &calib);
+    let out = t.path().join("out");
+    let process = |rec: &Path, algo: &str| {
+        run(&[
+            "process",
+            p(rec),
+            "--calib",
+            p(&calib),
+            "--algo",
+            algo,
+            "--out",
+            p(&out),
+        ])
+    };
+    // checksum mismatch: one flipped bit in an array
+    let f = calib.join("wiggling_2phase.npy");
+    let mut b = fs::read(&f).unwrap();
+    let n = b.len();
+    b[n - 5] ^= 0x10;
+    fs::write(&f, &b).unwrap();
+    assert_bad(
+        &process(&example_rec(), "2phase"),
+        &[
+            "wiggling_2phase.npy",
+            "wiggling_2phase.sha256",
+            "SHA-256 mismatch",
+        ],
+    );
+    b[n - 5] ^= 0x10;
+    fs::write(&f, &b).unwrap();
+    assert_ok(&process(&example_rec(), "2phase"));
+
+    // data of another modulation frequency / window / ADC
+    let rec = t.path().join("rec");
+    copy_dir(&example_rec(), &rec);
+    let toml = rec.join("recording.toml");
+    edit(
+        &toml,
+        "modulation_hz = 80000000.0",
+        "modulation_hz = 60000000.0",
+    );
+    assert_bad(
+        &process(&rec, "4phase"),
+        &[
+            "calibration.toml",
+            "modulation_hz",
+            "80000000 Hz",
+            "60000000 Hz",
+        ],
+    );
+    edit(
+        &toml,
+        "modulation_hz = 60000000.0",
+        "modulation_hz = 80000000.0",
+    );
+    edit(&toml, "roi_origin = [78, 104]", "roi_origin = [0, 0]");
+    assert_bad(
+        &process(&rec, "4phase"),
+        &["calibration.toml", "roi_origin"],
+    );
+    edit(&toml, "roi_origin = [0, 0]", "roi_origin = [78, 104]");
+    edit(&toml, "adc_bits = 12", "adc_bits = 14");
+    assert_bad(&process(&rec, "4phase"), &["adc_bits"]);
+    // adding to an incompatible set is refused too
+    assert_bad(
+        &run(&["calibrate", "fpn", p(&rec), "--out", p(&calib)]),
+        &["calibration.toml", "adc_bits"],
+    );
+
+    // broken calibration.toml
+    let ct = calib.join("calibration.toml");
+    edit(&ct, "lut_size = 256", "lut_size = 128");
+    assert_bad(
+        &process(&example_rec(), "2phase"),
+        &["calibration.toml", "wiggling_2phase.lut_size"],
+    );
+    edit(&ct, "lut_size = 128", "lut_size = 256");
+    edit(&ct, "[valid_for]\n", "[valid_for]\ntemperature_c = 30\n");
+    assert_bad(
+        &process(&example_rec(), "2phase"),
+        &["calibration.toml", "unknown field `temperature_c`"],
+    );
+    assert_bad(
+        &run(&[
+            "process",
+            "examples/recording",
+            "--calib",
+            "/nonexistent/calib",
+            "--algo",
+            "2phase",
+            "--out",
+            p(&out),
+        ]),
+        &["/nonexistent/calib"],
+    );
+}
+
+#[test]
+fn process_refuses_what_it_cannot_process() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    // keep only the dark capture and the 2-phase one
+    let toml = rec.join("recording.toml");
+    let text = fs::read_to_string(&toml).unwrap();
+    let parts: Vec<&str> = text.split("[[capture]]").collect();
+    let kept = format!("{}[[capture]]{}[[capture]]{}", parts[0], parts[1], parts[8]);
+    fs::write(&toml, kept).unwrap();
+    let o = run(&[
+        "process",
+        p(&rec),
+        "--calib",
+        "calib/example",
+        "--algo",
+        "4phase",
+        "--out",
+        p(&t.path().join("o")),
+    ]);
+    assert_bad(
+        &o,
+        &["no illuminated capture that can be processed as 4phase"],
+    );
+    let o = run(&[
+        "process",
+        p(&rec),
+        "--calib",
+        "calib/example",
+        "--algo",
+        "2phase",
+        "--out",
+        p(&t.path().join("o")),
+        "--json",
+    ]);
+    assert_ok(&o);
+    let lines = json_lines(&o);
+    assert_eq!(lines.len(), 1);
+    assert_eq!(lines[0]["index"], 1);
+    // the correlation capture is skipped with a note on stderr
+    let o = run(&[
+        "process",
+        "examples/recording",
+        "--calib",
+        "calib/example",
+        "--algo",
+        "4phase",
+        "--out",
+        p(&t.path().join("o2")),
+        "--json",
+    ]);
+    assert_ok(&o);
+    assert!(stderr(&o).contains("skipping capture 1"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("skipping capture 7"), "{}", stderr(&o));
+    let bad_algo = run(&[
+        "process",
+        "examples/recording",
+        "--algo",
+        "3phase",
+        "--out",
+        p(&t.path().join("o3")),
+    ]);
+    assert_eq!(bad_algo.status.code(), Some(2));
+    assert!(!stderr(&bad_algo).contains("panicked"));
+}
