@@ -753,7 +753,15 @@ impl<T: UsbTransport> SensorDriver<T> {
         self.write_seq(&start).ctx(|| "start measurement")?;
 
         // 6. read K frames
-        let frames = self.read_frames(k, rows, cols, row0, exp_reg)?;
+        let expect: Vec<(u16, bool)> = (0..k)
+            .map(|i| {
+                (
+                    self.cfg.map.phase_to_reg(uc.phases_deg[i]),
+                    uc.illuminated(i),
+                )
+            })
+            .collect();
+        let frames = self.read_frames(&expect, rows, cols, row0, exp_reg)?;
         let t3 = clock.now();
         let capture = t3 - t2;
         let exposure = Duration::from_secs_f64(exposure_us * 1e-6 * k as f64).min(capture);
@@ -793,12 +801,13 @@ impl<T: UsbTransport> SensorDriver<T> {
     /// by a clock deadline and a payload budget.
     fn read_frames(
         &mut self,
-        k: usize,
+        expect: &[(u16, bool)],
         rows: usize,
         cols: usize,
         row0: usize,
         exp_reg: u16,
     ) -> Result<Array3<u16>, BridgeError> {
+        let k = expect.len();
         let mut out = Array3::<u16>::zeros((k, rows, cols));
         let ep = self.cfg.protocol.bulk_in_endpoint;
         let timeout = self.cfg.protocol.bulk_timeout();
@@ -838,14 +847,13 @@ impl<T: UsbTransport> SensorDriver<T> {
                 Push::Pending => None,
                 Push::Dropped(r) => Some(format!("frame dropped by reassembly: {r:?}")),
                 Push::Frame(bytes) => {
-                    let Some(mut slot) = out.index_axis_mut(ndarray::Axis(0), next).into_slice()
-                    else {
+                    let Some(slot) = out.index_axis_mut(ndarray::Axis(0), next).into_slice() else {
                         return Err(BridgeError::new(
                             ErrorKind::Io,
                             "frame buffer not contiguous",
                         ));
                     };
-                    match decode_frame(bytes, cols, rows, adc_bits, status_line, &mut slot) {
+                    match decode_frame(bytes, cols, rows, adc_bits, status_line, slot) {
                         Err(e) => Some(format!(
                             "frame content rejected: {}",
                             match e {
@@ -875,6 +883,7 @@ impl<T: UsbTransport> SensorDriver<T> {
                             } else if usize::from(s.row0) != row0
                                 || usize::from(s.rows) != rows
                                 || s.exposure_reg != exp_reg
+                                || expect.get(idx) != Some(&(s.phase_reg, s.illumination))
                             {
                                 Some(format!(
                                     "frame settings (rows {}+{}, exposure {}) differ from the request (rows {row0}+{rows}, exposure {exp_reg})",

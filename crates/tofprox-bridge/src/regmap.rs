@@ -343,20 +343,21 @@ impl SensorMap {
             );
         }
         let p = &self.spi;
-        if p.window_bytes < 8 || p.window_bytes % 2 != 0 {
+        if p.window_bytes < 8 || !p.window_bytes.is_multiple_of(2) {
             return bad("spi.window_bytes", "must be even and >= 8".into());
         }
-        if p.page_bytes == 0 || p.sector_bytes == 0 || p.sector_bytes % p.page_bytes != 0 {
+        if p.page_bytes == 0 || p.sector_bytes == 0 || !p.sector_bytes.is_multiple_of(p.page_bytes)
+        {
             return bad(
                 "spi.page_bytes/sector_bytes",
                 "sector must be a multiple of page".into(),
             );
         }
-        if self.flash.image_address % p.sector_bytes != 0 {
+        if !self.flash.image_address.is_multiple_of(p.sector_bytes) {
             return bad("flash.image_address", "must be sector aligned".into());
         }
         if let Some(w) = &self.row_window
-            && (w.align == 0 || s.rows % w.align != 0)
+            && (w.align == 0 || !s.rows.is_multiple_of(w.align))
         {
             return bad("row_window.align", "must divide sensor.rows".into());
         }

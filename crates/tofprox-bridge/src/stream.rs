@@ -26,7 +26,7 @@ pub enum DriverCommand {
 #[derive(Debug)]
 pub enum DriverReply {
     /// Result of a cycle.
-    Cycle(Result<CycleOutput, BridgeError>),
+    Cycle(Box<Result<CycleOutput, BridgeError>>),
     /// Result of a power-off.
     PowerOff(Result<(), BridgeError>),
 }
@@ -54,7 +54,7 @@ impl DriverThread {
             .spawn(move || {
                 while let Ok(cmd) = cmd_rx.recv() {
                     let reply = match cmd {
-                        DriverCommand::Cycle(r) => DriverReply::Cycle(driver.cycle(&r)),
+                        DriverCommand::Cycle(r) => DriverReply::Cycle(Box::new(driver.cycle(&r))),
                         DriverCommand::PowerOff => DriverReply::PowerOff(driver.power_off()),
                     };
                     if reply_tx.send(reply).is_err() {
@@ -101,7 +101,7 @@ impl DriverThread {
     pub fn cycle(&self, req: CycleRequest, timeout: Duration) -> Result<CycleOutput, BridgeError> {
         self.send(DriverCommand::Cycle(req))?;
         match self.recv_timeout(timeout)? {
-            DriverReply::Cycle(r) => r,
+            DriverReply::Cycle(r) => *r,
             DriverReply::PowerOff(_) => {
                 Err(BridgeError::new(ErrorKind::Protocol, "unexpected reply"))
             }

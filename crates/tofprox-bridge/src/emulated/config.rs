@@ -388,7 +388,7 @@ impl EmulatedConfig {
         self.scene.validate()?;
         self.faults.validate()?;
         if !(4096..=(64 << 20)).contains(&self.flash_size_bytes)
-            || self.flash_size_bytes % 4096 != 0
+            || !self.flash_size_bytes.is_multiple_of(4096)
         {
             return Err(BridgeError::config(format!(
                 "flash_size_bytes = {} must be a multiple of 4096 in 4 KiB..=64 MiB",

@@ -103,6 +103,7 @@ pub struct EmulatedDevice {
     i2c_in_cycle: u32,
     injected_this_cycle: Vec<FaultKind>,
     stats: EmulatedStats,
+    last_meas_frames: Option<Vec<Vec<u16>>>,
 }
 
 impl std::fmt::Debug for EmulatedDevice {
@@ -193,6 +194,7 @@ impl EmulatedDevice {
             i2c_in_cycle: 0,
             injected_this_cycle: Vec::new(),
             stats: EmulatedStats::default(),
+            last_meas_frames: None,
         };
         d.persist_flash()?;
         Ok(d)
@@ -216,6 +218,13 @@ impl EmulatedDevice {
     /// Change the scene of the built-in synthesiser.
     pub fn config(&self) -> &EmulatedConfig {
         &self.cfg
+    }
+
+    /// The clean pixel data (before any injected damage) of the most recent
+    /// measurement: `[k]` = rows × cols codes of raw image k (tests compare
+    /// delivered frames against it).
+    pub fn last_superframe(&self) -> Option<&[Vec<u16>]> {
+        self.last_meas_frames.as_deref()
     }
 
     /// Raw flash contents (tests, diagnostics).
@@ -276,7 +285,8 @@ impl EmulatedDevice {
             f.timeout_at_ctrl = Some(self.rng.random_range(1..16));
         }
         if self.roll(FaultKind::I2cNak) {
-            f.nak_at_i2c = Some(self.rng.random_range(1..10));
+            // (index 1 is the start-up chip-id poll, which tolerates NAKs)
+            f.nak_at_i2c = Some(self.rng.random_range(2..12));
         }
         f.stall = self.roll(FaultKind::Stall);
         for k in [
@@ -610,6 +620,7 @@ impl EmulatedDevice {
             let t_s = self.clock.now().as_secs_f64();
             self.synth
                 .superframe(t_s, &m.raws, m.row0, m.rows, &mut m.superframe)?;
+            self.last_meas_frames = Some(m.superframe.clone());
         }
         let (e, p, il) = m.regs[i];
         let st = status_line.then_some(StatusLine {
@@ -705,7 +716,7 @@ impl UsbTransport for EmulatedDevice {
         if s.request == self.proto.req_i2c_read {
             let addr = u8::try_from(s.value).unwrap_or(0xFF);
             let reg = s.index;
-            if buf.len() % 2 != 0 || buf.is_empty() {
+            if !buf.len().is_multiple_of(2) || buf.is_empty() {
                 return Err(self.stall_ep0(status::BAD_REQUEST, addr, reg));
             }
             self.i2c_gate(addr, reg)?;
@@ -732,7 +743,10 @@ impl UsbTransport for EmulatedDevice {
         if s.request == p.req_i2c_write {
             let addr = u8::try_from(s.value).unwrap_or(0xFF);
             let reg = s.index;
-            if data.is_empty() || data.len() % 2 != 0 || usize::from(reg) + data.len() / 2 > 65536 {
+            if data.is_empty()
+                || !data.len().is_multiple_of(2)
+                || usize::from(reg) + data.len() / 2 > 65536
+            {
                 return Err(self.stall_ep0(status::BAD_REQUEST, addr, reg));
             }
             self.i2c_gate(addr, reg)?;
