@@ -923,3 +923,50 @@ impl<T: UsbTransport> SensorDriver<T> {
         ))
     }
 }
+
+/// A real-hardware device file (`config/sensor/device.toml`): which USB
+/// device, and the driver settings.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeviceConfigFile {
+    /// USB device selection.
+    pub usb: crate::usb::UsbSelector,
+    /// Driver (register map, protocol, waits).
+    pub driver: DriverConfigFile,
+}
+
+impl Default for DriverConfigFile {
+    fn default() -> Self {
+        DriverConfigFile {
+            sensor_map: None,
+            protocol: ProtocolConfig::default(),
+            timing: DriverTiming::default(),
+        }
+    }
+}
+
+impl DeviceConfigFile {
+    /// Load a device file; returns it with the resolved driver config.
+    pub fn load(path: &Path) -> Result<(Self, DriverConfig), BridgeError> {
+        let s = std::fs::read_to_string(path).map_err(|e| {
+            BridgeError::with_source(
+                ErrorKind::Config,
+                format!("cannot read {}", path.display()),
+                e,
+            )
+        })?;
+        let f: DeviceConfigFile = toml::from_str(&s).map_err(|e| {
+            BridgeError::with_source(
+                ErrorKind::Config,
+                format!("device config {}", path.display()),
+                e,
+            )
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let d = f
+            .driver
+            .resolve(base)
+            .map_err(|e| e.context_prefix(path.display()))?;
+        Ok((f, d))
+    }
+}

@@ -28,8 +28,8 @@ pub mod uvc;
 
 pub use clock::{Clock, SystemClock, VirtualClock};
 pub use driver::{
-    CycleOutput, CycleRequest, DriverConfig, DriverConfigFile, DriverStats, DriverTiming,
-    RowWindow, SensorDriver, SensorMode, StateTimings,
+    CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, DriverConfigFile, DriverStats,
+    DriverTiming, RowWindow, SensorDriver, SensorMode, StateTimings,
 };
 pub use emulated::{EmulatedConfig, EmulatedDevice, FaultKind};
 pub use error::{BridgeError, ErrorKind};

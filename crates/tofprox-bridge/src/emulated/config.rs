@@ -381,6 +381,18 @@ impl EmulatedConfig {
         }
     }
 
+    /// The driver configuration matching this device: its register map and
+    /// protocol, default waits.
+    pub fn driver_config(&self) -> Result<crate::driver::DriverConfig, BridgeError> {
+        let c = crate::driver::DriverConfig {
+            protocol: self.protocol.clone(),
+            map: self.sensor_map()?,
+            timing: crate::driver::DriverTiming::default(),
+        };
+        c.validate()?;
+        Ok(c)
+    }
+
     /// Range checks; errors name the key.
     pub fn validate(&self) -> Result<(), BridgeError> {
         self.protocol.validate()?;

@@ -1,9 +1,344 @@
-//! `tofprox device ...` (issue: bridge and driver).
+//! `tofprox device ...` (issue: bridge and driver): probe for the CX3 bridge,
+//! capture raw frames (real hardware or the emulated device) into a version 1
+//! recording.
+use std::collections::BTreeMap;
+use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use ndarray::Axis;
+use tofprox_bridge::emulated::SceneConfig;
+use tofprox_bridge::usb::{UsbSelector, probe};
+use tofprox_bridge::{
+    Clock, CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, EmulatedConfig,
+    EmulatedDevice, RowWindow, RusbTransport, SensorDriver, SensorMode, SystemClock, UsbTransport,
+};
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
 
 #[derive(clap::Subcommand, Debug)]
-pub enum DeviceCommand {}
+pub enum DeviceCommand {
+    /// List CX3 bridges matching the configured USB ids (exit 1 when none).
+    Probe(ProbeArgs),
+    /// Capture raw frames into a version 1 recording (uint16 single
+    /// acquisitions).
+    Capture(CaptureArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct SelectArgs {
+    /// Device file (`[usb]` selection and `[driver]` settings; see
+    /// config/sensor/device.toml).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// USB vendor id (hex), overrides the config.
+    #[arg(long, value_parser = parse_hex16)]
+    vid: Option<u16>,
+    /// USB product id (hex), overrides the config.
+    #[arg(long, value_parser = parse_hex16)]
+    pid: Option<u16>,
+    /// Only the device with this serial number.
+    #[arg(long)]
+    serial: Option<String>,
+    /// Only the device at this bus path (e.g. 1-2.3).
+    #[arg(long)]
+    bus_path: Option<String>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ProbeArgs {
+    #[command(flatten)]
+    select: SelectArgs,
+    /// JSON output on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct CaptureArgs {
+    #[command(flatten)]
+    select: SelectArgs,
+    /// Use the emulated device; `--config` is then an emulated-device file
+    /// (config/emulated/*.toml).
+    #[arg(long)]
+    emulated: bool,
+    /// Seed of the emulated device (noise, faults).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Measurement mode.
+    #[arg(long, value_parser = parse_mode)]
+    mode: SensorMode,
+    /// Exposure per raw image, µs.
+    #[arg(long)]
+    exposure_us: f64,
+    /// Row window `ROW0,ROWS` (partial read-out); default: full array.
+    #[arg(long, value_parser = parse_window)]
+    window: Option<RowWindow>,
+    /// Number of measurements (one capture each).
+    #[arg(long, default_value_t = 1)]
+    count: u32,
+    /// Capture condition `KEY=VALUE` (e.g. distance_m=0.5), repeatable.
+    #[arg(long = "condition", value_parser = parse_condition)]
+    conditions: Vec<(String, f64)>,
+    /// Recording description.
+    #[arg(long)]
+    description: Option<String>,
+    /// Output recording directory (must not exist yet or be empty).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn parse_hex16(s: &str) -> Result<u16, String> {
+    let t = s.trim_start_matches("0x").trim_start_matches("0X");
+    u16::from_str_radix(t, 16).map_err(|e| format!("{s:?} is not a 16-bit hex id: {e}"))
+}
+
+fn parse_mode(s: &str) -> Result<SensorMode, String> {
+    s.parse::<SensorMode>().map_err(|e| e.to_string())
+}
+
+fn parse_window(s: &str) -> Result<RowWindow, String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or_else(|| format!("window {s:?}: expected ROW0,ROWS"))?;
+    let row0 = a
+        .trim()
+        .parse::<u16>()
+        .map_err(|e| format!("window row0 {a:?}: {e}"))?;
+    let rows = b
+        .trim()
+        .parse::<u16>()
+        .map_err(|e| format!("window rows {b:?}: {e}"))?;
+    if rows == 0 {
+        return Err("window rows must be > 0".into());
+    }
+    Ok(RowWindow { row0, rows })
+}
+
+fn parse_condition(s: &str) -> Result<(String, f64), String> {
+    let (k, v) = s
+        .split_once('=')
+        .ok_or_else(|| format!("condition {s:?}: expected KEY=VALUE"))?;
+    let v: f64 = v
+        .trim()
+        .parse()
+        .map_err(|e| format!("condition {k}: {e}"))?;
+    if !v.is_finite() {
+        return Err(format!("condition {k}: value must be finite"));
+    }
+    Ok((k.trim().to_string(), v))
+}
+
+fn selector(a: &SelectArgs) -> anyhow::Result<(UsbSelector, Option<DriverConfig>)> {
+    let (mut sel, drv) = match &a.config {
+        Some(p) => {
+            let (f, d) = DeviceConfigFile::load(p)?;
+            (f.usb, Some(d))
+        }
+        None => (UsbSelector::default(), None),
+    };
+    if let Some(v) = a.vid {
+        sel.vendor_id = v;
+    }
+    if let Some(p) = a.pid {
+        sel.product_id = p;
+    }
+    if a.serial.is_some() {
+        sel.serial = a.serial.clone();
+    }
+    if a.bus_path.is_some() {
+        sel.bus_path = a.bus_path.clone();
+    }
+    Ok((sel, drv))
+}
 
 pub fn run(c: DeviceCommand) -> anyhow::Result<ExitCode> {
-    match c {}
+    match c {
+        DeviceCommand::Probe(a) => probe_cmd(a),
+        DeviceCommand::Capture(a) => capture(a),
+    }
+}
+
+fn probe_cmd(a: ProbeArgs) -> anyhow::Result<ExitCode> {
+    let (sel, _) = selector(&a.select)?;
+    let found = probe(&sel)?;
+    if a.json {
+        let v = serde_json::json!({
+            "vendor_id": format!("{:04x}", sel.vendor_id),
+            "product_id": format!("{:04x}", sel.product_id),
+            "devices": found,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else if found.is_empty() {
+        println!(
+            "no matching device found (USB {:04x}:{:04x}{}{})",
+            sel.vendor_id,
+            sel.product_id,
+            sel.serial
+                .as_deref()
+                .map(|s| format!(", serial {s}"))
+                .unwrap_or_default(),
+            sel.bus_path
+                .as_deref()
+                .map(|s| format!(", bus path {s}"))
+                .unwrap_or_default(),
+        );
+    } else {
+        for d in &found {
+            println!(
+                "{:04x}:{:04x}  bus {:03} address {:03}  path {}  serial {}  {}",
+                d.vendor_id,
+                d.product_id,
+                d.bus,
+                d.address,
+                d.bus_path,
+                d.serial.as_deref().unwrap_or("-"),
+                d.product.as_deref().unwrap_or("")
+            );
+        }
+    }
+    Ok(if found.is_empty() {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
+}
+
+fn capture(a: CaptureArgs) -> anyhow::Result<ExitCode> {
+    if a.count == 0 {
+        bail!("--count must be at least 1");
+    }
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let mut conditions: BTreeMap<String, f64> = a.conditions.iter().cloned().collect();
+    if a.emulated {
+        let cfg = match &a.select.config {
+            Some(p) => EmulatedConfig::load(p)?,
+            None => EmulatedConfig::default(),
+        };
+        let drv = cfg.driver_config()?;
+        conditions
+            .entry("ambient_klux".into())
+            .or_insert(cfg.ambient_klux);
+        conditions
+            .entry("temperature_c".into())
+            .or_insert(cfg.temperature_c);
+        if let SceneConfig::Wall {
+            distance_m,
+            reflectivity,
+        } = cfg.scene
+        {
+            conditions.entry("distance_m".into()).or_insert(distance_m);
+            conditions
+                .entry("reflectivity".into())
+                .or_insert(reflectivity);
+        }
+        let dev = EmulatedDevice::new(cfg, clock.clone(), a.seed)?;
+        run_capture(&a, dev, drv, clock, conditions)
+    } else {
+        let (sel, drv) = selector(&a.select)?;
+        let dev = RusbTransport::open(sel)?;
+        let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
+        run_capture(&a, dev, drv, clock, conditions)
+    }
+}
+
+fn run_capture<T: UsbTransport>(
+    a: &CaptureArgs,
+    dev: T,
+    drv: DriverConfig,
+    clock: Arc<dyn Clock>,
+    conditions: BTreeMap<String, f64>,
+) -> anyhow::Result<ExitCode> {
+    let desc = dev.describe();
+    let mut driver = SensorDriver::new(dev, drv, clock)?;
+    let req = CycleRequest {
+        mode: a.mode,
+        exposure_us: a.exposure_us,
+        row_window: a.window,
+    };
+    driver.check_request(&req)?;
+    let mut writer: Option<RecordingWriter> = None;
+    for i in 0..a.count {
+        let out = driver
+            .cycle(&req)
+            .with_context(|| format!("capture {} of {} from {desc}", i + 1, a.count))?;
+        let w = match writer.as_mut() {
+            Some(w) => w,
+            None => writer.insert(create_writer(a, &out, &desc)?),
+        };
+        append(w, &out, &conditions).with_context(|| format!("writing {}", a.out.display()))?;
+        tracing::info!(
+            "capture {}: {} raw images {:?}, total {:?}{}",
+            i + 1,
+            out.frames.dim().0,
+            out.frames.dim(),
+            out.timings.total,
+            if out.flash_written {
+                " (flash written)"
+            } else {
+                ""
+            }
+        );
+    }
+    let _ = driver.power_off();
+    eprintln!("wrote {} capture(s) to {}", a.count, a.out.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+fn create_writer(
+    a: &CaptureArgs,
+    out: &CycleOutput,
+    desc: &str,
+) -> anyhow::Result<RecordingWriter> {
+    let (_, rows, cols) = out.frames.dim();
+    let sensor = SensorInfo {
+        rows,
+        cols,
+        roi_origin: out.roi_origin,
+        full_rows: out.full_rows,
+        full_cols: out.full_cols,
+        adc_bits: out.adc_bits,
+        modulation_hz: out.modulation_hz,
+    };
+    let description = a
+        .description
+        .clone()
+        .unwrap_or_else(|| format!("tofprox device capture, {} mode, {desc}", a.mode));
+    Ok(RecordingWriter::create(&a.out, sensor, Some(description))?)
+}
+
+/// Append one cycle: consecutive raw images with the same illumination
+/// become one capture (a 4phase-grey measurement gives a 4-image capture and
+/// a 1-image dark capture).
+fn append(
+    w: &mut RecordingWriter,
+    out: &CycleOutput,
+    conditions: &BTreeMap<String, f64>,
+) -> anyhow::Result<()> {
+    let ts = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .ok()
+        .and_then(|d| u64::try_from(d.as_nanos()).ok());
+    let k = out.frames.dim().0;
+    let mut start = 0;
+    while start < k {
+        let il = out.illuminated.get(start).copied().unwrap_or(true);
+        let mut end = start + 1;
+        while end < k && out.illuminated.get(end).copied().unwrap_or(true) == il {
+            end += 1;
+        }
+        let idx: Vec<usize> = (start..end).collect();
+        let frames = out.frames.select(Axis(0), &idx);
+        let spec = CaptureSpec {
+            phases_deg: out.phases_deg[start..end].to_vec(),
+            exposure_us: out.exposure_us,
+            illumination: il,
+            averaged: 1,
+            timestamp_ns: ts,
+            conditions: conditions.clone(),
+        };
+        w.append(spec, &RawFrames::U16(frames))?;
+        start = end;
+    }
+    Ok(())
 }
