@@ -24,6 +24,7 @@ pub mod catalogue;
 pub mod config;
 pub mod effects;
 pub mod error;
+pub mod figures;
 pub mod geometry;
 pub mod scene;
 pub mod sim;
