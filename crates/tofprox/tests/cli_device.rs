@@ -1,0 +1,147 @@
+//! End-to-end tests of `tofprox device probe` and `tofprox device capture`
+//! (emulated device; this machine has no USB stack and no CX3).
+
+use std::process::{Command, Output};
+
+use tofprox_format::{RawFrames, Recording};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tofprox"))
+        .args(args)
+        .output()
+        .expect("run tofprox")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+#[test]
+fn probe_without_device_says_so_clearly() {
+    let o = run(&["device", "probe", "--vid", "04b4", "--pid", "00c3"]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    assert!(text(&o.stdout).contains("no matching device found (USB 04b4:00c3)"));
+    assert!(!text(&o.stderr).contains("panicked"));
+    let o = run(&["device", "probe", "--json"]);
+    assert_eq!(o.status.code(), Some(1));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["devices"], serde_json::json!([]));
+}
+
+#[test]
+fn capture_on_real_hardware_without_device_is_a_clean_error() {
+    let dir = tempfile_dir();
+    let out = dir.join("rec");
+    let o = run(&[
+        "device",
+        "capture",
+        "--mode",
+        "2phase",
+        "--exposure-us",
+        "300",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let e = text(&o.stderr);
+    assert!(
+        e.starts_with("error: ") && e.contains("no matching device found"),
+        "{e}"
+    );
+    assert!(!out.join("recording.toml").exists());
+}
+
+fn tempfile_dir() -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "tofprox-cli-device-{}-{}",
+        std::process::id(),
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_nanos()
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn emulated_capture_writes_a_version_1_recording() {
+    let dir = tempfile_dir();
+    let out = dir.join("rec2");
+    let o = run(&[
+        "device",
+        "capture",
+        "--emulated",
+        "--mode",
+        "2phase",
+        "--exposure-us",
+        "300",
+        "--count",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let rec = Recording::open(&out).unwrap();
+    assert_eq!((rec.sensor().rows, rec.sensor().cols), (172, 224));
+    assert_eq!(rec.captures().len(), 2);
+    let c = &rec.captures()[0];
+    assert_eq!(c.phases_deg, vec![0.0, 90.0]);
+    assert_eq!(c.exposure_us, 300.0);
+    assert_eq!(c.conditions.get("distance_m"), Some(&1.0));
+    match rec.load(1).unwrap() {
+        RawFrames::U16(a) => {
+            assert_eq!(a.dim(), (2, 172, 224));
+            assert!(a.iter().all(|&v| v < 4096));
+        }
+        other => panic!("expected u16 frames, got {:?}", other.dim()),
+    }
+
+    // grey image becomes its own dark capture; the window shrinks the frames
+    let out = dir.join("rec4");
+    let o = run(&[
+        "device",
+        "capture",
+        "--emulated",
+        "--mode",
+        "4phase-grey",
+        "--exposure-us",
+        "200",
+        "--window",
+        "40,20",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let rec = Recording::open(&out).unwrap();
+    assert_eq!((rec.sensor().rows, rec.sensor().roi_origin), (20, [40, 0]));
+    let caps = rec.captures();
+    assert_eq!(caps.len(), 2);
+    assert_eq!((caps[0].phases_deg.len(), caps[0].illumination), (4, true));
+    assert_eq!((caps[1].phases_deg.len(), caps[1].illumination), (1, false));
+
+    // bad input: exit 2 with a message, never a panic
+    for bad in [
+        vec!["--window", "41,20"],
+        vec!["--window", "x"],
+        vec!["--exposure-us", "1e9"],
+        vec!["--mode", "3phase"],
+    ] {
+        let mut args = vec![
+            "device",
+            "capture",
+            "--emulated",
+            "--mode",
+            "2phase",
+            "--exposure-us",
+            "300",
+        ];
+        args.extend(bad.iter().copied());
+        let p = dir.join("bad");
+        args.extend(["--out", p.to_str().unwrap()]);
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", text(&o.stderr));
+        assert!(!text(&o.stderr).contains("panicked"));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
