@@ -1,1 +1,24 @@
-//! tofprox model lab: compare the model with measurements and find the missing effect
+//! tofprox model lab: compare the model with measurements, find the missing
+//! effect, add it and watch the error fall (issue: model lab; `docs/lab.md`).
+//!
+//! Pipeline: [`data::Dataset`] → [`fit::Prepared`] → [`diagnose::compare`]
+//! (fits the [`fit::LabModel`], noise, residual structure) →
+//! [`diagnose::diagnose`] (candidate signatures, verdict) →
+//! [`diagnose::add_effect`].
+pub mod candidates;
+pub mod data;
+pub mod diagnose;
+pub mod error;
+pub mod fit;
+pub mod noise;
+pub mod signatures;
+pub mod stats;
+pub mod structure;
+#[doc(hidden)]
+pub mod synth;
+pub mod waveform;
+
+pub use data::{Capture, Dataset};
+pub use diagnose::{AddOutcome, Comparison, Diagnosis, Verdict, add_effect, compare, diagnose};
+pub use error::{ErrorKind, LabError};
+pub use fit::{LabModel, LabSpec, Prepared};

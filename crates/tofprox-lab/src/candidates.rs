@@ -1,0 +1,194 @@
+//! Fitting one signature on top of the current model: variable projection
+//! over a grid of the non-linear parameters, then Levenberg–Marquardt on all
+//! of them, and block cross-validation from per-fold normal equations.
+use rayon::prelude::*;
+
+use crate::error::LabError;
+use crate::fit::{EffectFit, FOLDS, Prepared, Rec};
+use crate::signatures::Signature;
+use crate::stats::{Normal, levenberg_marquardt, solve_sym};
+
+/// Result of fitting one signature.
+#[derive(Debug, Clone)]
+pub struct SignatureFit {
+    pub lin: Vec<f64>,
+    pub nl: Vec<f64>,
+    /// χ² of the residual after the fit (over the given records).
+    pub chi2: f64,
+    /// χ² before (the records' own residual).
+    pub chi2_before: f64,
+    /// Σ over folds of the held-out χ² with parameters trained on the other folds.
+    pub cv_chi2: f64,
+    /// Σ over folds of the held-out χ² without the effect.
+    pub cv_chi2_before: f64,
+    pub n_params: usize,
+    /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
+    pub nuisance: [f64; NUISANCE],
+}
+
+/// Global nuisance directions refitted with every candidate: the shifts of
+/// offset, gain and phase that the per-pixel parameters absorbed from the
+/// effect while the model was fitted without it.
+pub const NUISANCE: usize = 3;
+
+#[inline]
+fn nuisance(r: &Rec) -> [f64; NUISANCE] {
+    [1.0, r.a * r.c, r.a * r.cd]
+}
+
+/// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
+fn accumulate(
+    sig: &dyn Signature,
+    recs: &[Rec],
+    prep: &Prepared,
+    p: &[f64],
+    deriv: bool,
+    stride: usize,
+) -> Vec<Normal> {
+    let nsig = sig.n_lin();
+    let nlin = nsig + NUISANCE;
+    let nnl = if deriv { p.len() - nlin } else { 0 };
+    let n = nlin + nnl;
+    let (lin_all, nl) = p.split_at(nlin);
+    let (lin, nui) = lin_all.split_at(nsig);
+    let chunk = 8192;
+    let parts: Vec<Vec<Normal>> = recs
+        .par_chunks(chunk * stride)
+        .map(|ch| {
+            let mut acc: Vec<Normal> = (0..FOLDS).map(|_| Normal::zeros(n)).collect();
+            let mut b = vec![0.0; nsig];
+            let mut b2 = vec![0.0; nsig];
+            let mut j = vec![0.0; n];
+            let mut nlh = nl.to_vec();
+            for r in ch.iter().step_by(stride) {
+                let cap = &prep.caps[r.cap as usize];
+                sig.basis(nl, r, cap, &mut b);
+                let nu = nuisance(r);
+                let d: f64 = b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
+                    + nu.iter().zip(nui).map(|(x, y)| x * y).sum::<f64>();
+                j[..nsig].copy_from_slice(&b);
+                j[nsig..nlin].copy_from_slice(&nu);
+                let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
+                for i in 0..nnl {
+                    let h = 1e-4 * nl[i].abs().max(1e-2);
+                    nlh[i] = nl[i] + h;
+                    sig.basis(&nlh, r, cap, &mut b2);
+                    nlh[i] = nl[i];
+                    let d2: f64 = b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
+                    j[nlin + i] = (d2 - d) / h;
+                }
+                acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);
+            }
+            acc
+        })
+        .collect();
+    let mut out: Vec<Normal> = (0..FOLDS).map(|_| Normal::zeros(n)).collect();
+    for part in parts {
+        for (o, a) in out.iter_mut().zip(&part) {
+            o.merge(a);
+        }
+    }
+    for o in &mut out {
+        o.symmetrize();
+    }
+    out
+}
+
+fn total(folds: &[Normal]) -> Normal {
+    let mut t = Normal::zeros(folds[0].n);
+    for f in folds {
+        t.merge(f);
+    }
+    t
+}
+
+/// Fit `sig` to the residuals in `recs` (r = measured − current model).
+pub fn fit_signature(
+    sig: &dyn Signature,
+    recs: &[Rec],
+    prep: &Prepared,
+    start: Option<&EffectFit>,
+) -> Result<SignatureFit, LabError> {
+    let nlin = sig.n_lin() + NUISANCE;
+    if recs.is_empty() {
+        return Err(LabError::data("no valid samples to fit"));
+    }
+    // Variable projection over the grid (on a subsample when large).
+    let stride = (recs.len() / 150_000).max(1);
+    let mut grid = sig.nl_grid(recs, prep);
+    if let Some(s) = start
+        && s.nl.len() == sig.nl_start().len()
+        && !s.nl.is_empty()
+    {
+        grid.push(s.nl.clone());
+    }
+    if grid.is_empty() {
+        grid.push(sig.nl_start());
+    }
+    let mut best: Option<(f64, Vec<f64>)> = None;
+    for nl in &grid {
+        let mut p = vec![0.0; nlin];
+        p.extend_from_slice(nl);
+        let t = total(&accumulate(sig, recs, prep, &p, false, stride));
+        let Some(lin) = solve_sym(&t.jtj, &t.jtr) else {
+            continue;
+        };
+        let chi = t.chi2_after(&lin);
+        if best.as_ref().is_none_or(|b| chi < b.0) {
+            let mut full = lin;
+            full.extend_from_slice(nl);
+            best = Some((chi, full));
+        }
+    }
+    let Some((_, mut p)) = best else {
+        return Err(LabError::numerical(format!(
+            "{}: no grid point gave a solvable fit",
+            sig.id()
+        )));
+    };
+    let has_nl = p.len() > nlin;
+    if has_nl {
+        let r = levenberg_marquardt(|q| total(&accumulate(sig, recs, prep, q, true, 1)), &p, 30)?;
+        p = r.params;
+    } else {
+        // exact linear least squares on all data
+        let t = total(&accumulate(sig, recs, prep, &vec![0.0; nlin], false, 1));
+        if let Some(lin) = solve_sym(&t.jtj, &t.jtr) {
+            p = lin;
+        }
+    }
+    // Final per-fold normal equations at the solution (linear block only) and CV.
+    let folds = accumulate(sig, recs, prep, &p, false, 1);
+    let tot = total(&folds);
+    let mut cv = 0.0;
+    for f in &folds {
+        if f.count == 0 {
+            continue;
+        }
+        let train = tot.minus(f);
+        let step = solve_sym(&train.jtj, &train.jtr).unwrap_or_else(|| vec![0.0; nlin]);
+        // held-out χ² with the training optimum, relative to p̂
+        cv += f.chi2_after(&step);
+    }
+    let before: Vec<f64> = {
+        let mut v = vec![0.0; FOLDS];
+        for r in recs {
+            v[usize::from(r.fold) % FOLDS] += r.w * r.r * r.r;
+        }
+        v
+    };
+    let chi2_before: f64 = before.iter().sum();
+    let nl = p[nlin..].to_vec();
+    let nuisance = [p[nlin - 3], p[nlin - 2], p[nlin - 1]];
+    p.truncate(nlin - NUISANCE);
+    Ok(SignatureFit {
+        n_params: p.len() + nl.len(),
+        lin: p,
+        nl,
+        chi2: tot.chi2,
+        chi2_before,
+        cv_chi2: cv,
+        cv_chi2_before: chi2_before,
+        nuisance,
+    })
+}

@@ -1,0 +1,662 @@
+//! compare → diagnose → add: the lab's workflow on a prepared recording.
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::candidates::fit_signature;
+use crate::error::{ErrorKind, LabError};
+use crate::fit::{
+    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, SPEED_OF_LIGHT_M_PER_S, fit_model,
+};
+use crate::signatures::{
+    SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
+};
+use crate::stats::{bic, chi2_z};
+use crate::structure::{ConditionScore, score_all};
+
+/// Global misfit below which the residual counts as noise.
+pub const Z_NULL: f64 = 4.0;
+/// Structure score below which no condition shows structure.
+pub const STRUCTURE_NULL: f64 = 6.0;
+/// A named effect must explain at least this share of the excess χ².
+pub const MIN_EXPLAINED: f64 = 0.6;
+/// … and keep at least this cross-validated share.
+pub const MIN_CV: f64 = 0.4;
+/// Two candidates closer than this in explained share are ambiguous.
+pub const AMBIGUITY_MARGIN: f64 = 0.1;
+
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct Rms {
+    pub raw_lsb: f64,
+    pub depth_2phase_mm: f64,
+    pub depth_4phase_mm: f64,
+}
+
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct FitStats {
+    pub chi2_per_dof: f64,
+    pub z: f64,
+}
+
+/// Per-capture depth residual means (for plots).
+#[derive(Debug, Clone, Serialize)]
+pub struct CaptureDepth {
+    pub capture: usize,
+    pub distance_m: f64,
+    pub exposure_us: f64,
+    pub ambient_klux: f64,
+    pub temperature_c: Option<f64>,
+    pub depth_2phase_mm: f64,
+    pub depth_4phase_mm: f64,
+    pub measured_amplitude_lsb: f64,
+    pub model_amplitude_lsb: f64,
+}
+
+/// The model compared with the recording.
+#[derive(Debug, Clone)]
+pub struct Comparison {
+    pub model: LabModel,
+    pub recs: Vec<Rec>,
+    pub chi2: f64,
+    pub n: usize,
+    pub dof: f64,
+    pub fit: FitStats,
+    pub rms: Rms,
+    pub structure: Vec<ConditionScore>,
+    pub depth: Vec<CaptureDepth>,
+    /// Per-pixel χ²/sample (residual map).
+    pub pixel_chi2: Vec<f64>,
+}
+
+pub fn compare(
+    prep: &Prepared,
+    spec: &LabSpec,
+    progress: Progress<'_>,
+) -> Result<Comparison, LabError> {
+    let model = fit_model(prep, spec, progress)?;
+    comparison_of(prep, model)
+}
+
+pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, LabError> {
+    let recs = model.records(prep)?;
+    if recs.len() <= model.n_params + 10 {
+        return Err(LabError::data(format!(
+            "only {} valid samples for {} parameters (saturation everywhere?)",
+            recs.len(),
+            model.n_params
+        )));
+    }
+    let chi2: f64 = recs.par_iter().map(|r| r.w * r.r * r.r).sum();
+    let n = recs.len();
+    let dof = (n - model.n_params) as f64;
+    let raw = (recs.par_iter().map(|r| r.r * r.r).sum::<f64>() / n as f64).sqrt();
+    let (d2, d4, depth) = depth_residuals(prep, &model)?;
+    let res: Vec<f64> = recs.iter().map(|r| r.r).collect();
+    let structure = score_all(&recs, &res, prep);
+    let mut pix = vec![(0.0, 0usize); prep.npix];
+    for r in &recs {
+        let e = &mut pix[r.pix as usize];
+        e.0 += r.w * r.r * r.r;
+        e.1 += 1;
+    }
+    Ok(Comparison {
+        fit: FitStats {
+            chi2_per_dof: chi2 / dof,
+            z: chi2_z(chi2, dof),
+        },
+        rms: Rms {
+            raw_lsb: raw,
+            depth_2phase_mm: d2,
+            depth_4phase_mm: d4,
+        },
+        model,
+        recs,
+        chi2,
+        n,
+        dof,
+        structure,
+        depth,
+        pixel_chi2: pix
+            .iter()
+            .map(|(s, c)| if *c > 0 { s / *c as f64 } else { f64::NAN })
+            .collect(),
+    })
+}
+
+fn wrap_pm(x: f64) -> f64 {
+    let t = std::f64::consts::TAU;
+    let mut y = x.rem_euclid(t);
+    if y > std::f64::consts::PI {
+        y -= t;
+    }
+    y
+}
+
+/// Depth residuals depth(measured) − depth(model) for 2- and 4-phase (eq. 2.2,
+/// 2.3) over non-saturated captures with ground truth: RMS in mm and per-capture means.
+pub fn depth_residuals(
+    prep: &Prepared,
+    model: &LabModel,
+) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
+    let sigs = model.signatures(prep)?;
+    let mm_per_rad =
+        SPEED_OF_LIGHT_M_PER_S / (4.0 * std::f64::consts::PI * prep.modulation_hz) * 1000.0;
+    let find = |cap: &crate::fit::CapInfo, deg: f64| {
+        cap.phases_deg
+            .iter()
+            .position(|p| ((p - deg).rem_euclid(360.0)).min((deg - p).rem_euclid(360.0)) < 1e-6)
+    };
+    let npix = prep.npix;
+    type PerCapture = Option<(f64, usize, f64, usize, CaptureDepth)>;
+    let per: Vec<PerCapture> = (0..prep.caps.len())
+        .into_par_iter()
+        .map(|c| {
+            let cap = &prep.caps[c];
+            let d = cap.distance_m?;
+            if !cap.illum || !cap.used {
+                return None;
+            }
+            let i0 = find(cap, 0.0)?;
+            let i90 = find(cap, 90.0)?;
+            let four = find(cap, 180.0).zip(find(cap, 270.0));
+            let (mut s2, mut n2, mut s4, mut n4) = (0.0, 0usize, 0.0, 0usize);
+            let (mut m2, mut m4, mut am, mut amod) = (0.0, 0.0, 0.0, 0.0);
+            for p in 0..npix {
+                if model.sat[c * npix + p] {
+                    continue;
+                }
+                let o = prep.mid + model.offset[p];
+                let um = |k: usize| prep.meas[prep.idx(c, k, p)] - o;
+                let up = |k: usize| model.predict(prep, &sigs, c, k, p) - o;
+                let e2 = wrap_pm(um(i90).atan2(um(i0)) - up(i90).atan2(up(i0))) * mm_per_rad; // eq. 2.2
+                s2 += e2 * e2;
+                m2 += e2;
+                n2 += 1;
+                if let Some((i180, i270)) = four {
+                    let pm = (um(i90) - um(i270)).atan2(um(i0) - um(i180)); // eq. 2.3
+                    let pp = (up(i90) - up(i270)).atan2(up(i0) - up(i180));
+                    let e4 = wrap_pm(pm - pp) * mm_per_rad;
+                    s4 += e4 * e4;
+                    m4 += e4;
+                    n4 += 1;
+                    am += 0.5 * (um(i90) - um(i270)).hypot(um(i0) - um(i180)); // eq. 2.4
+                    amod += 0.5 * (up(i90) - up(i270)).hypot(up(i0) - up(i180));
+                }
+            }
+            if n2 == 0 {
+                return None;
+            }
+            Some((
+                s2,
+                n2,
+                s4,
+                n4,
+                CaptureDepth {
+                    capture: c,
+                    distance_m: d,
+                    exposure_us: cap.exposure_us,
+                    ambient_klux: cap.ambient_klux,
+                    temperature_c: cap.temperature_c,
+                    depth_2phase_mm: m2 / n2 as f64,
+                    depth_4phase_mm: if n4 > 0 { m4 / n4 as f64 } else { f64::NAN },
+                    measured_amplitude_lsb: if n4 > 0 { am / n4 as f64 } else { f64::NAN },
+                    model_amplitude_lsb: if n4 > 0 { amod / n4 as f64 } else { f64::NAN },
+                },
+            ))
+        })
+        .collect();
+    let (mut s2, mut n2, mut s4, mut n4) = (0.0, 0usize, 0.0, 0usize);
+    let mut caps = Vec::new();
+    for (a, b, c, d, e) in per.into_iter().flatten() {
+        s2 += a;
+        n2 += b;
+        s4 += c;
+        n4 += d;
+        caps.push(e);
+    }
+    let rms = |s: f64, n: usize| {
+        if n > 0 {
+            (s / n as f64).sqrt()
+        } else {
+            f64::NAN
+        }
+    };
+    Ok((rms(s2, n2), rms(s4, n4), caps))
+}
+
+/// One candidate effect scored against the residual.
+#[derive(Debug, Clone, Serialize)]
+pub struct CandidateScore {
+    pub effect: String,
+    /// BIC(with) − BIC(without); negative supports the effect.
+    pub delta_bic: f64,
+    /// Share of the excess χ² (χ² − dof) the effect removes.
+    pub explained_excess: f64,
+    /// The same share on held-out blocks of distance (5 block folds).
+    pub cv_gain: f64,
+    /// z = (χ² − dof)/√(2 dof) after adding the effect.
+    pub z_after: f64,
+    pub params: BTreeMap<String, f64>,
+    #[serde(skip)]
+    pub fit: Option<EffectFit>,
+    #[serde(skip)]
+    pub nuisance: [f64; 3],
+    #[serde(skip)]
+    pub structure_after: Option<f64>,
+    #[serde(skip)]
+    pub rms_after: Option<Rms>,
+    #[serde(skip)]
+    pub cancels_in_4phase: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    MissingEffect,
+    NothingMissing,
+    Ambiguous,
+    Unexplained,
+}
+
+impl Verdict {
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Verdict::MissingEffect => "missing_effect",
+            Verdict::NothingMissing => "nothing_missing",
+            Verdict::Ambiguous => "ambiguous",
+            Verdict::Unexplained => "unexplained",
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct Diagnosis {
+    pub verdict: Verdict,
+    pub effect: Option<String>,
+    /// For `ambiguous`: the runner-up and the condition to vary.
+    pub runner_up: Option<String>,
+    pub separate_by: Option<String>,
+    pub candidates: Vec<CandidateScore>,
+    pub skipped: Vec<(String, String)>,
+    pub fit: FitStats,
+    pub strongest_condition: Option<String>,
+    pub rms: Rms,
+    pub structure_remaining: Vec<ConditionScore>,
+    pub reason: String,
+}
+
+/// Rank the catalogue effects the model lacks and give a verdict.
+pub fn diagnose(
+    prep: &Prepared,
+    cmp: &Comparison,
+    progress: Progress<'_>,
+) -> Result<Diagnosis, LabError> {
+    let spec = &cmp.model.spec;
+    let excess = (cmp.chi2 - cmp.dof).max(1e-9);
+    let mut skipped = Vec::new();
+    let ids: Vec<&str> = SIGNATURE_IDS
+        .iter()
+        .copied()
+        .filter(|id| !spec.effects.iter().any(|e| e == id))
+        .filter(|id| match not_identifiable(id, prep, spec) {
+            Some(why) => {
+                skipped.push((id.to_string(), why));
+                false
+            }
+            None => true,
+        })
+        .collect();
+    progress("candidates", 0.0);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let fits: Vec<Result<CandidateScore, LabError>> = ids
+        .par_iter()
+        .map(|id| {
+            let sig = make_signature(id, prep, spec, &cmp.model.waveform)?;
+            let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None)?;
+            let dchi = (f.chi2_before - f.chi2).max(0.0);
+            let chi_after = cmp.chi2 - dchi;
+            let dof_after = cmp.dof - f.n_params as f64;
+            let mut params = BTreeMap::new();
+            for (n, v) in sig.lin_names().into_iter().zip(&f.lin) {
+                params.insert(n, *v);
+            }
+            for (n, v) in sig.nl_names().into_iter().zip(&f.nl) {
+                params.insert(n, *v);
+            }
+            let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress("candidates", k as f64 / ids.len().max(1) as f64);
+            Ok(CandidateScore {
+                effect: id.to_string(),
+                delta_bic: bic(chi_after, f.n_params, cmp.n) - bic(cmp.chi2, 0, cmp.n),
+                explained_excess: dchi / excess,
+                cv_gain: (f.cv_chi2_before - f.cv_chi2) / excess,
+                z_after: chi2_z(chi_after, dof_after),
+                params,
+                fit: Some(EffectFit {
+                    id: id.to_string(),
+                    lin: f.lin,
+                    nl: f.nl,
+                }),
+                nuisance: f.nuisance,
+                structure_after: None,
+                rms_after: None,
+                cancels_in_4phase: cancels_in_4phase(id),
+            })
+        })
+        .collect();
+    let mut cands = Vec::new();
+    for f in fits {
+        match f {
+            Ok(c) => cands.push(c),
+            Err(e) => tracing::warn!("candidate failed: {e}"),
+        }
+    }
+    cands.sort_by(|a, b| {
+        b.cv_gain
+            .total_cmp(&a.cv_gain)
+            .then(b.explained_excess.total_cmp(&a.explained_excess))
+    });
+    // The leading candidates are refitted with the whole model (the per-pixel
+    // parameters re-adjust with the effect present): z after, structure left
+    // and depth errors after come from that refit.
+    let top: Vec<usize> = (0..cands.len().min(2)).collect();
+    let extra: Vec<Result<Comparison, LabError>> = top
+        .iter()
+        .map(|&i| {
+            let spec2 = spec_with(spec, &cands[i].effect);
+            compare(prep, &spec2, &|_, _| {})
+        })
+        .collect();
+    let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();
+    for (i, e) in top.iter().zip(extra) {
+        let c2 = e?;
+        let c = &mut cands[*i];
+        c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
+        c.z_after = c2.fit.z;
+        c.delta_bic =
+            bic(c2.chi2, c2.model.n_params, cmp.n) - bic(cmp.chi2, cmp.model.n_params, cmp.n);
+        c.structure_after = Some(c2.structure.first().map(|s| s.z).unwrap_or(0.0));
+        c.rms_after = Some(c2.rms);
+        remaining.push(c2.structure);
+    }
+    progress("candidates", 1.0);
+    let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
+    let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, &cands);
+    let remaining_structure = if d.verdict == Verdict::Unexplained
+        && cands.first().is_some_and(|c| c.explained_excess > 0.3)
+    {
+        remaining
+            .into_iter()
+            .next()
+            .unwrap_or_else(|| cmp.structure.clone())
+    } else {
+        cmp.structure.clone()
+    };
+    let strongest = strongest_condition(&remaining_structure);
+    if d.verdict == Verdict::Ambiguous
+        && let (Some(a), Some(b)) = (&d.effect, &d.runner_up)
+    {
+        d.separate_by = Some(separating_condition(a, b, prep));
+    }
+    Ok(Diagnosis {
+        verdict: d.verdict,
+        effect: d.effect,
+        runner_up: d.runner_up,
+        separate_by: d.separate_by,
+        candidates: cands,
+        skipped,
+        fit: cmp.fit,
+        strongest_condition: strongest,
+        rms: cmp.rms,
+        structure_remaining: remaining_structure,
+        reason: d.reason,
+    })
+}
+
+/// The condition the residual is most structured against. Acquisition order
+/// (`capture_index`) stands in for every condition the sweep stepped through,
+/// so it is named only when it clearly beats all physical conditions.
+pub fn strongest_condition(st: &[ConditionScore]) -> Option<String> {
+    let best_phys = st
+        .iter()
+        .filter(|s| s.condition != "capture_index")
+        .max_by(|a, b| a.z.total_cmp(&b.z));
+    let order = st.iter().find(|s| s.condition == "capture_index");
+    match (best_phys, order) {
+        (Some(p), Some(o)) if o.z > 2.0 * p.z.max(0.0) => Some(o.condition.clone()),
+        (Some(p), _) => Some(p.condition.clone()),
+        (None, Some(o)) => Some(o.condition.clone()),
+        (None, None) => None,
+    }
+}
+
+/// Outcome of the decision rule (separate for testing).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Decision {
+    pub verdict: Verdict,
+    pub effect: Option<String>,
+    pub runner_up: Option<String>,
+    pub separate_by: Option<String>,
+    pub reason: String,
+}
+
+fn passes(c: &CandidateScore, z_base: f64, struct_base: f64) -> bool {
+    let noise_like = c.z_after <= Z_NULL;
+    let z_ok = c.z_after <= Z_NULL.max(0.1 * z_base);
+    let s_ok = c
+        .structure_after
+        .is_none_or(|s| s <= STRUCTURE_NULL.max(0.1 * struct_base));
+    // When the residual after the fit is noise-like, the remaining "excess" is
+    // noise and the explained share need not be large.
+    (c.explained_excess >= MIN_EXPLAINED || noise_like)
+        && c.cv_gain >= MIN_CV.min(0.7 * c.explained_excess)
+        && z_ok
+        && s_ok
+}
+
+/// The verdict from the global fit and the ranked candidates (sorted by cv_gain).
+/// ΔBIC alone is never enough: an effect must explain most of the excess, hold
+/// up on held-out blocks, leave noise-like residuals and beat the runner-up.
+pub fn decide(
+    z_base: f64,
+    chi2_per_dof: f64,
+    struct_base: f64,
+    cands: &[CandidateScore],
+) -> Decision {
+    if z_base <= Z_NULL || (chi2_per_dof <= 1.02 && struct_base <= STRUCTURE_NULL) {
+        return Decision {
+            verdict: Verdict::NothingMissing,
+            effect: None,
+            runner_up: None,
+            separate_by: None,
+            reason: format!(
+                "residual consistent with noise (z = {z_base:.1}, χ²/dof = {chi2_per_dof:.3}, strongest structure z = {struct_base:.1})"
+            ),
+        };
+    }
+    let Some(best) = cands.first() else {
+        return Decision {
+            verdict: Verdict::Unexplained,
+            effect: None,
+            runner_up: None,
+            separate_by: None,
+            reason: "misfit but no candidate effect could be fitted".into(),
+        };
+    };
+    if !passes(best, z_base, struct_base) {
+        return Decision {
+            verdict: Verdict::Unexplained,
+            effect: None,
+            runner_up: None,
+            separate_by: None,
+            reason: format!(
+                "best candidate {} explains {:.0}% of the excess (cv {:.0}%, z after {:.1}): not enough",
+                best.effect,
+                100.0 * best.explained_excess,
+                100.0 * best.cv_gain,
+                best.z_after
+            ),
+        };
+    }
+    if let Some(ru) = cands.get(1)
+        && passes(ru, z_base, struct_base)
+        && best.cv_gain - ru.cv_gain < AMBIGUITY_MARGIN
+        && (best.explained_excess - ru.explained_excess) < AMBIGUITY_MARGIN
+    {
+        return Decision {
+            verdict: Verdict::Ambiguous,
+            effect: Some(best.effect.clone()),
+            runner_up: Some(ru.effect.clone()),
+            separate_by: None,
+            reason: format!(
+                "{} and {} explain the residual equally well ({:.0}% vs {:.0}%)",
+                best.effect,
+                ru.effect,
+                100.0 * best.explained_excess,
+                100.0 * ru.explained_excess
+            ),
+        };
+    }
+    Decision {
+        verdict: Verdict::MissingEffect,
+        effect: Some(best.effect.clone()),
+        runner_up: cands.get(1).map(|c| c.effect.clone()),
+        separate_by: None,
+        reason: format!(
+            "{} explains {:.0}% of the excess χ² ({:.0}% on held-out distance blocks), z after {:.1}",
+            best.effect,
+            100.0 * best.explained_excess,
+            100.0 * best.cv_gain,
+            best.z_after
+        ),
+    }
+}
+
+/// A condition that one of two effects varies with and the other does not,
+/// preferring one the recording did not vary.
+pub fn separating_condition(a: &str, b: &str, prep: &Prepared) -> String {
+    let ca = effect_conditions(a);
+    let cb = effect_conditions(b);
+    let mut diff: Vec<&str> = ca
+        .iter()
+        .filter(|c| !cb.contains(c))
+        .chain(cb.iter().filter(|c| !ca.contains(c)))
+        .copied()
+        .collect();
+    let varied = |c: &str| match c {
+        "ambient_klux" => prep.ambient_varies,
+        "temperature_c" => prep.temperature_varies,
+        "exposure_us" => prep.exposure_varies,
+        _ => true,
+    };
+    diff.sort_by_key(|c| varied(c));
+    diff.first()
+        .map(|s| s.to_string())
+        .unwrap_or_else(|| "exposure_us".into())
+}
+
+/// The spec with one more effect enabled.
+pub fn spec_with(spec: &LabSpec, effect: &str) -> LabSpec {
+    let mut s = spec.clone();
+    if effect == "waveform_harmonics" {
+        s.harmonic_order = crate::signatures::MAX_HARMONIC;
+    } else if !s.effects.iter().any(|e| e == effect) {
+        s.effects.push(effect.to_string());
+    }
+    s
+}
+
+/// Before/after of adding one effect.
+#[derive(Debug, Clone, Serialize)]
+pub struct ErrorSummary {
+    pub raw_lsb: f64,
+    pub depth_2phase_mm: f64,
+    pub depth_4phase_mm: f64,
+    pub chi2_per_dof: f64,
+}
+
+impl ErrorSummary {
+    pub fn of(c: &Comparison) -> Self {
+        Self {
+            raw_lsb: c.rms.raw_lsb,
+            depth_2phase_mm: c.rms.depth_2phase_mm,
+            depth_4phase_mm: c.rms.depth_4phase_mm,
+            chi2_per_dof: c.fit.chi2_per_dof,
+        }
+    }
+}
+
+pub struct AddOutcome {
+    pub before: Comparison,
+    pub after: Comparison,
+    pub effect: EffectFit,
+    pub params: BTreeMap<String, f64>,
+}
+
+/// Enable `effect` in the spec, refit everything, and compare before/after.
+pub fn add_effect(
+    prep: &Prepared,
+    spec: &LabSpec,
+    effect: &str,
+    progress: Progress<'_>,
+) -> Result<AddOutcome, LabError> {
+    if !SIGNATURE_IDS.contains(&effect) {
+        return Err(LabError::new(
+            ErrorKind::UnknownEffect,
+            format!(
+                "the lab cannot add `{effect}` (it can add: {})",
+                SIGNATURE_IDS.join(", ")
+            ),
+        ));
+    }
+    if spec.effects.iter().any(|e| e == effect) {
+        return Err(LabError::new(
+            ErrorKind::InvalidModel,
+            format!("`{effect}` is already enabled in the model"),
+        ));
+    }
+    if let Some(why) = not_identifiable(effect, prep, spec) {
+        return Err(LabError::new(
+            ErrorKind::NotIdentifiable,
+            format!("cannot fit `{effect}`: {why}"),
+        ));
+    }
+    let before = compare(prep, spec, progress)?;
+    let spec2 = spec_with(spec, effect);
+    let after = compare(prep, &spec2, progress)?;
+    let sig = make_signature(effect, prep, &spec2, &after.model.waveform)?;
+    let mut params = BTreeMap::new();
+    let fitted = if effect == "waveform_harmonics" {
+        for (h, g) in after.model.waveform.gamma.iter().enumerate().skip(1) {
+            params.insert(format!("h{}_re", h + 1), g[0]);
+            params.insert(format!("h{}_im", h + 1), g[1]);
+        }
+        EffectFit {
+            id: effect.into(),
+            lin: Vec::new(),
+            nl: Vec::new(),
+        }
+    } else {
+        let f = after
+            .model
+            .effects
+            .iter()
+            .find(|e| e.id == effect)
+            .cloned()
+            .ok_or_else(|| LabError::numerical("effect vanished from the fit"))?;
+        for (n, v) in sig.lin_names().into_iter().zip(&f.lin) {
+            params.insert(n, *v);
+        }
+        for (n, v) in sig.nl_names().into_iter().zip(&f.nl) {
+            params.insert(n, *v);
+        }
+        f
+    };
+    Ok(AddOutcome {
+        before,
+        after,
+        effect: fitted,
+        params,
+    })
+}

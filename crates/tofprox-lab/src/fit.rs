@@ -1,0 +1,866 @@
+//! The lab model: a fast parametric model of the mean raw code of every pixel
+//! in every raw image, fitted to a recording.
+//!
+//! code = mid + o_p + A·C(φ − θ_k) + Σ_effects Δ, with
+//! * o_p per-pixel offset (fpn_offset/adc_offset, thesis 3.3.7.1), started from
+//!   the dark captures and refined with all data;
+//! * A = g_p · exposure·reflectivity/d² (signal_falloff, prnu; thesis 2.2.1);
+//! * φ = 4π f d / c + δ_p (eq. 2.6 inverted; fppn and the global delay);
+//! * C the correlation waveform up to the model's harmonic order
+//!   (waveform_harmonics; started from the 24-phase correlation capture);
+//! * noise var = (a + b·A + c·ambient·t + e·t)/averaged (crate::noise).
+//!
+//! Saturated capture-pixels (codes near the ADC rails, measured or modelled)
+//! are excluded from every fit and statistic.
+use std::collections::BTreeMap;
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::data::Dataset;
+use crate::error::LabError;
+use crate::noise::NoiseModel;
+use crate::signatures::{Signature, make_signature};
+use crate::stats::{Normal, solve_sym};
+use crate::waveform::Waveform;
+
+pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
+/// Number of cross-validation folds (blocks of distance/condition).
+pub const FOLDS: usize = 5;
+
+/// Which parts of the lab model are free, from the model file's enabled effects.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LabSpec {
+    /// Highest harmonic of the correlation waveform that is fitted (1 = sinusoid).
+    pub harmonic_order: usize,
+    pub per_pixel_offset: bool,
+    pub per_pixel_gain: bool,
+    pub per_pixel_phase: bool,
+    /// Catalogue effects with a lab signature that the model enables.
+    pub effects: Vec<String>,
+}
+
+impl Default for LabSpec {
+    fn default() -> Self {
+        Self {
+            harmonic_order: 1,
+            per_pixel_offset: true,
+            per_pixel_gain: true,
+            per_pixel_phase: true,
+            effects: Vec::new(),
+        }
+    }
+}
+
+/// Per-capture facts used by every stage.
+#[derive(Debug, Clone)]
+pub struct CapInfo {
+    pub theta_rad: Vec<f64>,
+    pub phases_deg: Vec<f64>,
+    pub exposure_us: f64,
+    pub ambient_klux: f64,
+    pub temperature_c: Option<f64>,
+    /// temperature − reference (0 when unknown).
+    pub temp_rel: f64,
+    pub distance_m: Option<f64>,
+    pub illum: bool,
+    pub averaged: u32,
+    /// Signal law exposure[ms]·reflectivity/d² (0 when dark).
+    pub law: f64,
+    pub phi_tof: f64,
+    pub fold: u8,
+    /// Whether the capture enters the fit (illuminated captures need a distance).
+    pub used: bool,
+}
+
+/// A recording flattened for fitting: capture c, raw image k, pixel p lives at
+/// `base[c] + k·npix + p`.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    pub rows: usize,
+    pub cols: usize,
+    pub npix: usize,
+    pub roi_origin: [usize; 2],
+    pub mid: f64,
+    pub max_code: f64,
+    pub modulation_hz: f64,
+    pub caps: Vec<CapInfo>,
+    pub base: Vec<usize>,
+    pub meas: Vec<f64>,
+    /// Saturated (c, p) from the measured codes.
+    pub sat_meas: Vec<bool>,
+    pub temp_ref: f64,
+    pub temperature_varies: bool,
+    pub ambient_varies: bool,
+    pub exposure_varies: bool,
+    pub skipped_captures: usize,
+}
+
+fn key_f(v: f64) -> i64 {
+    (v * 1e6).round() as i64
+}
+
+impl Prepared {
+    pub fn new(ds: &Dataset) -> Result<Self, LabError> {
+        ds.validate()?;
+        let npix = ds.rows * ds.cols;
+        let mid = ds.mid_code();
+        let max_code = ds.max_code();
+        let margin = (0.0075 * (max_code + 1.0)).max(2.0);
+        // Reference temperature: that of the correlation capture, else the median.
+        let temps: Vec<f64> = ds.captures.iter().filter_map(|c| c.temperature_c).collect();
+        let corr_temp = ds
+            .captures
+            .iter()
+            .find(|c| c.illumination && c.phases_deg.len() >= 8)
+            .and_then(|c| c.temperature_c);
+        let temp_ref = corr_temp.unwrap_or_else(|| median(&temps).unwrap_or(25.0));
+        let varies = |f: &dyn Fn(&crate::data::Capture) -> Option<f64>| {
+            let v: Vec<f64> = ds
+                .captures
+                .iter()
+                .filter(|c| c.illumination)
+                .filter_map(f)
+                .collect();
+            let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+            let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+            hi - lo > 1e-9
+        };
+        let temperature_varies = varies(&|c| c.temperature_c);
+        let ambient_varies = varies(&|c| Some(c.ambient_klux));
+        let exposure_varies = varies(&|c| Some(c.exposure_us));
+        // Folds over blocks of distance: sorted distinct distances are cut into
+        // 2·FOLDS contiguous blocks, block j goes to fold j mod FOLDS.
+        let mut dists: Vec<i64> = ds
+            .captures
+            .iter()
+            .filter_map(|c| c.distance_m.map(key_f))
+            .collect();
+        dists.sort_unstable();
+        dists.dedup();
+        let nblocks = (2 * FOLDS).min(dists.len().max(1));
+        let fold_of = |d: Option<f64>, i: usize| -> u8 {
+            match d {
+                Some(d) if !dists.is_empty() => {
+                    let pos = dists.partition_point(|&x| x < key_f(d));
+                    let block = pos * nblocks / dists.len();
+                    (block % FOLDS) as u8
+                }
+                _ => (i % FOLDS) as u8,
+            }
+        };
+        let mut caps = Vec::with_capacity(ds.captures.len());
+        let mut base = Vec::with_capacity(ds.captures.len());
+        let mut total = 0usize;
+        let mut skipped = 0usize;
+        for (i, c) in ds.captures.iter().enumerate() {
+            let used = !c.illumination || c.distance_m.is_some();
+            if !used {
+                skipped += 1;
+            }
+            let law = match (c.illumination, c.distance_m) {
+                (true, Some(d)) => c.exposure_us * 1e-3 * c.reflectivity / (d * d), // signal ∝ t·ρ/d² (2.2.1)
+                _ => 0.0,
+            };
+            let phi_tof = c
+                .distance_m
+                .map(|d| 4.0 * std::f64::consts::PI * ds.modulation_hz * d / SPEED_OF_LIGHT_M_PER_S) // eq. 2.6
+                .unwrap_or(0.0);
+            caps.push(CapInfo {
+                theta_rad: c.phases_deg.iter().map(|p| p.to_radians()).collect(),
+                phases_deg: c.phases_deg.clone(),
+                exposure_us: c.exposure_us,
+                ambient_klux: c.ambient_klux,
+                temperature_c: c.temperature_c,
+                temp_rel: c.temperature_c.map(|t| t - temp_ref).unwrap_or(0.0),
+                distance_m: c.distance_m,
+                illum: c.illumination,
+                averaged: c.averaged,
+                law,
+                phi_tof,
+                fold: fold_of(c.distance_m, i),
+                used,
+            });
+            base.push(total);
+            total += c.phases_deg.len() * npix;
+        }
+        let mut meas = Vec::with_capacity(total);
+        for c in &ds.captures {
+            meas.extend(c.frames.iter().copied());
+        }
+        let mut sat_meas = vec![false; caps.len() * npix];
+        for (ci, cap) in caps.iter().enumerate() {
+            for k in 0..cap.theta_rad.len() {
+                for p in 0..npix {
+                    let v = meas[base[ci] + k * npix + p];
+                    if v >= max_code - margin || v <= margin {
+                        sat_meas[ci * npix + p] = true;
+                    }
+                }
+            }
+        }
+        if !caps.iter().any(|c| c.illum && c.used) {
+            return Err(LabError::data(
+                "recording has no illuminated capture with a ground-truth distance_m; the lab needs a distance sweep",
+            ));
+        }
+        Ok(Self {
+            rows: ds.rows,
+            cols: ds.cols,
+            npix,
+            roi_origin: ds.roi_origin,
+            mid,
+            max_code,
+            modulation_hz: ds.modulation_hz,
+            caps,
+            base,
+            meas,
+            sat_meas,
+            temp_ref,
+            temperature_varies,
+            ambient_varies,
+            exposure_varies,
+            skipped_captures: skipped,
+        })
+    }
+
+    #[inline]
+    pub fn idx(&self, c: usize, k: usize, p: usize) -> usize {
+        self.base[c] + k * self.npix + p
+    }
+
+    /// Rail margin used for saturation.
+    pub fn margin(&self) -> f64 {
+        (0.0075 * (self.max_code + 1.0)).max(2.0)
+    }
+}
+
+pub(crate) fn median(v: &[f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if s.is_empty() {
+        return None;
+    }
+    s.sort_by(|a, b| a.total_cmp(b));
+    Some(s[s.len() / 2])
+}
+
+/// Fitted parameters of one effect signature: linear and non-linear parts.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EffectFit {
+    pub id: String,
+    pub lin: Vec<f64>,
+    pub nl: Vec<f64>,
+}
+
+/// One valid (non-saturated, used) sample with everything a signature needs.
+#[derive(Debug, Clone, Copy)]
+pub struct Rec {
+    /// measured − model (the model of the stage that built the table).
+    pub r: f64,
+    /// 1/σ².
+    pub w: f64,
+    /// Modelled amplitude A (LSB), phase φ, image phase θ, C and C' at φ−θ.
+    pub a: f64,
+    pub phi: f64,
+    pub theta: f64,
+    pub c: f64,
+    pub cd: f64,
+    /// Modelled differential code (code − mid) without effects.
+    pub x: f64,
+    pub cap: u32,
+    pub pix: u32,
+    pub k: u16,
+    pub fold: u8,
+}
+
+/// The fitted lab model.
+#[derive(Debug, Clone, Serialize)]
+pub struct LabModel {
+    pub spec: LabSpec,
+    pub offset: Vec<f64>,
+    pub gain: Vec<f64>,
+    pub phase: Vec<f64>,
+    pub waveform: Waveform,
+    pub effects: Vec<EffectFit>,
+    pub noise: NoiseModel,
+    /// Saturated (c, p), measured or modelled.
+    #[serde(skip)]
+    pub sat: Vec<bool>,
+    /// Number of fitted parameters (for dof and BIC).
+    pub n_params: usize,
+}
+
+/// Progress callback: (stage name, fraction done).
+pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
+
+impl LabModel {
+    /// Build the context of sample (c, k, p) under this model (effects excluded).
+    #[inline]
+    pub fn rec(&self, prep: &Prepared, c: usize, k: usize, p: usize) -> Rec {
+        let cap = &prep.caps[c];
+        let a = self.gain[p] * cap.law;
+        let phi = cap.phi_tof + self.phase[p];
+        let theta = cap.theta_rad[k];
+        let (cv, cd) = if cap.illum {
+            self.waveform.eval(phi - theta)
+        } else {
+            (0.0, 0.0)
+        };
+        let x = self.offset[p] + a * cv;
+        let var = self
+            .noise
+            .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+        Rec {
+            r: prep.meas[prep.idx(c, k, p)] - prep.mid - x,
+            w: 1.0 / var,
+            a,
+            phi,
+            theta,
+            c: cv,
+            cd,
+            x,
+            cap: c as u32,
+            pix: p as u32,
+            k: k as u16,
+            fold: cap.fold,
+        }
+    }
+
+    pub fn signatures(&self, prep: &Prepared) -> Result<Vec<Box<dyn Signature>>, LabError> {
+        self.effects
+            .iter()
+            .map(|e| make_signature(&e.id, prep, &self.spec, &self.waveform))
+            .collect()
+    }
+
+    /// Residual table over valid samples (effects included in the model).
+    pub fn records(&self, prep: &Prepared) -> Result<Vec<Rec>, LabError> {
+        let sigs = self.signatures(prep)?;
+        let npix = prep.npix;
+        let out: Vec<Vec<Rec>> = (0..prep.caps.len())
+            .into_par_iter()
+            .map(|c| {
+                let cap = &prep.caps[c];
+                let mut v = Vec::new();
+                if !cap.used {
+                    return v;
+                }
+                let mut buf = vec![0.0; 64];
+                for k in 0..cap.theta_rad.len() {
+                    for p in 0..npix {
+                        if self.sat[c * npix + p] {
+                            continue;
+                        }
+                        let mut r = self.rec(prep, c, k, p);
+                        for (s, e) in sigs.iter().zip(&self.effects) {
+                            r.r -= eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+                        }
+                        v.push(r);
+                    }
+                }
+                v
+            })
+            .collect();
+        Ok(out.into_iter().flatten().collect())
+    }
+
+    /// Modelled code (incl. mid and effects) of sample (c, k, p).
+    pub fn predict(
+        &self,
+        prep: &Prepared,
+        sigs: &[Box<dyn Signature>],
+        c: usize,
+        k: usize,
+        p: usize,
+    ) -> f64 {
+        let r = self.rec(prep, c, k, p);
+        let mut buf = vec![0.0; 64];
+        let mut v = prep.mid + r.x;
+        for (s, e) in sigs.iter().zip(&self.effects) {
+            v += eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+        }
+        v
+    }
+}
+
+/// Δcode of one fitted effect at a sample.
+#[inline]
+pub fn eval_delta(
+    sig: &dyn Signature,
+    e: &EffectFit,
+    r: &Rec,
+    prep: &Prepared,
+    buf: &mut Vec<f64>,
+) -> f64 {
+    let n = sig.n_lin();
+    if buf.len() < n {
+        buf.resize(n, 0.0);
+    }
+    sig.basis(&e.nl, r, &prep.caps[r.cap as usize], &mut buf[..n]);
+    buf[..n].iter().zip(&e.lin).map(|(b, l)| b * l).sum()
+}
+
+/// Fit the lab model with the given spec to a prepared recording.
+pub fn fit_model(
+    prep: &Prepared,
+    spec: &LabSpec,
+    progress: Progress<'_>,
+) -> Result<LabModel, LabError> {
+    let npix = prep.npix;
+    let ncap = prep.caps.len();
+    progress("offsets", 0.0);
+    // Offsets from the dark captures (thesis 4.3.2.1); else from the mean of
+    // the raw images of captures with ≥ 4 phases (the first harmonic cancels).
+    let mut offset = vec![0.0; npix];
+    let mut cnt = vec![0.0; npix];
+    let darks: Vec<usize> = (0..ncap).filter(|&c| !prep.caps[c].illum).collect();
+    let src: Vec<usize> = if darks.is_empty() {
+        (0..ncap)
+            .filter(|&c| prep.caps[c].used && prep.caps[c].theta_rad.len() >= 4)
+            .collect()
+    } else {
+        darks.clone()
+    };
+    for &c in &src {
+        for k in 0..prep.caps[c].theta_rad.len() {
+            for p in 0..npix {
+                if prep.sat_meas[c * npix + p] {
+                    continue;
+                }
+                offset[p] += prep.meas[prep.idx(c, k, p)] - prep.mid;
+                cnt[p] += 1.0;
+            }
+        }
+    }
+    for p in 0..npix {
+        offset[p] = if cnt[p] > 0.0 {
+            offset[p] / cnt[p]
+        } else {
+            0.0
+        };
+    }
+    // Waveform and per-pixel phase from the correlation capture (the capture
+    // with the most phases, ≥ 8), by DFT per pixel.
+    let corr = (0..ncap)
+        .filter(|&c| prep.caps[c].illum && prep.caps[c].used && prep.caps[c].theta_rad.len() >= 8)
+        .max_by_key(|&c| prep.caps[c].theta_rad.len());
+    let mut phase = vec![0.0; npix];
+    let mut waveform = Waveform::sinusoid();
+    let order = spec.harmonic_order.max(1);
+    let dft = |c: usize, p: usize, h: usize| -> (f64, f64) {
+        let cap = &prep.caps[c];
+        let n = cap.theta_rad.len() as f64;
+        let mut re = 0.0;
+        let mut im = 0.0;
+        for (k, th) in cap.theta_rad.iter().enumerate() {
+            let u = prep.meas[prep.idx(c, k, p)] - prep.mid - offset[p];
+            let (s, co) = (h as f64 * th).sin_cos();
+            re += u * co;
+            im += u * s;
+        }
+        (2.0 * re / n, 2.0 * im / n)
+    };
+    let phase_from = |cs: &[usize], p: usize| -> f64 {
+        let (mut sr, mut si) = (0.0, 0.0);
+        for &c in cs {
+            if prep.sat_meas[c * npix + p] {
+                continue;
+            }
+            let (re, im) = dft(c, p, 1);
+            let (s, co) = (-prep.caps[c].phi_tof).sin_cos();
+            // rotate by −φ_tof
+            sr += re * co - im * s;
+            si += re * s + im * co;
+        }
+        si.atan2(sr)
+    };
+    if let Some(c) = corr {
+        for (p, ph) in phase.iter_mut().enumerate() {
+            *ph = phase_from(&[c], p);
+        }
+        let nh = order.min(prep.caps[c].theta_rad.len() / 2 - 1).max(1);
+        let mut gsum = vec![[0.0f64; 2]; nh];
+        let mut wsum = 0.0;
+        for p in 0..npix {
+            if prep.sat_meas[c * npix + p] {
+                continue;
+            }
+            let (r1, i1) = dft(c, p, 1);
+            let amp = r1.hypot(i1);
+            if amp <= 0.0 {
+                continue;
+            }
+            let phi = i1.atan2(r1);
+            for (h0, g) in gsum.iter_mut().enumerate().skip(1) {
+                let h = h0 + 1;
+                let (rh, ih) = dft(c, p, h);
+                // γ_h = X_h / (A e^{i h φ})
+                let (s, co) = (-(h as f64) * phi).sin_cos();
+                g[0] += (rh * co - ih * s) * amp; // weight by amplitude
+                g[1] += (rh * s + ih * co) * amp;
+            }
+            wsum += amp * amp;
+        }
+        if wsum > 0.0 {
+            waveform.gamma = gsum.iter().map(|g| [g[0] / wsum, g[1] / wsum]).collect();
+            waveform.gamma[0] = [1.0, 0.0];
+        }
+    } else {
+        let cs: Vec<usize> = (0..ncap)
+            .filter(|&c| prep.caps[c].illum && prep.caps[c].used)
+            .collect();
+        for (p, ph) in phase.iter_mut().enumerate() {
+            *ph = phase_from(&cs, p);
+        }
+    }
+    while waveform.gamma.len() < order {
+        waveform.gamma.push([0.0, 0.0]);
+    }
+    let mut model = LabModel {
+        spec: spec.clone(),
+        offset,
+        gain: vec![1.0; npix],
+        phase,
+        waveform,
+        effects: spec
+            .effects
+            .iter()
+            .map(|id| {
+                let s = make_signature(id, prep, spec, &Waveform::sinusoid())?;
+                Ok(EffectFit {
+                    id: id.clone(),
+                    lin: vec![0.0; s.n_lin()],
+                    nl: s.nl_start(),
+                })
+            })
+            .collect::<Result<_, LabError>>()?,
+        noise: NoiseModel::default(),
+        sat: prep.sat_meas.clone(),
+        n_params: 0,
+    };
+    // Initial gains: least squares with the shape fixed.
+    fit_gain_only(prep, &mut model);
+    let rounds = 4;
+    for round in 0..rounds {
+        progress("per-pixel fit", round as f64 / rounds as f64);
+        let delta = effects_delta(prep, &model)?;
+        for _ in 0..2 {
+            per_pixel_step(prep, &mut model, &delta);
+        }
+        if model.waveform.order() > 1 {
+            waveform_step(prep, &mut model, &delta);
+        }
+        update_saturation(prep, &mut model);
+        if !model.effects.is_empty() {
+            fit_enabled_effects(prep, &mut model)?;
+        }
+        if round == 0 || round == rounds - 2 {
+            model.noise = fit_noise(prep, &model)?;
+        }
+    }
+    progress("per-pixel fit", 1.0);
+    let pp = |b: bool| if b { npix } else { 1 };
+    model.n_params = pp(spec.per_pixel_offset)
+        + pp(spec.per_pixel_gain)
+        + pp(spec.per_pixel_phase)
+        + 2 * (model.waveform.order() - 1)
+        + model
+            .effects
+            .iter()
+            .map(|e| e.lin.len() + e.nl.len())
+            .sum::<usize>();
+    Ok(model)
+}
+
+/// Δ of all enabled effects for every sample (zero where not valid).
+fn effects_delta(prep: &Prepared, model: &LabModel) -> Result<Vec<f64>, LabError> {
+    let mut delta = vec![0.0; prep.meas.len()];
+    if model.effects.is_empty() {
+        return Ok(delta);
+    }
+    let sigs = model.signatures(prep)?;
+    let npix = prep.npix;
+    let mut buf = vec![0.0; 64];
+    for c in 0..prep.caps.len() {
+        if !prep.caps[c].used {
+            continue;
+        }
+        for k in 0..prep.caps[c].theta_rad.len() {
+            for p in 0..npix {
+                let r = model.rec(prep, c, k, p);
+                let mut d = 0.0;
+                for (s, e) in sigs.iter().zip(&model.effects) {
+                    d += eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+                }
+                delta[prep.idx(c, k, p)] = d;
+            }
+        }
+    }
+    Ok(delta)
+}
+
+fn fit_gain_only(prep: &Prepared, model: &mut LabModel) {
+    let npix = prep.npix;
+    let gains: Vec<f64> = (0..npix)
+        .into_par_iter()
+        .map(|p| {
+            let (mut num, mut den) = (0.0, 0.0);
+            for (c, cap) in prep.caps.iter().enumerate() {
+                if !cap.illum || !cap.used || model.sat[c * npix + p] {
+                    continue;
+                }
+                let phi = cap.phi_tof + model.phase[p];
+                for (k, th) in cap.theta_rad.iter().enumerate() {
+                    let (cv, _) = model.waveform.eval(phi - th);
+                    let u = prep.meas[prep.idx(c, k, p)] - prep.mid - model.offset[p];
+                    num += u * cap.law * cv;
+                    den += (cap.law * cv).powi(2);
+                }
+            }
+            if den > 0.0 { num / den } else { 0.0 }
+        })
+        .collect();
+    let med = median(
+        &gains
+            .iter()
+            .copied()
+            .filter(|g| *g > 0.0)
+            .collect::<Vec<_>>(),
+    )
+    .unwrap_or(1.0);
+    model.gain = gains
+        .into_iter()
+        .map(|g| if g > 0.0 { g } else { med })
+        .collect();
+}
+
+/// One Gauss–Newton step of (o_p, g_p, δ_p) for every pixel, effects fixed.
+fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
+    let npix = prep.npix;
+    let m = &*model;
+    let steps: Vec<(Normal, [f64; 3])> = (0..npix)
+        .into_par_iter()
+        .map(|p| {
+            let mut nrm = Normal::zeros(3);
+            for (c, cap) in prep.caps.iter().enumerate() {
+                if !cap.used || m.sat[c * npix + p] {
+                    continue;
+                }
+                let a = m.gain[p] * cap.law;
+                let phi = cap.phi_tof + m.phase[p];
+                let w = 1.0
+                    / m.noise
+                        .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                for (k, th) in cap.theta_rad.iter().enumerate() {
+                    let i = prep.idx(c, k, p);
+                    let (cv, cd) = if cap.illum {
+                        m.waveform.eval(phi - th)
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
+                    nrm.add(&[1.0, cap.law * cv, a * cd], r, w);
+                }
+            }
+            nrm.symmetrize();
+            let step = solve_sym(&nrm.jtj, &nrm.jtr)
+                .map(|s| [s[0], s[1], s[2]])
+                .unwrap_or_else(|| {
+                    // no illuminated data: offset only
+                    let d = nrm.jtj[0];
+                    [if d > 0.0 { nrm.jtr[0] / d } else { 0.0 }, 0.0, 0.0]
+                });
+            (nrm, step)
+        })
+        .collect();
+    for (p, (_, s)) in steps.iter().enumerate() {
+        model.offset[p] += s[0];
+        model.gain[p] += s[1];
+        model.phase[p] += s[2].clamp(-0.5, 0.5);
+    }
+    // Parts the model does not make per-pixel are pooled (weighted mean).
+    let pool = |vals: &mut Vec<f64>, j: usize| {
+        let (mut s, mut w) = (0.0, 0.0);
+        for (p, v) in vals.iter().enumerate() {
+            let d = steps[p].0.jtj[j * 3 + j];
+            s += v * d;
+            w += d;
+        }
+        if w > 0.0 {
+            let mean = s / w;
+            vals.iter_mut().for_each(|v| *v = mean);
+        }
+    };
+    if !model.spec.per_pixel_offset {
+        pool(&mut model.offset, 0);
+    }
+    if !model.spec.per_pixel_gain {
+        pool(&mut model.gain, 1);
+    }
+    if !model.spec.per_pixel_phase {
+        pool(&mut model.phase, 2);
+    }
+}
+
+/// Gauss–Newton step of the global harmonics γ_2..γ_H on all data.
+fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
+    let npix = prep.npix;
+    let nh = model.waveform.order() - 1;
+    let n = 2 * nh;
+    let m = &*model;
+    let nrm = (0..prep.caps.len())
+        .into_par_iter()
+        .fold(
+            || Normal::zeros(n),
+            |mut acc, c| {
+                let cap = &prep.caps[c];
+                if !cap.used || !cap.illum {
+                    return acc;
+                }
+                let mut j = vec![0.0; n];
+                for p in 0..npix {
+                    if m.sat[c * npix + p] {
+                        continue;
+                    }
+                    let a = m.gain[p] * cap.law;
+                    let phi = cap.phi_tof + m.phase[p];
+                    let w = 1.0
+                        / m.noise
+                            .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                    for (k, th) in cap.theta_rad.iter().enumerate() {
+                        let i = prep.idx(c, k, p);
+                        let x = phi - th;
+                        let (cv, _) = m.waveform.eval(x);
+                        let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
+                        for h in 0..nh {
+                            let (s, co) = ((h + 2) as f64 * x).sin_cos();
+                            j[2 * h] = a * co;
+                            j[2 * h + 1] = -a * s;
+                        }
+                        acc.add(&j, r, w);
+                    }
+                }
+                acc
+            },
+        )
+        .reduce(
+            || Normal::zeros(n),
+            |mut a, b| {
+                a.merge(&b);
+                a
+            },
+        );
+    let mut nrm = nrm;
+    nrm.symmetrize();
+    if let Some(s) = solve_sym(&nrm.jtj, &nrm.jtr) {
+        for h in 0..nh {
+            model.waveform.gamma[h + 1][0] += s[2 * h];
+            model.waveform.gamma[h + 1][1] += s[2 * h + 1];
+        }
+    }
+}
+
+/// Mark capture-pixels whose modelled codes come near the ADC rails.
+fn update_saturation(prep: &Prepared, model: &mut LabModel) {
+    let npix = prep.npix;
+    let margin = prep.margin();
+    for (c, cap) in prep.caps.iter().enumerate() {
+        if !cap.illum || !cap.used {
+            continue;
+        }
+        for p in 0..npix {
+            if prep.sat_meas[c * npix + p] {
+                model.sat[c * npix + p] = true;
+                continue;
+            }
+            let a = model.gain[p] * cap.law;
+            let o = prep.mid + model.offset[p];
+            model.sat[c * npix + p] = o + a >= prep.max_code - margin || o - a <= margin;
+        }
+    }
+}
+
+/// Re-fit the parameters of the model's enabled effects on its residual.
+fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel) -> Result<(), LabError> {
+    for i in 0..model.effects.len() {
+        // residual with every other effect included
+        let mut tmp = model.clone();
+        let this = tmp.effects.remove(i);
+        let recs = tmp.records(prep)?;
+        let sig = make_signature(&this.id, prep, &model.spec, &model.waveform)?;
+        let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, Some(&this))?;
+        model.effects[i] = EffectFit {
+            id: this.id.clone(),
+            lin: fitted.lin,
+            nl: fitted.nl,
+        };
+        // the global shifts fitted alongside move the per-pixel parameters
+        let nu = fitted.nuisance;
+        model.offset.iter_mut().for_each(|o| *o += nu[0]);
+        model.gain.iter_mut().for_each(|g| *g *= 1.0 + nu[1]);
+        model.phase.iter_mut().for_each(|p| *p += nu[2]);
+    }
+    Ok(())
+}
+
+/// Pooled noise model from repeated captures (same conditions, consecutive),
+/// falling back to the model residuals when there are no repeats.
+pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabError> {
+    let npix = prep.npix;
+    let mut groups: BTreeMap<Vec<i64>, Vec<usize>> = BTreeMap::new();
+    for (c, cap) in prep.caps.iter().enumerate() {
+        if !cap.used {
+            continue;
+        }
+        let mut key: Vec<i64> = cap.phases_deg.iter().map(|p| key_f(*p)).collect();
+        key.extend([
+            key_f(cap.exposure_us),
+            i64::from(cap.illum),
+            key_f(cap.distance_m.unwrap_or(-1.0)),
+            key_f(cap.ambient_klux),
+            key_f(cap.temperature_c.unwrap_or(-999.0)),
+            key_f(cap.law),
+            i64::from(cap.averaged),
+        ]);
+        groups.entry(key).or_default().push(c);
+    }
+    let mut obs = Vec::new();
+    for cs in groups.values() {
+        for pair in cs.chunks_exact(2) {
+            let (c1, c2) = (pair[0], pair[1]);
+            let cap = &prep.caps[c1];
+            for p in 0..npix {
+                if model.sat[c1 * npix + p] || model.sat[c2 * npix + p] {
+                    continue;
+                }
+                let a = model.gain[p] * cap.law;
+                let f = NoiseModel::features(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                for k in 0..cap.theta_rad.len() {
+                    let d = prep.meas[prep.idx(c1, k, p)] - prep.meas[prep.idx(c2, k, p)];
+                    obs.push((f, d * d / 2.0));
+                }
+            }
+        }
+    }
+    if obs.len() >= 200 {
+        return NoiseModel::fit(&obs, true);
+    }
+    tracing::warn!(
+        "no repeated captures: noise estimated from model residuals (structure inflates it)"
+    );
+    let recs = model.records(prep)?;
+    let obs: Vec<_> = recs
+        .iter()
+        .map(|r| {
+            let cap = &prep.caps[r.cap as usize];
+            (
+                NoiseModel::features(r.a, cap.ambient_klux, cap.exposure_us, cap.averaged),
+                r.r * r.r,
+            )
+        })
+        .collect();
+    NoiseModel::fit(&obs, false)
+}

@@ -1,0 +1,407 @@
+//! Residual signatures of the catalogue effects the lab can add on top of its
+//! model. Each is Δcode = Σ_j lin_j · b_j(nl; sample) with few global
+//! parameters: `lin` enter linearly, `nl` (thresholds, time constants, path
+//! lengths) are started from a grid and refined by Levenberg–Marquardt.
+use std::f64::consts::PI;
+
+use crate::error::{ErrorKind, LabError};
+use crate::fit::{CapInfo, LabSpec, Prepared, Rec, SPEED_OF_LIGHT_M_PER_S};
+use crate::waveform::Waveform;
+
+/// Highest harmonic the extra-harmonics signature reaches (issue 3: ≥ 9th).
+pub const MAX_HARMONIC: usize = 9;
+
+pub trait Signature: Send + Sync {
+    fn id(&self) -> &'static str;
+    fn n_lin(&self) -> usize;
+    fn lin_names(&self) -> Vec<String>;
+    fn nl_names(&self) -> Vec<String> {
+        Vec::new()
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Starting points for the non-linear parameters (variable projection).
+    fn nl_grid(&self, _recs: &[Rec], _prep: &Prepared) -> Vec<Vec<f64>> {
+        vec![self.nl_start()]
+    }
+    /// Basis values b_j at one sample.
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
+}
+
+/// Every effect id the lab has a signature for, in catalogue order.
+pub const SIGNATURE_IDS: &[&str] = &[
+    "sbi_asymmetry",
+    "vcsel_droop",
+    "amplitude_phase_error",
+    "temperature_drift",
+    "waveform_harmonics",
+    "adc_inl",
+    "dark_current",
+    "multipath",
+];
+
+/// Conditions each effect varies with (used to advise how to separate two).
+pub fn effect_conditions(id: &str) -> &'static [&'static str] {
+    match id {
+        "sbi_asymmetry" => &["ambient_klux", "exposure_us", "amplitude"],
+        "vcsel_droop" => &["image_index"],
+        "amplitude_phase_error" => &["amplitude", "exposure_us"],
+        "temperature_drift" => &["temperature_c"],
+        "waveform_harmonics" => &["phase", "distance_m"],
+        "adc_inl" => &["adc_code", "exposure_us"],
+        "dark_current" => &["exposure_us"],
+        "multipath" => &["distance_m"],
+        _ => &[],
+    }
+}
+
+/// Whether the effect's residual cancels in the 4-phase algorithm (common to
+/// the raw images) — the 2- vs 4-phase contrast of 5.1.2.3.
+pub fn cancels_in_4phase(id: &str) -> bool {
+    matches!(id, "sbi_asymmetry" | "dark_current")
+}
+
+/// Why an effect cannot be fitted on this recording, if it cannot.
+pub fn not_identifiable(id: &str, prep: &Prepared, spec: &LabSpec) -> Option<String> {
+    match id {
+        "temperature_drift" if !prep.temperature_varies => {
+            Some("temperature_c does not vary in the recording".into())
+        }
+        "waveform_harmonics" if spec.harmonic_order >= MAX_HARMONIC => Some(format!(
+            "the model already fits harmonics up to {MAX_HARMONIC}"
+        )),
+        "dark_current" if !prep.exposure_varies => {
+            Some("exposure_us does not vary in the recording".into())
+        }
+        _ => None,
+    }
+}
+
+pub fn make_signature(
+    id: &str,
+    prep: &Prepared,
+    spec: &LabSpec,
+    _waveform: &Waveform,
+) -> Result<Box<dyn Signature>, LabError> {
+    Ok(match id {
+        "sbi_asymmetry" => Box::new(Sbi {
+            ambient_varies: prep.ambient_varies,
+        }),
+        "vcsel_droop" => Box::new(Droop),
+        "amplitude_phase_error" => Box::new(AmpPhase),
+        "temperature_drift" => Box::new(TempDrift),
+        "waveform_harmonics" => Box::new(Harmonics {
+            from: spec.harmonic_order.max(1) + 1,
+        }),
+        "adc_inl" => Box::new(Inl { mid: prep.mid }),
+        "dark_current" => Box::new(Dark),
+        "multipath" => Box::new(Multipath {
+            k_phase: 4.0 * PI * prep.modulation_hz / SPEED_OF_LIGHT_M_PER_S,
+        }),
+        other => {
+            return Err(LabError::new(
+                ErrorKind::UnknownEffect,
+                format!(
+                    "the lab has no signature for effect `{other}` (known: {})",
+                    SIGNATURE_IDS.join(", ")
+                ),
+            ));
+        }
+    })
+}
+
+fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
+    v.retain(|x| x.is_finite());
+    if v.is_empty() {
+        return Vec::new();
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    qs.iter()
+        .map(|q| v[((v.len() - 1) as f64 * q) as usize])
+        .collect()
+}
+
+/// SBI asymmetry (2.2.2.1, 5.1.2.3, fig. 5.6): the taps collect
+/// N_a,b = B + κ·A(g ± C)/100 (B = ambient·t[ms], g = 1.25 for a contrast of
+/// 0.8); once the fuller tap passes the threshold q0 the SBI injects the
+/// smaller current into both with mismatch, leaving m·N_min·(1 − q0/N_max) in
+/// the differential code — nearly the same in every raw image, so 4-phase
+/// cancels it and 2-phase does not. lin = [m], nl = [q0, ln κ].
+struct Sbi {
+    ambient_varies: bool,
+}
+impl Sbi {
+    fn taps(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> (f64, f64) {
+        let kappa = if self.ambient_varies {
+            nl.get(1).copied().unwrap_or(0.0).clamp(-20.0, 20.0).exp()
+        } else {
+            1.0
+        };
+        let b = cap.ambient_klux * cap.exposure_us * 1e-3;
+        let s = kappa * r.a / 100.0;
+        (b + s * (1.25 + r.c) / 2.0, b + s * (1.25 - r.c) / 2.0)
+    }
+}
+impl Signature for Sbi {
+    fn id(&self) -> &'static str {
+        "sbi_asymmetry"
+    }
+    fn n_lin(&self) -> usize {
+        1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["mismatch_lsb_per_unit".into()]
+    }
+    fn nl_names(&self) -> Vec<String> {
+        if self.ambient_varies {
+            vec!["threshold".into(), "ln_signal_weight".into()]
+        } else {
+            vec!["threshold".into()]
+        }
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        if self.ambient_varies {
+            vec![1.0, 0.0]
+        } else {
+            vec![1.0]
+        }
+    }
+    fn nl_grid(&self, recs: &[Rec], prep: &Prepared) -> Vec<Vec<f64>> {
+        let kappas: Vec<f64> = if self.ambient_varies {
+            vec![-6.0, -3.0, -1.0, 0.0, 1.0, 3.0]
+        } else {
+            vec![0.0]
+        };
+        let mut out = Vec::new();
+        for lk in kappas {
+            let nl0 = if self.ambient_varies {
+                vec![0.0, lk]
+            } else {
+                vec![0.0]
+            };
+            let qs: Vec<f64> = recs
+                .iter()
+                .step_by((recs.len() / 4000).max(1))
+                .map(|r| {
+                    let (a, b) = self.taps(&nl0, r, &prep.caps[r.cap as usize]);
+                    a.max(b)
+                })
+                .collect();
+            for q0 in quantiles(qs, &[0.0, 0.2, 0.4, 0.6, 0.75, 0.85, 0.93]) {
+                let mut v = nl0.clone();
+                v[0] = (q0 * 0.999).max(1e-6);
+                out.push(v);
+            }
+        }
+        out
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let (na, nb) = self.taps(nl, r, cap);
+        let hi = na.max(nb);
+        let q0 = nl.first().copied().unwrap_or(0.0).abs();
+        out[0] = if hi > q0 && hi > 0.0 {
+            na.min(nb).max(0.0) * (1.0 - q0 / hi)
+        } else {
+            0.0
+        };
+    }
+}
+
+/// VCSEL droop (3.3.7.2): illumination power falls while the VCSEL heats over
+/// the successive raw images of a capture, with a thermal time constant:
+/// A_k = A·(1 − D(1 − e^{−k·s/τ})), s = exposure[ms]^β (β = 1: heating by
+/// on-time; β = 0: per image). lin = [D/τ], nl = [ln τ, β].
+struct Droop;
+impl Signature for Droop {
+    fn id(&self) -> &'static str {
+        "vcsel_droop"
+    }
+    fn n_lin(&self) -> usize {
+        1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["droop_rate".into()]
+    }
+    fn nl_names(&self) -> Vec<String> {
+        vec!["ln_tau".into(), "exposure_power".into()]
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![5.0, 1.0]
+    }
+    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+        let mut g = Vec::new();
+        for beta in [0.0, 1.0] {
+            for lt in [-1.0, 0.0, 1.0, 2.0, 3.0, 6.0] {
+                g.push(vec![lt, beta]);
+            }
+        }
+        g
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let tau = nl[0].clamp(-5.0, 9.0).exp();
+        let s = (cap.exposure_us * 1e-3).powf(nl[1].clamp(-0.5, 2.0));
+        let k = f64::from(r.k) * s;
+        out[0] = -r.a * r.c * tau * (1.0 - (-k / tau).exp());
+    }
+}
+
+/// Amplitude-dependent phase error (2.3.1.2): pixel non-linearity makes the
+/// phase depend on the signal: Δφ = φ0/(1 + A/A_ref) + p·A/1000.
+/// lin = [φ0, p], nl = [ln A_ref].
+struct AmpPhase;
+impl Signature for AmpPhase {
+    fn id(&self) -> &'static str {
+        "amplitude_phase_error"
+    }
+    fn n_lin(&self) -> usize {
+        2
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["phase0_rad".into(), "phase_rad_per_1000lsb".into()]
+    }
+    fn nl_names(&self) -> Vec<String> {
+        vec!["ln_reference_lsb".into()]
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![5.0]
+    }
+    fn nl_grid(&self, recs: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+        let a: Vec<f64> = recs
+            .iter()
+            .step_by((recs.len() / 4000).max(1))
+            .filter(|r| r.a > 0.0)
+            .map(|r| r.a)
+            .collect();
+        quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95])
+            .into_iter()
+            .map(|q| vec![q.max(1.0).ln()])
+            .collect()
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let aref = nl[0].clamp(-5.0, 15.0).exp();
+        out[0] = r.a * r.cd / (1.0 + r.a / aref);
+        out[1] = r.a * r.cd * r.a / 1000.0;
+    }
+}
+
+/// Temperature drift: phase and gain linear in T − T_ref.
+struct TempDrift;
+impl Signature for TempDrift {
+    fn id(&self) -> &'static str {
+        "temperature_drift"
+    }
+    fn n_lin(&self) -> usize {
+        2
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["phase_rad_per_k".into(), "gain_per_k".into()]
+    }
+    fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        out[0] = r.a * r.cd * cap.temp_rel;
+        out[1] = r.a * r.c * cap.temp_rel;
+    }
+}
+
+/// Harmonics of the correlation above the fitted order (3.2.2): A·Re[γ_h e^{ih(φ−θ)}].
+struct Harmonics {
+    from: usize,
+}
+impl Signature for Harmonics {
+    fn id(&self) -> &'static str {
+        "waveform_harmonics"
+    }
+    fn n_lin(&self) -> usize {
+        2 * (MAX_HARMONIC + 1).saturating_sub(self.from)
+    }
+    fn lin_names(&self) -> Vec<String> {
+        (self.from..=MAX_HARMONIC)
+            .flat_map(|h| [format!("h{h}_re"), format!("h{h}_im")])
+            .collect()
+    }
+    fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let x = r.phi - r.theta;
+        for (i, h) in (self.from..=MAX_HARMONIC).enumerate() {
+            let (s, c) = (h as f64 * x).sin_cos();
+            out[2 * i] = r.a * c;
+            out[2 * i + 1] = -r.a * s;
+        }
+    }
+}
+
+/// ADC integral non-linearity of a differential converter (3.2.1, fig. 3.4):
+/// zero at mid and both ends, opposite sign on the two half ranges.
+struct Inl {
+    mid: f64,
+}
+impl Signature for Inl {
+    fn id(&self) -> &'static str {
+        "adc_inl"
+    }
+    fn n_lin(&self) -> usize {
+        2
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["inl_bow_lsb".into(), "inl_cubic_lsb".into()]
+    }
+    fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let u = (r.x / self.mid).clamp(-1.0, 1.0);
+        out[0] = (PI * u).sin(); // fig. 3.4: extremes at half of each half range
+        out[1] = 2.598 * u * (1.0 - u * u);
+    }
+}
+
+/// Dark current (2.3.2): charge ∝ exposure (doubling every ~7 K) whose tap
+/// mismatch shifts the differential offset.
+struct Dark;
+impl Signature for Dark {
+    fn id(&self) -> &'static str {
+        "dark_current"
+    }
+    fn n_lin(&self) -> usize {
+        1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["lsb_per_ms".into()]
+    }
+    fn basis(&self, _: &[f64], _: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        out[0] = cap.exposure_us * 1e-3 * (cap.temp_rel * std::f64::consts::LN_2 / 7.0).exp();
+    }
+}
+
+/// Multipath: a second return with an extra path L and relative strength ρ.
+struct Multipath {
+    k_phase: f64,
+}
+impl Signature for Multipath {
+    fn id(&self) -> &'static str {
+        "multipath"
+    }
+    fn n_lin(&self) -> usize {
+        2
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec!["ratio_cos".into(), "ratio_sin".into()]
+    }
+    fn nl_names(&self) -> Vec<String> {
+        vec!["extra_path_m".into()]
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![0.3]
+    }
+    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+        [0.05, 0.1, 0.2, 0.4, 0.8, 1.6]
+            .iter()
+            .map(|v| vec![*v])
+            .collect()
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let l = nl[0].abs();
+        let d = cap.distance_m.unwrap_or(1.0);
+        let g = (d / (d + l)).powi(2);
+        let x = r.phi + self.k_phase * l - r.theta;
+        // first harmonic of the second return (the higher ones are small)
+        out[0] = r.a * g * x.cos();
+        out[1] = -r.a * g * x.sin();
+    }
+}
