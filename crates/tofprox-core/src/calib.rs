@@ -2,7 +2,7 @@
 //! 4.3.2.2) and fixed-pattern phase noise (2.3.1.4).
 //!
 //! The order in which the pipeline applies them: offset (per raw image) → phase → wiggling LUT
-//! (includes the global delay) → FPPN (pure per-pixel deviation, median-centred) → depth.
+//! (includes the global delay) → FPPN (per-pixel residual after that LUT) → depth.
 
 use crate::phasor::{self, wrap_phase, wrap_to_pi};
 use crate::{Algorithm, CoreError};
@@ -33,8 +33,11 @@ pub struct WigglingLut {
 #[derive(Debug, Clone, PartialEq)]
 pub struct FppnMap {
     /// Per-pixel phase deviation in radians, shape `(rows, cols)`, subtracted after the wiggling
-    /// correction. Median-centred (median over the array is 0): the global delay lives in the
-    /// wiggling LUT, this map holds only the pixel-to-pixel deviation.
+    /// correction. **Absolute with respect to the wiggling LUT it was extracted with**: it is what
+    /// remains of each pixel's phase error after that LUT. Because the LUT is anchored on the
+    /// centre region and holds the global delay, the map's median over the centre is ≈ 0, i.e. it
+    /// is the pixel-to-pixel deviation; it is not re-centred, so LUT + map together are exact for
+    /// every pixel. Use it only with the same LUT (without a LUT it also carries the global delay).
     pub phase_offset_rad: Array2<f32>,
 }
 
@@ -292,10 +295,12 @@ pub fn extract_wiggling(
 /// images the `algorithm` needs: 0°, 90° (and 180°, 270°)).
 ///
 /// Per pixel: offset correction, phase with `algorithm`, wiggling correction with `wiggling` (if
-/// given), deviation `wrap_to_pi(corrected - 4π f d / c)`. The map is then **median-centred**
-/// (the median deviation over all valid pixels is subtracted), so it holds only the
-/// pixel-to-pixel deviation; the global delay belongs to the wiggling LUT. Pixels that are
-/// saturated, non-finite or without signal get 0.
+/// given), deviation `wrap_to_pi(corrected - 4π f d / c)`. The map is **absolute** with respect to
+/// the given LUT (not re-centred): the global delay belongs to the wiggling LUT, so with an
+/// anchored LUT the map is the pure per-pixel deviation (median over the centre ≈ 0), and LUT + map
+/// are consistent for every pixel (re-centring on the whole-array median would re-introduce a
+/// global offset whenever the array median differs from the centre's). Pixels that are saturated,
+/// non-finite or without signal get 0.
 #[allow(clippy::too_many_arguments)]
 pub fn extract_fppn(
     capture: ArrayView3<f64>,
@@ -362,25 +367,13 @@ pub fn extract_fppn(
             deviation[(r, c)] = wrap_to_pi(corrected - phi_true);
         }
     }
-    let mut valid: Vec<f64> = deviation
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    if valid.is_empty() {
+    if !deviation.iter().any(|v| v.is_finite()) {
         return Err(CoreError::InvalidData(
             "FPPN capture: no usable pixel (all saturated, non-finite or without signal)".into(),
         ));
     }
-    let centre = median(&mut valid);
     Ok(FppnMap {
-        phase_offset_rad: deviation.mapv(|v| {
-            if v.is_finite() {
-                wrap_to_pi(v - centre) as f32
-            } else {
-                0.0
-            }
-        }),
+        phase_offset_rad: deviation.mapv(|v| if v.is_finite() { v as f32 } else { 0.0 }),
     })
 }
 

@@ -206,12 +206,16 @@ pub fn dual_frequency_distance(
     let mut best: Option<(f64, u32, u32)> = None;
     for n1 in 0..=(n1_max as u32) {
         let c1 = d1 + n1 as f64 * du1;
-        // Nearest candidate of frequency 2 to c1.
+        if n1 > 0 && c1 >= limit {
+            break; // beyond the extended range: aliases of a nearer solution
+        }
+        // Nearest candidates of frequency 2 to c1.
         let n2 = ((c1 - d2) / du2).round().clamp(0.0, n2_max) as u32;
         for n2c in [n2.saturating_sub(1), n2, n2 + 1] {
             let c2 = d2 + n2c as f64 * du2;
             let r = (c1 - c2).abs();
-            if best.is_none_or(|(br, _, _)| r < br) {
+            // Strictly better by more than rounding noise: ties keep the nearer solution.
+            if best.is_none_or(|(br, _, _)| r < br - 1e-9) {
                 best = Some((r, n1, n2c));
             }
         }

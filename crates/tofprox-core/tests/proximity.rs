@@ -1,0 +1,200 @@
+//! Near/far state machine: thresholds, hysteresis, far debounce, saturation → near, nothing → far.
+
+use tofprox_core::pipeline::{DepthFrame, FLAG_INVALID, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
+use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+
+const ROWS: usize = 8;
+const COLS: usize = 8;
+
+/// Every pixel valid at `mm`.
+fn wall(mm: u16) -> DepthFrame {
+    let mut f = DepthFrame::zeros(ROWS, COLS);
+    f.depth_mm.fill(mm);
+    f.depth_m.fill(mm as f32 / 1000.0);
+    f
+}
+
+/// Every pixel invalid with `flags`.
+fn invalid(flags: u8) -> DepthFrame {
+    let mut f = DepthFrame::zeros(ROWS, COLS);
+    f.flags.fill(flags | FLAG_INVALID);
+    f
+}
+
+fn detector(debounce: u32) -> NearFarDetector {
+    NearFarDetector::new(NearFarConfig {
+        near_mm: 200,
+        far_mm: 300,
+        roi: Roi::default(),
+        far_debounce: debounce,
+        min_valid_fraction: 0.2,
+    })
+    .unwrap()
+}
+
+#[test]
+fn thresholds_and_changed_only_on_transitions() {
+    let mut d = detector(1);
+    let r = d.update(&wall(1000));
+    assert!(!r.near && !r.changed);
+    assert_eq!(r.distance_mm, Some(1000));
+    assert_eq!(r.valid_fraction, 1.0);
+    let r = d.update(&wall(200)); // at near_mm: near
+    assert!(r.near && r.changed);
+    let r = d.update(&wall(150));
+    assert!(r.near && !r.changed);
+    let r = d.update(&wall(300)); // at far_mm: far (debounce 1)
+    assert!(!r.near && r.changed);
+}
+
+#[test]
+fn hysteresis_between_thresholds_keeps_state() {
+    let mut d = detector(1);
+    assert!(
+        !d.update(&wall(250)).near,
+        "between thresholds from far stays far"
+    );
+    assert!(d.update(&wall(199)).near);
+    let r = d.update(&wall(250));
+    assert!(
+        r.near && !r.changed,
+        "between thresholds from near stays near"
+    );
+    let r = d.update(&wall(299));
+    assert!(r.near);
+    assert!(!d.update(&wall(301)).near);
+}
+
+#[test]
+fn debounce_only_towards_far() {
+    let mut d = detector(3);
+    assert!(d.update(&wall(100)).near, "far → near is immediate");
+    assert!(d.update(&wall(800)).near);
+    assert!(d.update(&wall(800)).near);
+    // An in-between reading resets the count.
+    assert!(d.update(&wall(250)).near);
+    assert!(d.update(&wall(800)).near);
+    assert!(d.update(&wall(800)).near);
+    let r = d.update(&wall(800));
+    assert!(
+        !r.near && r.changed,
+        "third consecutive far reading switches"
+    );
+    // A single near reading in between also resets.
+    let mut d = detector(2);
+    d.update(&wall(100));
+    d.update(&wall(800));
+    assert!(d.update(&wall(100)).near);
+    assert!(d.update(&wall(800)).near);
+    assert!(!d.update(&wall(800)).near);
+}
+
+#[test]
+fn saturation_counts_as_near_and_nothing_counts_as_far() {
+    let mut d = detector(1);
+    let r = d.update(&invalid(FLAG_SATURATED));
+    assert!(
+        r.near && r.changed,
+        "fully saturated ROI: something is too close"
+    );
+    assert_eq!(r.distance_mm, None);
+    assert_eq!(r.valid_fraction, 0.0);
+    let r = d.update(&invalid(FLAG_LOW_AMPLITUDE));
+    assert!(!r.near && r.changed, "no valid target counts as far");
+    assert_eq!(r.distance_mm, None);
+    // Partly saturated (≥ 25 %) with the rest of the ROI far: still near.
+    let mut f = wall(1500);
+    for r in 2..6 {
+        for c in 2..4 {
+            f.flags[(r, c)] = FLAG_SATURATED | FLAG_INVALID;
+            f.depth_mm[(r, c)] = 0;
+        }
+    }
+    assert!(d.update(&f).near);
+}
+
+#[test]
+fn low_percentile_sees_partial_object_and_ignores_outliers() {
+    // Default ROI: central 4×4 of the 8×8 frame (rows/cols 2..6).
+    let mut d = detector(1);
+    let mut f = wall(1500);
+    // A hand covering a quarter of the ROI at 150 mm.
+    for r in 2..4 {
+        for c in 2..4 {
+            f.depth_mm[(r, c)] = 150;
+        }
+    }
+    let r = d.update(&f);
+    assert!(r.near);
+    assert_eq!(r.distance_mm, Some(150));
+    // A single flying pixel at 50 mm on a far wall does not trigger near.
+    let mut d = detector(1);
+    let mut f = wall(1500);
+    f.depth_mm[(3, 3)] = 50;
+    let r = d.update(&f);
+    assert!(!r.near);
+    assert_eq!(r.distance_mm, Some(1500));
+    // Pixels outside the ROI are ignored.
+    let mut f = wall(1500);
+    f.depth_mm.row_mut(0).fill(100);
+    assert!(!d.update(&f).near);
+}
+
+#[test]
+fn config_validation_roi_clipping_and_reset() {
+    let bad = NearFarConfig {
+        near_mm: 400,
+        far_mm: 300,
+        ..NearFarConfig::default()
+    };
+    assert!(NearFarDetector::new(bad).is_err());
+    let bad = NearFarConfig {
+        min_valid_fraction: 1.5,
+        ..NearFarConfig::default()
+    };
+    assert!(NearFarDetector::new(bad).is_err());
+    let bad = NearFarConfig {
+        far_mm: 70_000,
+        ..NearFarConfig::default()
+    };
+    assert!(NearFarDetector::new(bad).is_err());
+    assert!(detector(1).with_percentile(1.5).is_err());
+    // A ROI partly outside the frame is clipped; entirely outside → no target → far, no panic.
+    let mut d = NearFarDetector::new(NearFarConfig {
+        roi: Roi {
+            row0: 6,
+            col0: 6,
+            rows: 10,
+            cols: 10,
+        },
+        ..NearFarConfig::default()
+    })
+    .unwrap();
+    let mut f = wall(1500);
+    f.depth_mm[(7, 7)] = 100;
+    f.depth_mm[(6, 7)] = 100;
+    assert!(d.update(&f).near);
+    d.reset();
+    assert!(!d.is_near());
+    let mut d = NearFarDetector::new(NearFarConfig {
+        roi: Roi {
+            row0: 50,
+            col0: 50,
+            rows: 4,
+            cols: 4,
+        },
+        ..NearFarConfig::default()
+    })
+    .unwrap();
+    let r = d.update(&wall(100));
+    assert!(!r.near && r.distance_mm.is_none());
+    assert_eq!(
+        Roi::centered(172, 224, 0.5),
+        Roi {
+            row0: 43,
+            col0: 56,
+            rows: 86,
+            cols: 112
+        }
+    );
+}
