@@ -1,1 +1,13 @@
-//! tofproxd: the low-power ToF proximity daemon on D-Bus (thesis 3.5.3, listing 4.11).
+//! tofproxd: the low-power ToF proximity daemon on D-Bus (thesis 3.5.3, fig. 3.23,
+//! listing 4.11): restart → load config from flash → set exposure → capture →
+//! process → stop (reset low) → sleep, publishing near/far over D-Bus.
+
+pub mod backends;
+pub mod calibration;
+pub mod client;
+pub mod config;
+pub mod controller;
+pub mod energy;
+pub mod run;
+pub mod service;
+pub mod source;

@@ -1,1 +1,256 @@
-fn main() {}
+//! tofproxd: the low-power ToF proximity daemon on D-Bus (thesis 3.5.3, listing 4.11).
+//!
+//! `tofproxd --config FILE [--bus session|system|ADDRESS]`
+//! `tofproxd --demo` — the emulated device with a scripted hand on a private bus,
+//! printing near/far events for ~25 s.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use clap::Parser;
+use tofproxd::config::Config;
+use tofproxd::run::{BusChoice, Daemon, notify};
+
+/// The low-power ToF proximity daemon.
+#[derive(Parser, Debug)]
+#[command(name = "tofproxd", version, about)]
+struct Args {
+    /// Configuration file.
+    #[arg(long, default_value = "/etc/tofprox/tofproxd.toml")]
+    config: PathBuf,
+    /// session, system or a D-Bus address (unix:path=…).
+    #[arg(long, default_value = "system")]
+    bus: String,
+    /// Demo: run on the emulated device with the scripted hand
+    /// (config/tofproxd-emulated.toml unless --config is given), on the session bus or a
+    /// private dbus-daemon when none runs, and print near/far events.
+    #[arg(long)]
+    demo: bool,
+    /// Demo duration (s).
+    #[arg(long, default_value_t = 25)]
+    demo_seconds: u64,
+    /// Validate the configuration and exit.
+    #[arg(long)]
+    check_config: bool,
+    /// More log output (repeat for more).
+    #[arg(short, long, action = clap::ArgAction::Count)]
+    verbose: u8,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let filter = match args.verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(filter)),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let rt = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("error: tokio runtime: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    match rt.block_on(run(args)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            notify::status(&format!("failed: {e:#}"));
+            ExitCode::from(2)
+        }
+    }
+}
+
+async fn run(mut args: Args) -> anyhow::Result<()> {
+    if args.demo && args.config == Path::new("/etc/tofprox/tofproxd.toml") {
+        args.config = demo_config_path()?;
+    }
+    let cfg = Config::load(&args.config)?;
+    if args.check_config {
+        println!("{}: ok", args.config.display());
+        return Ok(());
+    }
+    let base = args.config.parent().unwrap_or(Path::new(".")).to_path_buf();
+    if args.demo {
+        return demo(cfg, &base, args.demo_seconds).await;
+    }
+    let bus: BusChoice = args.bus.parse().map_err(anyhow::Error::msg)?;
+    serve(cfg, &base, bus).await
+}
+
+fn demo_config_path() -> anyhow::Result<PathBuf> {
+    for c in [
+        PathBuf::from("config/tofproxd-emulated.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tofproxd-emulated.toml"),
+        PathBuf::from("/usr/share/tofprox/tofproxd-emulated.toml"),
+    ] {
+        if c.exists() {
+            return Ok(c);
+        }
+    }
+    bail!("config/tofproxd-emulated.toml not found: pass --config")
+}
+
+async fn build_daemon(cfg: &Config, base: &Path, conn: zbus::Connection) -> anyhow::Result<Daemon> {
+    let source = tofproxd::backends::build_source(cfg, base).context("frame source")?;
+    let calib = tofproxd::calibration::load_for(cfg, &*source).context("calibration")?;
+    let ctl = tofproxd::controller::Controller::new(cfg.clone(), source, calib)?;
+    Ok(Daemon::start(conn, cfg, ctl).await?)
+}
+
+async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
+    let conn = tofproxd::run::connect(&bus).await?;
+    let daemon = build_daemon(&cfg, base, conn).await?;
+    tracing::info!(
+        "serving {} on the {:?} bus (compat: {})",
+        tofproxd::service::BUS_NAME,
+        bus,
+        cfg.dbus.iio_sensor_proxy_compat
+    );
+    notify::ready("idle: sensor in reset, waiting for a claim");
+    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
+        .context("SIGTERM handler")?;
+    let watchdog = notify::watchdog_interval().map(|d| d / 2);
+    let mut last_state = String::new();
+    loop {
+        let tick = async {
+            match watchdog {
+                Some(d) => tokio::time::sleep(d).await,
+                None => std::future::pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            _ = term.recv() => break,
+            r = tokio::signal::ctrl_c() => { r.context("SIGINT handler")?; break; }
+            _ = tick => {
+                notify::watchdog();
+                let s = daemon.hub().status();
+                let line = format!("{}; near={}; {:.2} mW", s.state.as_str(), s.near, s.power_mw);
+                if line != last_state {
+                    notify::status(&line);
+                    last_state = line;
+                }
+            }
+        }
+    }
+    tracing::info!("stopping: sensor to reset, releasing the bus names");
+    notify::stopping();
+    daemon.shutdown().await;
+    Ok(())
+}
+
+/// A private dbus-daemon for the demo (killed on drop).
+struct PrivateBus {
+    child: std::process::Child,
+    address: String,
+}
+
+impl Drop for PrivateBus {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn start_private_bus() -> anyhow::Result<PrivateBus> {
+    use std::io::BufRead;
+    let mut child = std::process::Command::new("dbus-daemon")
+        .args(["--session", "--print-address", "--nofork"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .context("starting dbus-daemon (install the dbus-daemon package)")?;
+    let stdout = child.stdout.take().context("dbus-daemon stdout")?;
+    let mut line = String::new();
+    std::io::BufReader::new(stdout)
+        .read_line(&mut line)
+        .context("reading the bus address")?;
+    let address = line.trim().to_string();
+    if address.is_empty() {
+        let _ = child.kill();
+        bail!("dbus-daemon printed no address");
+    }
+    Ok(PrivateBus { child, address })
+}
+
+async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
+    use tofproxd::client::ProximityProxy;
+    let mut _private = None;
+    let session = match tofproxd::run::connect(&BusChoice::Session).await {
+        Ok(c) => {
+            eprintln!("demo: using the session bus");
+            Some((c, BusChoice::Session))
+        }
+        Err(_) => None,
+    };
+    let (conn, bus) = match session {
+        Some(x) => x,
+        None => {
+            let pb = start_private_bus()?;
+            eprintln!(
+                "demo: no session bus; started a private dbus-daemon at {}",
+                pb.address
+            );
+            let bus = BusChoice::Address(pb.address.clone());
+            _private = Some(pb);
+            (tofproxd::run::connect(&bus).await?, bus)
+        }
+    };
+    let daemon = build_daemon(&cfg, base, conn).await?;
+    // An independent client connection, like `tofprox monitor`.
+    let client = tofproxd::run::connect(&bus).await?;
+    let proxy = ProximityProxy::new(&client).await?;
+    let mut near_changes = proxy.receive_near_changed().await;
+    let t0 = std::time::Instant::now();
+    eprintln!(
+        "demo: emulated sensor, hand approaching and leaving in front of a wall; near ≤ {} mm, far ≥ {} mm",
+        cfg.proximity.near_mm, cfg.proximity.far_mm
+    );
+    proxy.claim_proximity().await?;
+    println!(
+        "{:7.2}s  claimed: near={} distance={} mm state={}",
+        t0.elapsed().as_secs_f64(),
+        proxy.near().await?,
+        proxy.distance_mm().await?,
+        proxy.state().await?
+    );
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(seconds);
+    loop {
+        tokio::select! {
+            _ = tokio::time::sleep_until(deadline) => break,
+            _ = tokio::signal::ctrl_c() => break,
+            ch = tofproxd::service::next_item(&mut near_changes) => {
+                let Some(ch) = ch else { break };
+                let near = ch.get().await.unwrap_or(false);
+                let d = proxy.distance_mm().await.unwrap_or(0);
+                let p = proxy.power_estimate_mw().await.unwrap_or(0.0);
+                let rate = proxy.rate_hz().await.unwrap_or(0.0);
+                println!(
+                    "{:7.2}s  {}  distance={d} mm  rate={rate:.1} Hz  power≈{p:.2} mW",
+                    t0.elapsed().as_secs_f64(),
+                    if near { "NEAR" } else { "far " }
+                );
+            }
+        }
+    }
+    let _ = proxy.release_proximity().await;
+    let s = daemon.hub().status();
+    println!(
+        "demo: {} cycles, {} valid readings, {} errors, modelled average {:.2} mW",
+        s.cycles, s.valid_readings, s.errors, s.power_mw
+    );
+    daemon.shutdown().await;
+    Ok(())
+}

@@ -1,0 +1,461 @@
+//! Concrete frame sources: the bridge's [`SensorDriver`] over USB or over the
+//! emulated device, and replay of a version 1 recording.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+
+use ndarray::Array3;
+use serde::{Deserialize, Serialize};
+use tofprox_bridge::{
+    BridgeError, Clock, DriverConfig, EmulatedConfig as BridgeEmulatedConfig, EmulatedDevice,
+    ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
+    driver::DriverConfigFile,
+};
+use tofprox_format::{RawFrames, Recording};
+
+use crate::config::{Backend, Config, Mode};
+use crate::energy::CycleTimings;
+use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
+
+/// The emulated device: a path to a bridge config file, or the table inline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum DeviceSpec {
+    /// `device = "emulated/hand.toml"`.
+    Path(std::path::PathBuf),
+    /// `[emulated.device]` table (tofprox-bridge `EmulatedConfig` keys).
+    Inline(toml::Table),
+}
+
+impl FrameSource for Box<dyn FrameSource> {
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        (**self).cycle(req)
+    }
+    fn power_off(&mut self) -> Result<(), SourceError> {
+        (**self).power_off()
+    }
+    fn supports_row_window(&self) -> bool {
+        (**self).supports_row_window()
+    }
+    fn row_window_align(&self) -> u16 {
+        (**self).row_window_align()
+    }
+    fn supports_mode_switch(&self) -> bool {
+        (**self).supports_mode_switch()
+    }
+    fn full_size(&self) -> (usize, usize) {
+        (**self).full_size()
+    }
+    fn describe(&self) -> String {
+        (**self).describe()
+    }
+}
+
+/// Map a bridge error to the loop's kinds (context kept in the message).
+pub fn map_bridge_error(e: &BridgeError) -> SourceError {
+    let kind = match e.kind() {
+        ErrorKind::Disconnected | ErrorKind::NotFound | ErrorKind::Access => {
+            SourceErrorKind::Disconnected
+        }
+        ErrorKind::Timeout => SourceErrorKind::Timeout,
+        ErrorKind::Stall | ErrorKind::Nak | ErrorKind::Protocol => SourceErrorKind::Protocol,
+        ErrorKind::CorruptFrame => SourceErrorKind::CorruptFrame,
+        ErrorKind::FlashEmpty | ErrorKind::FlashCorrupt => SourceErrorKind::Flash,
+        ErrorKind::ResetStuck => SourceErrorKind::Reset,
+        ErrorKind::Config => SourceErrorKind::Unsupported,
+        _ => SourceErrorKind::Other,
+    };
+    SourceError::new(kind, format!("{} ({})", e, e.kind().as_str()))
+}
+
+/// The sensor through the bridge's driver stack.
+pub struct BridgeSource<T: UsbTransport> {
+    driver: SensorDriver<T>,
+    full: (usize, usize),
+    clock: Arc<dyn Clock>,
+    name: String,
+}
+
+impl<T: UsbTransport> BridgeSource<T> {
+    /// Wrap a driver.
+    pub fn new(driver: SensorDriver<T>, clock: Arc<dyn Clock>, name: impl Into<String>) -> Self {
+        let s = &driver.config().map.sensor;
+        let full = (usize::from(s.rows), usize::from(s.cols));
+        Self {
+            driver,
+            full,
+            clock,
+            name: name.into(),
+        }
+    }
+    /// The driver.
+    pub fn driver(&self) -> &SensorDriver<T> {
+        &self.driver
+    }
+    /// The driver, mutably.
+    pub fn driver_mut(&mut self) -> &mut SensorDriver<T> {
+        &mut self.driver
+    }
+}
+
+impl<T: UsbTransport> FrameSource for BridgeSource<T> {
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        let breq = tofprox_bridge::CycleRequest {
+            mode: match req.mode {
+                Mode::TwoPhase => SensorMode::TwoPhase,
+                Mode::FourPhase => SensorMode::FourPhase,
+            },
+            exposure_us: req.exposure_us,
+            row_window: req.row_window.map(|w| tofprox_bridge::RowWindow {
+                row0: w.row0,
+                rows: w.rows,
+            }),
+        };
+        let out = self.driver.cycle(&breq).map_err(|e| map_bridge_error(&e))?;
+        let t = out.timings;
+        Ok(RawCycle {
+            frames: out.frames,
+            phases_deg: out.phases_deg,
+            exposure_us: out.exposure_us,
+            roi_origin: out.roi_origin,
+            full_rows: out.full_rows,
+            full_cols: out.full_cols,
+            adc_bits: out.adc_bits,
+            modulation_hz: out.modulation_hz,
+            timings: CycleTimings {
+                startup: t.startup,
+                config_load: t.config_load,
+                flash_write: t.flash_write,
+                exposure: t.exposure,
+                readout: t.readout + t.shutdown,
+            },
+            timestamp_ns: u64::try_from(self.clock.now().as_nanos()).unwrap_or(u64::MAX),
+        })
+    }
+
+    fn power_off(&mut self) -> Result<(), SourceError> {
+        self.driver.power_off().map_err(|e| map_bridge_error(&e))
+    }
+
+    fn supports_row_window(&self) -> bool {
+        self.driver.config().map.row_window.is_some()
+    }
+
+    fn row_window_align(&self) -> u16 {
+        self.driver
+            .config()
+            .map
+            .row_window
+            .as_ref()
+            .map_or(1, |w| w.align.max(1))
+    }
+
+    fn full_size(&self) -> (usize, usize) {
+        self.full
+    }
+
+    fn describe(&self) -> String {
+        self.name.clone()
+    }
+}
+
+/// Replay of a version 1 recording's 2-/4-phase illuminated captures, in order.
+pub struct ReplaySource {
+    rec: Recording,
+    indices: Vec<usize>,
+    pos: usize,
+    repeat: bool,
+    name: String,
+}
+
+impl ReplaySource {
+    /// Open a recording.
+    pub fn open(dir: &Path, repeat: bool) -> Result<Self, SourceError> {
+        let rec = Recording::open(dir)
+            .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("replay: {e}")))?;
+        let indices: Vec<usize> = rec
+            .captures()
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| {
+                c.illumination
+                    && (c.is_four_phase() || (c.phases_deg.len() == 2 && c.starts_two_phase()))
+            })
+            .map(|(i, _)| i)
+            .collect();
+        if indices.is_empty() {
+            return Err(SourceError::new(
+                SourceErrorKind::Unsupported,
+                format!(
+                    "replay: {} has no illuminated 2-phase or 4-phase capture",
+                    dir.display()
+                ),
+            ));
+        }
+        Ok(Self {
+            name: format!("replay {} ({} captures)", dir.display(), indices.len()),
+            rec,
+            indices,
+            pos: 0,
+            repeat,
+        })
+    }
+
+    /// Number of replayable captures.
+    pub fn len(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// Whether there is nothing to replay.
+    pub fn is_empty(&self) -> bool {
+        self.indices.is_empty()
+    }
+}
+
+fn to_u16(frames: RawFrames, adc_bits: u8) -> Array3<u16> {
+    let max = f64::from((1u32 << adc_bits.clamp(1, 16)) - 1);
+    match frames {
+        RawFrames::U16(a) => a,
+        RawFrames::F32(a) => a.mapv(|v| {
+            if v.is_finite() {
+                f64::from(v).round().clamp(0.0, max) as u16
+            } else {
+                0
+            }
+        }),
+        RawFrames::F64(a) => a.mapv(|v| {
+            if v.is_finite() {
+                v.round().clamp(0.0, max) as u16
+            } else {
+                0
+            }
+        }),
+    }
+}
+
+impl FrameSource for ReplaySource {
+    fn cycle(&mut self, _req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        if self.pos >= self.indices.len() {
+            if self.repeat {
+                self.pos = 0;
+            } else {
+                return Err(SourceError::new(
+                    SourceErrorKind::EndOfData,
+                    "end of recording",
+                ));
+            }
+        }
+        let idx = self.indices.get(self.pos).copied().unwrap_or(0);
+        self.pos += 1;
+        let sensor = self.rec.sensor().clone();
+        let meta = self.rec.captures().get(idx).cloned().ok_or_else(|| {
+            SourceError::new(SourceErrorKind::Other, "capture index out of range")
+        })?;
+        let frames = self.rec.load(idx).map_err(|e| {
+            SourceError::new(
+                SourceErrorKind::CorruptFrame,
+                format!("replay capture {idx}: {e}"),
+            )
+        })?;
+        let frames = to_u16(frames, sensor.adc_bits);
+        let k = frames.dim().0 as u32;
+        Ok(RawCycle {
+            frames,
+            phases_deg: meta.phases_deg.clone(),
+            exposure_us: meta.exposure_us,
+            roi_origin: sensor.roi_origin,
+            full_rows: sensor.full_rows,
+            full_cols: sensor.full_cols,
+            adc_bits: sensor.adc_bits,
+            modulation_hz: sensor.modulation_hz,
+            timings: CycleTimings {
+                exposure: Duration::from_secs_f64(f64::from(k) * meta.exposure_us.max(0.0) / 1e6),
+                ..CycleTimings::default()
+            },
+            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
+        })
+    }
+
+    fn power_off(&mut self) -> Result<(), SourceError> {
+        Ok(())
+    }
+
+    fn supports_row_window(&self) -> bool {
+        false
+    }
+
+    fn supports_mode_switch(&self) -> bool {
+        false
+    }
+
+    fn full_size(&self) -> (usize, usize) {
+        let s = self.rec.sensor();
+        (s.full_rows, s.full_cols)
+    }
+
+    fn describe(&self) -> String {
+        self.name.clone()
+    }
+}
+
+/// Load the emulated device configuration of a daemon config.
+pub fn emulated_device_config(
+    cfg: &Config,
+    base: &Path,
+) -> Result<BridgeEmulatedConfig, SourceError> {
+    let err = |e: BridgeError| {
+        SourceError::new(
+            SourceErrorKind::Unsupported,
+            format!("emulated device: {e}"),
+        )
+    };
+    match &cfg.emulated.device {
+        None => Ok(BridgeEmulatedConfig::default()),
+        Some(DeviceSpec::Path(p)) => {
+            let p = if p.is_relative() {
+                base.join(p)
+            } else {
+                p.clone()
+            };
+            BridgeEmulatedConfig::load(&p).map_err(err)
+        }
+        Some(DeviceSpec::Inline(t)) => {
+            let text = toml::to_string(t).map_err(|e| {
+                SourceError::new(
+                    SourceErrorKind::Unsupported,
+                    format!("emulated.device: {e}"),
+                )
+            })?;
+            BridgeEmulatedConfig::from_toml_str(&text, base).map_err(err)
+        }
+    }
+}
+
+/// Clock for the emulated backend.
+pub fn clock_for(cfg: &Config) -> Arc<dyn Clock> {
+    if cfg.emulated.virtual_time {
+        Arc::new(VirtualClock::new())
+    } else {
+        Arc::new(SystemClock::new())
+    }
+}
+
+/// Build the configured frame source. `base` resolves relative paths (the config's directory).
+pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, SourceError> {
+    let berr = |what: &str, e: BridgeError| {
+        SourceError::new(SourceErrorKind::Unsupported, format!("{what}: {e}"))
+    };
+    match cfg.backend {
+        Backend::Replay => {
+            let dir = cfg.replay.recording.as_ref().ok_or_else(|| {
+                SourceError::new(SourceErrorKind::Unsupported, "replay.recording is not set")
+            })?;
+            Ok(Box::new(ReplaySource::open(dir, cfg.replay.repeat)?))
+        }
+        Backend::Emulated => {
+            let dev_cfg = emulated_device_config(cfg, base)?;
+            let clock = clock_for(cfg);
+            let map = dev_cfg.sensor_map().map_err(|e| berr("sensor map", e))?;
+            let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), cfg.emulated.seed)
+                .map_err(|e| berr("emulated device", e))?;
+            let dcfg = DriverConfig {
+                protocol: dev_cfg.protocol.clone(),
+                map,
+                ..DriverConfig::emulated_default()
+            };
+            let driver =
+                SensorDriver::new(dev, dcfg, clock.clone()).map_err(|e| berr("driver", e))?;
+            Ok(Box::new(BridgeSource::new(
+                driver,
+                clock,
+                "emulated CX3 + IRS1645",
+            )))
+        }
+        Backend::Usb => {
+            let dcfg = match &cfg.usb.driver_config {
+                Some(p) => {
+                    let text = std::fs::read_to_string(p).map_err(|e| {
+                        SourceError::new(
+                            SourceErrorKind::Unsupported,
+                            format!("usb.driver_config {}: {e}", p.display()),
+                        )
+                    })?;
+                    let f: DriverConfigFile = toml::from_str(&text).map_err(|e| {
+                        SourceError::new(
+                            SourceErrorKind::Unsupported,
+                            format!("usb.driver_config {}: {e}", p.display()),
+                        )
+                    })?;
+                    f.resolve(p.parent().unwrap_or(base))
+                        .map_err(|e| berr("usb.driver_config", e))?
+                }
+                None => DriverConfig::emulated_default(),
+            };
+            dcfg.validate().map_err(|e| berr("usb.driver_config", e))?;
+            Ok(Box::new(UsbSource {
+                sel: cfg.usb.device.clone(),
+                dcfg,
+                inner: None,
+            }))
+        }
+    }
+}
+
+/// USB backend that opens the device lazily (the daemon starts without the
+/// device plugged in and reports `unavailable` until it appears).
+pub struct UsbSource {
+    sel: tofprox_bridge::UsbSelector,
+    dcfg: DriverConfig,
+    inner: Option<BridgeSource<tofprox_bridge::RusbTransport>>,
+}
+
+impl UsbSource {
+    fn inner(&mut self) -> Result<&mut BridgeSource<tofprox_bridge::RusbTransport>, SourceError> {
+        if self.inner.is_none() {
+            let transport = tofprox_bridge::RusbTransport::open(self.sel.clone())
+                .map_err(|e| map_bridge_error(&e))?;
+            let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+            let driver =
+                SensorDriver::new(transport, self.dcfg.clone(), clock.clone()).map_err(|e| {
+                    SourceError::new(SourceErrorKind::Unsupported, format!("driver: {e}"))
+                })?;
+            self.inner = Some(BridgeSource::new(driver, clock, "CX3 over USB"));
+        }
+        self.inner
+            .as_mut()
+            .ok_or_else(|| SourceError::new(SourceErrorKind::Disconnected, "no device"))
+    }
+}
+
+impl FrameSource for UsbSource {
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        self.inner()?.cycle(req)
+    }
+    fn power_off(&mut self) -> Result<(), SourceError> {
+        match &mut self.inner {
+            Some(s) => s.power_off(),
+            None => Ok(()),
+        }
+    }
+    fn supports_row_window(&self) -> bool {
+        self.dcfg.map.row_window.is_some()
+    }
+    fn row_window_align(&self) -> u16 {
+        self.dcfg
+            .map
+            .row_window
+            .as_ref()
+            .map_or(1, |w| w.align.max(1))
+    }
+    fn full_size(&self) -> (usize, usize) {
+        let s = &self.dcfg.map.sensor;
+        (usize::from(s.rows), usize::from(s.cols))
+    }
+    fn describe(&self) -> String {
+        format!(
+            "CX3 over USB {:04x}:{:04x}",
+            self.sel.vendor_id, self.sel.product_id
+        )
+    }
+}

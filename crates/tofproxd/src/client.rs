@@ -1,0 +1,65 @@
+//! Client-side proxies of the daemon's interfaces (used by `tofprox monitor`,
+//! `status`, `record`, the demo and the tests).
+
+use std::collections::HashMap;
+
+use zbus::{OwnedVariant, proxy};
+
+/// `org.tofprox.Proximity1`.
+#[proxy(
+    interface = "org.tofprox.Proximity1",
+    default_service = "org.tofprox.Proximity1",
+    default_path = "/org/tofprox/Proximity1"
+)]
+pub trait Proximity {
+    /// Claim proximity.
+    fn claim_proximity(&self) -> zbus::Result<()>;
+    /// Release proximity.
+    fn release_proximity(&self) -> zbus::Result<()>;
+    /// Claim depth frames.
+    fn claim_depth(&self) -> zbus::Result<()>;
+    /// Release depth frames.
+    fn release_depth(&self) -> zbus::Result<()>;
+    /// All properties and counters.
+    fn get_status(&self) -> zbus::Result<HashMap<String, OwnedVariant>>;
+    /// HasSensor.
+    #[zbus(property)]
+    fn has_sensor(&self) -> zbus::Result<bool>;
+    /// State.
+    #[zbus(property)]
+    fn state(&self) -> zbus::Result<String>;
+    /// Near.
+    #[zbus(property)]
+    fn near(&self) -> zbus::Result<bool>;
+    /// DistanceMm (no change signal).
+    #[zbus(property(emits_changed_signal = "false"))]
+    fn distance_mm(&self) -> zbus::Result<u32>;
+    /// NearThresholdMm.
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn near_threshold_mm(&self) -> zbus::Result<u32>;
+    /// FarThresholdMm.
+    #[zbus(property(emits_changed_signal = "const"))]
+    fn far_threshold_mm(&self) -> zbus::Result<u32>;
+    /// Mode.
+    #[zbus(property)]
+    fn mode(&self) -> zbus::Result<String>;
+    /// RateHz.
+    #[zbus(property)]
+    fn rate_hz(&self) -> zbus::Result<f64>;
+    /// PowerEstimateMw.
+    #[zbus(property)]
+    fn power_estimate_mw(&self) -> zbus::Result<f64>;
+    /// LastError.
+    #[zbus(property)]
+    fn last_error(&self) -> zbus::Result<String>;
+    /// DepthFrame signal.
+    #[zbus(signal)]
+    fn depth_frame(
+        &self,
+        timestamp_ns: u64,
+        width: u16,
+        height: u16,
+        depth_mm_u16_le: Vec<u8>,
+        amplitude_u16_le: Vec<u8>,
+    ) -> zbus::Result<()>;
+}

@@ -1,0 +1,702 @@
+//! Daemon configuration (`/etc/tofprox/tofproxd.toml`, commented defaults in
+//! `config/tofproxd.toml`). Every table denies unknown keys; [`Config::validate`]
+//! range-checks every value and names the offending key.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// Errors while loading or validating the configuration. The message always
+/// names the file and/or the key.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The TOML is malformed or has unknown keys / wrong types.
+    #[error("invalid config {path}: {message}")]
+    Parse {
+        /// The file (or `<string>`).
+        path: PathBuf,
+        /// toml's message (names the key and line).
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("invalid config value `{key}`: {message}")]
+    Range {
+        /// Dotted key, e.g. `loop.fast_rate_hz`.
+        key: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// Which frame source drives the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// Real hardware over USB (CX3 bridge).
+    Usb,
+    /// The bridge's emulated device through the same driver stack.
+    Emulated,
+    /// Replay of a version 1 recording.
+    Replay,
+}
+
+/// Processing algorithm (mirrors `tofprox_core::Algorithm`, serde `2phase`/`4phase`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Mode {
+    /// Two raw images (0°, 90°), thesis eq. 2.2 — the low-power mode.
+    #[serde(rename = "2phase")]
+    TwoPhase,
+    /// Four raw images (0°, 90°, 180°, 270°), eq. 2.3 — robust against background light.
+    #[serde(rename = "4phase")]
+    FourPhase,
+}
+
+impl Mode {
+    /// `"2phase"` / `"4phase"` (the D-Bus `Mode` property).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::TwoPhase => "2phase",
+            Mode::FourPhase => "4phase",
+        }
+    }
+    /// Raw images per reading.
+    pub fn raw_images(self) -> u32 {
+        match self {
+            Mode::TwoPhase => 2,
+            Mode::FourPhase => 4,
+        }
+    }
+}
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// `usb`, `emulated` or `replay`.
+    pub backend: Backend,
+    /// Main loop settings.
+    #[serde(rename = "loop")]
+    pub loop_: LoopConfig,
+    /// Processing (mode, calibration).
+    pub processing: ProcessingConfig,
+    /// Near/far decision.
+    pub proximity: ProximityConfig,
+    /// Background light detection (2-phase ↔ 4-phase switching).
+    pub ambient: AmbientConfig,
+    /// Auto-exposure and its eye-safe limits.
+    pub exposure: ExposureConfig,
+    /// Partial read-out.
+    pub readout: ReadoutConfig,
+    /// Energy model (thesis table 3.1).
+    pub energy: EnergyConfig,
+    /// D-Bus.
+    pub dbus: DbusConfig,
+    /// USB backend.
+    pub usb: UsbConfig,
+    /// Emulated backend.
+    pub emulated: EmulatedConfig,
+    /// Replay backend.
+    pub replay: ReplayConfig,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Self {
+            backend: Backend::Emulated,
+            loop_: LoopConfig::default(),
+            processing: ProcessingConfig::default(),
+            proximity: ProximityConfig::default(),
+            ambient: AmbientConfig::default(),
+            exposure: ExposureConfig::default(),
+            readout: ReadoutConfig::default(),
+            energy: EnergyConfig::default(),
+            dbus: DbusConfig::default(),
+            usb: UsbConfig::default(),
+            emulated: EmulatedConfig::default(),
+            replay: ReplayConfig::default(),
+        }
+    }
+}
+
+/// `[loop]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LoopConfig {
+    /// Keep the loop running without any claim (otherwise the sensor is held in reset).
+    pub always_on: bool,
+    /// Reading rate while far and not still (Hz).
+    pub rate_hz: f64,
+    /// Reading rate while a target approaches or is near (Hz), the upper bound.
+    pub fast_rate_hz: f64,
+    /// Reading rate while far and still (Hz), the lower bound.
+    pub slow_rate_hz: f64,
+    /// Far readings with little change before dropping to `slow_rate_hz`.
+    pub still_readings: u32,
+    /// A distance change below this (mm) between readings counts as still.
+    pub still_tolerance_mm: u32,
+    /// Approach speed (mm/s) that switches to `fast_rate_hz`.
+    pub approach_mm_per_s: f64,
+    /// Wait between retries after a failed cycle (ms).
+    pub retry_ms: u64,
+    /// Consecutive failed cycles after which `State` becomes `unavailable`.
+    pub unavailable_after: u32,
+    /// Bounded wait of `ClaimProximity` for the first valid reading (ms).
+    pub first_reading_timeout_ms: u64,
+}
+
+impl Default for LoopConfig {
+    fn default() -> Self {
+        Self {
+            always_on: false,
+            rate_hz: 2.0,
+            fast_rate_hz: 10.0,
+            slow_rate_hz: 1.0,
+            still_readings: 10,
+            still_tolerance_mm: 20,
+            approach_mm_per_s: 150.0,
+            retry_ms: 200,
+            unavailable_after: 5,
+            first_reading_timeout_ms: 3000,
+        }
+    }
+}
+
+/// `[processing]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProcessingConfig {
+    /// Low-power processing mode (thesis 3.5.3: 2-phase).
+    pub mode: Mode,
+    /// Minimum amplitude (LSB) for a valid pixel.
+    pub min_amplitude_lsb: f32,
+    /// Calibration set directory (offset + wiggling, keyed to the mode). Empty: uncalibrated.
+    pub calibration: Option<PathBuf>,
+    /// Refuse to start without a calibration for the configured mode.
+    pub require_calibration: bool,
+}
+
+impl Default for ProcessingConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::TwoPhase,
+            min_amplitude_lsb: 8.0,
+            calibration: None,
+            require_calibration: false,
+        }
+    }
+}
+
+/// `[proximity]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProximityConfig {
+    /// Enter near at or below this distance (mm) — at once.
+    pub near_mm: u32,
+    /// Leave near above this distance (mm) — after the debounce.
+    pub far_mm: u32,
+    /// Consecutive far readings before far is published.
+    pub far_debounce: u32,
+    /// Minimum share of valid ROI pixels for a reading to count.
+    pub min_valid_fraction: f32,
+    /// Region of interest `[row0, col0, rows, cols]`; empty: the central quarter.
+    pub roi: Option<[usize; 4]>,
+}
+
+impl Default for ProximityConfig {
+    fn default() -> Self {
+        Self {
+            near_mm: 100,
+            far_mm: 150,
+            far_debounce: 3,
+            min_valid_fraction: 0.3,
+            roi: None,
+        }
+    }
+}
+
+/// `[ambient]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AmbientConfig {
+    /// Switch to 4-phase while background light is high.
+    pub enabled: bool,
+    /// In 2-phase mode, take a 4-phase probe every N cycles to measure background light.
+    pub probe_every: u32,
+    /// Background indicator (LSB, common-mode level of the 4 raw images above the dark level) to switch to 4-phase.
+    pub high_lsb: f32,
+    /// Indicator below which 4-phase falls back to 2-phase (hysteresis).
+    pub low_lsb: f32,
+    /// Consecutive low readings before falling back to 2-phase.
+    pub low_readings: u32,
+    /// 2-vs-4-phase distance discrepancy (mm) that also counts as high background.
+    pub discrepancy_mm: u32,
+}
+
+impl Default for AmbientConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            probe_every: 10,
+            high_lsb: 60.0,
+            low_lsb: 30.0,
+            low_readings: 5,
+            discrepancy_mm: 60,
+        }
+    }
+}
+
+/// `[exposure]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ExposureConfig {
+    /// Exposure per raw image at start (µs).
+    pub initial_us: f64,
+    /// Lower limit (µs).
+    pub min_us: f64,
+    /// Eye-safe upper limit per raw image (µs) — never exceeded.
+    pub max_us: f64,
+    /// Adjust exposure automatically.
+    pub auto: bool,
+    /// Share of saturated ROI pixels that shortens the exposure.
+    pub saturated_fraction: f32,
+    /// Share of low-amplitude ROI pixels that lengthens it.
+    pub low_amplitude_fraction: f32,
+    /// Multiplicative step (> 1).
+    pub step: f64,
+}
+
+impl Default for ExposureConfig {
+    fn default() -> Self {
+        Self {
+            initial_us: 100.0,
+            min_us: 20.0,
+            max_us: 500.0,
+            auto: true,
+            saturated_fraction: 0.02,
+            low_amplitude_fraction: 0.5,
+            step: 1.5,
+        }
+    }
+}
+
+/// `[readout]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReadoutConfig {
+    /// Read only a row window around the ROI where the source supports it.
+    pub partial: bool,
+    /// Extra rows above and below the ROI.
+    pub margin_rows: u16,
+}
+
+impl Default for ReadoutConfig {
+    fn default() -> Self {
+        Self {
+            partial: true,
+            margin_rows: 2,
+        }
+    }
+}
+
+/// `[energy]` — thesis table 3.1 (2 W VCSEL): capture 0.058 mJ for 2 images at 0.1 ms →
+/// 290 mW while exposing; read-out 0.689 mJ / 2 images = 0.3445 mJ per raw image (the same
+/// per image for modes 5 and 9); idle 9.911 mJ over ~1 s → 9.9 mW powered but not capturing.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnergyConfig {
+    /// Power while exposing one raw image (mW).
+    pub capture_mw: f64,
+    /// Energy to read out and transfer one raw image (mJ).
+    pub readout_mj_per_image: f64,
+    /// Power while powered but idle (mW).
+    pub idle_mw: f64,
+    /// Power while held in reset (mW) — assumption, the thesis gives none.
+    pub off_mw: f64,
+    /// Power during start-up after reset release (mW) — assumption: idle level.
+    pub startup_mw: f64,
+    /// Power while loading the configuration from SPI flash (mW) — assumption.
+    pub flash_load_mw: f64,
+    /// Power while writing the SPI flash (mW) — assumption (rare: first run only).
+    pub flash_write_mw: f64,
+    /// Running-average window (cycles).
+    pub average_cycles: u32,
+}
+
+impl Default for EnergyConfig {
+    fn default() -> Self {
+        Self {
+            capture_mw: 290.0,
+            readout_mj_per_image: 0.3445,
+            idle_mw: 9.9,
+            off_mw: 0.01,
+            startup_mw: 9.9,
+            flash_load_mw: 15.0,
+            flash_write_mw: 30.0,
+            average_cycles: 16,
+        }
+    }
+}
+
+/// `[dbus]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DbusConfig {
+    /// Also own `net.hadess.SensorProxy` (iio-sensor-proxy compatibility).
+    pub iio_sensor_proxy_compat: bool,
+    /// Maximum DepthFrame signal rate (Hz).
+    pub depth_max_hz: f64,
+}
+
+impl Default for DbusConfig {
+    fn default() -> Self {
+        Self {
+            iio_sensor_proxy_compat: false,
+            depth_max_hz: 5.0,
+        }
+    }
+}
+
+/// `[usb]`
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct UsbConfig {
+    /// Driver/bridge configuration file (tofprox-bridge format). Empty: bridge defaults.
+    pub driver_config: Option<PathBuf>,
+    /// Which device (`vendor_id`, `product_id`, `serial`, `bus_path`, `interface`).
+    pub device: tofprox_bridge::UsbSelector,
+}
+
+/// `[emulated]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EmulatedConfig {
+    /// Emulated device: a tofprox-bridge config file path, or the `[emulated.device]` table inline.
+    pub device: Option<crate::backends::DeviceSpec>,
+    /// Random seed of the emulated frames.
+    pub seed: u64,
+    /// Run the emulated device on virtual time (no real sleeps; tests).
+    pub virtual_time: bool,
+}
+
+impl Default for EmulatedConfig {
+    fn default() -> Self {
+        Self {
+            device: None,
+            seed: 1,
+            virtual_time: false,
+        }
+    }
+}
+
+/// `[replay]`
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReplayConfig {
+    /// Recording directory (version 1).
+    pub recording: Option<PathBuf>,
+    /// `true`: pace at the recording's timestamps / the loop rate; `false`: as fast as possible.
+    pub realtime: bool,
+    /// Start over at the end (otherwise the source reports end-of-recording and the loop stops).
+    pub repeat: bool,
+}
+
+impl Default for ReplayConfig {
+    fn default() -> Self {
+        Self {
+            recording: None,
+            realtime: true,
+            repeat: false,
+        }
+    }
+}
+
+fn range(key: &str, ok: bool, message: impl Into<String>) -> Result<(), ConfigError> {
+    if ok {
+        Ok(())
+    } else {
+        Err(ConfigError::Range {
+            key: key.to_string(),
+            message: message.into(),
+        })
+    }
+}
+
+fn finite_pos(key: &str, v: f64) -> Result<(), ConfigError> {
+    range(
+        key,
+        v.is_finite() && v > 0.0,
+        format!("must be a positive number, got {v}"),
+    )
+}
+
+fn fraction(key: &str, v: f32) -> Result<(), ConfigError> {
+    range(
+        key,
+        v.is_finite() && (0.0..=1.0).contains(&v),
+        format!("must be within 0..=1, got {v}"),
+    )
+}
+
+fn non_neg(key: &str, v: f64) -> Result<(), ConfigError> {
+    range(
+        key,
+        v.is_finite() && v >= 0.0,
+        format!("must be >= 0, got {v}"),
+    )
+}
+
+impl Config {
+    /// Load and validate a config file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut cfg = Self::parse(&text, path)?;
+        cfg.resolve_paths(path.parent().unwrap_or(Path::new(".")));
+        Ok(cfg)
+    }
+
+    /// Parse and validate TOML text (`origin` only for messages).
+    pub fn parse(text: &str, origin: &Path) -> Result<Self, ConfigError> {
+        let cfg: Config = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: origin.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Relative paths in the file are relative to the file's directory.
+    fn resolve_paths(&mut self, base: &Path) {
+        let fix = |p: &mut Option<PathBuf>| {
+            if let Some(p) = p
+                && p.is_relative()
+            {
+                *p = base.join(&*p);
+            }
+        };
+        fix(&mut self.processing.calibration);
+        fix(&mut self.usb.driver_config);
+        if let Some(crate::backends::DeviceSpec::Path(p)) = &mut self.emulated.device
+            && p.is_relative()
+        {
+            *p = base.join(&*p);
+        }
+        fix(&mut self.replay.recording);
+    }
+
+    /// Range-check every value; the error names the key.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let l = &self.loop_;
+        finite_pos("loop.rate_hz", l.rate_hz)?;
+        finite_pos("loop.fast_rate_hz", l.fast_rate_hz)?;
+        finite_pos("loop.slow_rate_hz", l.slow_rate_hz)?;
+        range("loop.rate_hz", l.rate_hz <= 100.0, "must be at most 100 Hz")?;
+        range(
+            "loop.fast_rate_hz",
+            l.fast_rate_hz <= 100.0,
+            "must be at most 100 Hz",
+        )?;
+        range(
+            "loop.fast_rate_hz",
+            l.fast_rate_hz >= l.rate_hz,
+            "must be >= loop.rate_hz",
+        )?;
+        range(
+            "loop.slow_rate_hz",
+            l.slow_rate_hz <= l.rate_hz,
+            "must be <= loop.rate_hz",
+        )?;
+        range(
+            "loop.slow_rate_hz",
+            l.slow_rate_hz >= 0.01,
+            "must be at least 0.01 Hz",
+        )?;
+        range(
+            "loop.still_readings",
+            l.still_readings >= 1,
+            "must be at least 1",
+        )?;
+        non_neg("loop.approach_mm_per_s", l.approach_mm_per_s)?;
+        range(
+            "loop.retry_ms",
+            (1..=60_000).contains(&l.retry_ms),
+            "must be within 1..=60000",
+        )?;
+        range(
+            "loop.unavailable_after",
+            l.unavailable_after >= 1,
+            "must be at least 1",
+        )?;
+        range(
+            "loop.first_reading_timeout_ms",
+            (1..=60_000).contains(&l.first_reading_timeout_ms),
+            "must be within 1..=60000",
+        )?;
+        let p = &self.processing;
+        range(
+            "processing.min_amplitude_lsb",
+            p.min_amplitude_lsb.is_finite() && p.min_amplitude_lsb >= 0.0,
+            "must be >= 0",
+        )?;
+        range(
+            "processing.require_calibration",
+            !p.require_calibration || p.calibration.is_some(),
+            "is true but processing.calibration is not set",
+        )?;
+        let x = &self.proximity;
+        range(
+            "proximity.near_mm",
+            (1..=65_000).contains(&x.near_mm),
+            "must be within 1..=65000",
+        )?;
+        range(
+            "proximity.far_mm",
+            x.far_mm > x.near_mm,
+            "must be greater than proximity.near_mm",
+        )?;
+        range(
+            "proximity.far_mm",
+            x.far_mm <= 65_000,
+            "must be at most 65000",
+        )?;
+        range(
+            "proximity.far_debounce",
+            (1..=1000).contains(&x.far_debounce),
+            "must be within 1..=1000",
+        )?;
+        fraction("proximity.min_valid_fraction", x.min_valid_fraction)?;
+        if let Some([_, _, rows, cols]) = x.roi {
+            range(
+                "proximity.roi",
+                rows > 0 && cols > 0,
+                "rows and cols must be > 0",
+            )?;
+        }
+        let a = &self.ambient;
+        range(
+            "ambient.probe_every",
+            a.probe_every >= 1,
+            "must be at least 1",
+        )?;
+        range(
+            "ambient.high_lsb",
+            a.high_lsb.is_finite() && a.high_lsb > 0.0,
+            "must be > 0",
+        )?;
+        range(
+            "ambient.low_lsb",
+            a.low_lsb.is_finite() && a.low_lsb >= 0.0 && a.low_lsb < a.high_lsb,
+            "must be >= 0 and below ambient.high_lsb",
+        )?;
+        range(
+            "ambient.low_readings",
+            a.low_readings >= 1,
+            "must be at least 1",
+        )?;
+        let e = &self.exposure;
+        finite_pos("exposure.min_us", e.min_us)?;
+        finite_pos("exposure.max_us", e.max_us)?;
+        range(
+            "exposure.max_us",
+            e.max_us <= 10_000.0,
+            "must be at most 10000 µs (eye safety)",
+        )?;
+        range(
+            "exposure.max_us",
+            e.max_us >= e.min_us,
+            "must be >= exposure.min_us",
+        )?;
+        range(
+            "exposure.initial_us",
+            e.initial_us.is_finite() && e.initial_us >= e.min_us && e.initial_us <= e.max_us,
+            "must be within exposure.min_us..=exposure.max_us",
+        )?;
+        fraction("exposure.saturated_fraction", e.saturated_fraction)?;
+        fraction("exposure.low_amplitude_fraction", e.low_amplitude_fraction)?;
+        range(
+            "exposure.step",
+            e.step.is_finite() && e.step > 1.0 && e.step <= 10.0,
+            "must be within (1, 10]",
+        )?;
+        let en = &self.energy;
+        non_neg("energy.capture_mw", en.capture_mw)?;
+        non_neg("energy.readout_mj_per_image", en.readout_mj_per_image)?;
+        non_neg("energy.idle_mw", en.idle_mw)?;
+        non_neg("energy.off_mw", en.off_mw)?;
+        non_neg("energy.startup_mw", en.startup_mw)?;
+        non_neg("energy.flash_load_mw", en.flash_load_mw)?;
+        non_neg("energy.flash_write_mw", en.flash_write_mw)?;
+        range(
+            "energy.average_cycles",
+            (1..=10_000).contains(&en.average_cycles),
+            "must be within 1..=10000",
+        )?;
+        finite_pos("dbus.depth_max_hz", self.dbus.depth_max_hz)?;
+        range(
+            "dbus.depth_max_hz",
+            self.dbus.depth_max_hz <= 60.0,
+            "must be at most 60 Hz",
+        )?;
+        if self.backend == Backend::Replay {
+            range(
+                "replay.recording",
+                self.replay.recording.is_some(),
+                "must be set for backend = \"replay\"",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shipped_default_file_equals_defaults() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tofproxd.toml");
+        let text = std::fs::read_to_string(&path).expect("config/tofproxd.toml is shipped");
+        let cfg = Config::parse(&text, &path).expect("shipped config parses");
+        let expected = Config {
+            backend: cfg.backend,
+            ..Config::default()
+        };
+        assert_eq!(cfg, expected, "config/tofproxd.toml must list the defaults");
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let err = Config::parse("[loop]\nrate_hzz = 3.0\n", Path::new("x.toml")).unwrap_err();
+        assert!(err.to_string().contains("rate_hzz"), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_names_key() {
+        let err = Config::parse("[exposure]\nmax_us = 20000.0\n", Path::new("x.toml")).unwrap_err();
+        assert!(err.to_string().contains("exposure.max_us"), "{err}");
+        let err = Config::parse(
+            "[proximity]\nnear_mm = 200\nfar_mm = 150\n",
+            Path::new("x.toml"),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("proximity.far_mm"), "{err}");
+        let err = Config::parse("backend = \"replay\"\n", Path::new("x.toml")).unwrap_err();
+        assert!(err.to_string().contains("replay.recording"), "{err}");
+    }
+
+    #[test]
+    fn bad_enum_rejected() {
+        assert!(Config::parse("backend = \"serial\"\n", Path::new("x.toml")).is_err());
+        assert!(Config::parse("[processing]\nmode = \"3phase\"\n", Path::new("x.toml")).is_err());
+    }
+}

@@ -1,0 +1,1050 @@
+//! The loop's brain, free of I/O timing: one [`Controller::step`] = one reading
+//! (thesis fig. 3.23 / listing 4.11: restart → flash → exposure → capture →
+//! process → stop), then the decisions for the next one — mode (2-phase ↔
+//! 4-phase on background light), exposure (auto, eye-safe bounded), rate
+//! (adaptive), and the sleep until the next cycle. The daemon thread and
+//! `tofprox soak` both drive it.
+
+use std::time::Duration;
+
+use ndarray::{ArrayView3, Axis, s};
+use tofprox_core::Algorithm;
+use tofprox_core::pipeline::{
+    Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
+};
+use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+
+use crate::config::{Config, Mode};
+use crate::energy::{EnergyMeter, cycle_energy};
+use crate::service::{DepthMessage, State, StatusUpdate};
+use crate::source::{CycleRequest, FrameSource, RawCycle, RowWindow, SourceError, SourceErrorKind};
+
+/// Full-frame calibrations per mode (cropped to the read-out window on use).
+#[derive(Debug, Clone, Default)]
+pub struct ModeCalibrations {
+    /// For 2-phase processing.
+    pub two_phase: Calibration,
+    /// For 4-phase processing.
+    pub four_phase: Calibration,
+}
+
+/// Errors building a controller.
+#[derive(Debug, thiserror::Error)]
+pub enum ControllerError {
+    /// A calibration does not fit its mode.
+    #[error(
+        "calibration for {mode} has a wiggling LUT for {lut}: refused (calibration is keyed to the mode)"
+    )]
+    CalibrationMode {
+        /// The mode it was given for.
+        mode: &'static str,
+        /// The LUT's algorithm.
+        lut: &'static str,
+    },
+    /// The core refused a parameter.
+    #[error("processing setup: {0}")]
+    Core(#[from] tofprox_core::CoreError),
+}
+
+fn algorithm(mode: Mode) -> Algorithm {
+    match mode {
+        Mode::TwoPhase => Algorithm::TwoPhase,
+        Mode::FourPhase => Algorithm::FourPhase,
+    }
+}
+
+fn algo_str(a: Algorithm) -> &'static str {
+    match a {
+        Algorithm::TwoPhase => "2phase",
+        Algorithm::FourPhase => "4phase",
+    }
+}
+
+/// Geometry a pipeline/detector was built for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Geometry {
+    rows: usize,
+    cols: usize,
+    origin: [usize; 2],
+    adc_bits: u8,
+    modulation_mhz_x1000: u64,
+}
+
+/// Result of one step.
+#[derive(Debug, Clone, Default)]
+pub struct StepOutcome {
+    /// Status fragment for the publisher.
+    pub update: StatusUpdate,
+    /// Depth frame (only when asked for).
+    pub depth: Option<DepthMessage>,
+    /// Sleep before the next cycle.
+    pub sleep: Duration,
+    /// The cycle failed with this error.
+    pub error: Option<SourceError>,
+    /// Near as published after this step.
+    pub near: bool,
+    /// Distance of this reading, if valid.
+    pub distance_mm: Option<u32>,
+    /// This step produced a valid reading.
+    pub valid: bool,
+    /// The source has no more data (replay end).
+    pub end_of_data: bool,
+    /// Mode used for this cycle's capture.
+    pub captured_mode: Option<Mode>,
+}
+
+/// The loop controller.
+pub struct Controller<S: FrameSource> {
+    cfg: Config,
+    source: S,
+    calib: ModeCalibrations,
+    pipe2: Option<(Geometry, Pipeline)>,
+    pipe4: Option<(Geometry, Pipeline)>,
+    detector: Option<(Geometry, NearFarDetector)>,
+    /// Current processing mode.
+    mode: Mode,
+    exposure_us: f64,
+    rate_hz: f64,
+    still_count: u32,
+    last_distance: Option<u32>,
+    cycles_since_probe: u32,
+    ambient_low_count: u32,
+    consecutive_failures: u32,
+    partial_ok: bool,
+    energy: EnergyMeter,
+    near: bool,
+    running: bool,
+    last_error: String,
+    state: State,
+    /// Last ambient indicator (LSB).
+    pub ambient_lsb: Option<f32>,
+}
+
+/// ROI in full-frame coordinates.
+pub fn full_roi(cfg: &Config, full_rows: usize, full_cols: usize) -> Roi {
+    match cfg.proximity.roi {
+        Some([row0, col0, rows, cols]) => Roi {
+            row0,
+            col0,
+            rows,
+            cols,
+        }
+        .resolve(full_rows, full_cols),
+        None => Roi::centered(full_rows, full_cols, 0.5),
+    }
+}
+
+impl<S: FrameSource> Controller<S> {
+    /// New controller. Calibrations are checked against their mode.
+    pub fn new(cfg: Config, source: S, calib: ModeCalibrations) -> Result<Self, ControllerError> {
+        for (mode, c) in [
+            (Algorithm::TwoPhase, &calib.two_phase),
+            (Algorithm::FourPhase, &calib.four_phase),
+        ] {
+            if let Some(w) = &c.wiggling
+                && w.algorithm != mode
+            {
+                return Err(ControllerError::CalibrationMode {
+                    mode: algo_str(mode),
+                    lut: algo_str(w.algorithm),
+                });
+            }
+        }
+        // Validate detector parameters once up front.
+        NearFarDetector::new(NearFarConfig {
+            near_mm: cfg.proximity.near_mm,
+            far_mm: cfg.proximity.far_mm,
+            roi: Roi::default(),
+            far_debounce: cfg.proximity.far_debounce,
+            min_valid_fraction: cfg.proximity.min_valid_fraction,
+        })?;
+        Ok(Self {
+            mode: cfg.processing.mode,
+            exposure_us: cfg.exposure.initial_us,
+            rate_hz: cfg.loop_.rate_hz,
+            energy: EnergyMeter::new(cfg.energy.clone()),
+            cfg,
+            source,
+            calib,
+            pipe2: None,
+            pipe4: None,
+            detector: None,
+            still_count: 0,
+            last_distance: None,
+            cycles_since_probe: 0,
+            ambient_low_count: 0,
+            consecutive_failures: 0,
+            partial_ok: true,
+            near: false,
+            running: false,
+            last_error: String::new(),
+            state: State::Off,
+            ambient_lsb: None,
+        })
+    }
+
+    /// The source.
+    pub fn source(&self) -> &S {
+        &self.source
+    }
+    /// The source, mutably.
+    pub fn source_mut(&mut self) -> &mut S {
+        &mut self.source
+    }
+    /// Current processing mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+    /// Current exposure (µs).
+    pub fn exposure_us(&self) -> f64 {
+        self.exposure_us
+    }
+    /// Current rate (Hz).
+    pub fn rate_hz(&self) -> f64 {
+        self.rate_hz
+    }
+    /// Published near.
+    pub fn near(&self) -> bool {
+        self.near
+    }
+    /// Energy meter.
+    pub fn energy(&self) -> &EnergyMeter {
+        &self.energy
+    }
+    /// Consecutive failed cycles.
+    pub fn consecutive_failures(&self) -> u32 {
+        self.consecutive_failures
+    }
+
+    /// Stop: sensor to reset (fully off), detector reset, state off.
+    pub fn stop(&mut self) -> StatusUpdate {
+        if let Err(e) = self.source.power_off() {
+            tracing::warn!("power off: {e}");
+        }
+        self.running = false;
+        self.near = false;
+        if let Some((_, d)) = &mut self.detector {
+            d.reset();
+        }
+        self.last_distance = None;
+        self.still_count = 0;
+        self.state = State::Off;
+        StatusUpdate {
+            state: Some(State::Off),
+            near: Some(false),
+            distance_mm: Some(0),
+            rate_hz: Some(0.0),
+            ..StatusUpdate::default()
+        }
+    }
+
+    fn request(&self, probe: bool) -> CycleRequest {
+        let (full_rows, full_cols) = self.source.full_size();
+        let mode = if probe { Mode::FourPhase } else { self.mode };
+        let row_window = if self.partial_ok
+            && self.cfg.readout.partial
+            && self.source.supports_row_window()
+            && full_rows > 0
+        {
+            let roi = full_roi(&self.cfg, full_rows, full_cols);
+            let m = usize::from(self.cfg.readout.margin_rows);
+            let align = usize::from(self.source.row_window_align().max(1));
+            let row0 = roi.row0.saturating_sub(m) / align * align;
+            let end = (roi.row0 + roi.rows + m).div_ceil(align) * align;
+            let end = if end > full_rows {
+                full_rows / align * align
+            } else {
+                end
+            };
+            match (u16::try_from(row0), u16::try_from(end.saturating_sub(row0))) {
+                (Ok(row0), Ok(rows)) if rows > 0 && usize::from(rows) < full_rows => {
+                    Some(RowWindow { row0, rows })
+                }
+                _ => None,
+            }
+        } else {
+            None
+        };
+        CycleRequest {
+            mode,
+            exposure_us: self.exposure_us,
+            row_window,
+        }
+    }
+
+    fn fail(&mut self, err: SourceError) -> StepOutcome {
+        self.consecutive_failures += 1;
+        let state = if err.kind() == SourceErrorKind::Disconnected
+            || self.consecutive_failures >= self.cfg.loop_.unavailable_after
+        {
+            State::Unavailable
+        } else {
+            State::Error
+        };
+        self.state = state;
+        self.last_error = err.to_string();
+        tracing::warn!(
+            "cycle failed ({} in a row): {err}",
+            self.consecutive_failures
+        );
+        // Near is not changed by a failed cycle: no information, and never a false near.
+        StepOutcome {
+            update: StatusUpdate {
+                state: Some(state),
+                last_error: Some(self.last_error.clone()),
+                has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
+                cycle: true,
+                error: true,
+                ..StatusUpdate::default()
+            },
+            sleep: Duration::from_millis(self.cfg.loop_.retry_ms),
+            end_of_data: err.kind() == SourceErrorKind::EndOfData,
+            near: self.near,
+            error: Some(err),
+            ..StepOutcome::default()
+        }
+    }
+
+    /// One cycle. `want_depth`: build a depth message.
+    pub fn step(&mut self, want_depth: bool) -> StepOutcome {
+        if !self.running {
+            self.running = true;
+            self.state = State::Starting;
+        }
+        let probe = self.cfg.ambient.enabled
+            && self.mode == Mode::TwoPhase
+            && self.source.supports_mode_switch()
+            && self.cycles_since_probe + 1 >= self.cfg.ambient.probe_every;
+        let req = self.request(probe);
+        let cycle = match self.source.cycle(&req) {
+            Ok(c) => c,
+            Err(e) => {
+                if e.kind() == SourceErrorKind::Unsupported && req.row_window.is_some() {
+                    tracing::warn!(
+                        "partial read-out refused by the source ({e}): reading full frames"
+                    );
+                    self.partial_ok = false;
+                }
+                return self.fail(e);
+            }
+        };
+        let captured = match check_cycle(&cycle) {
+            Ok(m) => m,
+            Err(e) => return self.fail(e),
+        };
+        if rails_only(&cycle) {
+            return self.rails_cycle(&cycle);
+        }
+        if probe || captured == Mode::FourPhase {
+            self.cycles_since_probe = 0;
+        } else {
+            self.cycles_since_probe += 1;
+        }
+        match self.process(&cycle, captured, want_depth) {
+            Ok(out) => out,
+            Err(e) => self.fail(e),
+        }
+    }
+
+    fn process(
+        &mut self,
+        cycle: &RawCycle,
+        captured: Mode,
+        want_depth: bool,
+    ) -> Result<StepOutcome, SourceError> {
+        let (_, rows, cols) = cycle.frames.dim();
+        let g = Geometry {
+            rows,
+            cols,
+            origin: cycle.roi_origin,
+            adc_bits: cycle.adc_bits,
+            modulation_mhz_x1000: (cycle.modulation_hz / 1e3).round().max(0.0) as u64,
+        };
+        // ROI in this frame's coordinates.
+        let roi_full = full_roi(&self.cfg, cycle.full_rows, cycle.full_cols);
+        let roi = Roi {
+            row0: roi_full.row0.saturating_sub(cycle.roi_origin[0]),
+            col0: roi_full.col0.saturating_sub(cycle.roi_origin[1]),
+            rows: roi_full.rows,
+            cols: roi_full.cols,
+        }
+        .resolve(rows, cols);
+        if roi.rows == 0 || roi.cols == 0 {
+            return Err(SourceError::new(
+                SourceErrorKind::Unsupported,
+                "the ROI lies outside the read-out window",
+            ));
+        }
+
+        // Background-light indicator from the data: the common-mode level of the four raw
+        // images above the dark level (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
+        let mut ambient_high = None;
+        if captured == Mode::FourPhase {
+            let dark = self.dark_level(g, roi);
+            let ind = common_mode_lsb(cycle.frames.view(), roi, dark);
+            self.ambient_lsb = Some(ind);
+            ambient_high = Some(ind);
+        }
+
+        let frames = cycle.frames.view();
+        let min_amp = self.cfg.processing.min_amplitude_lsb;
+        let mut discrepancy_mm: Option<f64> = None;
+        if captured == Mode::FourPhase && self.cfg.ambient.enabled {
+            // 2-vs-4-phase discrepancy over the ROI (first two images as 2-phase).
+            let d2 = {
+                let p = pipeline_slot(
+                    &mut self.pipe2,
+                    &self.calib.two_phase,
+                    min_amp,
+                    Mode::TwoPhase,
+                    g,
+                )?;
+                let f = p.process(frames.slice(s![0..2, .., ..])).map_err(|e| {
+                    SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
+                })?;
+                roi_median_mm(f, roi)
+            };
+            let p4 = pipeline_slot(
+                &mut self.pipe4,
+                &self.calib.four_phase,
+                min_amp,
+                Mode::FourPhase,
+                g,
+            )?;
+            let f4 = p4.process(frames).map_err(|e| {
+                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
+            })?;
+            if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
+                discrepancy_mm = Some((a - b).abs());
+            }
+        }
+        let proc_mode = captured;
+        let pipe = match proc_mode {
+            Mode::TwoPhase => pipeline_slot(
+                &mut self.pipe2,
+                &self.calib.two_phase,
+                min_amp,
+                Mode::TwoPhase,
+                g,
+            )?,
+            Mode::FourPhase => pipeline_slot(
+                &mut self.pipe4,
+                &self.calib.four_phase,
+                min_amp,
+                Mode::FourPhase,
+                g,
+            )?,
+        };
+        let frame = if proc_mode == Mode::FourPhase && self.cfg.ambient.enabled {
+            pipe.frame()
+        } else {
+            pipe.process(frames).map_err(|e| {
+                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
+            })?
+        };
+        let stats = roi_stats(frame, roi);
+        let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
+
+        // Detector (rebuilt if the geometry changed; starts far).
+        let det_ok = self.detector.as_ref().is_some_and(|(geo, _)| *geo == g);
+        if !det_ok {
+            let det = NearFarDetector::new(NearFarConfig {
+                near_mm: self.cfg.proximity.near_mm,
+                far_mm: self.cfg.proximity.far_mm,
+                roi,
+                far_debounce: self.cfg.proximity.far_debounce,
+                min_valid_fraction: self.cfg.proximity.min_valid_fraction,
+            })
+            .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
+            self.detector = Some((g, det));
+        }
+        let reading = match &mut self.detector {
+            Some((_, d)) => d.update(frame),
+            None => return Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
+        };
+        let valid = reading.distance_mm.is_some() || reading.near;
+
+        // Mode switching with hysteresis.
+        let mut new_mode = self.mode;
+        if self.cfg.ambient.enabled && self.source.supports_mode_switch() {
+            let disc_high =
+                discrepancy_mm.is_some_and(|d| d > f64::from(self.cfg.ambient.discrepancy_mm));
+            if let Some(ind) = ambient_high {
+                let high = ind > self.cfg.ambient.high_lsb || disc_high;
+                let low = ind < self.cfg.ambient.low_lsb && !disc_high;
+                match self.mode {
+                    Mode::TwoPhase if high => {
+                        tracing::info!(
+                            "background light high ({ind:.0} LSB): switching to 4-phase"
+                        );
+                        new_mode = Mode::FourPhase;
+                        self.ambient_low_count = 0;
+                    }
+                    Mode::FourPhase if self.cfg.processing.mode == Mode::TwoPhase => {
+                        if low {
+                            self.ambient_low_count += 1;
+                            if self.ambient_low_count >= self.cfg.ambient.low_readings {
+                                tracing::info!("background light low again: back to 2-phase");
+                                new_mode = Mode::TwoPhase;
+                                self.ambient_low_count = 0;
+                            }
+                        } else {
+                            self.ambient_low_count = 0;
+                        }
+                    }
+                    _ => {}
+                }
+            }
+        }
+        self.mode = new_mode;
+
+        // Auto-exposure within the eye-safe limits.
+        if self.cfg.exposure.auto {
+            let e = &self.cfg.exposure;
+            if stats.saturated_fraction > e.saturated_fraction {
+                self.exposure_us = (self.exposure_us / e.step).max(e.min_us);
+            } else if stats.low_amplitude_fraction > e.low_amplitude_fraction {
+                self.exposure_us = (self.exposure_us * e.step).min(e.max_us);
+            }
+            self.exposure_us = self.exposure_us.clamp(e.min_us, e.max_us);
+        }
+
+        // Adaptive rate.
+        let l = &self.cfg.loop_;
+        let period_s = 1.0 / self.rate_hz;
+        let new_rate = if reading.near {
+            self.still_count = 0;
+            l.fast_rate_hz
+        } else if let (Some(d), Some(prev)) = (reading.distance_mm, self.last_distance) {
+            let speed = (f64::from(prev) - f64::from(d)) / period_s; // + = approaching
+            if speed > l.approach_mm_per_s {
+                self.still_count = 0;
+                l.fast_rate_hz
+            } else if d.abs_diff(prev) <= l.still_tolerance_mm {
+                self.still_count = self.still_count.saturating_add(1);
+                if self.still_count >= l.still_readings {
+                    l.slow_rate_hz
+                } else {
+                    l.rate_hz
+                }
+            } else {
+                self.still_count = 0;
+                l.rate_hz
+            }
+        } else {
+            l.rate_hz
+        };
+        self.rate_hz = new_rate.clamp(l.slow_rate_hz, l.fast_rate_hz);
+        if reading.distance_mm.is_some() {
+            self.last_distance = reading.distance_mm;
+        }
+
+        // Energy of this cycle + the sleep that follows (sensor in reset).
+        let active = cycle.timings.active();
+        let sleep =
+            if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
+                Duration::ZERO
+            } else {
+                Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
+            };
+        let rows_fraction = if cycle.full_rows > 0 {
+            rows as f64 / cycle.full_rows as f64
+        } else {
+            1.0
+        };
+        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(
+            &self.cfg.energy,
+            &cycle.timings,
+            k,
+            cycle.exposure_us,
+            rows_fraction,
+        );
+        self.energy.record(&e, active, sleep);
+
+        self.consecutive_failures = 0;
+        let was_error = !self.last_error.is_empty();
+        self.last_error.clear();
+        if valid {
+            self.near = reading.near;
+            self.state = State::Running;
+        }
+        Ok(StepOutcome {
+            update: StatusUpdate {
+                state: Some(self.state),
+                near: valid.then_some(self.near),
+                distance_mm: Some(reading.distance_mm.unwrap_or(0)),
+                mode: Some(self.mode),
+                rate_hz: Some(self.rate_hz),
+                power_mw: Some(self.energy.average_mw()),
+                last_error: was_error.then(String::new),
+                exposure_us: Some(self.exposure_us),
+                has_sensor: Some(true),
+                valid_reading: valid,
+                cycle: true,
+                error: false,
+            },
+            depth,
+            sleep,
+            error: None,
+            near: self.near,
+            distance_mm: reading.distance_mm,
+            valid,
+            end_of_data: false,
+            captured_mode: Some(captured),
+        })
+    }
+
+    /// Every code of every raw image on a rail: either a dead/garbage frame or a target so
+    /// close/bright that nothing is left. Such a frame carries no depth: it never reaches the
+    /// detector (it would read as saturated = near), Near is left alone, and the exposure is
+    /// shortened so a real target becomes measurable in the next cycle.
+    fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
+        if self.cfg.exposure.auto {
+            let e = &self.cfg.exposure;
+            self.exposure_us = (self.exposure_us / e.step).clamp(e.min_us, e.max_us);
+        }
+        let active = cycle.timings.active();
+        let sleep = Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active);
+        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(&self.cfg.energy, &cycle.timings, k, cycle.exposure_us, 1.0);
+        self.energy.record(&e, active, sleep);
+        tracing::debug!("frame without usable codes (all on the rails): no reading");
+        StepOutcome {
+            update: StatusUpdate {
+                exposure_us: Some(self.exposure_us),
+                power_mw: Some(self.energy.average_mw()),
+                cycle: true,
+                ..StatusUpdate::default()
+            },
+            sleep,
+            near: self.near,
+            ..StepOutcome::default()
+        }
+    }
+
+    fn dark_level(&self, g: Geometry, roi: Roi) -> f32 {
+        let mid = (1u32 << (g.adc_bits.clamp(1, 16) - 1)) as f32;
+        match &self.calib.four_phase.offset {
+            Some(o) => {
+                let r0 = g.origin[0] + roi.row0;
+                let c0 = g.origin[1] + roi.col0;
+                let v = o.dark_lsb.slice(s![
+                    r0.min(o.dark_lsb.nrows())..(r0 + roi.rows).min(o.dark_lsb.nrows()),
+                    c0.min(o.dark_lsb.ncols())..(c0 + roi.cols).min(o.dark_lsb.ncols())
+                ]);
+                if v.is_empty() {
+                    mid
+                } else {
+                    v.iter().sum::<f32>() / v.len() as f32
+                }
+            }
+            None => mid,
+        }
+    }
+}
+
+/// Validate a cycle's shape and reject dead frames (every code of every raw image on a
+/// rail): such a frame never reaches the detector (it would read as saturated = near).
+fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
+    let (k, rows, cols) = c.frames.dim();
+    let bad = |m: String| Err(SourceError::new(SourceErrorKind::CorruptFrame, m));
+    if rows == 0 || cols == 0 {
+        return bad("empty frame".into());
+    }
+    if c.phases_deg.len() != k {
+        return bad(format!("{k} raw images but {} phases", c.phases_deg.len()));
+    }
+    if !((1..=16).contains(&c.adc_bits) && c.modulation_hz.is_finite() && c.modulation_hz > 0.0) {
+        return bad(format!(
+            "bad sensor info: {} bits, {} Hz",
+            c.adc_bits, c.modulation_hz
+        ));
+    }
+    let close = |a: f64, b: f64| (a - b).abs() < 0.5;
+    let mode = if k >= 4
+        && close(c.phases_deg[0], 0.0)
+        && close(c.phases_deg[1], 90.0)
+        && close(c.phases_deg[2], 180.0)
+        && close(c.phases_deg[3], 270.0)
+        && k == 4
+    {
+        Mode::FourPhase
+    } else if k == 2 && close(c.phases_deg[0], 0.0) && close(c.phases_deg[1], 90.0) {
+        Mode::TwoPhase
+    } else {
+        return bad(format!("unsupported phases {:?}", c.phases_deg));
+    };
+    let max = ((1u32 << c.adc_bits) - 1) as u16;
+    if c.frames.iter().any(|&v| v > max) {
+        return bad(format!("code above the {}-bit range", c.adc_bits));
+    }
+    Ok(mode)
+}
+
+fn pipeline_slot<'a>(
+    slot: &'a mut Option<(Geometry, Pipeline)>,
+    full: &Calibration,
+    min_amplitude_lsb: f32,
+    mode: Mode,
+    g: Geometry,
+) -> Result<&'a mut Pipeline, SourceError> {
+    if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
+        let calib = crop_calibration(full, g)
+            .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?;
+        let pcfg = PipelineConfig {
+            algorithm: algorithm(mode),
+            modulation_hz: g.modulation_mhz_x1000 as f64 * 1e3,
+            adc_bits: g.adc_bits,
+            min_amplitude_lsb,
+        };
+        let p = Pipeline::new(g.rows, g.cols, pcfg, calib).map_err(|e| {
+            SourceError::new(SourceErrorKind::Unsupported, format!("pipeline: {e}"))
+        })?;
+        *slot = Some((g, p));
+    }
+    match slot {
+        Some((_, p)) => Ok(p),
+        None => Err(SourceError::new(SourceErrorKind::Other, "pipeline missing")),
+    }
+}
+
+/// Whether every code of every raw image is 0 or full scale.
+fn rails_only(c: &RawCycle) -> bool {
+    let max = ((1u32 << c.adc_bits.clamp(1, 16)) - 1) as u16;
+    c.frames.iter().all(|&v| v == 0 || v >= max)
+}
+
+fn crop_calibration(full: &Calibration, g: Geometry) -> Result<Calibration, String> {
+    let [r0, c0] = g.origin;
+    let crop = |a: &ndarray::Array2<f32>, what: &str| -> Result<ndarray::Array2<f32>, String> {
+        if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
+            return Ok(a.clone());
+        }
+        if r0 + g.rows > a.nrows() || c0 + g.cols > a.ncols() {
+            return Err(format!(
+                "{what} calibration is {}x{}, frame window {}x{} at {:?} does not fit",
+                a.nrows(),
+                a.ncols(),
+                g.rows,
+                g.cols,
+                g.origin
+            ));
+        }
+        Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
+    };
+    let mut out = full.clone();
+    if let Some(o) = &mut out.offset {
+        o.dark_lsb = crop(&o.dark_lsb, "offset")?;
+    }
+    if let Some(f) = &mut out.fppn {
+        f.phase_offset_rad = crop(&f.phase_offset_rad, "fppn")?;
+    }
+    Ok(out)
+}
+
+fn common_mode_lsb(frames: ArrayView3<'_, u16>, roi: Roi, dark: f32) -> f32 {
+    let mut sum = 0.0f64;
+    let mut n = 0usize;
+    for img in frames.axis_iter(Axis(0)).take(4) {
+        let v = img.slice(s![
+            roi.row0..roi.row0 + roi.rows,
+            roi.col0..roi.col0 + roi.cols
+        ]);
+        for &x in v.iter() {
+            sum += f64::from(x);
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64) as f32 - dark
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct RoiStats {
+    saturated_fraction: f32,
+    low_amplitude_fraction: f32,
+}
+
+fn roi_stats(f: &DepthFrame, roi: Roi) -> RoiStats {
+    let v = f.flags.slice(s![
+        roi.row0..roi.row0 + roi.rows,
+        roi.col0..roi.col0 + roi.cols
+    ]);
+    let n = v.len().max(1) as f32;
+    let sat = v.iter().filter(|&&x| x & FLAG_SATURATED != 0).count() as f32;
+    let low = v
+        .iter()
+        .filter(|&&x| x & FLAG_LOW_AMPLITUDE != 0 && x & FLAG_SATURATED == 0)
+        .count() as f32;
+    RoiStats {
+        saturated_fraction: sat / n,
+        low_amplitude_fraction: low / n,
+    }
+}
+
+fn roi_median_mm(f: &DepthFrame, roi: Roi) -> Option<f64> {
+    let v = f.depth_mm.slice(s![
+        roi.row0..roi.row0 + roi.rows,
+        roi.col0..roi.col0 + roi.cols
+    ]);
+    let mut vals: Vec<u16> = v.iter().copied().filter(|&d| d != 0).collect();
+    if vals.is_empty() {
+        return None;
+    }
+    let mid = vals.len() / 2;
+    let (_, m, _) = vals.select_nth_unstable(mid);
+    Some(f64::from(*m))
+}
+
+fn depth_message(f: &DepthFrame, timestamp_ns: u64) -> DepthMessage {
+    let (rows, cols) = f.dim();
+    let mut depth_le = Vec::with_capacity(rows * cols * 2);
+    for &d in f.depth_mm.iter() {
+        depth_le.extend_from_slice(&d.to_le_bytes());
+    }
+    let mut amplitude_le = Vec::with_capacity(rows * cols * 2);
+    for &a in f.amplitude_lsb.iter() {
+        let a = if a.is_finite() {
+            a.round().clamp(0.0, 65535.0) as u16
+        } else {
+            0
+        };
+        amplitude_le.extend_from_slice(&a.to_le_bytes());
+    }
+    DepthMessage {
+        timestamp_ns,
+        width: u16::try_from(cols).unwrap_or(u16::MAX),
+        height: u16::try_from(rows).unwrap_or(u16::MAX),
+        depth_le,
+        amplitude_le,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::source::{ScriptedSource, Step};
+
+    fn target(mm: f64) -> Step {
+        Step::Target {
+            distance_mm: mm,
+            amplitude_lsb: 400.0,
+            background_lsb: 0.0,
+        }
+    }
+
+    fn cfg() -> Config {
+        let mut c = Config::default();
+        c.ambient.probe_every = 1000;
+        c
+    }
+
+    fn ctl(steps: Vec<Step>) -> Controller<ScriptedSource> {
+        Controller::new(
+            cfg(),
+            ScriptedSource::new(24, 32, steps),
+            ModeCalibrations::default(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn near_at_once_far_after_debounce() {
+        let mut c = ctl(vec![
+            target(800.0),
+            target(50.0),
+            target(800.0),
+            target(800.0),
+            target(800.0),
+        ]);
+        let o = c.step(false);
+        assert!(o.valid && !o.near, "{o:?}");
+        assert!(
+            o.distance_mm.is_some_and(|d| d.abs_diff(800) < 30),
+            "{:?}",
+            o.distance_mm
+        );
+        assert!(c.step(false).near, "near at once");
+        assert!(c.step(false).near, "debounce 1");
+        assert!(c.step(false).near, "debounce 2");
+        assert!(!c.step(false).near, "far after 3");
+    }
+
+    #[test]
+    fn failures_never_publish_near_and_recover() {
+        let mut c = ctl(vec![
+            target(800.0),
+            Step::Fail(SourceErrorKind::Timeout),
+            Step::Garbage,
+            Step::Fail(SourceErrorKind::Disconnected),
+            target(800.0),
+        ]);
+        assert!(!c.step(false).near);
+        let o = c.step(false);
+        assert_eq!(o.update.state, Some(State::Error));
+        assert!(
+            o.update
+                .last_error
+                .as_deref()
+                .is_some_and(|e| e.contains("timeout"))
+        );
+        assert_eq!(o.update.near, None, "a failed cycle does not touch Near");
+        let o = c.step(false);
+        assert!(!o.valid && o.update.near.is_none(), "{o:?}");
+        assert!(!o.near, "garbage (all-zero) frame must not read as near");
+        let o = c.step(false);
+        assert_eq!(o.update.state, Some(State::Unavailable));
+        let o = c.step(false);
+        assert_eq!(o.update.state, Some(State::Running));
+        assert_eq!(
+            o.update.last_error.as_deref(),
+            Some(""),
+            "error cleared on recovery"
+        );
+    }
+
+    #[test]
+    fn partial_readout_requests_a_window_around_the_roi() {
+        let mut c = ctl(vec![target(800.0)]);
+        c.step(false);
+        let w = c.source().requests[0].row_window.expect("window requested");
+        // central half of 24 rows = rows 6..18, margin 2 → 4..20
+        assert_eq!((w.row0, w.rows), (4, 16));
+        let mut c = Controller::new(
+            cfg(),
+            ScriptedSource::new(24, 32, vec![target(800.0)]).without_row_window(),
+            ModeCalibrations::default(),
+        )
+        .unwrap();
+        assert!(c.step(false).valid);
+        assert_eq!(c.source().requests[0].row_window, None);
+    }
+
+    #[test]
+    fn adaptive_rate_fast_when_approaching_slow_when_still() {
+        let mut steps = vec![target(900.0), target(700.0), target(500.0)];
+        steps.extend(std::iter::repeat_n(target(900.0), 14));
+        let mut c = ctl(steps);
+        c.step(false);
+        assert_eq!(c.rate_hz(), 2.0);
+        c.step(false);
+        assert_eq!(c.rate_hz(), 10.0, "approaching 200 mm in 0.5 s");
+        c.step(false);
+        for _ in 0..13 {
+            c.step(false);
+        }
+        assert_eq!(c.rate_hz(), 1.0, "far and still → slow");
+    }
+
+    #[test]
+    fn background_light_switches_to_4phase_and_back() {
+        let mut cfg = cfg();
+        cfg.ambient.probe_every = 3;
+        cfg.ambient.low_readings = 2;
+        let bright = Step::Target {
+            distance_mm: 800.0,
+            amplitude_lsb: 300.0,
+            background_lsb: 200.0,
+        };
+        let mut steps = vec![bright.clone(); 6];
+        steps.extend(vec![target(800.0); 4]);
+        let mut c = Controller::new(
+            cfg,
+            ScriptedSource::new(24, 32, steps),
+            ModeCalibrations::default(),
+        )
+        .unwrap();
+        c.step(false);
+        c.step(false);
+        assert_eq!(c.mode(), Mode::TwoPhase);
+        let o = c.step(false);
+        assert_eq!(o.captured_mode, Some(Mode::FourPhase), "probe");
+        assert_eq!(c.mode(), Mode::FourPhase, "ambient {:?}", c.ambient_lsb);
+        for _ in 0..3 {
+            c.step(false);
+            assert_eq!(c.mode(), Mode::FourPhase);
+        }
+        c.step(false);
+        assert_eq!(c.mode(), Mode::FourPhase, "hysteresis: 1 low reading");
+        c.step(false);
+        assert_eq!(c.mode(), Mode::TwoPhase, "2 low readings → back");
+        c.step(false);
+        assert_eq!(
+            c.source().requests.last().map(|r| r.mode),
+            Some(Mode::TwoPhase)
+        );
+    }
+
+    #[test]
+    fn auto_exposure_bounded() {
+        let weak = Step::Target {
+            distance_mm: 800.0,
+            amplitude_lsb: 2.0,
+            background_lsb: 0.0,
+        };
+        let mut c = ctl(vec![weak; 20]);
+        for _ in 0..20 {
+            c.step(false);
+        }
+        assert_eq!(c.exposure_us(), 500.0, "lengthened up to the eye-safe max");
+        let hot = Step::Target {
+            distance_mm: 800.0,
+            amplitude_lsb: 4000.0,
+            background_lsb: 0.0,
+        };
+        c.source_mut().push(vec![hot; 20]);
+        for _ in 0..20 {
+            c.step(false);
+        }
+        // amplitude scales with exposure: 4000 LSB × t/100 µs fits the 12-bit range below ~51 µs
+        let t = c.exposure_us();
+        assert!(
+            (20.0..51.0).contains(&t),
+            "shortened until unsaturated, never below min: {t}"
+        );
+    }
+
+    #[test]
+    fn calibration_keyed_to_mode() {
+        let lut = tofprox_core::calib::WigglingLut {
+            algorithm: Algorithm::FourPhase,
+            correction_rad: ndarray::Array1::zeros(16),
+        };
+        let calib = ModeCalibrations {
+            two_phase: Calibration {
+                wiggling: Some(lut),
+                ..Calibration::default()
+            },
+            ..ModeCalibrations::default()
+        };
+        let err = Controller::new(cfg(), ScriptedSource::new(4, 4, vec![]), calib)
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("refused"), "{err}");
+    }
+
+    #[test]
+    fn stop_powers_off() {
+        let mut c = ctl(vec![target(50.0)]);
+        assert!(c.step(false).near);
+        let u = c.stop();
+        assert_eq!(u.state, Some(State::Off));
+        assert_eq!(u.near, Some(false));
+        assert_eq!(c.source().power_offs, 1);
+    }
+
+    #[test]
+    fn depth_message_only_when_wanted() {
+        let mut c = ctl(vec![target(800.0)]);
+        assert!(c.step(false).depth.is_none());
+        let d = c.step(true).depth.expect("depth");
+        assert_eq!(
+            d.depth_le.len(),
+            usize::from(d.width) * usize::from(d.height) * 2
+        );
+    }
+}

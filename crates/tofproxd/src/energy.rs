@@ -1,0 +1,363 @@
+//! Energy model of the low-power loop (thesis 3.1.2, table 3.1; 3.5.3; 5.x "1 mW").
+//!
+//! One reading costs: start-up after reset release + loading the configuration
+//! from SPI flash (+ rarely writing it) + exposing K raw images + reading them
+//! out; between readings the sensor is held in reset (or idles powered when the
+//! loop does not reset it). Durations come from the driver's measured state
+//! timings of every cycle; powers/energies from [`EnergyConfig`].
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use crate::config::EnergyConfig;
+
+/// Durations of one cycle's states (reported by the frame source).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CycleTimings {
+    /// Reset release until the sensor answers.
+    pub startup: Duration,
+    /// Minimum configuration + load from flash.
+    pub config_load: Duration,
+    /// Writing the flash (first run / corrupted flash only).
+    pub flash_write: Duration,
+    /// Exposure of all raw images (wall time).
+    pub exposure: Duration,
+    /// Read-out and transfer of all raw images.
+    pub readout: Duration,
+}
+
+impl CycleTimings {
+    /// Sum of all active states.
+    pub fn active(&self) -> Duration {
+        self.startup + self.config_load + self.flash_write + self.exposure + self.readout
+    }
+}
+
+/// Energy of one reading, split by state (mJ).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct CycleEnergy {
+    /// Start-up (mJ).
+    pub startup_mj: f64,
+    /// Flash load + write (mJ).
+    pub flash_mj: f64,
+    /// Capture: illuminated exposure (mJ).
+    pub capture_mj: f64,
+    /// Read-out (mJ).
+    pub readout_mj: f64,
+}
+
+impl CycleEnergy {
+    /// Total (mJ).
+    pub fn total_mj(&self) -> f64 {
+        self.startup_mj + self.flash_mj + self.capture_mj + self.readout_mj
+    }
+}
+
+/// Energy of one cycle from its state durations.
+/// `raw_images` = K, `exposure_us` = per raw image; `rows_fraction` scales the
+/// read-out energy for a partial read-out (fewer active ADC rows, less MIPI data, thesis 3.1.2).
+pub fn cycle_energy(
+    cfg: &EnergyConfig,
+    t: &CycleTimings,
+    raw_images: u32,
+    exposure_us: f64,
+    rows_fraction: f64,
+) -> CycleEnergy {
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    let k = f64::from(raw_images);
+    CycleEnergy {
+        // mW × ms = µJ → /1000 mJ
+        startup_mj: cfg.startup_mw * ms(t.startup) / 1e3,
+        flash_mj: (cfg.flash_load_mw * ms(t.config_load) + cfg.flash_write_mw * ms(t.flash_write))
+            / 1e3,
+        // table 3.1: capture energy ∝ images × exposure
+        capture_mj: cfg.capture_mw * k * exposure_us.max(0.0) / 1e6,
+        // table 3.1: read-out energy ∝ number of raw images (linear, 3.1.2)
+        readout_mj: cfg.readout_mj_per_image * k * rows_fraction.clamp(0.0, 1.0),
+    }
+}
+
+/// Running average power over the last `average_cycles` cycles (each cycle
+/// including the sleep after it).
+#[derive(Debug, Clone)]
+pub struct EnergyMeter {
+    cfg: EnergyConfig,
+    window: VecDeque<(f64 /*mJ*/, f64 /*s*/)>,
+    total_mj: f64,
+    total_s: f64,
+    cycles: u64,
+}
+
+impl EnergyMeter {
+    /// New meter.
+    pub fn new(cfg: EnergyConfig) -> Self {
+        Self {
+            window: VecDeque::with_capacity(cfg.average_cycles as usize + 1),
+            cfg,
+            total_mj: 0.0,
+            total_s: 0.0,
+            cycles: 0,
+        }
+    }
+
+    /// Account one cycle and the off (reset-low) time that followed it.
+    pub fn record(&mut self, energy: &CycleEnergy, active: Duration, off: Duration) {
+        let off_s = off.as_secs_f64();
+        let e = energy.total_mj() + self.cfg.off_mw * off_s; // mW × s = mJ
+        let t = active.as_secs_f64() + off_s;
+        self.window.push_back((e, t));
+        while self.window.len() > self.cfg.average_cycles as usize {
+            self.window.pop_front();
+        }
+        self.total_mj += e;
+        self.total_s += t;
+        self.cycles += 1;
+    }
+
+    /// Average power over the window (mW); 0 before the first cycle.
+    pub fn average_mw(&self) -> f64 {
+        let (e, t) = self
+            .window
+            .iter()
+            .fold((0.0, 0.0), |(e, t), (de, dt)| (e + de, t + dt));
+        if t > 0.0 { e / t } else { 0.0 }
+    }
+
+    /// Total energy since start (mJ).
+    pub fn total_mj(&self) -> f64 {
+        self.total_mj
+    }
+
+    /// Cycles accounted.
+    pub fn cycles(&self) -> u64 {
+        self.cycles
+    }
+}
+
+/// Nominal durations for the modelled (not measured) figure of `tofprox power`.
+#[derive(Debug, Clone, Copy)]
+pub struct Nominal {
+    /// Start-up after reset (ms).
+    pub startup_ms: f64,
+    /// Config load from flash (ms).
+    pub flash_load_ms: f64,
+    /// Read-out time per raw image (ms).
+    pub readout_ms_per_image: f64,
+}
+
+impl Default for Nominal {
+    fn default() -> Self {
+        // Assumptions (documented in docs/daemon.md): IRS1645-class start-up ≈ 1 ms,
+        // flash configuration load ≈ 10 ms over SPI, ~2.5 ms read-out per raw image.
+        Self {
+            startup_ms: 1.0,
+            flash_load_ms: 10.0,
+            readout_ms_per_image: 2.5,
+        }
+    }
+}
+
+/// Modelled average power (mW) of the loop at `rate_hz` with K raw images.
+/// `reset_between` = the low-power loop (sensor off between readings, 3.5.3);
+/// `false` = sensor idling powered between readings (table 3.1's setting).
+pub fn modelled_average_mw(
+    cfg: &EnergyConfig,
+    nominal: &Nominal,
+    raw_images: u32,
+    exposure_us: f64,
+    rate_hz: f64,
+    reset_between: bool,
+) -> f64 {
+    let k = f64::from(raw_images);
+    let period_s = 1.0 / rate_hz;
+    let t = CycleTimings {
+        startup: if reset_between {
+            Duration::from_secs_f64(nominal.startup_ms / 1e3)
+        } else {
+            Duration::ZERO
+        },
+        config_load: if reset_between {
+            Duration::from_secs_f64(nominal.flash_load_ms / 1e3)
+        } else {
+            Duration::ZERO
+        },
+        flash_write: Duration::ZERO,
+        exposure: Duration::from_secs_f64(k * exposure_us / 1e6),
+        readout: Duration::from_secs_f64(k * nominal.readout_ms_per_image / 1e3),
+    };
+    let e = cycle_energy(cfg, &t, raw_images, exposure_us, 1.0).total_mj();
+    let rest_s = (period_s - t.active().as_secs_f64()).max(0.0);
+    let rest_mw = if reset_between {
+        cfg.off_mw
+    } else {
+        cfg.idle_mw
+    };
+    (e + rest_mw * rest_s) / period_s
+}
+
+/// A commercial proximity sensor of thesis table 2.1.
+#[derive(Debug, Clone, Copy)]
+pub struct ReferenceSensor {
+    /// Model name.
+    pub model: &'static str,
+    /// Field of view (degrees), if given.
+    pub fov_deg: Option<f64>,
+    /// Power (mW) at `period_ms`.
+    pub power_mw: f64,
+    /// Refresh period of that figure (ms).
+    pub period_ms: f64,
+    /// Range (m).
+    pub range_m: f64,
+    /// Minimum read-out period (ms).
+    pub readout_ms: f64,
+}
+
+impl ReferenceSensor {
+    /// Energy per reading (mJ) = power × period.
+    pub fn energy_per_reading_mj(&self) -> f64 {
+        self.power_mw * self.period_ms / 1e3
+    }
+}
+
+/// Thesis table 2.1.
+pub const TABLE_2_1: &[ReferenceSensor] = &[
+    ReferenceSensor {
+        model: "Broadcom APDS-9160",
+        fov_deg: Some(30.0),
+        power_mw: 1.54,
+        period_ms: 100.0,
+        range_m: 0.07,
+        readout_ms: 6.25,
+    },
+    ReferenceSensor {
+        model: "Infineon PALS-2",
+        fov_deg: None,
+        power_mw: 0.8,
+        period_ms: 125.0,
+        range_m: 0.3,
+        readout_ms: 4.0,
+    },
+    ReferenceSensor {
+        model: "Vishay VCNL4035x01",
+        fov_deg: Some(30.0),
+        power_mw: 0.5,
+        period_ms: 7.81,
+        range_m: 0.2,
+        readout_ms: 7.81,
+    },
+    ReferenceSensor {
+        model: "ST VL53L1X",
+        fov_deg: Some(27.0),
+        power_mw: 44.8,
+        period_ms: 33.0,
+        range_m: 4.0,
+        readout_ms: 33.0,
+    },
+    ReferenceSensor {
+        model: "ST VL6180X",
+        fov_deg: None,
+        power_mw: 4.76,
+        period_ms: 100.0,
+        range_m: 0.1,
+        readout_ms: 15.0,
+    },
+    ReferenceSensor {
+        model: "OnSemi NOA3301",
+        fov_deg: Some(30.0),
+        power_mw: 0.495,
+        period_ms: 100.0,
+        range_m: 0.1,
+        readout_ms: 5.0,
+    },
+    ReferenceSensor {
+        model: "ams TMF8701",
+        fov_deg: Some(21.0),
+        power_mw: 3.102,
+        period_ms: 100.0,
+        range_m: 0.6,
+        readout_ms: 16.0,
+    },
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The model without reset between readings reproduces table 3.1's overall column
+    /// (mode 2 = 2 raw images, idle powered). Read-out time is not separately given
+    /// in the table, so it only shifts the idle share slightly.
+    #[test]
+    fn reproduces_table_3_1_powered_idle() {
+        let cfg = EnergyConfig::default();
+        let nominal = Nominal::default();
+        // (raw images, fps, t_exp ms, overall mW from table 3.1)
+        let rows = [
+            (2u32, 1.0, 0.1, 10.66),
+            (2, 3.0, 0.1, 12.12),
+            (2, 1.0, 0.5, 10.88),
+            (2, 3.0, 1.0, 13.637),
+        ];
+        for (k, fps, texp_ms, want) in rows {
+            let got = modelled_average_mw(&cfg, &nominal, k, texp_ms * 1e3, fps, false);
+            assert!(
+                (got - want).abs() / want < 0.02,
+                "k={k} fps={fps} texp={texp_ms}: {got} vs {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn low_power_loop_is_about_one_milliwatt() {
+        // thesis 5.x: "the overall power-consumption reduces to 1mW" (without start-up/flash);
+        // with our documented start-up and flash costs it stays in the low-mW range.
+        let cfg = EnergyConfig {
+            startup_mw: 0.0,
+            flash_load_mw: 0.0,
+            ..EnergyConfig::default()
+        };
+        let got = modelled_average_mw(&cfg, &Nominal::default(), 2, 100.0, 1.0, true);
+        assert!((0.7..1.0).contains(&got), "{got}");
+        let with_costs = modelled_average_mw(
+            &EnergyConfig::default(),
+            &Nominal::default(),
+            2,
+            100.0,
+            1.0,
+            true,
+        );
+        assert!(with_costs > got && with_costs < 2.0, "{with_costs}");
+    }
+
+    #[test]
+    fn meter_averages_window() {
+        let cfg = EnergyConfig {
+            average_cycles: 2,
+            off_mw: 0.0,
+            ..EnergyConfig::default()
+        };
+        let mut m = EnergyMeter::new(cfg);
+        let e = CycleEnergy {
+            readout_mj: 1.0,
+            ..CycleEnergy::default()
+        };
+        m.record(&e, Duration::from_millis(0), Duration::from_secs(1));
+        assert!((m.average_mw() - 1.0).abs() < 1e-9);
+        let e2 = CycleEnergy {
+            readout_mj: 3.0,
+            ..CycleEnergy::default()
+        };
+        m.record(&e2, Duration::ZERO, Duration::from_secs(1));
+        m.record(&e2, Duration::ZERO, Duration::from_secs(1));
+        assert!(
+            (m.average_mw() - 3.0).abs() < 1e-9,
+            "window drops the first cycle"
+        );
+        assert_eq!(m.cycles(), 3);
+    }
+
+    #[test]
+    fn table_2_1_energy_per_reading() {
+        let apds = TABLE_2_1[0];
+        assert!((apds.energy_per_reading_mj() - 0.154).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,330 @@
+//! Running the daemon: bus connection and names, the loop thread (blocking
+//! bridge calls never run on the tokio runtime), the publisher, client
+//! tracking, sd-notify (READY/STATUS/WATCHDOG) and SIGTERM handling.
+
+use std::sync::Arc;
+use std::sync::mpsc as stdmpsc;
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+use zbus::Connection;
+use zbus::fdo::{RequestNameFlags, RequestNameReply};
+
+use crate::config::Config;
+use crate::controller::Controller;
+use crate::service::{
+    self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, Demand, Event, Hub, OBJECT_PATH,
+    Proximity, SensorProxyCompass, SensorProxyCompat, State, StatusUpdate,
+};
+use crate::source::FrameSource;
+
+/// Which bus to use.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BusChoice {
+    /// The session bus.
+    Session,
+    /// The system bus (default for the service).
+    System,
+    /// An explicit D-Bus address (`unix:path=…`).
+    Address(String),
+}
+
+impl std::str::FromStr for BusChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "session" => BusChoice::Session,
+            "system" => BusChoice::System,
+            a if a.contains(':') => BusChoice::Address(a.to_string()),
+            other => {
+                return Err(format!(
+                    "--bus: expected session, system or a D-Bus address, got {other:?}"
+                ));
+            }
+        })
+    }
+}
+
+/// Errors of the daemon run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Connecting to the bus failed.
+    #[error("cannot connect to the {bus} bus: {source}")]
+    Connect {
+        /// Which bus.
+        bus: String,
+        /// zbus error.
+        source: zbus::Error,
+    },
+    /// The bus name is owned by someone else.
+    #[error(
+        "the bus name {name} is already owned by another process (is another {what} running?); not taking it over"
+    )]
+    NameTaken {
+        /// The name.
+        name: &'static str,
+        /// Likely owner.
+        what: &'static str,
+    },
+    /// Any other D-Bus failure.
+    #[error("D-Bus: {0}")]
+    Dbus(#[from] zbus::Error),
+    /// The loop thread could not start.
+    #[error("loop thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// Connect to the chosen bus.
+pub async fn connect(bus: &BusChoice) -> Result<Connection, RunError> {
+    let (builder, what) = match bus {
+        BusChoice::Session => (zbus::connection::Builder::session(), "session".to_string()),
+        BusChoice::System => (zbus::connection::Builder::system(), "system".to_string()),
+        BusChoice::Address(a) => (zbus::connection::Builder::address(a.as_str()), a.clone()),
+    };
+    builder
+        .build()
+        .await
+        .map_err(|source| RunError::Connect { bus: what, source })
+}
+
+/// Request a name without queueing and without replacing anyone.
+async fn request_name(
+    conn: &Connection,
+    name: &'static str,
+    what: &'static str,
+) -> Result<(), RunError> {
+    match conn
+        .request_name_with_flags(name, RequestNameFlags::DO_NOT_QUEUE)
+        .await?
+    {
+        RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => Ok(()),
+        RequestNameReply::Exists | RequestNameReply::InQueue => {
+            Err(RunError::NameTaken { name, what })
+        }
+    }
+}
+
+/// Commands to the loop thread.
+#[derive(Debug, Clone, Copy)]
+pub enum LoopCmd {
+    /// New client demand.
+    Demand(Demand),
+    /// Stop the loop (sensor to reset) and exit the thread.
+    Shutdown,
+}
+
+/// The loop thread body: runs cycles while demanded (or always-on), sleeps between
+/// cycles with exactly one timed wait per cycle, blocks without any timer while idle.
+pub fn loop_thread<S: FrameSource>(
+    mut ctl: Controller<S>,
+    always_on: bool,
+    cmds: stdmpsc::Receiver<LoopCmd>,
+    events: mpsc::UnboundedSender<Event>,
+) {
+    let mut demand = Demand::default();
+    let mut active = false;
+    let send = |ev: Event| {
+        let _ = events.send(ev);
+    };
+    loop {
+        let want = always_on || demand.any();
+        if !want {
+            if active {
+                send(Event::Status(ctl.stop()));
+                active = false;
+            }
+            // Idle: block without any timer until a client claims.
+            match cmds.recv() {
+                Ok(LoopCmd::Demand(d)) => demand = d,
+                Ok(LoopCmd::Shutdown) | Err(_) => break,
+            }
+            continue;
+        }
+        if !active {
+            active = true;
+            send(Event::Status(StatusUpdate {
+                state: Some(State::Starting),
+                ..StatusUpdate::default()
+            }));
+        }
+        let out = ctl.step(demand.depth);
+        if let Some(d) = out.depth {
+            send(Event::Depth(d));
+        }
+        send(Event::Status(out.update));
+        if out.end_of_data {
+            tracing::info!("source has no more data: loop stopped");
+            send(Event::Status(ctl.stop()));
+            // Wait for shutdown only.
+            loop {
+                match cmds.recv() {
+                    Ok(LoopCmd::Shutdown) | Err(_) => return,
+                    Ok(LoopCmd::Demand(_)) => {}
+                }
+            }
+        }
+        // Sleep until the next cycle: one timed wait; a demand change wakes us early only
+        // when it stops the loop.
+        let deadline = std::time::Instant::now() + out.sleep;
+        loop {
+            let now = std::time::Instant::now();
+            let left = deadline.saturating_duration_since(now);
+            if left.is_zero() {
+                break;
+            }
+            match cmds.recv_timeout(left) {
+                Ok(LoopCmd::Demand(d)) => {
+                    demand = d;
+                    if !(always_on || demand.any()) {
+                        break;
+                    }
+                }
+                Ok(LoopCmd::Shutdown) | Err(stdmpsc::RecvTimeoutError::Disconnected) => {
+                    send(Event::Status(ctl.stop()));
+                    return;
+                }
+                Err(stdmpsc::RecvTimeoutError::Timeout) => break,
+            }
+        }
+    }
+    send(Event::Status(ctl.stop()));
+}
+
+/// A running daemon (for tests and the binary).
+pub struct Daemon {
+    conn: Connection,
+    hub: Arc<Hub>,
+    cmd_tx: stdmpsc::Sender<LoopCmd>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    compat: bool,
+}
+
+impl Daemon {
+    /// Serve on `conn`: export the objects, take the names, start the loop.
+    pub async fn start<S: FrameSource + 'static>(
+        conn: Connection,
+        cfg: &Config,
+        ctl: Controller<S>,
+    ) -> Result<Self, RunError> {
+        let backend = ctl.source().describe();
+        let (hub, demand_rx) = Hub::new(cfg, backend);
+        let compat = cfg.dbus.iio_sensor_proxy_compat;
+        conn.object_server()
+            .at(OBJECT_PATH, Proximity::new(hub.clone()))
+            .await?;
+        if compat {
+            conn.object_server()
+                .at(COMPAT_PATH, SensorProxyCompat::new(hub.clone()))
+                .await?;
+            conn.object_server()
+                .at(COMPAT_COMPASS_PATH, SensorProxyCompass)
+                .await?;
+        }
+        let mut tasks = Vec::new();
+        if conn.is_bus() {
+            // Subscribe before taking the name so no departing client is missed.
+            let stream = service::subscribe_clients(&conn).await?;
+            tasks.push(tokio::spawn(service::watch_clients(stream, hub.clone())));
+            request_name(&conn, service::BUS_NAME, "tofproxd").await?;
+            if compat && let Err(e) = request_name(&conn, COMPAT_BUS_NAME, "iio-sensor-proxy").await
+            {
+                let _ = conn.release_name(service::BUS_NAME).await;
+                return Err(e);
+            }
+        }
+        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
+        tasks.push(tokio::spawn(service::run_publisher(
+            conn.clone(),
+            hub.clone(),
+            ev_rx,
+            compat,
+            cfg.dbus.depth_max_hz,
+        )));
+        let (cmd_tx, cmd_rx) = stdmpsc::channel();
+        let always_on = cfg.loop_.always_on;
+        let thread = std::thread::Builder::new()
+            .name("tofproxd-loop".into())
+            .spawn(move || loop_thread(ctl, always_on, cmd_rx, ev_tx))
+            .map_err(RunError::Thread)?;
+        // Forward demand changes (async watch) to the loop thread (std channel).
+        let fwd_tx = cmd_tx.clone();
+        tasks.push(tokio::spawn(forward_demand(demand_rx, fwd_tx)));
+        Ok(Self {
+            conn,
+            hub,
+            cmd_tx,
+            thread: Some(thread),
+            tasks,
+            compat,
+        })
+    }
+
+    /// The hub (status and claims).
+    pub fn hub(&self) -> &Arc<Hub> {
+        &self.hub
+    }
+
+    /// The connection.
+    pub fn connection(&self) -> &Connection {
+        &self.conn
+    }
+
+    /// Stop the loop (sensor reset low), release the names.
+    pub async fn shutdown(mut self) {
+        let _ = self.cmd_tx.send(LoopCmd::Shutdown);
+        if let Some(t) = self.thread.take() {
+            let _ = tokio::task::spawn_blocking(move || t.join()).await;
+        }
+        // Let the publisher flush the final Off state.
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        if self.conn.is_bus() {
+            let _ = self.conn.release_name(service::BUS_NAME).await;
+            if self.compat {
+                let _ = self.conn.release_name(COMPAT_BUS_NAME).await;
+            }
+        }
+        for t in self.tasks.drain(..) {
+            t.abort();
+        }
+    }
+}
+
+async fn forward_demand(mut rx: watch::Receiver<Demand>, tx: stdmpsc::Sender<LoopCmd>) {
+    loop {
+        let d = *rx.borrow_and_update();
+        if tx.send(LoopCmd::Demand(d)).is_err() {
+            break;
+        }
+        if rx.changed().await.is_err() {
+            break;
+        }
+    }
+}
+
+/// sd-notify helpers (no-ops outside systemd).
+pub mod notify {
+    /// READY=1 with a status line.
+    pub fn ready(status: &str) {
+        let _ = sd_notify::notify(&[
+            sd_notify::NotifyState::Ready,
+            sd_notify::NotifyState::Status(status),
+        ]);
+    }
+    /// STATUS=…
+    pub fn status(status: &str) {
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(status)]);
+    }
+    /// STOPPING=1
+    pub fn stopping() {
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    }
+    /// WATCHDOG=1
+    pub fn watchdog() {
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+    }
+    /// The watchdog interval systemd asked for, if any.
+    pub fn watchdog_interval() -> Option<std::time::Duration> {
+        sd_notify::watchdog_enabled()
+    }
+}

@@ -1,0 +1,317 @@
+//! Frame sources: one cycle → raw frames + state timings, or a typed error.
+//!
+//! Backends: USB and emulated through `tofprox_bridge::SensorDriver`
+//! (`crate::backends`), replay of a version 1 recording, and [`ScriptedSource`]
+//! (a scripted fake for tests, in the style of probe-rs's fake probe).
+
+use std::collections::VecDeque;
+use std::time::Duration;
+
+use ndarray::Array3;
+
+use crate::config::Mode;
+use crate::energy::CycleTimings;
+
+/// A row window for partial read-out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowWindow {
+    /// First row (full-frame coordinates).
+    pub row0: u16,
+    /// Number of rows.
+    pub rows: u16,
+}
+
+/// What one cycle should capture.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleRequest {
+    /// 2-phase or 4-phase.
+    pub mode: Mode,
+    /// Exposure per raw image (µs).
+    pub exposure_us: f64,
+    /// Partial read-out, if the source supports it.
+    pub row_window: Option<RowWindow>,
+}
+
+/// One cycle's raw data.
+#[derive(Debug, Clone)]
+pub struct RawCycle {
+    /// `(K, rows, cols)` raw codes, offset binary.
+    pub frames: Array3<u16>,
+    /// Phase shift of each raw image (degrees).
+    pub phases_deg: Vec<f64>,
+    /// Exposure actually used (µs).
+    pub exposure_us: f64,
+    /// Position of `frames` in the full array `[row, col]`.
+    pub roi_origin: [usize; 2],
+    /// Full array rows.
+    pub full_rows: usize,
+    /// Full array cols.
+    pub full_cols: usize,
+    /// ADC bits.
+    pub adc_bits: u8,
+    /// Modulation frequency (Hz).
+    pub modulation_hz: f64,
+    /// Duration of each state.
+    pub timings: CycleTimings,
+    /// Capture timestamp (ns, source clock).
+    pub timestamp_ns: u64,
+}
+
+/// Kinds of source failure (mirrors the bridge's kinds the loop cares about).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceErrorKind {
+    /// Device gone (unplugged): State → unavailable until it answers again.
+    Disconnected,
+    /// A transfer timed out.
+    Timeout,
+    /// Endpoint stall / I2C NAK / protocol trouble.
+    Protocol,
+    /// A frame was torn, short or corrupt (dropped).
+    CorruptFrame,
+    /// Flash empty/corrupt and could not be restored.
+    Flash,
+    /// Sensor did not come out of reset.
+    Reset,
+    /// The request cannot be served (mode/window not supported, bad data in a recording).
+    Unsupported,
+    /// End of a replayed recording.
+    EndOfData,
+    /// Anything else (I/O, config).
+    Other,
+}
+
+impl SourceErrorKind {
+    /// Short stable name (used in `LastError`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Disconnected => "disconnected",
+            Self::Timeout => "timeout",
+            Self::Protocol => "protocol",
+            Self::CorruptFrame => "corrupt-frame",
+            Self::Flash => "flash",
+            Self::Reset => "reset",
+            Self::Unsupported => "unsupported",
+            Self::EndOfData => "end-of-data",
+            Self::Other => "other",
+        }
+    }
+}
+
+/// A failed cycle.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{}: {message}", kind.as_str())]
+pub struct SourceError {
+    kind: SourceErrorKind,
+    message: String,
+}
+
+impl SourceError {
+    /// New error.
+    pub fn new(kind: SourceErrorKind, message: impl Into<String>) -> Self {
+        Self {
+            kind,
+            message: message.into(),
+        }
+    }
+    /// The kind.
+    pub fn kind(&self) -> SourceErrorKind {
+        self.kind
+    }
+}
+
+/// Something that produces one reading's raw frames per call.
+/// Calls block (USB transfers, emulated timing): run them off the async runtime.
+pub trait FrameSource: Send {
+    /// Restart → config → exposure → capture K raw images → stop → reset low.
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError>;
+    /// Hold the sensor in reset (fully off).
+    fn power_off(&mut self) -> Result<(), SourceError>;
+    /// Whether a row window is honoured.
+    fn supports_row_window(&self) -> bool;
+    /// Row alignment a window must respect (row0 and rows multiples of it).
+    fn row_window_align(&self) -> u16 {
+        1
+    }
+    /// Whether the source can capture 4-phase on request (replay cannot choose).
+    fn supports_mode_switch(&self) -> bool {
+        true
+    }
+    /// Full array size `(rows, cols)`.
+    fn full_size(&self) -> (usize, usize);
+    /// Short description for logs/status.
+    fn describe(&self) -> String;
+}
+
+/// One scripted step of [`ScriptedSource`].
+#[derive(Debug, Clone)]
+pub enum Step {
+    /// A flat target at `distance_mm` with `amplitude_lsb`, `background_lsb` common-mode
+    /// (rejected by 4-phase, a bias on 2-phase), `saturated` = clip every code at full scale.
+    Target {
+        /// Distance (mm).
+        distance_mm: f64,
+        /// Signal amplitude (LSB).
+        amplitude_lsb: f64,
+        /// Background-light common-mode (LSB).
+        background_lsb: f64,
+    },
+    /// A failed cycle.
+    Fail(SourceErrorKind),
+    /// A frame whose codes are garbage (all zeros: reads as invalid/saturated-low).
+    Garbage,
+}
+
+/// Scripted fake source: a queue of steps, then repeats the last step.
+/// Synthesises ideal frames by the contract's convention
+/// `code_k = mid + A cos(phi - theta_k) + background` (CONTRACTS.md).
+#[derive(Debug)]
+pub struct ScriptedSource {
+    steps: VecDeque<Step>,
+    last: Step,
+    rows: usize,
+    cols: usize,
+    modulation_hz: f64,
+    /// Every request seen (for assertions).
+    pub requests: Vec<CycleRequest>,
+    /// Number of `power_off` calls.
+    pub power_offs: u32,
+    t_ns: u64,
+    window_support: bool,
+}
+
+impl ScriptedSource {
+    /// New scripted source of `rows × cols` pixels.
+    pub fn new(rows: usize, cols: usize, steps: impl IntoIterator<Item = Step>) -> Self {
+        let steps: VecDeque<Step> = steps.into_iter().collect();
+        let last = steps
+            .back()
+            .cloned()
+            .unwrap_or(Step::Fail(SourceErrorKind::EndOfData));
+        Self {
+            steps,
+            last,
+            rows,
+            cols,
+            modulation_hz: 60e6,
+            requests: Vec::new(),
+            power_offs: 0,
+            t_ns: 0,
+            window_support: true,
+        }
+    }
+
+    /// Disable row-window support.
+    pub fn without_row_window(mut self) -> Self {
+        self.window_support = false;
+        self
+    }
+
+    /// Append steps.
+    pub fn push(&mut self, steps: impl IntoIterator<Item = Step>) {
+        self.steps.extend(steps);
+        if let Some(s) = self.steps.back() {
+            self.last = s.clone();
+        }
+    }
+
+    /// Modulation frequency used to synthesise phases.
+    pub fn modulation_hz(&self) -> f64 {
+        self.modulation_hz
+    }
+}
+
+/// Synthesise ideal raw frames of a flat target (CONTRACTS.md convention, eq. 2.6 inverted).
+pub fn synth_frames(
+    mode: Mode,
+    rows: usize,
+    cols: usize,
+    distance_mm: f64,
+    amplitude_lsb: f64,
+    background_lsb: f64,
+    modulation_hz: f64,
+) -> (Array3<u16>, Vec<f64>) {
+    let phases: Vec<f64> = match mode {
+        Mode::TwoPhase => vec![0.0, 90.0],
+        Mode::FourPhase => vec![0.0, 90.0, 180.0, 270.0],
+    };
+    let phi = 4.0 * std::f64::consts::PI * modulation_hz * (distance_mm / 1e3) / 299_792_458.0;
+    let mut frames = Array3::<u16>::zeros((phases.len(), rows, cols));
+    for (k, th) in phases.iter().enumerate() {
+        let code = 2048.0 + background_lsb + amplitude_lsb * (phi - th.to_radians()).cos();
+        let code = code.round().clamp(0.0, 4095.0) as u16;
+        frames.index_axis_mut(ndarray::Axis(0), k).fill(code);
+    }
+    (frames, phases)
+}
+
+impl FrameSource for ScriptedSource {
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        self.requests.push(*req);
+        let step = self.steps.pop_front().unwrap_or_else(|| self.last.clone());
+        self.t_ns += 100_000_000;
+        let (row0, rows) = match (self.window_support, req.row_window) {
+            (true, Some(w)) => {
+                let row0 = usize::from(w.row0).min(self.rows.saturating_sub(1));
+                (row0, usize::from(w.rows).min(self.rows - row0).max(1))
+            }
+            _ => (0, self.rows),
+        };
+        let k = req.mode.raw_images();
+        let timings = CycleTimings {
+            startup: Duration::from_millis(1),
+            config_load: Duration::from_millis(10),
+            flash_write: Duration::ZERO,
+            exposure: Duration::from_secs_f64(f64::from(k) * req.exposure_us / 1e6),
+            readout: Duration::from_micros(2500 * u64::from(k)),
+        };
+        let (frames, phases_deg) = match step {
+            Step::Fail(kind) => return Err(SourceError::new(kind, "scripted failure")),
+            Step::Target {
+                distance_mm,
+                amplitude_lsb,
+                background_lsb,
+            } => synth_frames(
+                req.mode,
+                rows,
+                self.cols,
+                distance_mm,
+                amplitude_lsb * req.exposure_us / 100.0,
+                background_lsb,
+                self.modulation_hz,
+            ),
+            Step::Garbage => {
+                let (_, ph) = synth_frames(req.mode, 1, 1, 0.0, 0.0, 0.0, self.modulation_hz);
+                (Array3::zeros((ph.len(), rows, self.cols)), ph)
+            }
+        };
+        Ok(RawCycle {
+            frames,
+            phases_deg,
+            exposure_us: req.exposure_us,
+            roi_origin: [row0, 0],
+            full_rows: self.rows,
+            full_cols: self.cols,
+            adc_bits: 12,
+            modulation_hz: self.modulation_hz,
+            timings,
+            timestamp_ns: self.t_ns,
+        })
+    }
+
+    fn power_off(&mut self) -> Result<(), SourceError> {
+        self.power_offs += 1;
+        Ok(())
+    }
+
+    fn supports_row_window(&self) -> bool {
+        self.window_support
+    }
+
+    fn full_size(&self) -> (usize, usize) {
+        (self.rows, self.cols)
+    }
+
+    fn describe(&self) -> String {
+        format!("scripted {}x{}", self.rows, self.cols)
+    }
+}
