@@ -198,7 +198,7 @@ pub struct DriverConfig {
 }
 
 /// The file form of [`DriverConfig`] (`[driver]` table or a file).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DriverConfigFile {
     /// Register map file, relative to the config file (default: the
@@ -933,16 +933,6 @@ pub struct DeviceConfigFile {
     pub usb: crate::usb::UsbSelector,
     /// Driver (register map, protocol, waits).
     pub driver: DriverConfigFile,
-}
-
-impl Default for DriverConfigFile {
-    fn default() -> Self {
-        DriverConfigFile {
-            sensor_map: None,
-            protocol: ProtocolConfig::default(),
-            timing: DriverTiming::default(),
-        }
-    }
 }
 
 impl DeviceConfigFile {

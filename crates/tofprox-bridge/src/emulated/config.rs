@@ -5,6 +5,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use tofprox_model::SceneScript;
+
 use crate::error::{BridgeError, ErrorKind};
 use crate::protocol::ProtocolConfig;
 use crate::regmap::SensorMap;
@@ -80,75 +82,17 @@ impl TimingModel {
     }
 }
 
-/// The scene in front of the emulated sensor.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
-pub enum SceneConfig {
-    /// A flat wall at a fixed distance.
-    Wall {
-        /// Distance, m.
-        distance_m: f64,
-        /// Reflectivity 0..1.
-        reflectivity: f64,
-    },
-    /// A hand approaching a wall-facing sensor and leaving again,
-    /// periodically: far (absent) → `near_distance_m` → far.
-    Hand {
-        /// Wall distance, m.
-        wall_distance_m: f64,
-        /// Closest hand distance, m.
-        near_distance_m: f64,
-        /// Period of approach and departure, s.
-        period_s: f64,
-        /// Hand reflectivity.
-        reflectivity: f64,
-        /// Wall reflectivity.
-        wall_reflectivity: f64,
-    },
-}
-
-impl Default for SceneConfig {
-    fn default() -> Self {
-        SceneConfig::Wall {
-            distance_m: 1.0,
-            reflectivity: 0.6,
-        }
-    }
-}
-
-impl SceneConfig {
-    fn validate(&self) -> Result<(), BridgeError> {
-        let dist_ok = |d: f64| d.is_finite() && (0.01..=100.0).contains(&d);
-        let refl_ok = |r: f64| r.is_finite() && (0.0..=1.0).contains(&r);
-        let ok = match self {
-            SceneConfig::Wall {
-                distance_m,
-                reflectivity,
-            } => dist_ok(*distance_m) && refl_ok(*reflectivity),
-            SceneConfig::Hand {
-                wall_distance_m,
-                near_distance_m,
-                period_s,
-                reflectivity,
-                wall_reflectivity,
-            } => {
-                dist_ok(*wall_distance_m)
-                    && dist_ok(*near_distance_m)
-                    && near_distance_m < wall_distance_m
-                    && period_s.is_finite()
-                    && *period_s > 0.0
-                    && refl_ok(*reflectivity)
-                    && refl_ok(*wall_reflectivity)
-            }
-        };
-        if ok {
-            Ok(())
-        } else {
-            Err(BridgeError::config(format!(
-                "scene: distances must be in 0.01..=100 m (hand nearer than the wall), reflectivity in 0..=1, period > 0: {self:?}"
-            )))
-        }
-    }
+/// Where the emulated frames come from.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FrameSource {
+    /// The physical model (tofprox-model `Simulator`), `model` file or the
+    /// model's baseline.
+    #[default]
+    Model,
+    /// The fast ideal sinusoid (column offsets, small noise): for long soak
+    /// runs where frame realism does not matter.
+    Ideal,
 }
 
 /// Kinds of injectable faults.
@@ -315,8 +259,11 @@ pub struct EmulatedConfig {
     pub protocol: ProtocolConfig,
     /// Timing model.
     pub timing: TimingModel,
-    /// Scene in front of the sensor.
-    pub scene: SceneConfig,
+    /// Frame source.
+    pub frame_source: FrameSource,
+    /// Scene script in front of the sensor (tofprox-model `SceneScript`:
+    /// `kind = "wall" | "hand" | "face"`, distances, period).
+    pub scene: SceneScript,
     /// Ambient light, klux (model input).
     pub ambient_klux: f64,
     /// Sensor temperature, °C (model input).
@@ -334,7 +281,8 @@ impl Default for EmulatedConfig {
             flash_size_bytes: 64 * 1024,
             protocol: ProtocolConfig::default(),
             timing: TimingModel::default(),
-            scene: SceneConfig::default(),
+            frame_source: FrameSource::Model,
+            scene: SceneScript::wall(1.0),
             ambient_klux: 0.0,
             temperature_c: 25.0,
             faults: FaultConfig::default(),
@@ -397,7 +345,9 @@ impl EmulatedConfig {
     pub fn validate(&self) -> Result<(), BridgeError> {
         self.protocol.validate()?;
         self.timing.validate()?;
-        self.scene.validate()?;
+        self.scene
+            .validate()
+            .map_err(|e| BridgeError::with_source(ErrorKind::Config, "scene", e))?;
         self.faults.validate()?;
         if !(4096..=(64 << 20)).contains(&self.flash_size_bytes)
             || !self.flash_size_bytes.is_multiple_of(4096)

@@ -18,8 +18,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, SceneConfig, TimingModel};
-use synth::{FrameSynth, Geometry, IdealSynth, RawParams};
+pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource, TimingModel};
+use synth::{FrameSynth, Geometry, IdealSynth, ModelSynth, RawParams};
 
 use crate::clock::Clock;
 use crate::error::{BridgeError, ErrorKind};
@@ -130,7 +130,29 @@ impl EmulatedDevice {
             adc_bits: map.sensor.adc_bits,
             modulation_hz: map.sensor.modulation_hz,
         };
-        let synth: Box<dyn FrameSynth> = Box::new(IdealSynth::new(geom, cfg.scene.clone(), seed));
+        let synth: Box<dyn FrameSynth> = match cfg.frame_source {
+            FrameSource::Ideal => Box::new(IdealSynth::new(geom, cfg.scene.clone(), seed)),
+            FrameSource::Model => {
+                let model = match &cfg.model {
+                    Some(p) => tofprox_model::ModelConfig::load(p).map_err(|e| {
+                        BridgeError::with_source(
+                            ErrorKind::Config,
+                            format!("model file {}", p.display()),
+                            e,
+                        )
+                    })?,
+                    None => tofprox_model::ModelConfig::baseline(),
+                };
+                Box::new(ModelSynth::new(
+                    model,
+                    geom,
+                    cfg.scene.clone(),
+                    seed,
+                    cfg.ambient_klux,
+                    cfg.temperature_c,
+                )?)
+            }
+        };
         Self::with_synth(cfg, map, clock, seed, synth)
     }
 

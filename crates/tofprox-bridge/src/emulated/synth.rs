@@ -1,16 +1,19 @@
 //! Frame synthesis for the emulated device.
 //!
-//! `IdealSynth` is the simple built-in source: the sinusoidal correlation of
-//! the team conventions (`code = mid + offset + A cos(phi - theta)`,
-//! `phi = 4π f d / c`, eq. 2.6 inverted) with a column fixed-pattern offset
-//! and a little read noise. The physical model (tofprox-model) replaces it
-//! where available (see `model_synth`).
+//! [`ModelSynth`] (the default) renders raw frames with the physical model
+//! (`tofprox_model::Simulator`) from a `tofprox_model::SceneScript`.
+//! [`IdealSynth`] is a fast, simple source for long soak runs: the
+//! sinusoidal correlation of the team conventions
+//! (`code = mid + offset + A cos(phi - theta)`, `phi = 4π f d / c`, eq. 2.6
+//! inverted) with a column offset pattern and a little read noise.
+
+use std::collections::HashMap;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use tofprox_model::{CaptureRequest, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator};
 
-use super::config::SceneConfig;
-use crate::error::BridgeError;
+use crate::error::{BridgeError, ErrorKind};
 
 /// Speed of light, m/s.
 const C_M_PER_S: f64 = 299_792_458.0;
@@ -53,57 +56,149 @@ pub trait FrameSynth: Send {
     ) -> Result<(), BridgeError>;
 }
 
-/// Per-pixel distance and reflectivity of a scene at time `t_s`: returns
-/// (wall distance, wall refl, optional (hand distance, hand refl)); the hand
-/// covers the central half of the array.
-pub fn scene_at(scene: &SceneConfig, t_s: f64) -> (f64, f64, Option<(f64, f64)>) {
-    match *scene {
-        SceneConfig::Wall {
-            distance_m,
-            reflectivity,
-        } => (distance_m, reflectivity, None),
-        SceneConfig::Hand {
-            wall_distance_m,
-            near_distance_m,
-            period_s,
-            reflectivity,
-            wall_reflectivity,
-        } => {
-            // Triangle over the period: absent in the first and last quarter,
-            // approaching to near_distance at the middle.
-            let x = (t_s / period_s).rem_euclid(1.0);
-            let hand = if (0.25..0.75).contains(&x) {
-                let u = 1.0 - ((x - 0.5).abs() / 0.25); // 0 at the edges, 1 at the middle
-                let d = wall_distance_m * 0.8 + (near_distance_m - wall_distance_m * 0.8) * u;
-                Some((d, reflectivity))
-            } else {
-                None
+fn model_err(e: tofprox_model::ModelError) -> BridgeError {
+    BridgeError::with_source(ErrorKind::Config, "frame synthesis (tofprox-model)", e)
+}
+
+/// Frames from the physical model.
+pub struct ModelSynth {
+    model: ModelConfig,
+    geom: Geometry,
+    script: SceneScript,
+    seed: u64,
+    ambient_klux: f64,
+    temperature_c: f64,
+    sims: HashMap<(usize, usize), Simulator>,
+    rng: ChaCha8Rng,
+}
+
+impl ModelSynth {
+    /// A model-backed source; the fixed patterns are drawn from `seed`.
+    pub fn new(
+        model: ModelConfig,
+        geom: Geometry,
+        script: SceneScript,
+        seed: u64,
+        ambient_klux: f64,
+        temperature_c: f64,
+    ) -> Result<Self, BridgeError> {
+        let mut script = script;
+        script.full_rows = geom.full_rows;
+        script.full_cols = geom.cols;
+        script.validate().map_err(model_err)?;
+        let mut s = ModelSynth {
+            model,
+            geom,
+            script,
+            seed,
+            ambient_klux,
+            temperature_c,
+            sims: HashMap::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0xF4A3_0001),
+        };
+        s.sim(0, geom.full_rows)?;
+        Ok(s)
+    }
+
+    fn sim(&mut self, row0: usize, rows: usize) -> Result<&Simulator, BridgeError> {
+        if !self.sims.contains_key(&(row0, rows)) {
+            let full = SensorGeometry {
+                rows: self.geom.full_rows,
+                cols: self.geom.cols,
+                roi_origin: [0, 0],
+                full_rows: self.geom.full_rows,
+                full_cols: self.geom.cols,
+                adc_bits: self.geom.adc_bits,
+                modulation_hz: self.geom.modulation_hz,
             };
-            (wall_distance_m, wall_reflectivity, hand)
+            let g = full
+                .window(row0, 0, rows, self.geom.cols)
+                .map_err(model_err)?;
+            let sim = Simulator::new(&self.model, g, self.seed).map_err(model_err)?;
+            if self.sims.len() > 16 {
+                self.sims.clear();
+            }
+            self.sims.insert((row0, rows), sim);
         }
+        self.sims
+            .get(&(row0, rows))
+            .ok_or_else(|| BridgeError::new(ErrorKind::Io, "simulator cache"))
     }
 }
 
-/// The built-in ideal synthesiser.
+impl FrameSynth for ModelSynth {
+    fn superframe(
+        &mut self,
+        t_s: f64,
+        raws: &[RawParams],
+        row0: usize,
+        rows: usize,
+        out: &mut Vec<Vec<u16>>,
+    ) -> Result<(), BridgeError> {
+        let scene = self.script.at(t_s);
+        let (amb, temp) = (self.ambient_klux, self.temperature_c);
+        let mut rng = ChaCha8Rng::seed_from_u64(self.rng.random());
+        let sim = self.sim(row0, rows)?;
+        out.resize_with(raws.len(), Vec::new);
+        // consecutive raw images with the same exposure and illumination are
+        // one model capture
+        let mut start = 0;
+        while start < raws.len() {
+            let r0 = raws[start];
+            let mut end = start + 1;
+            while end < raws.len()
+                && raws[end].exposure_us == r0.exposure_us
+                && raws[end].illuminated == r0.illuminated
+            {
+                end += 1;
+            }
+            let req = CaptureRequest {
+                phases_deg: raws[start..end].iter().map(|r| r.phase_deg).collect(),
+                exposure_us: r0.exposure_us,
+                illumination: r0.illuminated,
+                averaged: 1,
+                ambient_klux: amb,
+                temperature_c: temp,
+            };
+            let codes = sim.capture_u16(&scene, &req, &mut rng).map_err(model_err)?;
+            for (k, img) in codes.outer_iter().enumerate() {
+                let dst = &mut out[start + k];
+                dst.clear();
+                dst.extend(img.iter().copied());
+            }
+            start = end;
+        }
+        Ok(())
+    }
+}
+
+/// The built-in ideal synthesiser (fast; for soak runs).
 pub struct IdealSynth {
     geom: Geometry,
-    scene: SceneConfig,
+    script: SceneScript,
     col_offset: Vec<f64>,
     rng: ChaCha8Rng,
+    phi: Vec<f64>,
+    gain: Vec<f64>,
 }
 
 impl IdealSynth {
     /// Draw the fixed column pattern from `seed`.
-    pub fn new(geom: Geometry, scene: SceneConfig, seed: u64) -> Self {
+    pub fn new(geom: Geometry, script: SceneScript, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_F1ED);
         let col_offset = (0..geom.cols)
             .map(|_| rng.random_range(-20.0..20.0))
             .collect();
+        let mut script = script;
+        script.full_rows = geom.full_rows;
+        script.full_cols = geom.cols;
         IdealSynth {
             geom,
-            scene,
+            script,
             col_offset,
             rng,
+            phi: Vec::new(),
+            gain: Vec::new(),
         }
     }
 }
@@ -121,34 +216,48 @@ impl FrameSynth for IdealSynth {
         let cols = g.cols;
         let max = f64::from((1u32 << g.adc_bits) - 1);
         let mid = f64::from(1u32 << (g.adc_bits - 1));
-        let (wall_d, wall_r, hand) = scene_at(&self.scene, t_s);
-        // Hand region: central half of rows and columns of the full array.
-        let (hr0, hr1) = (g.full_rows / 4, g.full_rows * 3 / 4);
-        let (hc0, hc1) = (cols / 4, cols * 3 / 4);
+        // per-pixel phase (eq. 2.6 inverted) and inverse-square gain (2.1)
+        let k_phi = 4.0 * std::f64::consts::PI * g.modulation_hz / C_M_PER_S;
+        self.phi.clear();
+        self.gain.clear();
+        match self.script.at(t_s) {
+            Scene::FlatWall {
+                distance_m,
+                reflectivity,
+            } => {
+                self.phi.resize(rows * cols, k_phi * distance_m);
+                self.gain
+                    .resize(rows * cols, reflectivity / (distance_m * distance_m));
+            }
+            Scene::DepthMap {
+                distance_m,
+                reflectivity,
+            } => {
+                for r in row0..row0 + rows {
+                    for c in 0..cols {
+                        let d = distance_m.get((r, c)).copied().unwrap_or(1.0).max(0.005);
+                        let rf = reflectivity.get((r, c)).copied().unwrap_or(0.5);
+                        self.phi.push(k_phi * d);
+                        self.gain.push(rf / (d * d));
+                    }
+                }
+            }
+        }
         out.resize_with(raws.len(), Vec::new);
         for (raw, frame) in raws.iter().zip(out.iter_mut()) {
             frame.clear();
             frame.reserve(rows * cols);
-            // A ∝ exposure × reflectivity / d² (inverse-square law, thesis 2.1).
-            let signal = |d: f64, r: f64| -> f64 {
-                if !raw.illuminated {
-                    return 0.0;
-                }
-                let amp = 2.0 * raw.exposure_us * r / (d * d);
-                let phi = 4.0 * std::f64::consts::PI * g.modulation_hz * d / C_M_PER_S; // eq. 2.6
-                amp * (phi - raw.phase_deg.to_radians()).cos()
+            let theta = raw.phase_deg.to_radians();
+            let a = if raw.illuminated {
+                2.0 * raw.exposure_us
+            } else {
+                0.0
             };
-            let s_wall = signal(wall_d, wall_r);
-            let s_hand = hand.map(|(d, r)| signal(d, r)).unwrap_or(s_wall);
-            for r in row0..row0 + rows {
-                for c in 0..cols {
-                    let in_hand =
-                        hand.is_some() && (hr0..hr1).contains(&r) && (hc0..hc1).contains(&c);
-                    let s = if in_hand { s_hand } else { s_wall };
-                    let n: f64 = f64::from(self.rng.random::<u8>() & 7) - 3.5;
-                    let v = (mid + self.col_offset[c] + s + n).round().clamp(0.0, max);
-                    frame.push(v as u16);
-                }
+            for (i, (phi, gain)) in self.phi.iter().zip(&self.gain).enumerate() {
+                let c = i % cols;
+                let s = a * gain * (phi - theta).cos();
+                let n = f64::from(self.rng.random::<u8>() & 7) - 3.5;
+                frame.push((mid + self.col_offset[c] + s + n).round().clamp(0.0, max) as u16);
             }
         }
         Ok(())
@@ -159,8 +268,27 @@ impl FrameSynth for IdealSynth {
 mod tests {
     use super::*;
 
+    fn four(exposure_us: f64) -> Vec<RawParams> {
+        [0.0, 90.0, 180.0, 270.0]
+            .map(|p| RawParams {
+                exposure_us,
+                phase_deg: p,
+                illuminated: true,
+            })
+            .to_vec()
+    }
+
+    fn centre_distance(out: &[Vec<u16>], rows: usize, cols: usize) -> f64 {
+        let i = rows / 2 * cols + cols / 2;
+        let m = |k: usize| f64::from(out[k][i]);
+        let phi = (m(1) - m(3))
+            .atan2(m(0) - m(2))
+            .rem_euclid(std::f64::consts::TAU); // eq. 2.3
+        phi * C_M_PER_S / (4.0 * std::f64::consts::PI * 80e6)
+    }
+
     #[test]
-    fn phase_follows_distance() {
+    fn ideal_phase_follows_distance() {
         let g = Geometry {
             full_rows: 8,
             cols: 8,
@@ -169,24 +297,41 @@ mod tests {
         };
         let mut s = IdealSynth::new(
             g,
-            SceneConfig::Wall {
-                distance_m: 0.5,
-                reflectivity: 0.5,
+            SceneScript {
+                far_m: 0.3,
+                ..SceneScript::wall(0.5)
             },
             1,
         );
-        let raws = [0.0, 90.0, 180.0, 270.0].map(|p| RawParams {
-            exposure_us: 500.0,
-            phase_deg: p,
-            illuminated: true,
-        });
         let mut out = Vec::new();
-        s.superframe(0.0, &raws, 0, 8, &mut out).unwrap();
-        let m = |k: usize| out[k].iter().map(|&v| f64::from(v)).sum::<f64>() / 64.0;
-        let phi = (m(1) - m(3))
-            .atan2(m(0) - m(2))
-            .rem_euclid(std::f64::consts::TAU); // eq. 2.3
-        let d = phi * C_M_PER_S / (4.0 * std::f64::consts::PI * 80e6);
-        assert!((d - 0.5).abs() < 0.02, "{d}");
+        s.superframe(0.0, &four(500.0), 0, 8, &mut out).unwrap();
+        let d = centre_distance(&out, 8, 8);
+        assert!((d - 0.5).abs() < 0.03, "{d}");
+    }
+
+    #[test]
+    fn model_frames_have_window_shape() {
+        let g = Geometry {
+            full_rows: 172,
+            cols: 224,
+            adc_bits: 12,
+            modulation_hz: 80e6,
+        };
+        let mut s = ModelSynth::new(
+            ModelConfig::ideal(),
+            g,
+            SceneScript {
+                far_m: 0.3,
+                ..SceneScript::wall(0.5)
+            },
+            3,
+            0.0,
+            25.0,
+        )
+        .unwrap();
+        let mut out = Vec::new();
+        s.superframe(0.0, &four(500.0), 40, 20, &mut out).unwrap();
+        assert_eq!(out.len(), 4);
+        assert!(out.iter().all(|f| f.len() == 20 * 224));
     }
 }

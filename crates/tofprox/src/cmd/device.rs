@@ -8,7 +8,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use ndarray::Axis;
-use tofprox_bridge::emulated::SceneConfig;
 use tofprox_bridge::usb::{UsbSelector, probe};
 use tofprox_bridge::{
     Clock, CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, EmulatedConfig,
@@ -222,15 +221,13 @@ fn capture(a: CaptureArgs) -> anyhow::Result<ExitCode> {
         conditions
             .entry("temperature_c".into())
             .or_insert(cfg.temperature_c);
-        if let SceneConfig::Wall {
-            distance_m,
-            reflectivity,
-        } = cfg.scene
-        {
-            conditions.entry("distance_m".into()).or_insert(distance_m);
+        if cfg.scene.kind == tofprox_model::ScriptKind::Wall {
+            conditions
+                .entry("distance_m".into())
+                .or_insert(cfg.scene.wall_distance_m);
             conditions
                 .entry("reflectivity".into())
-                .or_insert(reflectivity);
+                .or_insert(cfg.scene.wall_reflectivity);
         }
         let dev = EmulatedDevice::new(cfg, clock.clone(), a.seed)?;
         run_capture(&a, dev, drv, clock, conditions)
