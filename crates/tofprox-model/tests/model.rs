@@ -1,0 +1,437 @@
+//! Model files, validation, determinism, windows, and effect isolation.
+
+use std::path::PathBuf;
+
+use rand::SeedableRng;
+use rand::rngs::SmallRng;
+use tofprox_model::{
+    CaptureRequest, ErrorKind, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator,
+    catalogue,
+};
+
+fn repo_file(rel: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(rel)
+}
+
+#[test]
+fn catalogue_has_exactly_the_issue_ids_with_documented_params() {
+    let ids: Vec<&str> = catalogue().iter().map(|e| e.id).collect();
+    for id in [
+        "waveform_harmonics",
+        "demodulation_contrast",
+        "signal_falloff",
+        "prnu",
+        "fpn_offset",
+        "fppn",
+        "adc_gain",
+        "adc_offset",
+        "adc_inl",
+        "adc_dnl",
+        "quantization",
+        "shot_noise",
+        "read_noise",
+        "ktc_noise",
+        "dark_current",
+        "ambient_light",
+        "sbi_asymmetry",
+        "vcsel_droop",
+        "amplitude_phase_error",
+        "temperature_drift",
+        "multipath",
+    ] {
+        assert!(ids.contains(&id), "missing {id}");
+    }
+    for e in catalogue() {
+        assert!(!e.explanation.is_empty() && !e.thesis_ref.is_empty() && !e.signature.is_empty());
+        for p in e.params {
+            assert!(
+                p.min <= p.typical && p.typical <= p.max,
+                "{}.{} typical outside range",
+                e.id,
+                p.name
+            );
+        }
+    }
+    // table 3.2 typical values
+    let m = ModelConfig::full();
+    assert_eq!(m.param("adc_gain", "gain_error_pct_fsr"), Some(-4.713));
+    assert_eq!(m.param("adc_offset", "offset_lsb"), Some(-10.84));
+    assert_eq!(m.param("adc_inl", "inl_lsb"), Some(-1.744));
+    assert_eq!(m.param("adc_dnl", "dnl_lsb"), Some(1.906));
+}
+
+#[test]
+fn shipped_model_files_are_baseline_full_and_ideal() {
+    for (name, want) in [
+        ("baseline", ModelConfig::baseline()),
+        ("full", ModelConfig::full()),
+        ("ideal", ModelConfig::ideal()),
+    ] {
+        let got = ModelConfig::load(&repo_file(&format!("config/model/{name}.toml"))).unwrap();
+        assert_eq!(got.enabled_effects(), want.enabled_effects(), "{name}");
+        for e in catalogue() {
+            for p in e.params {
+                assert_eq!(
+                    got.param(e.id, p.name),
+                    want.param(e.id, p.name),
+                    "{name}: {}.{}",
+                    e.id,
+                    p.name
+                );
+            }
+        }
+    }
+    let b = ModelConfig::baseline();
+    for id in [
+        "waveform_harmonics",
+        "demodulation_contrast",
+        "signal_falloff",
+        "prnu",
+        "fpn_offset",
+        "fppn",
+        "adc_gain",
+        "adc_offset",
+        "quantization",
+        "shot_noise",
+        "read_noise",
+        "ktc_noise",
+        "dark_current",
+        "ambient_light",
+    ] {
+        assert!(b.is_enabled(id), "baseline lacks {id}");
+    }
+    assert!(!b.is_enabled("sbi_asymmetry") && !b.is_enabled("vcsel_droop"));
+    assert!(ModelConfig::ideal().enabled_effects().is_empty());
+    assert_eq!(
+        ModelConfig::full().enabled_effects().len(),
+        catalogue().len()
+    );
+}
+
+#[test]
+fn toml_round_trip_and_waveforms_inline() {
+    let mut m = ModelConfig::full();
+    m.set_param("adc_inl", "inl_lsb", -123.5).unwrap();
+    m.set_param("sensor", "signal_e_per_us", 17.25).unwrap();
+    let (i, w) = tofprox_model::effects::optical::measured_like_waveforms(80e6, 64);
+    m.set_waveforms(i, w).unwrap();
+    let back = ModelConfig::from_toml_str(&m.to_toml_string()).unwrap();
+    assert_eq!(back, m);
+}
+
+#[test]
+fn validation_names_key_and_range() {
+    let e = ModelConfig::from_toml_str("[effects.wobble]\nenabled = true\n").unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::UnknownEffect);
+    assert!(e.to_string().contains("effects.wobble"), "{e}");
+
+    let e = ModelConfig::from_toml_str("[effects.adc_inl]\nenabled = true\ninl = 3\n").unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::UnknownParam);
+    assert!(
+        e.to_string().contains("effects.adc_inl.inl") && e.to_string().contains("inl_lsb"),
+        "{e}"
+    );
+
+    let e = ModelConfig::from_toml_str(
+        "[effects.demodulation_contrast]\nenabled = true\ncontrast = 1.5\n",
+    )
+    .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::OutOfRange);
+    let s = e.to_string();
+    assert!(
+        s.contains("effects.demodulation_contrast.contrast") && s.contains("[0.05, 1]"),
+        "{s}"
+    );
+
+    let e = ModelConfig::from_toml_str("[sensor]\nlsb_per_ke = -1\n").unwrap_err();
+    assert!(e.to_string().contains("sensor.lsb_per_ke"), "{e}");
+    let e = ModelConfig::from_toml_str("[effects.prnu]\nenabled = \"yes\"\n").unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Parse);
+    let e = ModelConfig::from_toml_str("[effects.prnu\n").unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Parse);
+    let e = ModelConfig::from_toml_str("colour = 3\n").unwrap_err();
+    assert!(e.to_string().contains("colour"));
+    let mut m = ModelConfig::baseline();
+    assert!(m.set_param("adc_offset", "offset_lsb", f64::NAN).is_err());
+    assert!(m.set_enabled("nope", true).is_err());
+    let e = ModelConfig::load(&repo_file("config/model/does-not-exist.toml")).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Io);
+}
+
+#[test]
+fn bad_requests_and_scenes_are_errors() {
+    let sim = Simulator::new(
+        &ModelConfig::full(),
+        SensorGeometry::irs1645().window(0, 0, 4, 4).unwrap(),
+        1,
+    )
+    .unwrap();
+    let ok = CaptureRequest::four_phase(500.0);
+    let wall = Scene::wall(1.0, 1.0);
+    let mut rng = SmallRng::seed_from_u64(1);
+    let mut bad = ok.clone();
+    bad.exposure_us = -1.0;
+    assert!(sim.capture(&wall, &bad, &mut rng).is_err());
+    bad = ok.clone();
+    bad.phases_deg.clear();
+    assert!(sim.expected(&wall, &bad).is_err());
+    bad = ok.clone();
+    bad.averaged = 0;
+    assert!(sim.expected(&wall, &bad).is_err());
+    assert!(sim.expected(&Scene::wall(f64::NAN, 1.0), &ok).is_err());
+    assert!(sim.expected(&Scene::wall(1.0, -0.1), &ok).is_err());
+    let map = Scene::DepthMap {
+        distance_m: ndarray::Array2::from_elem((3, 3), 1.0),
+        reflectivity: ndarray::Array2::from_elem((3, 3), 1.0),
+    };
+    assert!(sim.expected(&map, &ok).is_err());
+    assert!(SensorGeometry::irs1645().window(170, 0, 4, 4).is_err());
+    let g = SensorGeometry {
+        adc_bits: 40,
+        ..SensorGeometry::irs1645()
+    };
+    assert!(Simulator::new(&ModelConfig::ideal(), g, 0).is_err());
+}
+
+#[test]
+fn window_sees_the_same_pixels_as_the_full_array_and_seed_is_deterministic() {
+    let m = ModelConfig::full();
+    let full = Simulator::new(&m, SensorGeometry::irs1645(), 42).unwrap();
+    let win = Simulator::new(
+        &m,
+        SensorGeometry::irs1645().window(50, 70, 16, 16).unwrap(),
+        42,
+    )
+    .unwrap();
+    let req = CaptureRequest::four_phase(700.0);
+    let scene = Scene::wall(0.8, 0.9);
+    let a = full.expected(&scene, &req).unwrap();
+    let b = win.expected(&scene, &req).unwrap();
+    let cut = a.slice(ndarray::s![.., 50..66, 70..86]);
+    assert_eq!(cut, b.view());
+    // a full-array depth map is cut at the window
+    let script = SceneScript::hand();
+    let s = script.at(3.0);
+    let fa = full.expected(&s, &req).unwrap();
+    let wb = win.expected(&s, &req).unwrap();
+    assert_eq!(fa.slice(ndarray::s![.., 50..66, 70..86]), wb.view());
+    // same seed → same noise; other seed → other fixed pattern
+    let mut r1 = SmallRng::seed_from_u64(9);
+    let mut r2 = SmallRng::seed_from_u64(9);
+    assert_eq!(
+        win.capture(&scene, &req, &mut r1).unwrap(),
+        win.capture(&scene, &req, &mut r2).unwrap()
+    );
+    let other = Simulator::new(
+        &m,
+        SensorGeometry::irs1645().window(50, 70, 16, 16).unwrap(),
+        43,
+    )
+    .unwrap();
+    assert_ne!(other.expected(&scene, &req).unwrap(), b);
+}
+
+#[test]
+fn fpn_has_thesis_statistics_and_column_structure() {
+    let mut m = ModelConfig::ideal();
+    m.set_enabled("fpn_offset", true).unwrap();
+    let sim = Simulator::new(&m, SensorGeometry::irs1645(), 11).unwrap();
+    let dark = sim
+        .expected(&Scene::wall(1.0, 1.0), &CaptureRequest::dark(1, 100.0))
+        .unwrap();
+    let v: Vec<f64> = dark.iter().map(|c| c - 2048.0).collect();
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+    assert!(
+        (25.0..45.0).contains(&sd),
+        "FPN sigma {sd} LSB (thesis ≈ 34)"
+    );
+    // pixels of one column scatter less than pixels of one row (fig. 3.15)
+    let plane = dark.index_axis(ndarray::Axis(0), 0);
+    let sd_of = |xs: Vec<f64>| {
+        let n = xs.len() as f64;
+        let m = xs.iter().sum::<f64>() / n;
+        (xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt()
+    };
+    let col_sd = sd_of(plane.column(100).to_vec());
+    let row_sd = sd_of(plane.row(100).to_vec());
+    assert!(col_sd < row_sd, "column {col_sd} vs row {row_sd}");
+}
+
+#[test]
+fn disabled_effects_are_exactly_absent_and_enabled_ones_act() {
+    let g = SensorGeometry::irs1645().window(60, 60, 4, 4).unwrap();
+    let mut req = CaptureRequest::four_phase(800.0);
+    req.ambient_klux = 40.0;
+    req.temperature_c = 45.0;
+    let scene = Scene::wall(0.7, 0.8);
+    let ideal = Simulator::new(&ModelConfig::ideal(), g, 5)
+        .unwrap()
+        .expected(&scene, &req)
+        .unwrap();
+    for e in catalogue() {
+        // parameters of a disabled effect have no influence at all
+        let mut m = ModelConfig::ideal();
+        for p in e.params {
+            let v = if p.typical == p.max { p.min } else { p.max };
+            m.set_param(e.id, p.name, v).unwrap();
+        }
+        let off = Simulator::new(&m, g, 5)
+            .unwrap()
+            .expected(&scene, &req)
+            .unwrap();
+        assert_eq!(off, ideal, "disabled {} changed the output", e.id);
+        // switched on (typical values), systematic effects change the mean
+        // noise sources and common-mode charge (ambient, dark) act on the noise only
+        let noise = [
+            "shot_noise",
+            "read_noise",
+            "ktc_noise",
+            "ambient_light",
+            "dark_current",
+            "quantization",
+        ]
+        .contains(&e.id);
+        let mut m = ModelConfig::ideal();
+        m.set_enabled(e.id, true).unwrap();
+        let on = Simulator::new(&m, g, 5).unwrap();
+        if noise {
+            let mut with_shot = ModelConfig::ideal();
+            with_shot.set_enabled("shot_noise", true).unwrap();
+            let reference = if e.id == "shot_noise" {
+                ModelConfig::ideal()
+            } else {
+                with_shot.clone()
+            };
+            let mut on_model = with_shot;
+            on_model.set_enabled(e.id, true).unwrap();
+            let on = Simulator::new(&on_model, g, 5).unwrap();
+            let off = Simulator::new(&reference, g, 5).unwrap();
+            let (mut r1, mut r2) = (SmallRng::seed_from_u64(1), SmallRng::seed_from_u64(1));
+            let a = on.capture(&scene, &req, &mut r1).unwrap();
+            let b = off.capture(&scene, &req, &mut r2).unwrap();
+            assert_ne!(a, b, "{} adds no noise", e.id);
+            // but leaves the mean alone
+            assert_eq!(
+                on.expected(&scene, &req).unwrap(),
+                off.expected(&scene, &req).unwrap(),
+                "{}",
+                e.id
+            );
+        } else if e.id == "sbi_asymmetry" {
+            // the SBI only acts once background light fills the taps
+            let mut amb = ModelConfig::ideal();
+            amb.set_enabled("ambient_light", true).unwrap();
+            let reference = Simulator::new(&amb, g, 5)
+                .unwrap()
+                .expected(&scene, &req)
+                .unwrap();
+            amb.set_enabled("sbi_asymmetry", true).unwrap();
+            let with = Simulator::new(&amb, g, 5)
+                .unwrap()
+                .expected(&scene, &req)
+                .unwrap();
+            assert_ne!(with, reference, "sbi_asymmetry has no effect");
+        } else {
+            assert_ne!(
+                on.expected(&scene, &req).unwrap(),
+                ideal,
+                "{} has no effect",
+                e.id
+            );
+        }
+    }
+}
+
+#[test]
+fn droop_breaks_4phase_symmetry_and_sbi_cancels_in_4phase() {
+    let g = SensorGeometry::irs1645().window(86, 112, 1, 1).unwrap();
+    let phase4 = |c: &ndarray::Array3<f64>| {
+        let u = |k: usize| c[[k, 0, 0]];
+        (u(1) - u(3)).atan2(u(0) - u(2))
+    };
+    let req = CaptureRequest::four_phase(1000.0);
+    let scene = Scene::wall(0.9, 1.0);
+    let mut m = ModelConfig::ideal();
+    m.set_enabled("signal_falloff", true).unwrap();
+    let base = phase4(
+        &Simulator::new(&m, g, 1)
+            .unwrap()
+            .expected(&scene, &req)
+            .unwrap(),
+    );
+    let mut md = m.clone();
+    md.set_enabled("vcsel_droop", true).unwrap();
+    md.set_param("vcsel_droop", "droop_rel", 0.2).unwrap();
+    let droop = phase4(
+        &Simulator::new(&md, g, 1)
+            .unwrap()
+            .expected(&scene, &req)
+            .unwrap(),
+    );
+    assert!(
+        (droop - base).abs() > 1e-3,
+        "droop must change the 4-phase result"
+    );
+}
+
+#[test]
+fn capture_u16_quantises_and_saturates_at_the_rails() {
+    let g = SensorGeometry::irs1645().window(86, 112, 2, 2).unwrap();
+    let sim = Simulator::new(&ModelConfig::full(), g, 3).unwrap();
+    let mut rng = SmallRng::seed_from_u64(1);
+    let near = sim
+        .capture_u16(
+            &Scene::wall(0.05, 1.0),
+            &CaptureRequest::four_phase(2000.0),
+            &mut rng,
+        )
+        .unwrap();
+    assert!(
+        near.iter().any(|&c| c == 0 || c == 4095),
+        "close wall saturates"
+    );
+    assert!(near.iter().all(|&c| c <= 4095));
+    let mut req = CaptureRequest::four_phase(500.0);
+    req.averaged = 16;
+    let avg = sim.capture(&Scene::wall(1.0, 1.0), &req, &mut rng).unwrap();
+    assert!(
+        avg.iter().any(|c| c.fract() != 0.0),
+        "averaged captures are not integer"
+    );
+}
+
+#[test]
+fn scene_scripts_hand_and_face() {
+    let hand = SceneScript::hand();
+    hand.validate().unwrap();
+    let p = hand.period_s;
+    let ds: Vec<Option<f64>> = (0..200)
+        .map(|i| hand.object_distance_m(p * i as f64 / 200.0))
+        .collect();
+    let nearest = ds.iter().flatten().fold(f64::INFINITY, |m, &d| m.min(d));
+    assert!((nearest - 0.05).abs() < 1e-9);
+    assert!(ds.iter().any(Option::is_none), "the hand leaves");
+    let (a, b) = (
+        hand.object_distance_m(0.3 * p).unwrap(),
+        hand.object_distance_m(1.3 * p).unwrap(),
+    );
+    assert!((a - b).abs() < 1e-9, "loops");
+    assert_eq!(hand.centre_distance_m(0.0), 1.0);
+    let face = SceneScript::face();
+    let d = face.object_distance_m(1.0).unwrap();
+    assert!((d - 0.2).abs() < 0.02);
+    let toml = "kind = \"hand\"\nperiod_s = 12.0\nnear_m = 0.06\n";
+    let s: SceneScript = toml::from_str(toml).unwrap();
+    assert_eq!(s.period_s, 12.0);
+    s.validate().unwrap();
+    assert!(toml::from_str::<SceneScript>("kind = \"hand\"\nspeed = 1\n").is_err());
+    let long = SceneScript {
+        period_s: 30.0,
+        ..SceneScript::hand()
+    };
+    assert!(long.validate().is_err());
+}
