@@ -377,9 +377,31 @@ pub fn diagnose(
         c.delta_bic =
             bic(c2.chi2, c2.model.n_params, cmp.n) - bic(cmp.chi2, cmp.model.n_params, cmp.n);
         c.structure_after = Some(c2.structure.first().map(|s| s.z).unwrap_or(0.0));
+        // Cross-validate again on the refitted model (the per-pixel parameters
+        // no longer absorb the effect): the effect's contribution is put back
+        // into the residual and refitted on training blocks only.
+        if let Some(e) = c2.model.effects.iter().find(|e| e.id == c.effect) {
+            let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
+            let mut recs = c2.recs.clone();
+            let mut buf = vec![0.0; 64];
+            for r in &mut recs {
+                r.r += crate::fit::eval_delta(sig.as_ref(), e, r, prep, &mut buf);
+            }
+            let f = fit_signature(sig.as_ref(), &recs, prep, Some(e))?;
+            let ex = f.chi2_before - c2.dof;
+            if ex > 0.0 {
+                c.cv_gain = c.cv_gain.max((f.cv_chi2_before - f.cv_chi2) / ex);
+            }
+        }
         c.rms_after = Some(c2.rms);
         remaining.push(c2.structure);
     }
+    // re-rank with the refitted evidence
+    cands.sort_by(|a, b| {
+        b.cv_gain
+            .total_cmp(&a.cv_gain)
+            .then(b.explained_excess.total_cmp(&a.explained_excess))
+    });
     progress("candidates", 1.0);
     let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
     let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, &cands);

@@ -270,6 +270,8 @@ pub struct Rec {
     pub cd: f64,
     /// Modelled differential code (code − mid) without effects.
     pub x: f64,
+    /// The pixel's response relative to the median pixel (PRNU, vignetting).
+    pub gain_rel: f64,
     pub cap: u32,
     pub pix: u32,
     pub k: u16,
@@ -291,6 +293,8 @@ pub struct LabModel {
     pub sat: Vec<bool>,
     /// Number of fitted parameters (for dof and BIC).
     pub n_params: usize,
+    /// Median of the per-pixel gains.
+    pub gain_median: f64,
 }
 
 /// Progress callback: (stage name, fraction done).
@@ -322,6 +326,7 @@ impl LabModel {
             c: cv,
             cd,
             x,
+            gain_rel: self.gain[p] / self.gain_median.max(1e-12),
             cap: c as u32,
             pix: p as u32,
             k: k as u16,
@@ -540,6 +545,7 @@ pub fn fit_model(
         noise: NoiseModel::default(),
         sat: prep.sat_meas.clone(),
         n_params: 0,
+        gain_median: 1.0,
     };
     // Initial gains: least squares with the shape fixed.
     fit_gain_only(prep, &mut model);

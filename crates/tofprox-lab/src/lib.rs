@@ -5,6 +5,7 @@
 //! (fits the [`fit::LabModel`], noise, residual structure) →
 //! [`diagnose::diagnose`] (candidate signatures, verdict) →
 //! [`diagnose::add_effect`].
+pub mod adapter;
 pub mod candidates;
 pub mod data;
 pub mod diagnose;

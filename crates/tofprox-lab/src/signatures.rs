@@ -138,7 +138,8 @@ impl Sbi {
         } else {
             1.0
         };
-        let b = cap.ambient_klux * cap.exposure_us * 1e-3;
+        // background light passes the same optics: scaled by the pixel's response
+        let b = cap.ambient_klux * cap.exposure_us * 1e-3 * r.gain_rel;
         let s = kappa * r.a / 100.0;
         (b + s * (1.25 + r.c) / 2.0, b + s * (1.25 - r.c) / 2.0)
     }
@@ -339,15 +340,14 @@ impl Signature for Inl {
         "adc_inl"
     }
     fn n_lin(&self) -> usize {
-        2
+        1
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["inl_bow_lsb".into(), "inl_cubic_lsb".into()]
+        vec!["inl_bow_lsb".into()]
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
         let u = (r.x / self.mid).clamp(-1.0, 1.0);
         out[0] = (PI * u).sin(); // fig. 3.4: extremes at half of each half range
-        out[1] = 2.598 * u * (1.0 - u * u);
     }
 }
 
