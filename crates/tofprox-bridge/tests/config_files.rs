@@ -52,7 +52,17 @@ fn bad_files_name_the_key() {
     let e = EmulatedConfig::load(&p).unwrap_err();
     assert!(e.to_string().contains("faults.unplug.probability"), "{e}");
     std::fs::write(&p, "[timing]\nstartup_us = -1.0\n").unwrap();
-    assert!(EmulatedConfig::load(&p).unwrap_err().to_string().contains("timing.startup_us"));
+    assert!(
+        EmulatedConfig::load(&p)
+            .unwrap_err()
+            .to_string()
+            .contains("timing.startup_us")
+    );
     std::fs::write(&p, "[driver.timing]\npoll_interval_us = 0\n").unwrap();
-    assert!(DeviceConfigFile::load(&p).unwrap_err().to_string().contains("poll_interval_us"));
+    assert!(
+        DeviceConfigFile::load(&p)
+            .unwrap_err()
+            .to_string()
+            .contains("poll_interval_us")
+    );
 }
