@@ -22,6 +22,14 @@ const A11: f32 = -0.011_721_2;
 /// (possibly NaN) result; the pipeline flags such pixels invalid before using the phase.
 #[inline(always)]
 pub fn fast_atan2_f32(y: f32, x: f32) -> f32 {
+    atan2_poly::<false>(y, x)
+}
+
+/// [`fast_atan2_f32`] with the polynomial evaluated by fused multiply-adds when `FMA` is true
+/// (only for code compiled with the `fma` target feature; otherwise `mul_add` is a libm call).
+#[inline(always)]
+pub(crate) fn atan2_poly<const FMA: bool>(y: f32, x: f32) -> f32 {
+    let madd = |a: f32, b: f32, c: f32| if FMA { a.mul_add(b, c) } else { a * b + c };
     let ax = x.abs();
     let ay = y.abs();
     let mx = ax.max(ay);
@@ -29,12 +37,11 @@ pub fn fast_atan2_f32(y: f32, x: f32) -> f32 {
     // mx == 0 only for the origin; divide by a tiny positive instead (gives t = 0).
     let t = mn / mx.max(f32::MIN_POSITIVE);
     let t2 = t * t;
-    let p = A11;
-    let p = p * t2 + A9;
-    let p = p * t2 + A7;
-    let p = p * t2 + A5;
-    let p = p * t2 + A3;
-    let p = p * t2 + A1;
+    let p = madd(A11, t2, A9);
+    let p = madd(p, t2, A7);
+    let p = madd(p, t2, A5);
+    let p = madd(p, t2, A3);
+    let p = madd(p, t2, A1);
     let mut a = p * t; // atan(mn/mx) in [0, π/4]
     a = if ay > ax { FRAC_PI_2 - a } else { a };
     a = if x < 0.0 { PI - a } else { a };

@@ -19,8 +19,9 @@
 //! [`Pipeline::new`]; [`Pipeline::process`] does not allocate.
 
 use crate::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use crate::fastmath::atan2_poly;
 use crate::phasor::{self, wrap_to_pi};
-use crate::{Algorithm, CoreError, fast_atan2_f32};
+use crate::{Algorithm, CoreError};
 use ndarray::{Array2, ArrayView3, Axis};
 use std::f32::consts::TAU;
 
@@ -35,6 +36,9 @@ pub const FLAG_NON_FINITE: u8 = 1 << 3;
 
 /// Size of the internal wiggling table (power of two so the index is a mask, no bounds checks).
 const LUT_BINS: usize = 4096;
+
+/// 1.5 · 2^23: `(x + ROUND_MAGIC).to_bits() & 0x3F_FFFF` is `round(x)` for `0 ≤ x < 2^22`.
+const ROUND_MAGIC: f32 = 12_582_912.0;
 
 /// A raw sample type the pipeline accepts: `u16` codes, or `f32`/`f64` averaged codes.
 pub trait RawSample: Copy + Send + Sync + 'static {
@@ -236,7 +240,7 @@ pub struct Pipeline {
     /// Staging for non-contiguous input (4 × rows × cols).
     staging: Vec<f32>,
     frame: DepthFrame,
-    use_avx2: bool,
+    simd: SimdLevel,
 }
 
 impl Pipeline {
@@ -282,7 +286,7 @@ impl Pipeline {
             lut_slope: Box::new([0.0; LUT_BINS]),
             staging: vec![0.0; 4 * n],
             frame: DepthFrame::zeros(rows, cols),
-            use_avx2: detect_avx2(),
+            simd: detect_simd(),
         };
         p.set_calibration(calibration)?;
         Ok(p)
@@ -444,14 +448,59 @@ impl Pipeline {
         };
         let p = self.params;
         let four = need == 4;
-        #[cfg(target_arch = "x86_64")]
-        if self.use_avx2 {
-            // SAFETY: `use_avx2` is only true when the CPU reports AVX2 and FMA at runtime.
-            unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) };
-            return;
+        match self.simd {
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => {
+                // SAFETY: `Avx512` is only selected when the CPU reports these features at runtime.
+                unsafe { kernel_avx512(raw, four, n, &p, &tabs, out) }
+            }
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => {
+                // SAFETY: `Avx2` is only selected when the CPU reports AVX2 and FMA at runtime.
+                unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) }
+            }
+            _ => kernel_dispatch::<T, false>(raw, four, n, &p, &tabs, out, gather_scalar),
         }
-        kernel_generic(raw, four, n, &p, &tabs, out);
     }
+
+    /// The instruction set the per-pixel kernel runs with on this CPU ("avx512", "avx2" or
+    /// "generic"), detected once at construction.
+    pub fn simd_level(&self) -> &'static str {
+        match self.simd {
+            SimdLevel::Avx512 => "avx512",
+            SimdLevel::Avx2 => "avx2",
+            SimdLevel::Generic => "generic",
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SimdLevel {
+    Generic,
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx2,
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+    Avx512,
+}
+
+fn detect_simd() -> SimdLevel {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::is_x86_feature_detected as has;
+        if has!("avx512f")
+            && has!("avx512bw")
+            && has!("avx512vl")
+            && has!("avx512dq")
+            && has!("avx2")
+            && has!("fma")
+        {
+            return SimdLevel::Avx512;
+        }
+        if has!("avx2") && has!("fma") {
+            return SimdLevel::Avx2;
+        }
+    }
+    SimdLevel::Generic
 }
 
 struct Outputs<'a> {
@@ -469,15 +518,35 @@ struct Tables<'a> {
     lut_slope: &'a [f32; LUT_BINS],
 }
 
-fn detect_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+/// Pixels per chunk: the per-chunk scratch (LUT index, fraction, correction) stays in L1.
+const CHUNK: usize = 256;
+
+type GatherFn = fn(&[u32], &[f32], &[f32; LUT_BINS], &[f32; LUT_BINS], &mut [f32]);
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
+fn kernel_avx512<T: RawSample>(
+    raw: [&[T]; 4],
+    four: bool,
+    n: usize,
+    p: &KernelParams,
+    t: &Tables<'_>,
+    out: Outputs<'_>,
+) {
+    // With AVX-512 LLVM vectorises the gather loop itself.
+    kernel_dispatch::<T, true>(raw, four, n, p, t, out, gather_avx512)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
+fn gather_avx512(
+    idx: &[u32],
+    fr: &[f32],
+    lv: &[f32; LUT_BINS],
+    ls: &[f32; LUT_BINS],
+    out: &mut [f32],
+) {
+    gather_scalar(idx, fr, lv, ls, out)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -490,34 +559,94 @@ fn kernel_avx2<T: RawSample>(
     t: &Tables<'_>,
     out: Outputs<'_>,
 ) {
-    kernel_generic(raw, four, n, p, t, out)
+    kernel_dispatch::<T, true>(raw, four, n, p, t, out, gather_avx2)
+}
+
+/// LUT gather with explicit AVX2 `vgatherdps` (LLVM's cost model does not vectorise it at AVX2).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn gather_avx2(
+    idx: &[u32],
+    fr: &[f32],
+    lv: &[f32; LUT_BINS],
+    ls: &[f32; LUT_BINS],
+    out: &mut [f32],
+) {
+    use std::arch::x86_64::{
+        __m256i, _mm256_and_si256, _mm256_fmadd_ps, _mm256_i32gather_ps, _mm256_loadu_ps,
+        _mm256_loadu_si256, _mm256_set1_epi32, _mm256_storeu_ps,
+    };
+    let len = idx.len().min(fr.len()).min(out.len());
+    let mask = _mm256_set1_epi32((LUT_BINS - 1) as i32);
+    let mut j = 0;
+    while j + 8 <= len {
+        // SAFETY: j + 8 ≤ len ≤ every slice's length, so the unaligned 8-lane loads/store are in
+        // bounds; the gather indices are masked to < LUT_BINS, the length of both tables.
+        unsafe {
+            let vi = _mm256_and_si256(
+                _mm256_loadu_si256(idx.as_ptr().add(j).cast::<__m256i>()),
+                mask,
+            );
+            let v = _mm256_i32gather_ps::<4>(lv.as_ptr(), vi);
+            let s = _mm256_i32gather_ps::<4>(ls.as_ptr(), vi);
+            let f = _mm256_loadu_ps(fr.as_ptr().add(j));
+            _mm256_storeu_ps(out.as_mut_ptr().add(j), _mm256_fmadd_ps(s, f, v));
+        }
+        j += 8;
+    }
+    gather_scalar(&idx[j..len], &fr[j..len], lv, ls, &mut out[j..len]);
 }
 
 #[inline(always)]
-fn kernel_generic<T: RawSample>(
+fn gather_scalar(
+    idx: &[u32],
+    fr: &[f32],
+    lv: &[f32; LUT_BINS],
+    ls: &[f32; LUT_BINS],
+    out: &mut [f32],
+) {
+    for ((o, &i), &f) in out.iter_mut().zip(idx).zip(fr) {
+        let i = (i as usize) & (LUT_BINS - 1);
+        *o = lv[i] + ls[i] * f;
+    }
+}
+
+#[inline(always)]
+fn kernel_dispatch<T: RawSample, const FMA: bool>(
     raw: [&[T]; 4],
     four: bool,
     n: usize,
     p: &KernelParams,
     t: &Tables<'_>,
     out: Outputs<'_>,
+    gather: GatherFn,
 ) {
     if four {
-        kernel::<T, true>(raw, n, p, t, out)
+        kernel::<T, true, FMA>(raw, n, p, t, out, gather)
     } else {
-        kernel::<T, false>(raw, n, p, t, out)
+        kernel::<T, false, FMA>(raw, n, p, t, out, gather)
     }
 }
 
-/// The per-pixel loop. All slices are re-sliced to `n` up front so the loop has no bounds checks
-/// and no branches (selects only), which lets LLVM vectorise it.
+/// `a * b + c`, fused when the kernel is compiled with FMA (never a libm call otherwise).
 #[inline(always)]
-fn kernel<T: RawSample, const FOUR: bool>(
+fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
+    if FMA { a.mul_add(b, c) } else { a * b + c }
+}
+
+/// The per-pixel work in chunks of [`CHUNK`] pixels, three passes per chunk:
+/// A (vectorised): raw validity, offset correction, amplitude, phase, LUT index/fraction;
+/// B: LUT gather (vectorised where the ISA allows); C (vectorised): wiggling + FPPN correction,
+/// wrap, depth, flags. All slices are re-sliced to the chunk length first so there are no bounds
+/// checks, and the loops use selects instead of branches.
+#[inline(always)]
+fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
     raw: [&[T]; 4],
     n: usize,
     p: &KernelParams,
     t: &Tables<'_>,
     out: Outputs<'_>,
+    gather: GatherFn,
 ) {
     let n = n
         .min(raw[0].len())
@@ -534,70 +663,96 @@ fn kernel<T: RawSample, const FOUR: bool>(
     } else {
         n
     };
-    let r0 = &raw[0][..n];
-    let r1 = &raw[1][..n];
-    let (r2, r3) = if FOUR {
-        (&raw[2][..n], &raw[3][..n])
-    } else {
-        (r0, r1)
-    };
-    let dark = &t.dark[..n];
-    let fppn = &t.fppn[..n];
-    let phase = &mut out.phase[..n];
-    let amp = &mut out.amp[..n];
-    let depth_m = &mut out.depth_m[..n];
-    let depth_mm = &mut out.depth_mm[..n];
-    let flags = &mut out.flags[..n];
-    let lv = t.lut_val;
-    let ls = t.lut_slope;
     let rail = p.rail_hi;
-    for i in 0..n {
-        let a0 = r0[i].to_f32();
-        let a1 = r1[i].to_f32();
-        // Saturation and finiteness on the RAW codes (non-short-circuit `|`/`&`: no branches).
-        let mut sat = (a0 <= 0.0) | (a0 >= rail) | (a1 <= 0.0) | (a1 >= rail);
-        let mut finite = a0.is_finite() & a1.is_finite();
-        let (x, y, amp_v);
-        if FOUR {
-            let a2 = r2[i].to_f32();
-            let a3 = r3[i].to_f32();
-            sat = sat | (a2 <= 0.0) | (a2 >= rail) | (a3 <= 0.0) | (a3 >= rail);
-            finite = finite & a2.is_finite() & a3.is_finite();
-            // eq. 2.3: the per-pixel offset cancels in the differences.
-            x = a0 - a2;
-            y = a1 - a3;
-            amp_v = 0.5 * (x * x + y * y).sqrt(); // eq. 2.4
+    let mut idx_buf = [0u32; CHUNK];
+    let mut fr_buf = [0f32; CHUNK];
+    let mut corr_buf = [0f32; CHUNK];
+    let mut base = 0;
+    while base < n {
+        let len = CHUNK.min(n - base);
+        let end = base + len;
+        let r0 = &raw[0][base..end];
+        let r1 = &raw[1][base..end];
+        let (r2, r3) = if FOUR {
+            (&raw[2][base..end], &raw[3][base..end])
         } else {
-            // Offset correction (4.3.3.1) then eq. 2.2.
-            x = a0 - dark[i];
-            y = a1 - dark[i];
-            amp_v = (x * x + y * y).sqrt(); // |z|, 2-phase form of eq. 2.4
+            (r0, r1)
+        };
+        let dark = &t.dark[base..end];
+        let fppn = &t.fppn[base..end];
+        let phase = &mut out.phase[base..end];
+        let amp = &mut out.amp[base..end];
+        let depth_m = &mut out.depth_m[base..end];
+        let depth_mm = &mut out.depth_mm[base..end];
+        let flags = &mut out.flags[base..end];
+        let idx = &mut idx_buf[..len];
+        let frb = &mut fr_buf[..len];
+        let corr = &mut corr_buf[..len];
+
+        // Pass A.
+        for j in 0..len {
+            let a0 = r0[j].to_f32();
+            let a1 = r1[j].to_f32();
+            // Saturation and finiteness on the RAW codes (non-short-circuit `|`/`&`: no branches).
+            let mut sat = (a0 <= 0.0) | (a0 >= rail) | (a1 <= 0.0) | (a1 >= rail);
+            let mut finite = a0.is_finite() & a1.is_finite();
+            let (x, y, amp_v);
+            if FOUR {
+                let a2 = r2[j].to_f32();
+                let a3 = r3[j].to_f32();
+                sat = sat | (a2 <= 0.0) | (a2 >= rail) | (a3 <= 0.0) | (a3 >= rail);
+                finite = finite & a2.is_finite() & a3.is_finite();
+                // eq. 2.3: the per-pixel offset cancels in the differences.
+                x = a0 - a2;
+                y = a1 - a3;
+                amp_v = 0.5 * madd::<FMA>(x, x, y * y).sqrt(); // eq. 2.4
+            } else {
+                // Offset correction (4.3.3.1), then eq. 2.2.
+                x = a0 - dark[j];
+                y = a1 - dark[j];
+                amp_v = madd::<FMA>(x, x, y * y).sqrt(); // |z|, 2-phase form of eq. 2.4
+            }
+            let m = atan2_poly::<FMA>(y, x); // eq. 2.2 / 2.3, [0, 2π)
+            // Float→int without `as` (saturating casts do not vectorise): adding 1.5·2^23 puts
+            // round(x) in the low mantissa bits. `xf − 0.5` rounds to floor (a tie gives idx − 1
+            // with fr = 1: the same interpolated value). NaN gives an index masked into range.
+            let xf = m * p.lut_scale;
+            let xi = (xf - 0.5 + ROUND_MAGIC).to_bits() & 0x3F_FFFF;
+            idx[j] = xi;
+            frb[j] = xf - xi as f32;
+            phase[j] = m;
+            amp[j] = amp_v;
+            flags[j] = (sat as u8) | ((!finite as u8) << 3);
         }
-        let m = fast_atan2_f32(y, x); // eq. 2.2 / 2.3, [0, 2π)
-        // Wiggling LUT (3.3.7.2), linear periodic interpolation.
-        let xf = m * p.lut_scale;
-        let xi = xf as i32; // m ≥ 0 so truncation is floor; NaN → 0
-        let fr = xf - xi as f32;
-        let idx = (xi as usize) & (LUT_BINS - 1);
-        let corr = lv[idx] + ls[idx] * fr;
-        // FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
-        let mut ph = m - corr - fppn[i];
-        ph = if ph < 0.0 { ph + TAU } else { ph };
-        ph = if ph < 0.0 { ph + TAU } else { ph };
-        ph = if ph >= TAU { ph - TAU } else { ph };
-        ph = if ph >= TAU { ph - TAU } else { ph };
-        let d = ph * p.rad_to_m; // eq. 2.6
-        let mm_f = d * 1000.0 + 0.5;
-        let in_range = mm_f < 65_535.5; // false for NaN
-        let low = amp_v < p.min_amp;
-        let invalid = sat | low | !finite | !in_range;
-        flags[i] =
-            (sat as u8) | ((low as u8) << 1) | ((invalid as u8) << 2) | ((!finite as u8) << 3);
-        let mm = (mm_f as u32).max(1) as u16; // saturating float→int cast; in range when valid
-        depth_mm[i] = if invalid { 0 } else { mm };
-        depth_m[i] = if invalid { 0.0 } else { d };
-        phase[i] = if finite { ph } else { 0.0 };
-        amp[i] = if finite { amp_v } else { 0.0 };
+
+        // Pass B: wiggling LUT (3.3.7.2), linear periodic interpolation.
+        gather(idx, frb, t.lut_val, t.lut_slope, corr);
+
+        // Pass C.
+        for j in 0..len {
+            let f0 = flags[j];
+            let finite = f0 & FLAG_NON_FINITE == 0;
+            let sat = f0 & FLAG_SATURATED != 0;
+            let amp_v = amp[j];
+            // Wiggling and FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
+            let mut ph = phase[j] - corr[j] - fppn[j];
+            ph = if ph < 0.0 { ph + TAU } else { ph };
+            ph = if ph < 0.0 { ph + TAU } else { ph };
+            ph = if ph >= TAU { ph - TAU } else { ph };
+            ph = if ph >= TAU { ph - TAU } else { ph };
+            let d = ph * p.rad_to_m; // eq. 2.6
+            let in_range = d * 1000.0 < 65_535.5; // false for NaN
+            let low = amp_v < p.min_amp;
+            let invalid = sat | low | !finite | !in_range;
+            flags[j] = f0 | ((low as u8) << 1) | ((invalid as u8) << 2);
+            // round(d · 1000) by the same mantissa trick; ≥ 1 mm when valid.
+            let mm = (((d * 1000.0 + ROUND_MAGIC).to_bits() & 0x3F_FFFF).max(1)) as u16;
+            depth_mm[j] = if invalid { 0 } else { mm };
+            depth_m[j] = if invalid { 0.0 } else { d };
+            phase[j] = if finite { ph } else { 0.0 };
+            amp[j] = if finite { amp_v } else { 0.0 };
+        }
+        base = end;
     }
 }
 
