@@ -119,18 +119,21 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
         set.set_wiggling(lut, src()).unwrap();
     }
     let flat = &rec.captures()[3];
-    let fppn = extract_fppn(
-        rec.load(3).unwrap().to_f64().view(),
-        &flat.phases_deg,
-        set.offset.as_ref(),
-        set.wiggling_4phase.as_ref(),
-        flat.distance_m().unwrap(),
-        sensor.modulation_hz,
-        sensor.adc_bits,
-        Algorithm::FourPhase,
-    )
-    .unwrap();
-    set.set_fppn(fppn, src()).unwrap();
+    let flat_data = rec.load(3).unwrap().to_f64();
+    for alg in Algorithm::ALL {
+        let fppn = extract_fppn(
+            flat_data.view(),
+            &flat.phases_deg,
+            set.offset.as_ref(),
+            set.wiggling(alg),
+            flat.distance_m().unwrap(),
+            sensor.modulation_hz,
+            sensor.adc_bits,
+            alg,
+        )
+        .unwrap();
+        set.set_fppn_for(alg, fppn, src()).unwrap();
+    }
     let cdir = t.path().join("calib");
     set.save(&cdir).unwrap();
     let set = CalibrationSet::load(&cdir).unwrap();

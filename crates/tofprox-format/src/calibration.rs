@@ -41,17 +41,20 @@ pub enum CalibPart {
     Wiggling2Phase,
     /// Wiggling LUT for 4-phase evaluation.
     Wiggling4Phase,
-    /// Per-pixel phase offsets (FPPN).
+    /// Per-pixel phase offsets (FPPN) for 4-phase evaluation (absolute w.r.t. the 4-phase LUT).
     Fppn,
+    /// Per-pixel phase offsets (FPPN) for 2-phase evaluation (absolute w.r.t. the 2-phase LUT).
+    Fppn2Phase,
 }
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 4] = [
+    pub const ALL: [CalibPart; 5] = [
         CalibPart::Offset,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
         CalibPart::Fppn,
+        CalibPart::Fppn2Phase,
     ];
     /// The table name in `calibration.toml` (also the array's file stem).
     pub fn name(self) -> &'static str {
@@ -60,6 +63,7 @@ impl CalibPart {
             CalibPart::Wiggling2Phase => "wiggling_2phase",
             CalibPart::Wiggling4Phase => "wiggling_4phase",
             CalibPart::Fppn => "fppn",
+            CalibPart::Fppn2Phase => "fppn_2phase",
         }
     }
     /// The array file name.
@@ -71,6 +75,21 @@ impl CalibPart {
         match algorithm {
             Algorithm::TwoPhase => CalibPart::Wiggling2Phase,
             Algorithm::FourPhase => CalibPart::Wiggling4Phase,
+        }
+    }
+    /// The FPPN part for an algorithm.
+    pub fn fppn(algorithm: Algorithm) -> CalibPart {
+        match algorithm {
+            Algorithm::TwoPhase => CalibPart::Fppn2Phase,
+            Algorithm::FourPhase => CalibPart::Fppn,
+        }
+    }
+    /// The algorithm a wiggling or FPPN part belongs to.
+    pub fn algorithm(self) -> Option<Algorithm> {
+        match self {
+            CalibPart::Offset => None,
+            CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
+            CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
     }
 }
@@ -143,8 +162,11 @@ pub struct CalibrationSet {
     pub wiggling_2phase: Option<WigglingLut>,
     /// 4-phase wiggling LUT.
     pub wiggling_4phase: Option<WigglingLut>,
-    /// FPPN map (extracted with 4-phase evaluation, applied to both algorithms).
+    /// FPPN map for 4-phase evaluation (extracted after the 4-phase wiggling
+    /// LUT; also applied to 2-phase when `fppn_2phase` is absent).
     pub fppn: Option<FppnMap>,
+    /// FPPN map for 2-phase evaluation (extracted after the 2-phase wiggling LUT).
+    pub fppn_2phase: Option<FppnMap>,
     /// What the set is valid for.
     pub validity: CalibrationValidity,
     /// Provenance of each present part.
@@ -189,6 +211,8 @@ struct CalibToml {
     wiggling_4phase: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     fppn: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    fppn_2phase: Option<PartToml>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -265,6 +289,7 @@ impl CalibrationSet {
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
+            fppn_2phase: None,
             validity: CalibrationValidity::from_sensor(sensor),
             sources: BTreeMap::new(),
             description: None,
@@ -278,6 +303,14 @@ impl CalibrationSet {
         match algorithm {
             Algorithm::TwoPhase => self.wiggling_2phase.as_ref(),
             Algorithm::FourPhase => self.wiggling_4phase.as_ref(),
+        }
+    }
+
+    /// The FPPN map for an algorithm (2-phase falls back to the 4-phase map).
+    pub fn fppn_for(&self, algorithm: Algorithm) -> Option<&FppnMap> {
+        match algorithm {
+            Algorithm::TwoPhase => self.fppn_2phase.as_ref().or(self.fppn.as_ref()),
+            Algorithm::FourPhase => self.fppn.as_ref(),
         }
     }
 
@@ -296,6 +329,7 @@ impl CalibrationSet {
             CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
             CalibPart::Fppn => self.fppn.is_some(),
+            CalibPart::Fppn2Phase => self.fppn_2phase.is_some(),
         }
     }
 
@@ -312,6 +346,10 @@ impl CalibrationSet {
                 .map(|w| npy::encode_f32(&w.correction_rad)),
             CalibPart::Fppn => self
                 .fppn
+                .as_ref()
+                .map(|f| npy::encode_f32(&f.phase_offset_rad)),
+            CalibPart::Fppn2Phase => self
+                .fppn_2phase
                 .as_ref()
                 .map(|f| npy::encode_f32(&f.phase_offset_rad)),
         }
@@ -332,6 +370,7 @@ impl CalibrationSet {
             CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
             CalibPart::Fppn => self.fppn = None,
+            CalibPart::Fppn2Phase => self.fppn_2phase = None,
         }
         self.sources.remove(&part);
         self.deps.remove(&part);
@@ -345,6 +384,7 @@ impl CalibrationSet {
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
             CalibPart::Fppn,
+            CalibPart::Fppn2Phase,
         ] {
             if !self.has(part) {
                 continue;
@@ -356,8 +396,8 @@ impl CalibrationSet {
                 out.push(part);
                 continue;
             }
-            if part == CalibPart::Fppn {
-                let w = self.checksum_or_none(CalibPart::Wiggling4Phase);
+            if let (CalibPart::Fppn | CalibPart::Fppn2Phase, Some(alg)) = (part, part.algorithm()) {
+                let w = self.checksum_or_none(CalibPart::wiggling(alg));
                 if d.wiggling.as_deref().is_some_and(|x| x != w) {
                     out.push(part);
                 }
@@ -424,26 +464,42 @@ impl CalibrationSet {
         Ok(self.drop_stale())
     }
 
-    /// Set (or replace) the FPPN map, recording the current offset and
-    /// 4-phase wiggling LUT as its dependencies.
+    /// Set (or replace) the 4-phase FPPN map, recording the current offset
+    /// and 4-phase wiggling LUT as its dependencies.
     pub fn set_fppn(
         &mut self,
         fppn: FppnMap,
         source: PartSource,
     ) -> Result<Vec<CalibPart>, FormatError> {
-        self.check_map_shape(&fppn.phase_offset_rad, "fppn")?;
+        self.set_fppn_for(Algorithm::FourPhase, fppn, source)
+    }
+
+    /// Set (or replace) the FPPN map of `algorithm`, recording the current
+    /// offset and that algorithm's wiggling LUT as its dependencies.
+    pub fn set_fppn_for(
+        &mut self,
+        algorithm: Algorithm,
+        fppn: FppnMap,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let part = CalibPart::fppn(algorithm);
+        self.check_map_shape(&fppn.phase_offset_rad, part.name())?;
         if let Some((r, c)) = first_non_finite(&fppn.phase_offset_rad) {
             return Err(
-                invalid(format!("phase offset at (row {r}, col {c}) is not finite")).key("fppn"),
+                invalid(format!("phase offset at (row {r}, col {c}) is not finite"))
+                    .key(part.name()),
             );
         }
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
-            wiggling: Some(self.checksum_or_none(CalibPart::Wiggling4Phase)),
+            wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
         };
-        self.fppn = Some(fppn);
-        self.sources.insert(CalibPart::Fppn, source);
-        self.deps.insert(CalibPart::Fppn, deps);
+        match algorithm {
+            Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
+            Algorithm::FourPhase => self.fppn = Some(fppn),
+        }
+        self.sources.insert(part, source);
+        self.deps.insert(part, deps);
         Ok(self.drop_stale())
     }
 
@@ -517,7 +573,7 @@ impl CalibrationSet {
         Calibration {
             offset: self.offset.clone(),
             wiggling: self.wiggling(algorithm).cloned(),
-            fppn: self.fppn.clone(),
+            fppn: self.fppn_for(algorithm).cloned(),
         }
     }
 
@@ -545,6 +601,7 @@ impl CalibrationSet {
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
+            fppn_2phase: None,
         };
         for part in CalibPart::ALL {
             let Some(bytes) = self.part_bytes(part) else {
@@ -571,11 +628,9 @@ impl CalibrationSet {
                         w.map(|w| w.len()),
                     )
                 }
-                CalibPart::Fppn => (
-                    self.fppn
-                        .as_ref()
-                        .map(|f| f.phase_offset_rad.shape().to_vec()),
-                    Some(Algorithm::FourPhase),
+                CalibPart::Fppn | CalibPart::Fppn2Phase => (
+                    Some(vec![self.validity.rows, self.validity.cols]),
+                    part.algorithm(),
                     None,
                 ),
             };
@@ -599,6 +654,7 @@ impl CalibrationSet {
                 CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
                 CalibPart::Fppn => t.fppn = Some(pt),
+                CalibPart::Fppn2Phase => t.fppn_2phase = Some(pt),
             }
         }
         let path = dir.join(CALIBRATION_TOML);
@@ -653,6 +709,7 @@ impl CalibrationSet {
             (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
             (CalibPart::Fppn, &t.fppn),
+            (CalibPart::Fppn2Phase, &t.fppn_2phase),
         ];
         for (part, pt) in parts {
             let Some(pt) = pt else { continue };
@@ -663,15 +720,22 @@ impl CalibrationSet {
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
                 }
-                (CalibPart::Fppn, LoadedArray::Map(a)) => {
-                    if pt.algorithm.is_some_and(|a| a != Algorithm::FourPhase) {
-                        return Err(invalid("FPPN maps are extracted with 4-phase evaluation")
-                            .at(&path)
-                            .key(k("algorithm")));
+                (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
+                    let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
+                    if pt.algorithm != Some(want) {
+                        return Err(invalid(format!(
+                            "must be \"{want}\" for [{key}] (the map is absolute w.r.t. the {want} wiggling table)"
+                        ))
+                        .at(&path)
+                        .key(k("algorithm")));
                     }
-                    set.fppn = Some(FppnMap {
+                    let map = Some(FppnMap {
                         phase_offset_rad: a,
-                    })
+                    });
+                    match want {
+                        Algorithm::TwoPhase => set.fppn_2phase = map,
+                        Algorithm::FourPhase => set.fppn = map,
+                    }
                 }
                 (CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase, LoadedArray::Lut(a)) => {
                     let want = if part == CalibPart::Wiggling2Phase {
@@ -750,9 +814,9 @@ impl CalibrationSet {
                 if set.deps.get(p).and_then(|d| d.offset.as_deref())
                     != Some(set.checksum_or_none(CalibPart::Offset).as_str())
                 {
-                    "offset"
+                    "offset".to_string()
                 } else {
-                    "4-phase wiggling table"
+                    format!("{} wiggling table", p.algorithm().map_or("", |a| a.as_str()))
                 }
             ))
             .at(&path)
@@ -855,7 +919,7 @@ fn load_part(
             .key(key));
     }
     match part {
-        CalibPart::Offset | CalibPart::Fppn => {
+        CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase => {
             let a = a.into_dimensionality::<Ix2>().map_err(|_| {
                 invalid(format!(
                     "expected a (rows, cols) = ({}, {}) map, found shape {}",

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use ndarray::Array3;
-use tofprox_format::{Recording, npy};
+use tofprox_format::{CalibPart, Recording, npy};
 
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_tofprox")
@@ -211,7 +211,11 @@ fn calibrate_then_process_is_within_1_cm() {
         assert_ok(&o);
     }
     let set = tofprox_format::CalibrationSet::load(&calib).unwrap();
-    assert_eq!(set.parts().len(), 4, "one set with every part");
+    assert_eq!(
+        set.parts(),
+        CalibPart::ALL.to_vec(),
+        "one set with every part"
+    );
     for (algo, n) in [("2phase", 6), ("4phase", 5)] {
         let out = t.path().join(algo);
         let errs = process_errors(Some(&calib), algo, &out);
@@ -320,9 +324,8 @@ fn calibrate_merges_and_drops_stale_parts() {
     assert_eq!(
         tofprox_format::CalibrationSet::load(&other)
             .unwrap()
-            .parts()
-            .len(),
-        4
+            .parts(),
+        CalibPart::ALL.to_vec()
     );
     assert_eq!(
         tofprox_format::CalibrationSet::load(&calib)
@@ -331,6 +334,30 @@ fn calibrate_merges_and_drops_stale_parts() {
             .len(),
         3
     );
+    // new wiggling tables make both FPPN maps stale: they are dropped with a note
+    let o = run(&[
+        "calibrate",
+        "wiggling",
+        "examples/recording",
+        "--out",
+        p(&other),
+        "--lut-size",
+        "128",
+    ]);
+    assert_ok(&o);
+    assert!(stderr(&o).contains("dropped fppn"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("dropped fppn_2phase"), "{}", stderr(&o));
+    assert_eq!(
+        tofprox_format::CalibrationSet::load(&other)
+            .unwrap()
+            .parts(),
+        vec![
+            CalibPart::Offset,
+            CalibPart::Wiggling2Phase,
+            CalibPart::Wiggling4Phase
+        ]
+    );
+    assert!(!other.join("fppn.npy").exists());
 }
 
 #[test]

@@ -55,7 +55,15 @@ fn full_set() -> CalibrationSet {
     s.set_wiggling(lut(Algorithm::FourPhase, 64, 0.02), src("corr"))
         .unwrap();
     s.set_fppn(fppn(), src("flat")).unwrap();
+    s.set_fppn_for(Algorithm::TwoPhase, fppn2(), src("flat"))
+        .unwrap();
     s
+}
+
+fn fppn2() -> FppnMap {
+    FppnMap {
+        phase_offset_rad: Array2::from_shape_fn((3, 4), |(r, c)| 0.02 * (c as f32 - r as f32)),
+    }
 }
 
 #[test]
@@ -68,13 +76,22 @@ fn save_load_roundtrip() {
     assert_eq!(l.wiggling_2phase, s.wiggling_2phase);
     assert_eq!(l.wiggling_4phase, s.wiggling_4phase);
     assert_eq!(l.fppn, s.fppn);
+    assert_eq!(l.fppn_2phase, s.fppn_2phase);
     assert_eq!(l.validity, s.validity);
     assert_eq!(l.sources[&CalibPart::Fppn].captures, vec![0, 2]);
     assert_eq!(l.sources[&CalibPart::Wiggling2Phase].distance_m, Some(0.5));
     assert_eq!(l.parts(), CalibPart::ALL.to_vec());
     let c = l.to_pipeline_calibration(Algorithm::TwoPhase);
     assert_eq!(c.wiggling.unwrap().algorithm, Algorithm::TwoPhase);
-    assert!(c.offset.is_some() && c.fppn.is_some());
+    assert_eq!(
+        c.fppn.as_ref(),
+        Some(&fppn2()),
+        "2-phase uses its own FPPN map"
+    );
+    assert!(c.offset.is_some());
+    let c = l.to_pipeline_calibration(Algorithm::FourPhase);
+    assert_eq!(c.fppn.as_ref(), Some(&fppn()));
+    assert_eq!(c.wiggling.unwrap().algorithm, Algorithm::FourPhase);
     let text = fs::read_to_string(t.path().join(CALIBRATION_TOML)).unwrap();
     assert!(text.contains("sha256"), "{text}");
     assert!(text.contains("lut_size = 64"), "{text}");
@@ -83,14 +100,20 @@ fn save_load_roundtrip() {
 #[test]
 fn replacing_a_part_drops_what_depended_on_it() {
     let mut s = full_set();
-    // a new 2-phase table does not touch the FPPN map (extracted with 4-phase)
-    assert!(
-        s.set_wiggling(lut(Algorithm::TwoPhase, 32, 0.04), src("c2"))
-            .unwrap()
-            .is_empty()
-    );
+    // a new 2-phase table drops only the 2-phase FPPN map
+    let d = s
+        .set_wiggling(lut(Algorithm::TwoPhase, 32, 0.04), src("c2"))
+        .unwrap();
+    assert_eq!(d, vec![CalibPart::Fppn2Phase]);
     assert!(s.fppn.is_some());
-    // a new 4-phase table invalidates the FPPN map
+    // without its own map, 2-phase falls back to the 4-phase one
+    assert_eq!(
+        s.to_pipeline_calibration(Algorithm::TwoPhase).fppn.as_ref(),
+        Some(&fppn())
+    );
+    s.set_fppn_for(Algorithm::TwoPhase, fppn2(), src("flat"))
+        .unwrap();
+    // a new 4-phase table invalidates the 4-phase FPPN map only
     let d = s
         .set_wiggling(lut(Algorithm::FourPhase, 32, 0.01), src("c2"))
         .unwrap();
@@ -103,7 +126,8 @@ fn replacing_a_part_drops_what_depended_on_it() {
         vec![
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
-            CalibPart::Fppn
+            CalibPart::Fppn,
+            CalibPart::Fppn2Phase
         ]
     );
     assert_eq!(s.parts(), vec![CalibPart::Offset]);

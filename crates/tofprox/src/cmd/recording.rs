@@ -525,34 +525,47 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             )?;
             let c = &rec.captures()[i];
             let d = need_distance(c).map_err(anyhow::Error::msg)?;
-            if set.wiggling_4phase.is_none() {
-                eprintln!(
-                    "note: no 4-phase wiggling table in the calibration set: the FPPN map includes the wiggling error at {} m; run `tofprox calibrate wiggling` first",
-                    fmt_num(d)
-                );
-            }
             let data = rec.load(i)?.to_f64();
-            let map = extract_fppn(
-                data.view(),
-                &c.phases_deg,
-                set.offset.as_ref(),
-                set.wiggling_4phase.as_ref(),
-                d,
-                sensor.modulation_hz,
-                sensor.adc_bits,
-                Algorithm::FourPhase,
-            )
-            .with_context(|| format!("extracting the FPPN map from capture {i}"))?;
-            let sd = map.phase_offset_rad.std(0.0);
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
-            report.push(format!(
-                "fppn: from capture {i} at {} m, per-pixel phase offset σ {:.2} mrad ({:.2} mm)",
-                fmt_num(d),
-                1000.0 * sd,
-                f64::from(sd) * mm_per_rad
-            ));
-            set.set_fppn(map, source(&rec, &a.recording, vec![i], Some(d)))?
+            let mut dropped = Vec::new();
+            // one map per algorithm: each is absolute w.r.t. that algorithm's wiggling table
+            // (2-phase from the capture's first two images)
+            for alg in Algorithm::ALL {
+                if set.wiggling(alg).is_none() {
+                    eprintln!(
+                        "note: no {alg} wiggling table in the calibration set: the {alg} FPPN map also holds the global delay and the wiggling error at {} m; run `tofprox calibrate wiggling` first",
+                        fmt_num(d)
+                    );
+                }
+                let map = extract_fppn(
+                    data.view(),
+                    &c.phases_deg,
+                    set.offset.as_ref(),
+                    set.wiggling(alg),
+                    d,
+                    sensor.modulation_hz,
+                    sensor.adc_bits,
+                    alg,
+                )
+                .with_context(|| format!("extracting the {alg} FPPN map from capture {i}"))?;
+                let sd = map.phase_offset_rad.std(0.0);
+                let mean = map.phase_offset_rad.mean().unwrap_or(0.0);
+                report.push(format!(
+                    "{}: from capture {i} at {} m, per-pixel phase offset σ {:.2} mrad ({:.2} mm), mean {:+.2} mrad",
+                    CalibPart::fppn(alg),
+                    fmt_num(d),
+                    1000.0 * sd,
+                    f64::from(sd) * mm_per_rad,
+                    1000.0 * mean
+                ));
+                dropped.extend(set.set_fppn_for(
+                    alg,
+                    map,
+                    source(&rec, &a.recording, vec![i], Some(d)),
+                )?);
+            }
+            dropped
         }
     };
     for p in &dropped {
@@ -561,7 +574,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             match p {
                 CalibPart::Offset => "fpn",
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
-                CalibPart::Fppn => "fppn",
+                CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
             }
         );
     }
