@@ -422,15 +422,24 @@ fn writer_killed_at_random_moments() {
     assert!(last > 0, "the child never completed a capture");
 }
 
-fn valid_toml_text() -> (tempfile::TempDir, String) {
-    let t = tempfile::tempdir().unwrap();
-    make_rec(t.path());
-    let text = fs::read_to_string(t.path().join(RECORDING_TOML)).unwrap();
-    (t, text)
+/// One recording per property test, made once (its frames never change;
+/// each case rewrites only the file under test).
+fn shared_rec(
+    cell: &'static std::sync::OnceLock<(tempfile::TempDir, String)>,
+) -> &'static (tempfile::TempDir, String) {
+    cell.get_or_init(|| {
+        let t = tempfile::tempdir().unwrap();
+        make_rec(t.path());
+        let text = fs::read_to_string(t.path().join(RECORDING_TOML)).unwrap();
+        (t, text)
+    })
 }
 
+static TOML_EDITS: std::sync::OnceLock<(tempfile::TempDir, String)> = std::sync::OnceLock::new();
+static FRAME_BYTES: std::sync::OnceLock<(tempfile::TempDir, String)> = std::sync::OnceLock::new();
+
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(300))]
+    #![proptest_config(ProptestConfig::with_cases(400))]
     /// Random edits of a valid recording.toml: open either succeeds or
     /// returns an error naming recording.toml; never panics.
     #[test]
@@ -439,7 +448,7 @@ proptest! {
         len in 0usize..40,
         insert in "[a-z0-9_=\\[\\]\". \n-]{0,12}",
     ) {
-        let (t, text) = valid_toml_text();
+        let (t, text) = shared_rec(&TOML_EDITS);
         let start = pos % (text.len() + 1);
         let end = (start + len).min(text.len());
         let (start, end) = (text.floor_char_boundary(start), text.floor_char_boundary(end));
@@ -458,9 +467,8 @@ proptest! {
     /// Random bytes as a frames file: open/load fail with the file named.
     #[test]
     fn random_frames_file_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..400)) {
-        let t = tempfile::tempdir().unwrap();
-        let rec = make_rec(t.path());
-        fs::write(rec.frames_path(1).unwrap(), &bytes).unwrap();
+        let (t, _) = shared_rec(&FRAME_BYTES);
+        fs::write(t.path().join("frames/000001.npy"), &bytes).unwrap();
         let r = Recording::open(t.path()).and_then(|r| r.load(1));
         let e = r.unwrap_err();
         prop_assert!(e.to_string().contains("000001.npy"), "{}", e);
