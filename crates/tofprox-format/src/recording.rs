@@ -796,8 +796,14 @@ impl RecordingWriter {
     /// after the last complete capture.
     pub fn open_append(dir: &Path) -> Result<Self, FormatError> {
         let rec = Recording::open(dir)?;
-        fsutil::remove_tmp_files(dir)?;
-        fsutil::remove_tmp_files(&dir.join(FRAMES_DIR))?;
+        let removed =
+            fsutil::remove_tmp_files(dir)? + fsutil::remove_tmp_files(&dir.join(FRAMES_DIR))?;
+        if removed > 0 {
+            tracing::info!(
+                "{}: removed {removed} temporary file(s) left by an interrupted writer",
+                dir.display()
+            );
+        }
         let frames = dir.join(FRAMES_DIR);
         fs::create_dir_all(&frames)
             .map_err(|e| FormatError::io(&frames, "cannot create directory", e))?;
