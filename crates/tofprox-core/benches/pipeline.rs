@@ -71,6 +71,21 @@ fn process_2phase_u16(bencher: Bencher) {
     });
 }
 
+/// The 2-phase pipeline forced onto a portable kernel ("avx2", "generic") to show the speed on
+/// machines without AVX-512 (skipped when the CPU lacks the level).
+#[divan::bench(args = ["avx2", "generic"])]
+fn process_2phase_u16_level(bencher: Bencher, level: &str) {
+    let raw = raw_frame(2);
+    let mut p = pipeline(Algorithm::TwoPhase, false);
+    if p.set_simd_level(level).is_err() {
+        return;
+    }
+    bencher.bench_local(|| {
+        let f = p.process(divan::black_box(raw.view())).expect("process");
+        divan::black_box(f.depth_mm[(86, 112)]);
+    });
+}
+
 /// Same plus the FPPN map.
 #[divan::bench]
 fn process_2phase_u16_fppn(bencher: Bencher) {

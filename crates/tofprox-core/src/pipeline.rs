@@ -235,8 +235,8 @@ pub struct Pipeline {
     dark: Vec<f32>,
     /// Per-pixel FPPN phase (zeros when none), wrapped to (−π, π].
     fppn: Vec<f32>,
-    lut_val: Box<[f32; LUT_BINS]>,
-    lut_slope: Box<[f32; LUT_BINS]>,
+    /// Wiggling table: per bin `value | slope << 32` (f32 bits), so one 64-bit gather fetches both.
+    lut: Box<[u64; LUT_BINS]>,
     /// Staging for non-contiguous input (4 × rows × cols).
     staging: Vec<f32>,
     frame: DepthFrame,
@@ -282,8 +282,7 @@ impl Pipeline {
             params,
             dark: vec![0.0; n],
             fppn: vec![0.0; n],
-            lut_val: Box::new([0.0; LUT_BINS]),
-            lut_slope: Box::new([0.0; LUT_BINS]),
+            lut: Box::new([0; LUT_BINS]),
             staging: vec![0.0; 4 * n],
             frame: DepthFrame::zeros(rows, cols),
             simd: detect_simd(),
@@ -331,8 +330,7 @@ impl Pipeline {
                 *d = wrap_to_pi(*v as f64) as f32;
             }
         }
-        let mut lut_val = Box::new([0.0f32; LUT_BINS]);
-        let mut lut_slope = Box::new([0.0f32; LUT_BINS]);
+        let mut lut = Box::new([0u64; LUT_BINS]);
         if let Some(w) = &calibration.wiggling {
             if w.algorithm != self.config.algorithm {
                 return Err(CoreError::Calibration(format!(
@@ -348,14 +346,12 @@ impl Pipeline {
             for j in 0..LUT_BINS {
                 let v = vals[j];
                 let next = vals[(j + 1) % LUT_BINS];
-                lut_val[j] = wrap_to_pi(v) as f32;
-                lut_slope[j] = wrap_to_pi(next - v) as f32;
+                lut[j] = pack_lut(wrap_to_pi(v) as f32, wrap_to_pi(next - v) as f32);
             }
         }
         self.dark = dark;
         self.fppn = fppn;
-        self.lut_val = lut_val;
-        self.lut_slope = lut_slope;
+        self.lut = lut;
         self.calibration = calibration;
         Ok(())
     }
@@ -443,8 +439,7 @@ impl Pipeline {
         let tabs = Tables {
             dark: &self.dark,
             fppn: &self.fppn,
-            lut_val: &self.lut_val,
-            lut_slope: &self.lut_slope,
+            lut: &self.lut,
         };
         let p = self.params;
         let four = need == 4;
@@ -461,6 +456,37 @@ impl Pipeline {
             }
             _ => kernel_dispatch::<T, false>(raw, four, n, &p, &tabs, out, gather_scalar),
         }
+    }
+
+    /// Selects the kernel's instruction set ("generic", "avx2", "avx512"), e.g. to benchmark or
+    /// test the portable paths on a machine with AVX-512. Only levels this CPU supports are
+    /// accepted; results agree across levels within the fast-atan2 tolerance.
+    pub fn set_simd_level(&mut self, level: &str) -> Result<(), CoreError> {
+        let best = detect_simd();
+        let wanted = match level {
+            "generic" => SimdLevel::Generic,
+            "avx2" => SimdLevel::Avx2,
+            "avx512" => SimdLevel::Avx512,
+            other => {
+                return Err(CoreError::param(
+                    "simd_level",
+                    format!("unknown level {other:?}"),
+                ));
+            }
+        };
+        let rank = |l: SimdLevel| match l {
+            SimdLevel::Generic => 0,
+            SimdLevel::Avx2 => 1,
+            SimdLevel::Avx512 => 2,
+        };
+        if rank(wanted) > rank(best) {
+            return Err(CoreError::param(
+                "simd_level",
+                format!("{level} is not supported by this CPU"),
+            ));
+        }
+        self.simd = wanted;
+        Ok(())
     }
 
     /// The instruction set the per-pixel kernel runs with on this CPU ("avx512", "avx2" or
@@ -514,14 +540,18 @@ struct Outputs<'a> {
 struct Tables<'a> {
     dark: &'a [f32],
     fppn: &'a [f32],
-    lut_val: &'a [f32; LUT_BINS],
-    lut_slope: &'a [f32; LUT_BINS],
+    lut: &'a [u64; LUT_BINS],
 }
 
 /// Pixels per chunk: the per-chunk scratch (LUT index, fraction, correction) stays in L1.
 const CHUNK: usize = 256;
 
-type GatherFn = fn(&[u32], &[f32], &[f32; LUT_BINS], &[f32; LUT_BINS], &mut [f32]);
+type GatherFn = fn(&[u32], &[f32], &[u64; LUT_BINS], &mut [f32]);
+
+/// One wiggling-table entry: value in the low 32 bits, slope (per bin) in the high 32 bits.
+fn pack_lut(value: f32, slope: f32) -> u64 {
+    (value.to_bits() as u64) | ((slope.to_bits() as u64) << 32)
+}
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
@@ -539,14 +569,8 @@ fn kernel_avx512<T: RawSample>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
-fn gather_avx512(
-    idx: &[u32],
-    fr: &[f32],
-    lv: &[f32; LUT_BINS],
-    ls: &[f32; LUT_BINS],
-    out: &mut [f32],
-) {
-    gather_scalar(idx, fr, lv, ls, out)
+fn gather_avx512(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
+    gather_scalar(idx, fr, lut, out)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -562,52 +586,51 @@ fn kernel_avx2<T: RawSample>(
     kernel_dispatch::<T, true>(raw, four, n, p, t, out, gather_avx2)
 }
 
-/// LUT gather with explicit AVX2 `vgatherdps` (LLVM's cost model does not vectorise it at AVX2).
+/// LUT gather with explicit AVX2 `vpgatherdq` (LLVM's cost model does not vectorise it at AVX2):
+/// one 64-bit gather fetches value and slope of 4 pixels; they are de-interleaved by shuffles.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn gather_avx2(
-    idx: &[u32],
-    fr: &[f32],
-    lv: &[f32; LUT_BINS],
-    ls: &[f32; LUT_BINS],
-    out: &mut [f32],
-) {
+fn gather_avx2(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
     use std::arch::x86_64::{
-        __m256i, _mm256_and_si256, _mm256_fmadd_ps, _mm256_i32gather_ps, _mm256_loadu_ps,
-        _mm256_loadu_si256, _mm256_set1_epi32, _mm256_storeu_ps,
+        __m256i, _mm256_and_si256, _mm256_castpd_ps, _mm256_castps_pd, _mm256_castsi256_ps,
+        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm256_fmadd_ps, _mm256_i32gather_epi64,
+        _mm256_loadu_ps, _mm256_loadu_si256, _mm256_permute4x64_pd, _mm256_set1_epi32,
+        _mm256_shuffle_ps, _mm256_storeu_ps,
     };
     let len = idx.len().min(fr.len()).min(out.len());
     let mask = _mm256_set1_epi32((LUT_BINS - 1) as i32);
+    let base = lut.as_ptr().cast::<i64>();
     let mut j = 0;
     while j + 8 <= len {
         // SAFETY: j + 8 ≤ len ≤ every slice's length, so the unaligned 8-lane loads/store are in
-        // bounds; the gather indices are masked to < LUT_BINS, the length of both tables.
+        // bounds; the gather indices are masked to < LUT_BINS, the length of the table.
         unsafe {
             let vi = _mm256_and_si256(
                 _mm256_loadu_si256(idx.as_ptr().add(j).cast::<__m256i>()),
                 mask,
             );
-            let v = _mm256_i32gather_ps::<4>(lv.as_ptr(), vi);
-            let s = _mm256_i32gather_ps::<4>(ls.as_ptr(), vi);
+            let lo = _mm256_castsi256_si128(vi);
+            let hi = _mm256_extracti128_si256::<1>(vi);
+            let g0 = _mm256_castsi256_ps(_mm256_i32gather_epi64::<8>(base, lo));
+            let g1 = _mm256_castsi256_ps(_mm256_i32gather_epi64::<8>(base, hi));
+            // [v0 s0 v1 s1 v2 s2 v3 s3], [v4 s4 …] → [v0 v1 v4 v5 v2 v3 v6 v7] → in order.
+            let v = _mm256_shuffle_ps::<0b10_00_10_00>(g0, g1);
+            let s = _mm256_shuffle_ps::<0b11_01_11_01>(g0, g1);
+            let v = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)));
+            let s = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(s)));
             let f = _mm256_loadu_ps(fr.as_ptr().add(j));
             _mm256_storeu_ps(out.as_mut_ptr().add(j), _mm256_fmadd_ps(s, f, v));
         }
         j += 8;
     }
-    gather_scalar(&idx[j..len], &fr[j..len], lv, ls, &mut out[j..len]);
+    gather_scalar(&idx[j..len], &fr[j..len], lut, &mut out[j..len]);
 }
 
 #[inline(always)]
-fn gather_scalar(
-    idx: &[u32],
-    fr: &[f32],
-    lv: &[f32; LUT_BINS],
-    ls: &[f32; LUT_BINS],
-    out: &mut [f32],
-) {
+fn gather_scalar(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
     for ((o, &i), &f) in out.iter_mut().zip(idx).zip(fr) {
-        let i = (i as usize) & (LUT_BINS - 1);
-        *o = lv[i] + ls[i] * f;
+        let w = lut[(i as usize) & (LUT_BINS - 1)];
+        *o = f32::from_bits(w as u32) + f32::from_bits((w >> 32) as u32) * f;
     }
 }
 
@@ -726,7 +749,7 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
         }
 
         // Pass B: wiggling LUT (3.3.7.2), linear periodic interpolation.
-        gather(idx, frb, t.lut_val, t.lut_slope, corr);
+        gather(idx, frb, t.lut, corr);
 
         // Pass C.
         for j in 0..len {
@@ -806,6 +829,44 @@ mod tests {
         f.assign(&raw);
         let d = p.process(f.view()).unwrap().clone();
         assert_eq!(a, d);
+    }
+
+    #[test]
+    fn all_simd_levels_agree() {
+        let (rows, cols) = (13, 37); // odd sizes exercise the chunk and vector tails
+        let lut = WigglingLut {
+            algorithm: Algorithm::TwoPhase,
+            correction_rad: ndarray::Array1::from_shape_fn(360, |i| {
+                0.4 + 0.05 * (i as f32 * 0.05).sin()
+            }),
+        };
+        let cal = Calibration {
+            wiggling: Some(lut),
+            ..Default::default()
+        };
+        let mut p = Pipeline::new(rows, cols, PipelineConfig::default(), cal).unwrap();
+        let raw = Array3::from_shape_fn((2, rows, cols), |(k, r, c)| {
+            let phi = (r * cols + c) as f64 * 0.013;
+            (2048.0 + 900.0 * (phi - k as f64 * std::f64::consts::FRAC_PI_2).cos()).round() as u16
+        });
+        p.set_simd_level("generic").unwrap();
+        let reference = p.process(raw.view()).unwrap().clone();
+        for level in ["avx2", "avx512"] {
+            if p.set_simd_level(level).is_err() {
+                continue; // not on this CPU
+            }
+            assert_eq!(p.simd_level(), level);
+            let f = p.process(raw.view()).unwrap();
+            assert_eq!(f.flags, reference.flags, "{level}");
+            for (a, b) in f.phase_rad.iter().zip(reference.phase_rad.iter()) {
+                let d = (a - b).abs();
+                assert!(d.min(TAU - d) < 2e-5, "{level}: {a} vs {b}");
+            }
+            for (a, b) in f.depth_mm.iter().zip(reference.depth_mm.iter()) {
+                assert!((*a as i32 - *b as i32).abs() <= 1, "{level}: {a} vs {b}");
+            }
+        }
+        assert!(p.set_simd_level("sse9").is_err());
     }
 
     #[test]
