@@ -4,6 +4,7 @@
 use std::f64::consts::TAU;
 
 use super::fixed_pattern::{TAG_DNL, hashed_normal};
+use super::optical::fast_floor;
 use crate::config::ModelConfig;
 
 /// A differential N-bit converter with mid code 2^(N−1) for zero input.
@@ -16,6 +17,16 @@ pub struct Adc {
     offset_lsb: f64,
     inl_lsb: f64,
     inl_w: f64,
+    /// INL(x) sampled at every LSB of x ∈ [−2^N, 2^N] (linear interpolation between).
+    inl_table: Option<Vec<f64>>,
+    /// Step centres (T_k + T_{k+1})/2 of the DNL table.
+    centres: Option<Vec<f64>>,
+    /// 1 / (c_{k+1} − c_k) (0 for coincident centres of missing codes).
+    inv_width: Option<Vec<f64>>,
+    /// Per integer level: last threshold index at or below it.
+    cell_t: Option<Vec<u32>>,
+    /// Per integer level: last centre index at or below it.
+    cell_c: Option<Vec<u32>>,
     quantize: bool,
     /// Transition levels T_k into code k (k = 0..=2^N, T_0 = −∞ side, T_{2^N} = top), when DNL is on.
     thresholds: Option<Vec<f64>>,
@@ -60,13 +71,36 @@ impl Adc {
         } else {
             None
         };
+        let inl_w = TAU / full;
+        let inl_table = (inl_lsb != 0.0).then(|| {
+            (0..=(2 * (1usize << bits)))
+                .map(|i| inl_lsb * (inl_w * (i as f64 - full)).sin())
+                .collect()
+        });
+        let centres = thresholds
+            .as_ref()
+            .map(|t: &Vec<f64>| t.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect());
+        let n = 1usize << bits;
+        let inv_width = centres.as_ref().map(|c: &Vec<f64>| {
+            c.windows(2)
+                .map(|w| if w[1] > w[0] { 1.0 / (w[1] - w[0]) } else { 0.0 })
+                .chain(std::iter::once(0.0))
+                .collect()
+        });
+        let cell_t = thresholds.as_ref().map(|t| cell_index(t, n));
+        let cell_c = centres.as_ref().map(|c| cell_index(c, n));
         Self {
             mid,
             max_code: full - 1.0,
             k_gain,
             offset_lsb,
             inl_lsb,
-            inl_w: TAU / full,
+            inl_w,
+            inl_table,
+            centres,
+            inv_width,
+            cell_t,
+            cell_c,
             quantize: model.is_enabled("quantization"),
             thresholds,
         }
@@ -92,10 +126,19 @@ impl Adc {
     #[inline]
     pub fn transfer(&self, u: f64) -> f64 {
         let x = self.k_gain * u + self.offset_lsb;
-        let inl = if self.inl_lsb != 0.0 {
-            self.inl_lsb * (self.inl_w * x).sin()
-        } else {
-            0.0
+        let inl = match &self.inl_table {
+            Some(t) => {
+                let full = 2.0 * self.mid;
+                let p = (x + full).clamp(0.0, 2.0 * full);
+                let i = p as usize;
+                let w = p - i as f64;
+                match (t.get(i), t.get(i + 1)) {
+                    (Some(a), Some(b)) => a + (b - a) * w,
+                    (Some(a), None) => *a,
+                    _ => self.inl_lsb * (self.inl_w * x).sin(),
+                }
+            }
+            None => 0.0,
         };
         self.mid + x + inl
     }
@@ -103,20 +146,24 @@ impl Adc {
     /// Integer output code for a continuous level `y` (DNL table, rails).
     #[inline]
     pub fn quantize(&self, y: f64) -> f64 {
-        match &self.thresholds {
-            None => y.round().clamp(0.0, self.max_code),
-            Some(t) => {
-                let top = self.max_code as usize;
-                let mut j = (y.round().clamp(0.0, self.max_code)) as usize;
-                // code j ⇔ T_j ≤ y < T_{j+1}
-                while j < top && t.get(j + 1).is_some_and(|&v| v <= y) {
+        match (&self.thresholds, &self.cell_t) {
+            (Some(t), Some(cell)) => {
+                if y < 0.0 {
+                    return 0.0;
+                }
+                let k = fast_floor(y.min(self.max_code)) as usize;
+                // code j ⇔ T_j ≤ y < T_{j+1}; start at the last T ≤ k, step branch-free
+                let mut j = cell.get(k).copied().unwrap_or(0) as usize;
+                for _ in 0..3 {
+                    j += usize::from(t.get(j + 1).is_some_and(|&v| v <= y));
+                }
+                // rare: more than three transitions inside one LSB (large DNL)
+                while t.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
                 }
-                while j > 0 && t.get(j).is_some_and(|&v| v > y) {
-                    j -= 1;
-                }
-                j as f64
+                (j as f64).min(self.max_code)
             }
+            _ => fast_floor(y + 0.5).clamp(0.0, self.max_code),
         }
     }
 
@@ -124,40 +171,92 @@ impl Adc {
     /// piecewise-linear curve through the step centres (ideal: y itself), at the rails clamped.
     #[inline]
     pub fn mean_code(&self, y: f64) -> f64 {
-        match &self.thresholds {
-            None => y.clamp(0.0, self.max_code),
-            Some(t) => {
+        match (&self.centres, &self.cell_c, &self.inv_width) {
+            (Some(c), Some(cell), Some(inv)) => {
                 if y <= 0.0 {
                     return 0.0;
                 }
                 if y >= self.max_code {
                     return self.max_code;
                 }
-                let top = self.max_code as usize;
-                let centre = |k: usize| -> f64 {
-                    match (t.get(k), t.get(k + 1)) {
-                        (Some(a), Some(b)) => 0.5 * (a + b),
-                        _ => k as f64,
-                    }
-                };
-                let mut j = (y.round().clamp(0.0, self.max_code)) as usize;
-                while j < top && centre(j + 1) <= y {
+                let k = fast_floor(y) as usize;
+                let mut j = cell.get(k).copied().unwrap_or(0) as usize;
+                for _ in 0..3 {
+                    j += usize::from(c.get(j + 1).is_some_and(|&v| v <= y));
+                }
+                while c.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
                 }
-                while j > 0 && centre(j) > y {
-                    j -= 1;
-                }
-                if j >= top {
-                    return self.max_code;
-                }
-                let (c0, c1) = (centre(j), centre(j + 1));
-                let v = if c1 > c0 {
-                    j as f64 + (y - c0) / (c1 - c0)
-                } else {
-                    j as f64 + 1.0
-                };
+                let cj = c.get(j).copied().unwrap_or(j as f64);
+                let v = j as f64 + (y - cj) * inv.get(j).copied().unwrap_or(0.0);
                 v.clamp(0.0, self.max_code)
             }
+            _ => y.clamp(0.0, self.max_code),
         }
+    }
+}
+
+/// For every integer level k = 0..n: the largest index j with `levels[j] ≤ k` (0 if none).
+fn cell_index(levels: &[f64], n: usize) -> Vec<u32> {
+    let mut out = Vec::with_capacity(n + 1);
+    let mut j = 0usize;
+    for k in 0..=n {
+        while levels.get(j + 1).is_some_and(|&v| v <= k as f64) {
+            j += 1;
+        }
+        out.push(j as u32);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dnl_adc(dnl: f64, seed: u64) -> Adc {
+        let mut m = ModelConfig::ideal();
+        m.set_enabled("adc_dnl", true).unwrap();
+        m.set_enabled("quantization", true).unwrap();
+        m.set_param("adc_dnl", "dnl_lsb", dnl).unwrap();
+        Adc::new(&m, 12, seed)
+    }
+
+    #[test]
+    fn fast_quantizer_matches_brute_force_count_of_transitions() {
+        for (dnl, seed) in [(1.906, 1), (3.9, 2), (0.5, 3)] {
+            let adc = dnl_adc(dnl, seed);
+            let t = adc.thresholds.as_ref().unwrap();
+            for i in 0..40_000 {
+                let y = -3.0 + 4102.0 * i as f64 / 40_000.0;
+                let brute = t[1..t.len() - 1].iter().filter(|&&v| v <= y).count() as f64;
+                assert_eq!(adc.quantize(y), brute.min(4095.0), "y = {y}, dnl {dnl}");
+            }
+            // DNL bounded: step widths within 1 ± dnl
+            for w in t.windows(2).skip(1).take(4094) {
+                assert!(w[1] - w[0] <= 1.0 + dnl + 1e-12 && w[1] >= w[0]);
+            }
+        }
+    }
+
+    #[test]
+    fn mean_code_is_monotone_through_the_step_centres() {
+        let adc = dnl_adc(1.906, 4);
+        let c = adc.centres.as_ref().unwrap();
+        for k in [5usize, 100, 2047, 3000, 4090] {
+            assert!((adc.mean_code(c[k]) - k as f64).abs() < 1e-9, "centre {k}");
+        }
+        let mut last = 0.0;
+        for i in 0..100_000 {
+            let y = 4095.0 * i as f64 / 100_000.0;
+            let v = adc.mean_code(y);
+            assert!(v >= last - 1e-9, "not monotone at {y}");
+            last = v;
+        }
+        // ideal converter: the mean is the input itself
+        let ideal = Adc::new(&ModelConfig::ideal(), 12, 0);
+        assert_eq!(ideal.mean_code(1234.5678), 1234.5678);
+        assert_eq!(ideal.quantize(1234.5678), 1235.0);
+        assert_eq!(ideal.quantize(5000.0), 4095.0);
+        assert_eq!(ideal.quantize(-7.0), 0.0);
     }
 }

@@ -17,7 +17,7 @@ const MEASURED_HARMONICS: usize = 31;
 #[derive(Debug, Clone)]
 pub struct Correlation {
     /// `None`: exact cosine (ideal sinusoidal case of eq. 2.2/2.3).
-    table: Option<Vec<f64>>,
+    table: Option<Box<[f64; TABLE_SIZE + 1]>>,
     /// Fourier coefficients (a_n, b_n), n = 0.., of the normalised C: C = Σ a_n cos nx + b_n sin nx.
     coefficients: Vec<(f64, f64)>,
 }
@@ -39,12 +39,13 @@ impl Correlation {
                 .map(|(n, (a, b))| a * (n as f64 * x).cos() + b * (n as f64 * x).sin())
                 .sum()
         };
-        let mut table: Vec<f64> = (0..=TABLE_SIZE)
-            .map(|i| eval(&coefficients, TAU * i as f64 / TABLE_SIZE as f64))
-            .collect();
+        let mut table = Box::new([0.0f64; TABLE_SIZE + 1]);
+        for (i, v) in table.iter_mut().enumerate() {
+            *v = eval(&coefficients, TAU * i as f64 / TABLE_SIZE as f64);
+        }
         let peak = table.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if peak > 0.0 {
-            for v in &mut table {
+            for v in table.iter_mut() {
                 *v /= peak;
             }
             for c in &mut coefficients {
@@ -136,14 +137,13 @@ impl Correlation {
             None => x.cos(),
             Some(t) => {
                 let u = x * (1.0 / TAU);
-                let f = u - u.floor();
-                let pos = f * TABLE_SIZE as f64;
-                let i = (pos as usize).min(TABLE_SIZE - 1);
-                let w = pos - i as f64;
-                match (t.get(i), t.get(i + 1)) {
-                    (Some(a), Some(b)) => a + (b - a) * w,
-                    _ => x.cos(),
-                }
+                let pos = (u - fast_floor(u)) * TABLE_SIZE as f64;
+                let fl = fast_floor(pos);
+                // masked index: always < TABLE_SIZE, so i + 1 ≤ TABLE_SIZE is in the table
+                let i = (fl as usize) & (TABLE_SIZE - 1);
+                let w = pos - fl;
+                let (a, b) = (t[i], t[i + 1]);
+                a + (b - a) * w
             }
         }
     }
@@ -173,6 +173,14 @@ impl Correlation {
     pub fn is_cosine(&self) -> bool {
         self.table.is_none()
     }
+}
+
+/// floor() without a libm call (the baseline x86-64 target has no `roundsd`);
+/// exact for |x| < 2^52, which every phase and code here is.
+#[inline(always)]
+pub(crate) fn fast_floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
 }
 
 /// Complex Fourier coefficients c_n = (1/M) Σ x_k e^{−i n 2π k/M}, n = 0..=nmax.
