@@ -251,3 +251,31 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
         assert!(d.stats().reassembly.frames_dropped > 0);
     }
 }
+
+#[test]
+fn driver_thread_serves_cycles_over_bounded_channels() {
+    use tofprox_bridge::stream::{DriverCommand, DriverThread};
+    let (d, _c) = driver(fast(), 11);
+    let t = DriverThread::spawn(d, 1).unwrap();
+    let o = t
+        .cycle(
+            req(SensorMode::TwoPhase, 200.0),
+            std::time::Duration::from_secs(10),
+        )
+        .unwrap();
+    assert_eq!(o.frames.dim(), (2, 172, 224));
+    let bad = CycleRequest {
+        exposure_us: -1.0,
+        ..req(SensorMode::TwoPhase, 200.0)
+    };
+    let e = t
+        .cycle(bad, std::time::Duration::from_secs(10))
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Config);
+    t.send(DriverCommand::PowerOff).unwrap();
+    assert!(matches!(
+        t.recv_timeout(std::time::Duration::from_secs(10)).unwrap(),
+        tofprox_bridge::stream::DriverReply::PowerOff(Ok(()))
+    ));
+    drop(t); // joins the thread
+}
