@@ -438,7 +438,11 @@ impl Pipeline {
         };
         let tabs = Tables {
             dark: &self.dark,
-            fppn: &self.fppn,
+            fppn: self
+                .calibration
+                .fppn
+                .is_some()
+                .then_some(self.fppn.as_slice()),
             lut: &self.lut,
         };
         let p = self.params;
@@ -539,7 +543,8 @@ struct Outputs<'a> {
 
 struct Tables<'a> {
     dark: &'a [f32],
-    fppn: &'a [f32],
+    /// `None` when there is no FPPN map (the kernel then skips the per-pixel load).
+    fppn: Option<&'a [f32]>,
     lut: &'a [u64; LUT_BINS],
 }
 
@@ -644,10 +649,11 @@ fn kernel_dispatch<T: RawSample, const FMA: bool>(
     out: Outputs<'_>,
     gather: GatherFn,
 ) {
-    if four {
-        kernel::<T, true, FMA>(raw, n, p, t, out, gather)
-    } else {
-        kernel::<T, false, FMA>(raw, n, p, t, out, gather)
+    match (four, t.fppn.is_some()) {
+        (true, true) => kernel::<T, true, FMA, true>(raw, n, p, t, out, gather),
+        (true, false) => kernel::<T, true, FMA, false>(raw, n, p, t, out, gather),
+        (false, true) => kernel::<T, false, FMA, true>(raw, n, p, t, out, gather),
+        (false, false) => kernel::<T, false, FMA, false>(raw, n, p, t, out, gather),
     }
 }
 
@@ -663,7 +669,7 @@ fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
 /// wrap, depth, flags. All slices are re-sliced to the chunk length first so there are no bounds
 /// checks, and the loops use selects instead of branches.
 #[inline(always)]
-fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
+fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
     raw: [&[T]; 4],
     n: usize,
     p: &KernelParams,
@@ -675,7 +681,6 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
         .min(raw[0].len())
         .min(raw[1].len())
         .min(t.dark.len())
-        .min(t.fppn.len())
         .min(out.phase.len())
         .min(out.amp.len())
         .min(out.depth_m.len())
@@ -686,6 +691,8 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
     } else {
         n
     };
+    let fppn_all = t.fppn.unwrap_or(&[]);
+    let n = if FPPN { n.min(fppn_all.len()) } else { n };
     let rail = p.rail_hi;
     let mut idx_buf = [0u32; CHUNK];
     let mut fr_buf = [0f32; CHUNK];
@@ -702,7 +709,7 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
             (r0, r1)
         };
         let dark = &t.dark[base..end];
-        let fppn = &t.fppn[base..end];
+        let fppn: &[f32] = if FPPN { &fppn_all[base..end] } else { &[] };
         let phase = &mut out.phase[base..end];
         let amp = &mut out.amp[base..end];
         let depth_m = &mut out.depth_m[base..end];
@@ -758,7 +765,10 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool>(
             let sat = f0 & FLAG_SATURATED != 0;
             let amp_v = amp[j];
             // Wiggling and FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
-            let mut ph = phase[j] - corr[j] - fppn[j];
+            let mut ph = phase[j] - corr[j];
+            if FPPN {
+                ph -= fppn[j];
+            }
             ph = if ph < 0.0 { ph + TAU } else { ph };
             ph = if ph < 0.0 { ph + TAU } else { ph };
             ph = if ph >= TAU { ph - TAU } else { ph };
