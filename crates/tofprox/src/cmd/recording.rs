@@ -784,7 +784,8 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         if a.json {
             let line = json!({
                 "index": i,
-                "median_depth_m": median,
+                // micrometre resolution: the f32 depth carries no more
+                "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
                 "valid_fraction": valid,
                 "process_us": (process_us * 10.0).round() / 10.0,
             });
