@@ -75,6 +75,51 @@ pub fn nphase(samples: &[f64], phases_rad: &[f64]) -> Option<(f64, f64)> {
     Some((wrap_phase(im.atan2(re)), 2.0 * re.hypot(im) / n))
 }
 
+/// [`nphase`] for every pixel of a capture `(N, rows, cols)` (offset-corrected or raw codes: the
+/// common offset cancels), `phases_deg` equally spaced over the full circle, `N ≥ 3`.
+/// Returns `(phase_rad, amplitude)` arrays of shape `(rows, cols)`; non-finite pixels give NaN.
+pub fn nphase_frame(
+    samples: ndarray::ArrayView3<f64>,
+    phases_deg: &[f64],
+) -> Result<(ndarray::Array2<f64>, ndarray::Array2<f64>), CoreError> {
+    let (n, rows, cols) = samples.dim();
+    if n != phases_deg.len() || n < 3 {
+        return Err(CoreError::ShapeMismatch {
+            what: "N-phase capture",
+            expected: format!("(N ≥ 3 matching {} phases, rows, cols)", phases_deg.len()),
+            got: format!("{:?}", samples.dim()),
+        });
+    }
+    let phases_rad: Vec<f64> = phases_deg.iter().map(|p| p.to_radians()).collect();
+    if !is_equally_spaced_circle(&phases_rad) {
+        return Err(CoreError::InvalidPhases {
+            phases_deg: phases_deg.to_vec(),
+            reason: "N-phase evaluation needs equally spaced phase shifts over the full circle"
+                .into(),
+        });
+    }
+    let mut re = ndarray::Array2::<f64>::zeros((rows, cols));
+    let mut im = ndarray::Array2::<f64>::zeros((rows, cols));
+    for (img, th) in samples.outer_iter().zip(&phases_rad) {
+        let (c, s) = (th.cos(), th.sin());
+        ndarray::Zip::from(&mut re)
+            .and(&mut im)
+            .and(&img)
+            .for_each(|r, i, &u| {
+                *r += u * c;
+                *i += u * s;
+            });
+    }
+    let scale = 2.0 / n as f64;
+    let phase = ndarray::Zip::from(&re)
+        .and(&im)
+        .map_collect(|&r, &i| wrap_phase(i.atan2(r)));
+    let amplitude = ndarray::Zip::from(&re)
+        .and(&im)
+        .map_collect(|&r, &i| scale * r.hypot(i));
+    Ok((phase, amplitude))
+}
+
 /// True when `phases_rad` (any order) is `{θ0 + 2πj/N, j = 0..N}` within 1e-6 rad.
 pub fn is_equally_spaced_circle(phases_rad: &[f64]) -> bool {
     let n = phases_rad.len();

@@ -291,3 +291,60 @@ fn fppn_is_per_pixel_residual_after_lut_and_pipeline_removes_it() {
     ));
     let _ = wrap_phase(0.0);
 }
+
+#[test]
+fn lut_from_any_equally_spaced_phase_count() {
+    // N = 8, 9, 20 phases, starting away from 0°: same LUT quality as the 24-phase capture.
+    let d0 = 0.9;
+    let delay = 0.25;
+    let phi0 = distance_to_phase_rad(d0, F);
+    for (n, start) in [(8usize, 0.0f64), (9, 7.5), (20, 3.0)] {
+        let phases: Vec<f64> = (0..n)
+            .map(|k| start + 360.0 * k as f64 / n as f64)
+            .collect();
+        let corr = capture(4, 4, &phases, phi0 + delay, |_, _| 0.0, 0.06);
+        for algo in Algorithm::ALL {
+            let lut = extract_wiggling(corr.view(), &phases, None, d0, F, 12, algo, 128).unwrap();
+            for i in 0..41 {
+                let true_tof = TAU * i as f64 / 41.0;
+                let t = capture(1, 1, algo.phases_deg(), true_tof + delay, |_, _| 0.0, 0.06);
+                let u: Vec<f64> = t.iter().map(|v| v - 2048.0).collect();
+                let m = match algo {
+                    Algorithm::TwoPhase => tofprox_core::phasor::phase_2phase(u[0], u[1]),
+                    Algorithm::FourPhase => {
+                        tofprox_core::phasor::phase_4phase(u[0], u[1], u[2], u[3])
+                    }
+                };
+                let err = wrap_to_pi(lut.correct(m) - true_tof);
+                assert!(err.abs() < 5e-4, "N {n} {algo}: err {err} at {true_tof}");
+            }
+        }
+    }
+}
+
+#[test]
+fn nphase_frame_matches_scalar() {
+    let phases: Vec<f64> = (0..24).map(|k| 15.0 * k as f64).collect();
+    let cap = capture(
+        3,
+        4,
+        &phases,
+        2.5,
+        |r, c| 0.1 * r as f64 - 0.05 * c as f64,
+        0.0,
+    );
+    let (ph, amp) = tofprox_core::phasor::nphase_frame(cap.view(), &phases).unwrap();
+    let rad: Vec<f64> = phases.iter().map(|p| p.to_radians()).collect();
+    for r in 0..3 {
+        for c in 0..4 {
+            let s: Vec<f64> = (0..24).map(|k| cap[(k, r, c)]).collect();
+            let (p, a) = tofprox_core::phasor::nphase(&s, &rad).unwrap();
+            assert!((p - ph[(r, c)]).abs() < 1e-9 && (a - amp[(r, c)]).abs() < 1e-9);
+            assert!(
+                wrap_to_pi(p - wrap_phase(2.5 + 0.1 * r as f64 - 0.05 * c as f64)).abs() < 1e-9
+            );
+            assert!((a - 600.0).abs() < 1e-6);
+        }
+    }
+    assert!(tofprox_core::phasor::nphase_frame(cap.view(), &phases[..23]).is_err());
+}
