@@ -22,9 +22,18 @@ fn hand_script_depth_follows_the_script_and_close_range_saturates() {
     // offset calibration from a dark capture (2.3.1.3)
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 16;
-    let dark = sim.capture(&Scene::wall(1.0, 1.0), &dark, &mut rng).unwrap();
-    let calibration = Calibration { offset: Some(extract_offset(dark.view()).unwrap()), wiggling: None, fppn: None };
-    let cfg = PipelineConfig { algorithm: Algorithm::FourPhase, ..PipelineConfig::default() };
+    let dark = sim
+        .capture(&Scene::wall(1.0, 1.0), &dark, &mut rng)
+        .unwrap();
+    let calibration = Calibration {
+        offset: Some(extract_offset(dark.view()).unwrap()),
+        wiggling: None,
+        fppn: None,
+    };
+    let cfg = PipelineConfig {
+        algorithm: Algorithm::FourPhase,
+        ..PipelineConfig::default()
+    };
     let mut p = Pipeline::new(g.rows, g.cols, cfg, calibration).unwrap();
 
     let script = SceneScript::hand();
@@ -32,7 +41,13 @@ fn hand_script_depth_follows_the_script_and_close_range_saturates() {
     for i in 0..80 {
         let t = script.period_s * i as f64 / 80.0;
         let truth = script.centre_distance_m(t);
-        let raw = sim.capture_u16(&script.at(t), &CaptureRequest::four_phase(exposure_us), &mut rng).unwrap();
+        let raw = sim
+            .capture_u16(
+                &script.at(t),
+                &CaptureRequest::four_phase(exposure_us),
+                &mut rng,
+            )
+            .unwrap();
         let f = p.process(raw.view()).unwrap();
         let centre = f.depth_m.slice(s![4..8, 4..8]);
         let flags = f.flags.slice(s![4..8, 4..8]);
@@ -44,7 +59,10 @@ fn hand_script_depth_follows_the_script_and_close_range_saturates() {
             continue;
         }
         let mean: f64 = centre.iter().map(|&d| f64::from(d)).sum::<f64>() / centre.len() as f64;
-        assert!((mean - truth).abs() < 0.03, "t = {t:.2} s: depth {mean:.3} m, truth {truth:.3} m");
+        assert!(
+            (mean - truth).abs() < 0.03,
+            "t = {t:.2} s: depth {mean:.3} m, truth {truth:.3} m"
+        );
         checked += 1;
     }
     assert!(checked > 40, "checked {checked} frames");

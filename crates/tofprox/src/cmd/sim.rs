@@ -212,7 +212,11 @@ fn geometry_for(window: &Option<String>) -> anyhow::Result<SensorGeometry> {
     let full = SensorGeometry::irs1645();
     let Some(w) = window else { return Ok(full) };
     let bad = || format!("--window `{w}`: expected ROW,COL,HEIGHT,WIDTH (non-negative integers)");
-    let v: Vec<usize> = w.split(',').map(|x| x.trim().parse::<usize>()).collect::<Result<_, _>>().with_context(bad)?;
+    let v: Vec<usize> = w
+        .split(',')
+        .map(|x| x.trim().parse::<usize>())
+        .collect::<Result<_, _>>()
+        .with_context(bad)?;
     match v[..] {
         [r, c, h, wd] => Ok(full.window(r, c, h, wd).with_context(bad)?),
         _ => bail!(bad()),
