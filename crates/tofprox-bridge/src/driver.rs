@@ -109,8 +109,11 @@ pub struct StateTimings {
     pub readout: Duration,
     /// Stopping the measurement and putting the sensor in reset.
     pub shutdown: Duration,
-    /// Whole cycle.
+    /// Whole cycle (startup through shutdown).
     pub total: Duration,
+    /// Time the sensor spent off (in reset) between the end of the previous
+    /// cycle and the start of this one (zero for the first cycle).
+    pub idle: Duration,
 }
 
 /// Result of one cycle.
@@ -287,6 +290,7 @@ pub struct SensorDriver<T: UsbTransport> {
     payload: Vec<u8>,
     needs_reopen: bool,
     stats: DriverStats,
+    last_end: Option<Duration>,
 }
 
 impl<T: UsbTransport> std::fmt::Debug for SensorDriver<T> {
@@ -327,6 +331,7 @@ impl<T: UsbTransport> SensorDriver<T> {
             clock,
             needs_reopen: false,
             stats: DriverStats::default(),
+            last_end: None,
         })
     }
 
@@ -388,9 +393,18 @@ impl<T: UsbTransport> SensorDriver<T> {
         self.check_request(req)?;
         self.stats.cycles += 1;
         let n = self.stats.cycles;
+        let start = self.clock.now();
+        let idle = self
+            .last_end
+            .map(|t| start.saturating_sub(t))
+            .unwrap_or_default();
         let r = self.recover().and_then(|()| self.cycle_inner(req));
+        self.last_end = Some(self.clock.now());
         match r {
-            Ok(o) => Ok(o),
+            Ok(mut o) => {
+                o.timings.idle = idle;
+                Ok(o)
+            }
             Err(e) => {
                 self.stats.failed_cycles += 1;
                 self.after_error(&e);

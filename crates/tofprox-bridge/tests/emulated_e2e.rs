@@ -48,7 +48,16 @@ fn first_cycle_writes_flash_second_loads_it() {
         d.transport().in_reset(),
         "sensor left in reset after the cycle"
     );
+    assert_eq!(o1.timings.idle, std::time::Duration::ZERO);
+    _c.sleep(std::time::Duration::from_millis(700)); // the daemon's sleep between readings
     let o2 = d.cycle(&req(SensorMode::TwoPhase, 300.0)).unwrap();
+    assert_eq!(o2.timings.idle, std::time::Duration::from_millis(700));
+    let t = o2.timings;
+    assert_eq!(
+        t.total,
+        t.startup + t.config_load + t.exposure + t.readout + t.shutdown
+    );
+    assert!(t.startup >= std::time::Duration::from_micros(800), "{t:?}");
     assert!(!o2.flash_written);
     assert_eq!(o2.timings.flash_write, std::time::Duration::ZERO);
     assert_eq!(d.stats().flash_writes, 1);

@@ -296,7 +296,15 @@ impl EmulatedConfig {
         let mut c: EmulatedConfig = toml::from_str(s).map_err(|e| {
             BridgeError::with_source(ErrorKind::Config, "emulated device config", e)
         })?;
-        for p in [&mut c.sensor_map, &mut c.model, &mut c.flash_file]
+        c.resolve_relative_paths(base_dir);
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Make `sensor_map`, `model` and `flash_file` absolute against
+    /// `base_dir` (for configs embedded in another file, e.g. the daemon's).
+    pub fn resolve_relative_paths(&mut self, base_dir: &Path) {
+        for p in [&mut self.sensor_map, &mut self.model, &mut self.flash_file]
             .into_iter()
             .flatten()
         {
@@ -304,8 +312,6 @@ impl EmulatedConfig {
                 *p = base_dir.join(&*p);
             }
         }
-        c.validate()?;
-        Ok(c)
     }
 
     /// Load a config file.

@@ -115,7 +115,8 @@ impl ModelSynth {
                 .window(row0, 0, rows, self.geom.cols)
                 .map_err(model_err)?;
             let sim = Simulator::new(&self.model, g, self.seed).map_err(model_err)?;
-            if self.sims.len() > 16 {
+            // bounded: each simulator holds per-pixel patterns
+            if self.sims.len() >= 4 {
                 self.sims.clear();
             }
             self.sims.insert((row0, rows), sim);
