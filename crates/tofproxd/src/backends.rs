@@ -52,6 +52,21 @@ impl FrameSource for Box<dyn FrameSource> {
     }
 }
 
+/// An error with its source chain, one line.
+pub fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let m = c.to_string();
+        if !s.contains(&m) {
+            s.push_str(": ");
+            s.push_str(&m);
+        }
+        cur = c.source();
+    }
+    s
+}
+
 /// Map a bridge error to the loop's kinds (context kept in the message).
 pub fn map_bridge_error(e: &BridgeError) -> SourceError {
     let kind = match e.kind() {
@@ -66,7 +81,7 @@ pub fn map_bridge_error(e: &BridgeError) -> SourceError {
         ErrorKind::Config => SourceErrorKind::Unsupported,
         _ => SourceErrorKind::Other,
     };
-    SourceError::new(kind, format!("{} ({})", e, e.kind().as_str()))
+    SourceError::new(kind, format!("{} ({})", chain(e), e.kind().as_str()))
 }
 
 /// The sensor through the bridge's driver stack.

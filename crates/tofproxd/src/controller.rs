@@ -116,6 +116,7 @@ pub struct Controller<S: FrameSource> {
     running: bool,
     last_error: String,
     state: State,
+    prev_state: State,
     /// Last ambient indicator (LSB).
     pub ambient_lsb: Option<f32>,
 }
@@ -179,6 +180,7 @@ impl<S: FrameSource> Controller<S> {
             running: false,
             last_error: String::new(),
             state: State::Off,
+            prev_state: State::Off,
             ambient_lsb: None,
         })
     }
@@ -272,6 +274,10 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
+    fn state_before_fail(&self) -> State {
+        self.prev_state
+    }
+
     fn fail(&mut self, err: SourceError) -> StepOutcome {
         self.consecutive_failures += 1;
         let state = if err.kind() == SourceErrorKind::Disconnected
@@ -281,12 +287,20 @@ impl<S: FrameSource> Controller<S> {
         } else {
             State::Error
         };
+        self.prev_state = self.state;
         self.state = state;
         self.last_error = err.to_string();
-        tracing::warn!(
-            "cycle failed ({} in a row): {err}",
-            self.consecutive_failures
-        );
+        if state == State::Unavailable && self.state_before_fail() != State::Unavailable {
+            tracing::warn!(
+                "sensor unavailable ({} failed cycles in a row): {err}",
+                self.consecutive_failures
+            );
+        } else {
+            tracing::info!(
+                "cycle failed ({} in a row): {err}",
+                self.consecutive_failures
+            );
+        }
         // Near is not changed by a failed cycle: no information, and never a false near.
         StepOutcome {
             update: StatusUpdate {

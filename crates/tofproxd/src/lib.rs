@@ -10,4 +10,5 @@ pub mod controller;
 pub mod energy;
 pub mod run;
 pub mod service;
+pub mod soak;
 pub mod source;

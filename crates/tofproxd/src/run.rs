@@ -95,12 +95,13 @@ async fn request_name(
 ) -> Result<(), RunError> {
     match conn
         .request_name_with_flags(name, RequestNameFlags::DO_NOT_QUEUE)
-        .await?
+        .await
     {
-        RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => Ok(()),
-        RequestNameReply::Exists | RequestNameReply::InQueue => {
+        Ok(RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner) => Ok(()),
+        Ok(RequestNameReply::Exists | RequestNameReply::InQueue) | Err(zbus::Error::NameTaken) => {
             Err(RunError::NameTaken { name, what })
         }
+        Err(e) => Err(e.into()),
     }
 }
 

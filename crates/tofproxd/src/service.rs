@@ -287,10 +287,24 @@ impl Hub {
     }
 }
 
-fn caller(hdr: &Header<'_>) -> String {
-    hdr.sender()
+/// Methods without arguments refuse a call that carries a body.
+fn no_args(hdr: &Header<'_>) -> fdo::Result<()> {
+    let sig = hdr.signature().to_string();
+    if sig.is_empty() {
+        Ok(())
+    } else {
+        Err(fdo::Error::InvalidArgs(format!(
+            "this method takes no arguments, got signature `{sig}`"
+        )))
+    }
+}
+
+fn caller(hdr: &Header<'_>) -> fdo::Result<String> {
+    no_args(hdr)?;
+    Ok(hdr
+        .sender()
         .map(|s| s.to_string())
-        .unwrap_or_else(|| "p2p".to_string())
+        .unwrap_or_else(|| "p2p".to_string()))
 }
 
 /// Check that a caller still exists after its claim was registered (it may have left
@@ -335,7 +349,7 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        let client = caller(&hdr);
+        let client = caller(&hdr)?;
         self.hub.modify_claim(&client, |c| c.proximity = true);
         drop_if_gone(conn, &self.hub, &client).await;
         self.hub.wait_first_reading().await;
@@ -345,7 +359,7 @@ impl Proximity {
     /// Release the caller's proximity claim (no-op without one).
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
         self.hub
-            .modify_claim(&caller(&hdr), |c| c.proximity = false);
+            .modify_claim(&caller(&hdr)?, |c| c.proximity = false);
         Ok(())
     }
 
@@ -360,7 +374,7 @@ impl Proximity {
                 "depth frames are not enabled".into(),
             ));
         }
-        let client = caller(&hdr);
+        let client = caller(&hdr)?;
         self.hub.modify_claim(&client, |c| c.depth = true);
         drop_if_gone(conn, &self.hub, &client).await;
         Ok(())
@@ -368,12 +382,16 @@ impl Proximity {
 
     /// Release the caller's depth claim.
     async fn release_depth(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        self.hub.modify_claim(&caller(&hdr), |c| c.depth = false);
+        self.hub.modify_claim(&caller(&hdr)?, |c| c.depth = false);
         Ok(())
     }
 
     /// Every property plus counters, as a dictionary.
-    async fn get_status(&self) -> fdo::Result<HashMap<String, OwnedVariant>> {
+    async fn get_status(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> fdo::Result<HashMap<String, OwnedVariant>> {
+        no_args(&hdr)?;
         let s = self.hub.status();
         let c = self.hub.claim_counts();
         let mut m = HashMap::new();
@@ -535,20 +553,20 @@ impl SensorProxyCompat {
     }
 
     /// Succeeds; there is no accelerometer to start.
-    async fn claim_accelerometer(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn claim_accelerometer(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
     /// Succeeds.
-    async fn release_accelerometer(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn release_accelerometer(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
     /// Succeeds; there is no light sensor to start.
-    async fn claim_light(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn claim_light(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
     /// Succeeds.
-    async fn release_light(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn release_light(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
     /// Claims tofprox proximity for the caller.
     async fn claim_proximity(
@@ -556,7 +574,7 @@ impl SensorProxyCompat {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        let client = caller(&hdr);
+        let client = caller(&hdr)?;
         self.hub
             .modify_claim(&client, |c| c.compat_proximity = true);
         drop_if_gone(conn, &self.hub, &client).await;
@@ -566,7 +584,7 @@ impl SensorProxyCompat {
     /// Releases it.
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
         self.hub
-            .modify_claim(&caller(&hdr), |c| c.compat_proximity = false);
+            .modify_claim(&caller(&hdr)?, |c| c.compat_proximity = false);
         Ok(())
     }
 }
@@ -587,12 +605,12 @@ impl SensorProxyCompass {
         -1.0
     }
     /// Succeeds.
-    async fn claim_compass(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn claim_compass(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
     /// Succeeds.
-    async fn release_compass(&self) -> fdo::Result<()> {
-        Ok(())
+    async fn release_compass(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
+        no_args(&hdr)
     }
 }
 

@@ -1,0 +1,192 @@
+//! Soak: the daemon's loop against the emulated device with injected faults on
+//! a virtual clock (no real sleeps), checking what must hold: no false near, no
+//! panic, recovery within a few cycles, flat memory.
+
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde::Serialize;
+use tofprox_bridge::emulated::FrameSource as SynthSource;
+use tofprox_bridge::{
+    Clock, DriverConfig, EmulatedConfig, EmulatedDevice, SensorDriver, VirtualClock,
+    emulated::FaultConfig,
+};
+use tofprox_model::SceneScript;
+
+use crate::backends::{BridgeSource, chain};
+use crate::config::Config;
+use crate::controller::{Controller, ModeCalibrations};
+
+/// Soak parameters.
+#[derive(Debug, Clone)]
+pub struct SoakConfig {
+    /// Cycles to run.
+    pub cycles: u64,
+    /// Share of cycles with an injected fault (spread over every fault kind).
+    pub fault_rate: f64,
+    /// Seed of noise and fault draws.
+    pub seed: u64,
+    /// Hand loop period (s, virtual time).
+    pub period_s: f64,
+}
+
+impl Default for SoakConfig {
+    fn default() -> Self {
+        Self {
+            cycles: 10_000,
+            fault_rate: 0.05,
+            seed: 1,
+            period_s: 8.0,
+        }
+    }
+}
+
+/// The soak's result (`tofprox soak --json`).
+#[derive(Debug, Clone, Default, Serialize, PartialEq, Eq)]
+pub struct SoakReport {
+    /// Cycles run.
+    pub cycles: u64,
+    /// Faults the emulated device injected.
+    pub faults_injected: u64,
+    /// Failure episodes that ended in a good reading.
+    pub recovered: u64,
+    /// Near published while the scripted truth was beyond the far threshold for the whole debounce window.
+    pub false_near: u64,
+    /// Panics caught in the loop.
+    pub panics: u64,
+    /// Longest recovery: cycles from the last injected fault of an episode to the next good reading.
+    pub max_recovery_cycles: u64,
+    /// RSS after warm-up (kB).
+    pub rss_kb_start: u64,
+    /// RSS at the end (kB).
+    pub rss_kb_end: u64,
+    /// Cycles that failed.
+    pub failed_cycles: u64,
+    /// Near transitions seen.
+    pub near_transitions: u64,
+    /// Failure episodes still open at the end.
+    pub unrecovered: u64,
+}
+
+/// Resident set size of this process (kB), 0 if unknown.
+pub fn rss_kb() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmRSS:"))
+                .and_then(|l| l.split_whitespace().nth(1))
+                .and_then(|v| v.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+/// Errors setting up the soak.
+#[derive(Debug, thiserror::Error)]
+#[error("soak setup: {0}")]
+pub struct SoakError(String);
+
+/// Run the soak.
+pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
+    if !(sc.fault_rate.is_finite() && (0.0..=1.0).contains(&sc.fault_rate)) {
+        return Err(SoakError(format!(
+            "fault rate {} must be within 0..=1",
+            sc.fault_rate
+        )));
+    }
+    let scene = SceneScript {
+        period_s: sc.period_s,
+        ..SceneScript::hand()
+    };
+    let dev_cfg = EmulatedConfig {
+        frame_source: SynthSource::Ideal,
+        scene: scene.clone(),
+        faults: FaultConfig::uniform(sc.fault_rate),
+        ..EmulatedConfig::default()
+    };
+    let vclock = Arc::new(VirtualClock::new());
+    let clock: Arc<dyn Clock> = vclock.clone();
+    let map = dev_cfg.sensor_map().map_err(|e| SoakError(chain(&e)))?;
+    let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), sc.seed)
+        .map_err(|e| SoakError(chain(&e)))?;
+    let dcfg = DriverConfig {
+        protocol: dev_cfg.protocol.clone(),
+        map,
+        ..DriverConfig::emulated_default()
+    };
+    let driver = SensorDriver::new(dev, dcfg, clock.clone()).map_err(|e| SoakError(chain(&e)))?;
+    let source = BridgeSource::new(driver, clock.clone(), "emulated (soak)");
+    let mut cfg = Config::default();
+    // A small ROI (and row window around it) keeps each cycle cheap.
+    cfg.proximity.roi = Some([78, 92, 16, 40]);
+    cfg.proximity.near_mm = 150;
+    cfg.proximity.far_mm = 250;
+    cfg.loop_.retry_ms = 100;
+    let far_m = f64::from(cfg.proximity.far_mm) / 1e3;
+    let window = cfg.proximity.far_debounce as usize + 2;
+    let mut ctl = Controller::new(cfg, source, ModeCalibrations::default())
+        .map_err(|e| SoakError(e.to_string()))?;
+
+    let mut rep = SoakReport::default();
+    let mut truth: std::collections::VecDeque<f64> =
+        std::collections::VecDeque::with_capacity(window + 1);
+    let mut in_episode = false;
+    let mut since_last_fault: u64 = 0;
+    let mut last_near = false;
+    let mut faults_before = 0u64;
+    for i in 0..sc.cycles {
+        if i == 20 {
+            rep.rss_kb_start = rss_kb();
+        }
+        let t_before = clock.now().as_secs_f64();
+        let out = catch_unwind(AssertUnwindSafe(|| ctl.step(false)));
+        let t_after = clock.now().as_secs_f64();
+        rep.cycles += 1;
+        let faults_now = ctl.source().driver().transport().stats().faults_injected;
+        let injected = faults_now.saturating_sub(faults_before);
+        faults_before = faults_now;
+        rep.faults_injected += injected;
+        let Ok(out) = out else {
+            rep.panics += 1;
+            clock.sleep(Duration::from_millis(100));
+            continue;
+        };
+        // Truth: the scripted centre distance during the cycle (closest of its start and end).
+        let d = scene
+            .centre_distance_m(t_before)
+            .min(scene.centre_distance_m(t_after));
+        truth.push_back(d);
+        while truth.len() > window {
+            truth.pop_front();
+        }
+        if out.near && truth.len() == window && truth.iter().all(|&d| d > far_m + 0.05) {
+            rep.false_near += 1;
+        }
+        if out.near != last_near {
+            rep.near_transitions += 1;
+            last_near = out.near;
+        }
+        if injected > 0 {
+            since_last_fault = 0;
+        }
+        if out.error.is_some() {
+            rep.failed_cycles += 1;
+            if !in_episode {
+                in_episode = true;
+            }
+            if injected == 0 {
+                since_last_fault += 1;
+            }
+        } else if in_episode {
+            in_episode = false;
+            rep.recovered += 1;
+            rep.max_recovery_cycles = rep.max_recovery_cycles.max(since_last_fault + 1);
+            since_last_fault = 0;
+        }
+        clock.sleep(out.sleep);
+    }
+    rep.unrecovered = u64::from(in_episode);
+    rep.rss_kb_end = rss_kb();
+    Ok(rep)
+}

@@ -1,0 +1,718 @@
+//! Integration tests against a real `dbus-daemon` on a private bus started by
+//! each test, driven by independent clients: `busctl`, and a dbus-python/GLib
+//! client (`tests/dbus/client.py`, the stack iio-sensor-proxy clients use).
+//! The daemon is the real `tofproxd` binary on the emulated device.
+//!
+//! Skips (loudly) only when `dbus-daemon` is absent; CI installs it
+//! (`dbus-daemon`, `systemd` for busctl, `python3-dbus`, `python3-gi`).
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+struct Bus {
+    child: Child,
+    address: String,
+}
+
+impl Drop for Bus {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn start_bus() -> Option<Bus> {
+    let spawned = Command::new("dbus-daemon")
+        .args(["--session", "--print-address", "--nofork"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn();
+    let mut child = match spawned {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!(
+                "\n\n!!!!! SKIPPED: dbus-daemon is not installed ({e}); install the dbus-daemon package !!!!!\n"
+            );
+            return None;
+        }
+    };
+    let mut line = String::new();
+    let stdout = child.stdout.take().expect("piped stdout");
+    BufReader::new(stdout)
+        .read_line(&mut line)
+        .expect("bus address");
+    let address = line.trim().to_string();
+    assert!(!address.is_empty(), "dbus-daemon printed no address");
+    Some(Bus { child, address })
+}
+
+fn python() -> PathBuf {
+    for p in ["/usr/bin/python3", "python3"] {
+        let ok = Command::new(p)
+            .args([
+                "-c",
+                "import dbus, dbus.mainloop.glib; from gi.repository import GLib",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        if ok {
+            return PathBuf::from(p);
+        }
+    }
+    panic!("python3 with dbus-python and PyGObject is required (apt: python3-dbus python3-gi)");
+}
+
+struct Daemon {
+    child: Child,
+    stderr: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Daemon {
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.stderr).unwrap_or_default()
+    }
+    fn rss_kb(&self) -> u64 {
+        let s = std::fs::read_to_string(format!("/proc/{}/status", self.pid())).unwrap_or_default();
+        s.lines()
+            .find(|l| l.starts_with("VmRSS:"))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0)
+    }
+}
+
+const HAND: &str = r#"
+backend = "emulated"
+[loop]
+rate_hz = 10.0
+fast_rate_hz = 20.0
+slow_rate_hz = 5.0
+first_reading_timeout_ms = 5000
+[proximity]
+near_mm = 300
+far_mm = 400
+far_debounce = 2
+[emulated]
+seed = 3
+[emulated.device]
+frame_source = "ideal"
+[emulated.device.scene]
+kind = "hand"
+wall_distance_m = 1.0
+near_m = 0.05
+far_m = 0.6
+period_s = 4.0
+object_reflectivity = 0.5
+wall_reflectivity = 0.6
+"#;
+
+fn spawn_daemon(bus: &Bus, config: &str) -> Daemon {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = dir.path().join("tofproxd.toml");
+    std::fs::write(&cfg, config).expect("write config");
+    let stderr = dir.path().join("stderr.log");
+    let child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
+        .arg("--config")
+        .arg(&cfg)
+        .args(["--bus", &bus.address])
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr).expect("stderr file"))
+        .spawn()
+        .expect("spawn tofproxd");
+    Daemon {
+        child,
+        stderr,
+        _dir: dir,
+    }
+}
+
+fn name_has_owner(bus: &Bus, name: &str) -> bool {
+    let out = Command::new("busctl")
+        .arg(format!("--address={}", bus.address))
+        .args([
+            "call",
+            "org.freedesktop.DBus",
+            "/org/freedesktop/DBus",
+            "org.freedesktop.DBus",
+            "NameHasOwner",
+            "s",
+            name,
+        ])
+        .output()
+        .expect("busctl");
+    String::from_utf8_lossy(&out.stdout).trim() == "b true"
+}
+
+fn start_daemon(bus: &Bus, config: &str) -> Daemon {
+    let mut d = spawn_daemon(bus, config);
+    let t0 = Instant::now();
+    while !name_has_owner(bus, "org.tofprox.Proximity1") {
+        if let Ok(Some(st)) = d.child.try_wait() {
+            panic!("tofproxd exited early ({st}):\n{}", d.log());
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "tofproxd did not take its name:\n{}",
+            d.log()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    d
+}
+
+struct Client {
+    child: Child,
+    rx: mpsc::Receiver<Value>,
+    seen: Vec<Value>,
+}
+
+impl Drop for Client {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Client {
+    fn start(bus: &Bus, args: &[&str]) -> Client {
+        let mut child = Command::new(python())
+            .arg(repo().join("tests/dbus/client.py"))
+            .args(args)
+            .args(["--address", &bus.address])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("spawn client.py");
+        let stdout = child.stdout.take().expect("stdout");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if let Ok(v) = serde_json::from_str::<Value>(&line)
+                    && tx.send(v).is_err()
+                {
+                    break;
+                }
+            }
+        });
+        Client {
+            child,
+            rx,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Wait for an event matching `pred`; every event is kept in `seen`.
+    fn wait_for(&mut self, timeout: Duration, what: &str, pred: impl Fn(&Value) -> bool) -> Value {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.rx.recv_timeout(left) {
+                Ok(v) => {
+                    self.seen.push(v.clone());
+                    if v["event"] == "dbus-error" {
+                        panic!("client got a D-Bus error: {v}");
+                    }
+                    if pred(&v) {
+                        return v;
+                    }
+                }
+                Err(_) => panic!("timed out waiting for {what}; events: {:#?}", self.seen),
+            }
+        }
+    }
+
+    /// Collect events for `d`.
+    fn collect(&mut self, d: Duration) {
+        let deadline = Instant::now() + d;
+        while let Ok(v) = self
+            .rx
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+        {
+            self.seen.push(v);
+        }
+    }
+}
+
+fn changed(v: &Value, prop: &str) -> Option<Value> {
+    (v["event"] == "changed")
+        .then(|| v["props"].get(prop).cloned())
+        .flatten()
+}
+
+fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
+    Command::new("busctl")
+        .arg(format!("--address={}", bus.address))
+        .args(args)
+        .output()
+        .expect("busctl")
+}
+
+/// GetStatus through busctl's JSON output: name → value.
+fn status(bus: &Bus) -> serde_json::Map<String, Value> {
+    let out = busctl(
+        bus,
+        &[
+            "--json=short",
+            "call",
+            "org.tofprox.Proximity1",
+            "/org/tofprox/Proximity1",
+            "org.tofprox.Proximity1",
+            "GetStatus",
+        ],
+    );
+    assert!(
+        out.status.success(),
+        "GetStatus failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).expect("busctl json");
+    let dict = v["data"][0].as_object().cloned().unwrap_or_default();
+    dict.into_iter()
+        .map(|(k, v)| (k, v["data"].clone()))
+        .collect()
+}
+
+fn wait_status(
+    bus: &Bus,
+    timeout: Duration,
+    what: &str,
+    pred: impl Fn(&serde_json::Map<String, Value>) -> bool,
+) {
+    let t0 = Instant::now();
+    loop {
+        let s = status(bus);
+        if pred(&s) {
+            return;
+        }
+        assert!(
+            t0.elapsed() < timeout,
+            "timed out waiting for {what}: {s:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn claim_gives_near_on_approach_and_far_after_leaving() {
+    let Some(bus) = start_bus() else { return };
+    let daemon = start_daemon(&bus, HAND);
+    let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
+    let claimed = c.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    assert_eq!(
+        claimed["props"]["State"], "running",
+        "ClaimProximity returns after the first valid reading"
+    );
+    assert_eq!(claimed["props"]["HasSensor"], true);
+    assert_eq!(claimed["props"]["Mode"], "2phase");
+    assert_eq!(claimed["props"]["NearThresholdMm"], 300);
+    c.wait_for(Duration::from_secs(8), "Near=true", |v| {
+        changed(v, "Near") == Some(Value::Bool(true))
+    });
+    c.wait_for(Duration::from_secs(8), "Near=false", |v| {
+        changed(v, "Near") == Some(Value::Bool(false))
+    });
+    assert!(
+        c.seen.iter().all(|v| changed(v, "DistanceMm").is_none()),
+        "DistanceMm has no change signal"
+    );
+    // PropertiesChanged only on change: no signal repeats Near with the same value twice in a row.
+    let nears: Vec<bool> = c
+        .seen
+        .iter()
+        .filter_map(|v| changed(v, "Near"))
+        .filter_map(|v| v.as_bool())
+        .collect();
+    assert!(nears.windows(2).all(|w| w[0] != w[1]), "{nears:?}");
+    drop(c);
+    drop(daemon);
+}
+
+#[test]
+fn killed_client_loses_its_claims() {
+    let Some(bus) = start_bus() else { return };
+    let _daemon = start_daemon(&bus, HAND);
+    let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
+    c.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    let s = status(&bus);
+    assert_eq!(s["ProximityClaims"], 1, "{s:?}");
+    assert_eq!(s["State"], "running");
+    // SIGKILL: no release call, the bus reports the client gone.
+    c.child.kill().expect("kill client");
+    let _ = c.child.wait();
+    wait_status(
+        &bus,
+        Duration::from_secs(5),
+        "claims released and sensor off",
+        |s| s["ProximityClaims"] == 0 && s["Clients"] == 0 && s["State"] == "off",
+    );
+}
+
+#[test]
+fn malformed_calls_get_dbus_errors() {
+    let Some(bus) = start_bus() else { return };
+    let _daemon = start_daemon(&bus, HAND);
+    let dest = ["org.tofprox.Proximity1", "/org/tofprox/Proximity1"];
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec![
+                "call",
+                dest[0],
+                dest[1],
+                "org.tofprox.Proximity1",
+                "ClaimProximity",
+                "s",
+                "x",
+            ],
+            "Signature mismatch",
+        ),
+        (
+            vec![
+                "call",
+                dest[0],
+                dest[1],
+                "org.tofprox.Proximity1",
+                "NoSuchMethod",
+            ],
+            "UnknownMethod",
+        ),
+        (
+            vec![
+                "call",
+                dest[0],
+                dest[1],
+                "org.tofprox.NoSuchIface",
+                "ClaimProximity",
+            ],
+            "Unknown",
+        ),
+        (
+            vec![
+                "call",
+                dest[0],
+                "/org/tofprox/Nowhere",
+                "org.tofprox.Proximity1",
+                "ClaimProximity",
+            ],
+            "Unknown",
+        ),
+        (
+            vec![
+                "get-property",
+                dest[0],
+                dest[1],
+                "org.tofprox.Proximity1",
+                "NoSuchProperty",
+            ],
+            "Unknown",
+        ),
+        (
+            vec![
+                "set-property",
+                dest[0],
+                dest[1],
+                "org.tofprox.Proximity1",
+                "Near",
+                "b",
+                "true",
+            ],
+            "ropert",
+        ),
+        (
+            vec![
+                "call",
+                dest[0],
+                dest[1],
+                "org.tofprox.Proximity1",
+                "GetStatus",
+                "u",
+                "7",
+            ],
+            "Signature mismatch",
+        ),
+    ];
+    for (args, want) in cases {
+        let out = busctl(&bus, &args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} should fail");
+        let norm = |s: &str| s.to_lowercase().replace([' ', '_', '-'], "");
+        assert!(norm(&err).contains(&norm(want)), "{args:?}: {err}");
+    }
+    // Still serving, nothing claimed by the bad calls.
+    let s = status(&bus);
+    assert_eq!(s["ProximityClaims"], 0, "{s:?}");
+    assert_eq!(s["State"], "off");
+}
+
+#[test]
+fn compat_mode_works_like_iio_sensor_proxy() {
+    let Some(bus) = start_bus() else { return };
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let mut c = Client::start(&bus, &["compat", "--timeout", "30"]);
+    let v = c.wait_for(Duration::from_secs(10), "compat claims", |v| {
+        v["event"] == "claimed"
+    });
+    let p = &v["props"];
+    assert_eq!(p["HasAccelerometer"], false);
+    assert_eq!(p["AccelerometerOrientation"], "undefined");
+    assert_eq!(p["AccelerometerTilt"], "undefined");
+    assert_eq!(p["HasAmbientLight"], false);
+    assert_eq!(p["LightLevelUnit"], "lux");
+    assert_eq!(p["HasProximity"], true);
+    assert!(p.get("ProximityNear").is_some());
+    assert_eq!(v["compass"]["HasCompass"], false);
+    c.wait_for(Duration::from_secs(8), "ProximityNear=true", |v| {
+        changed(v, "ProximityNear") == Some(Value::Bool(true))
+    });
+    c.wait_for(Duration::from_secs(8), "ProximityNear=false", |v| {
+        changed(v, "ProximityNear") == Some(Value::Bool(false))
+    });
+    let s = status(&bus);
+    assert_eq!(s["ProximityClaims"], 1, "the compat claim counts: {s:?}");
+}
+
+#[test]
+fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
+    let Some(bus) = start_bus() else { return };
+    let mut owner = Client::start(
+        &bus,
+        &["own", "--name", "net.hadess.SensorProxy", "--timeout", "30"],
+    );
+    let v = owner.wait_for(Duration::from_secs(10), "name owned", |v| {
+        v["event"] == "owned"
+    });
+    assert_eq!(v["reply"], 1, "stand-in owns the name");
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let mut d = spawn_daemon(&bus, &cfg);
+    let t0 = Instant::now();
+    let st = loop {
+        if let Some(st) = d.child.try_wait().expect("wait") {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "tofproxd should refuse and exit"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!st.success());
+    let log = d.log();
+    assert!(
+        log.contains("net.hadess.SensorProxy") && log.contains("iio-sensor-proxy"),
+        "{log}"
+    );
+    assert!(
+        name_has_owner(&bus, "net.hadess.SensorProxy"),
+        "the stand-in keeps its name"
+    );
+    assert!(
+        !name_has_owner(&bus, "org.tofprox.Proximity1"),
+        "our name is released again"
+    );
+}
+
+#[test]
+fn faults_set_error_state_recover_and_never_publish_a_false_near() {
+    let Some(bus) = start_bus() else { return };
+    // A plain wall at 1 m: any Near=true would be false. Every fault kind on.
+    let cfg = r#"
+backend = "emulated"
+[loop]
+rate_hz = 20.0
+fast_rate_hz = 20.0
+slow_rate_hz = 20.0
+retry_ms = 20
+unavailable_after = 3
+first_reading_timeout_ms = 5000
+[proximity]
+near_mm = 300
+far_mm = 400
+[emulated]
+seed = 11
+[emulated.device]
+frame_source = "ideal"
+[emulated.device.scene]
+kind = "wall"
+wall_distance_m = 1.0
+wall_reflectivity = 0.6
+[emulated.device.timing]
+replug_after_ms = 100.0
+[emulated.device.faults]
+unplug = { probability = 0.04 }
+control_timeout = { probability = 0.04 }
+stall = { probability = 0.04 }
+i2c_nak = { probability = 0.04 }
+corrupt_payload = { probability = 0.04 }
+short_payload = { probability = 0.04 }
+out_of_order = { probability = 0.04 }
+flash_empty = { probability = 0.04 }
+flash_corrupt = { probability = 0.04 }
+reset_stuck = { probability = 0.04 }
+"#;
+    let daemon = start_daemon(&bus, cfg);
+    let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
+    c.wait_for(Duration::from_secs(15), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    c.collect(Duration::from_secs(6));
+    let states: Vec<String> = c
+        .seen
+        .iter()
+        .filter_map(|v| changed(v, "State"))
+        .filter_map(|v| v.as_str().map(str::to_string))
+        .collect();
+    let errors: Vec<String> = c
+        .seen
+        .iter()
+        .filter_map(|v| changed(v, "LastError"))
+        .filter_map(|v| v.as_str().map(str::to_string))
+        .filter(|s| !s.is_empty())
+        .collect();
+    assert!(
+        states.iter().any(|s| s == "error" || s == "unavailable"),
+        "faults must show in State: {states:?}\n{}",
+        daemon.log()
+    );
+    assert!(!errors.is_empty(), "LastError says why");
+    let last_bad = states
+        .iter()
+        .rposition(|s| s == "error" || s == "unavailable")
+        .unwrap_or(0);
+    assert!(
+        states[last_bad..].iter().any(|s| s == "running") || status(&bus)["State"] == "running",
+        "recovers by itself: {states:?}"
+    );
+    assert!(
+        !c.seen
+            .iter()
+            .any(|v| changed(v, "Near") == Some(Value::Bool(true))),
+        "no false near from a bad frame: {:#?}",
+        c.seen
+    );
+    let s = status(&bus);
+    assert!(
+        s["Errors"].as_u64().unwrap_or(0) > 0 && s["ValidReadings"].as_u64().unwrap_or(0) > 0,
+        "{s:?}"
+    );
+    assert!(!daemon.log().contains("panicked"), "{}", daemon.log());
+}
+
+#[test]
+fn hundred_clients_claim_and_release_concurrently_without_leaks() {
+    let Some(bus) = start_bus() else { return };
+    let secs: f64 = std::env::var("TOFPROX_STRESS_SECS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(30.0);
+    let daemon = start_daemon(&bus, HAND);
+    // warm up once so the RSS baseline includes the pipelines
+    let mut warm = Client::start(&bus, &["native", "--timeout", "30"]);
+    warm.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    drop(warm);
+    wait_status(&bus, Duration::from_secs(5), "idle", |s| {
+        s["Clients"] == 0 && s["State"] == "off"
+    });
+    let rss0 = daemon.rss_kb();
+    let mut stress = Client::start(
+        &bus,
+        &[
+            "stress",
+            "--clients",
+            "100",
+            "--seconds",
+            &secs.to_string(),
+            "--timeout",
+            &(secs + 60.0).to_string(),
+        ],
+    );
+    let done = stress.wait_for(Duration::from_secs_f64(secs + 60.0), "stress done", |v| {
+        v["event"] == "stress-done"
+    });
+    assert!(done["calls"].as_u64().unwrap_or(0) > 100, "{done}");
+    wait_status(
+        &bus,
+        Duration::from_secs(5),
+        "no claims left, sensor off",
+        |s| {
+            s["Clients"] == 0
+                && s["ProximityClaims"] == 0
+                && s["DepthClaims"] == 0
+                && s["State"] == "off"
+        },
+    );
+    let rss1 = daemon.rss_kb();
+    assert!(rss1 < rss0 + 4096, "RSS grew from {rss0} kB to {rss1} kB");
+    // Still fully functional afterwards.
+    let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
+    let v = c.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    assert_eq!(v["props"]["State"], "running");
+}
+
+#[test]
+fn sigterm_stops_releases_the_name_and_exits_zero() {
+    let Some(bus) = start_bus() else { return };
+    let mut daemon = start_daemon(&bus, HAND);
+    let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
+    c.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    let st = Command::new("kill")
+        .args(["-TERM", &daemon.pid().to_string()])
+        .status()
+        .expect("kill");
+    assert!(st.success());
+    let t0 = Instant::now();
+    let st = loop {
+        if let Some(st) = daemon.child.try_wait().expect("wait") {
+            break st;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "tofproxd did not exit on SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(st.success(), "exit status {st}\n{}", daemon.log());
+    assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
+    // The last state published before leaving was "off" (sensor in reset).
+    c.collect(Duration::from_millis(300));
+    let last_state = c
+        .seen
+        .iter()
+        .filter_map(|v| changed(v, "State"))
+        .next_back();
+    assert_eq!(last_state, Some(Value::from("off")), "{:#?}", c.seen);
+    let _ = std::io::stderr().flush();
+}
