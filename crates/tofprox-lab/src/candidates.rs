@@ -115,13 +115,13 @@ pub fn fit_signature(
     }
     // Variable projection over the grid (on a subsample when large).
     let stride = (recs.len() / 150_000).max(1);
-    let mut grid = sig.nl_grid(recs, prep);
-    if let Some(s) = start
-        && s.nl.len() == sig.nl_start().len()
-        && !s.nl.is_empty()
-    {
-        grid.push(s.nl.clone());
-    }
+    // A previous fit (from an earlier round) is refined without a new grid search.
+    let warm =
+        start.filter(|s| s.nl.len() == sig.nl_start().len() && s.lin.iter().any(|v| *v != 0.0));
+    let mut grid = match warm {
+        Some(s) => vec![s.nl.clone()],
+        None => sig.nl_grid(recs, prep),
+    };
     if grid.is_empty() {
         grid.push(sig.nl_start());
     }

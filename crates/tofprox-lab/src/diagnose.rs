@@ -390,7 +390,9 @@ pub fn diagnose(
             let f = fit_signature(sig.as_ref(), &recs, prep, Some(e))?;
             let ex = f.chi2_before - c2.dof;
             if ex > 0.0 {
-                c.cv_gain = c.cv_gain.max((f.cv_chi2_before - f.cv_chi2) / ex);
+                // never credited beyond what the refit explains of the baseline excess
+                let refit_cv = ((f.cv_chi2_before - f.cv_chi2) / ex).min(c.explained_excess);
+                c.cv_gain = c.cv_gain.max(refit_cv);
             }
         }
         c.rms_after = Some(c2.rms);

@@ -549,7 +549,7 @@ pub fn fit_model(
     };
     // Initial gains: least squares with the shape fixed.
     fit_gain_only(prep, &mut model);
-    let rounds = 4;
+    let rounds = if spec.effects.is_empty() { 4 } else { 8 };
     for round in 0..rounds {
         progress("per-pixel fit", round as f64 / rounds as f64);
         let delta = effects_delta(prep, &model)?;
@@ -561,7 +561,9 @@ pub fn fit_model(
         }
         update_saturation(prep, &mut model);
         if !model.effects.is_empty() {
-            fit_enabled_effects(prep, &mut model)?;
+            // full grid search early and once more late; warm refinement between
+            let warm = round >= 2 && round != rounds - 2;
+            fit_enabled_effects(prep, &mut model, warm)?;
         }
         if round == 0 || round == rounds - 2 {
             model.noise = fit_noise(prep, &model)?;
@@ -790,14 +792,15 @@ fn update_saturation(prep: &Prepared, model: &mut LabModel) {
 }
 
 /// Re-fit the parameters of the model's enabled effects on its residual.
-fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel) -> Result<(), LabError> {
+fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Result<(), LabError> {
     for i in 0..model.effects.len() {
         // residual with every other effect included
         let mut tmp = model.clone();
         let this = tmp.effects.remove(i);
         let recs = tmp.records(prep)?;
         let sig = make_signature(&this.id, prep, &model.spec, &model.waveform)?;
-        let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, Some(&this))?;
+        let start = if warm { Some(&this) } else { None };
+        let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, start)?;
         model.effects[i] = EffectFit {
             id: this.id.clone(),
             lin: fitted.lin,

@@ -12,6 +12,7 @@ pub mod diagnose;
 pub mod error;
 pub mod fit;
 pub mod noise;
+pub mod report;
 pub mod signatures;
 pub mod stats;
 pub mod structure;
