@@ -214,9 +214,21 @@ pub fn read_header(path: &Path) -> Result<NpyHeader, FormatError> {
         .metadata()
         .map_err(|e| FormatError::io(path, "cannot stat", e))?
         .len();
-    let mut buf = Vec::with_capacity(256);
+    // the preamble (≤ 12 bytes) says how long the header is; read just that much
+    let mut buf = Vec::with_capacity(128);
     (&mut f)
-        .take((MAX_HEADER_LEN + 12) as u64)
+        .take(12)
+        .read_to_end(&mut buf)
+        .map_err(|e| FormatError::io(path, "cannot read", e))?;
+    let header_len = match buf.get(6) {
+        Some(1) if buf.len() >= 10 => usize::from(u16::from_le_bytes([buf[8], buf[9]])),
+        Some(2 | 3) if buf.len() >= 12 => {
+            u32::from_le_bytes([buf[8], buf[9], buf[10], buf[11]]) as usize
+        }
+        _ => 0, // parse_header reports what is wrong
+    };
+    (&mut f)
+        .take(header_len.min(MAX_HEADER_LEN + 1) as u64)
         .read_to_end(&mut buf)
         .map_err(|e| FormatError::io(path, "cannot read", e))?;
     let header = parse_header(&buf).map_err(|e| e.at(path))?;
@@ -277,12 +289,10 @@ pub fn decode(bytes: &[u8]) -> Result<NpyArray, FormatError> {
     })
 }
 
-/// Read a whole `.npy` file. The file size is checked against the header
-/// before the data is read, so nothing larger than the file is allocated.
+/// Read a whole `.npy` file; nothing larger than the file is allocated.
 pub fn read(path: &Path) -> Result<NpyArray, FormatError> {
-    read_header(path)?;
+    // fs::read allocates the file's real size; decode checks it against the header
     let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, "cannot read", e))?;
-    // The file may have changed between the two reads; decode checks again.
     decode(&bytes).map_err(|e| e.at(path))
 }
 

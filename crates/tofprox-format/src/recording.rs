@@ -311,6 +311,10 @@ where
     S: Data<Elem = T>,
     T: Copy,
 {
+    // fast path: one pass without index bookkeeping
+    if a.iter().all(|&v| ok(v)) {
+        return Ok(());
+    }
     for ((k, r, c), &v) in a.indexed_iter() {
         if !ok(v) {
             return Err(invalid(format!(
