@@ -45,6 +45,9 @@ pub const FLAG_INVALID: u8 = 1 << 2;
 /// Flag bit: a used raw value is NaN or infinite.
 pub const FLAG_NON_FINITE: u8 = 1 << 3;
 
+/// Largest frame a pipeline accepts (64 Mpixel; the IRS1645 has 38 528 pixels).
+pub const MAX_PIXELS: usize = 1 << 26;
+
 /// Size of the internal wiggling table (power of two so the index is a mask, no bounds checks).
 const LUT_BINS: usize = 4096;
 
@@ -271,13 +274,16 @@ impl Pipeline {
                 format!("({rows}, {cols})"),
             ));
         }
-        let n = rows.checked_mul(cols).ok_or_else(|| {
-            CoreError::shape(
-                "pipeline frame",
-                "rows × cols to fit in memory",
-                format!("({rows}, {cols})"),
-            )
-        })?;
+        let n = rows
+            .checked_mul(cols)
+            .filter(|&n| n <= MAX_PIXELS)
+            .ok_or_else(|| {
+                CoreError::shape(
+                    "pipeline frame",
+                    format!("rows × cols ≤ {MAX_PIXELS}"),
+                    format!("({rows}, {cols})"),
+                )
+            })?;
         let params = KernelParams {
             rail_hi: config.max_code(),
             min_amp: config.min_amplitude_lsb,
@@ -982,6 +988,8 @@ mod tests {
         };
         assert!(Pipeline::new(2, 2, cfg, bad).is_err());
         assert!(Pipeline::new(0, 2, cfg, Calibration::default()).is_err());
+        assert!(Pipeline::new(usize::MAX, 2, cfg, Calibration::default()).is_err());
+        assert!(Pipeline::new(1 << 14, 1 << 13, cfg, Calibration::default()).is_err());
         let bad_cfg = PipelineConfig {
             modulation_hz: f64::NAN,
             ..cfg
