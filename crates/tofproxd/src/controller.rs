@@ -477,6 +477,13 @@ impl<S: FrameSource> Controller<S> {
             None => return Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
         };
         let valid = reading.distance_mm.is_some() || reading.near;
+        // Near from saturation (target too close/bright to measure): the statistic of the
+        // remaining valid pixels is the background, not the target — publish "unknown" (0).
+        let shown_mm = match reading.distance_mm {
+            Some(d) if reading.near && d >= self.cfg.proximity.far_mm => 0,
+            Some(d) => d,
+            None => 0,
+        };
 
         // Mode switching with hysteresis.
         let mut new_mode = self.mode;
@@ -587,7 +594,7 @@ impl<S: FrameSource> Controller<S> {
             update: StatusUpdate {
                 state: Some(self.state),
                 near: valid.then_some(self.near),
-                distance_mm: Some(reading.distance_mm.unwrap_or(0)),
+                distance_mm: Some(shown_mm),
                 mode: Some(self.mode),
                 rate_hz: Some(self.rate_hz),
                 power_mw: Some(self.energy.average_mw()),
