@@ -17,6 +17,7 @@
 
 use crate::CoreError;
 use crate::pipeline::{DepthFrame, FLAG_SATURATED};
+use ndarray::s;
 
 /// Fraction of saturated ROI pixels that on its own means "near".
 pub const SATURATED_NEAR_FRACTION: f32 = 0.25;
@@ -189,22 +190,22 @@ impl NearFarDetector {
 
     /// Feeds one frame. Allocation-free after the first frame of a given ROI size.
     pub fn update(&mut self, frame: &DepthFrame) -> ProximityReading {
-        let (frame_rows, frame_cols) = frame.depth_mm.dim();
-        let roi = self.cfg.roi.resolve(frame_rows, frame_cols);
+        // Malformed frames (flags and depth of different shapes) are read on their common part.
+        let (dr, dc) = frame.depth_mm.dim();
+        let (fr, fc) = frame.flags.dim();
+        let roi = self.cfg.roi.resolve(dr.min(fr), dc.min(fc));
         let total = roi.rows * roi.cols;
         self.scratch.clear();
+        self.scratch.reserve(total); // allocates only when the ROI grows
         let mut saturated = 0usize;
-        for r in roi.row0..roi.row0 + roi.rows {
-            for c in roi.col0..roi.col0 + roi.cols {
-                let (Some(&flags), Some(&mm)) =
-                    (frame.flags.get((r, c)), frame.depth_mm.get((r, c)))
-                else {
-                    continue;
-                };
-                if flags & FLAG_SATURATED != 0 {
-                    saturated += 1;
-                }
-                if flags == 0 && mm != 0 {
+        let rows = roi.row0..roi.row0 + roi.rows;
+        let cols = roi.col0..roi.col0 + roi.cols;
+        let flags = frame.flags.slice(s![rows.clone(), cols.clone()]);
+        let depth = frame.depth_mm.slice(s![rows, cols]);
+        for (frow, drow) in flags.rows().into_iter().zip(depth.rows()) {
+            for (&f, &mm) in frow.iter().zip(drow.iter()) {
+                saturated += usize::from(f & FLAG_SATURATED != 0);
+                if f == 0 && mm != 0 {
                     self.scratch.push(mm);
                 }
             }

@@ -198,3 +198,15 @@ fn config_validation_roi_clipping_and_reset() {
         }
     );
 }
+
+#[test]
+fn malformed_frame_does_not_panic() {
+    let mut f = wall(100);
+    f.flags = ndarray::Array2::zeros((3, 20)); // inconsistent with depth (8×8)
+    let mut d = detector(1);
+    let r = d.update(&f);
+    assert!(r.valid_fraction <= 1.0);
+    let empty = DepthFrame::zeros(0, 0);
+    let r = d.update(&empty);
+    assert_eq!(r.distance_mm, None);
+}
