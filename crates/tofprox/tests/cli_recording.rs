@@ -721,3 +721,36 @@ fn process_refuses_what_it_cannot_process() {
     assert_eq!(bad_algo.status.code(), Some(2));
     assert!(!stderr(&bad_algo).contains("panicked"));
 }
+
+#[test]
+fn info_on_a_calibration_set() {
+    let calib = repo().join("calib/example");
+    let o = run(&["info", p(&calib)]);
+    assert_ok(&o);
+    let s = stdout(&o);
+    for n in [
+        "checksums verified",
+        "16×16 window at (row 78, col 104) of a 172×224 array, 12-bit ADC, 80 MHz",
+        "offset           dark level",
+        "wiggling_2phase",
+        "256 bins",
+        "fppn_2phase",
+        "from examples/recording captures [1] at 0.5 m",
+    ] {
+        assert!(s.contains(n), "info lacks {n:?}:\n{s}");
+    }
+    let o = run(&["info", p(&calib), "--json"]);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["valid_for"]["adc_bits"], 12);
+    assert_eq!(v["parts"].as_object().unwrap().len(), 5);
+    // the FPN of the example is σ ≈ 34 LSB around the mid code
+    let sd = v["parts"]["offset"]["std"].as_f64().unwrap();
+    assert!((25.0..45.0).contains(&sd), "{sd}");
+    // a damaged set is refused
+    let t = tempfile::tempdir().unwrap();
+    let c = t.path().join("c");
+    copy_dir(&calib, &c);
+    fs::write(c.join("fppn.npy"), b"\x93NUMPY").unwrap();
+    assert_bad(&run(&["info", p(&c)]), &["fppn.npy", "fppn.sha256"]);
+}

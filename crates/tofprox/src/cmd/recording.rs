@@ -27,7 +27,8 @@ const TOOL: &str = concat!("tofprox ", env!("CARGO_PKG_VERSION"));
 /// `tofprox info REC [--json]`
 #[derive(clap::Args, Debug)]
 pub struct InfoArgs {
-    /// Recording directory (holds recording.toml).
+    /// Recording directory (holds recording.toml), or a calibration set
+    /// (holds calibration.toml): its validity, parts, provenance and statistics.
     pub recording: PathBuf,
     /// Print one JSON object on stdout instead of the text summary.
     #[arg(long)]
@@ -135,6 +136,11 @@ fn fmt_num(v: f64) -> String {
 // ---------------------------------------------------------------- info
 
 pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
+    let is_calib = a.recording.join(tofprox_format::CALIBRATION_TOML).is_file()
+        && !a.recording.join(tofprox_format::RECORDING_TOML).exists();
+    if is_calib {
+        return calib_info(&a);
+    }
     let rec = Recording::open(&a.recording)?;
     let s = rec.sensor().clone();
     let caps = rec.captures();
@@ -316,6 +322,133 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         );
     }
     print!("{o}");
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `tofprox info CALIB`: what a calibration set holds.
+fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
+    let set = CalibrationSet::load(&a.recording)?;
+    let v = &set.validity;
+    let mm_per_rad = 1000.0 * unambiguous_range_m(v.modulation_hz) / std::f64::consts::TAU;
+    let stats = |x: &mut dyn Iterator<Item = f32>| -> (f64, f64, f64, f64) {
+        let v: Vec<f64> = x.map(f64::from).collect();
+        let n = v.len().max(1) as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        (mean, sd, lo, hi)
+    };
+    let mut parts = Vec::new();
+    for part in set.parts() {
+        let (what, (mean, sd, lo, hi), unit) = match part {
+            CalibPart::Offset => (
+                "dark level",
+                stats(&mut set.offset.iter().flat_map(|o| o.dark_lsb.iter().copied())),
+                "LSB",
+            ),
+            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => (
+                "correction",
+                stats(
+                    &mut part
+                        .algorithm()
+                        .and_then(|alg| set.wiggling(alg))
+                        .into_iter()
+                        .flat_map(|w| w.correction_rad.iter().copied()),
+                ),
+                "rad",
+            ),
+            CalibPart::Fppn | CalibPart::Fppn2Phase => (
+                "phase offset",
+                stats(
+                    &mut (match part {
+                        CalibPart::Fppn => set.fppn.as_ref(),
+                        _ => set.fppn_2phase.as_ref(),
+                    })
+                    .into_iter()
+                    .flat_map(|f| f.phase_offset_rad.iter().copied()),
+                ),
+                "rad",
+            ),
+        };
+        let src = set.sources.get(&part).cloned().unwrap_or_default();
+        parts.push((part, what, mean, sd, lo, hi, unit, src));
+    }
+    if a.json {
+        let ps: BTreeMap<_, _> = parts
+            .iter()
+            .map(|(part, what, mean, sd, lo, hi, unit, src)| {
+                (
+                    part.name(),
+                    json!({
+                        "quantity": what, "unit": unit, "mean": mean, "std": sd, "min": lo, "max": hi,
+                        "sha256": set.checksum(*part),
+                        "source_recording": src.recording, "source_captures": src.captures,
+                        "distance_m": src.distance_m, "created": src.created, "tool": src.tool,
+                    }),
+                )
+            })
+            .collect();
+        let out = json!({
+            "calibration": a.recording.display().to_string(),
+            "description": set.description,
+            "valid_for": {
+                "modulation_hz": v.modulation_hz, "adc_bits": v.adc_bits, "rows": v.rows,
+                "cols": v.cols, "roi_origin": v.roi_origin, "full_rows": v.full_rows,
+                "full_cols": v.full_cols,
+            },
+            "parts": ps,
+        });
+        println!("{out}");
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("calibration {} (checksums verified)", a.recording.display());
+    if let Some(d) = &set.description {
+        println!("description {d}");
+    }
+    println!(
+        "valid for   {}×{} window at (row {}, col {}) of a {}×{} array, {}-bit ADC, {} MHz",
+        v.rows,
+        v.cols,
+        v.roi_origin[0],
+        v.roi_origin[1],
+        v.full_rows,
+        v.full_cols,
+        v.adc_bits,
+        fmt_num(v.modulation_hz / 1e6)
+    );
+    for (part, what, mean, sd, lo, hi, unit, src) in &parts {
+        let in_mm = |x: f64| {
+            if *unit == "rad" {
+                format!(" ({:.1} mm)", x * mm_per_rad)
+            } else {
+                String::new()
+            }
+        };
+        let size = match part {
+            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => part
+                .algorithm()
+                .and_then(|alg| set.wiggling(alg))
+                .map_or(String::new(), |w| format!(", {} bins", w.len())),
+            _ => String::new(),
+        };
+        println!(
+            "{:<16} {what}: mean {mean:.4} {unit}{}, σ {sd:.4} {unit}{}, range {lo:.4} .. {hi:.4} {unit}{size}",
+            part.name(),
+            in_mm(*mean),
+            in_mm(*sd),
+        );
+        let dist = src
+            .distance_m
+            .map_or(String::new(), |d| format!(" at {} m", fmt_num(d)));
+        println!(
+            "{:<16} from {} captures {:?}{dist}, {} by {}",
+            "", src.recording, src.captures, src.created, src.tool
+        );
+    }
+    if parts.is_empty() {
+        println!("(no parts)");
+    }
     Ok(ExitCode::SUCCESS)
 }
 
