@@ -114,7 +114,7 @@ pub fn fit_signature(
         return Err(LabError::data("no valid samples to fit"));
     }
     // Variable projection over the grid (on a subsample when large).
-    let stride = (recs.len() / 150_000).max(1);
+    let stride = (recs.len() / 60_000).max(1);
     // A previous fit (from an earlier round) is refined without a new grid search.
     let warm =
         start.filter(|s| s.nl.len() == sig.nl_start().len() && s.lin.iter().any(|v| *v != 0.0));
@@ -148,13 +148,21 @@ pub fn fit_signature(
     };
     let has_nl = p.len() > nlin;
     if has_nl {
-        let r = levenberg_marquardt(|q| total(&accumulate(sig, recs, prep, q, true, 1)), &p, 30)?;
+        // LM on a subsample (the non-linear parameters are few and smooth) …
+        let r = levenberg_marquardt(
+            |q| total(&accumulate(sig, recs, prep, q, true, stride)),
+            &p,
+            30,
+        )?;
         p = r.params;
-    } else {
-        // exact linear least squares on all data
-        let t = total(&accumulate(sig, recs, prep, &vec![0.0; nlin], false, 1));
+    }
+    // … then the linear parameters exactly on all data at those values.
+    {
+        let mut q = vec![0.0; nlin];
+        q.extend_from_slice(&p[nlin..]);
+        let t = total(&accumulate(sig, recs, prep, &q, false, 1));
         if let Some(lin) = solve_sym(&t.jtj, &t.jtr) {
-            p = lin;
+            p[..nlin].copy_from_slice(&lin);
         }
     }
     // Final per-fold normal equations at the solution (linear block only) and CV.

@@ -162,13 +162,19 @@ pub fn depth_residuals(
             let four = find(cap, 180.0).zip(find(cap, 270.0));
             let (mut s2, mut n2, mut s4, mut n4) = (0.0, 0usize, 0.0, 0usize);
             let (mut m2, mut m4, mut am, mut amod) = (0.0, 0.0, 0.0, 0.0);
+            let mut pred = vec![0.0; cap.theta_rad.len()];
             for p in 0..npix {
                 if model.sat[c * npix + p] {
                     continue;
                 }
                 let o = prep.mid + model.offset[p];
+                for (k, v) in pred.iter_mut().enumerate() {
+                    if k == i0 || k == i90 || four.is_some_and(|(a, b)| k == a || k == b) {
+                        *v = model.predict(prep, &sigs, c, k, p) - o;
+                    }
+                }
                 let um = |k: usize| prep.meas[prep.idx(c, k, p)] - o;
-                let up = |k: usize| model.predict(prep, &sigs, c, k, p) - o;
+                let up = |k: usize| pred[k];
                 let e2 = wrap_pm(um(i90).atan2(um(i0)) - up(i90).atan2(up(i0))) * mm_per_rad; // eq. 2.2
                 s2 += e2 * e2;
                 m2 += e2;
@@ -360,12 +366,25 @@ pub fn diagnose(
     // The leading candidates are refitted with the whole model (the per-pixel
     // parameters re-adjust with the effect present): z after, structure left
     // and depth errors after come from that refit.
-    let top: Vec<usize> = (0..cands.len().min(2)).collect();
+    // The runner-up is refitted only when it could compete (screening share
+    // at least half the leader's).
+    let mut top: Vec<usize> = (0..cands.len().min(1)).collect();
+    if cands.len() > 1
+        && cands[1].explained_excess >= 0.5 * cands[0].explained_excess.max(0.0)
+        && cands[1].explained_excess > 0.05
+    {
+        top.push(1);
+    }
     let extra: Vec<Result<Comparison, LabError>> = top
-        .iter()
+        .par_iter()
         .map(|&i| {
-            let spec2 = spec_with(spec, &cands[i].effect);
-            compare(prep, &spec2, &|_, _| {})
+            let c = &cands[i];
+            let fit = c
+                .fit
+                .clone()
+                .ok_or_else(|| LabError::numerical("candidate without fit"))?;
+            let m = crate::fit::refit_with(prep, &cmp.model, &fit, c.nuisance, 3)?;
+            comparison_of(prep, m)
         })
         .collect();
     let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();

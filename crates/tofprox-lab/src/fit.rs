@@ -343,6 +343,11 @@ impl LabModel {
 
     /// Residual table over valid samples (effects included in the model).
     pub fn records(&self, prep: &Prepared) -> Result<Vec<Rec>, LabError> {
+        self.records_of(prep, 1)
+    }
+
+    /// Residual table over every `step`-th capture (all when 1).
+    pub fn records_of(&self, prep: &Prepared, step: usize) -> Result<Vec<Rec>, LabError> {
         let sigs = self.signatures(prep)?;
         let npix = prep.npix;
         let out: Vec<Vec<Rec>> = (0..prep.caps.len())
@@ -350,7 +355,7 @@ impl LabModel {
             .map(|c| {
                 let cap = &prep.caps[c];
                 let mut v = Vec::new();
-                if !cap.used {
+                if !cap.used || c % step.max(1) != 0 {
                     return v;
                 }
                 let mut buf = vec![0.0; 64];
@@ -550,26 +555,42 @@ pub fn fit_model(
     // Initial gains: least squares with the shape fixed.
     fit_gain_only(prep, &mut model);
     let rounds = if spec.effects.is_empty() { 4 } else { 8 };
+    refine(prep, &mut model, rounds, true, false, progress)?;
+    Ok(model)
+}
+
+/// Alternating rounds: per-pixel Gauss–Newton, global harmonics, saturation,
+/// enabled effects (grid search early unless `warm`), noise (if `noise`).
+pub fn refine(
+    prep: &Prepared,
+    model: &mut LabModel,
+    rounds: usize,
+    noise: bool,
+    warm: bool,
+    progress: Progress<'_>,
+) -> Result<(), LabError> {
+    let npix = prep.npix;
     for round in 0..rounds {
         progress("per-pixel fit", round as f64 / rounds as f64);
-        let delta = effects_delta(prep, &model)?;
+        let delta = effects_delta(prep, model)?;
         for _ in 0..2 {
-            per_pixel_step(prep, &mut model, &delta);
+            per_pixel_step(prep, model, &delta);
         }
         if model.waveform.order() > 1 {
-            waveform_step(prep, &mut model, &delta);
+            waveform_step(prep, model, &delta);
         }
-        update_saturation(prep, &mut model);
+        update_saturation(prep, model);
         if !model.effects.is_empty() {
             // full grid search early and once more late; warm refinement between
-            let warm = round >= 2 && round != rounds - 2;
-            fit_enabled_effects(prep, &mut model, warm)?;
+            let w = warm || (round >= 2 && round + 2 != rounds);
+            fit_enabled_effects(prep, model, w)?;
         }
-        if round == 0 || round == rounds - 2 {
-            model.noise = fit_noise(prep, &model)?;
+        if noise && (round == 0 || round + 2 == rounds) {
+            model.noise = fit_noise(prep, model)?;
         }
     }
     progress("per-pixel fit", 1.0);
+    let spec = &model.spec;
     let pp = |b: bool| if b { npix } else { 1 };
     model.n_params = pp(spec.per_pixel_offset)
         + pp(spec.per_pixel_gain)
@@ -580,7 +601,39 @@ pub fn fit_model(
             .iter()
             .map(|e| e.lin.len() + e.nl.len())
             .sum::<usize>();
-    Ok(model)
+    Ok(())
+}
+
+/// The model `base` with one more effect, started from a candidate fit on top
+/// of it (and the global shifts fitted alongside), refined for a few rounds.
+pub fn refit_with(
+    prep: &Prepared,
+    base: &LabModel,
+    effect: &EffectFit,
+    nuisance: [f64; 3],
+    rounds: usize,
+) -> Result<LabModel, LabError> {
+    let mut m = base.clone();
+    if effect.id == "waveform_harmonics" {
+        let from = m.waveform.order() + 1;
+        m.spec.harmonic_order = crate::signatures::MAX_HARMONIC;
+        for (i, h) in (from..=crate::signatures::MAX_HARMONIC).enumerate() {
+            while m.waveform.gamma.len() < h {
+                m.waveform.gamma.push([0.0, 0.0]);
+            }
+            let re = effect.lin.get(2 * i).copied().unwrap_or(0.0);
+            let im = effect.lin.get(2 * i + 1).copied().unwrap_or(0.0);
+            m.waveform.gamma[h - 1] = [re, im];
+        }
+    } else {
+        m.spec.effects.push(effect.id.clone());
+        m.effects.push(effect.clone());
+    }
+    m.offset.iter_mut().for_each(|o| *o += nuisance[0]);
+    m.gain.iter_mut().for_each(|g| *g *= 1.0 + nuisance[1]);
+    m.phase.iter_mut().for_each(|p| *p += nuisance[2]);
+    refine(prep, &mut m, rounds, false, true, &|_, _| {})?;
+    Ok(m)
 }
 
 /// Δ of all enabled effects for every sample (zero where not valid).
@@ -591,21 +644,29 @@ fn effects_delta(prep: &Prepared, model: &LabModel) -> Result<Vec<f64>, LabError
     }
     let sigs = model.signatures(prep)?;
     let npix = prep.npix;
-    let mut buf = vec![0.0; 64];
-    for c in 0..prep.caps.len() {
-        if !prep.caps[c].used {
-            continue;
-        }
-        for k in 0..prep.caps[c].theta_rad.len() {
-            for p in 0..npix {
-                let r = model.rec(prep, c, k, p);
-                let mut d = 0.0;
-                for (s, e) in sigs.iter().zip(&model.effects) {
-                    d += eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+    let parts: Vec<(usize, Vec<f64>)> = (0..prep.caps.len())
+        .into_par_iter()
+        .filter(|&c| prep.caps[c].used)
+        .map(|c| {
+            let mut buf = vec![0.0; 64];
+            let kk = prep.caps[c].theta_rad.len();
+            let mut v = vec![0.0; kk * npix];
+            for k in 0..kk {
+                for p in 0..npix {
+                    let r = model.rec(prep, c, k, p);
+                    v[k * npix + p] = sigs
+                        .iter()
+                        .zip(&model.effects)
+                        .map(|(s, e)| eval_delta(s.as_ref(), e, &r, prep, &mut buf))
+                        .sum();
                 }
-                delta[prep.idx(c, k, p)] = d;
             }
-        }
+            (c, v)
+        })
+        .collect();
+    for (c, v) in parts {
+        let b = prep.base[c];
+        delta[b..b + v.len()].copy_from_slice(&v);
     }
     Ok(delta)
 }
@@ -797,7 +858,10 @@ fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Res
         // residual with every other effect included
         let mut tmp = model.clone();
         let this = tmp.effects.remove(i);
-        let recs = tmp.records(prep)?;
+        // large recordings: every other capture (repeats come in consecutive
+        // pairs, so every condition stays represented)
+        let step = if prep.meas.len() > 300_000 { 2 } else { 1 };
+        let recs = tmp.records_of(prep, step)?;
         let sig = make_signature(&this.id, prep, &model.spec, &model.waveform)?;
         let start = if warm { Some(&this) } else { None };
         let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, start)?;
