@@ -221,6 +221,20 @@ impl Simulator {
         let px = &cc.px;
         let k_con = cc.contrast;
 
+        // Pass 1, per pixel: signal electrons, phase, and the noise variance
+        // coefficients var = a · droop_k + b (LSB², already ÷ averaged).
+        let g2 = cc.lsb_per_e * cc.lsb_per_e;
+        let mp_rel = cc.multipath.map_or(0.0, |(a, _)| a);
+        let mp_dphi = cc.multipath.map_or(0.0, |(_, d)| d);
+        let var_const = (2.0 * px.ktc_var_e2 + if px.dark_shot { 2.0 * px.dark_e } else { 0.0 })
+            * g2
+            + px.read_var_lsb2
+            + extra_q_var;
+        let mut sig = vec![0.0f64; plane];
+        let mut phase = vec![0.0f64; plane];
+        let mut var_a = vec![0.0f64; plane];
+        let mut var_b = vec![0.0f64; plane];
+        let mut amb_e = vec![0.0f64; plane];
         for r in 0..rows {
             for c in 0..cols {
                 let i = r * cols + c;
@@ -239,9 +253,7 @@ impl Simulator {
                     _ => (wall_d, wall_r),
                 };
                 let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0);
-                let offset = self.patterns.offset_lsb.get(i).copied().unwrap_or(0.0);
                 let delay = self.patterns.delay_rad.get(i).copied().unwrap_or(0.0);
-
                 // signal_falloff: N ∝ ρ (1 m / d)^n; prnu multiplies all optical electrons
                 let falloff = match cc.falloff_n {
                     Some(2.0) => 1.0 / (d * d),
@@ -250,49 +262,72 @@ impl Simulator {
                 };
                 let s = cc.signal_e * refl * falloff * gain;
                 let amb = cc.ambient_e * gain;
-                let dark = px.dark_e;
+                // eq. 2.6 inverted + FPPN/global delay + drift + amplitude-dependent error
                 let phi =
                     cc.tof_rad_per_m * d + delay + px.drift_rad + px.amplitude_phase_rad(s * k_con);
-                let (s2, phi2) = match cc.multipath {
-                    Some((a, dphi)) => (a * s, phi + dphi),
-                    None => (0.0, phi),
-                };
+                if let (Some(a), Some(b), Some(sg), Some(ph), Some(am)) = (
+                    var_a.get_mut(i),
+                    var_b.get_mut(i),
+                    sig.get_mut(i),
+                    phase.get_mut(i),
+                    amb_e.get_mut(i),
+                ) {
+                    // shot noise of both taps: F (N_A + N_B) = F (N (1 + a_mp) droop + 2 N_amb) (eq. 2.16)
+                    *a = px.shot_f * s * (1.0 + mp_rel) * g2 / cc.averaged;
+                    *b = (px.shot_f * 2.0 * amb * g2 + var_const) / cc.averaged;
+                    *sg = s;
+                    *ph = phi;
+                    *am = amb;
+                }
+            }
+        }
 
-                for k in 0..k_images {
-                    let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
-                    let dr = cc.droop.get(k).copied().unwrap_or(1.0);
-                    let sk = s * dr;
-                    // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ))
-                    let mut corr_e = sk * corr.eval(phi - theta);
-                    let mut photo_total = sk;
-                    if s2 > 0.0 {
-                        let s2k = s2 * dr;
-                        corr_e += s2k * corr.eval(phi2 - theta);
-                        photo_total += s2k;
-                    }
-                    let photo_a = 0.5 * (photo_total + k_con * corr_e) + amb;
-                    let photo_b = 0.5 * (photo_total - k_con * corr_e) + amb;
-                    let mut diff = photo_a - photo_b;
-                    diff += px.sbi_error_e(photo_a + dark, photo_b + dark);
-                    let mut u = diff * cc.lsb_per_e + offset;
-                    let var = (px.diff_var_e2(photo_a, photo_b) * cc.lsb_per_e * cc.lsb_per_e
-                        + px.read_var_lsb2
-                        + extra_q_var)
-                        / cc.averaged;
-                    if let (Some(rng), true) = (rng.as_deref_mut(), var > 0.0) {
+        // Pass 2, per raw image (acquisition order), contiguous over pixels.
+        let dark = px.dark_e;
+        let sbi_on = px.sbi.is_some();
+        let noisy = rng.is_some();
+        for k in 0..k_images {
+            let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
+            let dr = cc.droop.get(k).copied().unwrap_or(1.0);
+            let Some(out_k) = buf.get_mut(k * plane..(k + 1) * plane) else {
+                return Err(ModelError::invalid("internal: output plane out of range"));
+            };
+            let pixels = out_k
+                .iter_mut()
+                .zip(&sig)
+                .zip(&phase)
+                .zip(&var_a)
+                .zip(&var_b)
+                .zip(&amb_e)
+                .zip(&self.patterns.offset_lsb);
+            for ((((((o, &s), &phi), &va), &vb), &amb), &offset) in pixels {
+                let sk = s * dr;
+                // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ)) (2.2.2)
+                let mut corr_e = sk * corr.eval(phi - theta);
+                if mp_rel > 0.0 {
+                    corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
+                }
+                let mut diff = k_con * corr_e;
+                if sbi_on {
+                    let total = sk * (1.0 + mp_rel);
+                    let na = 0.5 * (total + diff) + amb + dark;
+                    let nb = 0.5 * (total - diff) + amb + dark;
+                    diff += px.sbi_error_e(na, nb);
+                }
+                let mut u = diff * cc.lsb_per_e + offset;
+                if let Some(rng) = rng.as_deref_mut() {
+                    let var = va * dr + vb;
+                    if var > 0.0 {
                         let z: f64 = rng.sample(StandardNormal);
                         u += var.sqrt() * z;
                     }
-                    let y = adc.transfer(u);
-                    let code = if quantize_each && rng.is_some() {
-                        adc.quantize(y)
-                    } else {
-                        adc.mean_code(y)
-                    };
-                    if let Some(o) = buf.get_mut(k * plane + i) {
-                        *o = code;
-                    }
                 }
+                let y = adc.transfer(u);
+                *o = if quantize_each && noisy {
+                    adc.quantize(y)
+                } else {
+                    adc.mean_code(y)
+                };
             }
         }
         Ok(out)

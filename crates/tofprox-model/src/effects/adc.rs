@@ -83,7 +83,13 @@ impl Adc {
         let n = 1usize << bits;
         let inv_width = centres.as_ref().map(|c: &Vec<f64>| {
             c.windows(2)
-                .map(|w| if w[1] > w[0] { 1.0 / (w[1] - w[0]) } else { 0.0 })
+                .map(|w| {
+                    if w[1] > w[0] {
+                        1.0 / (w[1] - w[0])
+                    } else {
+                        0.0
+                    }
+                })
                 .chain(std::iter::once(0.0))
                 .collect()
         });
