@@ -332,6 +332,26 @@ impl SensorMap {
         if r.max_count == 0 || r.max_count > 64 {
             return bad("raw.max_count", "must be in 1..=64".into());
         }
+        for (k, base) in [
+            ("raw.exposure_base", r.exposure_base),
+            ("raw.phase_base", r.phase_base),
+            ("raw.illumination_base", r.illumination_base),
+        ] {
+            if u32::from(base) + u32::from(r.max_count) > 0x1_0000 {
+                return bad(
+                    k,
+                    format!("{base:#06x} + max_count runs past register 0xffff"),
+                );
+            }
+        }
+        for (k, base) in [
+            ("spi.tx_base", self.spi.tx_base),
+            ("spi.rx_base", self.spi.rx_base),
+        ] {
+            if u32::from(base) + u32::from(self.spi.window_bytes) / 2 > 0x1_0000 {
+                return bad(k, format!("{base:#06x} + window runs past register 0xffff"));
+            }
+        }
         if self.sequences.flash_image.is_empty() {
             return bad("sequences.flash_image", "must not be empty".into());
         }
@@ -469,6 +489,12 @@ mod tests {
         let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 12\nadc_bitz = 3");
         let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
         assert!(format!("{e:#}").contains("adc_bitz") || format!("{:?}", e).contains("adc_bitz"));
+        let bad = EMULATED_MAP_TOML.replace("phase_base = 0x9020", "phase_base = 0xFFF0");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(e.to_string().contains("raw.phase_base"), "{e}");
+        let bad = EMULATED_MAP_TOML.replace("rx_base = 0xA200", "rx_base = 0xFFA0");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(e.to_string().contains("spi.rx_base"), "{e}");
         let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 0");
         let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
         assert!(e.to_string().contains("sensor.adc_bits"), "{e}");

@@ -891,8 +891,8 @@ impl UsbTransport for EmulatedDevice {
 
     fn describe(&self) -> String {
         format!(
-            "emulated CX3 bridge with {} ({}x{}), {} cycles",
-            self.map.sensor.name, self.map.sensor.cols, self.map.sensor.rows, self.stats.cycles
+            "emulated CX3 bridge with {} ({}x{})",
+            self.map.sensor.name, self.map.sensor.cols, self.map.sensor.rows
         )
     }
 }

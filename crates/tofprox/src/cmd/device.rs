@@ -76,6 +76,10 @@ pub struct CaptureArgs {
     /// Number of measurements (one capture each).
     #[arg(long, default_value_t = 1)]
     count: u32,
+    /// Retry a measurement this many times after a transient device error
+    /// (the driver recovers at the next cycle: reopen, clear halt, restart).
+    #[arg(long, default_value_t = 2)]
+    retries: u32,
     /// Capture condition `KEY=VALUE` (e.g. distance_m=0.5), repeatable.
     #[arg(long = "condition", value_parser = parse_condition)]
     conditions: Vec<(String, f64)>,
@@ -247,7 +251,7 @@ fn run_capture<T: UsbTransport>(
     conditions: BTreeMap<String, f64>,
 ) -> anyhow::Result<ExitCode> {
     let desc = dev.describe();
-    let mut driver = SensorDriver::new(dev, drv, clock)?;
+    let mut driver = SensorDriver::new(dev, drv, clock.clone())?;
     let req = CycleRequest {
         mode: a.mode,
         exposure_us: a.exposure_us,
@@ -256,9 +260,30 @@ fn run_capture<T: UsbTransport>(
     driver.check_request(&req)?;
     let mut writer: Option<RecordingWriter> = None;
     for i in 0..a.count {
-        let out = driver
-            .cycle(&req)
-            .with_context(|| format!("capture {} of {} from {desc}", i + 1, a.count))?;
+        let mut attempt = 0;
+        let out = loop {
+            match driver.cycle(&req) {
+                Ok(o) => break o,
+                Err(e) if e.kind().is_transient() && attempt < a.retries => {
+                    attempt += 1;
+                    eprintln!(
+                        "warning: capture {}: {e} [{}]; retrying ({attempt}/{})",
+                        i + 1,
+                        e.kind(),
+                        a.retries
+                    );
+                    // give an unplugged device time to come back
+                    clock.sleep(std::time::Duration::from_millis(100));
+                }
+                Err(e) => {
+                    return Err(anyhow::Error::new(e).context(format!(
+                        "capture {} of {} from {desc}",
+                        i + 1,
+                        a.count
+                    )));
+                }
+            }
+        };
         let w = match writer.as_mut() {
             Some(w) => w,
             None => writer.insert(create_writer(a, &out, &desc)?),
