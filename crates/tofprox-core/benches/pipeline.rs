@@ -128,3 +128,29 @@ fn near_far_update(bencher: Bencher) {
     let mut d = NearFarDetector::new(NearFarConfig::default()).expect("detector");
     bencher.bench_local(|| divan::black_box(d.update(divan::black_box(&frame))));
 }
+
+/// Per-pixel cost versus frame size (the recording windows are small; the full frame is the
+/// target): `rows` of the full 224-column width.
+#[divan::bench(args = [8, 43, 172])]
+fn process_2phase_u16_rows(bencher: Bencher, rows: usize) {
+    let full = raw_frame(2);
+    let raw = full.slice(ndarray::s![.., ..rows, ..]).to_owned();
+    let config = PipelineConfig::default();
+    let calibration = Calibration {
+        offset: Some(OffsetCalibration {
+            dark_lsb: Array2::from_elem((rows, COLS), 2048.0),
+        }),
+        wiggling: Some(WigglingLut {
+            algorithm: Algorithm::TwoPhase,
+            correction_rad: Array1::from_elem(360, 0.35),
+        }),
+        fppn: None,
+    };
+    let mut p = Pipeline::new(rows, COLS, config, calibration).expect("pipeline");
+    bencher
+        .counter(divan::counter::ItemsCount::new(rows * COLS))
+        .bench_local(|| {
+            let f = p.process(divan::black_box(raw.view())).expect("process");
+            divan::black_box(f.depth_mm[(0, 0)]);
+        });
+}
