@@ -14,7 +14,7 @@ if ! python3 -c 'import numpy' 2>/dev/null; then
 fi
 
 echo "== divan (Rust) ==" >&2
-rust_out="$(cargo bench -q -p tofprox-core --bench pipeline -- --exact process_2phase_u16 2>&1)"
+rust_out="$(cargo bench -q -p tofprox-core --bench pipeline -- --exact pipeline::process_2phase_u16 --sample-count 1000 2>&1)"
 echo "$rust_out" >&2
 echo "== numpy ==" >&2
 # numpy ufuncs are single-threaded; pin BLAS/OpenMP anyway so both sides use one core.
