@@ -145,3 +145,40 @@ fn emulated_capture_writes_a_version_1_recording() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn register_peek_and_poke_on_the_emulated_device() {
+    let o = run(&["device", "reg", "--emulated", "read", "a0a4", "--json"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v[0]["register"], 0xA0A4);
+    assert_eq!(v[0]["value"], 0x1645);
+    let o = run(&[
+        "device",
+        "reg",
+        "--emulated",
+        "--addr",
+        "22",
+        "read",
+        "a0a4",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("did not acknowledge"),
+        "{}",
+        text(&o.stderr)
+    );
+    let o = run(&[
+        "device",
+        "reg",
+        "--emulated",
+        "read",
+        "ffff",
+        "--count",
+        "2",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = run(&["device", "reset", "hold"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("no matching device found"));
+}

@@ -22,6 +22,60 @@ pub enum DeviceCommand {
     /// Capture raw frames into a version 1 recording (uint16 single
     /// acquisitions).
     Capture(CaptureArgs),
+    /// Bring-up: read or write sensor registers over the bridge's I2C.
+    Reg(RegArgs),
+    /// Bring-up: drive the sensor's reset pin (`hold` = in reset / off,
+    /// `release` = running).
+    Reset(ResetArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct RegArgs {
+    #[command(flatten)]
+    select: SelectArgs,
+    /// Use the emulated device (`--config` is then an emulated-device file).
+    #[arg(long)]
+    emulated: bool,
+    /// Release the reset pin and wait for start-up first (always done with
+    /// `--emulated`, whose sensor starts in reset).
+    #[arg(long)]
+    release_reset: bool,
+    /// 7-bit I2C address (hex); default: the register map's.
+    #[arg(long, value_parser = parse_hex16)]
+    addr: Option<u16>,
+    #[command(subcommand)]
+    op: RegOp,
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum RegOp {
+    /// Read COUNT consecutive 16-bit registers from REG (hex).
+    Read {
+        #[arg(value_parser = parse_hex16)]
+        reg: u16,
+        #[arg(long, default_value_t = 1)]
+        count: usize,
+        /// JSON output.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write VALUES (hex) to consecutive registers from REG (hex), as one
+    /// burst.
+    Write {
+        #[arg(value_parser = parse_hex16)]
+        reg: u16,
+        #[arg(value_parser = parse_hex16, required = true)]
+        values: Vec<u16>,
+    },
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ResetArgs {
+    #[command(flatten)]
+    select: SelectArgs,
+    /// hold (reset low: sensor off) or release (reset high).
+    #[arg(value_parser = ["hold", "release"])]
+    state: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -159,7 +213,87 @@ pub fn run(c: DeviceCommand) -> anyhow::Result<ExitCode> {
     match c {
         DeviceCommand::Probe(a) => probe_cmd(a),
         DeviceCommand::Capture(a) => capture(a),
+        DeviceCommand::Reg(a) => reg_cmd(a),
+        DeviceCommand::Reset(a) => reset_cmd(a),
     }
+}
+
+fn reg_cmd(a: RegArgs) -> anyhow::Result<ExitCode> {
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let (mut dev, drv, release): (Box<dyn UsbTransport>, DriverConfig, bool) = if a.emulated {
+        let cfg = match &a.select.config {
+            Some(p) => EmulatedConfig::load(p)?,
+            None => EmulatedConfig::default(),
+        };
+        let drv = cfg.driver_config()?;
+        (
+            Box::new(EmulatedDevice::new(cfg, clock.clone(), 1)?),
+            drv,
+            true,
+        )
+    } else {
+        let (sel, drv) = selector(&a.select)?;
+        let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
+        (Box::new(RusbTransport::open(sel)?), drv, a.release_reset)
+    };
+    let cx3 = tofprox_bridge::protocol::Cx3::new(drv.protocol.clone())?;
+    let addr = match a.addr {
+        Some(v) => u8::try_from(v)
+            .ok()
+            .filter(|v| *v <= 0x7F)
+            .with_context(|| format!("--addr {v:#x} is not a 7-bit I2C address"))?,
+        None => drv.map.sensor.i2c_address,
+    };
+    if release {
+        cx3.set_reset(&mut dev, false)?;
+        clock.sleep(std::time::Duration::from_micros(
+            drv.timing.startup_delay_us,
+        ));
+    }
+    match a.op {
+        RegOp::Read { reg, count, json } => {
+            if count == 0 || usize::from(reg) + count > 0x1_0000 {
+                bail!(
+                    "--count {count} from register {reg:#06x}: must be 1.. and stay below 0x10000"
+                );
+            }
+            let v = cx3.i2c_read(&mut dev, addr, reg, count)?;
+            if json {
+                let rows: Vec<_> = v
+                    .iter()
+                    .enumerate()
+                    .map(|(i, x)| serde_json::json!({"register": usize::from(reg) + i, "value": x}))
+                    .collect();
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                for (i, x) in v.iter().enumerate() {
+                    println!("{:#06x} = {x:#06x}", usize::from(reg) + i);
+                }
+            }
+        }
+        RegOp::Write { reg, values } => {
+            cx3.i2c_write(&mut dev, addr, reg, &values)?;
+            eprintln!("wrote {} register(s) from {reg:#06x}", values.len());
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn reset_cmd(a: ResetArgs) -> anyhow::Result<ExitCode> {
+    let (sel, drv) = selector(&a.select)?;
+    let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
+    let mut dev = RusbTransport::open(sel)?;
+    let cx3 = tofprox_bridge::protocol::Cx3::new(drv.protocol)?;
+    cx3.set_reset(&mut dev, a.state == "hold")?;
+    eprintln!(
+        "sensor reset pin: {}",
+        if a.state == "hold" {
+            "low (held in reset)"
+        } else {
+            "high (released)"
+        }
+    );
+    Ok(ExitCode::SUCCESS)
 }
 
 fn probe_cmd(a: ProbeArgs) -> anyhow::Result<ExitCode> {
