@@ -160,9 +160,8 @@ impl Adc {
                 let k = fast_floor(y.min(self.max_code)) as usize;
                 // code j ⇔ T_j ≤ y < T_{j+1}; start at the last T ≤ k, step branch-free
                 let mut j = cell.get(k).copied().unwrap_or(0) as usize;
-                for _ in 0..3 {
-                    j += usize::from(t.get(j + 1).is_some_and(|&v| v <= y));
-                }
+                let le = |i: usize| usize::from(t.get(i).is_some_and(|&v| v <= y));
+                j += le(j + 1) + le(j + 2) + le(j + 3);
                 // rare: more than three transitions inside one LSB (large DNL)
                 while t.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
@@ -187,9 +186,10 @@ impl Adc {
                 }
                 let k = fast_floor(y) as usize;
                 let mut j = cell.get(k).copied().unwrap_or(0) as usize;
-                for _ in 0..3 {
-                    j += usize::from(c.get(j + 1).is_some_and(|&v| v <= y));
-                }
+                // centres are monotone: count those ≤ y among the next three with
+                // independent loads instead of a dependent chain
+                let le = |i: usize| usize::from(c.get(i).is_some_and(|&v| v <= y));
+                j += le(j + 1) + le(j + 2) + le(j + 3);
                 while c.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
                 }

@@ -180,7 +180,8 @@ impl Correlation {
 #[inline(always)]
 pub(crate) fn fast_floor(x: f64) -> f64 {
     let t = x as i64 as f64;
-    if t > x { t - 1.0 } else { t }
+    // branch-free: subtract 1 where truncation rounded up (negative non-integers)
+    t - f64::from(u8::from(t > x))
 }
 
 /// Complex Fourier coefficients c_n = (1/M) Σ x_k e^{−i n 2π k/M}, n = 0..=nmax.
