@@ -120,7 +120,8 @@ pub(crate) fn invalid(message: impl Into<String>) -> FormatError {
 }
 
 /// Turn a `toml` deserialisation error into a `FormatError` that says the line,
-/// the offending text and the key, without the multi-line ASCII art.
+/// the offending text and the key (`capture[1].gain`), without the multi-line
+/// ASCII art.
 pub(crate) fn from_toml(path: &Path, text: &str, err: &toml::de::Error) -> FormatError {
     let msg = err.message().trim().to_string();
     let kind = if msg.starts_with("missing field") {
@@ -130,6 +131,12 @@ pub(crate) fn from_toml(path: &Path, text: &str, err: &toml::de::Error) -> Forma
     } else {
         ErrorKind::Syntax
     };
+    // the field named in serde's message, e.g. "unknown field `gain`, expected …"
+    let field = msg
+        .split('`')
+        .nth(1)
+        .filter(|_| matches!(kind, ErrorKind::MissingKey | ErrorKind::UnknownKey))
+        .map(str::to_string);
     let mut out = FormatError::new(kind, msg);
     if let Some(span) = err.span() {
         let start = span.start.min(text.len());
@@ -138,6 +145,36 @@ pub(crate) fn from_toml(path: &Path, text: &str, err: &toml::de::Error) -> Forma
         let line_text = text.lines().nth(line_no - 1).unwrap_or("").trim();
         let shown: String = line_text.chars().take(60).collect();
         out.message = format!("line {line_no} (`{shown}`): {}", out.message);
+        // which table the error is in: the last header at or before the error's line
+        let mut table = String::new();
+        let mut counts: std::collections::BTreeMap<String, usize> = Default::default();
+        for line in text.lines().take(line_no) {
+            let l = line.trim();
+            if let Some(name) = l.strip_prefix("[[").and_then(|r| r.split("]]").next()) {
+                let name = name.trim().to_string();
+                let n = counts.entry(name.clone()).or_insert(0);
+                table = format!("{name}[{n}]");
+                *n += 1;
+            } else if let Some(name) = l.strip_prefix('[').and_then(|r| r.split(']').next()) {
+                let name = name.trim();
+                // `[capture.conditions]` belongs to the latest `[[capture]]`
+                table = match name.split_once('.') {
+                    Some((parent, child)) if counts.contains_key(parent) => {
+                        format!("{parent}[{}].{child}", counts[parent].saturating_sub(1))
+                    }
+                    _ => name.to_string(),
+                };
+            }
+        }
+        let key = match (&field, table.is_empty()) {
+            (Some(f), true) => Some(f.clone()),
+            (Some(f), false) => Some(format!("{table}.{f}")),
+            (None, false) => Some(table),
+            (None, true) => None,
+        };
+        if let Some(k) = key {
+            out = out.key(k);
+        }
     }
     out.at(path)
 }

@@ -131,9 +131,19 @@ fn toml_errors_name_the_key() {
     let e = open_err_after(|t| t.replace("averaged = 16\n", "averaged = 16\nbogus_key = 1\n"));
     assert_eq!(e.kind(), ErrorKind::UnknownKey);
     assert!(e.to_string().contains("bogus_key"), "{e}");
+    assert_eq!(e.key_name(), Some("capture[0].bogus_key"));
+    let e = open_err_after(|t| {
+        t.replacen(
+            "illumination = false\n",
+            "illumination = false\nbogus2 = 1\n",
+            1,
+        )
+    });
+    assert_eq!(e.key_name(), Some("capture[2].bogus2"), "{e}");
 
     let e = open_err_after(|t| t.replace("[sensor]\n", "[sensor]\nlens = 3\n"));
     assert!(e.to_string().contains("lens"), "{e}");
+    assert_eq!(e.key_name(), Some("sensor.lens"));
 
     let e = open_err_after(|t| t.replace("version = 1\n", "version = 1\nextra = \"x\"\n"));
     assert!(e.to_string().contains("extra"), "{e}");
@@ -141,6 +151,7 @@ fn toml_errors_name_the_key() {
     let e = open_err_after(|t| t.replace("adc_bits = 12\n", ""));
     assert_eq!(e.kind(), ErrorKind::MissingKey);
     assert!(e.to_string().contains("adc_bits"), "{e}");
+    assert_eq!(e.key_name(), Some("sensor.adc_bits"));
 
     let e = open_err_after(|t| t.replacen("exposure_us = 500.0\n", "", 1));
     assert!(e.to_string().contains("exposure_us"), "{e}");
@@ -171,6 +182,7 @@ fn toml_errors_name_the_key() {
     let e = open_err_after(|t| t.replacen("my_custom_key = -1.5", "my_custom_key = \"text\"", 1));
     assert_eq!(e.kind(), ErrorKind::Syntax);
     assert!(e.to_string().contains("my_custom_key"), "{e}");
+    assert_eq!(e.key_name(), Some("capture[0].conditions"), "{e}");
 
     let e = open_err_after(|t| t.replacen("distance_m = 0.35", "distance_m = nan", 1));
     assert_eq!(e.key_name(), Some("capture[0].conditions.distance_m"));
