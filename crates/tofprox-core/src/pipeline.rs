@@ -714,6 +714,10 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
     let mut idx_buf = [0u32; CHUNK];
     let mut fr_buf = [0f32; CHUNK];
     let mut corr_buf = [0f32; CHUNK];
+    // Pass A → C intermediates stay in L1 (no pack/unpack of u8 flags, outputs written once).
+    let mut m_buf = [0f32; CHUNK];
+    let mut amp_buf = [0f32; CHUNK];
+    let mut bad_buf = [0u32; CHUNK];
     let mut base = 0;
     while base < n {
         let len = CHUNK.min(n - base);
@@ -735,6 +739,9 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
         let idx = &mut idx_buf[..len];
         let frb = &mut fr_buf[..len];
         let corr = &mut corr_buf[..len];
+        let mb = &mut m_buf[..len];
+        let ab = &mut amp_buf[..len];
+        let bb = &mut bad_buf[..len];
 
         // Pass A.
         for j in 0..len {
@@ -767,9 +774,9 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
             let xi = (xf - 0.5 + ROUND_MAGIC).to_bits() & 0x3F_FFFF;
             idx[j] = xi;
             frb[j] = xf - xi as f32;
-            phase[j] = m;
-            amp[j] = amp_v;
-            flags[j] = (sat as u8) | ((!finite as u8) << 3);
+            mb[j] = m;
+            ab[j] = amp_v;
+            bb[j] = (sat as u32) | ((!finite as u32) << 3);
         }
 
         // Pass B: wiggling LUT (3.3.7.2), linear periodic interpolation.
@@ -777,12 +784,12 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
 
         // Pass C.
         for j in 0..len {
-            let f0 = flags[j];
-            let finite = f0 & FLAG_NON_FINITE == 0;
-            let sat = f0 & FLAG_SATURATED != 0;
-            let amp_v = amp[j];
+            let f0 = bb[j];
+            let finite = f0 & FLAG_NON_FINITE as u32 == 0;
+            let sat = f0 & FLAG_SATURATED as u32 != 0;
+            let amp_v = ab[j];
             // Wiggling and FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
-            let mut ph = phase[j] - corr[j];
+            let mut ph = mb[j] - corr[j];
             if FPPN {
                 ph -= fppn[j];
             }
@@ -794,7 +801,7 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
             let in_range = d * 1000.0 < 65_535.5; // false for NaN
             let low = amp_v < p.min_amp;
             let invalid = sat | low | !finite | !in_range;
-            flags[j] = f0 | ((low as u8) << 1) | ((invalid as u8) << 2);
+            flags[j] = (f0 | ((low as u32) << 1) | ((invalid as u32) << 2)) as u8;
             // round(d · 1000) by the same mantissa trick; ≥ 1 mm when valid.
             let mm = (((d * 1000.0 + ROUND_MAGIC).to_bits() & 0x3F_FFFF).max(1)) as u16;
             depth_mm[j] = if invalid { 0 } else { mm };
