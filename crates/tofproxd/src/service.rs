@@ -699,29 +699,13 @@ pub async fn run_publisher(
     compat: bool,
     depth_max_hz: f64,
 ) {
+    // PowerEstimateMw: at most one change signal per second, carried by the cycle's own
+    // update (no timer of its own: no extra wake-up between cycles).
     let mut last_power_emit: Option<Instant> = None;
-    let mut pending_power: Option<f64> = None;
     let mut last_depth: Option<Instant> = None;
     let depth_interval = Duration::from_secs_f64(1.0 / depth_max_hz.max(0.001));
     loop {
-        let ev = if let Some(due) = pending_power
-            .and(last_power_emit)
-            .map(|t| t + Duration::from_secs(1))
-        {
-            // A throttled power update is pending: flush it at most 1 s after the last.
-            match tokio::time::timeout_at(due.into(), events.recv()).await {
-                Ok(ev) => ev,
-                Err(_) => {
-                    if let Some(p) = pending_power.take() {
-                        publish_power(&conn, &hub, p).await;
-                        last_power_emit = Some(Instant::now());
-                    }
-                    continue;
-                }
-            }
-        } else {
-            events.recv().await
-        };
+        let ev = events.recv().await;
         let Some(ev) = ev else { break };
         match ev {
             Event::Depth(d) => {
@@ -813,9 +797,6 @@ pub async fn run_publisher(
                         hub.update(|s| s.power_mw = p);
                         ch.insert("PowerEstimateMw", Variant::from(p));
                         last_power_emit = Some(now);
-                        pending_power = None;
-                    } else {
-                        pending_power = Some(p);
                     }
                 }
                 let compat_near = before.near != after.near;
@@ -840,15 +821,6 @@ pub async fn run_publisher(
                 }
             }
         }
-    }
-}
-
-async fn publish_power(conn: &Connection, hub: &Hub, p: f64) {
-    hub.update(|s| s.power_mw = p);
-    let mut ch: HashMap<&str, Variant<'_>> = HashMap::new();
-    ch.insert("PowerEstimateMw", Variant::from(p));
-    if let Err(e) = emit_changes(conn, OBJECT_PATH, INTERFACE, ch).await {
-        tracing::warn!("PropertiesChanged emit failed: {e}");
     }
 }
 

@@ -716,3 +716,61 @@ fn sigterm_stops_releases_the_name_and_exits_zero() {
     assert_eq!(last_state, Some(Value::from("off")), "{:#?}", c.seen);
     let _ = std::io::stderr().flush();
 }
+
+/// The shipped introspection XML is what the daemon serves.
+#[test]
+fn shipped_introspection_matches_the_daemon() {
+    let Some(bus) = start_bus() else { return };
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let block = |xml: &str, iface: &str| -> String {
+        let start = xml
+            .find(&format!("<interface name=\"{iface}\">"))
+            .unwrap_or_else(|| panic!("{iface} in {xml}"));
+        let end = xml[start..]
+            .find("</interface>")
+            .map(|e| start + e)
+            .expect("end");
+        xml[start..end]
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    let live = |dest: &str, path: &str| -> String {
+        let out = Command::new("busctl")
+            .arg(format!("--address={}", bus.address))
+            .args([
+                "call",
+                dest,
+                path,
+                "org.freedesktop.DBus.Introspectable",
+                "Introspect",
+                "--json=short",
+            ])
+            .output()
+            .expect("busctl");
+        let v: Value = serde_json::from_slice(&out.stdout).expect("json");
+        v["data"][0].as_str().expect("xml string").to_string()
+    };
+    let shipped =
+        std::fs::read_to_string(repo().join("systemd/org.tofprox.Proximity1.xml")).unwrap();
+    let native = live("org.tofprox.Proximity1", "/org/tofprox/Proximity1");
+    assert_eq!(
+        block(&shipped, "org.tofprox.Proximity1"),
+        block(&native, "org.tofprox.Proximity1")
+    );
+    let shipped =
+        std::fs::read_to_string(repo().join("systemd/net.hadess.SensorProxy.xml")).unwrap();
+    let compat = live("net.hadess.SensorProxy", "/net/hadess/SensorProxy");
+    assert_eq!(
+        block(&shipped, "net.hadess.SensorProxy"),
+        block(&compat, "net.hadess.SensorProxy")
+    );
+    let compass = live("net.hadess.SensorProxy", "/net/hadess/SensorProxy/Compass");
+    assert_eq!(
+        block(&shipped, "net.hadess.SensorProxy.Compass"),
+        block(&compass, "net.hadess.SensorProxy.Compass")
+    );
+}

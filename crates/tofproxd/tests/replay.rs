@@ -18,9 +18,15 @@ const MOD_HZ: f64 = 60e6;
 fn script() -> Vec<(f64, Mode)> {
     let mut v = Vec::new();
     for round in 0..2 {
-        for d in [900.0, 900.0, 700.0, 450.0, 250.0, 120.0, 60.0, 60.0, 60.0, 90.0, 200.0, 400.0, 700.0, 900.0, 900.0]
-        {
-            let mode = if round == 1 && d < 100.0 { Mode::FourPhase } else { Mode::TwoPhase };
+        for d in [
+            900.0, 900.0, 700.0, 450.0, 250.0, 120.0, 60.0, 60.0, 60.0, 90.0, 200.0, 400.0, 700.0,
+            900.0, 900.0,
+        ] {
+            let mode = if round == 1 && d < 100.0 {
+                Mode::FourPhase
+            } else {
+                Mode::TwoPhase
+            };
             v.push((d, mode));
         }
     }
@@ -28,8 +34,12 @@ fn script() -> Vec<(f64, Mode)> {
 }
 
 fn write_recording(dir: &Path) {
-    let mut w = RecordingWriter::create(dir, SensorInfo::full(ROWS, COLS, 12, MOD_HZ), Some("replay test".into()))
-        .expect("create recording");
+    let mut w = RecordingWriter::create(
+        dir,
+        SensorInfo::full(ROWS, COLS, 12, MOD_HZ),
+        Some("replay test".into()),
+    )
+    .expect("create recording");
     for (i, (d, mode)) in script().into_iter().enumerate() {
         let (frames, phases) = synth_frames(mode, ROWS, COLS, d, 400.0, 0.0, MOD_HZ);
         let mut conditions = BTreeMap::new();
@@ -50,8 +60,10 @@ fn write_recording(dir: &Path) {
 }
 
 fn replay_config(rec: &Path) -> Config {
-    let mut cfg = Config::default();
-    cfg.backend = Backend::Replay;
+    let mut cfg = Config {
+        backend: Backend::Replay,
+        ..Config::default()
+    };
     cfg.replay.recording = Some(rec.to_path_buf());
     cfg.replay.realtime = false;
     cfg.exposure.auto = false;
@@ -92,9 +104,15 @@ fn replay_is_deterministic_and_follows_the_recording() {
     // near entered at once at 60 mm, left after the far debounce (3 readings above far_mm)
     let nears: Vec<bool> = a.iter().map(|(n, _)| *n).collect();
     let first_near = nears.iter().position(|&n| n).expect("near seen");
-    assert_eq!(first_near, 6, "near at the first 60 mm reading (near_mm = 100): {nears:?}");
+    assert_eq!(
+        first_near, 6,
+        "near at the first 60 mm reading (near_mm = 100): {nears:?}"
+    );
     // far published only after 3 consecutive readings ≥ far_mm (150): 200, 400, 700 → index 12
-    let first_far_again = nears[first_near..].iter().position(|&n| !n).map(|i| i + first_near);
+    let first_far_again = nears[first_near..]
+        .iter()
+        .position(|&n| !n)
+        .map(|i| i + first_near);
     assert_eq!(first_far_again, Some(12), "{nears:?}");
 }
 
@@ -114,7 +132,9 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
         return;
     };
     let mut addr = String::new();
-    BufReader::new(bus.stdout.take().unwrap()).read_line(&mut addr).unwrap();
+    BufReader::new(bus.stdout.take().unwrap())
+        .read_line(&mut addr)
+        .unwrap();
     let addr = addr.trim().to_string();
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("rec");
@@ -153,7 +173,12 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
         loop {
             let out = Command::new("busctl")
                 .arg(format!("--address={addr}"))
-                .args(["call", "org.freedesktop.DBus", "/org/freedesktop/DBus", "org.freedesktop.DBus"])
+                .args([
+                    "call",
+                    "org.freedesktop.DBus",
+                    "/org/freedesktop/DBus",
+                    "org.freedesktop.DBus",
+                ])
                 .args(["NameHasOwner", "s", "org.tofprox.Proximity1"])
                 .output()
                 .unwrap();
@@ -180,6 +205,10 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
     }
     let _ = bus.kill();
     let _ = bus.wait();
-    assert!(runs[0].iter().any(|n| n == "true"), "near seen over D-Bus: {:?}", runs[0]);
+    assert!(
+        runs[0].iter().any(|n| n == "true"),
+        "near seen over D-Bus: {:?}",
+        runs[0]
+    );
     assert_eq!(runs[0], runs[1], "same Near sequence on every run");
 }

@@ -35,7 +35,10 @@ fn soak_rejects_a_bad_fault_rate() {
 }
 
 fn systemd_analyze() -> bool {
-    let ok = Command::new("systemd-analyze").arg("--version").output().is_ok_and(|o| o.status.success());
+    let ok = Command::new("systemd-analyze")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
     if !ok {
         eprintln!("\n\n!!!!! SKIPPED: systemd-analyze is not installed (apt: systemd) !!!!!\n");
     }
@@ -52,17 +55,31 @@ fn unit_verifies_and_exposure_is_at_most_2() {
     // verify needs an existing ExecStart binary: point it at the one cargo built
     let dir = tempfile::tempdir().unwrap();
     let tmp = dir.path().join("tofproxd.service");
-    std::fs::write(&tmp, text.replace("/usr/bin/tofproxd", env!("CARGO_BIN_EXE_tofproxd"))).unwrap();
-    let out = Command::new("systemd-analyze").arg("verify").arg(&tmp).output().expect("verify");
+    std::fs::write(
+        &tmp,
+        text.replace("/usr/bin/tofproxd", env!("CARGO_BIN_EXE_tofproxd")),
+    )
+    .unwrap();
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&tmp)
+        .output()
+        .expect("verify");
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && !err.contains("tofproxd.service:"), "verify: {err}");
+    assert!(
+        out.status.success() && !err.contains("tofproxd.service:"),
+        "verify: {err}"
+    );
     let out = Command::new("systemd-analyze")
         .args(["security", "--offline=yes", "--no-pager"])
         .arg(&unit)
         .output()
         .expect("security");
     let s = String::from_utf8_lossy(&out.stdout);
-    let line = s.lines().find(|l| l.contains("Overall exposure level")).unwrap_or_else(|| panic!("{s}"));
+    let line = s
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| panic!("{s}"));
     let score: f64 = line
         .split(':')
         .nth(1)
@@ -70,16 +87,22 @@ fn unit_verifies_and_exposure_is_at_most_2() {
         .and_then(|x| x.parse().ok())
         .unwrap_or_else(|| panic!("{line}"));
     assert!(score <= 2.0, "{line}");
-    assert!(text.contains("Type=notify") && text.contains("WatchdogSec=") && text.contains("Restart=on-failure"));
+    assert!(
+        text.contains("Type=notify")
+            && text.contains("WatchdogSec=")
+            && text.contains("Restart=on-failure")
+    );
 }
 
 #[test]
 fn shipped_configs_load() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     for f in ["config/tofproxd.toml", "config/tofproxd-emulated.toml"] {
-        let cfg = tofproxd::config::Config::load(&root.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
+        let cfg =
+            tofproxd::config::Config::load(&root.join(f)).unwrap_or_else(|e| panic!("{f}: {e}"));
         if f.ends_with("emulated.toml") {
-            let src = tofproxd::backends::build_source(&cfg, &root.join("config")).expect("emulated source builds");
+            let src = tofproxd::backends::build_source(&cfg, &root.join("config"))
+                .expect("emulated source builds");
             assert_eq!(src.full_size(), (172, 224));
         }
     }
