@@ -186,6 +186,7 @@ pub fn extract_wiggling(
     let (c0, c1) = centre_range(cols);
     let mut per_coeff: Vec<Vec<f64>> = vec![Vec::new(); 2 * (harmonics + 1)];
     let mut samples = vec![0.0; n];
+    let basis = dft_basis(&phases_rad, harmonics);
     for r in r0..r1 {
         for c in c0..c1 {
             let dark = offset.map_or(mid, |o| o.dark_lsb[(r, c)] as f64);
@@ -198,7 +199,7 @@ pub fn extract_wiggling(
             if !ok {
                 continue;
             }
-            let coeffs = dft_coefficients(&samples, &phases_rad, harmonics);
+            let coeffs = dft_coefficients(&samples, &basis);
             let fundamental = coeffs[1].0.hypot(coeffs[1].1);
             // Pixels without a usable fundamental (dead / dark) carry no wiggling information.
             if !(fundamental.is_finite() && fundamental > 0.5) {
@@ -458,18 +459,29 @@ fn centre_range(n: usize) -> (usize, usize) {
     (start, start + len)
 }
 
-/// `X_h = (1/N) Σ_k g_k e^{-i h θ_k}` for `h = 0..=harmonics`, as (re, im).
-fn dft_coefficients(samples: &[f64], phases_rad: &[f64], harmonics: usize) -> Vec<(f64, f64)> {
-    let n = samples.len() as f64;
+/// DFT basis `(cos hθ_k, sin hθ_k) / N` for `h = 0..=harmonics`, row-major by `h`.
+fn dft_basis(phases_rad: &[f64], harmonics: usize) -> Vec<(f64, f64)> {
+    let n = phases_rad.len() as f64;
     (0..=harmonics)
-        .map(|h| {
+        .flat_map(|h| {
+            phases_rad
+                .iter()
+                .map(move |&th| ((h as f64 * th).cos() / n, (h as f64 * th).sin() / n))
+        })
+        .collect()
+}
+
+/// `X_h = (1/N) Σ_k g_k e^{-i h θ_k}` for every `h` of `basis` (see [`dft_basis`]), as (re, im).
+fn dft_coefficients(samples: &[f64], basis: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    basis
+        .chunks(samples.len().max(1))
+        .map(|row| {
             let (mut re, mut im) = (0.0, 0.0);
-            for (&g, &th) in samples.iter().zip(phases_rad) {
-                let a = h as f64 * th;
-                re += g * a.cos();
-                im -= g * a.sin();
+            for (&g, &(c, s)) in samples.iter().zip(row) {
+                re += g * c;
+                im -= g * s;
             }
-            (re / n, im / n)
+            (re, im)
         })
         .collect()
 }
