@@ -859,7 +859,7 @@ impl<T: UsbTransport> SensorDriver<T> {
             let payload = &self.payload[..n.min(self.payload.len())];
             let rejected: Option<String> = match self.reasm.push(payload) {
                 Push::Pending => None,
-                Push::Dropped(r) => Some(format!("frame dropped by reassembly: {r:?}")),
+                Push::Dropped(r) => Some(format!("frame dropped by reassembly: {r}")),
                 Push::Frame(bytes) => {
                     let Some(slot) = out.index_axis_mut(ndarray::Axis(0), next).into_slice() else {
                         return Err(BridgeError::new(

@@ -61,6 +61,31 @@ pub enum HeaderError {
     DeviceError,
 }
 
+impl std::fmt::Display for HeaderError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            HeaderError::TooShort => "payload shorter than a header",
+            HeaderError::BadLength => "header length outside the payload",
+            HeaderError::LengthMismatch => "header length disagrees with its PTS/SCR bits",
+            HeaderError::BadBits => "end-of-header clear or reserved bit set",
+            HeaderError::DeviceError => "device reported an error (ERR bit)",
+        })
+    }
+}
+
+impl std::fmt::Display for DropReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DropReason::BadHeader(h) => write!(f, "bad payload header: {h}"),
+            DropReason::Torn => f.write_str("torn (frame id toggled before end of frame)"),
+            DropReason::Short => f.write_str("short (end of frame before the expected size)"),
+            DropReason::Oversize => f.write_str("oversize (more data than the frame size)"),
+            DropReason::BadPadding => f.write_str("non-zero padding after the frame"),
+            DropReason::Stray => f.write_str("stray payload of an already completed frame"),
+        }
+    }
+}
+
 /// Parse the header at the start of `payload`.
 pub fn parse_header(payload: &[u8]) -> Result<PayloadHeader, HeaderError> {
     let (&hle, rest) = payload.split_first().ok_or(HeaderError::TooShort)?;

@@ -288,3 +288,24 @@ fn driver_thread_serves_cycles_over_bounded_channels() {
     ));
     drop(t); // joins the thread
 }
+
+#[test]
+fn unplugged_device_is_not_found_until_replugged() {
+    let mut cfg = fast();
+    cfg.faults.unplug.at_cycles = vec![2];
+    cfg.timing.replug_after_ms = 500.0;
+    let (mut d, clock) = driver(cfg, 12);
+    d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+    assert_eq!(
+        d.cycle(&req(SensorMode::TwoPhase, 200.0))
+            .unwrap_err()
+            .kind(),
+        ErrorKind::Disconnected
+    );
+    // still gone: the reopen fails cleanly, and is tried again next time
+    let e = d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::NotFound, "{e}");
+    clock.sleep(std::time::Duration::from_millis(600));
+    d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+    assert_eq!(d.stats().reopens, 1);
+}
