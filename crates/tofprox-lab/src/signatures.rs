@@ -82,12 +82,20 @@ pub fn make_signature(
     id: &str,
     prep: &Prepared,
     spec: &LabSpec,
-    _waveform: &Waveform,
+    waveform: &Waveform,
 ) -> Result<Box<dyn Signature>, LabError> {
     Ok(match id {
-        "sbi_asymmetry" => Box::new(Sbi {
-            ambient_varies: prep.ambient_varies,
-        }),
+        "sbi_asymmetry" => {
+            // total signal charge relative to the fundamental amplitude: the
+            // correlation's peak over its fundamental, over the contrast 0.8
+            let peak = (0..360)
+                .map(|i| waveform.eval(f64::from(i).to_radians()).0)
+                .fold(1.0f64, f64::max);
+            Box::new(Sbi {
+                ambient_varies: prep.ambient_varies,
+                g: peak / 0.8,
+            })
+        }
         "vcsel_droop" => Box::new(Droop),
         "amplitude_phase_error" => Box::new(AmpPhase),
         "temperature_drift" => Box::new(TempDrift),
@@ -123,13 +131,15 @@ fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
 }
 
 /// SBI asymmetry (2.2.2.1, 5.1.2.3, fig. 5.6): the taps collect
-/// N_a,b = B + κ·A(g ± C)/100 (B = ambient·t[ms], g = 1.25 for a contrast of
-/// 0.8); once the fuller tap passes the threshold q0 the SBI injects the
+/// N_a,b = B + κ·A(g ± C)/100 (B = ambient·t[ms]·pixel response, g = peak of
+/// C over the contrast 0.8); once the fuller tap passes the threshold q0 the SBI injects the
 /// smaller current into both with mismatch, leaving m·N_min·(1 − q0/N_max) in
 /// the differential code — nearly the same in every raw image, so 4-phase
 /// cancels it and 2-phase does not. lin = [m], nl = [q0, ln κ].
 struct Sbi {
     ambient_varies: bool,
+    /// Total signal charge per unit of fundamental amplitude (1/contrast for a sinusoid).
+    g: f64,
 }
 impl Sbi {
     fn taps(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> (f64, f64) {
@@ -141,7 +151,7 @@ impl Sbi {
         // background light passes the same optics: scaled by the pixel's response
         let b = cap.ambient_klux * cap.exposure_us * 1e-3 * r.gain_rel;
         let s = kappa * r.a / 100.0;
-        (b + s * (1.25 + r.c) / 2.0, b + s * (1.25 - r.c) / 2.0)
+        (b + s * (self.g + r.c) / 2.0, b + s * (self.g - r.c) / 2.0)
     }
 }
 impl Signature for Sbi {
