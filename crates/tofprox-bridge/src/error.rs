@@ -124,7 +124,7 @@ impl BridgeError {
         &self.context
     }
 
-    /// Prefix more context ("while X: <old context>"), keeping kind and source.
+    /// Prefix more context (`"outer: old context"`), keeping kind and source.
     pub fn context_prefix(mut self, outer: impl fmt::Display) -> Self {
         self.context = format!("{outer}: {}", self.context);
         self
