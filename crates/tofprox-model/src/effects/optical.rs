@@ -33,11 +33,19 @@ impl Correlation {
 
     /// From Fourier coefficients (a_n, b_n), normalised to max |C| = 1.
     pub fn from_coefficients(mut coefficients: Vec<(f64, f64)>) -> Self {
+        // Σ a_n cos nx + b_n sin nx with cos/sin of nx by the angle-addition
+        // recurrence (two trig calls per point instead of two per harmonic)
         let eval = |c: &[(f64, f64)], x: f64| -> f64 {
-            c.iter()
-                .enumerate()
-                .map(|(n, (a, b))| a * (n as f64 * x).cos() + b * (n as f64 * x).sin())
-                .sum()
+            let (s1, c1) = x.sin_cos();
+            let (mut sn, mut cn) = (0.0f64, 1.0f64);
+            let mut acc = 0.0;
+            for &(a, b) in c {
+                acc += a * cn + b * sn;
+                let next_c = cn * c1 - sn * s1;
+                sn = sn * c1 + cn * s1;
+                cn = next_c;
+            }
+            acc
         };
         let mut table = Box::new([0.0f64; TABLE_SIZE + 1]);
         for (i, v) in table.iter_mut().enumerate() {
@@ -354,4 +362,80 @@ pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
     let tau = model.p("vcsel_droop", "tau_us").max(1e-9);
     // P_k = P (1 − D (1 − e^{−k t_exp/τ}))  (3.3.7.2)
     1.0 - d * (1.0 - (-(k as f64) * exposure_us / tau).exp())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn harmonic_series_round_trips_and_table_matches_the_series() {
+        let rel = vec![
+            (0.01, 10.0),
+            (0.03, -40.0),
+            (0.0, 0.0),
+            (0.012, 75.0),
+            (0.0, 0.0),
+            (0.004, 0.0),
+            (0.0, 0.0),
+            (0.002, 170.0),
+        ];
+        let c = Correlation::from_harmonics(&rel);
+        for ((r, p), (r2, p2)) in rel.iter().zip(c.harmonics_rel(9)) {
+            assert!((r - r2).abs() < 1e-12);
+            if *r > 0.0 {
+                assert!((p - p2).abs() < 1e-9, "{p} vs {p2}");
+            }
+        }
+        let exact = |x: f64| {
+            c.coefficients()
+                .iter()
+                .enumerate()
+                .map(|(n, (a, b))| a * (n as f64 * x).cos() + b * (n as f64 * x).sin())
+                .sum::<f64>()
+        };
+        for i in -500..500 {
+            let x = i as f64 * 0.0371;
+            assert!((c.eval(x) - exact(x)).abs() < 2e-6, "x = {x}");
+        }
+    }
+
+    #[test]
+    fn sinusoidal_waveforms_correlate_to_the_cosine() {
+        let n = 256;
+        let ill: Vec<f64> = (0..n)
+            .map(|k| 1.0 + (TAU * k as f64 / n as f64).cos())
+            .collect();
+        let m: Vec<f64> = (0..n)
+            .map(|k| 0.5 + 0.5 * (TAU * k as f64 / n as f64 + 0.7).cos())
+            .collect();
+        let c = Correlation::from_waveforms(&ill, &m);
+        for i in 0..100 {
+            let x = i as f64 * 0.1;
+            assert!((c.eval(x) - x.cos()).abs() < 1e-6);
+        }
+        assert!(validate_waveforms(&ill, &m).is_ok());
+        assert!(validate_waveforms(&ill, &vec![0.5; n]).is_err());
+        assert!(validate_waveforms(&[1.0; 4], &m).is_err());
+    }
+
+    #[test]
+    fn waveform_files_csv_and_npy() {
+        let dir = std::env::temp_dir().join(format!("tofprox-model-wave-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let csv = dir.join("w.csv");
+        std::fs::write(&csv, "# period\nt,value\n0,1.0\n1,2.5\n2,0.5\n").unwrap();
+        assert_eq!(load_waveform(&csv).unwrap(), vec![1.0, 2.5, 0.5]);
+        std::fs::write(&csv, "t,value\n0,1.0\n1,abc\n").unwrap();
+        let e = load_waveform(&csv).unwrap_err();
+        assert!(e.to_string().contains(":3:"), "{e}");
+        let npy = dir.join("w.npy");
+        use ndarray_npy::WriteNpyExt;
+        ndarray::arr1(&[0.25f32, 0.5])
+            .write_npy(std::fs::File::create(&npy).unwrap())
+            .unwrap();
+        assert_eq!(load_waveform(&npy).unwrap(), vec![0.25, 0.5]);
+        assert!(load_waveform(&dir.join("missing.csv")).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }
