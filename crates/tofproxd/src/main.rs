@@ -169,7 +169,7 @@ fn start_private_bus() -> anyhow::Result<PrivateBus> {
     let mut child = std::process::Command::new("dbus-daemon")
         .args(["--session", "--print-address", "--nofork"])
         .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::inherit())
+        .stderr(std::process::Stdio::null())
         .spawn()
         .context("starting dbus-daemon (install the dbus-daemon package)")?;
     let stdout = child.stdout.take().context("dbus-daemon stdout")?;
