@@ -773,7 +773,7 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
             let xf = m * p.lut_scale;
             let xi = (xf - 0.5 + ROUND_MAGIC).to_bits() & 0x3F_FFFF;
             idx[j] = xi;
-            frb[j] = xf - xi as f32;
+            frb[j] = xf - (xi as i32) as f32; // signed convert: native on x86 (xi < 2^22)
             mb[j] = m;
             ab[j] = amp_v;
             bb[j] = (sat as u32) | ((!finite as u32) << 3);
@@ -803,7 +803,7 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
             let invalid = sat | low | !finite | !in_range;
             flags[j] = (f0 | ((low as u32) << 1) | ((invalid as u32) << 2)) as u8;
             // round(d · 1000) by the same mantissa trick; ≥ 1 mm when valid.
-            let mm = (((d * 1000.0 + ROUND_MAGIC).to_bits() & 0x3F_FFFF).max(1)) as u16;
+            let mm = ((((d * 1000.0 + ROUND_MAGIC).to_bits() & 0x3F_FFFF) as i32).max(1)) as u16;
             depth_mm[j] = if invalid { 0 } else { mm };
             depth_m[j] = if invalid { 0.0 } else { d };
             phase[j] = if finite { ph } else { 0.0 };
