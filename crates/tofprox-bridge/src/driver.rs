@@ -413,6 +413,32 @@ impl<T: UsbTransport> SensorDriver<T> {
         }
     }
 
+    /// Bring-up: restart the sensor (reset low → high, wait for the chip id)
+    /// and write the minimum configuration. Leaves it running (call
+    /// [`power_off`](Self::power_off) afterwards).
+    pub fn bring_up(&mut self) -> Result<(), BridgeError> {
+        self.recover()?;
+        let minimum = self.cfg.map.sequences.minimum.clone();
+        self.restart()
+            .and_then(|()| self.write_seq(&minimum).ctx(|| "minimum configuration"))
+            .inspect_err(|e| self.after_error(e))
+    }
+
+    /// Bring-up: issue the flash load command and check its status
+    /// (`FlashEmpty` / `FlashCorrupt` when there is no valid image). Call
+    /// after [`bring_up`](Self::bring_up).
+    pub fn flash_load(&mut self) -> Result<(), BridgeError> {
+        self.load_from_flash()
+    }
+
+    /// Bring-up: write the map's full configuration image to flash (erase,
+    /// program, verify by read-back CRC-32), then load it. Call after
+    /// [`bring_up`](Self::bring_up).
+    pub fn flash_write(&mut self) -> Result<(), BridgeError> {
+        self.write_flash()?;
+        self.load_from_flash().ctx(|| "flash load after write")
+    }
+
     /// Put the sensor in reset (fully off) and stop streaming.
     pub fn power_off(&mut self) -> Result<(), BridgeError> {
         self.recover()?;

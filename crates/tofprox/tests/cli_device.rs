@@ -182,3 +182,32 @@ fn register_peek_and_poke_on_the_emulated_device() {
     assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("no matching device found"));
 }
+
+#[test]
+fn flash_status_and_write_on_a_persisted_emulated_flash() {
+    let dir = tempfile_dir();
+    let cfg = dir.join("emu.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "flash_file = {:?}\nframe_source = \"ideal\"\n",
+            dir.join("flash.bin")
+        ),
+    )
+    .unwrap();
+    let c = cfg.to_str().unwrap();
+    let o = run(&["device", "flash", "--emulated", "--config", c, "status"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(
+        text(&o.stdout).contains("no configuration image"),
+        "{}",
+        text(&o.stdout)
+    );
+    let o = run(&["device", "flash", "--emulated", "--config", c, "write"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stdout).contains("verified"));
+    let o = run(&["device", "flash", "--emulated", "--config", c, "status"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert!(text(&o.stdout).contains("valid configuration image"));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -24,6 +24,8 @@ pub enum DeviceCommand {
     Capture(CaptureArgs),
     /// Bring-up: read or write sensor registers over the bridge's I2C.
     Reg(RegArgs),
+    /// Bring-up: the configuration image in the sensor's SPI flash.
+    Flash(FlashArgs),
     /// Bring-up: drive the sensor's reset pin (`hold` = in reset / off,
     /// `release` = running).
     Reset(ResetArgs),
@@ -67,6 +69,20 @@ pub enum RegOp {
         #[arg(value_parser = parse_hex16, required = true)]
         values: Vec<u16>,
     },
+}
+
+#[derive(clap::Args, Debug)]
+pub struct FlashArgs {
+    #[command(flatten)]
+    select: SelectArgs,
+    /// Use the emulated device (`--config` is then an emulated-device file;
+    /// give it a `flash_file` for the flash to persist between runs).
+    #[arg(long)]
+    emulated: bool,
+    /// status: load the image and report; write: write the full image
+    /// (erase, program, verify) and load it.
+    #[arg(value_parser = ["status", "write"])]
+    action: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -215,6 +231,54 @@ pub fn run(c: DeviceCommand) -> anyhow::Result<ExitCode> {
         DeviceCommand::Capture(a) => capture(a),
         DeviceCommand::Reg(a) => reg_cmd(a),
         DeviceCommand::Reset(a) => reset_cmd(a),
+        DeviceCommand::Flash(a) => flash_cmd(a),
+    }
+}
+
+fn flash_cmd(a: FlashArgs) -> anyhow::Result<ExitCode> {
+    let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+    let (dev, drv): (Box<dyn UsbTransport>, DriverConfig) = if a.emulated {
+        let cfg = match &a.select.config {
+            Some(p) => EmulatedConfig::load(p)?,
+            None => EmulatedConfig::default(),
+        };
+        let drv = cfg.driver_config()?;
+        (Box::new(EmulatedDevice::new(cfg, clock.clone(), 1)?), drv)
+    } else {
+        let (sel, drv) = selector(&a.select)?;
+        let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
+        (Box::new(RusbTransport::open(sel)?), drv)
+    };
+    let mut driver = SensorDriver::new(dev, drv, clock.clone())?;
+    driver.bring_up()?;
+    let t0 = clock.now();
+    let r = if a.action == "write" {
+        driver.flash_write()
+    } else {
+        driver.flash_load()
+    };
+    let took = clock.now() - t0;
+    let _ = driver.power_off();
+    match r {
+        Ok(()) if a.action == "write" => {
+            println!("flash written, verified and loaded in {took:?}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Ok(()) => {
+            println!("flash holds a valid configuration image (loaded in {took:?})");
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e)
+            if a.action == "status"
+                && matches!(
+                    e.kind(),
+                    tofprox_bridge::ErrorKind::FlashEmpty | tofprox_bridge::ErrorKind::FlashCorrupt
+                ) =>
+        {
+            println!("{e} (write it with `tofprox device flash write`)");
+            Ok(ExitCode::from(1))
+        }
+        Err(e) => Err(e.into()),
     }
 }
 
