@@ -496,7 +496,11 @@ impl<S: FrameSource> Controller<S> {
                 match self.mode {
                     Mode::TwoPhase if high => {
                         tracing::info!(
-                            "background light high ({ind:.0} LSB): switching to 4-phase"
+                            "switching to 4-phase: background indicator {ind:.0} LSB (high above {:.0}), \
+                             2-vs-4-phase discrepancy {} mm (high above {})",
+                            self.cfg.ambient.high_lsb,
+                            discrepancy_mm.map_or("n/a".to_string(), |d| format!("{d:.0}")),
+                            self.cfg.ambient.discrepancy_mm
                         );
                         new_mode = Mode::FourPhase;
                         self.ambient_low_count = 0;
