@@ -295,6 +295,18 @@ mod tests {
     }
 
     #[test]
+    fn libusb_errors_map_to_kinds() {
+        let k = |e| map_rusb(e, "x").kind();
+        assert_eq!(k(rusb::Error::NoDevice), ErrorKind::Disconnected);
+        assert_eq!(k(rusb::Error::Timeout), ErrorKind::Timeout);
+        assert_eq!(k(rusb::Error::Pipe), ErrorKind::Stall);
+        assert_eq!(k(rusb::Error::Access), ErrorKind::Access);
+        assert_eq!(k(rusb::Error::Busy), ErrorKind::Access);
+        assert_eq!(k(rusb::Error::NotFound), ErrorKind::NotFound);
+        assert_eq!(k(rusb::Error::Overflow), ErrorKind::Io);
+    }
+
+    #[test]
     fn selector_rejects_unknown_keys() {
         assert!(toml::from_str::<UsbSelector>("vendor = 1").is_err());
         let s: UsbSelector = toml::from_str("vendor_id = 0x1234\nserial = \"A1\"").unwrap();
