@@ -111,6 +111,20 @@ fn shipped_model_files_are_baseline_full_and_ideal() {
 }
 
 #[test]
+fn shipped_measured_like_waveform_model_loads_csv_files() {
+    let m = ModelConfig::load(&repo_file("config/model/measured_like.toml")).unwrap();
+    let w = m.waveforms().expect("waveforms loaded from the CSV files");
+    assert_eq!(w.illumination.len(), 500);
+    let c = tofprox_model::effects::optical::Correlation::from_model(&m);
+    let h = c.harmonics_rel(5);
+    // odd harmonics of a 50 % duty pulse pair; no even ones
+    assert!((h[1].0 - 0.023).abs() < 0.002 && (h[3].0 - 0.0032).abs() < 0.0005, "{h:?}");
+    assert!(h[0].0 < 1e-4 && h[2].0 < 1e-4);
+    // the file paths survive a round trip
+    assert!(m.to_toml_string().contains("illumination_file = \"waveforms/vcsel_measured_like.csv\""));
+}
+
+#[test]
 fn toml_round_trip_and_waveforms_inline() {
     let mut m = ModelConfig::full();
     m.set_param("adc_inl", "inl_lsb", -123.5).unwrap();
