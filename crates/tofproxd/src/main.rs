@@ -135,7 +135,12 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
             _ = term.recv() => break,
             r = tokio::signal::ctrl_c() => { r.context("SIGINT handler")?; break; }
             _ = tick => {
-                notify::watchdog();
+                // Feed the watchdog only while the loop thread is not stuck in one cycle.
+                if daemon.loop_healthy(watchdog.unwrap_or(Duration::from_secs(15))) {
+                    notify::watchdog();
+                } else {
+                    tracing::error!("loop thread stuck in a cycle: not feeding the watchdog");
+                }
                 let s = daemon.hub().status();
                 let line = format!("{}; near={}; {:.2} mW", s.state.as_str(), s.near, s.power_mw);
                 if line != last_state {

@@ -121,6 +121,7 @@ pub fn loop_thread<S: FrameSource>(
     always_on: bool,
     cmds: stdmpsc::Receiver<LoopCmd>,
     events: mpsc::UnboundedSender<Event>,
+    health: Arc<LoopHealth>,
 ) {
     let mut demand = Demand::default();
     let mut active = false;
@@ -148,7 +149,9 @@ pub fn loop_thread<S: FrameSource>(
                 ..StatusUpdate::default()
             }));
         }
+        health.enter();
         let out = ctl.step(demand.depth);
+        health.leave();
         if let Some(d) = out.depth {
             send(Event::Depth(d));
         }
@@ -191,12 +194,51 @@ pub fn loop_thread<S: FrameSource>(
     send(Event::Status(ctl.stop()));
 }
 
+/// Progress of the loop thread (for the watchdog).
+#[derive(Debug)]
+pub struct LoopHealth {
+    start: std::time::Instant,
+    /// ms since `start` when the current cycle began + 1; 0 = not inside a cycle.
+    busy_since_ms: std::sync::atomic::AtomicU64,
+}
+
+impl LoopHealth {
+    fn new() -> Self {
+        Self {
+            start: std::time::Instant::now(),
+            busy_since_ms: std::sync::atomic::AtomicU64::new(0),
+        }
+    }
+    fn now_ms(&self) -> u64 {
+        u64::try_from(self.start.elapsed().as_millis()).unwrap_or(u64::MAX - 1)
+    }
+    fn enter(&self) {
+        self.busy_since_ms
+            .store(self.now_ms() + 1, std::sync::atomic::Ordering::Relaxed);
+    }
+    fn leave(&self) {
+        self.busy_since_ms
+            .store(0, std::sync::atomic::Ordering::Relaxed);
+    }
+    /// How long the current cycle has been running, if inside one.
+    pub fn busy_for(&self) -> Option<Duration> {
+        match self
+            .busy_since_ms
+            .load(std::sync::atomic::Ordering::Relaxed)
+        {
+            0 => None,
+            t => Some(Duration::from_millis(self.now_ms().saturating_sub(t - 1))),
+        }
+    }
+}
+
 /// A running daemon (for tests and the binary).
 pub struct Daemon {
     conn: Connection,
     hub: Arc<Hub>,
     cmd_tx: stdmpsc::Sender<LoopCmd>,
     thread: Option<std::thread::JoinHandle<()>>,
+    health: Arc<LoopHealth>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
     compat: bool,
 }
@@ -244,9 +286,11 @@ impl Daemon {
         )));
         let (cmd_tx, cmd_rx) = stdmpsc::channel();
         let always_on = cfg.loop_.always_on;
+        let health = Arc::new(LoopHealth::new());
+        let loop_health = health.clone();
         let thread = std::thread::Builder::new()
             .name("tofproxd-loop".into())
-            .spawn(move || loop_thread(ctl, always_on, cmd_rx, ev_tx))
+            .spawn(move || loop_thread(ctl, always_on, cmd_rx, ev_tx, loop_health))
             .map_err(RunError::Thread)?;
         // Forward demand changes (async watch) to the loop thread (std channel).
         let fwd_tx = cmd_tx.clone();
@@ -256,9 +300,16 @@ impl Daemon {
             hub,
             cmd_tx,
             thread: Some(thread),
+            health,
             tasks,
             compat,
         })
+    }
+
+    /// Whether the loop thread is healthy: not stuck inside one cycle for longer than
+    /// `max` (the watchdog is only fed while this holds, so systemd restarts a hung loop).
+    pub fn loop_healthy(&self, max: Duration) -> bool {
+        self.health.busy_for().is_none_or(|d| d <= max)
     }
 
     /// The hub (status and claims).

@@ -774,3 +774,58 @@ fn shipped_introspection_matches_the_daemon() {
         block(&compass, "net.hadess.SensorProxy.Compass")
     );
 }
+
+/// sd-notify: READY=1 with a STATUS, WATCHDOG=1 pings at half the interval, STOPPING=1 on SIGTERM.
+#[test]
+fn sd_notify_ready_watchdog_and_stopping() {
+    use std::os::unix::net::UnixDatagram;
+    let Some(bus) = start_bus() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let sock_path = dir.path().join("notify.sock");
+    let sock = UnixDatagram::bind(&sock_path).expect("bind notify socket");
+    sock.set_read_timeout(Some(Duration::from_millis(200)))
+        .unwrap();
+    let cfg = dir.path().join("cfg.toml");
+    std::fs::write(&cfg, HAND).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
+        .arg("--config")
+        .arg(&cfg)
+        .args(["--bus", &bus.address])
+        .env("NOTIFY_SOCKET", &sock_path)
+        .env("WATCHDOG_USEC", "400000")
+        .env_remove("WATCHDOG_PID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn");
+    let mut msgs = Vec::new();
+    let t0 = Instant::now();
+    let mut buf = [0u8; 4096];
+    while t0.elapsed() < Duration::from_secs(3) {
+        if let Ok(n) = sock.recv(&mut buf) {
+            msgs.push(String::from_utf8_lossy(&buf[..n]).to_string());
+        }
+    }
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let t1 = Instant::now();
+    while t1.elapsed() < Duration::from_secs(3) {
+        if let Ok(n) = sock.recv(&mut buf) {
+            msgs.push(String::from_utf8_lossy(&buf[..n]).to_string());
+        }
+        if msgs.iter().any(|m| m.contains("STOPPING=1")) {
+            break;
+        }
+    }
+    let st = child.wait().expect("wait");
+    assert!(st.success(), "{st}");
+    assert!(
+        msgs.iter()
+            .any(|m| m.contains("READY=1") && m.contains("STATUS=")),
+        "{msgs:?}"
+    );
+    let pings = msgs.iter().filter(|m| m.contains("WATCHDOG=1")).count();
+    assert!(pings >= 4, "watchdog every 200 ms over ~3 s: {msgs:?}");
+    assert!(msgs.iter().any(|m| m.contains("STOPPING=1")), "{msgs:?}");
+}
