@@ -118,10 +118,16 @@ fn shipped_measured_like_waveform_model_loads_csv_files() {
     let c = tofprox_model::effects::optical::Correlation::from_model(&m);
     let h = c.harmonics_rel(5);
     // odd harmonics of a 50 % duty pulse pair; no even ones
-    assert!((h[1].0 - 0.023).abs() < 0.002 && (h[3].0 - 0.0032).abs() < 0.0005, "{h:?}");
+    assert!(
+        (h[1].0 - 0.023).abs() < 0.002 && (h[3].0 - 0.0032).abs() < 0.0005,
+        "{h:?}"
+    );
     assert!(h[0].0 < 1e-4 && h[2].0 < 1e-4);
     // the file paths survive a round trip
-    assert!(m.to_toml_string().contains("illumination_file = \"waveforms/vcsel_measured_like.csv\""));
+    assert!(
+        m.to_toml_string()
+            .contains("illumination_file = \"waveforms/vcsel_measured_like.csv\"")
+    );
 }
 
 #[test]

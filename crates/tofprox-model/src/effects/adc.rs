@@ -31,6 +31,10 @@ pub struct Adc {
     /// Per integer level: last centre index at or below it.
     cell_c: Option<Vec<u32>>,
     quantize: bool,
+    /// Transition levels padded with +∞ (branch-free windows of four).
+    tpad: Vec<f64>,
+    /// (centre, 1/width) padded with (+∞, 0).
+    cpad: Vec<(f64, f64)>,
     /// Transition levels T_k into code k (k = 0..=2^N, T_0 = −∞ side, T_{2^N} = top), when DNL is on.
     thresholds: Option<Vec<f64>>,
 }
@@ -100,7 +104,23 @@ impl Adc {
         });
         let cell_t = thresholds.as_ref().map(|t| cell_index(t, n));
         let cell_c = centres.as_ref().map(|c| cell_index(c, n));
+        let pad = 5;
+        let tpad = thresholds
+            .iter()
+            .flatten()
+            .copied()
+            .chain(std::iter::repeat_n(f64::INFINITY, pad))
+            .collect();
+        let cpad = centres
+            .iter()
+            .flatten()
+            .copied()
+            .zip(inv_width.iter().flatten().copied())
+            .chain(std::iter::repeat_n((f64::INFINITY, 0.0), pad))
+            .collect();
         Self {
+            tpad,
+            cpad,
             mid,
             max_code: full - 1.0,
             k_gain,
@@ -162,11 +182,17 @@ impl Adc {
                 if y < 0.0 {
                     return 0.0;
                 }
-                let k = fast_floor(y.min(self.max_code)) as usize;
+                let k = y.min(self.max_code) as usize; // y ≥ 0: truncation is floor
                 // code j ⇔ T_j ≤ y < T_{j+1}; start at the last T ≤ k, step branch-free
-                let mut j = cell.get(k).copied().unwrap_or(0) as usize;
-                let le = |i: usize| usize::from(t.get(i).is_some_and(|&v| v <= y));
-                j += le(j + 1) + le(j + 2) + le(j + 3);
+                let j0 = cell.get(k).copied().unwrap_or(0) as usize;
+                // transitions are monotone: count those ≤ y in a window of three
+                // (one bounds check, independent loads, no branches)
+                let mut j = match self.tpad.get(j0 + 1..j0 + 4) {
+                    Some(&[a, b, c]) => {
+                        j0 + usize::from(a <= y) + usize::from(b <= y) + usize::from(c <= y)
+                    }
+                    _ => j0,
+                };
                 // rare: more than three transitions inside one LSB (large DNL)
                 while t.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
@@ -189,17 +215,23 @@ impl Adc {
                 if y >= self.max_code {
                     return self.max_code;
                 }
-                let k = fast_floor(y) as usize;
-                let mut j = cell.get(k).copied().unwrap_or(0) as usize;
-                // centres are monotone: count those ≤ y among the next three with
-                // independent loads instead of a dependent chain
-                let le = |i: usize| usize::from(c.get(i).is_some_and(|&v| v <= y));
-                j += le(j + 1) + le(j + 2) + le(j + 3);
+                let k = y as usize; // 0 < y < max: truncation is floor
+                let j0 = cell.get(k).copied().unwrap_or(0) as usize;
+                // centres are monotone: count those ≤ y in a window of three
+                let mut j = match self.cpad.get(j0 + 1..j0 + 4) {
+                    Some(&[(a, _), (b, _), (cc, _)]) => {
+                        j0 + usize::from(a <= y) + usize::from(b <= y) + usize::from(cc <= y)
+                    }
+                    _ => j0,
+                };
                 while c.get(j + 1).is_some_and(|&v| v <= y) {
                     j += 1;
                 }
-                let cj = c.get(j).copied().unwrap_or(j as f64);
-                let v = j as f64 + (y - cj) * inv.get(j).copied().unwrap_or(0.0);
+                let (cj, inv_j) = match self.cpad.get(j) {
+                    Some(&p) => p,
+                    None => (j as f64, inv.get(j).copied().unwrap_or(0.0)),
+                };
+                let v = j as f64 + (y - cj) * inv_j;
                 v.clamp(0.0, self.max_code)
             }
             _ => y.clamp(0.0, self.max_code),

@@ -144,11 +144,11 @@ impl Correlation {
         match &self.table {
             None => x.cos(),
             Some(t) => {
-                let u = x * (1.0 / TAU);
-                let pos = (u - fast_floor(u)) * TABLE_SIZE as f64;
+                // one floor: the integer part is masked to the period (two's complement
+                // makes this right for negative x too), the fraction interpolates
+                let pos = x * (TABLE_SIZE as f64 / TAU);
                 let fl = fast_floor(pos);
-                // masked index: always < TABLE_SIZE, so i + 1 ≤ TABLE_SIZE is in the table
-                let i = (fl as usize) & (TABLE_SIZE - 1);
+                let i = (fl as i64 as usize) & (TABLE_SIZE - 1);
                 let w = pos - fl;
                 let (a, b) = (t[i], t[i + 1]);
                 a + (b - a) * w
