@@ -135,9 +135,6 @@ pub struct Hub {
     /// Incremented on every valid reading.
     reading_tx: watch::Sender<u64>,
     first_reading_timeout: Duration,
-    /// Whether `ClaimDepth` is allowed for a caller (policy is enforced by the bus; this is
-    /// the in-process check for p2p / session buses).
-    depth_allowed: bool,
 }
 
 /// Claim counts (for `GetStatus` and leak checks).
@@ -184,7 +181,6 @@ impl Hub {
             demand_tx,
             reading_tx,
             first_reading_timeout: Duration::from_millis(cfg.loop_.first_reading_timeout_ms),
-            depth_allowed: true,
         });
         (hub, demand_rx)
     }
@@ -369,11 +365,6 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        if !self.hub.depth_allowed {
-            return Err(fdo::Error::AccessDenied(
-                "depth frames are not enabled".into(),
-            ));
-        }
         let client = caller(&hdr)?;
         self.hub.modify_claim(&client, |c| c.depth = true);
         drop_if_gone(conn, &self.hub, &client).await;

@@ -829,3 +829,30 @@ fn sd_notify_ready_watchdog_and_stopping() {
     assert!(pings >= 4, "watchdog every 200 ms over ~3 s: {msgs:?}");
     assert!(msgs.iter().any(|m| m.contains("STOPPING=1")), "{msgs:?}");
 }
+
+/// DepthFrame: emitted while a depth claim is held, rate-limited to `dbus.depth_max_hz`.
+#[test]
+fn depth_frames_while_claimed_and_rate_limited() {
+    let Some(bus) = start_bus() else { return };
+    let cfg = format!("{HAND}\n[dbus]\ndepth_max_hz = 4.0\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let mut c = Client::start(&bus, &["native", "--depth", "--timeout", "30"]);
+    c.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    c.seen.clear();
+    c.collect(Duration::from_secs(3));
+    let frames: Vec<&Value> = c.seen.iter().filter(|v| v["event"] == "depth").collect();
+    // the loop runs at 10-20 Hz; the signal is limited to 4 Hz
+    assert!(
+        (6..=14).contains(&frames.len()),
+        "{} frames in 3 s",
+        frames.len()
+    );
+    for f in frames {
+        let (w, h) = (f["width"].as_u64().unwrap(), f["height"].as_u64().unwrap());
+        assert!(w > 0 && h > 0);
+        assert_eq!(f["bytes"].as_u64().unwrap(), w * h * 2);
+    }
+    assert_eq!(status(&bus)["DepthClaims"], 1);
+}
