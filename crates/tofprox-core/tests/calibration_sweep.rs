@@ -170,9 +170,8 @@ fn run_sweep(noisy: bool) {
     let phases24: Vec<f64> = (0..24).map(|k| 15.0 * k as f64).collect();
     let corr_distance_m = 0.5;
     let correlation = sensor.capture(Some(corr_distance_m), &phases24);
-
-    for algorithm in Algorithm::ALL {
-        let lut = extract_wiggling(
+    let wiggling = |algorithm| {
+        extract_wiggling(
             correlation.view(),
             &phases24,
             Some(&offset),
@@ -182,7 +181,11 @@ fn run_sweep(noisy: bool) {
             algorithm,
             360,
         )
-        .expect("wiggling LUT");
+        .expect("wiggling LUT")
+    };
+
+    for algorithm in Algorithm::ALL {
+        let lut = wiggling(algorithm);
         let calibrated = Calibration {
             offset: Some(offset.clone()),
             wiggling: Some(lut),
@@ -226,17 +229,7 @@ fn run_sweep(noisy: bool) {
 
     // Offset alone matters for 2-phase (fig. 3.7): with the wiggling LUT but no dark frame the
     // 34 LSB FPN still ruins far pixels.
-    let lut = extract_wiggling(
-        correlation.view(),
-        &phases24,
-        Some(&offset),
-        corr_distance_m,
-        F_MOD_HZ,
-        ADC_BITS,
-        Algorithm::TwoPhase,
-        360,
-    )
-    .expect("wiggling LUT");
+    let lut = wiggling(Algorithm::TwoPhase);
     let no_offset = Calibration {
         offset: None,
         wiggling: Some(lut),
