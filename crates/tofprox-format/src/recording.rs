@@ -85,32 +85,22 @@ impl SensorInfo {
             ))
             .key("sensor.modulation_hz"));
         }
-        if self.roi_origin[0]
-            .checked_add(self.rows)
-            .is_none_or(|e| e > self.full_rows)
-        {
-            return Err(invalid(format!(
-                "window rows {}..{} do not fit in full_rows = {}",
-                self.roi_origin[0],
-                self.roi_origin[0].saturating_add(self.rows),
-                self.full_rows
-            ))
-            .key("sensor.full_rows"));
-        }
-        if self.roi_origin[1]
-            .checked_add(self.cols)
-            .is_none_or(|e| e > self.full_cols)
-        {
-            return Err(invalid(format!(
-                "window cols {}..{} do not fit in full_cols = {}",
-                self.roi_origin[1],
-                self.roi_origin[1].saturating_add(self.cols),
-                self.full_cols
-            ))
-            .key("sensor.full_cols"));
-        }
-        Ok(())
+        window_fits("rows", self.roi_origin[0], self.rows, self.full_rows)?;
+        window_fits("cols", self.roi_origin[1], self.cols, self.full_cols)
     }
+}
+
+/// The window `origin..origin + len` of one axis (`"rows"` / `"cols"`) lies
+/// inside the full array of `full` pixels; the error names `sensor.full_<axis>`.
+fn window_fits(axis: &str, origin: usize, len: usize, full: usize) -> Result<(), FormatError> {
+    if origin.checked_add(len).is_none_or(|e| e > full) {
+        return Err(invalid(format!(
+            "window {axis} {origin}..{} do not fit in full_{axis} = {full}",
+            origin.saturating_add(len)
+        ))
+        .key(format!("sensor.full_{axis}")));
+    }
+    Ok(())
 }
 
 /// What one capture is (everything of a `[[capture]]` table except `frames`).
