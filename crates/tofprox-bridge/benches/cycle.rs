@@ -28,6 +28,31 @@ fn geom() -> Geometry {
     }
 }
 
+/// The two illuminated raw images of a 2-phase cycle at 300 µs.
+fn raws_2phase() -> [RawParams; 2] {
+    [0.0, 90.0].map(|p| RawParams {
+        exposure_us: 300.0,
+        phase_deg: p,
+        illuminated: true,
+    })
+}
+
+/// The tofprox-model frame source with the baseline model and the hand script.
+fn model_synth() -> ModelSynth {
+    ModelSynth::new(
+        ModelConfig::baseline(),
+        geom(),
+        SceneScript::hand(),
+        1,
+        0.0,
+        25.0,
+    )
+    .unwrap()
+}
+
+/// The partial read-out window measured next to the full frame.
+const WINDOW_40_ROWS: RowWindow = RowWindow { row0: 66, rows: 40 };
+
 /// Pre-rendered frames: isolates the driver stack from synthesis.
 struct Replay(Vec<Vec<u16>>);
 
@@ -52,11 +77,7 @@ impl FrameSynth for Replay {
 
 fn replay_driver() -> SensorDriver<EmulatedDevice> {
     let mut frames = Vec::new();
-    let raws = [0.0, 90.0].map(|p| RawParams {
-        exposure_us: 300.0,
-        phase_deg: p,
-        illuminated: true,
-    });
+    let raws = raws_2phase();
     IdealSynth::new(geom(), SceneScript::wall(1.0), 1)
         .superframe(0.0, &raws, 0, 172, &mut frames)
         .unwrap();
@@ -103,26 +124,9 @@ fn cpu_per_call(n: u32, mut f: impl FnMut()) -> Option<Duration> {
 fn report_cpu() {
     let mut d = replay_driver();
     let full = cpu_per_call(300, || drop(d.cycle(&req(None)).unwrap()));
-    let win = cpu_per_call(300, || {
-        drop(
-            d.cycle(&req(Some(RowWindow { row0: 66, rows: 40 })))
-                .unwrap(),
-        )
-    });
-    let raws = [0.0, 90.0].map(|p| RawParams {
-        exposure_us: 300.0,
-        phase_deg: p,
-        illuminated: true,
-    });
-    let mut model = ModelSynth::new(
-        ModelConfig::baseline(),
-        geom(),
-        SceneScript::hand(),
-        1,
-        0.0,
-        25.0,
-    )
-    .unwrap();
+    let win = cpu_per_call(300, || drop(d.cycle(&req(Some(WINDOW_40_ROWS))).unwrap()));
+    let raws = raws_2phase();
+    let mut model = model_synth();
     let mut out = Vec::new();
     let mut t = 0.0;
     let synth = cpu_per_call(30, || {
@@ -172,10 +176,7 @@ fn cycle_2phase_full_frame(bencher: divan::Bencher) {
 #[divan::bench]
 fn cycle_2phase_40_rows(bencher: divan::Bencher) {
     let mut d = replay_driver();
-    bencher.bench_local(|| {
-        d.cycle(&req(Some(RowWindow { row0: 66, rows: 40 })))
-            .unwrap()
-    });
+    bencher.bench_local(|| d.cycle(&req(Some(WINDOW_40_ROWS))).unwrap());
 }
 
 #[divan::bench]
@@ -205,20 +206,8 @@ fn reassemble_one_full_frame(bencher: divan::Bencher) {
 
 #[divan::bench(sample_count = 20)]
 fn synth_model_2phase(bencher: divan::Bencher) {
-    let raws = [0.0, 90.0].map(|p| RawParams {
-        exposure_us: 300.0,
-        phase_deg: p,
-        illuminated: true,
-    });
-    let mut model = ModelSynth::new(
-        ModelConfig::baseline(),
-        geom(),
-        SceneScript::hand(),
-        1,
-        0.0,
-        25.0,
-    )
-    .unwrap();
+    let raws = raws_2phase();
+    let mut model = model_synth();
     let mut out = Vec::new();
     bencher.bench_local(|| model.superframe(2.0, &raws, 0, 172, &mut out).unwrap());
 }

@@ -237,12 +237,27 @@ fn start_of_cycle() -> Vec<Op> {
     ]
 }
 
-fn driver(ops: Vec<Op>) -> (SensorDriver<Scripted>, Arc<VirtualClock>) {
+/// The tiny test map on top of the emulated defaults.
+fn tiny_config() -> DriverConfig {
     let map = SensorMap::from_toml_str(MAP, "tiny").unwrap();
-    let cfg = DriverConfig {
+    DriverConfig {
         map,
         ..DriverConfig::emulated_default()
-    };
+    }
+}
+
+/// The request every scripted cycle below performs.
+const TWO_PHASE_250US: CycleRequest = CycleRequest {
+    mode: SensorMode::TwoPhase,
+    exposure_us: 250.0,
+    row_window: None,
+};
+
+fn driver(ops: Vec<Op>) -> (SensorDriver<Scripted>, Arc<VirtualClock>) {
+    driver_with(ops, tiny_config())
+}
+
+fn driver_with(ops: Vec<Op>, cfg: DriverConfig) -> (SensorDriver<Scripted>, Arc<VirtualClock>) {
     let clock = Arc::new(VirtualClock::new());
     let d = SensorDriver::new(
         Scripted {
@@ -274,13 +289,7 @@ fn two_phase_cycle_performs_exactly_the_thesis_sequence() {
     ops.extend(frame_payloads(1, 1, false));
     ops.extend([write(0x9400, &[0]), stream(false), gpio_reset(false)]);
     let (mut d, clock) = driver(ops);
-    let o = d
-        .cycle(&CycleRequest {
-            mode: SensorMode::TwoPhase,
-            exposure_us: 250.0,
-            row_window: None,
-        })
-        .unwrap();
+    let o = d.cycle(&TWO_PHASE_250US).unwrap();
     assert!(
         d.transport().ops.is_empty(),
         "not performed: {:?}",
@@ -307,13 +316,7 @@ fn nak_during_start_up_is_polled_then_stuck_sensor_is_reset_stuck() {
     // cleanup after the error: stop streaming, reset low
     ops.extend([stream(false), gpio_reset(false)]);
     let (mut d, _clock) = driver(ops);
-    let e = d
-        .cycle(&CycleRequest {
-            mode: SensorMode::TwoPhase,
-            exposure_us: 250.0,
-            row_window: None,
-        })
-        .unwrap_err();
+    let e = d.cycle(&TWO_PHASE_250US).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::ResetStuck, "{e}");
     assert!(e.to_string().contains("did not come out of reset"), "{e}");
     assert!(
@@ -327,29 +330,10 @@ fn nak_during_start_up_is_polled_then_stuck_sensor_is_reset_stuck() {
 fn empty_flash_without_write_permission_is_flash_empty_and_sensor_is_reset() {
     let mut ops = start_of_cycle();
     ops.extend([read(0xA001, Ok(3)), stream(false), gpio_reset(false)]);
-    let map = SensorMap::from_toml_str(MAP, "tiny").unwrap();
-    let mut cfg = DriverConfig {
-        map,
-        ..DriverConfig::emulated_default()
-    };
+    let mut cfg = tiny_config();
     cfg.timing.write_flash_if_missing = false;
-    let clock = Arc::new(VirtualClock::new());
-    let mut d = SensorDriver::new(
-        Scripted {
-            ops: ops.into(),
-            done: 0,
-        },
-        cfg,
-        clock,
-    )
-    .unwrap();
-    let e = d
-        .cycle(&CycleRequest {
-            mode: SensorMode::TwoPhase,
-            exposure_us: 250.0,
-            row_window: None,
-        })
-        .unwrap_err();
+    let (mut d, _clock) = driver_with(ops, cfg);
+    let e = d.cycle(&TWO_PHASE_250US).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::FlashEmpty);
     assert!(d.transport().ops.is_empty());
 }
@@ -367,13 +351,7 @@ fn i2c_nak_mid_sequence_is_a_typed_error_naming_the_register() {
     ops.push(status(protocol::status::I2C_NAK, 0xA000));
     ops.extend([stream(false), gpio_reset(false)]);
     let (mut d, _c) = driver(ops);
-    let e = d
-        .cycle(&CycleRequest {
-            mode: SensorMode::TwoPhase,
-            exposure_us: 250.0,
-            row_window: None,
-        })
-        .unwrap_err();
+    let e = d.cycle(&TWO_PHASE_250US).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Nak);
     let msg = e.to_string();
     assert!(
