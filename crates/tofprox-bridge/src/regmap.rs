@@ -12,6 +12,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{BridgeError, ErrorKind};
+use crate::flash;
 
 /// The map shipped for the emulated device (same text as
 /// `config/sensor/emulated-irs1645.toml`).
@@ -376,6 +377,26 @@ impl SensorMap {
         if !self.flash.image_address.is_multiple_of(p.sector_bytes) {
             return bad("flash.image_address", "must be sector aligned".into());
         }
+        // the image header counts pairs in a u16, and SPI NOR commands carry
+        // 3-byte addresses: a larger image or address would be written truncated
+        let pairs = self.sequences.flash_image.len();
+        if pairs > usize::from(u16::MAX) {
+            return bad(
+                "sequences.flash_image",
+                format!("{pairs} register writes, the image holds at most 65535"),
+            );
+        }
+        let image_end =
+            u64::from(self.flash.image_address) + (flash::HEADER_BYTES + 4 * pairs) as u64;
+        if image_end > 1 << 24 {
+            return bad(
+                "flash.image_address",
+                format!(
+                    "{:#x}: the image would end at {image_end:#x}, past the 24-bit SPI address space",
+                    self.flash.image_address
+                ),
+            );
+        }
         if let Some(w) = &self.row_window
             && (w.align == 0 || !s.rows.is_multiple_of(w.align))
         {
@@ -498,6 +519,13 @@ mod tests {
         let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 0");
         let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
         assert!(e.to_string().contains("sensor.adc_bits"), "{e}");
+        // SPI NOR addresses are 24 bit: an image at 16 MiB cannot be addressed
+        let bad =
+            EMULATED_MAP_TOML.replace("image_address = 0x000000", "image_address = 0x1000000");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(e.to_string().contains("24-bit SPI address"), "{e}");
+        let ok = EMULATED_MAP_TOML.replace("image_address = 0x000000", "image_address = 0x001000");
+        SensorMap::from_toml_str(&ok, "x").unwrap();
     }
 
     #[test]
