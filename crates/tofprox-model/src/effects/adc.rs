@@ -7,6 +7,9 @@ use super::fixed_pattern::{TAG_DNL, hashed_normal};
 use super::optical::fast_floor;
 use crate::config::ModelConfig;
 
+/// Front padding of the windowed DNL searches.
+const PAD: usize = 3;
+
 /// INL table spacing in LSB.
 const INL_STEP: usize = 4;
 
@@ -26,10 +29,6 @@ pub struct Adc {
     centres: Option<Vec<f64>>,
     /// 1 / (c_{k+1} − c_k) (0 for coincident centres of missing codes).
     inv_width: Option<Vec<f64>>,
-    /// Per integer level: last threshold index at or below it.
-    cell_t: Option<Vec<u32>>,
-    /// Per integer level: last centre index at or below it.
-    cell_c: Option<Vec<u32>>,
     quantize: bool,
     /// Transition levels padded with +∞ (branch-free windows of four).
     tpad: Vec<f64>,
@@ -89,8 +88,7 @@ impl Adc {
         let centres = thresholds
             .as_ref()
             .map(|t: &Vec<f64>| t.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect());
-        let n = 1usize << bits;
-        let inv_width = centres.as_ref().map(|c: &Vec<f64>| {
+        let inv_width: Option<Vec<f64>> = centres.as_ref().map(|c: &Vec<f64>| {
             c.windows(2)
                 .map(|w| {
                     if w[1] > w[0] {
@@ -102,22 +100,32 @@ impl Adc {
                 .chain(std::iter::once(0.0))
                 .collect()
         });
-        let cell_t = thresholds.as_ref().map(|t| cell_index(t, n));
-        let cell_c = centres.as_ref().map(|c| cell_index(c, n));
-        let pad = 5;
-        let tpad = thresholds
-            .iter()
-            .flatten()
-            .copied()
-            .chain(std::iter::repeat_n(f64::INFINITY, pad))
-            .collect();
-        let cpad = centres
-            .iter()
-            .flatten()
-            .copied()
-            .zip(inv_width.iter().flatten().copied())
-            .chain(std::iter::repeat_n((f64::INFINITY, 0.0), pad))
-            .collect();
+        // Padded copies for the windowed searches: index i + PAD holds level i;
+        // pads (and T_0, which no code counts) are +∞ so they never count.
+        let tpad = match &thresholds {
+            Some(t) => {
+                let mut v = vec![f64::INFINITY; t.len() + PAD + 8];
+                for (j, &tj) in t.iter().enumerate().skip(1).take(t.len().saturating_sub(2)) {
+                    if let Some(slot) = v.get_mut(j + PAD) {
+                        *slot = tj;
+                    }
+                }
+                v
+            }
+            None => Vec::new(),
+        };
+        let cpad = match (&centres, &inv_width) {
+            (Some(c), Some(inv)) => {
+                let mut v = vec![(f64::INFINITY, 0.0); c.len() + PAD + 8];
+                for (j, (&cj, &ij)) in c.iter().zip(inv.iter()).enumerate() {
+                    if let Some(slot) = v.get_mut(j + PAD) {
+                        *slot = (cj, ij);
+                    }
+                }
+                v
+            }
+            _ => Vec::new(),
+        };
         Self {
             tpad,
             cpad,
@@ -130,8 +138,6 @@ impl Adc {
             inl_table,
             centres,
             inv_width,
-            cell_t,
-            cell_c,
             quantize: model.is_enabled("quantization"),
             thresholds,
         }
@@ -177,25 +183,27 @@ impl Adc {
     /// Integer output code for a continuous level `y` (DNL table, rails).
     #[inline]
     pub fn quantize(&self, y: f64) -> f64 {
-        match (&self.thresholds, &self.cell_t) {
-            (Some(t), Some(cell)) => {
+        match &self.thresholds {
+            Some(t) => {
                 if y < 0.0 {
                     return 0.0;
                 }
                 let k = y.min(self.max_code) as usize; // y ≥ 0: truncation is floor
-                // code j ⇔ T_j ≤ y < T_{j+1}; start at the last T ≤ k, step branch-free
-                let j0 = cell.get(k).copied().unwrap_or(0) as usize;
-                // transitions are monotone: count those ≤ y in a window of three
-                // (one bounds check, independent loads, no branches)
-                let mut j = match self.tpad.get(j0 + 1..j0 + 4) {
-                    Some(&[a, b, c]) => {
-                        j0 + usize::from(a <= y) + usize::from(b <= y) + usize::from(c <= y)
+                // code = #{j ≥ 1 : T_j ≤ y}. |T_j − (j − ½)| ≤ 2, so every j ≤ k − 2 counts,
+                // none ≥ k + 4 does: compare the five in between (independent loads)
+                let before = k.saturating_sub(2);
+                let mut j = before;
+                if let Some(w) = self.tpad.get(k + PAD - 1..k + PAD + 4) {
+                    for &v in w {
+                        j += usize::from(v <= y);
                     }
-                    _ => j0,
-                };
-                // rare: more than three transitions inside one LSB (large DNL)
-                while t.get(j + 1).is_some_and(|&v| v <= y) {
-                    j += 1;
+                } else {
+                    j = t
+                        .iter()
+                        .skip(1)
+                        .take(t.len().saturating_sub(2))
+                        .filter(|&&v| v <= y)
+                        .count();
                 }
                 (j as f64).min(self.max_code)
             }
@@ -207,8 +215,8 @@ impl Adc {
     /// piecewise-linear curve through the step centres (ideal: y itself), at the rails clamped.
     #[inline]
     pub fn mean_code(&self, y: f64) -> f64 {
-        match (&self.centres, &self.cell_c, &self.inv_width) {
-            (Some(c), Some(cell), Some(inv)) => {
+        match (&self.centres, &self.inv_width) {
+            (Some(c), Some(inv)) => {
                 if y <= 0.0 {
                     return 0.0;
                 }
@@ -216,18 +224,21 @@ impl Adc {
                     return self.max_code;
                 }
                 let k = y as usize; // 0 < y < max: truncation is floor
-                let j0 = cell.get(k).copied().unwrap_or(0) as usize;
-                // centres are monotone: count those ≤ y in a window of three
-                let mut j = match self.cpad.get(j0 + 1..j0 + 4) {
-                    Some(&[(a, _), (b, _), (cc, _)]) => {
-                        j0 + usize::from(a <= y) + usize::from(b <= y) + usize::from(cc <= y)
+                // j = last centre ≤ y. |c_i − i| ≤ 2: all i ≤ k − 2 count, none ≥ k + 4
+                let mut total = k.saturating_sub(1);
+                match self.cpad.get(k + PAD - 1..k + PAD + 4) {
+                    Some(w) => {
+                        for &(v, _) in w {
+                            total += usize::from(v <= y);
+                        }
                     }
-                    _ => j0,
-                };
-                while c.get(j + 1).is_some_and(|&v| v <= y) {
-                    j += 1;
+                    None => total = c.iter().filter(|&&v| v <= y).count(),
                 }
-                let (cj, inv_j) = match self.cpad.get(j) {
+                if total == 0 {
+                    return 0.0;
+                }
+                let j = total - 1;
+                let (cj, inv_j) = match self.cpad.get(j + PAD) {
                     Some(&p) => p,
                     None => (j as f64, inv.get(j).copied().unwrap_or(0.0)),
                 };
@@ -237,19 +248,6 @@ impl Adc {
             _ => y.clamp(0.0, self.max_code),
         }
     }
-}
-
-/// For every integer level k = 0..n: the largest index j with `levels[j] ≤ k` (0 if none).
-fn cell_index(levels: &[f64], n: usize) -> Vec<u32> {
-    let mut out = Vec::with_capacity(n + 1);
-    let mut j = 0usize;
-    for k in 0..=n {
-        while levels.get(j + 1).is_some_and(|&v| v <= k as f64) {
-            j += 1;
-        }
-        out.push(j as u32);
-    }
-    out
 }
 
 #[cfg(test)]
