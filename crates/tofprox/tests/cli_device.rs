@@ -12,6 +12,14 @@ fn run(args: &[&str]) -> Output {
         .expect("run tofprox")
 }
 
+/// `tofprox device capture <args…> --out <out>`.
+fn capture(out: &std::path::Path, args: &[&str]) -> Output {
+    let mut all = vec!["device", "capture"];
+    all.extend_from_slice(args);
+    all.extend(["--out", out.to_str().unwrap()]);
+    run(&all)
+}
+
 fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
@@ -32,16 +40,7 @@ fn probe_without_device_says_so_clearly() {
 fn capture_on_real_hardware_without_device_is_a_clean_error() {
     let dir = tempfile_dir();
     let out = dir.join("rec");
-    let o = run(&[
-        "device",
-        "capture",
-        "--mode",
-        "2phase",
-        "--exposure-us",
-        "300",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = capture(&out, &["--mode", "2phase", "--exposure-us", "300"]);
     assert_eq!(o.status.code(), Some(2));
     let e = text(&o.stderr);
     assert!(
@@ -68,19 +67,18 @@ fn tempfile_dir() -> std::path::PathBuf {
 fn emulated_capture_writes_a_version_1_recording() {
     let dir = tempfile_dir();
     let out = dir.join("rec2");
-    let o = run(&[
-        "device",
-        "capture",
-        "--emulated",
-        "--mode",
-        "2phase",
-        "--exposure-us",
-        "300",
-        "--count",
-        "2",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = capture(
+        &out,
+        &[
+            "--emulated",
+            "--mode",
+            "2phase",
+            "--exposure-us",
+            "300",
+            "--count",
+            "2",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
     let rec = Recording::open(&out).unwrap();
     assert_eq!((rec.sensor().rows, rec.sensor().cols), (172, 224));
@@ -99,19 +97,18 @@ fn emulated_capture_writes_a_version_1_recording() {
 
     // grey image becomes its own dark capture; the window shrinks the frames
     let out = dir.join("rec4");
-    let o = run(&[
-        "device",
-        "capture",
-        "--emulated",
-        "--mode",
-        "4phase-grey",
-        "--exposure-us",
-        "200",
-        "--window",
-        "40,20",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = capture(
+        &out,
+        &[
+            "--emulated",
+            "--mode",
+            "4phase-grey",
+            "--exposure-us",
+            "200",
+            "--window",
+            "40,20",
+        ],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
     let rec = Recording::open(&out).unwrap();
     assert_eq!((rec.sensor().rows, rec.sensor().roi_origin), (20, [40, 0]));
@@ -127,19 +124,9 @@ fn emulated_capture_writes_a_version_1_recording() {
         vec!["--exposure-us", "1e9"],
         vec!["--mode", "3phase"],
     ] {
-        let mut args = vec![
-            "device",
-            "capture",
-            "--emulated",
-            "--mode",
-            "2phase",
-            "--exposure-us",
-            "300",
-        ];
+        let mut args = vec!["--emulated", "--mode", "2phase", "--exposure-us", "300"];
         args.extend(bad.iter().copied());
-        let p = dir.join("bad");
-        args.extend(["--out", p.to_str().unwrap()]);
-        let o = run(&args);
+        let o = capture(&dir.join("bad"), &args);
         assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", text(&o.stderr));
         assert!(!text(&o.stderr).contains("panicked"));
     }

@@ -44,6 +44,13 @@ fn run(args: &[&str]) -> Output {
         .expect("run tofprox")
 }
 
+/// `tofprox calibrate <what> examples/recording --out <out> <extra…>`.
+fn calibrate(what: &str, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["calibrate", what, "examples/recording", "--out", p(out)];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 fn p(path: &Path) -> &str {
     path.to_str().expect("utf-8 path")
 }
@@ -207,7 +214,7 @@ fn calibrate_then_process_is_within_1_cm() {
     let t = tempfile::tempdir().unwrap();
     let calib = t.path().join("calib");
     for what in ["fpn", "wiggling", "fppn"] {
-        let o = run(&["calibrate", what, "examples/recording", "--out", p(&calib)]);
+        let o = calibrate(what, &calib, &[]);
         assert_ok(&o);
     }
     let set = tofprox_format::CalibrationSet::load(&calib).unwrap();
@@ -272,22 +279,8 @@ fn calibrate_then_process_is_within_1_cm() {
 fn calibrate_merges_and_drops_stale_parts() {
     let t = tempfile::tempdir().unwrap();
     let calib = t.path().join("c");
-    assert_ok(&run(&[
-        "calibrate",
-        "fpn",
-        "examples/recording",
-        "--out",
-        p(&calib),
-    ]));
-    let o = run(&[
-        "calibrate",
-        "wiggling",
-        "examples/recording",
-        "--out",
-        p(&calib),
-        "--lut-size",
-        "64",
-    ]);
+    assert_ok(&calibrate("fpn", &calib, &[]));
+    let o = calibrate("wiggling", &calib, &["--lut-size", "64"]);
     assert_ok(&o);
     assert!(
         stdout(&o).contains("set now holds: offset, wiggling_2phase, wiggling_4phase"),
@@ -297,29 +290,13 @@ fn calibrate_merges_and_drops_stale_parts() {
     let text = fs::read_to_string(calib.join("calibration.toml")).unwrap();
     assert!(text.contains("lut_size = 64"), "{text}");
     // a new offset invalidates the wiggling tables extracted with the old one
-    let o = run(&[
-        "calibrate",
-        "fpn",
-        "examples/recording",
-        "--out",
-        p(&calib),
-        "--capture",
-        "0",
-    ]);
+    let o = calibrate("fpn", &calib, &["--capture", "0"]);
     assert_ok(&o);
     // same data gives the same offset: nothing is dropped
     assert!(!stderr(&o).contains("dropped"), "{}", stderr(&o));
     // --calib reads from one set and writes another
     let other = t.path().join("other");
-    let o = run(&[
-        "calibrate",
-        "fppn",
-        "examples/recording",
-        "--calib",
-        p(&calib),
-        "--out",
-        p(&other),
-    ]);
+    let o = calibrate("fppn", &other, &["--calib", p(&calib)]);
     assert_ok(&o);
     assert_eq!(
         tofprox_format::CalibrationSet::load(&other)
@@ -335,15 +312,7 @@ fn calibrate_merges_and_drops_stale_parts() {
         3
     );
     // new wiggling tables make both FPPN maps stale: they are dropped with a note
-    let o = run(&[
-        "calibrate",
-        "wiggling",
-        "examples/recording",
-        "--out",
-        p(&other),
-        "--lut-size",
-        "128",
-    ]);
+    let o = calibrate("wiggling", &other, &["--lut-size", "128"]);
     assert_ok(&o);
     assert!(stderr(&o).contains("dropped fppn"), "{}", stderr(&o));
     assert!(stderr(&o).contains("dropped fppn_2phase"), "{}", stderr(&o));
@@ -362,35 +331,11 @@ fn calibrate_merges_and_drops_stale_parts() {
 
 #[test]
 fn calibrate_refuses_unsuitable_captures() {
-    let o = run(&[
-        "calibrate",
-        "wiggling",
-        "examples/recording",
-        "--out",
-        "/nonexistent/x",
-        "--capture",
-        "2",
-    ]);
+    let o = calibrate("wiggling", Path::new("/nonexistent/x"), &["--capture", "2"]);
     assert_bad(&o, &["--capture 2", "correlation"]);
-    let o = run(&[
-        "calibrate",
-        "fpn",
-        "examples/recording",
-        "--out",
-        "/nonexistent/x",
-        "--capture",
-        "3",
-    ]);
+    let o = calibrate("fpn", Path::new("/nonexistent/x"), &["--capture", "3"]);
     assert_bad(&o, &["--capture 3", "illumination"]);
-    let o = run(&[
-        "calibrate",
-        "fppn",
-        "examples/recording",
-        "--out",
-        "/nonexistent/x",
-        "--capture",
-        "99",
-    ]);
+    let o = calibrate("fppn", Path::new("/nonexistent/x"), &["--capture", "99"]);
     assert_bad(&o, &["--capture 99"]);
     let t = tempfile::tempdir().unwrap();
     let rec = rec_copy(&t);
