@@ -703,3 +703,91 @@ pub fn add_effect(
         params,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cand(effect: &str, explained: f64, cv: f64, z_after: f64, dbic: f64) -> CandidateScore {
+        CandidateScore {
+            effect: effect.into(),
+            delta_bic: dbic,
+            explained_excess: explained,
+            cv_gain: cv,
+            z_after,
+            params: BTreeMap::new(),
+            fit: None,
+            nuisance: [0.0; 3],
+            structure_after: Some(2.0),
+            rms_after: None,
+            cancels_in_4phase: false,
+        }
+    }
+
+    #[test]
+    fn noise_like_residual_is_nothing_missing() {
+        let d = decide(1.5, 1.001, 3.0, &[cand("adc_inl", 0.9, 0.8, 0.5, -30.0)]);
+        assert_eq!(d.verdict, Verdict::NothingMissing);
+        assert!(d.effect.is_none());
+    }
+
+    #[test]
+    fn clear_winner_is_named() {
+        let c = [
+            cand("vcsel_droop", 0.97, 0.95, 2.0, -9e5),
+            cand("sbi_asymmetry", 0.2, 0.1, 800.0, -1e5),
+        ];
+        let d = decide(1000.0, 5.0, 3000.0, &c);
+        assert_eq!(d.verdict, Verdict::MissingEffect);
+        assert_eq!(d.effect.as_deref(), Some("vcsel_droop"));
+    }
+
+    #[test]
+    fn two_close_candidates_are_ambiguous() {
+        let c = [
+            cand("amplitude_phase_error", 0.95, 0.93, 3.0, -9e4),
+            cand("multipath", 0.93, 0.90, 3.5, -8.9e4),
+        ];
+        let d = decide(300.0, 2.0, 900.0, &c);
+        assert_eq!(d.verdict, Verdict::Ambiguous);
+        assert_eq!(d.runner_up.as_deref(), Some("multipath"));
+    }
+
+    #[test]
+    fn delta_bic_alone_names_nothing() {
+        // every candidate has a hugely negative ΔBIC but none explains most of
+        // the excess on held-out blocks: unexplained, no effect named
+        let c = [
+            cand("multipath", 0.3, 0.25, 700.0, -5e5),
+            cand("adc_inl", 0.1, -0.2, 900.0, -2e5),
+        ];
+        let d = decide(1000.0, 4.0, 5000.0, &c);
+        assert_eq!(d.verdict, Verdict::Unexplained);
+        assert!(d.effect.is_none());
+    }
+
+    #[test]
+    fn overfitting_candidate_fails_cross_validation() {
+        let c = [cand("waveform_harmonics", 0.8, -0.3, 3.0, -1e4)];
+        assert_eq!(decide(50.0, 1.3, 80.0, &c).verdict, Verdict::Unexplained);
+    }
+
+    #[test]
+    fn separating_condition_prefers_what_was_not_varied() {
+        let ds = crate::synth::generate(&crate::synth::SynthSpec {
+            rows: 2,
+            cols: 2,
+            ..Default::default()
+        });
+        let prep = Prepared::new(&ds).unwrap();
+        // temperature was not varied: it separates drift from amplitude-phase error
+        assert_eq!(
+            separating_condition("temperature_drift", "amplitude_phase_error", &prep),
+            "temperature_c"
+        );
+        assert_eq!(
+            separating_condition("sbi_asymmetry", "dark_current", &prep),
+            "ambient_klux"
+        );
+    }
+}

@@ -192,7 +192,12 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
         .collect();
     let edges = binning(&sample)?;
     let nb = edges.len() + 1;
-    let per_pixel = !matches!(cond, "column" | "adc_channel" | "row");
+    // pixel-resolved scores for the stepped conditions (few bins); the
+    // continuous ones are scored over all pixels
+    let per_pixel = matches!(
+        cond,
+        "ambient_klux" | "temperature_c" | "exposure_us" | "image_index"
+    );
     let units = if per_pixel { prep.npix } else { 1 };
     // accumulators [pixel][bin] (pixel-resolved) and [bin] (all pixels)
     let (accs, glob) = recs
