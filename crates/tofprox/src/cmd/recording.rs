@@ -495,6 +495,31 @@ fn pick_capture(
     })
 }
 
+/// [`pick_capture`] for an illuminated capture of a target at a known
+/// distance whose phases pass `phases_ok`; returns its index, metadata and
+/// `distance_m`.
+fn pick_target_capture<'r>(
+    rec: &'r Recording,
+    wanted: Option<usize>,
+    what: &str,
+    phases_ok: impl Fn(&CaptureMeta) -> Result<(), String>,
+) -> anyhow::Result<(usize, &'r CaptureMeta, f64)> {
+    let usable = |c: &CaptureMeta| {
+        if !c.illumination {
+            return Err("it is a dark capture".to_string());
+        }
+        phases_ok(c)?;
+        need_distance(c)
+    };
+    let i = pick_capture(rec, wanted, what, |c| usable(c).map(|_| ()))?;
+    let c = rec
+        .captures()
+        .get(i)
+        .with_context(|| format!("capture {i} vanished from the recording"))?;
+    let d = usable(c).map_err(anyhow::Error::msg)?;
+    Ok((i, c, d))
+}
+
 fn need_distance(c: &CaptureMeta) -> Result<f64, String> {
     match c.distance_m() {
         Some(d) if d > 0.0 => Ok(d),
@@ -576,25 +601,20 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             set.set_offset(off, source(&rec, &a.recording, idx, None))?
         }
         CalibKind::Wiggling => {
-            let i = pick_capture(
+            let (i, c, d) = pick_target_capture(
                 &rec,
                 a.capture,
                 "an illuminated correlation capture with distance_m",
                 |c| {
-                    if !c.illumination {
-                        return Err("it is a dark capture".into());
-                    }
                     if !c.is_correlation() {
                         return Err(format!(
                             "its {} phases are not ≥ 8 equally spaced steps from 0° (a correlation capture is 24 × 15°)",
                             c.phases_deg.len()
                         ));
                     }
-                    need_distance(c).map(|_| ())
+                    Ok(())
                 },
             )?;
-            let c = &rec.captures()[i];
-            let d = need_distance(c).map_err(anyhow::Error::msg)?;
             let data = rec.load(i)?.to_f64();
             if set.offset.is_none() {
                 eprintln!(
@@ -642,22 +662,17 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             dropped
         }
         CalibKind::Fppn => {
-            let i = pick_capture(
+            let (i, c, d) = pick_target_capture(
                 &rec,
                 a.capture,
                 "an illuminated 4-phase capture of a flat target with distance_m",
                 |c| {
-                    if !c.illumination {
-                        return Err("it is a dark capture".into());
-                    }
                     if !c.is_four_phase() {
                         return Err("its phases are not [0, 90, 180, 270]".into());
                     }
-                    need_distance(c).map(|_| ())
+                    Ok(())
                 },
             )?;
-            let c = &rec.captures()[i];
-            let d = need_distance(c).map_err(anyhow::Error::msg)?;
             let data = rec.load(i)?.to_f64();
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
