@@ -322,12 +322,17 @@ impl Simulator {
                         u += var.sqrt() * z;
                     }
                 }
-                let y = adc.transfer(u);
-                *o = if quantize_each && noisy {
-                    adc.quantize(y)
-                } else {
-                    adc.mean_code(y)
-                };
+                *o = u;
+            }
+            // ADC in its own pass: short independent iterations pipeline well
+            if quantize_each && noisy {
+                for o in out_k.iter_mut() {
+                    *o = adc.quantize(adc.transfer(*o));
+                }
+            } else {
+                for o in out_k.iter_mut() {
+                    *o = adc.mean_code(adc.transfer(*o));
+                }
             }
         }
         Ok(out)
