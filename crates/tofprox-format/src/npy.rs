@@ -265,27 +265,9 @@ pub fn decode(bytes: &[u8]) -> Result<NpyArray, FormatError> {
     let shape = IxDyn(&header.shape);
     let err = |e: ndarray::ShapeError| npy_err(format!("shape error: {e}"));
     Ok(match header.dtype {
-        Dtype::U16 => {
-            let v: Vec<u16> = data
-                .chunks_exact(2)
-                .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                .collect();
-            NpyArray::U16(ArrayD::from_shape_vec(shape, v).map_err(err)?)
-        }
-        Dtype::F32 => {
-            let v: Vec<f32> = data
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect();
-            NpyArray::F32(ArrayD::from_shape_vec(shape, v).map_err(err)?)
-        }
-        Dtype::F64 => {
-            let v: Vec<f64> = data
-                .chunks_exact(8)
-                .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
-                .collect();
-            NpyArray::F64(ArrayD::from_shape_vec(shape, v).map_err(err)?)
-        }
+        Dtype::U16 => NpyArray::U16(ArrayD::from_shape_vec(shape, decode_le(data)).map_err(err)?),
+        Dtype::F32 => NpyArray::F32(ArrayD::from_shape_vec(shape, decode_le(data)).map_err(err)?),
+        Dtype::F64 => NpyArray::F64(ArrayD::from_shape_vec(shape, decode_le(data)).map_err(err)?),
     })
 }
 
@@ -326,18 +308,61 @@ pub fn encode(shape: &[usize], dtype: Dtype, data_le: impl FnOnce(&mut Vec<u8>))
     out
 }
 
+/// An element type `.npy` files hold, little endian.
+trait LeElem: Copy {
+    const DTYPE: Dtype;
+    /// Append the little-endian bytes.
+    fn put_le(self, out: &mut Vec<u8>);
+    /// Read from exactly `DTYPE.size()` bytes.
+    fn from_le(b: &[u8]) -> Self;
+}
+
+macro_rules! le_elem {
+    ($t:ty, $dtype:expr) => {
+        impl LeElem for $t {
+            const DTYPE: Dtype = $dtype;
+            fn put_le(self, out: &mut Vec<u8>) {
+                out.extend_from_slice(&self.to_le_bytes());
+            }
+            fn from_le(b: &[u8]) -> Self {
+                let mut a = [0u8; std::mem::size_of::<$t>()];
+                a.copy_from_slice(b);
+                <$t>::from_le_bytes(a)
+            }
+        }
+    };
+}
+le_elem!(u16, Dtype::U16);
+le_elem!(f32, Dtype::F32);
+le_elem!(f64, Dtype::F64);
+
+/// The data bytes as elements (`data` holds whole elements: `check_size` ran).
+fn decode_le<T: LeElem>(data: &[u8]) -> Vec<T> {
+    data.chunks_exact(T::DTYPE.size()).map(T::from_le).collect()
+}
+
+/// Encode an array of any element type in C order.
+fn encode_le<T, S, D>(a: &ndarray::ArrayBase<S, D>) -> Vec<u8>
+where
+    T: LeElem,
+    S: ndarray::Data<Elem = T>,
+    D: ndarray::Dimension,
+{
+    encode(a.shape(), T::DTYPE, |out| {
+        out.reserve(a.len() * T::DTYPE.size());
+        for &v in a.iter() {
+            v.put_le(out);
+        }
+    })
+}
+
 /// Encode a `u16` array (any dimension) in C order.
 pub fn encode_u16<S, D>(a: &ndarray::ArrayBase<S, D>) -> Vec<u8>
 where
     S: ndarray::Data<Elem = u16>,
     D: ndarray::Dimension,
 {
-    encode(a.shape(), Dtype::U16, |out| {
-        out.reserve(a.len() * 2);
-        for v in a.iter() {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    })
+    encode_le(a)
 }
 
 /// Encode an `f32` array (any dimension) in C order.
@@ -346,12 +371,7 @@ where
     S: ndarray::Data<Elem = f32>,
     D: ndarray::Dimension,
 {
-    encode(a.shape(), Dtype::F32, |out| {
-        out.reserve(a.len() * 4);
-        for v in a.iter() {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    })
+    encode_le(a)
 }
 
 /// Encode an `f64` array (any dimension) in C order.
@@ -360,12 +380,7 @@ where
     S: ndarray::Data<Elem = f64>,
     D: ndarray::Dimension,
 {
-    encode(a.shape(), Dtype::F64, |out| {
-        out.reserve(a.len() * 8);
-        for v in a.iter() {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    })
+    encode_le(a)
 }
 
 /// Write bytes to `path` (not crash safe; see `crate::fsutil::write_atomic`).
