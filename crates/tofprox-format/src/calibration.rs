@@ -20,7 +20,7 @@ use tofprox_core::Algorithm;
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::pipeline::Calibration;
 
-use crate::error::{ErrorKind, FormatError, from_toml, invalid};
+use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
 use crate::fsutil;
 use crate::npy::{self, NpyArray, shape_str};
 use crate::recording::SensorInfo;
@@ -186,12 +186,6 @@ struct Deps {
 }
 
 // ---------------------------------------------------------------- TOML schema
-
-#[derive(Debug, Deserialize)]
-struct Header {
-    format: Option<toml::Value>,
-    version: Option<toml::Value>,
-}
 
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -832,38 +826,14 @@ enum LoadedArray {
 }
 
 fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
-    let header: Header = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
-    match &header.format {
-        None => {
-            return Err(FormatError::new(
-                ErrorKind::MissingKey,
-                format!("missing; a calibration set starts with format = \"{CALIBRATION_FORMAT}\""),
-            )
-            .at(path)
-            .key("format"));
-        }
-        Some(toml::Value::String(s)) if s == CALIBRATION_FORMAT => {}
-        Some(v) => {
-            return Err(FormatError::new(
-                ErrorKind::Unsupported,
-                format!("{v} is not a tofprox calibration set (expected \"{CALIBRATION_FORMAT}\")"),
-            )
-            .at(path)
-            .key("format"));
-        }
-    }
-    match &header.version {
-        None => Err(FormatError::new(ErrorKind::MissingKey, "missing (expected 1)")
-            .at(path)
-            .key("version")),
-        Some(toml::Value::Integer(CALIBRATION_VERSION)) => Ok(()),
-        Some(v) => Err(FormatError::new(
-            ErrorKind::Unsupported,
-            format!("calibration format version {v} is not supported (this tofprox reads version {CALIBRATION_VERSION})"),
-        )
-        .at(path)
-        .key("version")),
-    }
+    check_format_header(
+        path,
+        text,
+        CALIBRATION_FORMAT,
+        CALIBRATION_VERSION,
+        "calibration set",
+        "calibration",
+    )
 }
 
 fn load_part(

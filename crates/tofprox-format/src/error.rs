@@ -178,3 +178,60 @@ pub(crate) fn from_toml(path: &Path, text: &str, err: &toml::de::Error) -> Forma
     }
     out.at(path)
 }
+
+/// The `format` and `version` keys of a TOML file, read before anything else.
+#[derive(serde::Deserialize)]
+struct FormatHeader {
+    format: Option<toml::Value>,
+    version: Option<toml::Value>,
+}
+
+/// Check `format = "<format>"` and `version = <version>` first, so that
+/// another file or a newer version is reported as such rather than as a list
+/// of unknown keys. `what` names the file in messages (`recording`,
+/// `calibration set`), `version_of` the format (`recording`, `calibration`).
+pub(crate) fn check_format_header(
+    path: &Path,
+    text: &str,
+    format: &str,
+    version: i64,
+    what: &str,
+    version_of: &str,
+) -> Result<(), FormatError> {
+    let header: FormatHeader = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    match &header.format {
+        None => {
+            return Err(FormatError::new(
+                ErrorKind::MissingKey,
+                format!("missing; a {what} starts with format = \"{format}\""),
+            )
+            .at(path)
+            .key("format"));
+        }
+        Some(toml::Value::String(s)) if s == format => {}
+        Some(v) => {
+            return Err(FormatError::new(
+                ErrorKind::Unsupported,
+                format!("{v} is not a tofprox {what} (expected \"{format}\")"),
+            )
+            .at(path)
+            .key("format"));
+        }
+    }
+    match &header.version {
+        None => Err(
+            FormatError::new(ErrorKind::MissingKey, format!("missing (expected {version})"))
+                .at(path)
+                .key("version"),
+        ),
+        Some(toml::Value::Integer(v)) if *v == version => Ok(()),
+        Some(v) => Err(FormatError::new(
+            ErrorKind::Unsupported,
+            format!(
+                "{version_of} format version {v} is not supported (this tofprox reads version {version})"
+            ),
+        )
+        .at(path)
+        .key("version")),
+    }
+}

@@ -10,7 +10,7 @@ use ndarray::{Array3, ArrayBase, Data, Ix3};
 use serde::de::{self, Deserializer, Visitor};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ErrorKind, FormatError, from_toml, invalid};
+use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
 use crate::fsutil;
 use crate::npy::{self, Dtype, NpyArray, shape_str};
 
@@ -361,12 +361,6 @@ impl<'de> Deserialize<'de> for Num {
     }
 }
 
-#[derive(Debug, Deserialize)]
-struct Header {
-    format: Option<toml::Value>,
-    version: Option<toml::Value>,
-}
-
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RecordingToml {
@@ -654,44 +648,14 @@ type Parsed = (SensorInfo, Option<String>, Vec<CaptureMeta>);
 fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
     // format and version first, so that another file or a newer version is
     // reported as such rather than as a list of unknown keys.
-    let header: Header = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
-    match &header.format {
-        None => {
-            return Err(FormatError::new(
-                ErrorKind::MissingKey,
-                format!("missing; a recording starts with format = \"{RECORDING_FORMAT}\""),
-            )
-            .at(path)
-            .key("format"));
-        }
-        Some(toml::Value::String(s)) if s == RECORDING_FORMAT => {}
-        Some(v) => {
-            return Err(FormatError::new(
-                ErrorKind::Unsupported,
-                format!("{v} is not a tofprox recording (expected \"{RECORDING_FORMAT}\")"),
-            )
-            .at(path)
-            .key("format"));
-        }
-    }
-    match &header.version {
-        None => {
-            return Err(
-                FormatError::new(ErrorKind::MissingKey, "missing (expected 1)")
-                    .at(path)
-                    .key("version"),
-            );
-        }
-        Some(toml::Value::Integer(RECORDING_VERSION)) => {}
-        Some(v) => {
-            return Err(FormatError::new(
-                ErrorKind::Unsupported,
-                format!("recording format version {v} is not supported (this tofprox reads version {RECORDING_VERSION})"),
-            )
-            .at(path)
-            .key("version"));
-        }
-    }
+    check_format_header(
+        path,
+        text,
+        RECORDING_FORMAT,
+        RECORDING_VERSION,
+        "recording",
+        "recording",
+    )?;
     let raw: RecordingToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
     let sensor = raw.sensor.to_info();
     sensor.validate().map_err(|e| e.at(path))?;
