@@ -507,18 +507,39 @@ impl<T: UsbTransport> SensorDriver<T> {
         what: &str,
         mut done: impl FnMut(u16) -> bool,
     ) -> Result<u16, BridgeError> {
+        self.poll_until(
+            timeout,
+            |d| {
+                let v = d.read_reg(reg)?;
+                Ok(if done(v) { Ok(v) } else { Err(v) })
+            },
+            |v| {
+                BridgeError::new(
+                    ErrorKind::Timeout,
+                    format!("{what}: register {reg:#06x} still {v:#06x} after {timeout:?}"),
+                )
+            },
+        )
+    }
+
+    /// Run `step` until it gives `Ok(done)`, sleeping the poll interval
+    /// between attempts; after `timeout` the last `Err(pending)` becomes the
+    /// error `timed_out` builds. Errors of `step` itself end the poll at once.
+    fn poll_until<V, P>(
+        &mut self,
+        timeout: Duration,
+        mut step: impl FnMut(&mut Self) -> Result<Result<V, P>, BridgeError>,
+        timed_out: impl FnOnce(P) -> BridgeError,
+    ) -> Result<V, BridgeError> {
         let deadline = self.clock.now() + timeout;
         let poll = us(self.cfg.timing.poll_interval_us);
         loop {
-            let v = self.read_reg(reg)?;
-            if done(v) {
-                return Ok(v);
-            }
+            let pending = match step(self)? {
+                Ok(done) => return Ok(done),
+                Err(pending) => pending,
+            };
             if self.clock.now() >= deadline {
-                return Err(BridgeError::new(
-                    ErrorKind::Timeout,
-                    format!("{what}: register {reg:#06x} still {v:#06x} after {timeout:?}"),
-                ));
+                return Err(timed_out(pending));
             }
             self.clock.sleep(poll);
         }
@@ -541,25 +562,26 @@ impl<T: UsbTransport> SensorDriver<T> {
             self.cfg.map.sensor.chip_id_register,
             self.cfg.map.sensor.chip_id_value,
         );
-        let deadline = self.clock.now() + ms(t.startup_timeout_ms);
-        loop {
-            let last = match self.read_reg(reg) {
-                Ok(v) if v == want => return Ok(()),
-                Ok(v) => format!("chip id {v:#06x}, expected {want:#06x}"),
-                Err(e) if e.kind() == ErrorKind::Nak => "not answering on I2C (NAK)".to_string(),
-                Err(e) => return Err(e.context_prefix("start-up: chip id")),
-            };
-            if self.clock.now() >= deadline {
-                return Err(BridgeError::new(
+        self.poll_until(
+            ms(t.startup_timeout_ms),
+            |d| match d.read_reg(reg) {
+                Ok(v) if v == want => Ok(Ok(())),
+                Ok(v) => Ok(Err(format!("chip id {v:#06x}, expected {want:#06x}"))),
+                Err(e) if e.kind() == ErrorKind::Nak => {
+                    Ok(Err("not answering on I2C (NAK)".to_string()))
+                }
+                Err(e) => Err(e.context_prefix("start-up: chip id")),
+            },
+            |last| {
+                BridgeError::new(
                     ErrorKind::ResetStuck,
                     format!(
                         "sensor did not come out of reset within {} ms: {last}",
                         t.startup_timeout_ms
                     ),
-                ));
-            }
-            self.clock.sleep(us(t.poll_interval_us));
-        }
+                )
+            },
+        )
     }
 
     /// Issue the flash load command and wait for its status.
@@ -635,22 +657,24 @@ impl<T: UsbTransport> SensorDriver<T> {
     }
 
     fn spi_wait_ready(&mut self, timeout: Duration, what: &str) -> Result<(), BridgeError> {
-        let deadline = self.clock.now() + timeout;
-        let poll = us(self.cfg.timing.poll_interval_us);
-        loop {
-            let rx = self.spi_transfer(&[flash::CMD_RDSR, 0], true)?;
-            let sr = rx.get(1).copied().unwrap_or(0xFF);
-            if sr & flash::SR_WIP == 0 {
-                return Ok(());
-            }
-            if self.clock.now() >= deadline {
-                return Err(BridgeError::new(
+        self.poll_until(
+            timeout,
+            |d| {
+                let rx = d.spi_transfer(&[flash::CMD_RDSR, 0], true)?;
+                let sr = rx.get(1).copied().unwrap_or(0xFF);
+                Ok(if sr & flash::SR_WIP == 0 {
+                    Ok(())
+                } else {
+                    Err(sr)
+                })
+            },
+            |sr| {
+                BridgeError::new(
                     ErrorKind::Timeout,
                     format!("{what}: flash still busy (status {sr:#04x}) after {timeout:?}"),
-                ));
-            }
-            self.clock.sleep(poll);
-        }
+                )
+            },
+        )
     }
 
     /// Write the full configuration image to flash through the SPI
