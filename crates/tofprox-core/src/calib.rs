@@ -408,7 +408,8 @@ fn check_common(distance_m: f64, modulation_hz: f64, adc_bits: u8) -> Result<(),
     Ok(())
 }
 
-fn check_offset(
+/// The dark frame (if any) matches `rows × cols` and is finite.
+pub(crate) fn check_offset(
     offset: Option<&OffsetCalibration>,
     rows: usize,
     cols: usize,

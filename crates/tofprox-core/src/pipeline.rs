@@ -29,7 +29,7 @@
 //! `as` (saturating casts do not vectorise). No threads: one core per frame
 //! (`cargo bench -p tofprox-core --bench pipeline`).
 
-use crate::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
 use crate::fastmath::atan2_poly;
 use crate::phasor::{self, wrap_to_pi};
 use crate::{Algorithm, CoreError};
@@ -312,19 +312,8 @@ impl Pipeline {
     pub fn set_calibration(&mut self, calibration: Calibration) -> Result<(), CoreError> {
         let shape = (self.rows, self.cols);
         let mut dark = vec![self.config.mid_code(); self.rows * self.cols];
+        check_offset(calibration.offset.as_ref(), self.rows, self.cols)?;
         if let Some(off) = &calibration.offset {
-            if off.dark_lsb.dim() != shape {
-                return Err(CoreError::shape(
-                    "offset calibration (dark_lsb)",
-                    format!("{shape:?}"),
-                    format!("{:?}", off.dark_lsb.dim()),
-                ));
-            }
-            if off.dark_lsb.iter().any(|v| !v.is_finite()) {
-                return Err(CoreError::Calibration(
-                    "offset calibration contains non-finite values".into(),
-                ));
-            }
             for (d, v) in dark.iter_mut().zip(off.dark_lsb.iter()) {
                 *d = *v;
             }
