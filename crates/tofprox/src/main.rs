@@ -51,6 +51,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    restore_default_sigpipe();
     let cli = Cli::parse();
     let filter = match cli.verbose {
         0 => "warn",
@@ -87,5 +88,16 @@ fn main() -> ExitCode {
             eprintln!("error: {err:#}");
             ExitCode::from(2)
         }
+    }
+}
+
+/// `tofprox … | head` must end quietly when the reader goes away, as other
+/// Unix tools do, instead of panicking on EPIPE inside `println!`: Rust
+/// ignores SIGPIPE by default, so restore the default action.
+fn restore_default_sigpipe() {
+    // SAFETY: called once at start-up before any thread exists; SIG_DFL is a
+    // valid disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
