@@ -28,6 +28,14 @@ fn capture(
     })
 }
 
+/// Phase of one pixel's offset-free samples as `algo` measures it (eq. 2.2 / eq. 2.3).
+fn measured_phase(algo: Algorithm, u: &[f64]) -> f64 {
+    match algo {
+        Algorithm::TwoPhase => tofprox_core::phasor::phase_2phase(u[0], u[1]),
+        Algorithm::FourPhase => tofprox_core::phasor::phase_4phase(u[0], u[1], u[2], u[3]),
+    }
+}
+
 #[test]
 fn offset_is_per_pixel_mean_and_rejects_bad_input() {
     let dark = Array3::from_shape_fn((3, 2, 2), |(k, r, c)| {
@@ -84,12 +92,7 @@ fn lut_inverts_a_distorted_correlation_for_any_capture_distance() {
                 let true_tof = TAU * i as f64 / 97.0;
                 let target = capture(1, 1, algo.phases_deg(), true_tof + delay, |_, _| 0.0, 0.08);
                 let u: Vec<f64> = target.iter().map(|v| v - 2048.0).collect();
-                let m = match algo {
-                    Algorithm::TwoPhase => tofprox_core::phasor::phase_2phase(u[0], u[1]),
-                    Algorithm::FourPhase => {
-                        tofprox_core::phasor::phase_4phase(u[0], u[1], u[2], u[3])
-                    }
-                };
+                let m = measured_phase(algo, &u);
                 let err = wrap_to_pi(lut.correct(m) - true_tof);
                 assert!(
                     err.abs() < 2e-4,
@@ -309,12 +312,7 @@ fn lut_from_any_equally_spaced_phase_count() {
                 let true_tof = TAU * i as f64 / 41.0;
                 let t = capture(1, 1, algo.phases_deg(), true_tof + delay, |_, _| 0.0, 0.06);
                 let u: Vec<f64> = t.iter().map(|v| v - 2048.0).collect();
-                let m = match algo {
-                    Algorithm::TwoPhase => tofprox_core::phasor::phase_2phase(u[0], u[1]),
-                    Algorithm::FourPhase => {
-                        tofprox_core::phasor::phase_4phase(u[0], u[1], u[2], u[3])
-                    }
-                };
+                let m = measured_phase(algo, &u);
                 let err = wrap_to_pi(lut.correct(m) - true_tof);
                 assert!(err.abs() < 5e-4, "N {n} {algo}: err {err} at {true_tof}");
             }
