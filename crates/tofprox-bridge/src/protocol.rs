@@ -394,6 +394,15 @@ impl Cx3 {
         reg: u16,
         count: usize,
     ) -> Result<Vec<u16>, BridgeError> {
+        // checked before allocating: `count` may come straight from a user
+        if usize::from(reg)
+            .checked_add(count)
+            .is_none_or(|end| end > 0x1_0000)
+        {
+            return Err(BridgeError::config(format!(
+                "I2C read of {count} registers from {reg:#06x} runs past register 0xffff"
+            )));
+        }
         let mut out = Vec::with_capacity(count);
         let step = self.cfg.max_read_words.max(1);
         let mut done = 0usize;
@@ -568,6 +577,52 @@ mod tests {
             hex(&encode_gpio(&c, 3, true).wire_bytes()),
             "40 22 03 00 01 00 00 00"
         );
+    }
+
+    /// A transport that must never be used: the request is refused first.
+    struct Untouched;
+    impl UsbTransport for Untouched {
+        fn control_in(
+            &mut self,
+            _: ControlSetup,
+            _: &mut [u8],
+            _: Duration,
+        ) -> Result<usize, BridgeError> {
+            panic!("control_in on a refused request")
+        }
+        fn control_out(
+            &mut self,
+            _: ControlSetup,
+            _: &[u8],
+            _: Duration,
+        ) -> Result<usize, BridgeError> {
+            panic!("control_out on a refused request")
+        }
+        fn bulk_in(&mut self, _: u8, _: &mut [u8], _: Duration) -> Result<usize, BridgeError> {
+            panic!("bulk_in on a refused request")
+        }
+        fn bulk_out(&mut self, _: u8, _: &[u8], _: Duration) -> Result<usize, BridgeError> {
+            panic!("bulk_out on a refused request")
+        }
+        fn clear_halt(&mut self, _: u8) -> Result<(), BridgeError> {
+            panic!("clear_halt on a refused request")
+        }
+        fn reopen(&mut self) -> Result<(), BridgeError> {
+            panic!("reopen on a refused request")
+        }
+        fn describe(&self) -> String {
+            "untouched".into()
+        }
+    }
+
+    #[test]
+    fn oversized_register_reads_are_refused_before_any_transfer() {
+        let cx3 = Cx3::new(ProtocolConfig::default()).unwrap();
+        for (reg, count) in [(0u16, usize::MAX), (0xFFFF, 2), (1, 0x1_0000)] {
+            let e = cx3.i2c_read(&mut Untouched, 0x3D, reg, count).unwrap_err();
+            assert_eq!(e.kind(), ErrorKind::Config, "{reg:#x} +{count}: {e}");
+            assert!(e.to_string().contains("past register 0xffff"), "{e}");
+        }
     }
 
     #[test]
