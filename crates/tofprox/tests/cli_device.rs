@@ -165,6 +165,22 @@ fn register_peek_and_poke_on_the_emulated_device() {
         "2",
     ]);
     assert_eq!(o.status.code(), Some(2));
+    // a count that overflows the register range is refused, not a panic
+    let o = run(&[
+        "device",
+        "reg",
+        "--emulated",
+        "read",
+        "a0a4",
+        "--count",
+        &usize::MAX.to_string(),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("stay below 0x10000"),
+        "{}",
+        text(&o.stderr)
+    );
     let o = run(&["device", "reset", "hold"]);
     assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("no matching device found"));

@@ -316,7 +316,11 @@ fn reg_cmd(a: RegArgs) -> anyhow::Result<ExitCode> {
     }
     match a.op {
         RegOp::Read { reg, count, json } => {
-            if count == 0 || usize::from(reg) + count > 0x1_0000 {
+            if count == 0
+                || usize::from(reg)
+                    .checked_add(count)
+                    .is_none_or(|end| end > 0x1_0000)
+            {
                 bail!(
                     "--count {count} from register {reg:#06x}: must be 1.. and stay below 0x10000"
                 );
