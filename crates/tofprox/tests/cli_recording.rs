@@ -445,48 +445,47 @@ fn bad_frames_files() {
 #[test]
 fn bad_recording_toml() {
     let toml = |r: &Path| r.join("recording.toml");
-    broken(
-        |r| edit(&toml(r), "adc_bits = 12\n", ""),
+    // one edit of the example's recording.toml, then `broken`
+    let broken_toml =
+        |from: &str, to: &str, needles: &[&str]| broken(|r| edit(&toml(r), from, to), needles);
+    broken_toml(
+        "adc_bits = 12\n",
+        "",
         &["recording.toml", "missing field `adc_bits`"],
     );
-    broken(
-        |r| edit(&toml(r), "averaged = 64\n", "averaged = 64\ngain = 2\n"),
+    broken_toml(
+        "averaged = 64\n",
+        "averaged = 64\ngain = 2\n",
         &["recording.toml", "unknown field `gain`"],
     );
-    broken(
-        |r| {
-            edit(
-                &toml(r),
-                "format = \"tofprox-recording\"",
-                "format = \"something\"",
-            )
-        },
+    broken_toml(
+        "format = \"tofprox-recording\"",
+        "format = \"something\"",
         &["recording.toml", "format", "not a tofprox recording"],
     );
-    broken(
-        |r| edit(&toml(r), "version = 1", "version = 3"),
+    broken_toml(
+        "version = 1",
+        "version = 3",
         &["recording.toml", "version", "version 3 is not supported"],
     );
-    broken(
-        |r| {
-            edit(
-                &toml(r),
-                "phases_deg = [0.0, 90.0]\n",
-                "phases_deg = [0.0, 90.0, 180.0, 270.0]\n",
-            )
-        },
+    broken_toml(
+        "phases_deg = [0.0, 90.0]\n",
+        "phases_deg = [0.0, 90.0, 180.0, 270.0]\n",
         &["000007.npy", "capture[7].frames", "phases_deg lists 4"],
     );
-    broken(
-        |r| edit(&toml(r), "rows = 16", "rows = 8"),
+    broken_toml(
+        "rows = 16",
+        "rows = 8",
         &["000000.npy", "sensor window is 8×16"],
     );
-    broken(
-        |r| edit(&toml(r), "adc_bits = 12", "adc_bits = 40"),
+    broken_toml(
+        "adc_bits = 12",
+        "adc_bits = 40",
         &["recording.toml", "sensor.adc_bits"],
     );
-    broken(
-        |r| edit(&toml(r), "distance_m = 0.5", "distance_m = \"far\""),
+    broken_toml(
+        "distance_m = 0.5",
+        "distance_m = \"far\"",
         &["recording.toml", "distance_m"],
     );
     broken(
