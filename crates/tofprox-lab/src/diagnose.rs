@@ -299,7 +299,8 @@ pub fn diagnose(
     progress: Progress<'_>,
 ) -> Result<Diagnosis, LabError> {
     let spec = &cmp.model.spec;
-    let excess = (cmp.chi2 - cmp.dof).max(1e-9);
+    let mut excess = (cmp.chi2 - cmp.dof).max(1e-9);
+    let noise_known = cmp.model.noise.from_repeats;
     let mut skipped = Vec::new();
     let ids: Vec<&str> = SIGNATURE_IDS
         .iter()
@@ -356,6 +357,23 @@ pub fn diagnose(
         match f {
             Ok(c) => cands.push(c),
             Err(e) => tracing::warn!("candidate failed: {e}"),
+        }
+    }
+    if !noise_known {
+        // Without repeated captures the noise was estimated from residuals
+        // that contain the structure, so χ² − dof understates the excess:
+        // measure shares against the best explanation instead.
+        let best = cands
+            .iter()
+            .map(|c| c.explained_excess * excess)
+            .fold(0.0f64, f64::max);
+        if best > excess {
+            let f = excess / best;
+            for c in &mut cands {
+                c.explained_excess *= f;
+                c.cv_gain *= f;
+            }
+            excess = best;
         }
     }
     cands.sort_by(|a, b| {
@@ -426,6 +444,10 @@ pub fn diagnose(
     progress("candidates", 1.0);
     let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
     let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, &cands);
+    if !noise_known && d.verdict == Verdict::NothingMissing && struct_base > STRUCTURE_NULL {
+        // the global z is not trustworthy without repeats; structure decides
+        d = decide(f64::INFINITY, f64::INFINITY, struct_base, &cands);
+    }
     let remaining_structure = if d.verdict == Verdict::Unexplained
         && cands.first().is_some_and(|c| c.explained_excess > 0.3)
     {

@@ -143,3 +143,48 @@ fn add_makes_the_error_fall() {
     assert!(out.after.rms.depth_4phase_mm <= 1.3 * c.rms.depth_4phase_mm);
     assert!(out.after.fit.chi2_per_dof < out.before.fit.chi2_per_dof);
 }
+
+#[test]
+fn without_repeats_and_darks_the_lab_still_gives_a_verdict() {
+    // no repeated captures (noise from residuals) and no dark captures
+    // (offsets from the 4-phase means): a clear hidden effect is still named
+    let mut ds = generate(&SynthSpec {
+        seed: 20,
+        repeats: 1,
+        hidden: vec![Hidden::Harmonic {
+            h: 5,
+            re: 0.03,
+            im: 0.0,
+        }],
+        ..SynthSpec::default()
+    });
+    ds.captures.retain(|c| c.illumination);
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, &spec(), &|_, _| {}).unwrap();
+    assert!(!cmp.model.noise.from_repeats);
+    let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
+    assert_eq!(
+        d.effect.as_deref(),
+        Some("waveform_harmonics"),
+        "{}",
+        d.reason
+    );
+}
+
+#[test]
+fn a_recording_without_ground_truth_is_an_error_not_a_panic() {
+    let mut ds = generate(&SynthSpec {
+        seed: 21,
+        ..SynthSpec::default()
+    });
+    for c in &mut ds.captures {
+        c.distance_m = None;
+    }
+    assert!(Prepared::new(&ds).is_err());
+    let mut ds = generate(&SynthSpec {
+        seed: 22,
+        ..SynthSpec::default()
+    });
+    ds.captures[3].frames[[0, 0, 0]] = f64::NAN;
+    assert!(Prepared::new(&ds).is_err());
+}
