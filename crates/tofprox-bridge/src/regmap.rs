@@ -18,6 +18,9 @@ use crate::flash;
 /// `config/sensor/emulated-irs1645.toml`).
 pub const EMULATED_MAP_TOML: &str = include_str!("../../../config/sensor/emulated-irs1645.toml");
 
+/// Largest pixel array a sensor map may describe (4096 × 4096).
+pub const MAX_PIXELS: u32 = 1 << 24;
+
 /// One register write: `[register, value]`.
 pub type RegWrite = [u16; 2];
 
@@ -302,6 +305,17 @@ impl SensorMap {
         if s.rows == 0 || s.cols == 0 {
             return bad("sensor.rows/cols", "must be > 0".into());
         }
+        // frame buffers are sized from these: refuse what no ToF array has
+        // (the IRS1645 is 172 × 224) instead of failing to allocate gigabytes
+        if u32::from(s.rows) * u32::from(s.cols) > MAX_PIXELS {
+            return bad(
+                "sensor.rows/cols",
+                format!(
+                    "{} × {} pixels, at most {MAX_PIXELS} (a 4096 × 4096 array)",
+                    s.rows, s.cols
+                ),
+            );
+        }
         if s.status_line && s.cols < 10 {
             return bad("sensor.status_line", "needs at least 10 columns".into());
         }
@@ -519,6 +533,10 @@ mod tests {
         let bad = EMULATED_MAP_TOML.replace("adc_bits = 12", "adc_bits = 0");
         let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
         assert!(e.to_string().contains("sensor.adc_bits"), "{e}");
+        let bad = EMULATED_MAP_TOML.replace("cols = 224", "cols = 65535");
+        let bad = bad.replace("rows = 172", "rows = 65535");
+        let e = SensorMap::from_toml_str(&bad, "x").unwrap_err();
+        assert!(e.to_string().contains("sensor.rows/cols"), "{e}");
         // SPI NOR addresses are 24 bit: an image at 16 MiB cannot be addressed
         let bad =
             EMULATED_MAP_TOML.replace("image_address = 0x000000", "image_address = 0x1000000");
