@@ -1,16 +1,12 @@
 //! End-to-end tests of `tofprox device probe` and `tofprox device capture`
 //! (emulated device; this machine has no USB stack and no CX3).
 
-use std::process::{Command, Output};
+use std::process::Output;
 
 use tofprox_format::{RawFrames, Recording};
 
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tofprox"))
-        .args(args)
-        .output()
-        .expect("run tofprox")
-}
+mod common;
+use common::{run, text};
 
 /// `tofprox device capture <args…> --out <out>`.
 fn capture(out: &std::path::Path, args: &[&str]) -> Output {
@@ -18,10 +14,6 @@ fn capture(out: &std::path::Path, args: &[&str]) -> Output {
     all.extend_from_slice(args);
     all.extend(["--out", out.to_str().unwrap()]);
     run(&all)
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
 }
 
 #[test]

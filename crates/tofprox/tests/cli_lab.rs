@@ -4,16 +4,10 @@
 //! and writes a loadable model, the report is one self-contained HTML file, and
 //! bad input exits 2 with a message (never a panic).
 use std::path::Path;
-use std::process::{Command, Output};
-
 use tofprox_model::ModelConfig;
 
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tofprox"))
-        .args(args)
-        .output()
-        .expect("run tofprox")
-}
+mod common;
+use common::{run, text};
 
 fn simulate(dir: &Path) -> (String, String, String) {
     let mut truth = ModelConfig::baseline();
@@ -37,13 +31,14 @@ fn simulate(dir: &Path) -> (String, String, String) {
         "2",
         "--averaged",
         "16",
-        "--window", "78,104,16,16",
+        "--window",
+        "78,104,16,16",
         "--seed",
         "21",
         "--out",
         rec.to_str().unwrap(),
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{}", text(&o.stderr));
     (
         rec.to_string_lossy().into(),
         base_p.to_string_lossy().into(),
@@ -66,7 +61,7 @@ fn diagnose_add_report_end_to_end() {
         "--report",
         html.to_str().unwrap(),
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{}", text(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["verdict"], "missing_effect");
     assert_eq!(v["effect"], "vcsel_droop");
@@ -110,7 +105,7 @@ fn diagnose_add_report_end_to_end() {
         m2.to_str().unwrap(),
         "--json",
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.status.success(), "{}", text(&o.stderr));
     let a: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(a["effect"], "vcsel_droop");
     let before = a["before"]["raw_lsb"].as_f64().unwrap();
@@ -152,7 +147,7 @@ fn bad_input_exits_2_with_a_message() {
         base.to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("error:"));
+    assert!(text(&o.stderr).contains("error:"));
     let o = run(&[
         "lab",
         "add",
@@ -163,13 +158,13 @@ fn bad_input_exits_2_with_a_message() {
         "x",
     ]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no_such_effect"));
+    assert!(text(&o.stderr).contains("no_such_effect"));
     let bad = tmp.path().join("bad.toml");
     std::fs::write(&bad, "[effects.not_an_effect]\nenabled = true\n").unwrap();
     let o = run(&["lab", "compare", "x", "--model", bad.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(!String::from_utf8_lossy(&o.stderr).contains("panicked"));
+    assert!(!text(&o.stderr).contains("panicked"));
     let o = run(&["lab", "effects"]);
     assert!(o.status.success());
-    assert!(String::from_utf8_lossy(&o.stdout).contains("sbi_asymmetry"));
+    assert!(text(&o.stdout).contains("sbi_asymmetry"));
 }
