@@ -7,7 +7,8 @@ use serde::Serialize;
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{
-    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, SPEED_OF_LIGHT_M_PER_S, fit_model,
+    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, SPEED_OF_LIGHT_M_PER_S, eval_delta,
+    fit_model,
 };
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
@@ -87,10 +88,11 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
             model.n_params
         )));
     }
-    let chi2: f64 = recs.par_iter().map(|r| r.w * r.r * r.r).sum();
+    // sequential sums: the same result on every run (a rayon sum's order is not)
+    let chi2: f64 = recs.iter().map(|r| r.w * r.r * r.r).sum();
     let n = recs.len();
     let dof = (n - model.n_params) as f64;
-    let raw = (recs.par_iter().map(|r| r.r * r.r).sum::<f64>() / n as f64).sqrt();
+    let raw = (recs.iter().map(|r| r.r * r.r).sum::<f64>() / n as f64).sqrt();
     let (d2, d4, depth) = depth_residuals(prep, &model)?;
     let res: Vec<f64> = recs.iter().map(|r| r.r).collect();
     let structure = score_all(&recs, &res, prep);
@@ -133,8 +135,18 @@ fn wrap_pm(x: f64) -> f64 {
     y
 }
 
-/// Depth residuals depth(measured) − depth(model) for 2- and 4-phase (eq. 2.2,
+/// Depth residuals after the model's calibration for 2- and 4-phase (eq. 2.2,
 /// 2.3) over non-saturated captures with ground truth: RMS in mm and per-capture means.
+///
+/// The model is used as a calibration: its offsets and the codes its effects
+/// add (SBI, dark current, droop, …) are subtracted from the measured codes,
+/// and the depth of the corrected codes is compared with the depth of the
+/// model's ideal codes A·C(φ − θ) (waveform and per-pixel phase included) at
+/// the ground truth. Comparing the raw measured depth with the depth of the
+/// model's full prediction instead would judge a common-mode effect by its
+/// noise, not by its fit: a common-mode code δ (SBI, 5.1.2.3) moves the 2-phase
+/// phasor's origin, and near |A·e^{iφ} + δ(1 + i)| ≈ 0 the phase noise σ/|z|
+/// grows without bound although the model predicts δ exactly.
 pub fn depth_residuals(
     prep: &Prepared,
     model: &LabModel,
@@ -162,19 +174,29 @@ pub fn depth_residuals(
             let four = find(cap, 180.0).zip(find(cap, 270.0));
             let (mut s2, mut n2, mut s4, mut n4) = (0.0, 0usize, 0.0, 0usize);
             let (mut m2, mut m4, mut am, mut amod) = (0.0, 0.0, 0.0, 0.0);
-            let mut pred = vec![0.0; cap.theta_rad.len()];
+            // per raw image: the model's ideal code A·C and the codes its effects add
+            let mut ideal = vec![0.0; cap.theta_rad.len()];
+            let mut eff = vec![0.0; cap.theta_rad.len()];
+            let mut buf = vec![0.0; 64];
             for p in 0..npix {
                 if model.sat[c * npix + p] {
                     continue;
                 }
                 let o = prep.mid + model.offset[p];
-                for (k, v) in pred.iter_mut().enumerate() {
+                for (k, (v, e)) in ideal.iter_mut().zip(eff.iter_mut()).enumerate() {
                     if k == i0 || k == i90 || four.is_some_and(|(a, b)| k == a || k == b) {
-                        *v = model.predict(prep, &sigs, c, k, p) - o;
+                        let r = model.rec(prep, c, k, p);
+                        *v = r.x - model.offset[p];
+                        *e = sigs
+                            .iter()
+                            .zip(&model.effects)
+                            .map(|(s, f)| eval_delta(s.as_ref(), f, &r, prep, &mut buf))
+                            .sum();
                     }
                 }
-                let um = |k: usize| prep.meas[prep.idx(c, k, p)] - o;
-                let up = |k: usize| pred[k];
+                // measured codes calibrated by the model (offset and effects removed)
+                let um = |k: usize| prep.meas[prep.idx(c, k, p)] - o - eff[k];
+                let up = |k: usize| ideal[k];
                 let e2 = wrap_pm(um(i90).atan2(um(i0)) - up(i90).atan2(up(i0))) * mm_per_rad; // eq. 2.2
                 s2 += e2 * e2;
                 m2 += e2;

@@ -780,49 +780,46 @@ fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
     let nh = model.waveform.order() - 1;
     let n = 2 * nh;
     let m = &*model;
-    let nrm = (0..prep.caps.len())
+    // one partial sum per capture, merged in order (deterministic, unlike a
+    // rayon fold whose splits depend on thread scheduling)
+    let parts: Vec<Normal> = (0..prep.caps.len())
         .into_par_iter()
-        .fold(
-            || Normal::zeros(n),
-            |mut acc, c| {
-                let cap = &prep.caps[c];
-                if !cap.used || !cap.illum {
-                    return acc;
+        .map(|c| {
+            let mut acc = Normal::zeros(n);
+            let cap = &prep.caps[c];
+            if !cap.used || !cap.illum {
+                return acc;
+            }
+            let mut j = vec![0.0; n];
+            for p in 0..npix {
+                if m.sat[c * npix + p] {
+                    continue;
                 }
-                let mut j = vec![0.0; n];
-                for p in 0..npix {
-                    if m.sat[c * npix + p] {
-                        continue;
+                let a = m.gain[p] * cap.law;
+                let phi = cap.phi_tof + m.phase[p];
+                let w = 1.0
+                    / m.noise
+                        .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                for (k, th) in cap.theta_rad.iter().enumerate() {
+                    let i = prep.idx(c, k, p);
+                    let x = phi - th;
+                    let (cv, _) = m.waveform.eval(x);
+                    let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
+                    for h in 0..nh {
+                        let (s, co) = ((h + 2) as f64 * x).sin_cos();
+                        j[2 * h] = a * co;
+                        j[2 * h + 1] = -a * s;
                     }
-                    let a = m.gain[p] * cap.law;
-                    let phi = cap.phi_tof + m.phase[p];
-                    let w = 1.0
-                        / m.noise
-                            .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
-                    for (k, th) in cap.theta_rad.iter().enumerate() {
-                        let i = prep.idx(c, k, p);
-                        let x = phi - th;
-                        let (cv, _) = m.waveform.eval(x);
-                        let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
-                        for h in 0..nh {
-                            let (s, co) = ((h + 2) as f64 * x).sin_cos();
-                            j[2 * h] = a * co;
-                            j[2 * h + 1] = -a * s;
-                        }
-                        acc.add(&j, r, w);
-                    }
+                    acc.add(&j, r, w);
                 }
-                acc
-            },
-        )
-        .reduce(
-            || Normal::zeros(n),
-            |mut a, b| {
-                a.merge(&b);
-                a
-            },
-        );
-    let mut nrm = nrm;
+            }
+            acc
+        })
+        .collect();
+    let mut nrm = Normal::zeros(n);
+    for part in &parts {
+        nrm.merge(part);
+    }
     nrm.symmetrize();
     if let Some(s) = solve_sym(&nrm.jtj, &nrm.jtr) {
         for h in 0..nh {

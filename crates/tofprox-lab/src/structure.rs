@@ -200,49 +200,47 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
     );
     let units = if per_pixel { prep.npix } else { 1 };
     // accumulators [pixel][bin] (pixel-resolved) and [bin] (all pixels)
-    let (accs, glob) = recs
+    // partial sums over fixed chunks, merged in order: the same result on
+    // every run whatever the thread scheduling (rayon's fold splits are not)
+    let parts: Vec<(Vec<Acc>, Vec<Acc>)> = recs
         .par_chunks(16_384)
         .zip(res.par_chunks(16_384))
-        .fold(
-            || (vec![ZERO; units * nb], vec![ZERO; nb]),
-            |(mut acc, mut g), (rc, rs)| {
-                for (r, &e) in rc.iter().zip(rs) {
-                    let Some(x) = cond_value(cond, r, prep) else {
-                        continue;
-                    };
-                    let b = edges.partition_point(|&t| t < x);
-                    let dir = [1.0, r.a * r.c, r.a * r.cd];
-                    let mut one = ZERO;
-                    for i in 0..3 {
-                        one.v[i] = r.w * dir[i] * e;
-                        for j in 0..3 {
-                            one.m[i * 3 + j] = r.w * dir[i] * dir[j];
-                        }
-                    }
-                    one.sx = x;
-                    one.n = 1;
-                    one.swr = r.w * e;
-                    one.sw = r.w;
-                    g[b].merge(&one);
-                    if per_pixel {
-                        acc[r.pix as usize * nb + b].merge(&one);
+        .map(|(rc, rs)| {
+            let (mut acc, mut g) = (vec![ZERO; units * nb], vec![ZERO; nb]);
+            for (r, &e) in rc.iter().zip(rs) {
+                let Some(x) = cond_value(cond, r, prep) else {
+                    continue;
+                };
+                let b = edges.partition_point(|&t| t < x);
+                let dir = [1.0, r.a * r.c, r.a * r.cd];
+                let mut one = ZERO;
+                for i in 0..3 {
+                    one.v[i] = r.w * dir[i] * e;
+                    for j in 0..3 {
+                        one.m[i * 3 + j] = r.w * dir[i] * dir[j];
                     }
                 }
-                (acc, g)
-            },
-        )
-        .reduce(
-            || (vec![ZERO; units * nb], vec![ZERO; nb]),
-            |(mut a, mut ga), (b, gb)| {
-                for (x, y) in a.iter_mut().zip(&b) {
-                    x.merge(y);
+                one.sx = x;
+                one.n = 1;
+                one.swr = r.w * e;
+                one.sw = r.w;
+                g[b].merge(&one);
+                if per_pixel {
+                    acc[r.pix as usize * nb + b].merge(&one);
                 }
-                for (x, y) in ga.iter_mut().zip(&gb) {
-                    x.merge(y);
-                }
-                (a, ga)
-            },
-        );
+            }
+            (acc, g)
+        })
+        .collect();
+    let (mut accs, mut glob) = (vec![ZERO; units * nb], vec![ZERO; nb]);
+    for (b, gb) in &parts {
+        for (x, y) in accs.iter_mut().zip(b) {
+            x.merge(y);
+        }
+        for (x, y) in glob.iter_mut().zip(gb) {
+            x.merge(y);
+        }
+    }
     let mut per_dir = [0.0f64; 3];
     let (chi_g, dof_g) = between(&glob, &mut per_dir);
     let zf = |c: f64, d: usize| {
