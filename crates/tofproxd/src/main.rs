@@ -223,6 +223,14 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
         "demo: emulated sensor, hand approaching and leaving in front of a wall; near ≤ {} mm, far ≥ {} mm",
         cfg.proximity.near_mm, cfg.proximity.far_mm
     );
+    eprintln!(
+        "demo: {} processing, calibration {}",
+        cfg.processing.mode.as_str(),
+        cfg.processing
+            .calibration
+            .as_deref()
+            .map_or_else(|| "none".to_string(), |p| p.display().to_string())
+    );
     proxy.claim_proximity().await?;
     println!(
         "{:7.2}s  claimed: near={} distance={} mm state={}",
