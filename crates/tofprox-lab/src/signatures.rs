@@ -135,7 +135,8 @@ fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
 /// C over the contrast 0.8); once the fuller tap passes the threshold q0 the SBI injects the
 /// smaller current into both with mismatch, leaving m·N_min·(1 − q0/N_max) in
 /// the differential code — nearly the same in every raw image, so 4-phase
-/// cancels it and 2-phase does not. lin = [m], nl = [q0, ln κ].
+/// cancels it and 2-phase does not. lin = [m], nl = [ln q0, ln κ] (both
+/// scale-free: their units depend on the sensor over many decades).
 struct Sbi {
     ambient_varies: bool,
     /// Total signal charge per unit of fundamental amplitude (1/contrast for a sinusoid).
@@ -166,30 +167,35 @@ impl Signature for Sbi {
     }
     fn nl_names(&self) -> Vec<String> {
         if self.ambient_varies {
-            vec!["threshold".into(), "ln_signal_weight".into()]
+            vec!["ln_threshold".into(), "ln_signal_weight".into()]
         } else {
-            vec!["threshold".into()]
+            vec!["ln_threshold".into()]
         }
     }
     fn nl_start(&self) -> Vec<f64> {
         if self.ambient_varies {
-            vec![1.0, 0.0]
+            vec![0.0, 0.0]
         } else {
-            vec![1.0]
+            vec![0.0]
         }
     }
     fn nl_grid(&self, recs: &[Rec], prep: &Prepared) -> Vec<Vec<f64>> {
         let kappas: Vec<f64> = if self.ambient_varies {
-            vec![-6.0, -3.0, -1.0, 0.0, 1.0, 3.0]
+            // signal vs ambient charge per unit: unknown over many decades
+            // (ambient responsivity, contrast, conversion gain of the sensor)
+            vec![
+                -6.0, -3.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0,
+            ]
         } else {
             vec![0.0]
         };
         let mut out = Vec::new();
         for lk in kappas {
+            // threshold below every tap: the taps alone
             let nl0 = if self.ambient_varies {
-                vec![0.0, lk]
+                vec![-60.0, lk]
             } else {
-                vec![0.0]
+                vec![-60.0]
             };
             let qs: Vec<f64> = recs
                 .iter()
@@ -201,7 +207,7 @@ impl Signature for Sbi {
                 .collect();
             for q0 in quantiles(qs, &[0.0, 0.2, 0.4, 0.6, 0.75, 0.85, 0.93]) {
                 let mut v = nl0.clone();
-                v[0] = (q0 * 0.999).max(1e-6);
+                v[0] = (q0 * 0.999).max(1e-12).ln();
                 out.push(v);
             }
         }
@@ -210,7 +216,7 @@ impl Signature for Sbi {
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
         let (na, nb) = self.taps(nl, r, cap);
         let hi = na.max(nb);
-        let q0 = nl.first().copied().unwrap_or(0.0).abs();
+        let q0 = nl.first().copied().unwrap_or(0.0).clamp(-60.0, 60.0).exp();
         out[0] = if hi > q0 && hi > 0.0 {
             na.min(nb).max(0.0) * (1.0 - q0 / hi)
         } else {

@@ -111,8 +111,13 @@ fn saturated_share(ds: &Dataset) -> f64 {
 }
 
 fn check_hidden(effect: &str, truth: ModelConfig, seed: u64, vary: Vary) {
-    let under = model_under_test();
-    let spec = spec_from_model(&under);
+    check_hidden_vs(effect, truth, model_under_test(), seed, vary)
+}
+
+/// `control`: the truth without the hidden effect (the model under test, or
+/// one with other sensor constants that the lab's model does not name).
+fn check_hidden_vs(effect: &str, truth: ModelConfig, control: ModelConfig, seed: u64, vary: Vary) {
+    let spec = spec_from_model(&model_under_test());
     let ds = record(&truth, seed, vary, None);
     let prep = Prepared::new(&ds).unwrap();
     let cmp = compare(&prep, &spec, &|_, _| {}).unwrap();
@@ -134,7 +139,7 @@ fn check_hidden(effect: &str, truth: ModelConfig, seed: u64, vary: Vary) {
     assert_eq!(d.effect.as_deref(), Some(effect));
     // add → the depth error falls to within 1.3× of the same recording without it
     let out = add_effect(&prep, &spec, effect, &|_, _| {}).unwrap();
-    let ctl = record(&under, seed, vary, None);
+    let ctl = record(&control, seed, vary, None);
     let cprep = Prepared::new(&ctl).unwrap();
     let c = compare(&cprep, &spec, &|_, _| {}).unwrap();
     eprintln!(
@@ -164,6 +169,28 @@ fn hidden_sbi_asymmetry() {
             &[("threshold_e", 45000.0), ("mismatch_rel", 0.05)],
         ),
         101,
+        Vary::Ambient,
+    );
+}
+
+#[test]
+fn hidden_sbi_asymmetry_weak_ambient_high_threshold() {
+    // A sensor whose ambient response is a third of the default's and whose
+    // SBI threshold is high: the signal/ambient weight and the threshold lie
+    // far from the first grid points (needs the wide grid and a converged LM).
+    let weak = |mut m: ModelConfig| {
+        m.set_param("ambient_light", "e_per_us_per_klux", 1.0)
+            .unwrap();
+        m
+    };
+    check_hidden_vs(
+        "sbi_asymmetry",
+        weak(with(
+            "sbi_asymmetry",
+            &[("threshold_e", 80000.0), ("mismatch_rel", 0.08)],
+        )),
+        weak(model_under_test()),
+        204,
         Vary::Ambient,
     );
 }
