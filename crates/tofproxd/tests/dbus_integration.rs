@@ -856,3 +856,66 @@ fn depth_frames_while_claimed_and_rate_limited() {
     }
     assert_eq!(status(&bus)["DepthClaims"], 1);
 }
+
+/// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package
+/// iio-sensor-proxy) talks to the system bus, which we point at the private
+/// bus. It must find the proximity sensor, report the absent ones as absent,
+/// and print the hand's near and far. CI installs the package; elsewhere the
+/// test skips loudly when the program is missing.
+#[test]
+fn unmodified_monitor_sensor_sees_near_and_far() {
+    let Some(bus) = start_bus() else { return };
+    let spawned = Command::new("monitor-sensor")
+        .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn();
+    let mut monitor = match spawned {
+        Ok(c) => c,
+        Err(e) if std::env::var_os("CI").is_none() => {
+            eprintln!(
+                "\n\n!!!!! SKIPPED: monitor-sensor not installed ({e}); apt install iio-sensor-proxy !!!!!\n"
+            );
+            return;
+        }
+        Err(e) => panic!("monitor-sensor is required in CI (apt: iio-sensor-proxy): {e}"),
+    };
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let (tx, rx) = mpsc::channel();
+    let stdout = monitor.stdout.take().expect("piped stdout");
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let mut lines = Vec::new();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let wanted = [
+        "=== No accelerometer",
+        "=== No ambient light sensor",
+        "=== Has proximity sensor",
+        "Proximity value changed: 1",
+        "Proximity value changed: 0",
+    ];
+    let mut next = 0;
+    while next < wanted.len() && Instant::now() < deadline {
+        if let Ok(line) = rx.recv_timeout(Duration::from_millis(200)) {
+            if line.contains(wanted[next]) {
+                next += 1;
+            }
+            lines.push(line);
+        }
+    }
+    let _ = monitor.kill();
+    let _ = monitor.wait();
+    assert_eq!(
+        next,
+        wanted.len(),
+        "monitor-sensor output lacks {:?}:\n{}",
+        wanted.get(next),
+        lines.join("\n")
+    );
+}
