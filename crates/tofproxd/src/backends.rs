@@ -8,14 +8,13 @@ use std::time::Duration;
 use ndarray::Array3;
 use serde::{Deserialize, Serialize};
 use tofprox_bridge::{
-    BridgeError, Clock, DriverConfig, EmulatedConfig as BridgeEmulatedConfig, EmulatedDevice,
-    ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
-    driver::DriverConfigFile,
+    BridgeError, Clock, CycleOutput, DriverConfig, EmulatedConfig as BridgeEmulatedConfig,
+    EmulatedDevice, ErrorKind, SensorDriver, SensorMode, StateTimings, SystemClock, UsbTransport,
+    VirtualClock, driver::DriverConfigFile,
 };
 use tofprox_format::{RawFrames, Recording};
 
 use crate::config::{Backend, Config, Mode};
-use crate::energy::CycleTimings;
 use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
 
 /// The emulated device: a path to a bridge config file, or the table inline.
@@ -128,23 +127,8 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
             }),
         };
         let out = self.driver.cycle(&breq).map_err(|e| map_bridge_error(&e))?;
-        let t = out.timings;
         Ok(RawCycle {
-            frames: out.frames,
-            phases_deg: out.phases_deg,
-            exposure_us: out.exposure_us,
-            roi_origin: out.roi_origin,
-            full_rows: out.full_rows,
-            full_cols: out.full_cols,
-            adc_bits: out.adc_bits,
-            modulation_hz: out.modulation_hz,
-            timings: CycleTimings {
-                startup: t.startup,
-                config_load: t.config_load,
-                flash_write: t.flash_write,
-                exposure: t.exposure,
-                readout: t.readout + t.shutdown,
-            },
+            capture: out,
             timestamp_ns: u64::try_from(self.clock.now().as_nanos()).unwrap_or(u64::MAX),
         })
     }
@@ -275,20 +259,28 @@ impl FrameSource for ReplaySource {
         })?;
         let frames = to_u16(frames, sensor.adc_bits);
         let k = frames.dim().0 as u32;
+        let exposure = Duration::from_secs_f64(f64::from(k) * meta.exposure_us.max(0.0) / 1e6);
+        let timestamp_ns = meta.timestamp_ns.unwrap_or(idx as u64);
         Ok(RawCycle {
-            frames,
-            phases_deg: meta.phases_deg.clone(),
-            exposure_us: meta.exposure_us,
-            roi_origin: sensor.roi_origin,
-            full_rows: sensor.full_rows,
-            full_cols: sensor.full_cols,
-            adc_bits: sensor.adc_bits,
-            modulation_hz: sensor.modulation_hz,
-            timings: CycleTimings {
-                exposure: Duration::from_secs_f64(f64::from(k) * meta.exposure_us.max(0.0) / 1e6),
-                ..CycleTimings::default()
+            capture: CycleOutput {
+                illuminated: vec![meta.illumination; meta.phases_deg.len()],
+                frames,
+                phases_deg: meta.phases_deg,
+                exposure_us: meta.exposure_us,
+                roi_origin: sensor.roi_origin,
+                full_rows: sensor.full_rows,
+                full_cols: sensor.full_cols,
+                adc_bits: sensor.adc_bits,
+                modulation_hz: sensor.modulation_hz,
+                timings: StateTimings {
+                    exposure,
+                    total: exposure,
+                    ..StateTimings::default()
+                },
+                flash_written: false,
+                captured_at: Duration::from_nanos(timestamp_ns),
             },
-            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
+            timestamp_ns,
         })
     }
 

@@ -8,6 +8,7 @@
 use std::time::Duration;
 
 use ndarray::{ArrayView3, Axis, s};
+use tofprox_bridge::CycleOutput;
 use tofprox_core::Algorithm;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
@@ -342,11 +343,11 @@ impl<S: FrameSource> Controller<S> {
                 return self.fail(e);
             }
         };
-        let captured = match check_cycle(&cycle) {
+        let captured = match check_cycle(&cycle.capture) {
             Ok(m) => m,
             Err(e) => return self.fail(e),
         };
-        if rails_only(&cycle) {
+        if rails_only(&cycle.capture) {
             return self.rails_cycle(&cycle);
         }
         if probe || captured == Mode::FourPhase {
@@ -366,19 +367,19 @@ impl<S: FrameSource> Controller<S> {
         captured: Mode,
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
-        let (_, rows, cols) = cycle.frames.dim();
+        let (_, rows, cols) = cycle.capture.frames.dim();
         let g = Geometry {
             rows,
             cols,
-            origin: cycle.roi_origin,
-            adc_bits: cycle.adc_bits,
-            modulation_mhz_x1000: (cycle.modulation_hz / 1e3).round().max(0.0) as u64,
+            origin: cycle.capture.roi_origin,
+            adc_bits: cycle.capture.adc_bits,
+            modulation_mhz_x1000: (cycle.capture.modulation_hz / 1e3).round().max(0.0) as u64,
         };
         // ROI in this frame's coordinates.
-        let roi_full = full_roi(&self.cfg, cycle.full_rows, cycle.full_cols);
+        let roi_full = full_roi(&self.cfg, cycle.capture.full_rows, cycle.capture.full_cols);
         let roi = Roi {
-            row0: roi_full.row0.saturating_sub(cycle.roi_origin[0]),
-            col0: roi_full.col0.saturating_sub(cycle.roi_origin[1]),
+            row0: roi_full.row0.saturating_sub(cycle.capture.roi_origin[0]),
+            col0: roi_full.col0.saturating_sub(cycle.capture.roi_origin[1]),
             rows: roi_full.rows,
             cols: roi_full.cols,
         }
@@ -395,12 +396,12 @@ impl<S: FrameSource> Controller<S> {
         let mut ambient_high = None;
         if captured == Mode::FourPhase {
             let dark = self.dark_level(g, roi);
-            let ind = common_mode_lsb(cycle.frames.view(), roi, dark);
+            let ind = common_mode_lsb(cycle.capture.frames.view(), roi, dark);
             self.ambient_lsb = Some(ind);
             ambient_high = Some(ind);
         }
 
-        let frames = cycle.frames.view();
+        let frames = cycle.capture.frames.view();
         let min_amp = self.cfg.processing.min_amplitude_lsb;
         let mut discrepancy_mm: Option<f64> = None;
         if captured == Mode::FourPhase && self.cfg.ambient.enabled {
@@ -565,24 +566,24 @@ impl<S: FrameSource> Controller<S> {
         }
 
         // Energy of this cycle + the sleep that follows (sensor in reset).
-        let active = cycle.timings.active();
+        let active = cycle.timings().active();
         let sleep =
             if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
                 Duration::ZERO
             } else {
                 Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
             };
-        let rows_fraction = if cycle.full_rows > 0 {
-            rows as f64 / cycle.full_rows as f64
+        let rows_fraction = if cycle.capture.full_rows > 0 {
+            rows as f64 / cycle.capture.full_rows as f64
         } else {
             1.0
         };
-        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
+        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
         let e = cycle_energy(
             &self.cfg.energy,
-            &cycle.timings,
+            &cycle.timings(),
             k,
-            cycle.exposure_us,
+            cycle.capture.exposure_us,
             rows_fraction,
         );
         self.energy.record(&e, active, sleep);
@@ -629,10 +630,16 @@ impl<S: FrameSource> Controller<S> {
             let e = &self.cfg.exposure;
             self.exposure_us = (self.exposure_us / e.step).clamp(e.min_us, e.max_us);
         }
-        let active = cycle.timings.active();
+        let active = cycle.timings().active();
         let sleep = Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active);
-        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(&self.cfg.energy, &cycle.timings, k, cycle.exposure_us, 1.0);
+        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(
+            &self.cfg.energy,
+            &cycle.timings(),
+            k,
+            cycle.capture.exposure_us,
+            1.0,
+        );
         self.energy.record(&e, active, sleep);
         tracing::debug!("frame without usable codes (all on the rails): no reading");
         StepOutcome {
@@ -671,7 +678,7 @@ impl<S: FrameSource> Controller<S> {
 
 /// Validate a cycle's shape and reject dead frames (every code of every raw image on a
 /// rail): such a frame never reaches the detector (it would read as saturated = near).
-fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
+fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     let (k, rows, cols) = c.frames.dim();
     let bad = |m: String| Err(SourceError::new(SourceErrorKind::CorruptFrame, m));
     if rows == 0 || cols == 0 {
@@ -735,7 +742,7 @@ fn pipeline_slot<'a>(
 }
 
 /// Whether every code of every raw image is 0 or full scale.
-fn rails_only(c: &RawCycle) -> bool {
+fn rails_only(c: &CycleOutput) -> bool {
     let max = ((1u32 << c.adc_bits.clamp(1, 16)) - 1) as u16;
     c.frames.iter().all(|&v| v == 0 || v >= max)
 }

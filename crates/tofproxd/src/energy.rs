@@ -9,6 +9,8 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use tofprox_bridge::StateTimings;
+
 use crate::config::EnergyConfig;
 
 /// Durations of one cycle's states (reported by the frame source).
@@ -24,6 +26,19 @@ pub struct CycleTimings {
     pub exposure: Duration,
     /// Read-out and transfer of all raw images.
     pub readout: Duration,
+}
+
+impl From<&StateTimings> for CycleTimings {
+    /// The driver's measured states; stopping the measurement counts as read-out.
+    fn from(t: &StateTimings) -> Self {
+        CycleTimings {
+            startup: t.startup,
+            config_load: t.config_load,
+            flash_write: t.flash_write,
+            exposure: t.exposure,
+            readout: t.readout + t.shutdown,
+        }
+    }
 }
 
 impl CycleTimings {

@@ -8,6 +8,7 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use ndarray::Array3;
+use tofprox_bridge::{CycleOutput, StateTimings};
 
 use crate::config::Mode;
 use crate::energy::CycleTimings;
@@ -32,29 +33,22 @@ pub struct CycleRequest {
     pub row_window: Option<RowWindow>,
 }
 
-/// One cycle's raw data.
+/// One cycle's raw data: the bridge's [`CycleOutput`] (raw images, phases, exposure,
+/// window, ADC/modulation, state timings), filled by the driver for usb/emulated and
+/// from the recording for replay, plus the time stamp published with the reading.
 #[derive(Debug, Clone)]
 pub struct RawCycle {
-    /// `(K, rows, cols)` raw codes, offset binary.
-    pub frames: Array3<u16>,
-    /// Phase shift of each raw image (degrees).
-    pub phases_deg: Vec<f64>,
-    /// Exposure actually used (µs).
-    pub exposure_us: f64,
-    /// Position of `frames` in the full array `[row, col]`.
-    pub roi_origin: [usize; 2],
-    /// Full array rows.
-    pub full_rows: usize,
-    /// Full array cols.
-    pub full_cols: usize,
-    /// ADC bits.
-    pub adc_bits: u8,
-    /// Modulation frequency (Hz).
-    pub modulation_hz: f64,
-    /// Duration of each state.
-    pub timings: CycleTimings,
+    /// What the cycle captured, in the bridge's form.
+    pub capture: CycleOutput,
     /// Capture timestamp (ns, source clock).
     pub timestamp_ns: u64,
+}
+
+impl RawCycle {
+    /// State durations for the energy model.
+    pub fn timings(&self) -> CycleTimings {
+        CycleTimings::from(&self.capture.timings)
+    }
 }
 
 /// Kinds of source failure (mirrors the bridge's kinds the loop cares about).
@@ -257,13 +251,14 @@ impl FrameSource for ScriptedSource {
             _ => (0, self.rows),
         };
         let k = req.mode.raw_images();
-        let timings = CycleTimings {
+        let mut timings = StateTimings {
             startup: Duration::from_millis(1),
             config_load: Duration::from_millis(10),
-            flash_write: Duration::ZERO,
             exposure: Duration::from_secs_f64(f64::from(k) * req.exposure_us / 1e6),
             readout: Duration::from_micros(2500 * u64::from(k)),
+            ..StateTimings::default()
         };
+        timings.total = timings.startup + timings.config_load + timings.exposure + timings.readout;
         let (frames, phases_deg) = match step {
             Step::Fail(kind) => return Err(SourceError::new(kind, "scripted failure")),
             Step::Target {
@@ -285,15 +280,20 @@ impl FrameSource for ScriptedSource {
             }
         };
         Ok(RawCycle {
-            frames,
-            phases_deg,
-            exposure_us: req.exposure_us,
-            roi_origin: [row0, 0],
-            full_rows: self.rows,
-            full_cols: self.cols,
-            adc_bits: 12,
-            modulation_hz: self.modulation_hz,
-            timings,
+            capture: CycleOutput {
+                illuminated: vec![true; phases_deg.len()],
+                frames,
+                phases_deg,
+                exposure_us: req.exposure_us,
+                roi_origin: [row0, 0],
+                full_rows: self.rows,
+                full_cols: self.cols,
+                adc_bits: 12,
+                modulation_hz: self.modulation_hz,
+                timings,
+                flash_written: false,
+                captured_at: Duration::from_nanos(self.t_ns),
+            },
             timestamp_ns: self.t_ns,
         })
     }
