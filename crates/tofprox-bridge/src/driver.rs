@@ -1002,25 +1002,38 @@ pub struct DeviceConfigFile {
 impl DeviceConfigFile {
     /// Load a device file; returns it with the resolved driver config.
     pub fn load(path: &Path) -> Result<(Self, DriverConfig), BridgeError> {
-        let s = std::fs::read_to_string(path).map_err(|e| {
-            BridgeError::with_source(
-                ErrorKind::Config,
-                format!("cannot read {}", path.display()),
-                e,
-            )
-        })?;
-        let f: DeviceConfigFile = toml::from_str(&s).map_err(|e| {
-            BridgeError::with_source(
-                ErrorKind::Config,
-                format!("device config {}", path.display()),
-                e,
-            )
-        })?;
-        let base = path.parent().unwrap_or(Path::new("."));
-        let d = f
-            .driver
-            .resolve(base)
-            .map_err(|e| e.context_prefix(path.display()))?;
+        let f: DeviceConfigFile = read_toml(path, "device config")?;
+        let d = f.driver.resolve_beside(path)?;
         Ok((f, d))
     }
+}
+
+impl DriverConfigFile {
+    /// Load a driver file (the `[driver]` table's keys at top level) and resolve
+    /// it; a relative register map path is taken from the file's directory.
+    pub fn load(path: &Path) -> Result<DriverConfig, BridgeError> {
+        read_toml::<DriverConfigFile>(path, "driver config")?.resolve_beside(path)
+    }
+
+    /// [`Self::resolve`] relative to the directory of the file at `path`, errors
+    /// prefixed with that path.
+    fn resolve_beside(&self, path: &Path) -> Result<DriverConfig, BridgeError> {
+        let base = path.parent().unwrap_or(Path::new("."));
+        self.resolve(base)
+            .map_err(|e| e.context_prefix(path.display()))
+    }
+}
+
+/// Read and parse a TOML config file (`what` names it in the error).
+fn read_toml<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T, BridgeError> {
+    let s = std::fs::read_to_string(path).map_err(|e| {
+        BridgeError::with_source(
+            ErrorKind::Config,
+            format!("cannot read {}", path.display()),
+            e,
+        )
+    })?;
+    toml::from_str(&s).map_err(|e| {
+        BridgeError::with_source(ErrorKind::Config, format!("{what} {}", path.display()), e)
+    })
 }

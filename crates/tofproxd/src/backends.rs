@@ -8,9 +8,9 @@ use std::time::Duration;
 use ndarray::Array3;
 use serde::{Deserialize, Serialize};
 use tofprox_bridge::{
-    BridgeError, Clock, CycleOutput, DriverConfig, EmulatedConfig as BridgeEmulatedConfig,
-    EmulatedDevice, ErrorKind, SensorDriver, SensorMode, StateTimings, SystemClock, UsbTransport,
-    VirtualClock, driver::DriverConfigFile,
+    BridgeError, Clock, CycleOutput, DriverConfig, DriverConfigFile,
+    EmulatedConfig as BridgeEmulatedConfig, EmulatedDevice, ErrorKind, SensorDriver, SensorMode,
+    StateTimings, SystemClock, UsbTransport, VirtualClock,
 };
 use tofprox_format::{RawFrames, Recording};
 
@@ -381,22 +381,12 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
         }
         Backend::Usb => {
             let dcfg = match &cfg.usb.driver_config {
-                Some(p) => {
-                    let text = std::fs::read_to_string(p).map_err(|e| {
-                        SourceError::new(
-                            SourceErrorKind::Unsupported,
-                            format!("usb.driver_config {}: {e}", p.display()),
-                        )
-                    })?;
-                    let f: DriverConfigFile = toml::from_str(&text).map_err(|e| {
-                        SourceError::new(
-                            SourceErrorKind::Unsupported,
-                            format!("usb.driver_config {}: {e}", p.display()),
-                        )
-                    })?;
-                    f.resolve(p.parent().unwrap_or(base))
-                        .map_err(|e| berr("usb.driver_config", e))?
-                }
+                Some(p) => DriverConfigFile::load(p).map_err(|e| {
+                    SourceError::new(
+                        SourceErrorKind::Unsupported,
+                        format!("usb.driver_config: {}", chain(&e)),
+                    )
+                })?,
                 None => DriverConfig::emulated_default(),
             };
             dcfg.validate().map_err(|e| berr("usb.driver_config", e))?;
@@ -464,5 +454,66 @@ impl FrameSource for UsbSource {
             "CX3 over USB {:04x}:{:04x}",
             self.sel.vendor_id, self.sel.product_id
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn usb_config(driver_config: &Path) -> Config {
+        let mut cfg = Config {
+            backend: Backend::Usb,
+            ..Config::default()
+        };
+        cfg.usb.driver_config = Some(driver_config.to_path_buf());
+        cfg
+    }
+
+    fn build_err(cfg: &Config) -> SourceError {
+        match build_source(cfg, Path::new(".")) {
+            Ok(s) => panic!("expected an error, built {}", s.describe()),
+            Err(e) => e,
+        }
+    }
+
+    #[test]
+    fn usb_driver_config_errors_name_the_key_and_the_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let missing = dir.path().join("missing.toml");
+        let e = build_err(&usb_config(&missing));
+        assert_eq!(e.kind(), SourceErrorKind::Unsupported);
+        let msg = e.to_string();
+        assert!(msg.contains("usb.driver_config"), "{msg}");
+        assert!(msg.contains("missing.toml"), "{msg}");
+
+        let bad = dir.path().join("bad.toml");
+        std::fs::write(&bad, "no_such_key = 1\n").expect("write");
+        let msg = build_err(&usb_config(&bad)).to_string();
+        assert!(msg.contains("usb.driver_config"), "{msg}");
+        assert!(msg.contains("no_such_key"), "{msg}");
+
+        let zero_poll = dir.path().join("zero_poll.toml");
+        std::fs::write(&zero_poll, "[timing]\npoll_interval_us = 0\n").expect("write");
+        let msg = build_err(&usb_config(&zero_poll)).to_string();
+        assert!(msg.contains("usb.driver_config"), "{msg}");
+        assert!(msg.contains("poll_interval_us"), "{msg}");
+    }
+
+    #[test]
+    fn usb_driver_config_file_is_loaded_without_opening_the_device() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let p = dir.path().join("driver.toml");
+        std::fs::write(&p, "[timing]\npoll_interval_us = 250\n").expect("write");
+        let src = match build_source(&usb_config(&p), Path::new(".")) {
+            Ok(s) => s,
+            Err(e) => panic!("usb source: {e}"),
+        };
+        let map = tofprox_bridge::SensorMap::emulated();
+        assert_eq!(
+            src.full_size(),
+            (usize::from(map.sensor.rows), usize::from(map.sensor.cols))
+        );
+        assert!(src.describe().contains("USB"), "{}", src.describe());
     }
 }
