@@ -59,13 +59,7 @@ fn main() -> ExitCode {
         2 => "debug",
         _ => "trace",
     };
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(filter)),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    tofproxd::logging::init_logging(filter);
     let result = match cli.command {
         Command::Info(a) => cmd::recording::info(a),
         Command::Calibrate(a) => cmd::recording::calibrate(a),

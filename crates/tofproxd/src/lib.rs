@@ -8,6 +8,7 @@ pub mod client;
 pub mod config;
 pub mod controller;
 pub mod energy;
+pub mod logging;
 pub mod run;
 pub mod service;
 pub mod soak;

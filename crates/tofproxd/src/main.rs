@@ -46,13 +46,7 @@ fn main() -> ExitCode {
         1 => "debug",
         _ => "trace",
     };
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(filter)),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    tofproxd::logging::init_logging(filter);
     let rt = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
