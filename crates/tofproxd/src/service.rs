@@ -320,6 +320,30 @@ async fn drop_if_gone(conn: &Connection, hub: &Hub, client: &str) {
     }
 }
 
+/// Set one of the calling client's claims (dropped again at once if the caller has
+/// already left the bus).
+async fn claim_for_caller(
+    hub: &Hub,
+    hdr: &Header<'_>,
+    conn: &Connection,
+    set: impl FnOnce(&mut ClientClaims),
+) -> fdo::Result<()> {
+    let client = caller(hdr)?;
+    hub.modify_claim(&client, set);
+    drop_if_gone(conn, hub, &client).await;
+    Ok(())
+}
+
+/// Clear one of the calling client's claims (no-op without one).
+fn release_for_caller(
+    hub: &Hub,
+    hdr: &Header<'_>,
+    clear: impl FnOnce(&mut ClientClaims),
+) -> fdo::Result<()> {
+    hub.modify_claim(&caller(hdr)?, clear);
+    Ok(())
+}
+
 /// `org.tofprox.Proximity1` at `/org/tofprox/Proximity1`.
 pub struct Proximity {
     hub: Arc<Hub>,
@@ -345,18 +369,14 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        let client = caller(&hdr)?;
-        self.hub.modify_claim(&client, |c| c.proximity = true);
-        drop_if_gone(conn, &self.hub, &client).await;
+        claim_for_caller(&self.hub, &hdr, conn, |c| c.proximity = true).await?;
         self.hub.wait_first_reading().await;
         Ok(())
     }
 
     /// Release the caller's proximity claim (no-op without one).
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        self.hub
-            .modify_claim(&caller(&hdr)?, |c| c.proximity = false);
-        Ok(())
+        release_for_caller(&self.hub, &hdr, |c| c.proximity = false)
     }
 
     /// Claim depth frames (`DepthFrame` signals while held; bus policy limits this to a group).
@@ -365,16 +385,12 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        let client = caller(&hdr)?;
-        self.hub.modify_claim(&client, |c| c.depth = true);
-        drop_if_gone(conn, &self.hub, &client).await;
-        Ok(())
+        claim_for_caller(&self.hub, &hdr, conn, |c| c.depth = true).await
     }
 
     /// Release the caller's depth claim.
     async fn release_depth(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        self.hub.modify_claim(&caller(&hdr)?, |c| c.depth = false);
-        Ok(())
+        release_for_caller(&self.hub, &hdr, |c| c.depth = false)
     }
 
     /// Every property plus counters, as a dictionary.
@@ -565,18 +581,13 @@ impl SensorProxyCompat {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        let client = caller(&hdr)?;
-        self.hub
-            .modify_claim(&client, |c| c.compat_proximity = true);
-        drop_if_gone(conn, &self.hub, &client).await;
+        claim_for_caller(&self.hub, &hdr, conn, |c| c.compat_proximity = true).await?;
         self.hub.wait_first_reading().await;
         Ok(())
     }
     /// Releases it.
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        self.hub
-            .modify_claim(&caller(&hdr)?, |c| c.compat_proximity = false);
-        Ok(())
+        release_for_caller(&self.hub, &hdr, |c| c.compat_proximity = false)
     }
 }
 
