@@ -145,6 +145,22 @@ pub struct CycleOutput {
     pub captured_at: Duration,
 }
 
+impl CycleOutput {
+    /// The captured window as the model describes a sensor (rows and cols from `frames`).
+    pub fn geometry(&self) -> tofprox_model::SensorGeometry {
+        let (_, rows, cols) = self.frames.dim();
+        tofprox_model::SensorGeometry {
+            rows,
+            cols,
+            roi_origin: self.roi_origin,
+            full_rows: self.full_rows,
+            full_cols: self.full_cols,
+            adc_bits: self.adc_bits,
+            modulation_hz: self.modulation_hz,
+        }
+    }
+}
+
 /// Driver waits and policies. Every wait is bounded.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

@@ -14,6 +14,7 @@ use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+use tofprox_model::SensorGeometry;
 
 use crate::config::{Config, Mode};
 use crate::energy::{EnergyMeter, cycle_energy};
@@ -61,16 +62,6 @@ fn algo_str(a: Algorithm) -> &'static str {
     }
 }
 
-/// Geometry a pipeline/detector was built for.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Geometry {
-    rows: usize,
-    cols: usize,
-    origin: [usize; 2],
-    adc_bits: u8,
-    modulation_mhz_x1000: u64,
-}
-
 /// Result of one step.
 #[derive(Debug, Clone, Default)]
 pub struct StepOutcome {
@@ -99,9 +90,9 @@ pub struct Controller<S: FrameSource> {
     cfg: Config,
     source: S,
     calib: ModeCalibrations,
-    pipe2: Option<(Geometry, Pipeline)>,
-    pipe4: Option<(Geometry, Pipeline)>,
-    detector: Option<(Geometry, NearFarDetector)>,
+    pipe2: Option<(SensorGeometry, Pipeline)>,
+    pipe4: Option<(SensorGeometry, Pipeline)>,
+    detector: Option<(SensorGeometry, NearFarDetector)>,
     /// Current processing mode.
     mode: Mode,
     exposure_us: f64,
@@ -367,19 +358,14 @@ impl<S: FrameSource> Controller<S> {
         captured: Mode,
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
-        let (_, rows, cols) = cycle.capture.frames.dim();
-        let g = Geometry {
-            rows,
-            cols,
-            origin: cycle.capture.roi_origin,
-            adc_bits: cycle.capture.adc_bits,
-            modulation_mhz_x1000: (cycle.capture.modulation_hz / 1e3).round().max(0.0) as u64,
-        };
+        // Pipelines and the detector are rebuilt when this changes.
+        let g = cycle.capture.geometry();
+        let (rows, cols) = (g.rows, g.cols);
         // ROI in this frame's coordinates.
-        let roi_full = full_roi(&self.cfg, cycle.capture.full_rows, cycle.capture.full_cols);
+        let roi_full = full_roi(&self.cfg, g.full_rows, g.full_cols);
         let roi = Roi {
-            row0: roi_full.row0.saturating_sub(cycle.capture.roi_origin[0]),
-            col0: roi_full.col0.saturating_sub(cycle.capture.roi_origin[1]),
+            row0: roi_full.row0.saturating_sub(g.roi_origin[0]),
+            col0: roi_full.col0.saturating_sub(g.roi_origin[1]),
             rows: roi_full.rows,
             cols: roi_full.cols,
         }
@@ -655,12 +641,12 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    fn dark_level(&self, g: Geometry, roi: Roi) -> f32 {
+    fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
         let mid = (1u32 << (g.adc_bits.clamp(1, 16) - 1)) as f32;
         match &self.calib.four_phase.offset {
             Some(o) => {
-                let r0 = g.origin[0] + roi.row0;
-                let c0 = g.origin[1] + roi.col0;
+                let r0 = g.roi_origin[0] + roi.row0;
+                let c0 = g.roi_origin[1] + roi.col0;
                 let v = o.dark_lsb.slice(s![
                     r0.min(o.dark_lsb.nrows())..(r0 + roi.rows).min(o.dark_lsb.nrows()),
                     c0.min(o.dark_lsb.ncols())..(c0 + roi.cols).min(o.dark_lsb.ncols())
@@ -715,18 +701,18 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
 }
 
 fn pipeline_slot<'a>(
-    slot: &'a mut Option<(Geometry, Pipeline)>,
+    slot: &'a mut Option<(SensorGeometry, Pipeline)>,
     full: &Calibration,
     min_amplitude_lsb: f32,
     mode: Mode,
-    g: Geometry,
+    g: SensorGeometry,
 ) -> Result<&'a mut Pipeline, SourceError> {
     if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
         let calib = crop_calibration(full, g)
             .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?;
         let pcfg = PipelineConfig {
             algorithm: algorithm(mode),
-            modulation_hz: g.modulation_mhz_x1000 as f64 * 1e3,
+            modulation_hz: g.modulation_hz,
             adc_bits: g.adc_bits,
             min_amplitude_lsb,
         };
@@ -747,8 +733,8 @@ fn rails_only(c: &CycleOutput) -> bool {
     c.frames.iter().all(|&v| v == 0 || v >= max)
 }
 
-fn crop_calibration(full: &Calibration, g: Geometry) -> Result<Calibration, String> {
-    let [r0, c0] = g.origin;
+fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, String> {
+    let [r0, c0] = g.roi_origin;
     let crop = |a: &ndarray::Array2<f32>, what: &str| -> Result<ndarray::Array2<f32>, String> {
         if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
             return Ok(a.clone());
@@ -760,7 +746,7 @@ fn crop_calibration(full: &Calibration, g: Geometry) -> Result<Calibration, Stri
                 a.ncols(),
                 g.rows,
                 g.cols,
-                g.origin
+                g.roi_origin
             ));
         }
         Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
