@@ -847,14 +847,6 @@ mod tests {
     use super::*;
     use crate::source::{ScriptedSource, Step};
 
-    fn target(mm: f64) -> Step {
-        Step::Target {
-            distance_mm: mm,
-            amplitude_lsb: 400.0,
-            background_lsb: 0.0,
-        }
-    }
-
     fn cfg() -> Config {
         let mut c = Config::default();
         c.ambient.probe_every = 1000;
@@ -873,11 +865,11 @@ mod tests {
     #[test]
     fn near_at_once_far_after_debounce() {
         let mut c = ctl(vec![
-            target(800.0),
-            target(50.0),
-            target(800.0),
-            target(800.0),
-            target(800.0),
+            Step::target(800.0),
+            Step::target(50.0),
+            Step::target(800.0),
+            Step::target(800.0),
+            Step::target(800.0),
         ]);
         let o = c.step(false);
         assert!(o.valid && !o.near, "{o:?}");
@@ -895,11 +887,11 @@ mod tests {
     #[test]
     fn failures_never_publish_near_and_recover() {
         let mut c = ctl(vec![
-            target(800.0),
+            Step::target(800.0),
             Step::Fail(SourceErrorKind::Timeout),
             Step::Garbage,
             Step::Fail(SourceErrorKind::Disconnected),
-            target(800.0),
+            Step::target(800.0),
         ]);
         assert!(!c.step(false).near);
         let o = c.step(false);
@@ -927,14 +919,14 @@ mod tests {
 
     #[test]
     fn partial_readout_requests_a_window_around_the_roi() {
-        let mut c = ctl(vec![target(800.0)]);
+        let mut c = ctl(vec![Step::target(800.0)]);
         c.step(false);
         let w = c.source().requests[0].row_window.expect("window requested");
         // central half of 24 rows = rows 6..18, margin 2 → 4..20
         assert_eq!((w.row0, w.rows), (4, 16));
         let mut c = Controller::new(
             cfg(),
-            ScriptedSource::new(24, 32, vec![target(800.0)]).without_row_window(),
+            ScriptedSource::new(24, 32, vec![Step::target(800.0)]).without_row_window(),
             ModeCalibrations::default(),
         )
         .unwrap();
@@ -944,8 +936,12 @@ mod tests {
 
     #[test]
     fn adaptive_rate_fast_when_approaching_slow_when_still() {
-        let mut steps = vec![target(900.0), target(700.0), target(500.0)];
-        steps.extend(std::iter::repeat_n(target(900.0), 14));
+        let mut steps = vec![
+            Step::target(900.0),
+            Step::target(700.0),
+            Step::target(500.0),
+        ];
+        steps.extend(std::iter::repeat_n(Step::target(900.0), 14));
         let mut c = ctl(steps);
         c.step(false);
         assert_eq!(c.rate_hz(), 2.0);
@@ -969,7 +965,7 @@ mod tests {
             background_lsb: 200.0,
         };
         let mut steps = vec![bright.clone(); 6];
-        steps.extend(vec![target(800.0); 4]);
+        steps.extend(vec![Step::target(800.0); 4]);
         let mut c = Controller::new(
             cfg,
             ScriptedSource::new(24, 32, steps),
@@ -1047,7 +1043,7 @@ mod tests {
 
     #[test]
     fn stop_powers_off() {
-        let mut c = ctl(vec![target(50.0)]);
+        let mut c = ctl(vec![Step::target(50.0)]);
         assert!(c.step(false).near);
         let u = c.stop();
         assert_eq!(u.state, Some(State::Off));
@@ -1057,7 +1053,7 @@ mod tests {
 
     #[test]
     fn depth_message_only_when_wanted() {
-        let mut c = ctl(vec![target(800.0)]);
+        let mut c = ctl(vec![Step::target(800.0)]);
         assert!(c.step(false).depth.is_none());
         let d = c.step(true).depth.expect("depth");
         assert_eq!(

@@ -155,6 +155,18 @@ pub enum Step {
     Garbage,
 }
 
+impl Step {
+    /// A flat target at `distance_mm` with a strong signal (400 LSB at 100 µs) and no
+    /// background light.
+    pub fn target(distance_mm: f64) -> Self {
+        Step::Target {
+            distance_mm,
+            amplitude_lsb: 400.0,
+            background_lsb: 0.0,
+        }
+    }
+}
+
 /// Scripted fake source: a queue of steps, then repeats the last step.
 /// Synthesises ideal frames by the contract's convention
 /// `code_k = mid + A cos(phi - theta_k) + background` (CONTRACTS.md).

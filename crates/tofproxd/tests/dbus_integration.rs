@@ -93,6 +93,17 @@ impl Daemon {
     fn log(&self) -> String {
         std::fs::read_to_string(&self.stderr).unwrap_or_default()
     }
+    /// Wait for the daemon to exit on its own; `what` says why it should within `timeout`.
+    fn wait_exit(&mut self, timeout: Duration, what: &str) -> std::process::ExitStatus {
+        let t0 = Instant::now();
+        loop {
+            if let Some(st) = self.child.try_wait().expect("wait") {
+                return st;
+            }
+            assert!(t0.elapsed() < timeout, "{what}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
     fn rss_kb(&self) -> u64 {
         let s = std::fs::read_to_string(format!("/proc/{}/status", self.pid())).unwrap_or_default();
         s.lines()
@@ -512,17 +523,7 @@ fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
     assert_eq!(v["reply"], 1, "stand-in owns the name");
     let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
     let mut d = spawn_daemon(&bus, &cfg);
-    let t0 = Instant::now();
-    let st = loop {
-        if let Some(st) = d.child.try_wait().expect("wait") {
-            break st;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "tofproxd should refuse and exit"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let st = d.wait_exit(Duration::from_secs(20), "tofproxd should refuse and exit");
     assert!(!st.success());
     let log = d.log();
     assert!(
@@ -693,17 +694,7 @@ fn sigterm_stops_releases_the_name_and_exits_zero() {
         .status()
         .expect("kill");
     assert!(st.success());
-    let t0 = Instant::now();
-    let st = loop {
-        if let Some(st) = daemon.child.try_wait().expect("wait") {
-            break st;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(10),
-            "tofproxd did not exit on SIGTERM"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let st = daemon.wait_exit(Duration::from_secs(10), "tofproxd did not exit on SIGTERM");
     assert!(st.success(), "exit status {st}\n{}", daemon.log());
     assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
     // The last state published before leaving was "off" (sensor in reset).

@@ -11,14 +11,6 @@ use tofproxd::run::Daemon;
 use tofproxd::service::next_item;
 use tofproxd::source::{ScriptedSource, SourceErrorKind, Step};
 
-fn target(mm: f64) -> Step {
-    Step::Target {
-        distance_mm: mm,
-        amplitude_lsb: 400.0,
-        background_lsb: 0.0,
-    }
-}
-
 fn fast_config() -> Config {
     let mut cfg = Config::default();
     cfg.loop_.rate_hz = 50.0;
@@ -61,9 +53,9 @@ fn rt() -> tokio::runtime::Runtime {
 #[test]
 fn claim_waits_for_a_reading_then_near_and_far_change_once_each() {
     rt().block_on(async {
-        let mut steps = vec![target(800.0); 3];
-        steps.extend(vec![target(50.0); 3]);
-        steps.extend(vec![target(800.0); 200]);
+        let mut steps = vec![Step::target(800.0); 3];
+        steps.extend(vec![Step::target(50.0); 3]);
+        steps.extend(vec![Step::target(800.0); 200]);
         let (daemon, client) = pair(&fast_config(), steps).await;
         let p = ProximityProxy::builder(&client).build().await.unwrap();
         assert_eq!(p.state().await.unwrap(), "off", "no claim: sensor off");
