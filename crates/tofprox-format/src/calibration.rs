@@ -423,16 +423,9 @@ impl CalibrationSet {
         offset: OffsetCalibration,
         source: PartSource,
     ) -> Result<Vec<CalibPart>, FormatError> {
-        self.check_map_shape(&offset.dark_lsb, "offset")?;
-        if let Some((r, c)) = first_non_finite(&offset.dark_lsb) {
-            return Err(
-                invalid(format!("dark level at (row {r}, col {c}) is not finite")).key("offset"),
-            );
-        }
+        self.check_map(&offset.dark_lsb, "dark level", CalibPart::Offset.name())?;
         self.offset = Some(offset);
-        self.sources.insert(CalibPart::Offset, source);
-        self.deps.insert(CalibPart::Offset, Deps::default());
-        Ok(self.drop_stale())
+        Ok(self.record_part(CalibPart::Offset, source, Deps::default()))
     }
 
     /// Set (or replace) the wiggling LUT of `lut.algorithm`, recording the
@@ -453,9 +446,7 @@ impl CalibrationSet {
             Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
             Algorithm::FourPhase => self.wiggling_4phase = Some(lut),
         }
-        self.sources.insert(part, source);
-        self.deps.insert(part, deps);
-        Ok(self.drop_stale())
+        Ok(self.record_part(part, source, deps))
     }
 
     /// Set (or replace) the 4-phase FPPN map, recording the current offset
@@ -477,13 +468,7 @@ impl CalibrationSet {
         source: PartSource,
     ) -> Result<Vec<CalibPart>, FormatError> {
         let part = CalibPart::fppn(algorithm);
-        self.check_map_shape(&fppn.phase_offset_rad, part.name())?;
-        if let Some((r, c)) = first_non_finite(&fppn.phase_offset_rad) {
-            return Err(
-                invalid(format!("phase offset at (row {r}, col {c}) is not finite"))
-                    .key(part.name()),
-            );
-        }
+        self.check_map(&fppn.phase_offset_rad, "phase offset", part.name())?;
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
@@ -492,9 +477,25 @@ impl CalibrationSet {
             Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
             Algorithm::FourPhase => self.fppn = Some(fppn),
         }
+        Ok(self.record_part(part, source, deps))
+    }
+
+    /// Record where `part` came from and what it was computed with, then
+    /// drop the parts that no longer match their dependencies.
+    fn record_part(&mut self, part: CalibPart, source: PartSource, deps: Deps) -> Vec<CalibPart> {
         self.sources.insert(part, source);
         self.deps.insert(part, deps);
-        Ok(self.drop_stale())
+        self.drop_stale()
+    }
+
+    /// A per-pixel map must fit the window and be finite everywhere; `what`
+    /// names its values in the error, `key` the part.
+    fn check_map(&self, a: &Array2<f32>, what: &str, key: &str) -> Result<(), FormatError> {
+        self.check_map_shape(a, key)?;
+        if let Some((r, c)) = first_non_finite(a) {
+            return Err(invalid(format!("{what} at (row {r}, col {c}) is not finite")).key(key));
+        }
+        Ok(())
     }
 
     fn check_map_shape(&self, a: &Array2<f32>, key: &str) -> Result<(), FormatError> {
