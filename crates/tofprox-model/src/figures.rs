@@ -56,6 +56,22 @@ fn centre_geometry() -> Result<SensorGeometry, ModelError> {
     g.window(g.full_rows / 2, g.full_cols / 2, 1, 1)
 }
 
+/// The "2-phase, {label}" and "4-phase, {label}" line series of one sweep.
+fn phase_pair(label: &str, p2: Vec<(f64, f64)>, p4: Vec<(f64, f64)>) -> [Series; 2] {
+    [
+        Series {
+            name: format!("2-phase, {label}"),
+            points: p2,
+            markers: false,
+        },
+        Series {
+            name: format!("4-phase, {label}"),
+            points: p4,
+            markers: false,
+        },
+    ]
+}
+
 /// Metres per radian of phase (eq. 2.6).
 fn m_per_rad() -> f64 {
     SPEED_OF_LIGHT_M_PER_S / (4.0 * PI * MODULATION_HZ)
@@ -197,16 +213,7 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
             ));
             p4.push((d, 1000.0 * wrapped_error(depth_4phase(&c), d)));
         }
-        series.push(Series {
-            name: format!("2-phase, {name}"),
-            points: p2,
-            markers: false,
-        });
-        series.push(Series {
-            name: format!("4-phase, {name}"),
-            points: p4,
-            markers: false,
-        });
+        series.extend(phase_pair(name, p2, p4));
     }
     Ok(Figure {
         id: "fig3_9_dnl",
@@ -337,27 +344,9 @@ pub fn fig_5_7_5_8() -> Result<(Figure, Figure), ModelError> {
             e2.push((d, 100.0 * wrapped_error(z2, d)));
             e4.push((d, 100.0 * wrapped_error(z4, d)));
         }
-        let ms = t / 1000.0;
-        dist.push(Series {
-            name: format!("2-phase, {ms} ms"),
-            points: d2,
-            markers: false,
-        });
-        dist.push(Series {
-            name: format!("4-phase, {ms} ms"),
-            points: d4,
-            markers: false,
-        });
-        err.push(Series {
-            name: format!("2-phase, {ms} ms"),
-            points: e2,
-            markers: false,
-        });
-        err.push(Series {
-            name: format!("4-phase, {ms} ms"),
-            points: e4,
-            markers: false,
-        });
+        let label = format!("{} ms", t / 1000.0);
+        dist.extend(phase_pair(&label, d2, d4));
+        err.extend(phase_pair(&label, e2, e4));
     }
     Ok((
         Figure {
