@@ -301,12 +301,23 @@ pub struct LabModel {
 pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
 
 impl LabModel {
+    /// Amplitude a = g_p·law, phase φ_tof + φ_p and noise variance of pixel p in
+    /// capture `cap` under this model (effects excluded).
+    #[inline]
+    fn amp_phase_var(&self, cap: &CapInfo, p: usize) -> (f64, f64, f64) {
+        let a = self.gain[p] * cap.law;
+        let phi = cap.phi_tof + self.phase[p];
+        let var = self
+            .noise
+            .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+        (a, phi, var)
+    }
+
     /// Build the context of sample (c, k, p) under this model (effects excluded).
     #[inline]
     pub fn rec(&self, prep: &Prepared, c: usize, k: usize, p: usize) -> Rec {
         let cap = &prep.caps[c];
-        let a = self.gain[p] * cap.law;
-        let phi = cap.phi_tof + self.phase[p];
+        let (a, phi, var) = self.amp_phase_var(cap, p);
         let theta = cap.theta_rad[k];
         let (cv, cd) = if cap.illum {
             self.waveform.eval(phi - theta)
@@ -314,9 +325,6 @@ impl LabModel {
             (0.0, 0.0)
         };
         let x = self.offset[p] + a * cv;
-        let var = self
-            .noise
-            .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
         Rec {
             r: prep.meas[prep.idx(c, k, p)] - prep.mid - x,
             w: 1.0 / var,
@@ -718,11 +726,8 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 if !cap.used || m.sat[c * npix + p] {
                     continue;
                 }
-                let a = m.gain[p] * cap.law;
-                let phi = cap.phi_tof + m.phase[p];
-                let w = 1.0
-                    / m.noise
-                        .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                let (a, phi, var) = m.amp_phase_var(cap, p);
+                let w = 1.0 / var;
                 for (k, th) in cap.theta_rad.iter().enumerate() {
                     let i = prep.idx(c, k, p);
                     let (cv, cd) = if cap.illum {
@@ -795,11 +800,8 @@ fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 if m.sat[c * npix + p] {
                     continue;
                 }
-                let a = m.gain[p] * cap.law;
-                let phi = cap.phi_tof + m.phase[p];
-                let w = 1.0
-                    / m.noise
-                        .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                let (a, phi, var) = m.amp_phase_var(cap, p);
+                let w = 1.0 / var;
                 for (k, th) in cap.theta_rad.iter().enumerate() {
                     let i = prep.idx(c, k, p);
                     let x = phi - th;
