@@ -115,27 +115,40 @@ fn edit(path: &Path, from: &str, to: &str) {
     fs::write(path, text.replacen(from, to, 1)).unwrap();
 }
 
-#[test]
-fn info_summarises_the_example() {
-    let o = run(&["info", p(&example_rec())]);
+/// `tofprox info <path>` succeeds and its text names every needle.
+fn info_text_has(path: &Path, needles: &[&str]) {
+    let o = run(&["info", p(path)]);
     assert_ok(&o);
     let s = stdout(&o);
-    for n in [
-        "captures    8",
-        "correlation-24 ×1",
-        "4phase ×5",
-        "dark 4phase ×1",
-        "2phase ×1",
-        "500 µs ×8",
-        "distance_m      7 capture(s): 0.25, 0.33, 0.4, 0.5, 0.55, 0.7, 0.9",
-        "saturation  0.00 %",
-        "16×16 window at (row 78, col 104) of a 172×224 array",
-    ] {
+    for n in needles {
         assert!(s.contains(n), "info lacks {n:?}:\n{s}");
     }
-    let o = run(&["info", p(&example_rec()), "--json"]);
+}
+
+/// `tofprox info <path> --json` succeeds; its JSON.
+fn info_json(path: &Path) -> serde_json::Value {
+    let o = run(&["info", p(path), "--json"]);
     assert_ok(&o);
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    serde_json::from_str(&stdout(&o)).unwrap()
+}
+
+#[test]
+fn info_summarises_the_example() {
+    info_text_has(
+        &example_rec(),
+        &[
+            "captures    8",
+            "correlation-24 ×1",
+            "4phase ×5",
+            "dark 4phase ×1",
+            "2phase ×1",
+            "500 µs ×8",
+            "distance_m      7 capture(s): 0.25, 0.33, 0.4, 0.5, 0.55, 0.7, 0.9",
+            "saturation  0.00 %",
+            "16×16 window at (row 78, col 104) of a 172×224 array",
+        ],
+    );
+    let v = info_json(&example_rec());
     assert_eq!(v["captures"], 8);
     assert_eq!(v["by_mode"]["4phase"], 5);
     assert_eq!(v["by_illumination"]["off"], 1);
@@ -160,9 +173,7 @@ fn info_reports_saturation_share() {
         }
     }
     fs::write(rec.join("frames/000007.npy"), npy::encode_u16(&a)).unwrap();
-    let o = run(&["info", p(&rec), "--json"]);
-    assert_ok(&o);
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    let v = info_json(&rec);
     assert_eq!(v["per_capture"][7]["saturated_fraction"], 0.25);
     let total = v["saturated_fraction"].as_f64().unwrap();
     assert!((total - 0.25 / 8.0).abs() < 1e-12, "{total}");
@@ -669,23 +680,19 @@ fn process_refuses_what_it_cannot_process() {
 #[test]
 fn info_on_a_calibration_set() {
     let calib = repo().join("calib/example");
-    let o = run(&["info", p(&calib)]);
-    assert_ok(&o);
-    let s = stdout(&o);
-    for n in [
-        "checksums verified",
-        "16×16 window at (row 78, col 104) of a 172×224 array, 12-bit ADC, 80 MHz",
-        "offset           dark level",
-        "wiggling_2phase",
-        "256 bins",
-        "fppn_2phase",
-        "from examples/recording captures [1] at 0.5 m",
-    ] {
-        assert!(s.contains(n), "info lacks {n:?}:\n{s}");
-    }
-    let o = run(&["info", p(&calib), "--json"]);
-    assert_ok(&o);
-    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    info_text_has(
+        &calib,
+        &[
+            "checksums verified",
+            "16×16 window at (row 78, col 104) of a 172×224 array, 12-bit ADC, 80 MHz",
+            "offset           dark level",
+            "wiggling_2phase",
+            "256 bins",
+            "fppn_2phase",
+            "from examples/recording captures [1] at 0.5 m",
+        ],
+    );
+    let v = info_json(&calib);
     assert_eq!(v["valid_for"]["adc_bits"], 12);
     assert_eq!(v["parts"].as_object().unwrap().len(), 5);
     // the FPN of the example is σ ≈ 34 LSB around the mid code
