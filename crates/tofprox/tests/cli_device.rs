@@ -16,6 +16,16 @@ fn capture(out: &std::path::Path, args: &[&str]) -> Output {
     run(&all)
 }
 
+/// `tofprox device capture --emulated <args…> --out <out>` succeeds; the
+/// recording it wrote.
+fn emulated_capture(out: &std::path::Path, args: &[&str]) -> Recording {
+    let mut all = vec!["--emulated"];
+    all.extend_from_slice(args);
+    let o = capture(out, &all);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    Recording::open(out).unwrap()
+}
+
 #[test]
 fn probe_without_device_says_so_clearly() {
     let o = run(&["device", "probe", "--vid", "04b4", "--pid", "00c3"]);
@@ -59,20 +69,10 @@ fn tempfile_dir() -> std::path::PathBuf {
 fn emulated_capture_writes_a_version_1_recording() {
     let dir = tempfile_dir();
     let out = dir.join("rec2");
-    let o = capture(
+    let rec = emulated_capture(
         &out,
-        &[
-            "--emulated",
-            "--mode",
-            "2phase",
-            "--exposure-us",
-            "300",
-            "--count",
-            "2",
-        ],
+        &["--mode", "2phase", "--exposure-us", "300", "--count", "2"],
     );
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let rec = Recording::open(&out).unwrap();
     assert_eq!((rec.sensor().rows, rec.sensor().cols), (172, 224));
     assert_eq!(rec.captures().len(), 2);
     let c = &rec.captures()[0];
@@ -89,10 +89,9 @@ fn emulated_capture_writes_a_version_1_recording() {
 
     // grey image becomes its own dark capture; the window shrinks the frames
     let out = dir.join("rec4");
-    let o = capture(
+    let rec = emulated_capture(
         &out,
         &[
-            "--emulated",
             "--mode",
             "4phase-grey",
             "--exposure-us",
@@ -101,8 +100,6 @@ fn emulated_capture_writes_a_version_1_recording() {
             "40,20",
         ],
     );
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let rec = Recording::open(&out).unwrap();
     assert_eq!((rec.sensor().rows, rec.sensor().roi_origin), (20, [40, 0]));
     let caps = rec.captures();
     assert_eq!(caps.len(), 2);
