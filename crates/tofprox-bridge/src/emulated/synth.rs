@@ -60,6 +60,13 @@ fn model_err(e: tofprox_model::ModelError) -> BridgeError {
     BridgeError::with_source(ErrorKind::Config, "frame synthesis (tofprox-model)", e)
 }
 
+/// `script` sized to the full sensor array of `geom`.
+fn fit_script(mut script: SceneScript, geom: &Geometry) -> SceneScript {
+    script.full_rows = geom.full_rows;
+    script.full_cols = geom.cols;
+    script
+}
+
 /// Frames from the physical model.
 pub struct ModelSynth {
     model: ModelConfig,
@@ -82,9 +89,7 @@ impl ModelSynth {
         ambient_klux: f64,
         temperature_c: f64,
     ) -> Result<Self, BridgeError> {
-        let mut script = script;
-        script.full_rows = geom.full_rows;
-        script.full_cols = geom.cols;
+        let script = fit_script(script, &geom);
         script.validate().map_err(model_err)?;
         let mut s = ModelSynth {
             model,
@@ -190,9 +195,7 @@ impl IdealSynth {
         let col_offset = (0..geom.cols)
             .map(|_| rng.random_range(-20.0..20.0))
             .collect();
-        let mut script = script;
-        script.full_rows = geom.full_rows;
-        script.full_cols = geom.cols;
+        let script = fit_script(script, &geom);
         IdealSynth {
             geom,
             script,
@@ -279,6 +282,22 @@ mod tests {
             .to_vec()
     }
 
+    fn geometry_80mhz(full_rows: usize, cols: usize) -> Geometry {
+        Geometry {
+            full_rows,
+            cols,
+            adc_bits: 12,
+            modulation_hz: 80e6,
+        }
+    }
+
+    fn wall_at_half_metre() -> SceneScript {
+        SceneScript {
+            far_m: 0.3,
+            ..SceneScript::wall(0.5)
+        }
+    }
+
     fn centre_distance(out: &[Vec<u16>], rows: usize, cols: usize) -> f64 {
         let i = rows / 2 * cols + cols / 2;
         let m = |k: usize| f64::from(out[k][i]);
@@ -290,20 +309,8 @@ mod tests {
 
     #[test]
     fn ideal_phase_follows_distance() {
-        let g = Geometry {
-            full_rows: 8,
-            cols: 8,
-            adc_bits: 12,
-            modulation_hz: 80e6,
-        };
-        let mut s = IdealSynth::new(
-            g,
-            SceneScript {
-                far_m: 0.3,
-                ..SceneScript::wall(0.5)
-            },
-            1,
-        );
+        let g = geometry_80mhz(8, 8);
+        let mut s = IdealSynth::new(g, wall_at_half_metre(), 1);
         let mut out = Vec::new();
         s.superframe(0.0, &four(500.0), 0, 8, &mut out).unwrap();
         let d = centre_distance(&out, 8, 8);
@@ -312,24 +319,9 @@ mod tests {
 
     #[test]
     fn model_frames_have_window_shape() {
-        let g = Geometry {
-            full_rows: 172,
-            cols: 224,
-            adc_bits: 12,
-            modulation_hz: 80e6,
-        };
-        let mut s = ModelSynth::new(
-            ModelConfig::ideal(),
-            g,
-            SceneScript {
-                far_m: 0.3,
-                ..SceneScript::wall(0.5)
-            },
-            3,
-            0.0,
-            25.0,
-        )
-        .unwrap();
+        let g = geometry_80mhz(172, 224);
+        let mut s =
+            ModelSynth::new(ModelConfig::ideal(), g, wall_at_half_metre(), 3, 0.0, 25.0).unwrap();
         let mut out = Vec::new();
         s.superframe(0.0, &four(500.0), 40, 20, &mut out).unwrap();
         assert_eq!(out.len(), 4);
