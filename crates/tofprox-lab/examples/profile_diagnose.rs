@@ -4,18 +4,10 @@ use std::time::Instant;
 
 use tofprox_lab::diagnose::{compare, diagnose};
 use tofprox_lab::fit::{LabSpec, Prepared};
-use tofprox_lab::synth::{Hidden, SynthSpec, generate};
+use tofprox_lab::synth::{SynthSpec, generate};
 
 fn main() {
-    let spec = SynthSpec {
-        rows: 16,
-        cols: 16,
-        distances_m: (0..149).map(|i| 0.15 + i as f64 * (1.65 / 148.0)).collect(),
-        exposures_us: vec![250.0, 500.0, 1000.0],
-        hidden: vec![Hidden::Droop { eps: 0.01 }],
-        ..SynthSpec::default()
-    };
-    let ds = generate(&spec);
+    let ds = generate(&SynthSpec::diagnose_benchmark());
     let prep = match Prepared::new(&ds) {
         Ok(p) => p,
         Err(e) => {

@@ -62,6 +62,23 @@ impl Default for SynthSpec {
     }
 }
 
+impl SynthSpec {
+    /// The recording of the `diagnose` benchmark and the `profile_diagnose`
+    /// example: 16×16 pixels, 2 darks per exposure, 1 correlation capture,
+    /// 3 exposures × 149 distances × 2 repeats = 894 sweep captures → 901
+    /// captures, with a 1 % VCSEL droop hidden.
+    pub fn diagnose_benchmark() -> Self {
+        Self {
+            rows: 16,
+            cols: 16,
+            distances_m: (0..149).map(|i| 0.15 + i as f64 * (1.65 / 148.0)).collect(),
+            exposures_us: vec![250.0, 500.0, 1000.0],
+            hidden: vec![Hidden::Droop { eps: 0.01 }],
+            ..Self::default()
+        }
+    }
+}
+
 fn gauss(rng: &mut ChaCha8Rng) -> f64 {
     // Box–Muller
     let u1: f64 = rng.random::<f64>().max(1e-300);
