@@ -40,17 +40,30 @@ def plain(v):
     return str(v)
 
 
-def native(bus, args):
-    obj = bus.get_object("org.tofprox.Proximity1", "/org/tofprox/Proximity1")
-    iface = dbus.Interface(obj, "org.tofprox.Proximity1")
-    props = dbus.Interface(obj, "org.freedesktop.DBus.Properties")
+def props_dict(d):
+    return {str(k): plain(v) for k, v in d.items()}
 
+
+def interfaces(bus, name, path, iface_name):
+    """(the interface, its org.freedesktop.DBus.Properties) of object `path`."""
+    obj = bus.get_object(name, path)
+    return dbus.Interface(obj, iface_name), dbus.Interface(obj, "org.freedesktop.DBus.Properties")
+
+
+def watch_properties(bus, path):
+    """Report every PropertiesChanged signal of object `path`."""
     def changed(iface_name, changed, invalidated):
-        emit(event="changed", interface=str(iface_name), props={str(k): plain(v) for k, v in changed.items()})
+        emit(event="changed", interface=str(iface_name), props=props_dict(changed))
 
     bus.add_signal_receiver(changed, signal_name="PropertiesChanged",
                             dbus_interface="org.freedesktop.DBus.Properties",
-                            path="/org/tofprox/Proximity1")
+                            path=path)
+
+
+def native(bus, args):
+    iface, props = interfaces(bus, "org.tofprox.Proximity1", "/org/tofprox/Proximity1",
+                              "org.tofprox.Proximity1")
+    watch_properties(bus, "/org/tofprox/Proximity1")
     if args.depth:
         def depth(ts, w, h, d, a):
             emit(event="depth", width=int(w), height=int(h), bytes=len(d))
@@ -59,23 +72,15 @@ def native(bus, args):
         iface.ClaimDepth()
     iface.ClaimProximity(timeout=30)
     allp = props.GetAll("org.tofprox.Proximity1")
-    emit(event="claimed", unique=bus.get_unique_name(), props={str(k): plain(v) for k, v in allp.items()})
+    emit(event="claimed", unique=bus.get_unique_name(), props=props_dict(allp))
 
 
 def compat(bus, args):
-    obj = bus.get_object("net.hadess.SensorProxy", "/net/hadess/SensorProxy")
-    iface = dbus.Interface(obj, "net.hadess.SensorProxy")
-    props = dbus.Interface(obj, "org.freedesktop.DBus.Properties")
-    cobj = bus.get_object("net.hadess.SensorProxy", "/net/hadess/SensorProxy/Compass")
-    ciface = dbus.Interface(cobj, "net.hadess.SensorProxy.Compass")
-    cprops = dbus.Interface(cobj, "org.freedesktop.DBus.Properties")
-
-    def changed(iface_name, changed, invalidated):
-        emit(event="changed", interface=str(iface_name), props={str(k): plain(v) for k, v in changed.items()})
-
-    bus.add_signal_receiver(changed, signal_name="PropertiesChanged",
-                            dbus_interface="org.freedesktop.DBus.Properties",
-                            path="/net/hadess/SensorProxy")
+    iface, props = interfaces(bus, "net.hadess.SensorProxy", "/net/hadess/SensorProxy",
+                              "net.hadess.SensorProxy")
+    ciface, cprops = interfaces(bus, "net.hadess.SensorProxy", "/net/hadess/SensorProxy/Compass",
+                                "net.hadess.SensorProxy.Compass")
+    watch_properties(bus, "/net/hadess/SensorProxy")
     iface.ClaimAccelerometer()
     iface.ClaimLight()
     iface.ClaimProximity(timeout=30)
@@ -83,8 +88,8 @@ def compat(bus, args):
     allp = props.GetAll("net.hadess.SensorProxy")
     callp = cprops.GetAll("net.hadess.SensorProxy.Compass")
     emit(event="claimed", unique=bus.get_unique_name(),
-         props={str(k): plain(v) for k, v in allp.items()},
-         compass={str(k): plain(v) for k, v in callp.items()})
+         props=props_dict(allp),
+         compass=props_dict(callp))
     if args.release_after:
         def release():
             iface.ReleaseAccelerometer()
