@@ -115,6 +115,15 @@ fn edit(path: &Path, from: &str, to: &str) {
     fs::write(path, text.replacen(from, to, 1)).unwrap();
 }
 
+/// `tofprox process <rec> --calib <calib> --algo <algo> --out <out> <extra…>`.
+fn process(rec: &str, calib: &str, algo: &str, out: &str, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "process", rec, "--calib", calib, "--algo", algo, "--out", out,
+    ];
+    args.extend_from_slice(extra);
+    run(&args)
+}
+
 /// `tofprox info <path>` succeeds and its text names every needle.
 fn info_text_has(path: &Path, needles: &[&str]) {
     let o = run(&["info", p(path)]);
@@ -379,16 +388,7 @@ fn broken(mutate: impl FnOnce(&Path), needles: &[&str]) {
     let out = t.path().join("out");
     let calib = repo().join("calib/example");
     assert_bad(
-        &run(&[
-            "process",
-            p(&rec),
-            "--calib",
-            p(&calib),
-            "--algo",
-            "2phase",
-            "--out",
-            p(&out),
-        ]),
+        &process(p(&rec), p(&calib), "2phase", p(&out), &[]),
         needles,
     );
 }
@@ -516,18 +516,7 @@ fn bad_calibration() {
     let calib = t.path().join("calib");
     copy_dir(&repo().join("calib/example"), &calib);
     let out = t.path().join("out");
-    let process = |rec: &Path, algo: &str| {
-        run(&[
-            "process",
-            p(rec),
-            "--calib",
-            p(&calib),
-            "--algo",
-            algo,
-            "--out",
-            p(&out),
-        ])
-    };
+    let process_copy = |rec: &Path, algo: &str| process(p(rec), p(&calib), algo, p(&out), &[]);
     // checksum mismatch: one flipped bit in an array
     let f = calib.join("wiggling_2phase.npy");
     let mut b = fs::read(&f).unwrap();
@@ -535,7 +524,7 @@ fn bad_calibration() {
     b[n - 5] ^= 0x10;
     fs::write(&f, &b).unwrap();
     assert_bad(
-        &process(&example_rec(), "2phase"),
+        &process_copy(&example_rec(), "2phase"),
         &[
             "wiggling_2phase.npy",
             "wiggling_2phase.sha256",
@@ -544,7 +533,7 @@ fn bad_calibration() {
     );
     b[n - 5] ^= 0x10;
     fs::write(&f, &b).unwrap();
-    assert_ok(&process(&example_rec(), "2phase"));
+    assert_ok(&process_copy(&example_rec(), "2phase"));
 
     // data of another modulation frequency / window / ADC
     let rec = t.path().join("rec");
@@ -556,7 +545,7 @@ fn bad_calibration() {
         "modulation_hz = 60000000.0",
     );
     assert_bad(
-        &process(&rec, "4phase"),
+        &process_copy(&rec, "4phase"),
         &[
             "calibration.toml",
             "modulation_hz",
@@ -571,12 +560,12 @@ fn bad_calibration() {
     );
     edit(&toml, "roi_origin = [78, 104]", "roi_origin = [0, 0]");
     assert_bad(
-        &process(&rec, "4phase"),
+        &process_copy(&rec, "4phase"),
         &["calibration.toml", "roi_origin"],
     );
     edit(&toml, "roi_origin = [0, 0]", "roi_origin = [78, 104]");
     edit(&toml, "adc_bits = 12", "adc_bits = 14");
-    assert_bad(&process(&rec, "4phase"), &["adc_bits"]);
+    assert_bad(&process_copy(&rec, "4phase"), &["adc_bits"]);
     // adding to an incompatible set is refused too
     assert_bad(
         &run(&["calibrate", "fpn", p(&rec), "--out", p(&calib)]),
@@ -587,26 +576,23 @@ fn bad_calibration() {
     let ct = calib.join("calibration.toml");
     edit(&ct, "lut_size = 256", "lut_size = 128");
     assert_bad(
-        &process(&example_rec(), "2phase"),
+        &process_copy(&example_rec(), "2phase"),
         &["calibration.toml", "wiggling_2phase.lut_size"],
     );
     edit(&ct, "lut_size = 128", "lut_size = 256");
     edit(&ct, "[valid_for]\n", "[valid_for]\ntemperature_c = 30\n");
     assert_bad(
-        &process(&example_rec(), "2phase"),
+        &process_copy(&example_rec(), "2phase"),
         &["calibration.toml", "unknown field `temperature_c`"],
     );
     assert_bad(
-        &run(&[
-            "process",
+        &process(
             "examples/recording",
-            "--calib",
             "/nonexistent/calib",
-            "--algo",
             "2phase",
-            "--out",
             p(&out),
-        ]),
+            &[],
+        ),
         &["/nonexistent/calib"],
     );
 }
@@ -621,47 +607,36 @@ fn process_refuses_what_it_cannot_process() {
     let parts: Vec<&str> = text.split("[[capture]]").collect();
     let kept = format!("{}[[capture]]{}[[capture]]{}", parts[0], parts[1], parts[8]);
     fs::write(&toml, kept).unwrap();
-    let o = run(&[
-        "process",
+    let o = process(
         p(&rec),
-        "--calib",
         "calib/example",
-        "--algo",
         "4phase",
-        "--out",
         p(&t.path().join("o")),
-    ]);
+        &[],
+    );
     assert_bad(
         &o,
         &["no illuminated capture that can be processed as 4phase"],
     );
-    let o = run(&[
-        "process",
+    let o = process(
         p(&rec),
-        "--calib",
         "calib/example",
-        "--algo",
         "2phase",
-        "--out",
         p(&t.path().join("o")),
-        "--json",
-    ]);
+        &["--json"],
+    );
     assert_ok(&o);
     let lines = json_lines(&o);
     assert_eq!(lines.len(), 1);
     assert_eq!(lines[0]["index"], 1);
     // the correlation capture is skipped with a note on stderr
-    let o = run(&[
-        "process",
+    let o = process(
         "examples/recording",
-        "--calib",
         "calib/example",
-        "--algo",
         "4phase",
-        "--out",
         p(&t.path().join("o2")),
-        "--json",
-    ]);
+        &["--json"],
+    );
     assert_ok(&o);
     assert!(stderr(&o).contains("skipping capture 1"), "{}", stderr(&o));
     assert!(stderr(&o).contains("skipping capture 7"), "{}", stderr(&o));
