@@ -1,9 +1,12 @@
 //! Output of the lab: the `--json` documents of the issue's output contract,
 //! the compact terminal table, and the self-contained HTML report with inline
-//! SVG plots (plotters, rendered to strings; no network, no fonts needed).
+//! SVG plots (drawn by `tofprox-chart`, the one chart component; no network,
+//! no fonts needed).
 use std::fmt::Write as _;
 
-use plotters::prelude::*;
+use tofprox_chart::{
+    Bar, BarChart, Heatmap, LineChart, Series, bar_chart, heatmap, line_chart, mean_per_x,
+};
 use serde_json::{Value, json};
 
 use crate::diagnose::{AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Z_NULL};
@@ -161,180 +164,6 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     s
 }
 
-const W: u32 = 760;
-const H: u32 = 360;
-
-type Series<'a> = (&'a str, RGBColor, Vec<(f64, f64)>, bool);
-
-fn range_of(series: &[Series<'_>]) -> ((f64, f64), (f64, f64)) {
-    let mut xr = (f64::INFINITY, f64::NEG_INFINITY);
-    let mut yr = (f64::INFINITY, f64::NEG_INFINITY);
-    for (_, _, pts, _) in series {
-        for (x, y) in pts.iter().filter(|(x, y)| x.is_finite() && y.is_finite()) {
-            xr = (xr.0.min(*x), xr.1.max(*x));
-            yr = (yr.0.min(*y), yr.1.max(*y));
-        }
-    }
-    if !xr.0.is_finite() {
-        xr = (0.0, 1.0);
-        yr = (0.0, 1.0);
-    }
-    let pad = |r: (f64, f64)| {
-        let d = (r.1 - r.0).abs().max(1e-9) * 0.05;
-        (r.0 - d, r.1 + d)
-    };
-    (pad(xr), pad(yr))
-}
-
-/// A scatter/line chart as an SVG string (`true` in a series = points).
-fn chart(title: &str, xl: &str, yl: &str, series: &[Series<'_>]) -> String {
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (W, H)).into_drawing_area();
-        let _ = root.fill(&WHITE);
-        let ((x0, x1), (y0, y1)) = range_of(series);
-        let Ok(mut c) = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(8)
-            .x_label_area_size(36)
-            .y_label_area_size(60)
-            .build_cartesian_2d(x0..x1, y0..y1)
-        else {
-            return String::new();
-        };
-        let _ = c
-            .configure_mesh()
-            .x_desc(xl)
-            .y_desc(yl)
-            .light_line_style(WHITE.mix(0.0))
-            .draw();
-        for (name, col, pts, points) in series {
-            let pts: Vec<(f64, f64)> = pts
-                .iter()
-                .copied()
-                .filter(|(x, y)| x.is_finite() && y.is_finite())
-                .collect();
-            let col = *col;
-            let r = if *points {
-                c.draw_series(pts.iter().map(|p| Circle::new(*p, 2, col.filled())))
-            } else {
-                c.draw_series(LineSeries::new(pts, col.stroke_width(2)))
-            };
-            if let Ok(r) = r {
-                r.label(*name).legend(move |(x, y)| {
-                    Rectangle::new([(x, y - 4), (x + 12, y + 4)], col.filled())
-                });
-            }
-        }
-        let _ = c
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw();
-        let _ = root.present();
-    }
-    out
-}
-
-/// Horizontal bars of the structure score per condition (red above the noise level).
-fn structure_bars(c: &[crate::structure::ConditionScore]) -> String {
-    let mut out = String::new();
-    {
-        let root = SVGBackend::with_string(&mut out, (W, 40 + 24 * c.len().max(1) as u32))
-            .into_drawing_area();
-        let _ = root.fill(&WHITE);
-        let zmax = c.iter().map(|s| s.z).fold(10.0f64, f64::max);
-        let n = c.len().max(1);
-        let Ok(mut ch) = ChartBuilder::on(&root)
-            .caption(
-                "structure score z per condition (≤ 6: noise-like)",
-                ("sans-serif", 16),
-            )
-            .margin(8)
-            .x_label_area_size(28)
-            .y_label_area_size(120)
-            .build_cartesian_2d(0.0..zmax * 1.05, 0..n)
-        else {
-            return String::new();
-        };
-        let names: Vec<String> = c.iter().map(|s| s.condition.clone()).collect();
-        let _ = ch
-            .configure_mesh()
-            .y_labels(n)
-            .y_label_formatter(&|i| {
-                names
-                    .get(n.saturating_sub(1 + *i))
-                    .cloned()
-                    .unwrap_or_default()
-            })
-            .draw();
-        for (i, s) in c.iter().enumerate() {
-            let y = n - 1 - i;
-            let col = if s.z > 6.0 {
-                RED
-            } else {
-                RGBColor(120, 160, 120)
-            };
-            let _ = ch.draw_series(std::iter::once(Rectangle::new(
-                [(0.0, y), (s.z.max(0.0), y + 1)],
-                col.filled(),
-            )));
-        }
-        let _ = root.present();
-    }
-    out
-}
-
-/// Residual map: χ² per sample of every pixel.
-fn pixel_map(c: &Comparison, rows: usize, cols: usize) -> String {
-    let mut out = String::new();
-    {
-        let cell = (320 / cols.max(rows).max(1)).max(4) as i32;
-        let root = SVGBackend::with_string(
-            &mut out,
-            (
-                (cell as usize * cols + 140) as u32,
-                (cell as usize * rows + 40) as u32,
-            ),
-        )
-        .into_drawing_area();
-        let _ = root.fill(&WHITE);
-        let vmax = c
-            .pixel_chi2
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .fold(2.0f64, f64::max);
-        for (p, v) in c.pixel_chi2.iter().enumerate() {
-            let (r, cc) = ((p / cols) as i32, (p % cols) as i32);
-            let t = if v.is_finite() {
-                ((v - 1.0) / (vmax - 1.0).max(1e-9)).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let col = RGBColor(
-                (255.0 * t) as u8,
-                (255.0 * (1.0 - t) * 0.8) as u8,
-                (255.0 * (1.0 - t)) as u8,
-            );
-            let _ = root.draw(&Rectangle::new(
-                [
-                    (10 + cc * cell, 30 + r * cell),
-                    (10 + (cc + 1) * cell, 30 + (r + 1) * cell),
-                ],
-                col.filled(),
-            ));
-        }
-        let _ = root.draw(&Text::new(
-            format!("χ²/sample per pixel (blue 1 … red {vmax:.1})"),
-            (10, 8),
-            ("sans-serif", 14),
-        ));
-        let _ = root.present();
-    }
-    out
-}
-
 type Curve = Vec<(f64, f64)>;
 
 fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
@@ -348,10 +177,71 @@ fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
     )
 }
 
+const ORANGE: [u8; 3] = [230, 120, 0];
+const BROWN: [u8; 3] = [120, 60, 0];
+const LIGHT_BLUE: [u8; 3] = [100, 140, 255];
+const BLUE: [u8; 3] = [31, 119, 180];
+const RED: [u8; 3] = [214, 39, 40];
+const BLACK: [u8; 3] = [0, 0, 0];
+
+fn chart(title: &str, x_label: &str, y_label: &str, series: Vec<Series>) -> String {
+    line_chart(&LineChart {
+        title: title.into(),
+        x_label: x_label.into(),
+        y_label: y_label.into(),
+        series,
+        notes: Vec::new(),
+    })
+}
+
+/// Horizontal bars of the structure score per condition (red above the noise level).
+fn structure_bars(c: &[crate::structure::ConditionScore]) -> String {
+    bar_chart(&BarChart {
+        title: "structure score z per condition (≤ 6: noise-like)".into(),
+        value_label: "structure score z".into(),
+        bars: c
+            .iter()
+            .map(|s| Bar {
+                label: s.condition.clone(),
+                value: s.z,
+            })
+            .collect(),
+        threshold: Some((6.0, "noise level z = 6".into())),
+    })
+}
+
+/// Residual map: χ² per sample of every pixel, in sensor coordinates.
+fn pixel_map(c: &Comparison, rows: usize, cols: usize, origin: [usize; 2]) -> String {
+    let vmax = c
+        .pixel_chi2
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .fold(2.0f64, f64::max);
+    heatmap(&Heatmap {
+        title: "χ² per sample of each pixel (1 = noise-like)".into(),
+        rows,
+        cols,
+        values: c.pixel_chi2.clone(),
+        origin: (origin[0], origin[1]),
+        range: Some((1.0, vmax)),
+        value_label: "χ²/sample".into(),
+    })
+}
+
 fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
+    tofprox_chart::escape(s)
+}
+
+/// Why an error summary has no value: no capture of that kind in the recording.
+const NO_DATA: &str = "no capture in the recording gives this value";
+
+/// A table cell: the value with `decimals`, or "n/a" with the reason as tooltip.
+fn cell(v: Option<f64>, decimals: usize, why_not: &str) -> String {
+    match v {
+        Some(v) if v.is_finite() => format!("<td>{v:.decimals$}</td>"),
+        _ => format!("<td class=\"na\" title=\"{}\">n/a</td>", esc(why_not)),
+    }
 }
 
 /// One self-contained HTML page: comparison, optional diagnosis, optional add.
@@ -359,6 +249,7 @@ pub fn html_report(
     title: &str,
     rows: usize,
     cols: usize,
+    origin: [usize; 2],
     cmp: &Comparison,
     diag: Option<&Diagnosis>,
     add: Option<(&str, &AddOutcome)>,
@@ -388,14 +279,14 @@ pub fn html_report(
         h,
         "<h2>How well the model explains the measurement</h2><table><tr><th>χ²/dof</th><th>z</th><th>raw RMS [LSB]</th>\
          <th>2-phase depth RMS [mm]</th><th>4-phase depth RMS [mm]</th><th>samples</th></tr>\
-         <tr><td class=\"{}\">{:.3}</td><td>{:.1}</td><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr></table>\
+         <tr><td class=\"{}\">{:.3}</td><td>{:.1}</td>{}{}{}<td>{}</td></tr></table>\
          <p>Noise model (pooled photon transfer, {}): var = ({:.3} + {:.4}·A + {:.2e}·ambient·t + {:.2e}·t)/averaged LSB².</p>",
         if cmp.fit.z > Z_NULL { "bad" } else { "ok" },
         cmp.fit.chi2_per_dof,
         cmp.fit.z,
-        cmp.rms.raw_lsb,
-        cmp.rms.depth_2phase_mm,
-        cmp.rms.depth_4phase_mm,
+        cell(Some(cmp.rms.raw_lsb), 3, NO_DATA),
+        cell(Some(cmp.rms.depth_2phase_mm), 2, NO_DATA),
+        cell(Some(cmp.rms.depth_4phase_mm), 2, NO_DATA),
         cmp.n,
         if cmp.model.noise.from_repeats {
             "from repeated captures"
@@ -422,7 +313,11 @@ pub fn html_report(
         "4-phase amplitude per capture (mean over pixels)",
         "distance [m]",
         "amplitude [LSB]",
-        &[("measured", BLUE, meas, true), ("model", RED, model, true)],
+        // the model as dots under the measurement's rings: both stay visible
+        vec![
+            Series::points("model", model).colour(RED),
+            Series::points("measured", meas).colour(BLUE),
+        ],
     ));
     let (d2, d4) = depth_series(&cmp.depth);
     h.push_str("<h3>Where the model fails</h3>");
@@ -430,9 +325,9 @@ pub fn html_report(
         "depth residual depth(measured) − depth(model), mean per capture",
         "distance [m]",
         "depth residual [mm]",
-        &[
-            ("2-phase", RGBColor(230, 120, 0), d2, true),
-            ("4-phase", BLUE, d4, true),
+        vec![
+            Series::points("2-phase", d2).colour(ORANGE),
+            Series::points("4-phase", d4).colour(BLUE),
         ],
     ));
     h.push_str(&structure_bars(&cmp.structure));
@@ -453,35 +348,33 @@ pub fn html_report(
             ),
             &st.condition,
             unit,
-            &[
-                ("binned residual", RED, est, true),
-                ("+2 SE", BLACK, hi, false),
-                ("−2 SE", BLACK, lo, false),
+            vec![
+                Series::points("binned residual", est).colour(RED),
+                Series::line("+2 SE", hi).colour(BLACK),
+                Series::line("−2 SE", lo).colour(BLACK),
             ],
         ));
     }
     h.push_str("<h3>Residual map</h3>");
-    h.push_str(&pixel_map(cmp, rows, cols));
+    h.push_str(&pixel_map(cmp, rows, cols, origin));
     if let Some(d) = diag {
         h.push_str(
             "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
              <th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
         );
+        const NOT_REFITTED: &str = "not refitted: only the leading candidates are refitted with the whole model";
         for c in &d.candidates {
-            let (a2, a4) = c
-                .rms_after
-                .map(|r| (r.depth_2phase_mm, r.depth_4phase_mm))
-                .unwrap_or((f64::NAN, f64::NAN));
+            let after = c.rms_after;
             let _ = write!(
                 h,
-                "<tr><th>{}</th><td>{:.1}%</td><td>{:.1}%</td><td>{:.1}</td><td>{:.0}</td><td>{:.2}</td><td>{:.2}</td><td>{}</td></tr>",
+                "<tr><th>{}</th>{}{}{}{}{}{}<td>{}</td></tr>",
                 esc(&c.effect),
-                100.0 * c.explained_excess,
-                100.0 * c.cv_gain,
-                c.z_after,
-                c.delta_bic,
-                a2,
-                a4,
+                cell(Some(100.0 * c.explained_excess), 1, "no screening fit").replace("</td>", "%</td>"),
+                cell(Some(100.0 * c.cv_gain), 1, "no cross-validation").replace("</td>", "%</td>"),
+                cell(Some(c.z_after), 1, NOT_REFITTED),
+                cell(Some(c.delta_bic), 0, NOT_REFITTED),
+                cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
+                cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
                 if cancels_in_4phase(&c.effect) {
                     "yes"
                 } else {
@@ -490,6 +383,9 @@ pub fn html_report(
             );
         }
         h.push_str("</table>");
+        if d.candidates.iter().any(|c| c.rms_after.is_none()) {
+            let _ = write!(h, "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>");
+        }
         for (id, why) in &d.skipped {
             let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
         }
@@ -500,16 +396,15 @@ pub fn html_report(
         let _ = write!(
             h,
             "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
-             <tr><th>before</th><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{:.3}</td></tr>\
-             <tr><th>after</th><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td><td>{:.3}</td></tr></table>",
-            b.raw_lsb,
-            b.depth_2phase_mm,
-            b.depth_4phase_mm,
-            b.chi2_per_dof,
-            a.raw_lsb,
-            a.depth_2phase_mm,
-            a.depth_4phase_mm,
-            a.chi2_per_dof,
+             <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
+            cell(Some(b.raw_lsb), 3, NO_DATA),
+            cell(Some(b.depth_2phase_mm), 2, NO_DATA),
+            cell(Some(b.depth_4phase_mm), 2, NO_DATA),
+            cell(Some(b.chi2_per_dof), 3, NO_DATA),
+            cell(Some(a.raw_lsb), 3, NO_DATA),
+            cell(Some(a.depth_2phase_mm), 2, NO_DATA),
+            cell(Some(a.depth_4phase_mm), 2, NO_DATA),
+            cell(Some(a.chi2_per_dof), 3, NO_DATA),
             e = esc(effect)
         );
         let (b2, b4) = depth_series(&out.before.depth);
@@ -518,11 +413,12 @@ pub fn html_report(
             "depth residual before/after (mean per capture)",
             "distance [m]",
             "depth residual [mm]",
-            &[
-                ("2-phase before", RGBColor(230, 120, 0), b2, true),
-                ("2-phase after", RGBColor(120, 60, 0), a2, false),
-                ("4-phase before", RGBColor(100, 140, 255), b4, true),
-                ("4-phase after", BLUE, a4, false),
+                // "after" as the mean per distance, joined in distance order
+            vec![
+                Series::points("2-phase before", b2).colour(ORANGE),
+                Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),
+                Series::points("4-phase before", b4).colour(LIGHT_BLUE),
+                Series::line("4-phase after (mean per distance)", mean_per_x(&a4)).colour(BLUE),
             ],
         ));
     }

@@ -79,7 +79,7 @@ fn main() -> ExitCode {
         Err(err) => {
             // Every failure is reported as one clear line chain, never a panic
             // trace. Exit code 2: bad input or a failed operation (see README).
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", tofproxd::logging::error_line(err.as_ref()));
             ExitCode::from(2)
         }
     }

@@ -60,8 +60,9 @@ fn main() -> ExitCode {
     match rt.block_on(run(args)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
-            notify::status(&format!("failed: {e:#}"));
+            let line = tofproxd::logging::error_line(e.as_ref());
+            eprintln!("error: {line}");
+            notify::status(&format!("failed: {line}"));
             ExitCode::from(2)
         }
     }

@@ -144,7 +144,7 @@ fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
         );
         write_report(
             p,
-            &report::html_report(&title, prep.rows, prep.cols, &cmp, None, None),
+            &report::html_report(&title, prep.rows, prep.cols, prep.roi_origin, &cmp, None, None),
         )?;
     }
     Ok(ExitCode::SUCCESS)
@@ -176,7 +176,7 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         );
         write_report(
             p,
-            &report::html_report(&title, prep.rows, prep.cols, &cmp, Some(&d), None),
+            &report::html_report(&title, prep.rows, prep.cols, prep.roi_origin, &cmp, Some(&d), None),
         )?;
     }
     Ok(ExitCode::SUCCESS)
@@ -238,6 +238,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 &title,
                 prep.rows,
                 prep.cols,
+                prep.roi_origin,
                 &res.after,
                 None,
                 Some((&a.effect, &res)),

@@ -741,66 +741,40 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
 
 // ---------------------------------------------------------------- process
 
-/// Perceptual colour map (viridis key colours, linear between them).
-const VIRIDIS: [[u8; 3]; 9] = [
-    [0x44, 0x01, 0x54],
-    [0x47, 0x2d, 0x7b],
-    [0x3b, 0x52, 0x8b],
-    [0x2c, 0x72, 0x8e],
-    [0x21, 0x91, 0x8c],
-    [0x28, 0xae, 0x80],
-    [0x5e, 0xc9, 0x62],
-    [0xad, 0xdc, 0x30],
-    [0xfd, 0xe7, 0x25],
-];
-
-fn colormap(t: f64) -> [u8; 3] {
-    let t = if t.is_finite() {
-        t.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let x = t * (VIRIDIS.len() - 1) as f64;
-    let i = (x.floor() as usize).min(VIRIDIS.len() - 2);
-    let f = x - i as f64;
-    let (a, b) = (VIRIDIS[i], VIRIDIS[i + 1]);
-    let mut out = [0u8; 3];
-    for c in 0..3 {
-        out[c] = (f64::from(a[c]) + (f64::from(b[c]) - f64::from(a[c])) * f).round() as u8;
-    }
-    out
-}
-
-/// Write a colour-mapped depth preview: near = dark blue, far = yellow,
-/// invalid = black; each pixel scaled up so the image is at least ~256 px wide.
-fn write_depth_png(path: &Path, depth_mm: &Array2<u16>, max_m: f64) -> anyhow::Result<()> {
+/// Write a colour-mapped depth preview with row/column axes in sensor
+/// coordinates and a colour bar in metres (0 … `max_m`; invalid = black), drawn
+/// by the one chart component.
+fn write_depth_png(
+    path: &Path,
+    depth_mm: &Array2<u16>,
+    origin: [usize; 2],
+    max_m: f64,
+) -> anyhow::Result<()> {
     let (rows, cols) = depth_mm.dim();
-    let scale = (256 / cols.max(1)).clamp(1, 16);
-    let (w, h) = (cols * scale, rows * scale);
-    let mut data = vec![0u8; w * h * 3];
-    for ((r, c), &d) in depth_mm.indexed_iter() {
-        let rgb = if d == 0 {
-            [0, 0, 0]
-        } else {
-            colormap(f64::from(d) / 1000.0 / max_m)
-        };
-        for y in r * scale..(r + 1) * scale {
-            for x in c * scale..(c + 1) * scale {
-                let o = (y * w + x) * 3;
-                if let Some(px) = data.get_mut(o..o + 3) {
-                    px.copy_from_slice(&rgb);
-                }
-            }
-        }
-    }
+    let values: Vec<f64> = depth_mm
+        .iter()
+        .map(|&d| if d == 0 { f64::NAN } else { f64::from(d) / 1000.0 })
+        .collect();
+    let img = tofprox_chart::raster::annotated(&tofprox_chart::raster::RasterMap {
+        rows,
+        cols,
+        values: &values,
+        origin: (origin[0], origin[1]),
+        range: (0.0, max_m),
+        unit: "m",
+    });
     let f = fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(f), w as u32, h as u32);
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(f),
+        img.width as u32,
+        img.height as u32,
+    );
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
     let mut wr = enc
         .write_header()
         .with_context(|| format!("cannot write {}", path.display()))?;
-    wr.write_image_data(&data)
+    wr.write_image_data(&img.rgb)
         .with_context(|| format!("cannot write {}", path.display()))?;
     wr.finish()
         .with_context(|| format!("cannot write {}", path.display()))?;
@@ -927,23 +901,28 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
         fs::write(&p, npy::encode_f32(&amplitude))
             .with_context(|| format!("cannot write {}", p.display()))?;
-        write_depth_png(&a.out.join(format!("{stem}_depth.png")), &depth_mm, max_m)?;
+        write_depth_png(
+            &a.out.join(format!("{stem}_depth.png")),
+            &depth_mm,
+            sensor.roi_origin,
+            max_m,
+        )?;
         let mut out = stdout.lock();
+        let truth = caps[i].distance_m();
+        let error_mm = truth.zip(median).map(|(t, m)| (m - t) * 1000.0);
         if a.json {
             let line = json!({
                 "index": i,
                 // micrometre resolution: the f32 depth carries no more
+                "distance_m": truth,
                 "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
+                "error_mm": error_mm.map(|e| (e * 1e3).round() / 1e3),
                 "valid_fraction": valid,
                 "process_us": (process_us * 10.0).round() / 10.0,
             });
             writeln!(out, "{line}").context("writing to stdout")?;
         } else {
-            let truth = caps[i].distance_m();
-            let err = match (truth, median) {
-                (Some(t), Some(m)) => format!("{:+.1}", (m - t) * 1000.0),
-                _ => "-".into(),
-            };
+            let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));
             writeln!(
                 out,
                 "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",

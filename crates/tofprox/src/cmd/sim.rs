@@ -483,85 +483,36 @@ fn figures(a: FiguresArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Render a figure as SVG (plotters, SVG backend only).
+/// Render a figure as SVG with the one chart component (legend below the
+/// plot, coincident series announced).
 pub fn render_svg(f: &Figure, path: &Path) -> anyhow::Result<()> {
-    use plotters::prelude::*;
-    let (mut x0, mut x1, mut y0, mut y1) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
-    for s in &f.series {
-        for &(x, y) in &s.points {
-            if x.is_finite() && y.is_finite() {
-                x0 = x0.min(x);
-                x1 = x1.max(x);
-                y0 = y0.min(y);
-                y1 = y1.max(y);
-            }
-        }
-    }
-    if !(x0.is_finite() && y0.is_finite()) {
+    use tofprox_chart::{LineChart, Series, line_chart};
+    if !f
+        .series
+        .iter()
+        .flat_map(|s| &s.points)
+        .any(|(x, y)| x.is_finite() && y.is_finite())
+    {
         bail!("figure {} has no data", f.id);
     }
-    let pad = ((y1 - y0) * 0.08).max(1e-6);
-    let (y0, y1) = (y0 - pad, y1 + pad);
-    let root = SVGBackend::new(path, (900, 540)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(&f.title, ("sans-serif", 22))
-        .margin(16)
-        .x_label_area_size(44)
-        .y_label_area_size(64)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    chart
-        .configure_mesh()
-        .x_desc(f.x_label.as_str())
-        .y_desc(f.y_label.as_str())
-        .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    let colours = [
-        RGBColor(31, 119, 180),
-        RGBColor(214, 39, 40),
-        RGBColor(44, 160, 44),
-        RGBColor(148, 103, 189),
-        RGBColor(255, 127, 14),
-    ];
-    for (i, s) in f.series.iter().enumerate() {
-        let colour = colours[i % colours.len()];
-        if s.markers {
-            chart
-                .draw_series(
-                    s.points
-                        .iter()
-                        .map(|&(x, y)| Circle::new((x, y), 2, colour.filled())),
-                )
-                .map_err(|e| anyhow::anyhow!("{e}"))?
-                .label(s.name.as_str())
-                .legend(move |(x, y)| Circle::new((x + 10, y), 3, colour.filled()));
-        } else {
-            chart
-                .draw_series(LineSeries::new(
-                    s.points.iter().copied(),
-                    colour.stroke_width(2),
-                ))
-                .map_err(|e| anyhow::anyhow!("{e}"))?
-                .label(s.name.as_str())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
-                });
-        }
-    }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|e| anyhow::anyhow!("{e}"))?;
-    root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    let svg = line_chart(&LineChart {
+        title: f.title.clone(),
+        x_label: f.x_label.clone(),
+        y_label: f.y_label.clone(),
+        series: f
+            .series
+            .iter()
+            .map(|s| {
+                if s.markers {
+                    Series::points(s.name.as_str(), s.points.clone())
+                } else {
+                    Series::line(s.name.as_str(), s.points.clone())
+                }
+            })
+            .collect(),
+        notes: Vec::new(),
+    });
+    std::fs::write(path, svg).with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
 }
 

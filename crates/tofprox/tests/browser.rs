@@ -1,0 +1,287 @@
+//! What a person sees, checked in a real browser (issue 13): the `lab diagnose`
+//! and `lab add` reports and the thesis figures of `sim figures` are rendered
+//! by headless Chromium (Debian's `chromium`, installed by `.ci/run`) and the
+//! rendered page is checked with the browser's own layout
+//! (`getBoundingClientRect`): every bar has exactly one label on its row and it
+//! names the condition whose score the bar shows; no `NaN` anywhere in the
+//! text; legends do not cover data points or the plot area; lines are joined
+//! in x order. Screenshots go to `target/tmp/browser/` for a person to look at.
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+
+mod common;
+use common::{run, text};
+
+/// The checker run inside the page; it appends its findings as JSON in
+/// `<pre id="ux-checks">`, which `--dump-dom` prints.
+const CHECKER: &str = r#"<script>
+(function () {
+  const out = { charts: 0, bars: 0, legends: 0, points: 0, lines: 0, problems: [] };
+  const P = out.problems;
+  const mid = (r) => [(r.left + r.right) / 2, (r.top + r.bottom) / 2];
+  document.querySelectorAll('svg.chart').forEach((svg, si) => {
+    out.charts++;
+    const t = svg.querySelector('text.title');
+    const name = t ? t.textContent : 'chart ' + si;
+    const bars = [...svg.querySelectorAll('rect.bar')];
+    const labels = [...svg.querySelectorAll('text.bar-label')];
+    if (bars.length !== labels.length) P.push(`${name}: ${bars.length} bars but ${labels.length} bar labels`);
+    out.barValues = out.barValues || {};
+    bars.forEach((b) => {
+      out.bars++;
+      const r = b.getBoundingClientRect();
+      const on = labels.filter((l) => { const c = mid(l.getBoundingClientRect())[1]; return c >= r.top && c <= r.bottom; });
+      if (on.length !== 1) P.push(`${name}: the bar of ${b.dataset.label} has ${on.length} labels on its row`);
+      else if (on[0].textContent !== b.dataset.label) P.push(`${name}: the bar of ${b.dataset.label} is labelled ${on[0].textContent}`);
+      else out.barValues[on[0].textContent] = { value: parseFloat(b.dataset.value), width: r.width };
+    });
+    const plot = svg.querySelector('rect.plot-area');
+    const pa = plot ? plot.getBoundingClientRect() : null;
+    svg.querySelectorAll('g.series polyline').forEach((pl) => {
+      out.lines++;
+      const m = pl.getScreenCTM();
+      let last = -Infinity;
+      for (const p of pl.points) {
+        const s = new DOMPoint(p.x, p.y).matrixTransform(m);
+        if (s.x < last - 0.01) { P.push(`${name}: a line goes back in x at ${s.x.toFixed(1)} px`); break; }
+        last = s.x;
+      }
+    });
+    svg.querySelectorAll('g.legend').forEach((lg) => {
+      out.legends++;
+      const L = lg.getBoundingClientRect();
+      const inside = (x, y) => x >= L.left && x <= L.right && y >= L.top && y <= L.bottom;
+      if (pa && !(L.top >= pa.bottom || L.bottom <= pa.top || L.left >= pa.right || L.right <= pa.left))
+        P.push(`${name}: the legend overlaps the plot area`);
+      svg.querySelectorAll('g.series .point').forEach((p) => {
+        out.points++;
+        const [x, y] = mid(p.getBoundingClientRect());
+        if (inside(x, y)) P.push(`${name}: the legend covers a data point at (${x.toFixed(0)}, ${y.toFixed(0)})`);
+      });
+      svg.querySelectorAll('g.series polyline').forEach((pl) => {
+        const m = pl.getScreenCTM();
+        for (const p of pl.points) {
+          const s = new DOMPoint(p.x, p.y).matrixTransform(m);
+          if (inside(s.x, s.y)) { P.push(`${name}: the legend covers a line point`); break; }
+        }
+      });
+    });
+  });
+  if (document.body.innerText.includes('NaN')) P.push('"NaN" in the page text');
+  const pre = document.createElement('pre');
+  pre.id = 'ux-checks';
+  pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+})();
+</script>"#;
+
+fn chromium() -> PathBuf {
+    for dir in std::env::var("PATH").unwrap_or_default().split(':') {
+        for name in ["chromium", "chromium-browser"] {
+            let p = Path::new(dir).join(name);
+            if p.is_file() {
+                return p;
+            }
+        }
+    }
+    panic!(
+        "chromium is not installed: this test renders the reports in a real browser \
+         (Debian: apt-get install chromium; .ci/run installs it)"
+    );
+}
+
+/// Run headless Chromium on `page` with `extra` arguments; its stdout.
+fn headless(page: &Path, extra: &[&str]) -> String {
+    let profile = tempfile::tempdir().unwrap();
+    let o = Command::new(chromium())
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--no-first-run",
+            "--hide-scrollbars",
+            "--window-size=900,1400",
+        ])
+        .arg(format!("--user-data-dir={}", profile.path().display()))
+        .args(extra)
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .expect("run chromium");
+    assert!(
+        o.status.success(),
+        "chromium failed on {}: {}",
+        page.display(),
+        text(&o.stderr)
+    );
+    text(&o.stdout)
+}
+
+fn shots_dir() -> PathBuf {
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("browser");
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Render `html` (a page or a bare SVG) in the browser: a screenshot for a
+/// person, and the checker's findings.
+fn render(name: &str, html: &str) -> Value {
+    let body = if html.trim_start().starts_with("<svg") {
+        format!("<!DOCTYPE html><html><head><meta charset=\"utf-8\"></head><body>{html}</body></html>")
+    } else {
+        html.to_string()
+    };
+    let page_plain = shots_dir().join(format!("{name}.html"));
+    std::fs::write(&page_plain, &body).unwrap();
+    let shot = shots_dir().join(format!("{name}.png"));
+    headless(&page_plain, &[&format!("--screenshot={}", shot.display())]);
+    assert!(shot.is_file(), "no screenshot {}", shot.display());
+    eprintln!("screenshot: {}", shot.display());
+    let checked = body.replace("</body>", &format!("{CHECKER}</body>"));
+    assert_ne!(checked, body, "{name}: no </body> to put the checker before");
+    let page = shots_dir().join(format!("{name}.checked.html"));
+    std::fs::write(&page, checked).unwrap();
+    let dom = headless(&page, &["--dump-dom"]);
+    let json = dom
+        .split("<pre id=\"ux-checks\">")
+        .nth(1)
+        .and_then(|s| s.split("</pre>").next())
+        .unwrap_or_else(|| panic!("{name}: the checker did not run; DOM:\n{dom}"));
+    let json = json
+        .replace("&quot;", "\"")
+        .replace("&lt;", "<")
+        .replace("&gt;", ">")
+        .replace("&amp;", "&");
+    let v: Value = serde_json::from_str(&json).unwrap();
+    let problems = v["problems"].as_array().unwrap();
+    assert!(
+        problems.is_empty(),
+        "{name} as rendered by chromium (screenshot {}):\n{}",
+        shot.display(),
+        problems
+            .iter()
+            .map(|p| p.as_str().unwrap_or_default().to_string())
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    v
+}
+
+#[test]
+fn lab_reports_render_correctly_in_a_browser() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut truth = tofprox_model::ModelConfig::baseline();
+    truth.set_enabled("vcsel_droop", true).unwrap();
+    let truth_p = tmp.path().join("truth.toml");
+    std::fs::write(&truth_p, truth.to_toml_string()).unwrap();
+    let base_p = tmp.path().join("base.toml");
+    std::fs::write(
+        &base_p,
+        tofprox_model::ModelConfig::baseline().to_toml_string(),
+    )
+    .unwrap();
+    let rec = tmp.path().join("rec");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let o = run(&[
+        "sim",
+        "sweep",
+        "--model",
+        &s(&truth_p),
+        "--distances",
+        "0.15:1.80:0.15",
+        "--exposures",
+        "250,1000",
+        "--repeats",
+        "2",
+        "--averaged",
+        "16",
+        "--window",
+        "78,104,16,16",
+        "--seed",
+        "7",
+        "--out",
+        &s(&rec),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let diag = tmp.path().join("diag.html");
+    let o = run(&[
+        "lab",
+        "diagnose",
+        &s(&rec),
+        "--model",
+        &s(&base_p),
+        "--report",
+        &s(&diag),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let v = render("lab-diagnose", &std::fs::read_to_string(&diag).unwrap());
+    assert!(v["bars"].as_u64().unwrap() >= 5, "{v}");
+    assert!(v["legends"].as_u64().unwrap() >= 3, "{v}");
+    // each bar shows the score of the condition it is labelled with (compare --json
+    // computes the same fit)
+    let o = run(&["lab", "compare", &s(&rec), "--model", &s(&base_p), "--json"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let cmp: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let shown = &v["barValues"];
+    let structure = cmp["structure"].as_array().unwrap();
+    assert_eq!(shown.as_object().unwrap().len(), structure.len());
+    for st in structure {
+        let (cond, z) = (st["condition"].as_str().unwrap(), st["z"].as_f64().unwrap());
+        let bar = &shown[cond];
+        let shown_z = bar["value"].as_f64().unwrap();
+        assert!(
+            (shown_z - z).abs() <= 1e-3 * z.abs().max(1.0),
+            "bar labelled {cond} shows {shown_z}, its z is {z}"
+        );
+    }
+    // longer bar ⇔ larger score
+    let mut by_z: Vec<(f64, f64)> = shown
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|b| (b["value"].as_f64().unwrap(), b["width"].as_f64().unwrap()))
+        .collect();
+    by_z.sort_by(|a, b| a.0.total_cmp(&b.0));
+    assert!(by_z.windows(2).all(|w| w[0].1 <= w[1].1 + 0.5), "{by_z:?}");
+
+    let add = tmp.path().join("add.html");
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_droop",
+        "--model",
+        &s(&base_p),
+        "--data",
+        &s(&rec),
+        "--out",
+        &s(&tmp.path().join("m2.toml")),
+        "--report",
+        &s(&add),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let v = render("lab-add", &std::fs::read_to_string(&add).unwrap());
+    assert!(v["lines"].as_u64().unwrap() >= 2, "{v}");
+}
+
+#[test]
+fn thesis_figures_render_correctly_in_a_browser() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = run(&["sim", "figures", "--out", tmp.path().to_str().unwrap()]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let mut n = 0;
+    for e in std::fs::read_dir(tmp.path()).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "svg") {
+            let stem = p.file_stem().unwrap().to_string_lossy().into_owned();
+            let svg = std::fs::read_to_string(&p).unwrap();
+            let v = render(&stem, &svg);
+            assert_eq!(v["legends"], 1, "{stem}: {v}");
+            n += 1;
+        }
+    }
+    assert_eq!(n, 6);
+}
