@@ -35,12 +35,21 @@ const BAR_H: f64 = 16.0;
 /// Value → axis coordinate: linear, or log10(1 + v) when the values span more
 /// than two decades (a z of 20 000 next to a z of 3 must keep both visible).
 fn transform(log: bool, v: f64) -> f64 {
-    if log { (1.0 + v.max(0.0)).log10() } else { v.max(0.0) }
+    if log {
+        (1.0 + v.max(0.0)).log10()
+    } else {
+        v.max(0.0)
+    }
 }
 
 /// Render the chart as a standalone SVG element.
 pub fn bar_chart(c: &BarChart) -> String {
-    let finite: Vec<f64> = c.bars.iter().map(|b| b.value).filter(|v| v.is_finite()).collect();
+    let finite: Vec<f64> = c
+        .bars
+        .iter()
+        .map(|b| b.value)
+        .filter(|v| v.is_finite())
+        .collect();
     let vmax = finite
         .iter()
         .copied()
@@ -95,7 +104,15 @@ pub fn bar_chart(c: &BarChart) -> String {
     } else {
         c.value_label.clone()
     };
-    text(&mut o, "axis-title", (x0 + x1) / 2.0, y1 + 38.0, 12.0, "middle", &axis_title);
+    text(
+        &mut o,
+        "axis-title",
+        (x0 + x1) / 2.0,
+        y1 + 38.0,
+        12.0,
+        "middle",
+        &axis_title,
+    );
     o.push_str("</g>");
     for (i, b) in c.bars.iter().enumerate() {
         let cy = TOP + ROW * (i as f64 + 0.5);
@@ -114,7 +131,15 @@ pub fn bar_chart(c: &BarChart) -> String {
             cy - BAR_H / 2.0,
             wpx.max(0.0)
         );
-        text(&mut o, "bar-label", x0 - 8.0, cy + 4.0, 12.0, "end", &b.label);
+        text(
+            &mut o,
+            "bar-label",
+            x0 - 8.0,
+            cy + 4.0,
+            12.0,
+            "end",
+            &b.label,
+        );
         let digits = if b.value.abs() >= 100.0 { 0 } else { 1 };
         text(
             &mut o,
@@ -132,7 +157,15 @@ pub fn bar_chart(c: &BarChart) -> String {
             o,
             "<line class=\"threshold\" x1=\"{px:.1}\" y1=\"{TOP:.1}\" x2=\"{px:.1}\" y2=\"{y1:.1}\" stroke=\"#333\" stroke-dasharray=\"4 3\"/>"
         );
-        text(&mut o, "threshold-label", px + 4.0, TOP - 4.0, 11.0, "start", what);
+        text(
+            &mut o,
+            "threshold-label",
+            px + 4.0,
+            TOP - 4.0,
+            11.0,
+            "start",
+            what,
+        );
     }
     o.push_str("</svg>");
     o
@@ -163,7 +196,16 @@ mod tests {
         let widths: Vec<f64> = s
             .split("class=\"bar\"")
             .skip(1)
-            .map(|p| p.split("width=\"").nth(1).unwrap().split('"').next().unwrap().parse().unwrap())
+            .map(|p| {
+                p.split("width=\"")
+                    .nth(1)
+                    .unwrap()
+                    .split('"')
+                    .next()
+                    .unwrap()
+                    .parse()
+                    .unwrap()
+            })
             .collect();
         assert!(widths[1] > 0.05 * widths[0], "{widths:?}");
         assert!(s.contains("logarithmic"));

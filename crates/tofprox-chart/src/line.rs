@@ -168,10 +168,16 @@ fn marker(out: &mut String, k: usize, x: f64, y: f64, col: &str, class: &str) {
 
 /// Render the chart as a standalone SVG element.
 pub fn line_chart(c: &LineChart) -> String {
-    let x_range = padded_range(c.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)), 0.02)
-        .unwrap_or((0.0, 1.0));
-    let y_range = padded_range(c.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)), 0.06)
-        .unwrap_or((0.0, 1.0));
+    let x_range = padded_range(
+        c.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)),
+        0.02,
+    )
+    .unwrap_or((0.0, 1.0));
+    let y_range = padded_range(
+        c.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)),
+        0.06,
+    )
+    .unwrap_or((0.0, 1.0));
     let coincident = coincident_with(&c.series, y_range.1 - y_range.0);
     let colours: Vec<Rgb> = c
         .series
@@ -202,8 +208,12 @@ pub fn line_chart(c: &LineChart) -> String {
     let mut notes = Vec::new();
     for (j, co) in coincident.iter().enumerate() {
         if let Some(i) = co {
+            let how = match c.series[j].style {
+                SeriesStyle::Line => "drawn dashed over it",
+                SeriesStyle::Points => "its markers drawn over the other's",
+            };
             notes.push(format!(
-                "“{}” coincides with “{}” on this scale (drawn dashed over it).",
+                "“{}” coincides with “{}” on this scale ({how}).",
                 c.series[j].name, c.series[*i].name
             ));
         }
@@ -248,18 +258,49 @@ pub fn line_chart(c: &LineChart) -> String {
         let px = xs.at(t);
         svg::seg(&mut o, px, y0, px, y1, "#eee");
         svg::seg(&mut o, px, y1, px, y1 + 5.0, "#444");
-        text(&mut o, "tick", px, y1 + 18.0, 11.0, "middle", &fmt_num(t, xd));
+        text(
+            &mut o,
+            "tick",
+            px,
+            y1 + 18.0,
+            11.0,
+            "middle",
+            &fmt_num(t, xd),
+        );
     }
-    text(&mut o, "axis-title", (x0 + x1) / 2.0, y1 + 36.0, 12.0, "middle", &c.x_label);
+    text(
+        &mut o,
+        "axis-title",
+        (x0 + x1) / 2.0,
+        y1 + 36.0,
+        12.0,
+        "middle",
+        &c.x_label,
+    );
     o.push_str("</g><g class=\"axis y-axis\">");
     let (yt, yd) = nice_ticks(y_range.0, y_range.1, 6);
     for t in yt {
         let py = ys.at(t);
         svg::seg(&mut o, x0, py, x1, py, "#eee");
         svg::seg(&mut o, x0 - 5.0, py, x0, py, "#444");
-        text(&mut o, "tick", x0 - 8.0, py + 4.0, 11.0, "end", &fmt_num(t, yd));
+        text(
+            &mut o,
+            "tick",
+            x0 - 8.0,
+            py + 4.0,
+            11.0,
+            "end",
+            &fmt_num(t, yd),
+        );
     }
-    vtext(&mut o, "axis-title", 18.0, (y0 + y1) / 2.0, 12.0, &c.y_label);
+    vtext(
+        &mut o,
+        "axis-title",
+        18.0,
+        (y0 + y1) / 2.0,
+        12.0,
+        &c.y_label,
+    );
     o.push_str("</g>");
     // data: lines first, then markers on top
     let _ = write!(
@@ -299,7 +340,11 @@ pub fn line_chart(c: &LineChart) -> String {
                     }
                 }
                 SeriesStyle::Points => {
-                    for (x, y) in s.points.iter().filter(|(x, y)| x.is_finite() && y.is_finite()) {
+                    for (x, y) in s
+                        .points
+                        .iter()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite())
+                    {
                         marker(&mut o, marker_kind[i], xs.at(*x), ys.at(*y), &col, "point");
                     }
                 }
@@ -338,7 +383,15 @@ pub fn line_chart(c: &LineChart) -> String {
     }
     o.push_str("</g>");
     for (k, n) in notes.iter().enumerate() {
-        text(&mut o, "note", x0, notes_top + 12.0 + 18.0 * k as f64, 12.0, "start", n);
+        text(
+            &mut o,
+            "note",
+            x0,
+            notes_top + 12.0 + 18.0 * k as f64,
+            12.0,
+            "start",
+            n,
+        );
     }
     o.push_str("</svg>");
     o
@@ -370,7 +423,13 @@ mod tests {
             y_label: "mm".into(),
             series: vec![Series::line(
                 "after",
-                vec![(1.0, 1.0), (0.15, 2.0), (1.8, 0.0), (f64::NAN, 3.0), (0.25, 1.0)],
+                vec![
+                    (1.0, 1.0),
+                    (0.15, 2.0),
+                    (1.8, 0.0),
+                    (f64::NAN, 3.0),
+                    (0.25, 1.0),
+                ],
             )],
             notes: vec![],
         };
@@ -401,7 +460,11 @@ mod tests {
         assert_eq!(coincident_with(&c.series, 2.0), vec![None, Some(0), None]);
         let s = line_chart(&c);
         assert!(s.contains("4-phase, 1 ms (= 4-phase, 0.5 ms, coincident)"));
-        assert_eq!(s.matches("stroke-dasharray").count(), 2, "series and legend dashed");
+        assert_eq!(
+            s.matches("stroke-dasharray").count(),
+            2,
+            "series and legend dashed"
+        );
     }
 
     #[test]
@@ -417,7 +480,12 @@ mod tests {
             x_label: "x".into(),
             y_label: "y".into(),
             series: (0..9)
-                .map(|i| Series::points(format!("a rather long series name {i}"), vec![(0.0, 0.0), (1.0, 1.0)]))
+                .map(|i| {
+                    Series::points(
+                        format!("a rather long series name {i}"),
+                        vec![(0.0, 0.0), (1.0, 1.0)],
+                    )
+                })
                 .collect(),
             notes: vec![],
         };

@@ -35,7 +35,11 @@ pub fn heatmap(m: &Heatmap) -> String {
         let f = m.values.iter().copied().filter(|v| v.is_finite());
         let lo = f.clone().fold(f64::INFINITY, f64::min);
         let hi = f.fold(f64::NEG_INFINITY, f64::max);
-        if lo.is_finite() { (lo, hi.max(lo + 1e-9)) } else { (0.0, 1.0) }
+        if lo.is_finite() {
+            (lo, hi.max(lo + 1e-9))
+        } else {
+            (0.0, 1.0)
+        }
     });
     let any_missing = m.values.iter().any(|v| !v.is_finite());
     let bar_x = x1 + 28.0;
@@ -74,17 +78,48 @@ pub fn heatmap(m: &Heatmap) -> String {
     for t in ct {
         let px = x0 + (t - m.origin.1 as f64 + 0.5) * cell;
         svg::seg(&mut o, px, y1, px, y1 + 5.0, "#444");
-        text(&mut o, "tick", px, y1 + 17.0, 11.0, "middle", &fmt_num(t, 0));
+        text(
+            &mut o,
+            "tick",
+            px,
+            y1 + 17.0,
+            11.0,
+            "middle",
+            &fmt_num(t, 0),
+        );
     }
-    text(&mut o, "axis-title", (x0 + x1) / 2.0, y1 + 34.0, 12.0, "middle", "sensor column");
+    text(
+        &mut o,
+        "axis-title",
+        (x0 + x1) / 2.0,
+        y1 + 34.0,
+        12.0,
+        "middle",
+        "sensor column",
+    );
     o.push_str("</g><g class=\"axis y-axis\">");
     let (rt, _) = nice_ticks(m.origin.0 as f64, (m.origin.0 + rows - 1) as f64, 6);
     for t in rt {
         let py = y0 + (t - m.origin.0 as f64 + 0.5) * cell;
         svg::seg(&mut o, x0 - 5.0, py, x0, py, "#444");
-        text(&mut o, "tick", x0 - 8.0, py + 4.0, 11.0, "end", &fmt_num(t, 0));
+        text(
+            &mut o,
+            "tick",
+            x0 - 8.0,
+            py + 4.0,
+            11.0,
+            "end",
+            &fmt_num(t, 0),
+        );
     }
-    vtext(&mut o, "axis-title", 22.0, (y0 + y1) / 2.0, 12.0, "sensor row");
+    vtext(
+        &mut o,
+        "axis-title",
+        22.0,
+        (y0 + y1) / 2.0,
+        12.0,
+        "sensor row",
+    );
     o.push_str("</g>");
     // colour bar: 32 steps, high at the top
     o.push_str("<g class=\"colour-bar\">");
@@ -114,12 +149,35 @@ pub fn heatmap(m: &Heatmap) -> String {
     for t in vt {
         let py = bs.at(t);
         svg::seg(&mut o, bar_x + 16.0, py, bar_x + 21.0, py, "#444");
-        text(&mut o, "tick", bar_x + 24.0, py + 4.0, 11.0, "start", &fmt_num(t, vd));
+        text(
+            &mut o,
+            "tick",
+            bar_x + 24.0,
+            py + 4.0,
+            11.0,
+            "start",
+            &fmt_num(t, vd),
+        );
     }
-    vtext(&mut o, "axis-title", bar_x + 86.0, (y0 + y1) / 2.0, 12.0, &m.value_label);
+    vtext(
+        &mut o,
+        "axis-title",
+        bar_x + 86.0,
+        (y0 + y1) / 2.0,
+        12.0,
+        &m.value_label,
+    );
     o.push_str("</g>");
     if any_missing {
-        text(&mut o, "note", x0, y1 + 54.0, 12.0, "start", "grey cells: no data");
+        text(
+            &mut o,
+            "note",
+            x0,
+            y1 + 54.0,
+            12.0,
+            "start",
+            "grey cells: no data",
+        );
     }
     o.push_str("</svg>");
     o

@@ -48,7 +48,15 @@ pub(crate) fn open(out: &mut String, kind: &str, w: f64, h: f64) {
 }
 
 /// A text element.
-pub(crate) fn text(out: &mut String, class: &str, x: f64, y: f64, size: f64, anchor: &str, s: &str) {
+pub(crate) fn text(
+    out: &mut String,
+    class: &str,
+    x: f64,
+    y: f64,
+    size: f64,
+    anchor: &str,
+    s: &str,
+) {
     let _ = write!(
         out,
         "<text class=\"{class}\" x=\"{x:.1}\" y=\"{y:.1}\" font-size=\"{size:.0}\" text-anchor=\"{anchor}\">{}</text>",

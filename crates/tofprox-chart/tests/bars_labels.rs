@@ -5,11 +5,20 @@ use proptest::prelude::*;
 use tofprox_chart::{Bar, BarChart, bar_chart};
 
 fn attr(el: &str, name: &str) -> String {
-    el.split(&format!(" {name}=\"")).nth(1).unwrap().split('"').next().unwrap().to_string()
+    el.split(&format!(" {name}=\""))
+        .nth(1)
+        .unwrap()
+        .split('"')
+        .next()
+        .unwrap()
+        .to_string()
 }
 
 fn elements<'a>(svg: &'a str, class: &str) -> Vec<&'a str> {
-    svg.split(&format!("class=\"{class}\"")).skip(1).map(|s| s.split('>').next().unwrap()).collect()
+    svg.split(&format!("class=\"{class}\""))
+        .skip(1)
+        .map(|s| s.split('>').next().unwrap())
+        .collect()
 }
 
 fn texts(svg: &str, class: &str) -> Vec<(f64, String)> {
@@ -17,7 +26,14 @@ fn texts(svg: &str, class: &str) -> Vec<(f64, String)> {
         .skip(1)
         .map(|s| {
             let y: f64 = attr(s, "y").parse().unwrap();
-            let t = s.split('>').nth(1).unwrap().split('<').next().unwrap().to_string();
+            let t = s
+                .split('>')
+                .nth(1)
+                .unwrap()
+                .split('<')
+                .next()
+                .unwrap()
+                .to_string();
             (y, t)
         })
         .collect()

@@ -4,10 +4,10 @@
 //! no fonts needed).
 use std::fmt::Write as _;
 
+use serde_json::{Value, json};
 use tofprox_chart::{
     Bar, BarChart, Heatmap, LineChart, Series, bar_chart, heatmap, line_chart, mean_per_x,
 };
-use serde_json::{Value, json};
 
 use crate::diagnose::{AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Z_NULL};
 use crate::signatures::cancels_in_4phase;
@@ -362,14 +362,16 @@ pub fn html_report(
             "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
              <th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
         );
-        const NOT_REFITTED: &str = "not refitted: only the leading candidates are refitted with the whole model";
+        const NOT_REFITTED: &str =
+            "not refitted: only the leading candidates are refitted with the whole model";
         for c in &d.candidates {
             let after = c.rms_after;
             let _ = write!(
                 h,
                 "<tr><th>{}</th>{}{}{}{}{}{}<td>{}</td></tr>",
                 esc(&c.effect),
-                cell(Some(100.0 * c.explained_excess), 1, "no screening fit").replace("</td>", "%</td>"),
+                cell(Some(100.0 * c.explained_excess), 1, "no screening fit")
+                    .replace("</td>", "%</td>"),
                 cell(Some(100.0 * c.cv_gain), 1, "no cross-validation").replace("</td>", "%</td>"),
                 cell(Some(c.z_after), 1, NOT_REFITTED),
                 cell(Some(c.delta_bic), 0, NOT_REFITTED),
@@ -384,7 +386,10 @@ pub fn html_report(
         }
         h.push_str("</table>");
         if d.candidates.iter().any(|c| c.rms_after.is_none()) {
-            let _ = write!(h, "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>");
+            let _ = write!(
+                h,
+                "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>"
+            );
         }
         for (id, why) in &d.skipped {
             let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
@@ -413,7 +418,7 @@ pub fn html_report(
             "depth residual before/after (mean per capture)",
             "distance [m]",
             "depth residual [mm]",
-                // "after" as the mean per distance, joined in distance order
+            // "after" as the mean per distance, joined in distance order
             vec![
                 Series::points("2-phase before", b2).colour(ORANGE),
                 Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),

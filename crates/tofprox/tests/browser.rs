@@ -105,7 +105,8 @@ fn headless(page: &Path, extra: &[&str]) -> String {
             "--disable-sync",
             "--no-first-run",
             "--hide-scrollbars",
-            "--window-size=900,1400",
+            "--window-size=900,4800",
+            "--virtual-time-budget=5000",
         ])
         .arg(format!("--user-data-dir={}", profile.path().display()))
         .args(extra)
@@ -131,7 +132,9 @@ fn shots_dir() -> PathBuf {
 /// person, and the checker's findings.
 fn render(name: &str, html: &str) -> Value {
     let body = if html.trim_start().starts_with("<svg") {
-        format!("<!DOCTYPE html><html><head><meta charset=\"utf-8\"></head><body>{html}</body></html>")
+        format!(
+            "<!DOCTYPE html><html><head><meta charset=\"utf-8\"></head><body>{html}</body></html>"
+        )
     } else {
         html.to_string()
     };
@@ -142,7 +145,10 @@ fn render(name: &str, html: &str) -> Value {
     assert!(shot.is_file(), "no screenshot {}", shot.display());
     eprintln!("screenshot: {}", shot.display());
     let checked = body.replace("</body>", &format!("{CHECKER}</body>"));
-    assert_ne!(checked, body, "{name}: no </body> to put the checker before");
+    assert_ne!(
+        checked, body,
+        "{name}: no </body> to put the checker before"
+    );
     let page = shots_dir().join(format!("{name}.checked.html"));
     std::fs::write(&page, checked).unwrap();
     let dom = headless(&page, &["--dump-dom"]);

@@ -67,11 +67,17 @@ mod tests {
         let io = std::io::Error::from(std::io::ErrorKind::NotFound);
         let io_text = io.to_string();
         // a library error that prints its source, wrapped in a context that does too
-        let lib = Layer(format!("cannot read config /x.toml: {io_text}"), Some(Box::new(io)));
+        let lib = Layer(
+            format!("cannot read config /x.toml: {io_text}"),
+            Some(Box::new(io)),
+        );
         let top = Layer(format!("loading: {lib}"), Some(Box::new(lib)));
         let line = error_line(&top);
         assert_eq!(line.matches(&io_text).count(), 1, "{line}");
-        assert_eq!(line, format!("loading: cannot read config /x.toml: {io_text}"));
+        assert_eq!(
+            line,
+            format!("loading: cannot read config /x.toml: {io_text}")
+        );
         // distinct causes are all kept, in order
         let chain = Layer("a".into(), Some(Box::new(Layer("b".into(), None))));
         assert_eq!(error_line(&chain), "a: b");

@@ -144,7 +144,15 @@ fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
         );
         write_report(
             p,
-            &report::html_report(&title, prep.rows, prep.cols, prep.roi_origin, &cmp, None, None),
+            &report::html_report(
+                &title,
+                prep.rows,
+                prep.cols,
+                prep.roi_origin,
+                &cmp,
+                None,
+                None,
+            ),
         )?;
     }
     Ok(ExitCode::SUCCESS)
@@ -176,7 +184,15 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         );
         write_report(
             p,
-            &report::html_report(&title, prep.rows, prep.cols, prep.roi_origin, &cmp, Some(&d), None),
+            &report::html_report(
+                &title,
+                prep.rows,
+                prep.cols,
+                prep.roi_origin,
+                &cmp,
+                Some(&d),
+                None,
+            ),
         )?;
     }
     Ok(ExitCode::SUCCESS)

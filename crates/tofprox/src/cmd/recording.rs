@@ -753,7 +753,13 @@ fn write_depth_png(
     let (rows, cols) = depth_mm.dim();
     let values: Vec<f64> = depth_mm
         .iter()
-        .map(|&d| if d == 0 { f64::NAN } else { f64::from(d) / 1000.0 })
+        .map(|&d| {
+            if d == 0 {
+                f64::NAN
+            } else {
+                f64::from(d) / 1000.0
+            }
+        })
         .collect();
     let img = tofprox_chart::raster::annotated(&tofprox_chart::raster::RasterMap {
         rows,
