@@ -727,7 +727,7 @@ impl RecordingWriter {
         if toml_path.exists() {
             return Err(FormatError::new(
                 ErrorKind::AlreadyExists,
-                "a recording already exists here (append to it instead)",
+                "a recording already exists here (write to another directory, or replace it)",
             )
             .at(&toml_path));
         }
@@ -747,6 +747,28 @@ impl RecordingWriter {
             let _ = fsutil::sync_dir(parent);
         }
         Ok(w)
+    }
+
+    /// Start a new recording in `dir`, first removing the recording already
+    /// there (its `recording.toml` and frames directory; nothing else in
+    /// `dir` is touched).
+    pub fn replace(
+        dir: &Path,
+        sensor: SensorInfo,
+        description: Option<String>,
+    ) -> Result<Self, FormatError> {
+        sensor.validate()?;
+        let toml_path = dir.join(RECORDING_TOML);
+        if toml_path.exists() {
+            fs::remove_file(&toml_path)
+                .map_err(|e| FormatError::io(&toml_path, "cannot remove", e))?;
+            let frames = dir.join(FRAMES_DIR);
+            if frames.exists() {
+                fs::remove_dir_all(&frames)
+                    .map_err(|e| FormatError::io(&frames, "cannot remove", e))?;
+            }
+        }
+        Self::create(dir, sensor, description)
     }
 
     /// Continue an existing recording (for example after its writer was

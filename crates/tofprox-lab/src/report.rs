@@ -1,4 +1,4 @@
-//! Output of the lab: the `--json` documents of the issue's output contract,
+//! Output of the lab: the `--json` documents described in docs/lab.md,
 //! the compact terminal table, and the self-contained HTML report with inline
 //! SVG plots (drawn by `tofprox-chart`, the one chart component; no network,
 //! no fonts needed).
@@ -16,7 +16,7 @@ fn num(v: f64) -> Value {
     if v.is_finite() { json!(v) } else { Value::Null }
 }
 
-/// `diagnose --json` (issue 4 output contract; `separate_by` added for `ambiguous`).
+/// `diagnose --json` (docs/lab.md; `separate_by` set for `ambiguous`).
 pub fn diagnosis_json(d: &Diagnosis) -> Value {
     json!({
         "verdict": d.verdict.as_str(),
@@ -49,7 +49,7 @@ fn summary_json(s: &ErrorSummary) -> Value {
     })
 }
 
-/// `add --json` (issue 4 output contract).
+/// `add --json` (docs/lab.md).
 pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
     json!({
         "effect": effect,

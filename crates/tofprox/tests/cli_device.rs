@@ -96,7 +96,7 @@ fn emulated_capture_writes_a_version_1_recording() {
             "4phase-grey",
             "--exposure-us",
             "200",
-            "--window",
+            "--rows",
             "40,20",
         ],
     );
@@ -108,8 +108,8 @@ fn emulated_capture_writes_a_version_1_recording() {
 
     // bad input: exit 2 with a message, never a panic
     for bad in [
-        vec!["--window", "41,20"],
-        vec!["--window", "x"],
+        vec!["--rows", "41,20"],
+        vec!["--rows", "x"],
         vec!["--exposure-us", "1e9"],
         vec!["--mode", "3phase"],
     ] {

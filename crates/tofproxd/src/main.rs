@@ -72,6 +72,13 @@ async fn run(mut args: Args) -> anyhow::Result<()> {
     if args.demo && args.config == Path::new("/etc/tofprox/tofproxd.toml") {
         args.config = demo_config_path()?;
     }
+    if !args.demo && args.config == Path::new("/etc/tofprox/tofproxd.toml") && !args.config.exists()
+    {
+        bail!(
+            "no configuration at /etc/tofprox/tofproxd.toml: pass --config FILE \
+             (config/tofproxd-emulated.toml runs the emulated sensor), or try `tofproxd --demo`"
+        );
+    }
     let cfg = Config::load(&args.config)?;
     if args.check_config {
         println!("{}: ok", args.config.display());
@@ -151,23 +158,31 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A private dbus-daemon for the demo (killed on drop).
+/// A private dbus-daemon for the demo, listening in a directory of its own;
+/// on drop the daemon is killed and the directory with its socket removed
+/// (no stale socket files left behind).
 struct PrivateBus {
     child: std::process::Child,
     address: String,
+    dir: PathBuf,
 }
 
 impl Drop for PrivateBus {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
 
 fn start_private_bus() -> anyhow::Result<PrivateBus> {
     use std::io::BufRead;
+    let dir = std::env::temp_dir().join(format!("tofproxd-demo-bus-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("creating {} for the private bus socket", dir.display()))?;
     let mut child = std::process::Command::new("dbus-daemon")
         .args(["--session", "--print-address", "--nofork"])
+        .arg(format!("--address=unix:path={}", dir.join("bus").display()))
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::null())
         .spawn()
@@ -182,7 +197,11 @@ fn start_private_bus() -> anyhow::Result<PrivateBus> {
         let _ = child.kill();
         bail!("dbus-daemon printed no address");
     }
-    Ok(PrivateBus { child, address })
+    Ok(PrivateBus {
+        child,
+        address,
+        dir,
+    })
 }
 
 async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {

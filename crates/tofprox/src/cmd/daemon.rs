@@ -10,6 +10,8 @@ use tofproxd::energy::{Nominal, TABLE_2_1, modelled_average_mw};
 use tofproxd::run::BusChoice;
 use tofproxd::service::next_item;
 
+use super::live;
+
 fn parse_bus(s: &str) -> Result<BusChoice, String> {
     s.parse()
 }
@@ -38,7 +40,8 @@ pub struct MonitorArgs {
     /// session, system or a D-Bus address.
     #[arg(long, default_value = "system", value_parser = parse_bus)]
     bus: BusChoice,
-    /// Also claim depth frames and render a small live preview.
+    /// Also claim depth frames and show a live preview below the status lines
+    /// (on a terminal; the terminal is restored on exit).
     #[arg(long)]
     depth: bool,
     /// Stop after this many seconds (default: until Ctrl-C).
@@ -58,9 +61,12 @@ pub struct StatusArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct RecordArgs {
-    /// Record the daemon's DepthFrame signals into this recording directory.
-    #[arg(long = "from-daemon", value_name = "REC")]
-    from_daemon: PathBuf,
+    /// Output recording directory for the daemon's DepthFrame signals.
+    #[arg(long, alias = "from-daemon", value_name = "REC")]
+    out: PathBuf,
+    /// Replace the recording already in `--out`.
+    #[arg(long)]
+    force: bool,
     /// session, system or a D-Bus address.
     #[arg(long, default_value = "system", value_parser = parse_bus)]
     bus: BusChoice,
@@ -218,12 +224,75 @@ fn rt() -> anyhow::Result<tokio::runtime::Runtime> {
         .context("tokio runtime")
 }
 
+/// Connect and wait up to 5 s for tofproxd's name on the bus (a daemon
+/// started just before, `tofproxd … &`, may not own it yet).
 async fn proxy(bus: &BusChoice) -> anyhow::Result<(zbus::Connection, ProximityProxy<'static>)> {
     let conn = tofproxd::run::connect(bus).await?;
+    let dbus = zbus::fdo::DBusProxy::new(&conn)
+        .await
+        .context("org.freedesktop.DBus proxy")?;
+    let name = zbus::names::BusName::try_from(tofproxd::service::BUS_NAME)?;
+    let until = tokio::time::Instant::now() + Duration::from_secs(5);
+    let mut said = false;
+    while !dbus.name_has_owner(name.clone()).await.unwrap_or(false) {
+        if tokio::time::Instant::now() >= until {
+            anyhow::bail!(
+                "tofproxd is not running on this bus ({} has no owner); start it with `tofproxd --config FILE --bus session|system`",
+                tofproxd::service::BUS_NAME
+            );
+        }
+        if !said {
+            eprintln!("waiting for tofproxd to appear on the bus …");
+            said = true;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     let p = ProximityProxy::new(&conn)
         .await
         .context("org.tofprox.Proximity1 proxy")?;
     Ok((conn, p))
+}
+
+/// The terminal size of stdout (columns, rows), if it is a terminal.
+fn terminal_size() -> Option<(usize, usize)> {
+    use std::io::IsTerminal as _;
+    if !std::io::stdout().is_terminal() {
+        return None;
+    }
+    // SAFETY: TIOCGWINSZ writes a `winsize` into the struct we pass; fd 1 is open.
+    let mut ws: libc::winsize = unsafe { std::mem::zeroed() };
+    let ok = unsafe { libc::ioctl(1, libc::TIOCGWINSZ, &mut ws) } == 0;
+    (ok && ws.ws_col > 0 && ws.ws_row > 0)
+        .then(|| (usize::from(ws.ws_col), usize::from(ws.ws_row)))
+        .or(Some((80, 24)))
+}
+
+/// The live view on the alternate screen; leaving it (also on an error
+/// return) restores the terminal and prints the events on the normal screen.
+struct Screen {
+    view: live::LiveView,
+}
+
+impl Screen {
+    fn draw(&self, frame: Option<(usize, usize, &[u16])>) {
+        use std::io::Write as _;
+        let (c, r) = terminal_size().unwrap_or((80, 24));
+        let mut out = std::io::stdout().lock();
+        let _ = out.write_all(self.view.screen(frame, c, r).as_bytes());
+        let _ = out.flush();
+    }
+}
+
+impl Drop for Screen {
+    fn drop(&mut self) {
+        use std::io::Write as _;
+        let mut out = std::io::stdout().lock();
+        let _ = out.write_all(live::LEAVE.as_bytes());
+        for e in self.view.events() {
+            let _ = writeln!(out, "{e}");
+        }
+        let _ = out.flush();
+    }
 }
 
 pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
@@ -231,19 +300,38 @@ pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
         let (_conn, p) = proxy(&a.bus).await?;
         let mut near_changes = p.receive_near_changed().await;
         let mut depth = if a.depth {
-            p.claim_depth().await.context("ClaimDepth (are you in the tofprox-depth group?)")?;
+            p.claim_depth()
+                .await
+                .context("ClaimDepth (are you in the tofprox-depth group?)")?;
             Some(p.receive_depth_frame().await?)
         } else {
             None
         };
         let t0 = Instant::now();
-        p.claim_proximity().await.context("ClaimProximity (is tofproxd running?)")?;
-        eprintln!(
-            "claimed proximity: near ≤ {} mm, far ≥ {} mm (Ctrl-C to stop)",
+        p.claim_proximity()
+            .await
+            .context("ClaimProximity (is tofproxd running?)")?;
+        let (near_mm, far_mm) = (
             p.near_threshold_mm().await.unwrap_or(0),
-            p.far_threshold_mm().await.unwrap_or(0)
+            p.far_threshold_mm().await.unwrap_or(0),
         );
-        let deadline = a.seconds.map(|s| tokio::time::Instant::now() + Duration::from_secs(s));
+        let view = live::LiveView::new(near_mm, far_mm, 1500);
+        let mut screen = if a.depth && terminal_size().is_some() {
+            print!("{}", live::ENTER);
+            let s = Screen { view };
+            s.draw(None);
+            Some(s)
+        } else {
+            if a.depth {
+                eprintln!("note: stdout is not a terminal: no live preview, events only");
+            }
+            eprintln!("claimed proximity: near ≤ {near_mm} mm, far ≥ {far_mm} mm (Ctrl-C to stop)");
+            None
+        };
+        let mut last_frame: Option<(usize, usize, Vec<u16>)> = None;
+        let deadline = a
+            .seconds
+            .map(|s| tokio::time::Instant::now() + Duration::from_secs(s));
         loop {
             let until = async {
                 match deadline {
@@ -265,49 +353,40 @@ pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
                     let near = ch.get().await.unwrap_or(false);
                     let d = p.distance_mm().await.unwrap_or(0);
                     let state = p.state().await.unwrap_or_default();
-                    println!("{:8.2}s  {}  distance={} mm  state={state}", t0.elapsed().as_secs_f64(),
-                        if near { "NEAR" } else { "far " }, d);
+                    let line = live::event_line(t0.elapsed().as_secs_f64(), near, d, &state);
+                    match screen.as_mut() {
+                        Some(s) => {
+                            s.view.push_event(line);
+                            s.draw(last_frame.as_ref().map(|(w, h, d)| (*w, *h, d.as_slice())));
+                        }
+                        None => println!("{line}"),
+                    }
                 }
                 f = next_depth => {
                     if let Some(f) = f && let Ok(args) = f.args() {
-                        render_depth(*args.width(), *args.height(), args.depth_mm_u16_le());
+                        let (w, h) = (usize::from(*args.width()), usize::from(*args.height()));
+                        let d: Vec<u16> = args
+                            .depth_mm_u16_le()
+                            .chunks_exact(2)
+                            .map(|b| u16::from_le_bytes([b[0], b[1]]))
+                            .collect();
+                        if w > 0 && h > 0 && d.len() == w * h {
+                            if let Some(s) = &screen {
+                                s.draw(Some((w, h, &d)));
+                            }
+                            last_frame = Some((w, h, d));
+                        }
                     }
                 }
             }
         }
+        drop(screen);
         let _ = p.release_proximity().await;
         if a.depth {
             let _ = p.release_depth().await;
         }
         Ok(ExitCode::SUCCESS)
     })
-}
-
-/// A small terminal preview: near = dense characters.
-fn render_depth(width: u16, height: u16, depth_le: &[u8]) {
-    let (w, h) = (usize::from(width), usize::from(height));
-    if w == 0 || h == 0 || depth_le.len() < w * h * 2 {
-        return;
-    }
-    let ramp: &[u8] = b"@%#*+=-:. ";
-    let (cw, ch) = (48usize.min(w), 12usize.min(h));
-    let mut out = String::from("\x1b[s\x1b[1;1H");
-    for r in 0..ch {
-        for c in 0..cw {
-            let (y, x) = (r * h / ch, c * w / cw);
-            let i = (y * w + x) * 2;
-            let d = u16::from_le_bytes([depth_le[i], depth_le[i + 1]]);
-            let ch = if d == 0 {
-                b'?'
-            } else {
-                ramp[(usize::from(d.min(1499)) * ramp.len() / 1500).min(ramp.len() - 1)]
-            };
-            out.push(char::from(ch));
-        }
-        out.push_str("\x1b[K\n");
-    }
-    out.push_str("\x1b[u");
-    eprint!("{out}");
 }
 
 pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
@@ -341,7 +420,15 @@ pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::Value::Object(obj));
         } else {
             for (k, v) in obj {
-                println!("{k:<16} {v}");
+                // floats to 3 decimals (a 500 µs exposure is not 499.9999999999999)
+                let shown = match v.as_f64() {
+                    Some(x) if v.is_f64() => {
+                        let s = format!("{x:.3}");
+                        s.trim_end_matches('0').trim_end_matches('.').to_string()
+                    }
+                    _ => v.to_string(),
+                };
+                println!("{k:<16} {shown}");
             }
         }
         Ok(ExitCode::SUCCESS)
@@ -376,10 +463,11 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
             let depth: Vec<u16> = bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
             let arr = ndarray::Array3::from_shape_vec((1, h, w), depth)?;
             if writer.is_none() {
-                writer = Some(RecordingWriter::create(
-                    &a.from_daemon,
+                writer = Some(super::new_recording(
+                    &a.out,
                     SensorInfo::full(h, w, 16, 80e6),
                     Some("depth frames from tofproxd (DepthFrame): each capture holds ONE image, depth in mm (0 = invalid), not raw phase codes".into()),
+                    a.force,
                 )?);
             }
             let Some(wr) = writer.as_mut() else { continue };
@@ -406,7 +494,7 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
         if n == 0 {
             bail!("no DepthFrame received within {} s", a.timeout_s);
         }
-        eprintln!("recorded {n} depth frames to {}", a.from_daemon.display());
+        eprintln!("recorded {n} depth frames to {}", a.out.display());
         Ok(ExitCode::SUCCESS)
     })
 }
@@ -418,12 +506,33 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
         seed: a.seed,
         ..tofproxd::soak::SoakConfig::default()
     })?;
+    let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
     if a.json {
         println!("{}", serde_json::to_string(&rep)?);
     } else {
-        println!("{rep:#?}");
+        println!(
+            "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
+             false near:   {}\n\
+             panics:       {}\n\
+             recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
+             near events:  {}\n\
+             memory (RSS): {} kB after warm-up, {} kB at the end ({:+} kB)\n\
+             verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
+            rep.cycles,
+            rep.faults_injected,
+            rep.failed_cycles,
+            rep.false_near,
+            rep.panics,
+            rep.recovered,
+            rep.max_recovery_cycles,
+            rep.unrecovered,
+            rep.near_transitions,
+            rep.rss_kb_start,
+            rep.rss_kb_end,
+            rep.rss_kb_end as i64 - rep.rss_kb_start as i64,
+            if ok { "PASS" } else { "FAIL" }
+        );
     }
-    let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
     Ok(if ok {
         ExitCode::SUCCESS
     } else {

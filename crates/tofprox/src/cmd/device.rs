@@ -134,14 +134,16 @@ pub struct CaptureArgs {
     /// Seed of the emulated device (noise, faults).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Measurement mode.
-    #[arg(long, value_parser = parse_mode)]
+    /// Measurement mode: 2phase, 4phase, 4phase-grey (4-phase plus an
+    /// unilluminated image) or correlation24 (24-phase correlation sweep).
+    #[arg(long, value_parser = parse_mode, value_name = "2phase|4phase|4phase-grey|correlation24")]
     mode: SensorMode,
     /// Exposure per raw image, µs.
     #[arg(long)]
     exposure_us: f64,
-    /// Row window `ROW0,ROWS` (partial read-out); default: full array.
-    #[arg(long, value_parser = parse_window)]
+    /// Rows to read out, `FIRST,COUNT` (partial read-out of whole rows);
+    /// default: the full array.
+    #[arg(long = "rows", value_name = "FIRST,COUNT", value_parser = parse_window)]
     window: Option<RowWindow>,
     /// Number of measurements (one capture each).
     #[arg(long, default_value_t = 1)]
@@ -156,9 +158,12 @@ pub struct CaptureArgs {
     /// Recording description.
     #[arg(long)]
     description: Option<String>,
-    /// Output recording directory (must not exist yet or be empty).
+    /// Output recording directory (must not hold a recording yet, unless --force).
     #[arg(long)]
     out: PathBuf,
+    /// Replace the recording already in `--out`.
+    #[arg(long)]
+    force: bool,
 }
 
 fn parse_hex16(s: &str) -> Result<u16, String> {
@@ -528,7 +533,7 @@ fn create_writer(
         .description
         .clone()
         .unwrap_or_else(|| format!("tofprox device capture, {} mode, {desc}", a.mode));
-    Ok(RecordingWriter::create(&a.out, sensor, Some(description))?)
+    super::new_recording(&a.out, sensor, Some(description), a.force)
 }
 
 /// Append one cycle: consecutive raw images with the same illumination

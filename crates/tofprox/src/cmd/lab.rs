@@ -46,7 +46,7 @@ pub struct DiagnoseArgs {
     /// Model file (TOML).
     #[arg(long)]
     pub model: PathBuf,
-    /// Print the verdict as JSON (issue 4 output contract).
+    /// Print the verdict as JSON (verdict, candidates, fit, rms; docs/lab.md).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with SVG plots.
@@ -67,7 +67,7 @@ pub struct AddArgs {
     /// Where to write the model with the effect enabled and fitted.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print before/after as JSON (issue 4 output contract).
+    /// Print before/after and the fitted parameters as JSON (docs/lab.md).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with the before/after error curves.
@@ -241,8 +241,18 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 n, e.raw_lsb, e.depth_2phase_mm, e.depth_4phase_mm, e.chi2_per_dof
             ));
         }
-        for (k, v) in &res.params {
-            t.push_str(&format!("  {}.{k} = {v:.6}\n", a.effect));
+        // what the model file holds (the file's names and units), not the
+        // lab's internal fit parameters
+        let info = tofprox_model::catalogue().iter().find(|e| e.id == a.effect);
+        t.push_str(&match &a.out {
+            Some(p) => format!("[effects.{}] as written to {}:\n", a.effect, p.display()),
+            None => format!("[effects.{}] (not written: pass --out FILE):\n", a.effect),
+        });
+        t.push_str(&format!("  enabled = {}\n", m.is_enabled(&a.effect)));
+        for pi in info.map(|e| e.params).unwrap_or_default() {
+            if let Some(v) = m.param(&a.effect, pi.name) {
+                t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
+            }
         }
         out(&t)?;
     }

@@ -81,6 +81,9 @@ pub struct SweepArgs {
     /// Output recording directory.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the recording already in `--out`.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
@@ -127,6 +130,9 @@ pub struct SceneArgs {
     /// Output recording directory.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the recording already in `--out`.
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -389,7 +395,8 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
         model.enabled_effects().join(", "),
         a.seed
     );
-    let mut writer = RecordingWriter::create(&a.out, sensor_info(&geometry), Some(description))?;
+    let mut writer =
+        super::new_recording(&a.out, sensor_info(&geometry), Some(description), a.force)?;
     let pb = progress(plan.len(), "sweep");
     simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
     pb.finish_and_clear();
@@ -463,7 +470,8 @@ fn scene(a: SceneArgs) -> anyhow::Result<ExitCode> {
         a.model.display(),
         a.seed
     );
-    let mut writer = RecordingWriter::create(&a.out, sensor_info(&geometry), Some(description))?;
+    let mut writer =
+        super::new_recording(&a.out, sensor_info(&geometry), Some(description), a.force)?;
     let pb = progress(plan.len(), "scene");
     simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
     pb.finish_and_clear();

@@ -1,0 +1,201 @@
+//! What a person reads from the commands (issue 13, items 6–8): documented
+//! flags, re-runnable recording steps, `process --json` with what the table
+//! shows, errors without repeated causes, no colour codes when redirected,
+//! `lab add` printing what it wrote, `tofproxd` without arguments pointing at
+//! `--demo`/`--config`.
+use std::path::Path;
+use std::process::Command;
+
+mod common;
+use common::{run, text};
+
+fn repo(p: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(p)
+        .to_string_lossy()
+        .into_owned()
+}
+
+#[test]
+fn a_recording_step_can_be_run_again_with_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cap");
+    let args = |force: bool| {
+        let mut v = vec![
+            "device",
+            "capture",
+            "--emulated",
+            "--mode",
+            "2phase",
+            "--exposure-us",
+            "300",
+            "--rows",
+            "80,8",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if force {
+            v.push("--force");
+        }
+        v
+    };
+    let o = run(&args(false));
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = run(&args(false));
+    assert_eq!(o.status.code(), Some(2));
+    let e = text(&o.stderr);
+    assert!(e.contains("--force") && !e.contains("append"), "{e}");
+    let o = run(&args(true));
+    assert!(o.status.success(), "{}", text(&o.stderr));
+}
+
+#[test]
+fn help_lists_modes_and_names_no_issue_numbers() {
+    let o = run(&["device", "capture", "--help"]);
+    let h = text(&o.stdout);
+    assert!(h.contains("2phase|4phase|4phase-grey|correlation24"), "{h}");
+    assert!(h.contains("--rows <FIRST,COUNT>"), "{h}");
+    for cmd in [
+        vec!["lab", "diagnose", "--help"],
+        vec!["lab", "add", "--help"],
+        vec!["record", "--help"],
+    ] {
+        let h = text(&run(&cmd).stdout);
+        assert!(!h.contains("issue "), "{cmd:?}: {h}");
+    }
+    assert!(text(&run(&["record", "--help"]).stdout).contains("--out <REC>"));
+}
+
+#[test]
+fn process_json_has_distance_and_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = run(&[
+        "process",
+        &repo("examples/recording"),
+        "--calib",
+        &repo("calib/example"),
+        "--algo",
+        "2phase",
+        "--out",
+        tmp.path().to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let lines: Vec<serde_json::Value> = text(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(!lines.is_empty());
+    let with_truth: Vec<&serde_json::Value> = lines
+        .iter()
+        .filter(|l| l["distance_m"].is_number())
+        .collect();
+    assert!(!with_truth.is_empty(), "{lines:?}");
+    for l in with_truth {
+        let err = l["error_mm"].as_f64().unwrap();
+        let expect =
+            (l["median_depth_m"].as_f64().unwrap() - l["distance_m"].as_f64().unwrap()) * 1000.0;
+        assert!((err - expect).abs() < 0.01, "{l}");
+    }
+}
+
+#[test]
+fn errors_name_each_cause_once_and_stderr_has_no_colour_codes() {
+    let o = run(&["info", "/nonexistent/recording"]);
+    assert_eq!(o.status.code(), Some(2));
+    let e = text(&o.stderr);
+    assert_eq!(e.lines().count(), 1, "{e}");
+    let os = "(os error 2)";
+    assert!(e.matches(os).count() <= 1, "{e}");
+    // the daemon's error and log output, redirected: no ANSI colour
+    let d = Path::new(env!("CARGO_BIN_EXE_tofprox")).with_file_name("tofproxd");
+    if d.is_file() {
+        let o = Command::new(&d)
+            .args(["--config", "/nonexistent/tofproxd.toml"])
+            .output()
+            .unwrap();
+        let e = text(&o.stderr);
+        assert!(!e.contains('\x1b'), "{e:?}");
+        assert!(e.matches(os).count() <= 1, "{e}");
+        // no arguments: point at --demo / --config
+        let o = Command::new(&d).output().unwrap();
+        let e = text(&o.stderr);
+        if !Path::new("/etc/tofprox/tofproxd.toml").exists() {
+            assert!(e.contains("--demo") && e.contains("--config"), "{e}");
+        }
+    }
+}
+
+#[test]
+fn lab_add_prints_what_it_wrote_with_units() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut truth = tofprox_model::ModelConfig::baseline();
+    truth.set_enabled("vcsel_droop", true).unwrap();
+    let truth_p = tmp.path().join("truth.toml");
+    std::fs::write(&truth_p, truth.to_toml_string()).unwrap();
+    let rec = tmp.path().join("rec");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let o = run(&[
+        "sim",
+        "sweep",
+        "--model",
+        &s(&truth_p),
+        "--distances",
+        "0.15:1.80:0.15",
+        "--exposures",
+        "250,1000",
+        "--repeats",
+        "2",
+        "--averaged",
+        "16",
+        "--window",
+        "78,104,16,16",
+        "--seed",
+        "3",
+        "--out",
+        &s(&rec),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let m2 = tmp.path().join("m2.toml");
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_droop",
+        "--model",
+        &repo("config/model/baseline.toml"),
+        "--data",
+        &s(&rec),
+        "--out",
+        &s(&m2),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let shown = text(&o.stdout);
+    let written = tofprox_model::ModelConfig::load(&m2).unwrap();
+    let info = tofprox_model::catalogue()
+        .iter()
+        .find(|e| e.id == "vcsel_droop")
+        .unwrap();
+    assert!(shown.contains("enabled = true"), "{shown}");
+    for p in info.params {
+        let v = written.param("vcsel_droop", p.name).unwrap();
+        let line = shown
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{} = ", p.name)))
+            .unwrap_or_else(|| panic!("{} not shown:\n{shown}", p.name));
+        let printed: f64 = line
+            .split('=')
+            .nth(1)
+            .unwrap()
+            .split_whitespace()
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(
+            (printed - v).abs() <= 1e-6 * v.abs().max(1.0),
+            "{line} vs {v}"
+        );
+        assert!(line.contains(p.unit), "{line}: unit {}", p.unit);
+    }
+}
