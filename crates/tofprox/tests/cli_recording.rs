@@ -218,7 +218,14 @@ fn process_errors(calib: Option<&Path>, algo: &str, out: &Path) -> Vec<(u64, f64
             let keys: Vec<&str> = v.as_object().unwrap().keys().map(String::as_str).collect();
             assert_eq!(
                 keys,
-                ["index", "median_depth_m", "process_us", "valid_fraction"]
+                [
+                    "distance_m",
+                    "error_mm",
+                    "index",
+                    "median_depth_m",
+                    "process_us",
+                    "valid_fraction"
+                ]
             );
             let i = v["index"].as_u64().unwrap();
             let truth = rec.captures()[i as usize].distance_m().unwrap();

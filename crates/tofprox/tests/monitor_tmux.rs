@@ -82,19 +82,13 @@ fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
         "100",
         "-y",
         "48",
-        "-e",
-        &format!("PATH={path}"),
-        "-e",
-        "PS1=PROMPT$ ",
-        "-e",
-        "LANG=C.UTF-8",
         "-c",
         repo.to_str().unwrap(),
-        "bash --norc --noprofile",
+        &format!("env PATH='{path}' PS1='PROMPT$ ' LANG=C.UTF-8 bash --norc --noprofile"),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let line = "dbus-run-session -- bash -c 'tofproxd --config config/tofproxd-emulated.toml --bus session 2>/dev/null & \
-                tofprox monitor --bus session --depth --seconds 25; kill %1'; echo MONITOR-EXITED";
+                tofprox monitor --bus session --depth --seconds 25; kill %1'; echo MONITOR-\"\"EXITED";
     assert!(
         t.cmd(&["send-keys", "-t", "ux", line, "Enter"])
             .status
@@ -106,7 +100,8 @@ fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
     let (mut with_frames, mut first_event_seen) = (0, None::<String>);
     let final_pane = loop {
         let p = t.pane();
-        if p.contains("MONITOR-EXITED\n") || p.lines().any(|l| l == "MONITOR-EXITED") {
+        // the typed line holds MONITOR-""EXITED, only the echo prints it joined
+        if p.lines().any(|l| l.trim_end() == "MONITOR-EXITED") {
             break p;
         }
         assert!(

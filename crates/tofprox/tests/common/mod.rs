@@ -1,4 +1,5 @@
 //! Helpers shared by the command-line end-to-end tests.
+#![allow(dead_code)] // each test binary uses a subset of the helpers
 use std::process::{Command, Output};
 
 /// Run the `tofprox` binary built for this test run with `args`.
