@@ -34,4 +34,4 @@ pub use config::{EffectSettings, MeasuredWaveforms, ModelConfig};
 pub use error::{ErrorKind, ModelError};
 pub use geometry::{CaptureRequest, SensorGeometry};
 pub use scene::{Scene, SceneScript, ScriptKind};
-pub use sim::{SPEED_OF_LIGHT_M_PER_S, Simulator};
+pub use sim::Simulator;
