@@ -1,6 +1,5 @@
 //! The forward model: scene → electrons per tap A/B → differential voltage → ADC codes.
 
-
 use ndarray::{Array3, ArrayView2};
 use rand::Rng;
 use rand_distr::StandardNormal;
