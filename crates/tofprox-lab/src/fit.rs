@@ -65,7 +65,7 @@ pub struct CapInfo {
     pub distance_m: Option<f64>,
     pub illum: bool,
     pub averaged: u32,
-    /// Signal law exposure[ms]·reflectivity/d² (0 when dark).
+    /// Signal law exposure_ms·reflectivity/d² (0 when dark).
     pub law: f64,
     pub phi_tof: f64,
     pub fold: u8,
