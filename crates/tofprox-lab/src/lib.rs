@@ -5,8 +5,6 @@
 //! (fits the [`fit::LabModel`], noise, residual structure) →
 //! [`diagnose::diagnose`] (candidate signatures, verdict) →
 //! [`diagnose::add_effect`].
-// Being documented module by module; this goes when the last item has its doc.
-#![allow(missing_docs)]
 pub mod adapter;
 pub mod candidates;
 pub mod data;
