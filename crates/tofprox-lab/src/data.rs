@@ -9,14 +9,21 @@ use crate::error::LabError;
 /// One capture: K raw images of (rows, cols) mean codes with its conditions.
 #[derive(Debug, Clone)]
 pub struct Capture {
+    /// Phase shift of each raw image, in acquisition order.
     pub phases_deg: Vec<f64>,
+    /// Exposure (integration) time.
     pub exposure_us: f64,
+    /// false: a dark capture (illumination off).
     pub illumination: bool,
+    /// Acquisitions averaged into each code (1 = a single one).
     pub averaged: u32,
     /// Ground-truth radial distance of the flat target, if known.
     pub distance_m: Option<f64>,
+    /// Target reflectivity (1 when the recording does not say).
     pub reflectivity: f64,
+    /// Background illuminance on the target.
     pub ambient_klux: f64,
+    /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
     /// (K, rows, cols) codes (offset binary, mean of `averaged` acquisitions).
     pub frames: Array3<f64>,
@@ -27,6 +34,7 @@ pub struct Capture {
 pub struct Dataset {
     /// The recording's window, full array, ADC and modulation.
     pub sensor: SensorGeometry,
+    /// The captures, in acquisition order.
     pub captures: Vec<Capture>,
 }
 
