@@ -77,25 +77,10 @@ const CHECKER: &str = r#"<script>
 })();
 </script>"#;
 
-fn chromium() -> PathBuf {
-    for dir in std::env::var("PATH").unwrap_or_default().split(':') {
-        for name in ["chromium", "chromium-browser"] {
-            let p = Path::new(dir).join(name);
-            if p.is_file() {
-                return p;
-            }
-        }
-    }
-    panic!(
-        "chromium is not installed: this test renders the reports in a real browser \
-         (Debian: apt-get install chromium; .ci/run installs it)"
-    );
-}
-
 /// Run headless Chromium on `page` with `extra` arguments; its stdout.
-fn headless(page: &Path, extra: &[&str]) -> String {
+fn headless(chromium: &Path, page: &Path, extra: &[&str]) -> String {
     let profile = tempfile::tempdir().unwrap();
-    let o = Command::new(chromium())
+    let o = Command::new(chromium)
         .args([
             "--headless",
             "--no-sandbox",
@@ -130,7 +115,7 @@ fn shots_dir() -> PathBuf {
 
 /// Render `html` (a page or a bare SVG) in the browser: a screenshot for a
 /// person, and the checker's findings.
-fn render(name: &str, html: &str) -> Value {
+fn render(chromium: &Path, name: &str, html: &str) -> Value {
     let body = if html.trim_start().starts_with("<svg") {
         format!(
             "<!DOCTYPE html><html><head><meta charset=\"utf-8\"></head><body>{html}</body></html>"
@@ -141,7 +126,11 @@ fn render(name: &str, html: &str) -> Value {
     let page_plain = shots_dir().join(format!("{name}.html"));
     std::fs::write(&page_plain, &body).unwrap();
     let shot = shots_dir().join(format!("{name}.png"));
-    headless(&page_plain, &[&format!("--screenshot={}", shot.display())]);
+    headless(
+        chromium,
+        &page_plain,
+        &[&format!("--screenshot={}", shot.display())],
+    );
     assert!(shot.is_file(), "no screenshot {}", shot.display());
     eprintln!("screenshot: {}", shot.display());
     let checked = body.replace("</body>", &format!("{CHECKER}</body>"));
@@ -151,7 +140,7 @@ fn render(name: &str, html: &str) -> Value {
     );
     let page = shots_dir().join(format!("{name}.checked.html"));
     std::fs::write(&page, checked).unwrap();
-    let dom = headless(&page, &["--dump-dom"]);
+    let dom = headless(chromium, &page, &["--dump-dom"]);
     let json = dom
         .split("<pre id=\"ux-checks\">")
         .nth(1)
@@ -179,6 +168,9 @@ fn render(name: &str, html: &str) -> Value {
 
 #[test]
 fn lab_reports_render_correctly_in_a_browser() {
+    let Some(chromium) = tofprox_e2e::require_program("chromium", "chromium") else {
+        return;
+    };
     let tmp = tempfile::tempdir().unwrap();
     let mut truth = tofprox_model::ModelConfig::baseline();
     truth.set_enabled("vcsel_droop", true).unwrap();
@@ -224,7 +216,11 @@ fn lab_reports_render_correctly_in_a_browser() {
         &s(&diag),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let v = render("lab-diagnose", &std::fs::read_to_string(&diag).unwrap());
+    let v = render(
+        &chromium,
+        "lab-diagnose",
+        &std::fs::read_to_string(&diag).unwrap(),
+    );
     assert!(v["bars"].as_u64().unwrap() >= 5, "{v}");
     assert!(v["legends"].as_u64().unwrap() >= 3, "{v}");
     // each bar shows the score of the condition it is labelled with (compare --json
@@ -269,12 +265,19 @@ fn lab_reports_render_correctly_in_a_browser() {
         &s(&add),
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
-    let v = render("lab-add", &std::fs::read_to_string(&add).unwrap());
+    let v = render(
+        &chromium,
+        "lab-add",
+        &std::fs::read_to_string(&add).unwrap(),
+    );
     assert!(v["lines"].as_u64().unwrap() >= 2, "{v}");
 }
 
 #[test]
 fn thesis_figures_render_correctly_in_a_browser() {
+    let Some(chromium) = tofprox_e2e::require_program("chromium", "chromium") else {
+        return;
+    };
     let tmp = tempfile::tempdir().unwrap();
     let o = run(&["sim", "figures", "--out", tmp.path().to_str().unwrap()]);
     assert!(o.status.success(), "{}", text(&o.stderr));
@@ -284,7 +287,7 @@ fn thesis_figures_render_correctly_in_a_browser() {
         if p.extension().is_some_and(|x| x == "svg") {
             let stem = p.file_stem().unwrap().to_string_lossy().into_owned();
             let svg = std::fs::read_to_string(&p).unwrap();
-            let v = render(&stem, &svg);
+            let v = render(&chromium, &stem, &svg);
             assert_eq!(v["legends"], 1, "{stem}: {v}");
             n += 1;
         }

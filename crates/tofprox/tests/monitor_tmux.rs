@@ -11,17 +11,6 @@ use std::time::{Duration, Instant};
 mod common;
 use common::text;
 
-fn require(tool: &str, package: &str) {
-    let found = std::env::var("PATH")
-        .unwrap_or_default()
-        .split(':')
-        .any(|d| Path::new(d).join(tool).is_file());
-    assert!(
-        found,
-        "{tool} is not installed (Debian package {package}; .ci/run installs it)"
-    );
-}
-
 struct Tmux {
     socket: PathBuf,
     _dir: tempfile::TempDir,
@@ -51,8 +40,12 @@ impl Drop for Tmux {
 
 #[test]
 fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
-    require("tmux", "tmux");
-    require("dbus-run-session", "dbus-daemon");
+    let Some(_) = tofprox_e2e::require_program("tmux", "tmux") else {
+        return;
+    };
+    let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
+        return;
+    };
     let bin = Path::new(env!("CARGO_BIN_EXE_tofprox"))
         .parent()
         .unwrap()

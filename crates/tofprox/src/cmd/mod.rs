@@ -9,13 +9,14 @@ pub mod sim;
 
 use std::path::Path;
 
-use tofprox_format::{ErrorKind, RecordingWriter, SensorInfo};
+use tofprox_core::SensorGeometry;
+use tofprox_format::{ErrorKind, RecordingWriter};
 
 /// The writer of a command's output recording: refuses to overwrite an
 /// existing recording unless `force` (the commands' `--force`), and says so.
 pub fn new_recording(
     out: &Path,
-    sensor: SensorInfo,
+    sensor: SensorGeometry,
     description: Option<String>,
     force: bool,
 ) -> anyhow::Result<RecordingWriter> {
