@@ -12,6 +12,15 @@ use crate::error::{ErrorKind, LabError};
 use crate::fit::{LabModel, LabSpec, Prepared};
 use crate::signatures::{MAX_HARMONIC, SIGNATURE_IDS};
 
+/// The conditions the lab model uses by meaning; every other numeric key of
+/// `[capture.conditions]` is kept by name in [`Capture::extra`].
+pub const KNOWN_CONDITIONS: &[&str] = &[
+    "distance_m",
+    "reflectivity",
+    "ambient_klux",
+    "temperature_c",
+];
+
 /// Load every capture of a recording (codes as f64).
 pub fn load_recording(dir: &Path) -> Result<Dataset, LabError> {
     let rec = Recording::open(dir).map_err(|e| {
@@ -43,6 +52,12 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
             reflectivity: cond("reflectivity").unwrap_or(1.0),
             ambient_klux: cond("ambient_klux").unwrap_or(0.0),
             temperature_c: cond("temperature_c"),
+            extra: meta
+                .conditions
+                .iter()
+                .filter(|(k, _)| !KNOWN_CONDITIONS.contains(&k.as_str()))
+                .map(|(k, v)| (k.clone(), *v))
+                .collect(),
             frames,
         });
     }
@@ -145,7 +160,24 @@ pub fn write_effect(
             if let Some(v) = g("phase0_rad") {
                 set(m, "max_rad", v);
             }
-            notes.push("reference_e left at typical: the lab fits the reference amplitude in LSB (ln_reference_lsb)".into());
+            if let Some(v) = g("ln_shape") {
+                set(m, "shape", v.exp());
+            }
+            // the lab's amplitude is in LSB; the model's in electrons of the
+            // differential amplitude: A[LSB] = A[e]·lsb_per_e (sensor.lsb_per_ke)
+            let lsb_per_e = m.param("sensor", "lsb_per_ke").unwrap_or(0.0) * 1e-3;
+            if let Some(v) = g("ln_reference_lsb")
+                && lsb_per_e > 0.0
+            {
+                set(m, "reference_e", v.exp() / lsb_per_e);
+            }
+            if let Some(p) = g("phase_rad_per_1000lsb")
+                && p != 0.0
+            {
+                notes.push(format!(
+                    "amplitude_phase_error: the linear term {p:.3e} rad per 1000 LSB has no model parameter"
+                ));
+            }
         }
         "multipath" => {
             if let (Some(c), Some(s)) = (g("ratio_cos"), g("ratio_sin")) {

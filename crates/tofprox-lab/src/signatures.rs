@@ -264,9 +264,17 @@ impl Signature for Droop {
 }
 
 /// Amplitude-dependent phase error (2.3.1.2): pixel non-linearity makes the
-/// phase depend on the signal: Δφ = φ0/(1 + A/A_ref) + p·A/1000.
-/// lin = [φ0, p], nl = [ln A_ref].
+/// phase depend on the signal: Δφ = φ0·s(A/A_ref; n) + p·A/1000 with the
+/// model's saturating law s (`tofprox_model::effects::pixel::amplitude_phase_shape`,
+/// 1/(1 + x) for n = 1). lin = [φ0, p], nl = [ln A_ref, ln n].
 struct AmpPhase;
+impl AmpPhase {
+    fn shape(nl: &[f64], a: f64) -> f64 {
+        let aref = nl[0].clamp(-5.0, 15.0).exp();
+        let n = nl.get(1).copied().unwrap_or(0.0).clamp(-1.4, 2.1).exp();
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n)
+    }
+}
 impl Signature for AmpPhase {
     fn id(&self) -> &'static str {
         "amplitude_phase_error"
@@ -278,10 +286,10 @@ impl Signature for AmpPhase {
         vec!["phase0_rad".into(), "phase_rad_per_1000lsb".into()]
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["ln_reference_lsb".into()]
+        vec!["ln_reference_lsb".into(), "ln_shape".into()]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![5.0]
+        vec![5.0, 0.0]
     }
     fn nl_grid(&self, recs: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
@@ -290,14 +298,16 @@ impl Signature for AmpPhase {
             .filter(|r| r.a > 0.0)
             .map(|r| r.a)
             .collect();
-        quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95])
-            .into_iter()
-            .map(|q| vec![q.max(1.0).ln()])
-            .collect()
+        let mut g = Vec::new();
+        for q in quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]) {
+            for ln_n in [0.0, 2f64.ln(), 4f64.ln()] {
+                g.push(vec![q.max(1.0).ln(), ln_n]);
+            }
+        }
+        g
     }
     fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let aref = nl[0].clamp(-5.0, 15.0).exp();
-        out[0] = r.a * r.cd / (1.0 + r.a / aref);
+        out[0] = r.a * r.cd * Self::shape(nl, r.a);
         out[1] = r.a * r.cd * r.a / 1000.0;
     }
 }

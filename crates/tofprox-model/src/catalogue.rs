@@ -380,7 +380,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
     EffectInfo {
         id: "amplitude_phase_error",
         title: "Amplitude-dependent phase error",
-        explanation: "Non-linearity of pixel and read-out makes the phase depend on the signal amplitude (dark vs bright surfaces, fig. 2.9): Δφ = φ_max · A_ref / (A_ref + A) with A the differential amplitude in electrons.",
+        explanation: "Non-linearity of pixel and read-out makes the phase depend on the signal amplitude (dark vs bright surfaces, fig. 2.9): Δφ = φ_max · (1 − x/(1 + xⁿ)^(1/n)), x = A/A_ref, A the differential amplitude in electrons. n = 1 is the hyperbolic law φ_max·A_ref/(A_ref + A); larger n saturate more sharply (n ≈ 2 is close to a tanh).",
         thesis_ref: "2.3.1.2 (fig. 2.9)",
         signature: "depth error depending on amplitude (reflectivity, distance, exposure), not on phase",
         params: &[
@@ -399,6 +399,14 @@ pub static CATALOGUE: &[EffectInfo] = &[
                 1.0,
                 1e8,
                 "amplitude A_ref at which half of φ_max remains",
+            ),
+            p(
+                "shape",
+                "1",
+                1.0,
+                0.25,
+                8.0,
+                "sharpness n of the saturation (1: hyperbolic)",
             ),
         ],
         in_baseline: false,
