@@ -6,10 +6,7 @@ use serde::Serialize;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{
-    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, eval_delta,
-    fit_model,
-};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, eval_delta, fit_model};
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -153,7 +150,11 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
         mm: crate::structure::structure_size(ci - ni as f64 * share, 1.0, swa2, mmr).1,
     };
     let noise_single = Size {
-        lsb: if sw1 > 0.0 { (n as f64 / sw1).sqrt() } else { f64::NAN },
+        lsb: if sw1 > 0.0 {
+            (n as f64 / sw1).sqrt()
+        } else {
+            f64::NAN
+        },
         mm: if s1 > 0.0 {
             (ni as f64 / s1).sqrt() * mmr
         } else {
@@ -1039,9 +1040,10 @@ pub fn explain(
     let mut added = Vec::new();
     for _ in 0..=MAX_EXPLAIN_STEPS {
         let mut d = diagnose_with(prep, &cmp, opts, progress)?;
-        let named = d.effect.clone().filter(|_| {
-            d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS
-        });
+        let named = d
+            .effect
+            .clone()
+            .filter(|_| d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS);
         let Some(effect) = named else {
             cmp.recs = Vec::new();
             for c in &mut d.candidates {

@@ -38,6 +38,10 @@ pub struct LabSpec {
     pub per_pixel_phase: bool,
     /// Catalogue effects with a lab signature that the model enables.
     pub effects: Vec<String>,
+    /// Effects whose parameters are held at these values (`compare
+    /// --hold-effects`: the model file's physics); only the per-pixel and
+    /// per-unit parameters are fitted around them.
+    pub held: Vec<EffectFit>,
 }
 
 impl Default for LabSpec {
@@ -48,6 +52,7 @@ impl Default for LabSpec {
             per_pixel_gain: true,
             per_pixel_phase: true,
             effects: Vec::new(),
+            held: Vec::new(),
         }
     }
 }
@@ -605,6 +610,9 @@ pub fn fit_model(
             .effects
             .iter()
             .map(|id| {
+                if let Some(h) = spec.held.iter().find(|h| &h.id == id) {
+                    return Ok(h.clone());
+                }
                 let s = make_signature(id, prep, spec, &Waveform::sinusoid())?;
                 Ok(EffectFit {
                     id: id.clone(),
@@ -690,6 +698,7 @@ pub fn refine(
         + model
             .effects
             .iter()
+            .filter(|e| !spec.held.iter().any(|h| h.id == e.id))
             .map(|e| e.lin.len() + e.nl.len())
             .sum::<usize>();
     Ok(())
@@ -937,6 +946,9 @@ fn update_saturation(prep: &Prepared, model: &mut LabModel) {
 /// Re-fit the parameters of the model's enabled effects on its residual.
 fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Result<(), LabError> {
     for i in 0..model.effects.len() {
+        if model.spec.held.iter().any(|h| h.id == model.effects[i].id) {
+            continue;
+        }
         // residual with every other effect included
         let mut tmp = model.clone();
         let this = tmp.effects.remove(i);
@@ -980,7 +992,11 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
             key_f(cap.law),
             i64::from(cap.averaged),
         ]);
-        key.extend(cap.extra.iter().map(|v| key_f(if v.is_nan() { -1e9 } else { *v })));
+        key.extend(
+            cap.extra
+                .iter()
+                .map(|v| key_f(if v.is_nan() { -1e9 } else { *v })),
+        );
         groups.entry(key).or_default().push(c);
     }
     let mut obs = Vec::new();

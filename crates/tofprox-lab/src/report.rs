@@ -492,7 +492,10 @@ pub fn explain_html(title: &str, rows: usize, cols: usize, ex: &Explanation) -> 
             cols,
             &st.comparison,
             Some(&st.diagnosis),
-            st.added.as_deref().zip(next).map(|(e, n)| (e, &st.comparison, n)),
+            st.added
+                .as_deref()
+                .zip(next)
+                .map(|(e, n)| (e, &st.comparison, n)),
         ));
     }
     h.push_str("</body></html>\n");

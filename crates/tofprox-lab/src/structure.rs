@@ -83,10 +83,9 @@ pub fn cond_value(cond: &str, r: &Rec, prep: &Prepared) -> Option<f64> {
         "capture_index" => Some(f64::from(r.cap)),
         "column" => Some((p % prep.cols) as f64),
         // the model's mirrored 32-column read-out map (thesis 3.3.7.1)
-        "adc_channel" => Some(
-            tofprox_model::effects::fixed_pattern::adc_channel(prep.roi_origin[1] + p % prep.cols)
-                as f64,
-        ),
+        "adc_channel" => Some(tofprox_model::effects::fixed_pattern::adc_channel(
+            prep.roi_origin[1] + p % prep.cols,
+        ) as f64),
         "row" => Some((p / prep.cols) as f64),
         "adc_code" => Some(r.x + prep.mid),
         other => prep
@@ -327,7 +326,9 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
         })
         .collect();
     let di = (0..3).max_by(|&a, &b| pd[a].total_cmp(&pd[b])).unwrap_or(0);
-    let (sw, swa2) = glob.iter().fold((0.0, 0.0), |s, a| (s.0 + a.sw, s.1 + a.swa2));
+    let (sw, swa2) = glob
+        .iter()
+        .fold((0.0, 0.0), |s, a| (s.0 + a.sw, s.1 + a.swa2));
     let (size_lsb, size_mm) = structure_size(chi2 - dof as f64, sw, swa2, prep.mm_per_rad());
     Some(ConditionScore {
         condition: cond.to_string(),

@@ -18,9 +18,11 @@ use ndarray::Array3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
-use tofprox_lab::diagnose::{DiagnoseOptions, Verdict, compare, diagnose, explain};
+use tofprox_lab::adapter::{spec_from_model, spec_holding_model, update_model_text, write_effect};
+use tofprox_lab::diagnose::{DiagnoseOptions, Verdict, compare, diagnose, effect_params, explain};
 use tofprox_lab::fit::{LabSpec, Prepared};
 use tofprox_lab::{Capture, Dataset};
+use tofprox_model::ModelConfig;
 
 const F_MOD_HZ: f64 = 60e6;
 const ROWS: usize = 10;
@@ -45,6 +47,8 @@ enum Hidden {
     TempSecondOrder { a1: f64, a2: f64, g1: f64, g2: f64 },
     /// Phase k·(V − 3.3 V) with the supply voltage (a user condition).
     SupplyPhase { rad_per_v: f64 },
+    /// Tap B converts charge with gain 1 − eps relative to tap A.
+    TapGain { eps: f64 },
 }
 
 struct Pixels {
@@ -113,7 +117,7 @@ fn capture(
                     s_e *= 1.0 + g1 * dt + g2 * dt * dt;
                 }
                 Hidden::SupplyPhase { rad_per_v } => phi += rad_per_v * (c.supply_v - 3.3),
-                Hidden::DroopFirstImage { .. } => {}
+                Hidden::DroopFirstImage { .. } | Hidden::TapGain { .. } => {}
             }
         }
         for (k, th) in phases.iter().enumerate() {
@@ -129,7 +133,14 @@ fn capture(
             let nb = 0.5 * s * (1.0 - corr) + amb_e;
             let var_lsb2 = (LSB_PER_E * LSB_PER_E * (na + nb) + 2.5) / f64::from(averaged);
             let noise: f64 = rng.sample(StandardNormal);
-            let code = 2048.0 + px.offset_lsb[p] + LSB_PER_E * (na - nb) + var_lsb2.sqrt() * noise;
+            let gain_b = hidden.iter().fold(1.0, |g, h| match *h {
+                Hidden::TapGain { eps } => g * (1.0 - eps),
+                _ => g,
+            });
+            let code = 2048.0
+                + px.offset_lsb[p]
+                + LSB_PER_E * (na - gain_b * nb)
+                + var_lsb2.sqrt() * noise;
             frames[[k, p / COLS, p % COLS]] = code.clamp(0.0, 4095.0);
         }
     }
@@ -221,12 +232,29 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
     }
 }
 
-/// The model under test: per-pixel offset, gain and phase, harmonics to the 5th.
-fn spec() -> LabSpec {
-    LabSpec {
-        harmonic_order: 5,
-        ..LabSpec::default()
+/// The model file under test: per-pixel offset, gain and phase (baseline),
+/// harmonics to the 5th, no lab effect enabled.
+fn model_under_test() -> ModelConfig {
+    let mut m = ModelConfig::baseline();
+    m.set_enabled("dark_current", false).unwrap();
+    m.set_param("waveform_harmonics", "h5_rel", 0.01).unwrap();
+    for h in 6..=9 {
+        m.set_param("waveform_harmonics", &format!("h{h}_rel"), 0.0)
+            .unwrap();
     }
+    m
+}
+
+fn spec() -> LabSpec {
+    let s = spec_from_model(&model_under_test());
+    assert_eq!(
+        s,
+        LabSpec {
+            harmonic_order: 5,
+            ..LabSpec::default()
+        }
+    );
+    s
 }
 
 /// explain names `expected` (in any order), ends at nothing_missing, and its
@@ -254,6 +282,28 @@ fn check_explain(hidden: &[Hidden], vary: Vary, seed: u64, expected: &[&str]) {
     want.sort();
     assert_eq!(added, want, "effects added");
     assert_eq!(ex.verdict(), Verdict::NothingMissing);
+    // `add` writes the fitted physics into the model file: holding the effects
+    // at the written values fits as well as the free fit (χ²/dof within 2 %)
+    let fin = ex.final_model().unwrap();
+    let base = model_under_test();
+    let mut m = base.clone();
+    for e in &ex.added {
+        let (_, params) = effect_params(&prep, fin, e).unwrap();
+        let notes = write_effect(&mut m, e, &params, fin, &prep).unwrap();
+        eprintln!("wrote {e}: {notes:?}");
+    }
+    let text = update_model_text(&base.to_toml_string(), &m, &ex.added).unwrap();
+    let written = ModelConfig::from_toml_str(&text).unwrap();
+    let (held, notes) = spec_holding_model(&written, &prep);
+    assert!(notes.is_empty(), "{notes:?}");
+    assert_eq!(held.held.len(), ex.added.len());
+    let h = compare(&prep, &held, &|_, _| {}).unwrap();
+    let free = &ex.steps.last().unwrap().comparison;
+    eprintln!(
+        "held χ²/dof {:.4} vs free {:.4}",
+        h.fit.chi2_per_dof, free.fit.chi2_per_dof
+    );
+    assert!(h.fit.chi2_per_dof <= 1.02 * free.fit.chi2_per_dof);
     // the error after the loop is at the level of the recording without them
     let control = record(&[], vary, seed);
     let cprep = Prepared::new(&control).unwrap();
@@ -292,6 +342,17 @@ fn strong_saturating_amplitude_phase_error() {
 }
 
 #[test]
+fn tap_gain_mismatch() {
+    // 1 % (five times the catalogue's typical 0.2 %)
+    check_explain(
+        &[Hidden::TapGain { eps: 0.01 }],
+        Vary::Nothing,
+        36,
+        &["tap_gain_mismatch"],
+    );
+}
+
+#[test]
 fn two_effects_droop_and_second_order_temperature() {
     check_explain(
         &[
@@ -311,11 +372,7 @@ fn two_effects_droop_and_second_order_temperature() {
 
 #[test]
 fn a_condition_of_the_users_own_is_named() {
-    let ds = record(
-        &[Hidden::SupplyPhase { rad_per_v: 0.1 }],
-        Vary::Supply,
-        34,
-    );
+    let ds = record(&[Hidden::SupplyPhase { rad_per_v: 0.1 }], Vary::Supply, 34);
     let prep = Prepared::new(&ds).unwrap();
     assert_eq!(prep.extra_keys, vec!["supply_voltage_v".to_string()]);
     let cmp = compare(&prep, &spec(), &|_, _| {}).unwrap();

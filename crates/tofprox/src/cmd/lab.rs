@@ -5,7 +5,9 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tofprox_lab::adapter::{load_recording, spec_from_model, write_effect};
+use tofprox_lab::adapter::{
+    load_recording, spec_from_model, spec_holding_model, update_model_text, write_effect,
+};
 use tofprox_lab::diagnose::{
     DiagnoseOptions, add_effect, compare, diagnose_with, effect_params, explain,
 };
@@ -42,6 +44,10 @@ pub struct CompareArgs {
     /// Print JSON to stdout instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Hold the effects' parameters at the model file's values (its own
+    /// physics); only per-pixel and per-unit parameters are refitted.
+    #[arg(long)]
+    pub hold_effects: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -158,7 +164,19 @@ fn out(s: &str) -> anyhow::Result<()> {
 fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
     let (prep, m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
-    let cmp = fit(&prep, &m, &pb)?;
+    let cmp = if a.hold_effects {
+        let (spec, notes) = spec_holding_model(&m, &prep);
+        for n in &notes {
+            eprintln!("note: {n}");
+        }
+        let cb = |stage: &str, f: f64| {
+            pb.set_message(stage.to_string());
+            pb.set_position((f * 1000.0) as u64);
+        };
+        compare(&prep, &spec, &cb)?
+    } else {
+        fit(&prep, &m, &pb)?
+    };
     pb.finish_and_clear();
     if a.json {
         out(&format!(
@@ -233,8 +251,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     pb.finish_and_clear();
     let notes = write_effect(&mut m, &a.effect, &res.params, &res.after.model, &prep)?;
     if let Some(p) = &a.out {
-        std::fs::write(p, m.to_toml_string())
-            .with_context(|| format!("writing model {}", p.display()))?;
+        write_model(&a.model, &m, std::slice::from_ref(&a.effect), p)?;
         eprintln!("model with {} written to {}", a.effect, p.display());
     }
     for n in &notes {
@@ -280,6 +297,16 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// Write `m` to `out` as the user's model file `from` with the `changed`
+/// effects updated (comments and layout of `from` kept).
+fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(from)
+        .with_context(|| format!("reading model {}", from.display()))?;
+    let updated = update_model_text(&text, m, changed)
+        .with_context(|| format!("model file {}", from.display()))?;
+    std::fs::write(out, updated).with_context(|| format!("writing model {}", out.display()))
+}
+
 fn options(tolerance_mm: Option<f64>) -> anyhow::Result<DiagnoseOptions> {
     if let Some(t) = tolerance_mm
         && !(t.is_finite() && t >= 0.0)
@@ -307,8 +334,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
         }
     }
     if let Some(p) = &a.out {
-        std::fs::write(p, m.to_toml_string())
-            .with_context(|| format!("writing model {}", p.display()))?;
+        write_model(&a.model, &m, &ex.added, p)?;
         eprintln!(
             "model with {} written to {}",
             if ex.added.is_empty() {
