@@ -35,10 +35,12 @@ pub fn conditions(prep: &Prepared) -> Vec<String> {
         .collect()
 }
 
+/// One bin of a condition: the residual projected on the three directions.
 #[derive(Debug, Clone, Serialize)]
 pub struct Bin {
     /// Bin centre in the condition's unit.
     pub x: f64,
+    /// Samples (pixel × raw image) in the bin.
     pub samples: usize,
     /// Estimate along offset (LSB), amplitude (relative) and phase (rad).
     pub est: [f64; 3],
@@ -48,11 +50,17 @@ pub struct Bin {
     pub mean_resid_lsb: f64,
 }
 
+/// How strongly the residual varies with one condition, beyond the noise.
 #[derive(Debug, Clone, Serialize)]
 pub struct ConditionScore {
+    /// The condition's name (a [`CONDITIONS`] entry or one of the user's keys).
     pub condition: String,
+    /// Structure score: (χ² − dof)/√(2·dof), the larger of the global and
+    /// per-pixel binnings; about N(0, 1) when the residual is noise.
     pub z: f64,
+    /// χ² of the bin estimates behind `z`.
     pub chi2: f64,
+    /// Degrees of freedom of `chi2`.
     pub dof: usize,
     /// Which direction carries most of the structure: offset, amplitude, phase.
     pub direction: &'static str,
@@ -63,6 +71,7 @@ pub struct ConditionScore {
     /// amplitude (phase-equivalent, rad) times c/(4πf),
     /// √(max(0, χ² − dof)/Σw·A²)·c/(4πf).
     pub size_mm: f64,
+    /// The global bins, those with at least 4 samples.
     pub bins: Vec<Bin>,
 }
 
