@@ -130,7 +130,7 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                 ))
             }
             "amplitude_phase_error" if lsb_per_e > 0.0 => Some((
-                vec![g(&id, "max_rad"), 0.0],
+                vec![g(&id, "max_rad")],
                 vec![
                     (g(&id, "reference_e") * lsb_per_e).max(1e-12).ln(),
                     g(&id, "shape").max(1e-6).ln(),
@@ -254,13 +254,6 @@ pub fn write_effect(
                 && lsb_per_e > 0.0
             {
                 set(m, "reference_e", v.exp() / lsb_per_e);
-            }
-            if let Some(p) = g("phase_rad_per_1000lsb")
-                && p != 0.0
-            {
-                notes.push(format!(
-                    "amplitude_phase_error: the linear term {p:.3e} rad per 1000 LSB has no model parameter"
-                ));
             }
         }
         "tap_gain_mismatch" => {

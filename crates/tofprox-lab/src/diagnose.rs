@@ -385,7 +385,9 @@ pub struct SmallStructure {
     pub kind: &'static str,
     /// Structure score (conditions) or the global z (effects: z before it).
     pub z: f64,
+    /// Depth-equivalent RMS size in mm.
     pub size_mm: f64,
+    /// RMS size in LSB.
     pub size_lsb: f64,
 }
 
@@ -832,8 +834,16 @@ pub fn decide(
             ),
         };
     }
+    // Occam: a runner-up with more parameters that explains no more than the
+    // best does not make the verdict ambiguous
+    let simpler_suffices = |ru: &CandidateScore| {
+        best.params.len() < ru.params.len()
+            && best.explained_excess >= ru.explained_excess
+            && best.cv_gain >= ru.cv_gain
+    };
     if let Some(ru) = cands.get(1)
         && (passes(ru, z_base, struct_base) || passes_partial(ru))
+        && !simpler_suffices(ru)
         && best.cv_gain - ru.cv_gain < AMBIGUITY_MARGIN
         && (best.explained_excess - ru.explained_excess) < AMBIGUITY_MARGIN
     {
@@ -1065,13 +1075,16 @@ pub fn effect_params(
 pub struct ExplainStep {
     /// The model at this step compared with the recording (residual table dropped).
     pub comparison: Comparison,
+    /// The diagnosis of that comparison (candidate refits dropped).
     pub diagnosis: Diagnosis,
+    /// The effect added after this step (none on the last).
     pub added: Option<String>,
 }
 
 /// The loop diagnose → add until nothing is missing or the rest is unexplained.
 #[derive(Debug, Clone)]
 pub struct Explanation {
+    /// Every step, the last one with the final verdict.
     pub steps: Vec<ExplainStep>,
     /// Effects added, in order.
     pub added: Vec<String>,

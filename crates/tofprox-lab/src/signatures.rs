@@ -322,15 +322,20 @@ impl Signature for Droop {
     }
 }
 
-/// Amplitude-dependent phase error (2.3.1.2): pixel non-linearity makes the
-/// phase depend on the signal: Δφ = φ0·s(A/A_ref; n) + p·A/1000 with the
-/// model's saturating law s (`tofprox_model::effects::pixel::amplitude_phase_shape`,
-/// 1/(1 + x) for n = 1). lin = [φ0, p], nl = [ln A_ref, ln n].
+/// Amplitude-dependent phase error (2.3.1.2) with the model's own saturating
+/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`):
+/// Δφ = φ0·s(A/A_ref; n), s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x);
+/// large A_ref: linear in A). lin = [φ0], nl = [ln A_ref, ln n].
 struct AmpPhase;
 impl AmpPhase {
     fn shape(nl: &[f64], a: f64) -> f64 {
-        let aref = nl[0].clamp(-5.0, 15.0).exp();
-        let n = nl.get(1).copied().unwrap_or(0.0).clamp(-1.4, 2.1).exp();
+        let aref = nl[0].clamp(-5.0, 18.0).exp();
+        let n = nl
+            .get(1)
+            .copied()
+            .unwrap_or(0.0)
+            .clamp(0.25f64.ln(), 10f64.ln())
+            .exp();
         tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n)
     }
 }
@@ -339,10 +344,10 @@ impl Signature for AmpPhase {
         "amplitude_phase_error"
     }
     fn n_lin(&self) -> usize {
-        2
+        1
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase0_rad".into(), "phase_rad_per_1000lsb".into()]
+        vec!["phase0_rad".into()]
     }
     fn nl_names(&self) -> Vec<String> {
         vec!["ln_reference_lsb".into(), "ln_shape".into()]
@@ -357,8 +362,13 @@ impl Signature for AmpPhase {
             .filter(|r| r.a > 0.0)
             .map(|r| r.a)
             .collect();
+        let mut refs = quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]);
+        // far above every amplitude: the linear regime
+        if let Some(&top) = refs.last() {
+            refs.extend([10.0 * top, 100.0 * top]);
+        }
         let mut g = Vec::new();
-        for q in quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]) {
+        for q in refs {
             for ln_n in [0.0, 2f64.ln(), 4f64.ln()] {
                 g.push(vec![q.max(1.0).ln(), ln_n]);
             }
@@ -367,7 +377,6 @@ impl Signature for AmpPhase {
     }
     fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
         out[0] = r.a * r.cd * Self::shape(nl, r.a);
-        out[1] = r.a * r.cd * r.a / 1000.0;
     }
 }
 

@@ -413,7 +413,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
                 "e-",
                 3000.0,
                 1.0,
-                1e8,
+                1e10,
                 "amplitude A_ref at which half of φ_max remains",
             ),
             p(
@@ -421,7 +421,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
                 "1",
                 1.0,
                 0.25,
-                8.0,
+                10.0,
                 "sharpness n of the saturation (1: hyperbolic)",
             ),
         ],
