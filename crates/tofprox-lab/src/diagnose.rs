@@ -819,7 +819,8 @@ pub fn decide(
         };
     };
     let full = passes(best, z_base, struct_base);
-    if !full && !(passes_partial(best) && clearly_best(best, cands.get(1))) {
+    let partial = passes_partial(best) && clearly_best(best, cands.get(1));
+    if !(full || partial) {
         return Decision {
             verdict: Verdict::Unexplained,
             effect: None,

@@ -16,6 +16,7 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
+use tofprox_core::phasor::distance_to_phase_rad;
 
 use crate::data::Dataset;
 use crate::error::LabError;
@@ -24,8 +25,6 @@ use crate::signatures::{Signature, make_signature};
 use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
 
-/// Speed of light in vacuum, m/s (eq. 2.6).
-pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
 /// Number of cross-validation folds (blocks of distance/condition).
 pub const FOLDS: usize = 5;
 
@@ -144,9 +143,9 @@ impl Prepared {
     /// Validate and flatten a dataset; fails when no illuminated capture has a distance.
     pub fn new(ds: &Dataset) -> Result<Self, LabError> {
         ds.validate()?;
-        let npix = ds.rows * ds.cols;
-        let mid = ds.mid_code();
-        let max_code = ds.max_code();
+        let npix = ds.sensor.pixels();
+        let mid = f64::from(ds.sensor.mid_code());
+        let max_code = f64::from(ds.sensor.max_code());
         let margin = (0.0075 * (max_code + 1.0)).max(2.0);
         // Reference temperature: that of the correlation capture, else the median.
         let temps: Vec<f64> = ds.captures.iter().filter_map(|c| c.temperature_c).collect();
@@ -213,7 +212,7 @@ impl Prepared {
             };
             let phi_tof = c
                 .distance_m
-                .map(|d| 4.0 * std::f64::consts::PI * ds.modulation_hz * d / SPEED_OF_LIGHT_M_PER_S) // eq. 2.6
+                .map(|d| distance_to_phase_rad(d, ds.sensor.modulation_hz)) // eq. 2.6
                 .unwrap_or(0.0);
             caps.push(CapInfo {
                 theta_rad: c.phases_deg.iter().map(|p| p.to_radians()).collect(),
@@ -258,13 +257,13 @@ impl Prepared {
             ));
         }
         Ok(Self {
-            rows: ds.rows,
-            cols: ds.cols,
+            rows: ds.sensor.rows,
+            cols: ds.sensor.cols,
             npix,
-            roi_origin: ds.roi_origin,
+            roi_origin: ds.sensor.roi_origin,
             mid,
             max_code,
-            modulation_hz: ds.modulation_hz,
+            modulation_hz: ds.sensor.modulation_hz,
             caps,
             base,
             meas,
@@ -287,7 +286,7 @@ impl Prepared {
     /// Depth per radian of phase at the recording's modulation frequency in
     /// mm: c/(4π f) (eq. 2.6).
     pub fn mm_per_rad(&self) -> f64 {
-        SPEED_OF_LIGHT_M_PER_S / (4.0 * std::f64::consts::PI * self.modulation_hz) * 1000.0
+        1000.0 / distance_to_phase_rad(1.0, self.modulation_hz)
     }
 
     /// Rail margin used for saturation.
@@ -708,7 +707,8 @@ pub fn refine(
             && round > 0
         {
             let chi = model.chi2(prep)?;
-            if !(chi <= *chi_prev) {
+            // NaN counts as worse
+            if chi.is_nan() || chi > *chi_prev {
                 tracing::debug!("refit round {round}: χ² {chi:.1} > {chi_prev:.1}, step undone");
                 *model = prev.clone();
                 break;
@@ -733,10 +733,11 @@ pub fn refine(
             model.noise = fit_noise(prep, model)?;
         }
     }
-    if let Some((chi_prev, prev)) = last
-        && !(model.chi2(prep)? <= chi_prev)
-    {
-        *model = prev;
+    if let Some((chi_prev, prev)) = last {
+        let chi = model.chi2(prep)?;
+        if chi.is_nan() || chi > chi_prev {
+            *model = prev;
+        }
     }
     progress("per-pixel fit", 1.0);
     let spec = &model.spec;

@@ -18,6 +18,7 @@ use ndarray::Array3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
+use tofprox_core::SensorGeometry;
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model, update_model_text, write_effect};
 use tofprox_lab::diagnose::{DiagnoseOptions, Verdict, compare, diagnose, effect_params, explain};
 use tofprox_lab::fit::{LabSpec, Prepared};
@@ -223,11 +224,15 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
         }
     }
     Dataset {
-        rows: ROWS,
-        cols: COLS,
-        roi_origin: [40, 64],
-        adc_bits: 12,
-        modulation_hz: F_MOD_HZ,
+        sensor: SensorGeometry {
+            rows: ROWS,
+            cols: COLS,
+            roi_origin: [40, 64],
+            full_rows: 172,
+            full_cols: 224,
+            adc_bits: 12,
+            modulation_hz: F_MOD_HZ,
+        },
         captures: caps,
     }
 }
