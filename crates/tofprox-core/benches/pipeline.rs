@@ -7,7 +7,7 @@
 
 use divan::Bencher;
 use ndarray::{Array1, Array2, Array3};
-use tofprox_core::Algorithm;
+use tofprox_core::{Algorithm, SimdLevel};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector};
@@ -73,8 +73,8 @@ fn process_2phase_u16(bencher: Bencher) {
 
 /// The 2-phase pipeline forced onto a portable kernel ("avx2", "generic") to show the speed on
 /// machines without AVX-512 (skipped when the CPU lacks the level).
-#[divan::bench(args = ["avx2", "generic"])]
-fn process_2phase_u16_level(bencher: Bencher, level: &str) {
+#[divan::bench(args = [SimdLevel::Generic, SimdLevel::Avx2, SimdLevel::Avx512, SimdLevel::Neon])]
+fn process_2phase_u16_level(bencher: Bencher, level: SimdLevel) {
     let raw = raw_frame(2);
     let mut p = pipeline(Algorithm::TwoPhase, false);
     if p.set_simd_level(level).is_err() {

@@ -7,6 +7,8 @@
 //!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
+//! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]) and the
+//!   eight-lane abstraction the kernel is written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
 //!
 //! # Conventions (shared by every tofprox crate)
@@ -21,9 +23,11 @@ mod fastmath;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
+mod simd;
 
 pub use error::CoreError;
 pub use fastmath::{FAST_ATAN2_MAX_ERROR_RAD, fast_atan2_f32};
+pub use simd::SimdLevel;
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
