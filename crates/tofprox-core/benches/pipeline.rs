@@ -8,10 +8,10 @@
 
 use divan::Bencher;
 use ndarray::{Array1, Array2, Array3};
-use tofprox_core::{Algorithm, SimdLevel};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector};
+use tofprox_core::{Algorithm, SimdLevel};
 
 const ROWS: usize = 172;
 const COLS: usize = 224;

@@ -7,6 +7,8 @@
 //!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
+//! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
+//!   radial → Z depth, point clouds (thesis 5.1.3).
 //! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]) and the
 //!   eight-lane abstraction the kernel is written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
@@ -18,6 +20,7 @@
 //! `phi = phi_tof + phi_delay`, `phi_tof = 4π f d / c`.
 
 pub mod calib;
+pub mod camera;
 mod error;
 mod fastmath;
 pub mod phasor;

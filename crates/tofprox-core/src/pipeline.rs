@@ -492,15 +492,23 @@ impl Pipeline {
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx512 => {
                 // SAFETY: `Avx512` is only selected when the CPU reports these features at runtime.
-                unsafe { kernel_avx512(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx512(raw, four, n, &p, &tabs, out)
+                }
             }
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx2 => {
                 // SAFETY: `Avx2` is only selected when the CPU reports AVX2 and FMA at runtime.
-                unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx2(raw, four, n, &p, &tabs, out)
+                }
             }
             #[cfg(target_arch = "aarch64")]
-            SimdLevel::Neon => kernel_dispatch::<simd::neon::F32x4x2, T>(raw, four, n, &p, &tabs, out),
+            SimdLevel::Neon => {
+                kernel_dispatch::<simd::neon::F32x4x2, T>(raw, four, n, &p, &tabs, out)
+            }
             _ => kernel_dispatch::<Arr, T>(raw, four, n, &p, &tabs, out),
         }
     }
@@ -636,7 +644,11 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
     let fppn = t.fppn.unwrap_or(t.dark);
     let n = n.min(fppn.len());
     // Unused inputs (images 2, 3 in 2-phase; FPPN without a map) alias used ones: never read.
-    let (r2, r3) = if FOUR { (raw[2], raw[3]) } else { (raw[0], raw[1]) };
+    let (r2, r3) = if FOUR {
+        (raw[2], raw[3])
+    } else {
+        (raw[0], raw[1])
+    };
     let (r0, r0t) = raw[0][..n].as_chunks::<LANES>();
     let (r1, r1t) = raw[1][..n].as_chunks::<LANES>();
     let (r2, r2t) = r2[..n].as_chunks::<LANES>();
@@ -655,25 +667,53 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
         status: [[0; LANES]; BLOCK_STEPS],
     };
     let b = BLOCK_STEPS;
-    let ins = r0.chunks(b).zip(r1.chunks(b)).zip(r2.chunks(b)).zip(r3.chunks(b));
-    let ins = ins.zip(dk.chunks(b)).zip(fp.chunks(b)).zip(am.chunks_mut(b));
+    let ins = r0
+        .chunks(b)
+        .zip(r1.chunks(b))
+        .zip(r2.chunks(b))
+        .zip(r3.chunks(b));
+    let ins = ins
+        .zip(dk.chunks(b))
+        .zip(fp.chunks(b))
+        .zip(am.chunks_mut(b));
     let outs = ph.chunks_mut(b).zip(dm.chunks_mut(b)).zip(mm.chunks_mut(b));
-    for (((((((r0, r1), r2), r3), dk), fp), am), ((ph, dm), mm), fl) in
-        ins.zip(outs).zip(fl.chunks_mut(b)).map(|((i, o), f)| (i, o, f))
+    for (((((((r0, r1), r2), r3), dk), fp), am), ((ph, dm), mm), fl) in ins
+        .zip(outs)
+        .zip(fl.chunks_mut(b))
+        .map(|((i, o), f)| (i, o, f))
     {
         // Pass 1.
         let pass1 = r0.iter().zip(r1).zip(r2).zip(r3).zip(dk).zip(am);
-        let scr = sc.m.iter_mut().zip(&mut sc.idx).zip(&mut sc.fr).zip(&mut sc.status);
+        let scr =
+            sc.m.iter_mut()
+                .zip(&mut sc.idx)
+                .zip(&mut sc.fr)
+                .zip(&mut sc.status);
         for ((((((a0, a1), a2), a3), dk), am), (((m, idx), fr), st)) in pass1.zip(scr) {
             front::<L, T, FOUR>([a0, a1, a2, a3], dk, p, am, m, idx, fr, st);
         }
         // Pass 2.
         let scr = sc.m.iter().zip(&sc.idx).zip(&sc.fr).zip(&sc.status);
-        let pass2 = fp.iter().zip(ph.iter_mut()).zip(dm.iter_mut()).zip(mm.iter_mut());
-        for (((((fp, ph), dm), mm), fl), (((m, idx), fr), st)) in
-            pass2.zip(fl.iter_mut()).zip(scr)
+        let pass2 = fp
+            .iter()
+            .zip(ph.iter_mut())
+            .zip(dm.iter_mut())
+            .zip(mm.iter_mut());
+        for (((((fp, ph), dm), mm), fl), (((m, idx), fr), st)) in pass2.zip(fl.iter_mut()).zip(scr)
         {
-            back::<L, FPPN>(m, idx, fr, st, fp, p, t.lut, T::ALWAYS_FINITE, [ph, dm], mm, fl);
+            back::<L, FPPN>(
+                m,
+                idx,
+                fr,
+                st,
+                fp,
+                p,
+                t.lut,
+                T::ALWAYS_FINITE,
+                [ph, dm],
+                mm,
+                fl,
+            );
         }
     }
     // The tail: padded with the first tail sample (any value: the padding lanes are dropped).
@@ -693,7 +733,19 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
     );
     front::<L, T, FOUR>(r, &dk_pad, p, &mut am, m, idx, fr, st);
     let fin = T::ALWAYS_FINITE;
-    back::<L, FPPN>(m, idx, fr, st, &fp_pad, p, t.lut, fin, [&mut ph, &mut dm], &mut mm, &mut fl);
+    back::<L, FPPN>(
+        m,
+        idx,
+        fr,
+        st,
+        &fp_pad,
+        p,
+        t.lut,
+        fin,
+        [&mut ph, &mut dm],
+        &mut mm,
+        &mut fl,
+    );
     unpad(pht, &ph);
     unpad(amt, &am);
     unpad(dmt, &dm);
@@ -905,8 +957,7 @@ mod tests {
             let v = 2048.0 + amp * (phi - k as f64 * std::f64::consts::FRAC_PI_2).cos();
             if i % 23 == 5 { 4095 } else { v.round() as u16 }
         });
-        for (algorithm, with_fppn) in [(Algorithm::TwoPhase, false), (Algorithm::FourPhase, true)]
-        {
+        for (algorithm, with_fppn) in [(Algorithm::TwoPhase, false), (Algorithm::FourPhase, true)] {
             let cal = Calibration {
                 wiggling: Some(WigglingLut {
                     algorithm,
@@ -936,8 +987,8 @@ mod tests {
             }
         }
         for level in SimdLevel::ALL {
-            let mut p = Pipeline::new(1, 1, PipelineConfig::default(), Calibration::default())
-                .unwrap();
+            let mut p =
+                Pipeline::new(1, 1, PipelineConfig::default(), Calibration::default()).unwrap();
             assert_eq!(p.set_simd_level(level).is_ok(), level.is_supported());
         }
         assert!("sse9".parse::<SimdLevel>().is_err());

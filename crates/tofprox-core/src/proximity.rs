@@ -276,7 +276,10 @@ fn count_in(keys: &[u16], lo: u16, hi: u16) -> usize {
             }
         }
         total += acc.iter().map(|&a| usize::from(a)).sum::<usize>();
-        total += rest.iter().filter(|&&k| k.wrapping_sub(lo) <= width).count();
+        total += rest
+            .iter()
+            .filter(|&&k| k.wrapping_sub(lo) <= width)
+            .count();
     }
     total
 }
@@ -324,7 +327,11 @@ mod tests {
             valid.sort_unstable();
             assert_eq!(count_in(&keys, 1, u16::MAX), valid.len());
             for rank in 1..=valid.len() {
-                assert_eq!(nearest_rank_mm(&keys, rank), valid[rank - 1], "len {len} rank {rank}");
+                assert_eq!(
+                    nearest_rank_mm(&keys, rank),
+                    valid[rank - 1],
+                    "len {len} rank {rank}"
+                );
             }
         }
     }

@@ -46,17 +46,13 @@ impl Lanes for F32x4x2 {
     fn splat(v: f32) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            F32x4x2(vdupq_n_f32(v), vdupq_n_f32(v))
-        }
+        unsafe { F32x4x2(vdupq_n_f32(v), vdupq_n_f32(v)) }
     }
     #[inline(always)]
     fn load(a: &[f32; LANES]) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            F32x4x2(vld1q_f32(a.as_ptr()), vld1q_f32(a.as_ptr().add(4)))
-        }
+        unsafe { F32x4x2(vld1q_f32(a.as_ptr()), vld1q_f32(a.as_ptr().add(4))) }
     }
     #[inline(always)]
     fn from_u16(a: &[u16; LANES]) -> Self {
@@ -97,49 +93,37 @@ impl Lanes for F32x4x2 {
     fn add(self, b: Self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            f2(self, b, |p, q| vaddq_f32(p, q))
-        }
+        unsafe { f2(self, b, |p, q| vaddq_f32(p, q)) }
     }
     #[inline(always)]
     fn sub(self, b: Self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            f2(self, b, |p, q| vsubq_f32(p, q))
-        }
+        unsafe { f2(self, b, |p, q| vsubq_f32(p, q)) }
     }
     #[inline(always)]
     fn mul(self, b: Self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            f2(self, b, |p, q| vmulq_f32(p, q))
-        }
+        unsafe { f2(self, b, |p, q| vmulq_f32(p, q)) }
     }
     #[inline(always)]
     fn div(self, b: Self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            f2(self, b, |p, q| vdivq_f32(p, q))
-        }
+        unsafe { f2(self, b, |p, q| vdivq_f32(p, q)) }
     }
     #[inline(always)]
     fn sqrt(self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            F32x4x2(vsqrtq_f32(self.0), vsqrtq_f32(self.1))
-        }
+        unsafe { F32x4x2(vsqrtq_f32(self.0), vsqrtq_f32(self.1)) }
     }
     #[inline(always)]
     fn abs(self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            F32x4x2(vabsq_f32(self.0), vabsq_f32(self.1))
-        }
+        unsafe { F32x4x2(vabsq_f32(self.0), vabsq_f32(self.1)) }
     }
     #[inline(always)]
     fn min(self, b: Self) -> Self {
@@ -154,17 +138,13 @@ impl Lanes for F32x4x2 {
     fn lt(self, b: Self) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            m2(self, b, |p, q| vcltq_f32(p, q))
-        }
+        unsafe { m2(self, b, |p, q| vcltq_f32(p, q)) }
     }
     #[inline(always)]
     fn le(self, b: Self) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            m2(self, b, |p, q| vcleq_f32(p, q))
-        }
+        unsafe { m2(self, b, |p, q| vcleq_f32(p, q)) }
     }
     #[inline(always)]
     fn is_finite(self) -> U32x4x2 {
@@ -174,41 +154,31 @@ impl Lanes for F32x4x2 {
     fn select(m: U32x4x2, a: Self, b: Self) -> Self {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            F32x4x2(vbslq_f32(m.0, a.0, b.0), vbslq_f32(m.1, a.1, b.1))
-        }
+        unsafe { F32x4x2(vbslq_f32(m.0, a.0, b.0), vbslq_f32(m.1, a.1, b.1)) }
     }
     #[inline(always)]
     fn or(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            u2(a, b, |p, q| vorrq_u32(p, q))
-        }
+        unsafe { u2(a, b, |p, q| vorrq_u32(p, q)) }
     }
     #[inline(always)]
     fn and(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            u2(a, b, |p, q| vandq_u32(p, q))
-        }
+        unsafe { u2(a, b, |p, q| vandq_u32(p, q)) }
     }
     #[inline(always)]
     fn not(a: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            U32x4x2(vmvnq_u32(a.0), vmvnq_u32(a.1))
-        }
+        unsafe { U32x4x2(vmvnq_u32(a.0), vmvnq_u32(a.1)) }
     }
     #[inline(always)]
     fn xor(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            u2(a, b, |p, q| veorq_u32(p, q))
-        }
+        unsafe { u2(a, b, |p, q| veorq_u32(p, q)) }
     }
     #[inline(always)]
     fn neg_where(m: U32x4x2, a: Self) -> Self {
@@ -226,9 +196,7 @@ impl Lanes for F32x4x2 {
     fn all_true() -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            U32x4x2(vdupq_n_u32(u32::MAX), vdupq_n_u32(u32::MAX))
-        }
+        unsafe { U32x4x2(vdupq_n_u32(u32::MAX), vdupq_n_u32(u32::MAX)) }
     }
     #[inline(always)]
     fn round_low22(self) -> U32x4x2 {
@@ -267,17 +235,13 @@ impl Lanes for F32x4x2 {
     fn or_int(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            u2(a, b, |p, q| vorrq_u32(p, q))
-        }
+        unsafe { u2(a, b, |p, q| vorrq_u32(p, q)) }
     }
     #[inline(always)]
     fn int_is_zero(i: U32x4x2) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            U32x4x2(vceqzq_u32(i.0), vceqzq_u32(i.1))
-        }
+        unsafe { U32x4x2(vceqzq_u32(i.0), vceqzq_u32(i.1)) }
     }
     #[inline(always)]
     fn has_bit(i: U32x4x2, bit: u32) -> U32x4x2 {
@@ -292,9 +256,7 @@ impl Lanes for F32x4x2 {
     fn load_int(a: &[u32; LANES]) -> U32x4x2 {
         // SAFETY: NEON is available (module invariant); pointer accesses stay inside
         // the array references passed in.
-        unsafe {
-            U32x4x2(vld1q_u32(a.as_ptr()), vld1q_u32(a.as_ptr().add(4)))
-        }
+        unsafe { U32x4x2(vld1q_u32(a.as_ptr()), vld1q_u32(a.as_ptr().add(4))) }
     }
     #[inline(always)]
     fn store_int(i: U32x4x2, out: &mut [u32; LANES]) {
