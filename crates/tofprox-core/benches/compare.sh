@@ -29,7 +29,8 @@ scale = {"ns": 1e-3, "µs": 1.0, "us": 1.0, "ms": 1e3, "s": 1e6}
 levels = {}
 for line in os.environ["RUST_OUT"].splitlines():
     fields = line.split("│")
-    m = re.match(r"[\s│├╰─]*(generic|avx2|avx512|neon)\s*$", fields[0]) if len(fields) > 2 else None
+    # "├─ avx2   <fastest> │ <slowest> │ <median> │ …"
+    m = re.match(r"[\s├╰─]*(generic|avx2|avx512|neon)\b", fields[0]) if len(fields) > 2 else None
     if m:
         t = re.search(r"([\d.]+)\s*(ns|µs|us|ms|s)\b", fields[2])  # fastest │ slowest │ median
         if t:

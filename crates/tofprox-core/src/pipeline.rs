@@ -19,15 +19,16 @@
 //! [`Pipeline::new`]; [`Pipeline::process`] does not allocate.
 //!
 //! # Speed
-//! The frame is processed in chunks of 256 pixels, three passes per chunk (all data of a chunk
-//! stays in L1): A — validity, offset, amplitude, phase, LUT index (branch-free, auto-vectorised);
-//! B — LUT gather (value and slope packed in one `u64` per bin: one 64-bit gather per pixel);
-//! C — corrections, wrap, depth, flags (auto-vectorised). The kernel is compiled three times and
-//! chosen at run time: AVX-512 (LLVM vectorises the gather), AVX2+FMA (explicit `vpgatherdq`),
-//! and portable scalar-gather code; [`Pipeline::set_simd_level`] forces a lower level and a test
-//! checks all levels agree. Float→integer conversions use the 1.5·2^23 mantissa trick instead of
-//! `as` (saturating casts do not vectorise). No threads: one core per frame
-//! (`cargo bench -p tofprox-core --bench pipeline`).
+//! The kernel is written once against an eight-lane abstraction (`simd::Lanes`) and compiled per
+//! instruction set: generic (plain arrays the compiler vectorises), AVX2 (`__m256`), AVX-512 (the
+//! AVX2 lanes with AVX-512 enabled), NEON (two `float32x4_t`). [`SimdLevel::detect`] picks the best
+//! at run time; [`Pipeline::set_simd_level`] forces another supported one. Every lane operation is
+//! the exact IEEE-754 operation (no FMA, no estimates), so the levels agree to the bit (tested).
+//! The frame is processed in blocks of 256 pixels, two short passes per block (phase and table
+//! position; table lookup, corrections and outputs) so the core overlaps iterations; the
+//! wiggling table is read by scalar loads (cheaper than `vpgatherdq` on Zen 3). Float→integer
+//! conversions use the 1.5·2^23 mantissa trick. No threads: one core per frame. Profile and
+//! figures: `docs/performance.md`; `cargo bench -p tofprox-core --bench pipeline`.
 
 use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
 use crate::fastmath::atan2_lanes;

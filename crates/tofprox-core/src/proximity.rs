@@ -285,19 +285,35 @@ fn count_in(keys: &[u16], lo: u16, hi: u16) -> usize {
 }
 
 /// The `rank`-th smallest (1-based, `1 ≤ rank ≤` number of non-zero keys) of the non-zero keys:
-/// a binary search on the value, each step one vectorised counting pass over the keys
-/// (at most 16 steps; no sort, no copy).
+/// a radix selection — a histogram of the high byte finds the bucket holding the rank, a
+/// histogram of the low byte inside that bucket finds the value (two passes, no sort, no copy).
 fn nearest_rank_mm(keys: &[u16], rank: usize) -> u16 {
-    let (mut lo, mut hi) = (1u16, u16::MAX);
-    while lo < hi {
-        let mid = lo + (hi - lo) / 2;
-        if count_in(keys, 1, mid) >= rank {
-            hi = mid;
-        } else {
-            lo = mid + 1;
+    let mut hist = [0u32; 256];
+    for &k in keys {
+        hist[usize::from(k >> 8)] += 1;
+    }
+    hist[0] -= keys.iter().filter(|&&k| k == 0).count() as u32; // zeros are invalid pixels
+    let (hi, before) = bucket_of(&hist, rank);
+    let mut hist = [0u32; 256];
+    for &k in keys {
+        if usize::from(k >> 8) == hi && k != 0 {
+            hist[usize::from(k & 0xFF)] += 1;
         }
     }
-    lo
+    let (lo, _) = bucket_of(&hist, rank - before);
+    ((hi << 8) | lo) as u16
+}
+
+/// The bucket where the running count reaches `rank` (1-based), and the count before it.
+fn bucket_of(hist: &[u32; 256], rank: usize) -> (usize, usize) {
+    let mut seen = 0usize;
+    for (b, &c) in hist.iter().enumerate() {
+        if seen + c as usize >= rank {
+            return (b, seen);
+        }
+        seen += c as usize;
+    }
+    (255, seen)
 }
 
 #[cfg(test)]
