@@ -324,6 +324,7 @@ pub fn html_report(
     h.push_str(&html_sections(
         rows,
         cols,
+        origin,
         cmp,
         diag,
         add.map(|(e, o)| (e, &o.before, &o.after)),
@@ -334,7 +335,13 @@ pub fn html_report(
 
 /// One page for `lab explain`: a table of the steps, then every step's
 /// comparison, diagnosis and before/after.
-pub fn explain_html(title: &str, rows: usize, cols: usize, ex: &Explanation) -> String {
+pub fn explain_html(
+    title: &str,
+    rows: usize,
+    cols: usize,
+    origin: [usize; 2],
+    ex: &Explanation,
+) -> String {
     let mut h = html_open(title);
     let _ = write!(
         h,
@@ -381,6 +388,7 @@ pub fn explain_html(title: &str, rows: usize, cols: usize, ex: &Explanation) -> 
         h.push_str(&html_sections(
             rows,
             cols,
+            origin,
             &st.comparison,
             Some(&st.diagnosis),
             st.added
@@ -396,6 +404,7 @@ pub fn explain_html(title: &str, rows: usize, cols: usize, ex: &Explanation) -> 
 fn html_sections(
     rows: usize,
     cols: usize,
+    origin: [usize; 2],
     cmp: &Comparison,
     diag: Option<&Diagnosis>,
     add: Option<(&str, &Comparison, &Comparison)>,

@@ -402,7 +402,10 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             a.rec.display(),
             a.model.display()
         );
-        write_report(p, &report::explain_html(&title, prep.rows, prep.cols, &ex))?;
+        write_report(
+            p,
+            &report::explain_html(&title, prep.rows, prep.cols, prep.roi_origin, &ex),
+        )?;
     }
     Ok(ExitCode::SUCCESS)
 }
