@@ -8,6 +8,8 @@
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
+//! - [`radiometry`]: the `1/d²` law of the returned amplitude (2.2.1), its per-pixel calibration
+//!   and the plausibility test that keeps a wrapped phase from reading as near.
 //!
 //! # Conventions (shared by every tofprox crate)
 //! A raw image taken with phase shift `theta_k` of a pixel whose total phase is `phi` is, ideally,
@@ -21,6 +23,7 @@ mod fastmath;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
+pub mod radiometry;
 
 pub use error::CoreError;
 pub use fastmath::{FAST_ATAN2_MAX_ERROR_RAD, fast_atan2_f32};

@@ -2,7 +2,8 @@
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
 //! Parts and their dependencies (thesis order of application, 4.3.3):
-//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map.
+//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map; beside them the
+//! amplitude scale of the `1/d²` law (`tofprox_core::radiometry`), which depends on nothing.
 //! Each dependent part records the checksum of the parts it was extracted
 //! with; loading refuses a set whose parts do not fit together, and
 //! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
@@ -19,6 +20,7 @@ use sha2::{Digest, Sha256};
 use tofprox_core::Algorithm;
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::pipeline::Calibration;
+use tofprox_core::radiometry::AmplitudeScale;
 
 use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
 use crate::fsutil;
@@ -45,16 +47,19 @@ pub enum CalibPart {
     Fppn,
     /// Per-pixel phase offsets (FPPN) for 2-phase evaluation (absolute w.r.t. the 2-phase LUT).
     Fppn2Phase,
+    /// Per-pixel amplitude scale `K` of `A = K·ρ·t/d²` (thesis 2.2.1), LSB·m²/µs.
+    Amplitude,
 }
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 5] = [
+    pub const ALL: [CalibPart; 6] = [
         CalibPart::Offset,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
         CalibPart::Fppn,
         CalibPart::Fppn2Phase,
+        CalibPart::Amplitude,
     ];
     /// The table name in `calibration.toml` (also the array's file stem).
     pub fn name(self) -> &'static str {
@@ -64,6 +69,7 @@ impl CalibPart {
             CalibPart::Wiggling4Phase => "wiggling_4phase",
             CalibPart::Fppn => "fppn",
             CalibPart::Fppn2Phase => "fppn_2phase",
+            CalibPart::Amplitude => "amplitude",
         }
     }
     /// The array file name.
@@ -87,7 +93,7 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Offset => None,
+            CalibPart::Offset | CalibPart::Amplitude => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -145,8 +151,13 @@ pub struct PartSource {
     pub recording_description: Option<String>,
     /// Indices of the captures used.
     pub captures: Vec<usize>,
-    /// Ground-truth distance of the capture used (wiggling, FPPN).
+    /// Ground-truth distance of the capture used (wiggling, FPPN, amplitude).
     pub distance_m: Option<f64>,
+    /// Reflectivity of the target of the capture used (amplitude); `None` when the capture did
+    /// not say and [`tofprox_core::radiometry::DEFAULT_CALIBRATION_REFLECTIVITY`] was assumed.
+    pub reflectivity: Option<f64>,
+    /// Exposure per raw image of the capture used (amplitude), µs.
+    pub exposure_us: Option<f64>,
     /// When it was extracted (RFC 3339, UTC).
     pub created: String,
     /// Program and version that extracted it.
@@ -167,6 +178,8 @@ pub struct CalibrationSet {
     pub fppn: Option<FppnMap>,
     /// FPPN map for 2-phase evaluation (extracted after the 2-phase wiggling LUT).
     pub fppn_2phase: Option<FppnMap>,
+    /// Amplitude scale of the `1/d²` law (from the correlation capture).
+    pub amplitude: Option<AmplitudeScale>,
     /// What the set is valid for.
     pub validity: CalibrationValidity,
     /// Provenance of each present part.
@@ -207,6 +220,8 @@ struct CalibToml {
     fppn: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     fppn_2phase: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    amplitude: Option<PartToml>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -222,6 +237,12 @@ struct PartToml {
     lut_size: Option<usize>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     distance_m: Option<f64>,
+    /// Target reflectivity of the capture (amplitude; absent = assumed 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    reflectivity: Option<f64>,
+    /// Exposure per raw image of the capture (amplitude), µs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    exposure_us: Option<f64>,
     /// sha256 of the offset array this part was extracted with, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset_sha256: Option<String>,
@@ -284,6 +305,7 @@ impl CalibrationSet {
             wiggling_4phase: None,
             fppn: None,
             fppn_2phase: None,
+            amplitude: None,
             validity: CalibrationValidity::from_sensor(sensor),
             sources: BTreeMap::new(),
             description: None,
@@ -324,6 +346,7 @@ impl CalibrationSet {
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
             CalibPart::Fppn => self.fppn.is_some(),
             CalibPart::Fppn2Phase => self.fppn_2phase.is_some(),
+            CalibPart::Amplitude => self.amplitude.is_some(),
         }
     }
 
@@ -346,6 +369,10 @@ impl CalibrationSet {
                 .fppn_2phase
                 .as_ref()
                 .map(|f| npy::encode_f32(&f.phase_offset_rad)),
+            CalibPart::Amplitude => self
+                .amplitude
+                .as_ref()
+                .map(|a| npy::encode_f32(&a.lsb_m2_per_us)),
         }
     }
 
@@ -365,6 +392,7 @@ impl CalibrationSet {
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
             CalibPart::Fppn => self.fppn = None,
             CalibPart::Fppn2Phase => self.fppn_2phase = None,
+            CalibPart::Amplitude => self.amplitude = None,
         }
         self.sources.remove(&part);
         self.deps.remove(&part);
@@ -478,6 +506,22 @@ impl CalibrationSet {
             Algorithm::FourPhase => self.fppn = Some(fppn),
         }
         Ok(self.record_part(part, source, deps))
+    }
+
+    /// Set (or replace) the amplitude scale. It depends on no other part (the N-phase
+    /// amplitude is offset-free). Returns the parts dropped (none).
+    pub fn set_amplitude(
+        &mut self,
+        scale: AmplitudeScale,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let key = CalibPart::Amplitude.name();
+        self.check_map(&scale.lsb_m2_per_us, "amplitude scale", key)?;
+        if let Some(v) = scale.lsb_m2_per_us.iter().find(|v| **v < 0.0) {
+            return Err(invalid(format!("amplitude scale {v} is negative")).key(key));
+        }
+        self.amplitude = Some(scale);
+        Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
     }
 
     /// Record where `part` came from and what it was computed with, then
@@ -597,6 +641,7 @@ impl CalibrationSet {
             wiggling_4phase: None,
             fppn: None,
             fppn_2phase: None,
+            amplitude: None,
         };
         for part in CalibPart::ALL {
             let Some(bytes) = self.part_bytes(part) else {
@@ -623,7 +668,7 @@ impl CalibrationSet {
                         w.map(|w| w.len()),
                     )
                 }
-                CalibPart::Fppn | CalibPart::Fppn2Phase => (
+                CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => (
                     Some(vec![self.validity.rows, self.validity.cols]),
                     part.algorithm(),
                     None,
@@ -636,6 +681,8 @@ impl CalibrationSet {
                 algorithm,
                 lut_size,
                 distance_m: src.distance_m,
+                reflectivity: src.reflectivity,
+                exposure_us: src.exposure_us,
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
                 source_recording: src.recording,
@@ -650,6 +697,7 @@ impl CalibrationSet {
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
                 CalibPart::Fppn => t.fppn = Some(pt),
                 CalibPart::Fppn2Phase => t.fppn_2phase = Some(pt),
+                CalibPart::Amplitude => t.amplitude = Some(pt),
             }
         }
         let path = dir.join(CALIBRATION_TOML);
@@ -705,6 +753,7 @@ impl CalibrationSet {
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
             (CalibPart::Fppn, &t.fppn),
             (CalibPart::Fppn2Phase, &t.fppn_2phase),
+            (CalibPart::Amplitude, &t.amplitude),
         ];
         for (part, pt) in parts {
             let Some(pt) = pt else { continue };
@@ -714,6 +763,14 @@ impl CalibrationSet {
             match (part, arr) {
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
+                }
+                (CalibPart::Amplitude, LoadedArray::Map(a)) => {
+                    if let Some(v) = a.iter().find(|v| **v < 0.0) {
+                        return Err(invalid(format!("amplitude scale {v} is negative"))
+                            .at(&dir.join(&pt.file))
+                            .key(key));
+                    }
+                    set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
                 }
                 (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
                     let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
@@ -791,6 +848,8 @@ impl CalibrationSet {
                     recording_description: pt.source_description.clone(),
                     captures: pt.source_captures.clone(),
                     distance_m: pt.distance_m,
+                    reflectivity: pt.reflectivity,
+                    exposure_us: pt.exposure_us,
                     created: pt.created.clone(),
                     tool: pt.tool.clone(),
                 },
@@ -890,7 +949,7 @@ fn load_part(
             .key(key));
     }
     match part {
-        CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase => {
+        CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => {
             let a = a.into_dimensionality::<Ix2>().map_err(|_| {
                 invalid(format!(
                     "expected a (rows, cols) = ({}, {}) map, found shape {}",

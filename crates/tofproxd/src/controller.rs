@@ -14,6 +14,7 @@ use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
 use tofprox_model::SensorGeometry;
 
 use crate::config::{Config, Mode};
@@ -28,7 +29,13 @@ pub struct ModeCalibrations {
     pub two_phase: Calibration,
     /// For 4-phase processing.
     pub four_phase: Calibration,
+    /// Amplitude scale of the `1/d²` law (thesis 2.2.1); `None`: the nominal scale of the config.
+    pub amplitude: Option<AmplitudeScale>,
 }
+
+/// `DistanceMm` of a valid reading with nothing in range (no target, or only returns no real
+/// target near the sensor could give): the largest value, so `DistanceMm < threshold` is false.
+pub const DISTANCE_BEYOND_RANGE_MM: u32 = u32::MAX;
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -93,6 +100,8 @@ pub struct Controller<S: FrameSource> {
     pipe2: Option<(SensorGeometry, Pipeline)>,
     pipe4: Option<(SensorGeometry, Pipeline)>,
     detector: Option<(SensorGeometry, NearFarDetector)>,
+    /// Amplitude scale cropped to the current read-out window.
+    amp_scale: Option<(SensorGeometry, ndarray::Array2<f32>)>,
     /// Current processing mode.
     mode: Mode,
     exposure_us: f64,
@@ -102,6 +111,11 @@ pub struct Controller<S: FrameSource> {
     cycles_since_probe: u32,
     ambient_low_count: u32,
     consecutive_failures: u32,
+    /// Time since the last valid reading (sum of the sleeps and cycles since), for the bound
+    /// on holding Near across failures.
+    since_valid: Duration,
+    /// The sleep scheduled after the previous step.
+    last_sleep: Duration,
     partial_ok: bool,
     energy: EnergyMeter,
     near: bool,
@@ -162,11 +176,14 @@ impl<S: FrameSource> Controller<S> {
             pipe2: None,
             pipe4: None,
             detector: None,
+            amp_scale: None,
             still_count: 0,
             last_distance: None,
             cycles_since_probe: 0,
             ambient_low_count: 0,
             consecutive_failures: 0,
+            since_valid: Duration::ZERO,
+            last_sleep: Duration::ZERO,
             partial_ok: true,
             near: false,
             running: false,
@@ -293,22 +310,69 @@ impl<S: FrameSource> Controller<S> {
                 self.consecutive_failures
             );
         }
-        // Near is not changed by a failed cycle: no information, and never a false near.
+        let near_update = self.no_reading();
+        let sleep = Duration::from_millis(self.cfg.loop_.retry_ms);
+        self.last_sleep = sleep;
         StepOutcome {
             update: StatusUpdate {
                 state: Some(state),
+                near: near_update,
                 last_error: Some(self.last_error.clone()),
                 has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
                 cycle: true,
                 error: true,
                 ..StatusUpdate::default()
             },
-            sleep: Duration::from_millis(self.cfg.loop_.retry_ms),
+            sleep,
             end_of_data: err.kind() == SourceErrorKind::EndOfData,
             near: self.near,
             error: Some(err),
             ..StepOutcome::default()
         }
+    }
+
+    /// A cycle without a reading (failed, or nothing usable in it) carries no information:
+    /// Near is held, but only for `loop.near_hold_ms` since the last valid reading — then it is
+    /// released (never held for ever). Returns the new Near when it changed.
+    fn no_reading(&mut self) -> Option<bool> {
+        self.since_valid += self.last_sleep;
+        if self.near && self.since_valid >= Duration::from_millis(self.cfg.loop_.near_hold_ms) {
+            tracing::info!(
+                "no valid reading for {} ms: Near released",
+                self.since_valid.as_millis()
+            );
+            self.near = false;
+            if let Some((_, d)) = &mut self.detector {
+                d.reset();
+            }
+            return Some(false);
+        }
+        None
+    }
+
+    /// The sleep after a cycle that was active for `active`: the rest of the period, none when
+    /// replaying a recording as fast as possible.
+    fn sleep_after(&self, active: Duration) -> Duration {
+        if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
+        }
+    }
+
+    /// Account the energy of a captured cycle (read-out scaled by `rows_fraction`) and the
+    /// sleep after it.
+    fn account_energy(&mut self, cycle: &RawCycle, rows_fraction: f64, sleep: Duration) {
+        let t = cycle.timings();
+        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(
+            &self.cfg.energy,
+            &t,
+            k,
+            cycle.capture.exposure_us,
+            rows_fraction,
+        );
+        self.energy.record(&e, t.active(), sleep);
     }
 
     /// One cycle. `want_depth`: build a depth message.
@@ -436,13 +500,34 @@ impl<S: FrameSource> Controller<S> {
                 g,
             )?,
         };
-        let frame = if proc_mode == Mode::FourPhase && self.cfg.ambient.enabled {
-            pipe.frame()
-        } else {
+        if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
             pipe.process(frames).map_err(|e| {
                 SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-            })?
+            })?;
+        }
+        // No near from a wrapped phase: a near depth needs the amplitude of a real target
+        // (thesis 2.2.1, 1/d²).
+        let scale = amplitude_scale_slot(
+            &mut self.amp_scale,
+            self.calib.amplitude.as_ref(),
+            self.cfg.proximity.nominal_amplitude_scale,
+            g,
+        )?;
+        let plaus = NearPlausibility {
+            reflectivity_floor: self.cfg.proximity.reflectivity_floor,
+            depth_uncertainty_m: f64::from(self.cfg.proximity.depth_uncertainty_mm) / 1e3,
+            check_below_m: f64::from(self.cfg.proximity.far_mm) / 1e3,
         };
+        let implausible = flag_implausible_near(
+            pipe.frame_mut(),
+            scale.view(),
+            cycle.capture.exposure_us,
+            &plaus,
+        );
+        if let Some(n) = implausible.filter(|&n| n > 0) {
+            tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
+        }
+        let frame = pipe.frame();
         let stats = roi_stats(frame, roi);
         let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
 
@@ -463,12 +548,14 @@ impl<S: FrameSource> Controller<S> {
             Some((_, d)) => d.update(frame),
             None => return Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
         };
-        let valid = reading.distance_mm.is_some() || reading.near;
+        // Nothing in range is a reading too: far, DistanceMm "beyond range".
+        let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
         // Near from saturation (target too close/bright to measure): the statistic of the
         // remaining valid pixels is the background, not the target — publish "unknown" (0).
         let shown_mm = match reading.distance_mm {
             Some(d) if reading.near && d >= self.cfg.proximity.far_mm => 0,
             Some(d) => d,
+            None if reading.no_target && !reading.near => DISTANCE_BEYOND_RANGE_MM,
             None => 0,
         };
 
@@ -552,29 +639,19 @@ impl<S: FrameSource> Controller<S> {
         }
 
         // Energy of this cycle + the sleep that follows (sensor in reset).
-        let active = cycle.timings().active();
-        let sleep =
-            if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
-                Duration::ZERO
-            } else {
-                Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
-            };
+        let sleep = self.sleep_after(cycle.timings().active());
         let rows_fraction = if cycle.capture.full_rows > 0 {
             rows as f64 / cycle.capture.full_rows as f64
         } else {
             1.0
         };
-        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(
-            &self.cfg.energy,
-            &cycle.timings(),
-            k,
-            cycle.capture.exposure_us,
-            rows_fraction,
-        );
-        self.energy.record(&e, active, sleep);
+        self.account_energy(cycle, rows_fraction, sleep);
 
         self.consecutive_failures = 0;
+        self.last_sleep = sleep;
+        if valid {
+            self.since_valid = Duration::ZERO;
+        }
         let was_error = !self.last_error.is_empty();
         self.last_error.clear();
         if valid {
@@ -616,20 +693,19 @@ impl<S: FrameSource> Controller<S> {
             let e = &self.cfg.exposure;
             self.exposure_us = (self.exposure_us / e.step).clamp(e.min_us, e.max_us);
         }
-        let active = cycle.timings().active();
-        let sleep = Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active);
-        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(
-            &self.cfg.energy,
-            &cycle.timings(),
-            k,
-            cycle.capture.exposure_us,
-            1.0,
-        );
-        self.energy.record(&e, active, sleep);
+        let near_update = self.no_reading();
+        let sleep = self.sleep_after(cycle.timings().active());
+        let rows_fraction = if cycle.capture.full_rows > 0 {
+            cycle.capture.frames.dim().1 as f64 / cycle.capture.full_rows as f64
+        } else {
+            1.0
+        };
+        self.account_energy(cycle, rows_fraction, sleep);
+        self.last_sleep = sleep;
         tracing::debug!("frame without usable codes (all on the rails): no reading");
         StepOutcome {
             update: StatusUpdate {
+                near: near_update,
                 exposure_us: Some(self.exposure_us),
                 power_mw: Some(self.energy.average_mw()),
                 cycle: true,
@@ -733,24 +809,56 @@ fn rails_only(c: &CycleOutput) -> bool {
     c.frames.iter().all(|&v| v == 0 || v >= max)
 }
 
-fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, String> {
+/// The amplitude scale for the frame's window: the calibration's map cropped, or the nominal
+/// scale everywhere.
+fn amplitude_scale_slot<'a>(
+    slot: &'a mut Option<(SensorGeometry, ndarray::Array2<f32>)>,
+    full: Option<&AmplitudeScale>,
+    nominal: f64,
+    g: SensorGeometry,
+) -> Result<&'a ndarray::Array2<f32>, SourceError> {
+    if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
+        let map = match full {
+            Some(a) => crop_map(&a.lsb_m2_per_us, g, "amplitude")
+                .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?,
+            None => AmplitudeScale::uniform(g.rows, g.cols, nominal as f32).lsb_m2_per_us,
+        };
+        *slot = Some((g, map));
+    }
+    match slot {
+        Some((_, m)) => Ok(m),
+        None => Err(SourceError::new(
+            SourceErrorKind::Other,
+            "amplitude scale missing",
+        )),
+    }
+}
+
+/// A full-array per-pixel map cropped to the frame's window.
+fn crop_map(
+    a: &ndarray::Array2<f32>,
+    g: SensorGeometry,
+    what: &str,
+) -> Result<ndarray::Array2<f32>, String> {
     let [r0, c0] = g.roi_origin;
-    let crop = |a: &ndarray::Array2<f32>, what: &str| -> Result<ndarray::Array2<f32>, String> {
-        if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
-            return Ok(a.clone());
-        }
-        if r0 + g.rows > a.nrows() || c0 + g.cols > a.ncols() {
-            return Err(format!(
-                "{what} calibration is {}x{}, frame window {}x{} at {:?} does not fit",
-                a.nrows(),
-                a.ncols(),
-                g.rows,
-                g.cols,
-                g.roi_origin
-            ));
-        }
-        Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
-    };
+    if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
+        return Ok(a.clone());
+    }
+    if r0 + g.rows > a.nrows() || c0 + g.cols > a.ncols() {
+        return Err(format!(
+            "{what} calibration is {}x{}, frame window {}x{} at {:?} does not fit",
+            a.nrows(),
+            a.ncols(),
+            g.rows,
+            g.cols,
+            g.roi_origin
+        ));
+    }
+    Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
+}
+
+fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, String> {
+    let crop = |a: &ndarray::Array2<f32>, what: &str| crop_map(a, g, what);
     let mut out = full.clone();
     if let Some(o) = &mut out.offset {
         o.dark_lsb = crop(&o.dark_lsb, "offset")?;
