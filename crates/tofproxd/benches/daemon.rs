@@ -11,13 +11,13 @@
 //! RSS and timer wake-ups are measured on the running binary: `benches/wakeups.sh`.
 
 use std::sync::Arc;
-use std::time::Duration;
 
 use divan::Bencher;
-use tofprox_bridge::{CycleOutput, StateTimings};
+use tofprox_model::SensorGeometry;
 use tofproxd::config::{Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
-use tofproxd::source::{CycleRequest, FrameSource, RawCycle, SourceError, synth_frames};
+use tofproxd::energy::CycleTimings;
+use tofproxd::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, synth_frames};
 
 const ROWS: usize = 172;
 const COLS: usize = 224;
@@ -60,20 +60,19 @@ fn full_frame_config() -> Config {
 fn controller_cycle_2phase_full_frame(b: Bencher) {
     let (frames, phases_deg) = synth_frames(Mode::TwoPhase, ROWS, COLS, 600.0, 300.0, 0.0, 80e6);
     let cycle = RawCycle {
-        capture: CycleOutput {
-            illuminated: vec![true; phases_deg.len()],
-            frames,
-            phases_deg,
-            exposure_us: 100.0,
+        frames: RawImages::U16(frames),
+        phases_deg,
+        exposure_us: 100.0,
+        geometry: SensorGeometry {
+            rows: ROWS,
+            cols: COLS,
             roi_origin: [0, 0],
             full_rows: ROWS,
             full_cols: COLS,
             adc_bits: 12,
             modulation_hz: 80e6,
-            timings: StateTimings::default(),
-            flash_written: false,
-            captured_at: Duration::ZERO,
         },
+        timings: Some(CycleTimings::default()),
         timestamp_ns: 0,
     };
     let mut ctl = Controller::new(

@@ -8,10 +8,10 @@
 use std::time::Duration;
 
 use ndarray::{ArrayView3, Axis, s};
-use tofprox_bridge::CycleOutput;
 use tofprox_core::Algorithm;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
+    RawSample,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
 use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
@@ -20,7 +20,9 @@ use tofprox_model::SensorGeometry;
 use crate::config::{Config, Mode};
 use crate::energy::{EnergyMeter, cycle_energy};
 use crate::service::{DepthMessage, State, StatusUpdate};
-use crate::source::{CycleRequest, FrameSource, RawCycle, RowWindow, SourceError, SourceErrorKind};
+use crate::source::{
+    CycleRequest, FrameSource, RawCycle, RawImages, RowWindow, SourceError, SourceErrorKind,
+};
 
 /// Full-frame calibrations per mode (cropped to the read-out window on use).
 #[derive(Debug, Clone, Default)]
@@ -364,14 +366,8 @@ impl<S: FrameSource> Controller<S> {
     /// sleep after it.
     fn account_energy(&mut self, cycle: &RawCycle, rows_fraction: f64, sleep: Duration) {
         let t = cycle.timings();
-        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(
-            &self.cfg.energy,
-            &t,
-            k,
-            cycle.capture.exposure_us,
-            rows_fraction,
-        );
+        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(&self.cfg.energy, &t, k, cycle.exposure_us, rows_fraction);
         self.energy.record(&e, t.active(), sleep);
     }
 
@@ -398,11 +394,11 @@ impl<S: FrameSource> Controller<S> {
                 return self.fail(e);
             }
         };
-        let captured = match check_cycle(&cycle.capture) {
+        let captured = match check_cycle(&cycle) {
             Ok(m) => m,
             Err(e) => return self.fail(e),
         };
-        if rails_only(&cycle.capture) {
+        if rails_only(&cycle) {
             return self.rails_cycle(&cycle);
         }
         if probe || captured == Mode::FourPhase {
@@ -423,7 +419,7 @@ impl<S: FrameSource> Controller<S> {
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
         // Pipelines and the detector are rebuilt when this changes.
-        let g = cycle.capture.geometry();
+        let g = cycle.geometry;
         let (rows, cols) = (g.rows, g.cols);
         // ROI in this frame's coordinates.
         let roi_full = full_roi(&self.cfg, g.full_rows, g.full_cols);
@@ -446,12 +442,15 @@ impl<S: FrameSource> Controller<S> {
         let mut ambient_high = None;
         if captured == Mode::FourPhase {
             let dark = self.dark_level(g, roi);
-            let ind = common_mode_lsb(cycle.capture.frames.view(), roi, dark);
+            let ind = match &cycle.frames {
+                RawImages::U16(a) => common_mode_lsb(a.view(), roi, dark),
+                RawImages::F32(a) => common_mode_lsb(a.view(), roi, dark),
+            };
             self.ambient_lsb = Some(ind);
             ambient_high = Some(ind);
         }
 
-        let frames = cycle.capture.frames.view();
+        let frames = &cycle.frames;
         let min_amp = self.cfg.processing.min_amplitude_lsb;
         let mut discrepancy_mm: Option<f64> = None;
         if captured == Mode::FourPhase && self.cfg.ambient.enabled {
@@ -464,9 +463,7 @@ impl<S: FrameSource> Controller<S> {
                     Mode::TwoPhase,
                     g,
                 )?;
-                let f = p.process(frames.slice(s![0..2, .., ..])).map_err(|e| {
-                    SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-                })?;
+                let f = process_images(p, frames, 2)?;
                 roi_median_mm(f, roi)
             };
             let p4 = pipeline_slot(
@@ -476,9 +473,7 @@ impl<S: FrameSource> Controller<S> {
                 Mode::FourPhase,
                 g,
             )?;
-            let f4 = p4.process(frames).map_err(|e| {
-                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-            })?;
+            let f4 = process_images(p4, frames, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
                 discrepancy_mm = Some((a - b).abs());
             }
@@ -501,9 +496,8 @@ impl<S: FrameSource> Controller<S> {
             )?,
         };
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
-            pipe.process(frames).map_err(|e| {
-                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-            })?;
+            let k = frames.dim().0;
+            process_images(pipe, frames, k)?;
         }
         // No near from a wrapped phase: a near depth needs the amplitude of a real target
         // (thesis 2.2.1, 1/d²).
@@ -518,12 +512,8 @@ impl<S: FrameSource> Controller<S> {
             depth_uncertainty_m: f64::from(self.cfg.proximity.depth_uncertainty_mm) / 1e3,
             check_below_m: f64::from(self.cfg.proximity.far_mm) / 1e3,
         };
-        let implausible = flag_implausible_near(
-            pipe.frame_mut(),
-            scale.view(),
-            cycle.capture.exposure_us,
-            &plaus,
-        );
+        let implausible =
+            flag_implausible_near(pipe.frame_mut(), scale.view(), cycle.exposure_us, &plaus);
         if let Some(n) = implausible.filter(|&n| n > 0) {
             tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
         }
@@ -640,8 +630,8 @@ impl<S: FrameSource> Controller<S> {
 
         // Energy of this cycle + the sleep that follows (sensor in reset).
         let sleep = self.sleep_after(cycle.timings().active());
-        let rows_fraction = if cycle.capture.full_rows > 0 {
-            rows as f64 / cycle.capture.full_rows as f64
+        let rows_fraction = if g.full_rows > 0 {
+            rows as f64 / g.full_rows as f64
         } else {
             1.0
         };
@@ -669,6 +659,11 @@ impl<S: FrameSource> Controller<S> {
                 last_error: was_error.then(String::new),
                 exposure_us: Some(self.exposure_us),
                 has_sensor: Some(true),
+                amplitude_check: Some(if self.calib.amplitude.is_some() {
+                    "calibrated"
+                } else {
+                    "nominal"
+                }),
                 valid_reading: valid,
                 cycle: true,
                 error: false,
@@ -695,8 +690,8 @@ impl<S: FrameSource> Controller<S> {
         }
         let near_update = self.no_reading();
         let sleep = self.sleep_after(cycle.timings().active());
-        let rows_fraction = if cycle.capture.full_rows > 0 {
-            cycle.capture.frames.dim().1 as f64 / cycle.capture.full_rows as f64
+        let rows_fraction = if cycle.geometry.full_rows > 0 {
+            cycle.frames.dim().1 as f64 / cycle.geometry.full_rows as f64
         } else {
             1.0
         };
@@ -740,8 +735,9 @@ impl<S: FrameSource> Controller<S> {
 
 /// Validate a cycle's shape and reject dead frames (every code of every raw image on a
 /// rail): such a frame never reaches the detector (it would read as saturated = near).
-fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
+fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
     let (k, rows, cols) = c.frames.dim();
+    let g = &c.geometry;
     let bad = |m: String| Err(SourceError::new(SourceErrorKind::CorruptFrame, m));
     if rows == 0 || cols == 0 {
         return bad("empty frame".into());
@@ -749,10 +745,10 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     if c.phases_deg.len() != k {
         return bad(format!("{k} raw images but {} phases", c.phases_deg.len()));
     }
-    if !((1..=16).contains(&c.adc_bits) && c.modulation_hz.is_finite() && c.modulation_hz > 0.0) {
+    if !((1..=16).contains(&g.adc_bits) && g.modulation_hz.is_finite() && g.modulation_hz > 0.0) {
         return bad(format!(
             "bad sensor info: {} bits, {} Hz",
-            c.adc_bits, c.modulation_hz
+            g.adc_bits, g.modulation_hz
         ));
     }
     let close = |a: f64, b: f64| (a - b).abs() < 0.5;
@@ -769,9 +765,9 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
     };
-    let max = ((1u32 << c.adc_bits) - 1) as u16;
-    if c.frames.iter().any(|&v| v > max) {
-        return bad(format!("code above the {}-bit range", c.adc_bits));
+    let max = ((1u32 << g.adc_bits) - 1) as f32;
+    if c.frames.any(|v| v > max) {
+        return bad(format!("code above the {}-bit range", g.adc_bits));
     }
     Ok(mode)
 }
@@ -804,9 +800,22 @@ fn pipeline_slot<'a>(
 }
 
 /// Whether every code of every raw image is 0 or full scale.
-fn rails_only(c: &CycleOutput) -> bool {
-    let max = ((1u32 << c.adc_bits.clamp(1, 16)) - 1) as u16;
-    c.frames.iter().all(|&v| v == 0 || v >= max)
+fn rails_only(c: &RawCycle) -> bool {
+    let max = ((1u32 << c.geometry.adc_bits.clamp(1, 16)) - 1) as f32;
+    !c.frames.any(|v| v > 0.0 && v < max)
+}
+
+/// Run a pipeline on the first `k` raw images, whatever their sample type.
+fn process_images<'p>(
+    p: &'p mut Pipeline,
+    frames: &RawImages,
+    k: usize,
+) -> Result<&'p DepthFrame, SourceError> {
+    let r = match frames {
+        RawImages::U16(a) => p.process(a.slice(s![0..k, .., ..])),
+        RawImages::F32(a) => p.process(a.slice(s![0..k, .., ..])),
+    };
+    r.map_err(|e| SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}")))
 }
 
 /// The amplitude scale for the frame's window: the calibration's map cropped, or the nominal
@@ -869,7 +878,7 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
     Ok(out)
 }
 
-fn common_mode_lsb(frames: ArrayView3<'_, u16>, roi: Roi, dark: f32) -> f32 {
+fn common_mode_lsb<T: RawSample>(frames: ArrayView3<'_, T>, roi: Roi, dark: f32) -> f32 {
     let mut sum = 0.0f64;
     let mut n = 0usize;
     for img in frames.axis_iter(Axis(0)).take(4) {
@@ -878,7 +887,7 @@ fn common_mode_lsb(frames: ArrayView3<'_, u16>, roi: Roi, dark: f32) -> f32 {
             roi.col0..roi.col0 + roi.cols
         ]);
         for &x in v.iter() {
-            sum += f64::from(x);
+            sum += f64::from(x.to_f32());
             n += 1;
         }
     }

@@ -52,7 +52,8 @@ pub struct SoakReport {
     /// Failure episodes that ended in a good reading.
     pub recovered: u64,
     /// Valid readings that published Near while the scripted truth was beyond the far threshold
-    /// for the whole debounce window: switched to (or kept) near on a wrong reading. Must be 0.
+    /// for the whole debounce window (the last `far_debounce + 2` valid readings): switched to
+    /// (or kept) near on a wrong reading. Must be 0.
     pub false_near: u64,
     /// Failed cycles across which a Near of a hand that has since left was held (bounded by
     /// `loop.near_hold_ms`; the safe side, counted apart from `false_near`).
@@ -164,11 +165,16 @@ pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
         let d = scene
             .centre_distance_m(t_before)
             .min(scene.centre_distance_m(t_after));
-        truth.push_back(d);
-        while truth.len() > window {
-            truth.pop_front();
+        // The window is over valid readings: the far debounce counts readings, and a failed
+        // cycle between them neither advances nor breaks it.
+        if out.valid {
+            truth.push_back(d);
+            while truth.len() > window {
+                truth.pop_front();
+            }
         }
-        if out.near && truth.len() == window && truth.iter().all(|&d| d > far_m + 0.05) {
+        let truth_far = truth.len() == window && truth.iter().all(|&d| d > far_m + 0.05);
+        if out.near && truth_far && d > far_m + 0.05 {
             if out.valid {
                 rep.false_near += 1;
             } else {
