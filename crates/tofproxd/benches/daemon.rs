@@ -13,7 +13,6 @@
 use std::sync::Arc;
 
 use divan::Bencher;
-use tofprox_model::SensorGeometry;
 use tofproxd::config::{Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
 use tofproxd::energy::CycleTimings;
@@ -63,15 +62,7 @@ fn controller_cycle_2phase_full_frame(b: Bencher) {
         frames: RawImages::U16(frames),
         phases_deg,
         exposure_us: 100.0,
-        geometry: SensorGeometry {
-            rows: ROWS,
-            cols: COLS,
-            roi_origin: [0, 0],
-            full_rows: ROWS,
-            full_cols: COLS,
-            adc_bits: 12,
-            modulation_hz: 80e6,
-        },
+        geometry: tofprox_core::SensorGeometry::full(ROWS, COLS, 12, 80e6),
         timings: Some(CycleTimings::default()),
         timestamp_ns: 0,
     };

@@ -9,9 +9,8 @@ use tofprox_bridge::{
     EmulatedDevice, ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
 };
 use tofprox_format::{RawFrames, Recording};
-use tofprox_model::SensorGeometry;
 
-use crate::config::{Backend, Config, Mode};
+use crate::config::{Backend, Config};
 use crate::energy::CycleTimings;
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -113,20 +112,10 @@ impl<T: UsbTransport> BridgeSource<T> {
 
 impl<T: UsbTransport> FrameSource for BridgeSource<T> {
     fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
-        let breq = tofprox_bridge::CycleRequest {
-            mode: match req.mode {
-                Mode::TwoPhase => SensorMode::TwoPhase,
-                Mode::FourPhase => SensorMode::FourPhase,
-            },
-            exposure_us: req.exposure_us,
-            row_window: req.row_window.map(|w| tofprox_bridge::RowWindow {
-                row0: w.row0,
-                rows: w.rows,
-            }),
-        };
+        let breq = req.map_mode(SensorMode::from);
         let out = self.driver.cycle(&breq).map_err(map_bridge_error)?;
         Ok(RawCycle {
-            geometry: out.geometry(),
+            geometry: out.geometry,
             timings: Some(CycleTimings::from(&out.timings)),
             frames: RawImages::U16(out.frames),
             phases_deg: out.phases_deg,
@@ -238,7 +227,7 @@ impl FrameSource for ReplaySource {
         }
         let idx = self.indices.get(self.pos).copied().unwrap_or(0);
         self.pos += 1;
-        let sensor = self.rec.sensor().clone();
+        let sensor = *self.rec.sensor();
         let meta = self.rec.captures().get(idx).cloned().ok_or_else(|| {
             SourceError::new(SourceErrorKind::Other, "capture index out of range")
         })?;
@@ -248,21 +237,11 @@ impl FrameSource for ReplaySource {
                 format!("replay capture {idx}: {e}"),
             )
         })?;
-        let frames = raw_images(frames);
-        let (_, rows, cols) = frames.dim();
         Ok(RawCycle {
-            frames,
+            frames: raw_images(frames),
             phases_deg: meta.phases_deg,
             exposure_us: meta.exposure_us,
-            geometry: SensorGeometry {
-                rows,
-                cols,
-                roi_origin: sensor.roi_origin,
-                full_rows: sensor.full_rows,
-                full_cols: sensor.full_cols,
-                adc_bits: sensor.adc_bits,
-                modulation_hz: sensor.modulation_hz,
-            },
+            geometry: sensor,
             // A recording holds no state timings: none are invented.
             timings: None,
             timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),

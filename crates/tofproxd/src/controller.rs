@@ -9,13 +9,13 @@ use std::time::Duration;
 
 use ndarray::{ArrayView3, Axis, s};
 use tofprox_core::Algorithm;
+use tofprox_core::SensorGeometry;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
     RawSample,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
 use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
-use tofprox_model::SensorGeometry;
 
 use crate::config::{Config, Mode};
 use crate::energy::{EnergyMeter, cycle_energy};
@@ -55,20 +55,6 @@ pub enum ControllerError {
     /// The core refused a parameter.
     #[error("processing setup: {0}")]
     Core(#[from] tofprox_core::CoreError),
-}
-
-fn algorithm(mode: Mode) -> Algorithm {
-    match mode {
-        Mode::TwoPhase => Algorithm::TwoPhase,
-        Mode::FourPhase => Algorithm::FourPhase,
-    }
-}
-
-fn algo_str(a: Algorithm) -> &'static str {
-    match a {
-        Algorithm::TwoPhase => "2phase",
-        Algorithm::FourPhase => "4phase",
-    }
 }
 
 /// Result of one step.
@@ -154,8 +140,8 @@ impl<S: FrameSource> Controller<S> {
                 && w.algorithm != mode
             {
                 return Err(ControllerError::CalibrationMode {
-                    mode: algo_str(mode),
-                    lut: algo_str(w.algorithm),
+                    mode: mode.as_str(),
+                    lut: w.algorithm.as_str(),
                 });
             }
         }
@@ -713,7 +699,7 @@ impl<S: FrameSource> Controller<S> {
     }
 
     fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
-        let mid = (1u32 << (g.adc_bits.clamp(1, 16) - 1)) as f32;
+        let mid = g.mid_code() as f32;
         match &self.calib.four_phase.offset {
             Some(o) => {
                 let r0 = g.roi_origin[0] + roi.row0;
@@ -745,10 +731,13 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
     if c.phases_deg.len() != k {
         return bad(format!("{k} raw images but {} phases", c.phases_deg.len()));
     }
-    if !((1..=16).contains(&g.adc_bits) && g.modulation_hz.is_finite() && g.modulation_hz > 0.0) {
+    if let Err(e) = g.validate() {
+        return bad(format!("bad sensor geometry: {e}"));
+    }
+    if (rows, cols) != (g.rows, g.cols) {
         return bad(format!(
-            "bad sensor info: {} bits, {} Hz",
-            g.adc_bits, g.modulation_hz
+            "{rows}x{cols} images but a {}x{} window",
+            g.rows, g.cols
         ));
     }
     let close = |a: f64, b: f64| (a - b).abs() < 0.5;
@@ -765,7 +754,7 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
     };
-    let max = ((1u32 << g.adc_bits) - 1) as f32;
+    let max = g.max_code() as f32;
     if c.frames.any(|v| v > max) {
         return bad(format!("code above the {}-bit range", g.adc_bits));
     }
@@ -783,7 +772,7 @@ fn pipeline_slot<'a>(
         let calib = crop_calibration(full, g)
             .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?;
         let pcfg = PipelineConfig {
-            algorithm: algorithm(mode),
+            algorithm: mode,
             modulation_hz: g.modulation_hz,
             adc_bits: g.adc_bits,
             min_amplitude_lsb,
@@ -801,7 +790,7 @@ fn pipeline_slot<'a>(
 
 /// Whether every code of every raw image is 0 or full scale.
 fn rails_only(c: &RawCycle) -> bool {
-    let max = ((1u32 << c.geometry.adc_bits.clamp(1, 16)) - 1) as f32;
+    let max = c.geometry.max_code() as f32;
     !c.frames.any(|v| v > 0.0 && v < max)
 }
 
