@@ -470,8 +470,7 @@ mod tests {
         let e = map_bridge_error(BridgeError::new(ErrorKind::Timeout, "bulk read of frame 3"));
         assert_eq!(e.kind(), SourceErrorKind::Timeout);
         let src = e.source().expect("the bridge error is the source");
-        let b = src.downcast_ref::<BridgeError>().expect("a BridgeError");
-        assert_eq!(b.kind(), ErrorKind::Timeout);
+        assert!(src.to_string().contains("bulk read of frame 3"), "{src}");
         assert!(e.to_string().contains("bulk read of frame 3"), "{e}");
     }
 
