@@ -1,5 +1,7 @@
 //! Branch-free single-precision helpers for the vectorised pipeline.
 
+use crate::simd::Lanes;
+use crate::simd::generic::Arr;
 use std::f32::consts::{FRAC_PI_2, PI, TAU};
 
 /// Documented worst-case absolute error of [`fast_atan2_f32`] against `f64::atan2`, radians
@@ -17,38 +19,47 @@ const A11: f32 = -0.011_721_2;
 
 /// Fast `atan2(y, x)` mapped to `[0, 2π)` (eq. 2.2 needs the full-circle angle).
 ///
-/// Branch-free (selects only) so loops calling it auto-vectorise. Absolute error at most
-/// [`FAST_ATAN2_MAX_ERROR_RAD`]. `atan2(0, 0)` returns 0. Non-finite inputs give an unspecified
-/// (possibly NaN) result; the pipeline flags such pixels invalid before using the phase.
-#[inline(always)]
+/// Absolute error at most [`FAST_ATAN2_MAX_ERROR_RAD`]. `atan2(0, 0)` returns 0. Non-finite
+/// inputs give an unspecified (possibly NaN) result; the pipeline flags such pixels invalid before
+/// using the phase. The same arithmetic as the pipeline's vectorised kernel (`atan2_lanes`), so
+/// the two agree to the bit.
+#[inline]
 pub fn fast_atan2_f32(y: f32, x: f32) -> f32 {
-    atan2_poly::<false>(y, x)
+    atan2_lanes(Arr::splat(y), Arr::splat(x)).0[0]
 }
 
-/// [`fast_atan2_f32`] with the polynomial evaluated by fused multiply-adds when `FMA` is true
-/// (only for code compiled with the `fma` target feature; otherwise `mul_add` is a libm call).
+/// [`fast_atan2_f32`] on eight lanes: branch-free (compares and selects only), one division,
+/// a degree-11 odd polynomial, no fused multiply-add (so every instruction set rounds alike).
+///
+/// Written for a short dependency chain (the kernel is latency-bound otherwise): the polynomial
+/// by Estrin's scheme (three independent pairs), and the octant mapping as one addition
+/// `base ± atan(mn/mx)` whose base and sign come from compares of the inputs, off the chain.
 #[inline(always)]
-pub(crate) fn atan2_poly<const FMA: bool>(y: f32, x: f32) -> f32 {
-    let madd = |a: f32, b: f32, c: f32| if FMA { a.mul_add(b, c) } else { a * b + c };
+pub(crate) fn atan2_lanes<L: Lanes>(y: L, x: L) -> L {
     let ax = x.abs();
     let ay = y.abs();
     let mx = ax.max(ay);
     let mn = ax.min(ay);
     // mx == 0 only for the origin; divide by a tiny positive instead (gives t = 0).
-    let t = mn / mx.max(f32::MIN_POSITIVE);
-    let t2 = t * t;
-    let p = madd(A11, t2, A9);
-    let p = madd(p, t2, A7);
-    let p = madd(p, t2, A5);
-    let p = madd(p, t2, A3);
-    let p = madd(p, t2, A1);
-    let mut a = p * t; // atan(mn/mx) in [0, π/4]
-    a = if ay > ax { FRAC_PI_2 - a } else { a };
-    a = if x < 0.0 { PI - a } else { a };
-    // a in [0, π]; lower half-plane maps to (π, 2π).
-    a = if y < 0.0 { TAU - a } else { a };
-    // TAU - 0 would give 2π exactly for y = -0.0 cases; fold into [0, 2π).
-    if a >= TAU { a - TAU } else { a }
+    let t = mn.div(mx.max(L::splat(f32::MIN_POSITIVE)));
+    let u = t.mul(t);
+    let u2 = u.mul(u);
+    let pair = |lo: f32, hi: f32| L::splat(hi).mul(u).add(L::splat(lo));
+    let (q0, q1, q2) = (pair(A1, A3), pair(A5, A7), pair(A9, A11));
+    let p = q0.add(u2.mul(q1.add(u2.mul(q2))));
+    let a = p.mul(t); // atan(mn/mx) in [0, π/4]
+    // Octant: swap (|y| > |x|) gives π/2 − a; then x < 0 reflects to π − ·; then y < 0 to 2π − ·.
+    let zero = L::splat(0.0);
+    let swap = ax.lt(ay);
+    let (neg_x, neg_y) = (x.lt(zero), y.lt(zero));
+    let base = L::select(swap, L::splat(FRAC_PI_2), zero);
+    let base = L::select(neg_x, L::splat(PI).sub(base), base);
+    let tau = L::splat(TAU);
+    let base = L::select(neg_y, tau.sub(base), base);
+    let minus = L::xor(L::xor(swap, neg_x), neg_y);
+    let a = base.add(L::neg_where(minus, a));
+    // 2π − (tiny) rounds to 2π; fold into [0, 2π).
+    L::select(tau.le(a), a.sub(tau), a)
 }
 
 #[cfg(test)]

@@ -19,19 +19,23 @@
 //! [`Pipeline::new`]; [`Pipeline::process`] does not allocate.
 //!
 //! # Speed
-//! The frame is processed in chunks of 256 pixels, three passes per chunk (all data of a chunk
-//! stays in L1): A — validity, offset, amplitude, phase, LUT index (branch-free, auto-vectorised);
-//! B — LUT gather (value and slope packed in one `u64` per bin: one 64-bit gather per pixel);
-//! C — corrections, wrap, depth, flags (auto-vectorised). The kernel is compiled three times and
-//! chosen at run time: AVX-512 (LLVM vectorises the gather), AVX2+FMA (explicit `vpgatherdq`),
-//! and portable scalar-gather code; [`Pipeline::set_simd_level`] forces a lower level and a test
-//! checks all levels agree. Float→integer conversions use the 1.5·2^23 mantissa trick instead of
-//! `as` (saturating casts do not vectorise). No threads: one core per frame
-//! (`cargo bench -p tofprox-core --bench pipeline`).
+//! The kernel is written once against an eight-lane abstraction (`simd::Lanes`) and compiled per
+//! instruction set: generic (plain arrays the compiler vectorises), AVX2 (`__m256`), AVX-512 (the
+//! AVX2 lanes with AVX-512 enabled), NEON (two `float32x4_t`). [`SimdLevel::detect`] picks the best
+//! at run time; [`Pipeline::set_simd_level`] forces another supported one. Every lane operation is
+//! the exact IEEE-754 operation (no FMA, no estimates), so the levels agree to the bit (tested).
+//! The frame is processed in blocks of 256 pixels, two short passes per block (phase and table
+//! position; table lookup, corrections and outputs) so the core overlaps iterations; the
+//! wiggling table is read by scalar loads (cheaper than `vpgatherdq` on Zen 3). Float→integer
+//! conversions use the 1.5·2^23 mantissa trick. No threads: one core per frame. Profile and
+//! figures: `docs/performance.md`; `cargo bench -p tofprox-core --bench pipeline`.
 
 use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
-use crate::fastmath::atan2_poly;
+use crate::fastmath::atan2_lanes;
 use crate::phasor::{self, wrap_to_pi};
+pub use crate::simd::SimdLevel;
+use crate::simd::generic::Arr;
+use crate::simd::{self, LANES, LUT_BINS, Lanes, Lut};
 use crate::{Algorithm, CoreError};
 use ndarray::{Array2, ArrayView3, Axis};
 use std::f32::consts::TAU;
@@ -51,22 +55,54 @@ pub const FLAG_IMPLAUSIBLE: u8 = 1 << 4;
 /// Largest frame a pipeline accepts (64 Mpixel; the IRS1645 has 38 528 pixels).
 pub const MAX_PIXELS: usize = 1 << 26;
 
-/// Size of the internal wiggling table (power of two so the index is a mask, no bounds checks).
-const LUT_BINS: usize = 4096;
-
-/// 1.5 · 2^23: `(x + ROUND_MAGIC).to_bits() & 0x3F_FFFF` is `round(x)` for `0 ≤ x < 2^22`.
-const ROUND_MAGIC: f32 = 12_582_912.0;
-
 /// A raw sample type the pipeline accepts: `u16` codes, or `f32`/`f64` averaged codes.
-pub trait RawSample: Copy + Send + Sync + 'static {
+///
+/// Sealed: the kernel has a vector load for each of the three types.
+pub trait RawSample: Copy + Send + Sync + 'static + sealed::LoadLanes {
     /// The value as `f32` (exact for `u16`; NaN/∞ propagate and are flagged).
     fn to_f32(self) -> f32;
+}
+
+mod sealed {
+    use crate::simd::{LANES, Lanes};
+
+    /// Loads eight samples into the kernel's lanes as `f32`.
+    pub trait LoadLanes: Sized {
+        /// Every value converts to a finite `f32` (`u16`): the kernel skips the finiteness check.
+        const ALWAYS_FINITE: bool;
+        /// The eight values as `f32` lanes (the conversion of [`super::RawSample::to_f32`]).
+        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L;
+    }
+
+    impl LoadLanes for u16 {
+        const ALWAYS_FINITE: bool = true;
+        #[inline(always)]
+        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
+            L::from_u16(a)
+        }
+    }
+
+    impl LoadLanes for f32 {
+        const ALWAYS_FINITE: bool = false;
+        #[inline(always)]
+        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
+            L::load(a)
+        }
+    }
+
+    impl LoadLanes for f64 {
+        const ALWAYS_FINITE: bool = false;
+        #[inline(always)]
+        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
+            L::from_f64(a)
+        }
+    }
 }
 
 impl RawSample for u16 {
     #[inline(always)]
     fn to_f32(self) -> f32 {
-        self as f32
+        f32::from(self)
     }
 }
 
@@ -235,7 +271,7 @@ pub struct Pipeline {
     /// Per-pixel FPPN phase (zeros when none), wrapped to (−π, π].
     fppn: Vec<f32>,
     /// Wiggling table: per bin `value | slope << 32` (f32 bits), so one 64-bit gather fetches both.
-    lut: Box<[u64; LUT_BINS]>,
+    lut: Box<Lut>,
     /// Staging for non-contiguous input (4 × rows × cols).
     staging: Vec<f32>,
     frame: DepthFrame,
@@ -287,7 +323,7 @@ impl Pipeline {
             lut: Box::new([0; LUT_BINS]),
             staging: vec![0.0; 4 * n],
             frame: DepthFrame::zeros(rows, cols),
-            simd: detect_simd(),
+            simd: SimdLevel::detect(),
         };
         p.set_calibration(calibration)?;
         Ok(p)
@@ -462,79 +498,33 @@ impl Pipeline {
                     kernel_avx2(raw, four, n, &p, &tabs, out)
                 }
             }
-            _ => kernel_dispatch::<T, false>(raw, four, n, &p, &tabs, out, gather_scalar),
+            #[cfg(target_arch = "aarch64")]
+            SimdLevel::Neon => {
+                kernel_dispatch::<simd::neon::F32x4x2, T>(raw, four, n, &p, &tabs, out)
+            }
+            _ => kernel_dispatch::<Arr, T>(raw, four, n, &p, &tabs, out),
         }
     }
 
-    /// Selects the kernel's instruction set ("generic", "avx2", "avx512"), e.g. to benchmark or
-    /// test the portable paths on a machine with AVX-512. Only levels this CPU supports are
-    /// accepted; results agree across levels within the fast-atan2 tolerance.
-    pub fn set_simd_level(&mut self, level: &str) -> Result<(), CoreError> {
-        let best = detect_simd();
-        let wanted = match level {
-            "generic" => SimdLevel::Generic,
-            "avx2" => SimdLevel::Avx2,
-            "avx512" => SimdLevel::Avx512,
-            other => {
-                return Err(CoreError::param(
-                    "simd_level",
-                    format!("unknown level {other:?}"),
-                ));
-            }
-        };
-        let rank = |l: SimdLevel| match l {
-            SimdLevel::Generic => 0,
-            SimdLevel::Avx2 => 1,
-            SimdLevel::Avx512 => 2,
-        };
-        if rank(wanted) > rank(best) {
+    /// Selects the kernel's instruction set, e.g. to benchmark or test the portable path on a
+    /// machine with AVX2. Only levels this CPU supports ([`SimdLevel::is_supported`]) are
+    /// accepted; every level gives bit-identical results (the kernel uses exact IEEE operations only).
+    pub fn set_simd_level(&mut self, level: SimdLevel) -> Result<(), CoreError> {
+        if !level.is_supported() {
             return Err(CoreError::param(
                 "simd_level",
                 format!("{level} is not supported by this CPU"),
             ));
         }
-        self.simd = wanted;
+        self.simd = level;
         Ok(())
     }
 
-    /// The instruction set the per-pixel kernel runs with on this CPU ("avx512", "avx2" or
-    /// "generic"), detected once at construction.
-    pub fn simd_level(&self) -> &'static str {
-        match self.simd {
-            SimdLevel::Avx512 => "avx512",
-            SimdLevel::Avx2 => "avx2",
-            SimdLevel::Generic => "generic",
-        }
+    /// The instruction set the per-pixel kernel runs with (the best this CPU supports, detected
+    /// at construction, unless [`Pipeline::set_simd_level`] chose another).
+    pub fn simd_level(&self) -> SimdLevel {
+        self.simd
     }
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum SimdLevel {
-    Generic,
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    Avx2,
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
-    Avx512,
-}
-
-fn detect_simd() -> SimdLevel {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::is_x86_feature_detected as has;
-        if has!("avx512f")
-            && has!("avx512bw")
-            && has!("avx512vl")
-            && has!("avx512dq")
-            && has!("avx2")
-            && has!("fma")
-        {
-            return SimdLevel::Avx512;
-        }
-        if has!("avx2") && has!("fma") {
-            return SimdLevel::Avx2;
-        }
-    }
-    SimdLevel::Generic
 }
 
 struct Outputs<'a> {
@@ -549,13 +539,8 @@ struct Tables<'a> {
     dark: &'a [f32],
     /// `None` when there is no FPPN map (the kernel then skips the per-pixel load).
     fppn: Option<&'a [f32]>,
-    lut: &'a [u64; LUT_BINS],
+    lut: &'a Lut,
 }
-
-/// Pixels per chunk: the per-chunk scratch (LUT index, fraction, correction) stays in L1.
-const CHUNK: usize = 256;
-
-type GatherFn = fn(&[u32], &[f32], &[u64; LUT_BINS], &mut [f32]);
 
 /// One wiggling-table entry: value in the low 32 bits, slope (per bin) in the high 32 bits.
 fn pack_lut(value: f32, slope: f32) -> u64 {
@@ -572,14 +557,8 @@ fn kernel_avx512<T: RawSample>(
     t: &Tables<'_>,
     out: Outputs<'_>,
 ) {
-    // With AVX-512 LLVM vectorises the gather loop itself.
-    kernel_dispatch::<T, true>(raw, four, n, p, t, out, gather_avx512)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
-fn gather_avx512(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
-    gather_scalar(idx, fr, lut, out)
+    // The AVX2 lanes, with AVX-512 available to the code generator (masks, 32 registers).
+    kernel_dispatch::<simd::avx2::F32x8, T>(raw, four, n, p, t, out)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -592,95 +571,54 @@ fn kernel_avx2<T: RawSample>(
     t: &Tables<'_>,
     out: Outputs<'_>,
 ) {
-    kernel_dispatch::<T, true>(raw, four, n, p, t, out, gather_avx2)
-}
-
-/// LUT gather with explicit AVX2 `vpgatherdq` (LLVM's cost model does not vectorise it at AVX2):
-/// one 64-bit gather fetches value and slope of 4 pixels; they are de-interleaved by shuffles.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn gather_avx2(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
-    use std::arch::x86_64::{
-        __m256i, _mm256_and_si256, _mm256_castpd_ps, _mm256_castps_pd, _mm256_castsi256_ps,
-        _mm256_castsi256_si128, _mm256_extracti128_si256, _mm256_fmadd_ps, _mm256_i32gather_epi64,
-        _mm256_loadu_ps, _mm256_loadu_si256, _mm256_permute4x64_pd, _mm256_set1_epi32,
-        _mm256_shuffle_ps, _mm256_storeu_ps,
-    };
-    let len = idx.len().min(fr.len()).min(out.len());
-    let mask = _mm256_set1_epi32((LUT_BINS - 1) as i32);
-    let base = lut.as_ptr().cast::<i64>();
-    let mut j = 0;
-    while j + 8 <= len {
-        // SAFETY: j + 8 ≤ len ≤ every slice's length, so the unaligned 8-lane loads/store are in
-        // bounds; the gather indices are masked to < LUT_BINS, the length of the table.
-        #[allow(unsafe_code)]
-        unsafe {
-            let vi = _mm256_and_si256(
-                _mm256_loadu_si256(idx.as_ptr().add(j).cast::<__m256i>()),
-                mask,
-            );
-            let lo = _mm256_castsi256_si128(vi);
-            let hi = _mm256_extracti128_si256::<1>(vi);
-            let g0 = _mm256_castsi256_ps(_mm256_i32gather_epi64::<8>(base, lo));
-            let g1 = _mm256_castsi256_ps(_mm256_i32gather_epi64::<8>(base, hi));
-            // [v0 s0 v1 s1 v2 s2 v3 s3], [v4 s4 …] → [v0 v1 v4 v5 v2 v3 v6 v7] → in order.
-            let v = _mm256_shuffle_ps::<0b10_00_10_00>(g0, g1);
-            let s = _mm256_shuffle_ps::<0b11_01_11_01>(g0, g1);
-            let v = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)));
-            let s = _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(s)));
-            let f = _mm256_loadu_ps(fr.as_ptr().add(j));
-            _mm256_storeu_ps(out.as_mut_ptr().add(j), _mm256_fmadd_ps(s, f, v));
-        }
-        j += 8;
-    }
-    gather_scalar(&idx[j..len], &fr[j..len], lut, &mut out[j..len]);
+    kernel_dispatch::<simd::avx2::F32x8, T>(raw, four, n, p, t, out)
 }
 
 #[inline(always)]
-fn gather_scalar(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) {
-    for ((o, &i), &f) in out.iter_mut().zip(idx).zip(fr) {
-        let w = lut[(i as usize) & (LUT_BINS - 1)];
-        *o = f32::from_bits(w as u32) + f32::from_bits((w >> 32) as u32) * f;
-    }
-}
-
-#[inline(always)]
-fn kernel_dispatch<T: RawSample, const FMA: bool>(
+fn kernel_dispatch<L: Lanes, T: RawSample>(
     raw: [&[T]; 4],
     four: bool,
     n: usize,
     p: &KernelParams,
     t: &Tables<'_>,
     out: Outputs<'_>,
-    gather: GatherFn,
 ) {
     match (four, t.fppn.is_some()) {
-        (true, true) => kernel::<T, true, FMA, true>(raw, n, p, t, out, gather),
-        (true, false) => kernel::<T, true, FMA, false>(raw, n, p, t, out, gather),
-        (false, true) => kernel::<T, false, FMA, true>(raw, n, p, t, out, gather),
-        (false, false) => kernel::<T, false, FMA, false>(raw, n, p, t, out, gather),
+        (true, true) => kernel::<L, T, true, true>(raw, n, p, t, out),
+        (true, false) => kernel::<L, T, true, false>(raw, n, p, t, out),
+        (false, true) => kernel::<L, T, false, true>(raw, n, p, t, out),
+        (false, false) => kernel::<L, T, false, false>(raw, n, p, t, out),
     }
 }
 
-/// `a * b + c`, fused when the kernel is compiled with FMA (never a libm call otherwise).
-#[inline(always)]
-fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
-    if FMA { a.mul_add(b, c) } else { a * b + c }
+/// Steps of [`LANES`] pixels per block: the block's intermediates (4 kB) stay in L1 between the
+/// two passes.
+const BLOCK_STEPS: usize = 32;
+
+/// Pass-1 → pass-2 intermediates of one block.
+struct Scratch {
+    /// Uncorrected phase (eq. 2.2 / 2.3).
+    m: [[f32; LANES]; BLOCK_STEPS],
+    /// Wiggling-table bin and fraction.
+    idx: [[u32; LANES]; BLOCK_STEPS],
+    fr: [[f32; LANES]; BLOCK_STEPS],
+    /// Flags known after pass 1: saturated, low amplitude, non-finite.
+    status: [[u32; LANES]; BLOCK_STEPS],
 }
 
-/// The per-pixel work in chunks of [`CHUNK`] pixels, three passes per chunk:
-/// A (vectorised): raw validity, offset correction, amplitude, phase, LUT index/fraction;
-/// B: LUT gather (vectorised where the ISA allows); C (vectorised): wiggling + FPPN correction,
-/// wrap, depth, flags. All slices are re-sliced to the chunk length first so there are no bounds
-/// checks, and the loops use selects instead of branches.
+/// The whole frame in blocks of [`BLOCK_STEPS`] steps of [`LANES`] pixels, two passes per block:
+/// pass 1 (validity, offset, amplitude, phase, table position) and pass 2 (table lookup,
+/// corrections, wrap, depth, flags). Each pass is a short loop whose iterations are independent,
+/// so the core overlaps several of them (one fused pass is a single long dependency chain —
+/// division, polynomial, gather — and runs at its latency). The last `n % LANES` pixels go
+/// through the same steps on padded copies, so every pixel is computed by the same instructions.
 #[inline(always)]
-fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
+fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
     raw: [&[T]; 4],
     n: usize,
     p: &KernelParams,
     t: &Tables<'_>,
     out: Outputs<'_>,
-    gather: GatherFn,
 ) {
     let n = n
         .min(raw[0].len())
@@ -696,108 +634,244 @@ fn kernel<T: RawSample, const FOUR: bool, const FMA: bool, const FPPN: bool>(
     } else {
         n
     };
-    let fppn_all = t.fppn.unwrap_or(&[]);
-    let n = if FPPN { n.min(fppn_all.len()) } else { n };
-    let rail = p.rail_hi;
-    let mut idx_buf = [0u32; CHUNK];
-    let mut fr_buf = [0f32; CHUNK];
-    let mut corr_buf = [0f32; CHUNK];
-    // Pass A → C intermediates stay in L1 (no pack/unpack of u8 flags, outputs written once).
-    let mut m_buf = [0f32; CHUNK];
-    let mut amp_buf = [0f32; CHUNK];
-    let mut bad_buf = [0u32; CHUNK];
-    let mut base = 0;
-    while base < n {
-        let len = CHUNK.min(n - base);
-        let end = base + len;
-        let r0 = &raw[0][base..end];
-        let r1 = &raw[1][base..end];
-        let (r2, r3) = if FOUR {
-            (&raw[2][base..end], &raw[3][base..end])
-        } else {
-            (r0, r1)
-        };
-        let dark = &t.dark[base..end];
-        let fppn: &[f32] = if FPPN { &fppn_all[base..end] } else { &[] };
-        let phase = &mut out.phase[base..end];
-        let amp = &mut out.amp[base..end];
-        let depth_m = &mut out.depth_m[base..end];
-        let depth_mm = &mut out.depth_mm[base..end];
-        let flags = &mut out.flags[base..end];
-        let idx = &mut idx_buf[..len];
-        let frb = &mut fr_buf[..len];
-        let corr = &mut corr_buf[..len];
-        let mb = &mut m_buf[..len];
-        let ab = &mut amp_buf[..len];
-        let bb = &mut bad_buf[..len];
-
-        // Pass A.
-        for j in 0..len {
-            let a0 = r0[j].to_f32();
-            let a1 = r1[j].to_f32();
-            // Saturation and finiteness on the RAW codes (non-short-circuit `|`/`&`: no branches).
-            let mut sat = (a0 <= 0.0) | (a0 >= rail) | (a1 <= 0.0) | (a1 >= rail);
-            let mut finite = a0.is_finite() & a1.is_finite();
-            let (x, y, amp_v);
-            if FOUR {
-                let a2 = r2[j].to_f32();
-                let a3 = r3[j].to_f32();
-                sat = sat | (a2 <= 0.0) | (a2 >= rail) | (a3 <= 0.0) | (a3 >= rail);
-                finite = finite & a2.is_finite() & a3.is_finite();
-                // eq. 2.3: the per-pixel offset cancels in the differences.
-                x = a0 - a2;
-                y = a1 - a3;
-                amp_v = 0.5 * madd::<FMA>(x, x, y * y).sqrt(); // eq. 2.4
-            } else {
-                // Offset correction (4.3.3.1), then eq. 2.2.
-                x = a0 - dark[j];
-                y = a1 - dark[j];
-                amp_v = madd::<FMA>(x, x, y * y).sqrt(); // |z|, 2-phase form of eq. 2.4
-            }
-            let m = atan2_poly::<FMA>(y, x); // eq. 2.2 / 2.3, [0, 2π)
-            // Float→int without `as` (saturating casts do not vectorise): adding 1.5·2^23 puts
-            // round(x) in the low mantissa bits. `xf − 0.5` rounds to floor (a tie gives idx − 1
-            // with fr = 1: the same interpolated value). NaN gives an index masked into range.
-            let xf = m * p.lut_scale;
-            let xi = (xf - 0.5 + ROUND_MAGIC).to_bits() & 0x3F_FFFF;
-            idx[j] = xi;
-            frb[j] = xf - (xi as i32) as f32; // signed convert: native on x86 (xi < 2^22)
-            mb[j] = m;
-            ab[j] = amp_v;
-            bb[j] = (sat as u32) | ((!finite as u32) << 3);
+    let fppn = t.fppn.unwrap_or(t.dark);
+    let n = n.min(fppn.len());
+    // Unused inputs (images 2, 3 in 2-phase; FPPN without a map) alias used ones: never read.
+    let (r2, r3) = if FOUR {
+        (raw[2], raw[3])
+    } else {
+        (raw[0], raw[1])
+    };
+    let (r0, r0t) = raw[0][..n].as_chunks::<LANES>();
+    let (r1, r1t) = raw[1][..n].as_chunks::<LANES>();
+    let (r2, r2t) = r2[..n].as_chunks::<LANES>();
+    let (r3, r3t) = r3[..n].as_chunks::<LANES>();
+    let (dk, dkt) = t.dark[..n].as_chunks::<LANES>();
+    let (fp, fpt) = fppn[..n].as_chunks::<LANES>();
+    let (ph, pht) = out.phase[..n].as_chunks_mut::<LANES>();
+    let (am, amt) = out.amp[..n].as_chunks_mut::<LANES>();
+    let (dm, dmt) = out.depth_m[..n].as_chunks_mut::<LANES>();
+    let (mm, mmt) = out.depth_mm[..n].as_chunks_mut::<LANES>();
+    let (fl, flt) = out.flags[..n].as_chunks_mut::<LANES>();
+    let mut sc = Scratch {
+        m: [[0.0; LANES]; BLOCK_STEPS],
+        idx: [[0; LANES]; BLOCK_STEPS],
+        fr: [[0.0; LANES]; BLOCK_STEPS],
+        status: [[0; LANES]; BLOCK_STEPS],
+    };
+    let b = BLOCK_STEPS;
+    let ins = r0
+        .chunks(b)
+        .zip(r1.chunks(b))
+        .zip(r2.chunks(b))
+        .zip(r3.chunks(b));
+    let ins = ins
+        .zip(dk.chunks(b))
+        .zip(fp.chunks(b))
+        .zip(am.chunks_mut(b));
+    let outs = ph.chunks_mut(b).zip(dm.chunks_mut(b)).zip(mm.chunks_mut(b));
+    for (((((((r0, r1), r2), r3), dk), fp), am), ((ph, dm), mm), fl) in ins
+        .zip(outs)
+        .zip(fl.chunks_mut(b))
+        .map(|((i, o), f)| (i, o, f))
+    {
+        // Pass 1.
+        let pass1 = r0.iter().zip(r1).zip(r2).zip(r3).zip(dk).zip(am);
+        let scr =
+            sc.m.iter_mut()
+                .zip(&mut sc.idx)
+                .zip(&mut sc.fr)
+                .zip(&mut sc.status);
+        for ((((((a0, a1), a2), a3), dk), am), (((m, idx), fr), st)) in pass1.zip(scr) {
+            front::<L, T, FOUR>([a0, a1, a2, a3], dk, p, am, m, idx, fr, st);
         }
-
-        // Pass B: wiggling LUT (3.3.7.2), linear periodic interpolation.
-        gather(idx, frb, t.lut, corr);
-
-        // Pass C.
-        for j in 0..len {
-            let f0 = bb[j];
-            let finite = f0 & FLAG_NON_FINITE as u32 == 0;
-            let sat = f0 & FLAG_SATURATED as u32 != 0;
-            let amp_v = ab[j];
-            // Wiggling and FPPN (2.3.1.4), then wrap into [0, 2π) (ph is within (−3π, 5π)).
-            let mut ph = mb[j] - corr[j];
-            if FPPN {
-                ph -= fppn[j];
-            }
-            ph = if ph < 0.0 { ph + TAU } else { ph };
-            ph = if ph < 0.0 { ph + TAU } else { ph };
-            ph = if ph >= TAU { ph - TAU } else { ph };
-            ph = if ph >= TAU { ph - TAU } else { ph };
-            let d = ph * p.rad_to_m; // eq. 2.6
-            let in_range = d * 1000.0 < 65_535.5; // false for NaN
-            let low = amp_v < p.min_amp;
-            let invalid = sat | low | !finite | !in_range;
-            flags[j] = (f0 | ((low as u32) << 1) | ((invalid as u32) << 2)) as u8;
-            // round(d · 1000) by the same mantissa trick; ≥ 1 mm when valid.
-            let mm = ((((d * 1000.0 + ROUND_MAGIC).to_bits() & 0x3F_FFFF) as i32).max(1)) as u16;
-            depth_mm[j] = if invalid { 0 } else { mm };
-            depth_m[j] = if invalid { 0.0 } else { d };
-            phase[j] = if finite { ph } else { 0.0 };
-            amp[j] = if finite { amp_v } else { 0.0 };
+        // Pass 2.
+        let scr = sc.m.iter().zip(&sc.idx).zip(&sc.fr).zip(&sc.status);
+        let pass2 = fp
+            .iter()
+            .zip(ph.iter_mut())
+            .zip(dm.iter_mut())
+            .zip(mm.iter_mut());
+        for (((((fp, ph), dm), mm), fl), (((m, idx), fr), st)) in pass2.zip(fl.iter_mut()).zip(scr)
+        {
+            back::<L, FPPN>(
+                m,
+                idx,
+                fr,
+                st,
+                fp,
+                p,
+                t.lut,
+                T::ALWAYS_FINITE,
+                [ph, dm],
+                mm,
+                fl,
+            );
         }
-        base = end;
+    }
+    // The tail: padded with the first tail sample (any value: the padding lanes are dropped).
+    let Some(&fill) = r0t.first() else {
+        return;
+    };
+    let raw_pad = [r0t, r1t, r2t, r3t].map(|s| pad(s, fill));
+    let (dk_pad, fp_pad) = (pad(dkt, 0.0), pad(fpt, 0.0));
+    let (mut ph, mut am, mut dm) = ([0f32; LANES], [0f32; LANES], [0f32; LANES]);
+    let (mut mm, mut fl) = ([0u16; LANES], [0u8; LANES]);
+    let r = [&raw_pad[0], &raw_pad[1], &raw_pad[2], &raw_pad[3]];
+    let (m, idx, fr, st) = (
+        &mut sc.m[0],
+        &mut sc.idx[0],
+        &mut sc.fr[0],
+        &mut sc.status[0],
+    );
+    front::<L, T, FOUR>(r, &dk_pad, p, &mut am, m, idx, fr, st);
+    let fin = T::ALWAYS_FINITE;
+    back::<L, FPPN>(
+        m,
+        idx,
+        fr,
+        st,
+        &fp_pad,
+        p,
+        t.lut,
+        fin,
+        [&mut ph, &mut dm],
+        &mut mm,
+        &mut fl,
+    );
+    unpad(pht, &ph);
+    unpad(amt, &am);
+    unpad(dmt, &dm);
+    unpad(mmt, &mm);
+    unpad(flt, &fl);
+}
+
+/// The first `s.len() ≤ LANES` lanes from `s`, the rest `fill`.
+#[inline(always)]
+fn pad<X: Copy>(s: &[X], fill: X) -> [X; LANES] {
+    let mut a = [fill; LANES];
+    for (d, v) in a.iter_mut().zip(s) {
+        *d = *v;
+    }
+    a
+}
+
+/// Copies the first `d.len() ≤ LANES` lanes back.
+#[inline(always)]
+fn unpad<X: Copy>(d: &mut [X], s: &[X; LANES]) {
+    for (d, v) in d.iter_mut().zip(s) {
+        *d = *v;
+    }
+}
+
+/// Pass 1 on [`LANES`] pixels: raw validity, offset correction, amplitude (final output), phase
+/// and wiggling-table position. Compares and selects only, no branches; `raw[2..4]` are read only
+/// when `FOUR`.
+#[allow(clippy::too_many_arguments)] // the step's inputs and outputs, each one array
+#[inline(always)]
+fn front<L: Lanes, T: RawSample, const FOUR: bool>(
+    raw: [&[T; LANES]; 4],
+    dark: &[f32; LANES],
+    p: &KernelParams,
+    amp_out: &mut [f32; LANES],
+    m_out: &mut [f32; LANES],
+    idx_out: &mut [u32; LANES],
+    fr_out: &mut [f32; LANES],
+    status_out: &mut [u32; LANES],
+) {
+    let a0: L = T::load_lanes(raw[0]);
+    let a1: L = T::load_lanes(raw[1]);
+    // Saturation on the RAW codes: any used image at a rail (≤ 0 or ≥ 2^bits − 1).
+    let (mut lo, mut hi) = (a0.min(a1), a0.max(a1));
+    let (x, y, amp);
+    if FOUR {
+        let a2: L = T::load_lanes(raw[2]);
+        let a3: L = T::load_lanes(raw[3]);
+        lo = lo.min(a2.min(a3));
+        hi = hi.max(a2.max(a3));
+        // eq. 2.3: the per-pixel offset cancels in the differences.
+        x = a0.sub(a2);
+        y = a1.sub(a3);
+        amp = L::splat(0.5).mul(x.mul(x).add(y.mul(y)).sqrt()); // eq. 2.4
+    } else {
+        // Offset correction (4.3.3.1), then eq. 2.2.
+        let d = L::load(dark);
+        x = a0.sub(d);
+        y = a1.sub(d);
+        amp = x.mul(x).add(y.mul(y)).sqrt(); // |z|, the 2-phase form of eq. 2.4
+    }
+    let sat = L::or(lo.le(L::splat(0.0)), L::splat(p.rail_hi).le(hi));
+    let low = amp.lt(L::splat(p.min_amp));
+    let mut status = L::or_int(
+        L::bits(sat, FLAG_SATURATED.into()),
+        L::bits(low, FLAG_LOW_AMPLITUDE.into()),
+    );
+    if T::ALWAYS_FINITE {
+        amp.store(amp_out);
+    } else {
+        // Non-finite raw values (or an offset-corrected value beyond f32) make x or y non-finite.
+        let finite = L::and(x.is_finite(), y.is_finite());
+        status = L::or_int(status, L::bits(L::not(finite), FLAG_NON_FINITE.into()));
+        L::select(finite, amp, L::splat(0.0)).store(amp_out);
+    }
+    L::store_int(status, status_out);
+    let m = atan2_lanes(y, x); // eq. 2.2 / 2.3, [0, 2π)
+    m.store(m_out);
+    // Wiggling-table position. `xf − 0.5` rounded is floor(xf) (a tie gives idx − 1 with fr = 1:
+    // the same interpolated value); a NaN phase gives an index the lookup masks into range.
+    let xf = m.mul(L::splat(p.lut_scale));
+    let xi = xf.sub(L::splat(0.5)).round_low22();
+    L::store_int(xi, idx_out);
+    xf.sub(L::int_to_f32(xi)).store(fr_out);
+}
+
+/// Pass 2 on [`LANES`] pixels: wiggling correction (linear periodic interpolation in the
+/// table), FPPN, wrap, depth, flags. `fppn` is read only when `FPPN`; `finite` says pass 1 saw
+/// only finite values (`u16` input), so the non-finite selects are skipped.
+#[allow(clippy::too_many_arguments)] // the step's inputs and outputs, each one array
+#[inline(always)]
+fn back<L: Lanes, const FPPN: bool>(
+    m: &[f32; LANES],
+    idx: &[u32; LANES],
+    fr: &[f32; LANES],
+    status: &[u32; LANES],
+    fppn: &[f32; LANES],
+    p: &KernelParams,
+    lut: &Lut,
+    finite: bool,
+    [phase_out, depth_m_out]: [&mut [f32; LANES]; 2],
+    depth_mm_out: &mut [u16; LANES],
+    flags_out: &mut [u8; LANES],
+) {
+    // Wiggling correction (3.3.7.2 / 4.3.3.3).
+    let (value, slope) = L::lut(lut, idx);
+    let mut ph = L::load(m).sub(value.add(slope.mul(L::load(fr))));
+    if FPPN {
+        ph = ph.sub(L::load(fppn)); // 2.3.1.4
+    }
+    // Wrap into [0, 2π): ph is within (−3π, 5π).
+    let zero = L::splat(0.0);
+    let tau = L::splat(TAU);
+    ph = L::select(ph.lt(zero), ph.add(tau), ph);
+    ph = L::select(ph.lt(zero), ph.add(tau), ph);
+    ph = L::select(tau.le(ph), ph.sub(tau), ph);
+    ph = L::select(tau.le(ph), ph.sub(tau), ph);
+
+    let d = ph.mul(L::splat(p.rad_to_m)); // eq. 2.6
+    let d_mm = d.mul(L::splat(1000.0));
+    let in_range = d_mm.lt(L::splat(65_535.5)); // false for NaN
+    let status = L::load_int(status);
+    let ok = L::and(L::int_is_zero(status), in_range);
+    let flags = L::or_int(status, L::bits(L::not(ok), FLAG_INVALID.into()));
+    L::store_flags(flags, flags_out);
+    // round(d · 1000) by the mantissa trick; ≥ 1 mm when valid.
+    L::store_mm(d_mm.round_low22(), ok, depth_mm_out);
+    L::select(ok, d, zero).store(depth_m_out);
+    if finite {
+        ph.store(phase_out);
+    } else {
+        let finite = L::not(L::has_bit(status, FLAG_NON_FINITE.into()));
+        L::select(finite, ph, zero).store(phase_out);
     }
 }
 
@@ -854,41 +928,64 @@ mod tests {
     }
 
     #[test]
-    fn all_simd_levels_agree() {
-        let (rows, cols) = (13, 37); // odd sizes exercise the chunk and vector tails
+    fn all_simd_levels_agree_to_the_bit() {
+        // Odd sizes exercise the vector tail; phases over the whole circle, saturated and
+        // low-amplitude pixels, an FPPN map and a wiggling table.
+        let (rows, cols) = (13, 37);
         let lut = WigglingLut {
             algorithm: Algorithm::TwoPhase,
             correction_rad: ndarray::Array1::from_shape_fn(360, |i| {
                 0.4 + 0.05 * (i as f32 * 0.05).sin()
             }),
         };
-        let cal = Calibration {
-            wiggling: Some(lut),
-            ..Default::default()
+        let fppn = FppnMap {
+            phase_offset_rad: Array2::from_shape_fn((rows, cols), |(r, c)| {
+                0.3 * ((r * 7 + c) % 5) as f32 - 0.6
+            }),
         };
-        let mut p = Pipeline::new(rows, cols, PipelineConfig::default(), cal).unwrap();
-        let raw = Array3::from_shape_fn((2, rows, cols), |(k, r, c)| {
-            let phi = (r * cols + c) as f64 * 0.013;
-            (2048.0 + 900.0 * (phi - k as f64 * std::f64::consts::FRAC_PI_2).cos()).round() as u16
+        let raw = Array3::from_shape_fn((4, rows, cols), |(k, r, c)| {
+            let i = r * cols + c;
+            let phi = i as f64 * 0.013;
+            let amp = if i % 17 == 3 { 3.0 } else { 900.0 };
+            let v = 2048.0 + amp * (phi - k as f64 * std::f64::consts::FRAC_PI_2).cos();
+            if i % 23 == 5 { 4095 } else { v.round() as u16 }
         });
-        p.set_simd_level("generic").unwrap();
-        let reference = p.process(raw.view()).unwrap().clone();
-        for level in ["avx2", "avx512"] {
-            if p.set_simd_level(level).is_err() {
-                continue; // not on this CPU
-            }
-            assert_eq!(p.simd_level(), level);
-            let f = p.process(raw.view()).unwrap();
-            assert_eq!(f.flags, reference.flags, "{level}");
-            for (a, b) in f.phase_rad.iter().zip(reference.phase_rad.iter()) {
-                let d = (a - b).abs();
-                assert!(d.min(TAU - d) < 2e-5, "{level}: {a} vs {b}");
-            }
-            for (a, b) in f.depth_mm.iter().zip(reference.depth_mm.iter()) {
-                assert!((*a as i32 - *b as i32).abs() <= 1, "{level}: {a} vs {b}");
+        for (algorithm, with_fppn) in [(Algorithm::TwoPhase, false), (Algorithm::FourPhase, true)] {
+            let cal = Calibration {
+                wiggling: Some(WigglingLut {
+                    algorithm,
+                    ..lut.clone()
+                }),
+                fppn: with_fppn.then(|| fppn.clone()),
+                ..Default::default()
+            };
+            let cfg = PipelineConfig {
+                algorithm,
+                ..Default::default()
+            };
+            let mut p = Pipeline::new(rows, cols, cfg, cal).unwrap();
+            p.set_simd_level(SimdLevel::Generic).unwrap();
+            let reference = p.process(raw.view()).unwrap().clone();
+            let reference_f64 = p.process(raw.mapv(f64::from).view()).unwrap().clone();
+            assert_eq!(reference, reference_f64);
+            assert!(reference.flags.iter().any(|&f| f == 0));
+            assert!(reference.flags.iter().any(|&f| f & FLAG_SATURATED != 0));
+            for level in SimdLevel::supported() {
+                p.set_simd_level(level).unwrap();
+                assert_eq!(p.simd_level(), level);
+                let f = p.process(raw.view()).unwrap();
+                assert_eq!(*f, reference, "{algorithm} {level}");
+                let f = p.process(raw.mapv(f64::from).view()).unwrap();
+                assert_eq!(*f, reference, "{algorithm} {level} f64");
             }
         }
-        assert!(p.set_simd_level("sse9").is_err());
+        for level in SimdLevel::ALL {
+            let mut p =
+                Pipeline::new(1, 1, PipelineConfig::default(), Calibration::default()).unwrap();
+            assert_eq!(p.set_simd_level(level).is_ok(), level.is_supported());
+        }
+        assert!("sse9".parse::<SimdLevel>().is_err());
+        assert_eq!("avx2".parse::<SimdLevel>().ok(), Some(SimdLevel::Avx2));
     }
 
     #[test]

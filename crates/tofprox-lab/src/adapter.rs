@@ -9,8 +9,17 @@ use tofprox_model::ModelConfig;
 
 use crate::data::{Capture, Dataset};
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{LabModel, LabSpec, Prepared};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared};
 use crate::signatures::{MAX_HARMONIC, SIGNATURE_IDS};
+
+/// The conditions the lab model uses by meaning; every other numeric key of
+/// `[capture.conditions]` is kept by name in [`Capture::extra`].
+pub const KNOWN_CONDITIONS: &[&str] = &[
+    "distance_m",
+    "reflectivity",
+    "ambient_klux",
+    "temperature_c",
+];
 
 /// Load every capture of a recording (codes as f64).
 pub fn load_recording(dir: &Path) -> Result<Dataset, LabError> {
@@ -44,6 +53,12 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
             reflectivity: cond("reflectivity").unwrap_or(1.0),
             ambient_klux: cond("ambient_klux").unwrap_or(0.0),
             temperature_c: cond("temperature_c"),
+            extra: meta
+                .conditions
+                .iter()
+                .filter(|(k, _)| !KNOWN_CONDITIONS.contains(&k.as_str()))
+                .map(|(k, v)| (k.clone(), *v))
+                .collect(),
             frames,
         });
     }
@@ -84,7 +99,87 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .filter(|id| **id != "waveform_harmonics" && m.is_enabled(id))
             .map(|s| s.to_string())
             .collect(),
+        held: Vec::new(),
     }
+}
+
+/// The model file's own physics as lab parameters (the inverse of
+/// [`write_effect`]) for `compare --hold-effects`: every enabled effect whose
+/// parameters map onto the lab's law is held at the file's values. Returns the
+/// spec and notes naming the effects that are fitted freely instead.
+pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<String>) {
+    let mut spec = spec_from_model(m);
+    let mut notes = Vec::new();
+    let g = |id: &str, name: &str| m.param(id, name).unwrap_or(0.0);
+    let lsb_per_e = g("sensor", "lsb_per_ke") * 1e-3;
+    for id in spec.effects.clone() {
+        let fit = match id.as_str() {
+            "vcsel_droop" => {
+                let tau = g(&id, "tau_us") / 1000.0;
+                Some((
+                    vec![g(&id, "droop_rel") / tau.max(1e-12)],
+                    vec![
+                        tau.max(1e-12).ln(),
+                        g(&id, "exposure_power"),
+                        g(&id, "first_image_index"),
+                    ],
+                ))
+            }
+            "amplitude_phase_error" if lsb_per_e > 0.0 => Some((
+                vec![g(&id, "max_rad")],
+                vec![
+                    (g(&id, "reference_e") * lsb_per_e).max(1e-12).ln(),
+                    g(&id, "shape").max(1e-6).ln(),
+                ],
+            )),
+            // a different reference temperature only shifts the per-pixel
+            // phase and gain by constants (refitted): the slopes are held
+            "temperature_drift" => Some((
+                vec![g(&id, "phase_mrad_per_k") * 1e-3, g(&id, "gain_rel_per_k")],
+                Vec::new(),
+            )),
+            "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
+            "tap_gain_mismatch" => {
+                // s = ε·peak/(2·contrast) (see write_effect); the lab's C has
+                // fundamental 1, the model's peak 1: peak_lab = 1/|a₁|
+                let c = tofprox_model::effects::optical::Correlation::from_model(m);
+                let a1 = c
+                    .coefficients()
+                    .get(1)
+                    .map_or(1.0, |(a, b)| a.hypot(*b))
+                    .max(1e-9);
+                let contrast = if m.is_enabled("demodulation_contrast") {
+                    g("demodulation_contrast", "contrast")
+                } else {
+                    1.0
+                };
+                let eps = g(&id, "mismatch_rel");
+                let mut lin = vec![eps / (a1 * 2.0 * contrast.max(1e-9))];
+                if prep.ambient_varies {
+                    // ε/2 · 2·N_ambient per tap, in LSB per klux·ms
+                    let amb = if m.is_enabled("ambient_light") {
+                        g("ambient_light", "e_per_us_per_klux")
+                    } else {
+                        0.0
+                    };
+                    lin.push(eps * amb * 1000.0 * lsb_per_e);
+                }
+                Some((lin, Vec::new()))
+            }
+            _ => None,
+        };
+        match fit {
+            Some((lin, nl)) => spec.held.push(EffectFit {
+                id: id.clone(),
+                lin,
+                nl,
+            }),
+            None => notes.push(format!(
+                "{id}: its parameters do not map onto the lab's law here; fitted freely"
+            )),
+        }
+    }
+    (spec, notes)
 }
 
 /// Enable `effect` in `m` and write the fitted values where the lab's
@@ -114,14 +209,17 @@ pub fn write_effect(
     let g = |k: &str| params.get(k).copied();
     match effect {
         "vcsel_droop" => {
-            if let (Some(rate), Some(lt), Some(beta)) = (g("droop_rate"), g("ln_tau"), g("exposure_power")) {
+            // the lab fits the model's law with τ in ms^β: τ_us = 1000·τ
+            if let (Some(rate), Some(lt)) = (g("droop_rate"), g("ln_tau")) {
                 let tau = lt.exp();
-                if (beta - 1.0).abs() < 0.25 {
-                    set(m, "tau_us", tau * 1000.0);
-                    set(m, "droop_rel", rate * tau);
-                } else {
-                    notes.push(format!("droop scales with exposure^{beta:.2}, the model's with exposure: droop_rel/tau_us left at typical"));
-                }
+                set(m, "tau_us", tau * 1000.0);
+                set(m, "droop_rel", rate * tau);
+            }
+            if let Some(beta) = g("exposure_power") {
+                set(m, "exposure_power", beta.clamp(0.0, 2.0));
+            }
+            if let Some(k0) = g("first_image_index") {
+                set(m, "first_image_index", k0.clamp(0.0, 8.0));
             }
         }
         "temperature_drift" => {
@@ -142,7 +240,32 @@ pub fn write_effect(
             if let Some(v) = g("phase0_rad") {
                 set(m, "max_rad", v);
             }
-            notes.push("reference_e left at typical: the lab fits the reference amplitude in LSB (ln_reference_lsb)".into());
+            if let Some(v) = g("ln_shape") {
+                set(m, "shape", v.exp());
+            }
+            // the lab's amplitude is in LSB; the model's in electrons of the
+            // differential amplitude: A[LSB] = A[e]·lsb_per_e (sensor.lsb_per_ke)
+            let lsb_per_e = m.param("sensor", "lsb_per_ke").unwrap_or(0.0) * 1e-3;
+            if let Some(v) = g("ln_reference_lsb")
+                && lsb_per_e > 0.0
+            {
+                set(m, "reference_e", v.exp() / lsb_per_e);
+            }
+        }
+        "tap_gain_mismatch" => {
+            // Δ = ε/2 · total charge; the lab's A is the fundamental amplitude,
+            // total = A · peak(C)/contrast (C with fundamental 1)
+            let peak = (0..360)
+                .map(|i| model.waveform.eval(f64::from(i).to_radians()).0)
+                .fold(1.0f64, f64::max);
+            let contrast = if m.is_enabled("demodulation_contrast") {
+                m.param("demodulation_contrast", "contrast").unwrap_or(1.0)
+            } else {
+                1.0
+            };
+            if let Some(sh) = g("signal_share") {
+                set(m, "mismatch_rel", 2.0 * sh * contrast / peak);
+            }
         }
         "multipath" => {
             if let (Some(c), Some(s)) = (g("ratio_cos"), g("ratio_sin")) {
@@ -164,4 +287,80 @@ pub fn write_effect(
         )),
     }
     Ok(notes)
+}
+
+/// The model file's text with the `enabled` flag and the parameters of the
+/// effects `ids` set to `m`'s values; everything else — comments, order,
+/// other tables — is kept as the user wrote it.
+pub fn update_model_text(
+    original: &str,
+    m: &ModelConfig,
+    ids: &[String],
+) -> Result<String, LabError> {
+    use toml_edit::{DocumentMut, Item, Value};
+    let bad = |why: String| LabError::new(ErrorKind::InvalidModel, why);
+    let mut doc: DocumentMut = original
+        .parse()
+        .map_err(|e| bad(format!("model file is not valid TOML: {e}")))?;
+    let effects = doc
+        .entry("effects")
+        .or_insert(toml_edit::table())
+        .as_table_mut()
+        .ok_or_else(|| bad("`effects` in the model file is not a table".into()))?;
+    effects.set_implicit(true);
+    // a new value keeps the old one's surrounding whitespace and comment
+    let set = |t: &mut toml_edit::Table, key: &str, v: Value| match t.get_mut(key) {
+        Some(Item::Value(old)) => {
+            let decor = old.decor().clone();
+            *old = v;
+            *old.decor_mut() = decor;
+        }
+        _ => {
+            t.insert(key, Item::Value(v));
+        }
+    };
+    for id in ids {
+        let info = tofprox_model::catalogue::effect(id).ok_or_else(|| {
+            LabError::new(ErrorKind::UnknownEffect, format!("unknown effect `{id}`"))
+        })?;
+        let t = effects
+            .entry(id)
+            .or_insert(toml_edit::table())
+            .as_table_mut()
+            .ok_or_else(|| bad(format!("`effects.{id}` in the model file is not a table")))?;
+        set(t, "enabled", Value::from(m.is_enabled(id)));
+        for p in info.params {
+            if let Some(v) = m.param(id, p.name) {
+                set(t, p.name, Value::from(v));
+            }
+        }
+    }
+    Ok(doc.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn update_keeps_comments_and_sets_fitted_values() {
+        let text = "# my sensor\ndescription = \"bench unit 3\"\n\n[effects.vcsel_droop]\n\
+                    enabled = false  # off until measured\ndroop_rel = 0.03\n";
+        let mut m = ModelConfig::from_toml_str(text).unwrap();
+        m.set_enabled("vcsel_droop", true).unwrap();
+        m.set_param("vcsel_droop", "droop_rel", 0.071).unwrap();
+        m.set_enabled("adc_inl", true).unwrap();
+        m.set_param("adc_inl", "inl_lsb", -3.5).unwrap();
+        let out = update_model_text(text, &m, &["vcsel_droop".into(), "adc_inl".into()]).unwrap();
+        assert!(out.starts_with("# my sensor\n"), "{out}");
+        assert!(
+            out.contains("enabled = true  # off until measured"),
+            "{out}"
+        );
+        let back = ModelConfig::from_toml_str(&out).unwrap();
+        assert_eq!(back.param("vcsel_droop", "droop_rel"), Some(0.071));
+        assert!(back.is_enabled("vcsel_droop") && back.is_enabled("adc_inl"));
+        assert_eq!(back.param("adc_inl", "inl_lsb"), Some(-3.5));
+        assert!(update_model_text("[effects", &m, &[]).is_err());
+    }
 }

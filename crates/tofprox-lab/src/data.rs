@@ -1,6 +1,8 @@
 //! The lab's view of a recording: captures of raw codes with their conditions.
 //! Independent of the file format so the statistics can be tested on small
 //! synthetic data; `adapter` converts a `tofprox_format::Recording`.
+use std::collections::BTreeMap;
+
 use ndarray::Array3;
 use tofprox_core::SensorGeometry;
 
@@ -25,6 +27,9 @@ pub struct Capture {
     pub ambient_klux: f64,
     /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
+    /// Every other numeric `[capture.conditions]` key of the recording (the
+    /// user's own, e.g. `supply_voltage_v`), scored by its own name.
+    pub extra: BTreeMap<String, f64>,
     /// (K, rows, cols) codes (offset binary, mean of `averaged` acquisitions).
     pub frames: Array3<f64>,
 }
@@ -88,6 +93,11 @@ impl Dataset {
             if !(c.ambient_klux.is_finite() && c.ambient_klux >= 0.0) {
                 return Err(LabError::data(format!(
                     "capture {i}: ambient_klux must be >= 0"
+                )));
+            }
+            if let Some((k, v)) = c.extra.iter().find(|(_, v)| !v.is_finite()) {
+                return Err(LabError::data(format!(
+                    "capture {i}: condition {k} = {v} is not finite"
                 )));
             }
             if c.phases_deg.iter().any(|p| !p.is_finite()) {

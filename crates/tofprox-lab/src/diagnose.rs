@@ -19,6 +19,10 @@ pub const Z_NULL: f64 = 4.0;
 pub const STRUCTURE_NULL: f64 = 6.0;
 /// A named effect must explain at least this share of the excess χ².
 pub const MIN_EXPLAINED: f64 = 0.6;
+/// Several effects at once: a candidate that explains at least this share,
+/// also on held-out blocks, and clearly beats the runner-up is named even when
+/// the residual after it is far from noise (the next effect is then sought).
+pub const MIN_PARTIAL: f64 = 0.5;
 /// … and keep at least this cross-validated share.
 pub const MIN_CV: f64 = 0.4;
 /// Two candidates closer than this in explained share are ambiguous.
@@ -67,6 +71,20 @@ pub struct CaptureDepth {
     pub model_amplitude_lsb: f64,
 }
 
+/// How large a residual is in practical units.
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct Size {
+    /// RMS code error in LSB (inverse-variance weighted).
+    pub lsb: f64,
+    /// Depth-equivalent RMS error in mm (code error / amplitude · c/(4πf)).
+    pub mm: f64,
+}
+
+/// Default tolerance as a share of the single-acquisition depth-equivalent
+/// noise (`Comparison::noise_single`): remaining structure smaller than 15 % of
+/// what one raw acquisition scatters by is reported but not a missing effect.
+pub const TOLERANCE_NOISE_SHARE: f64 = 0.15;
+
 /// The model compared with the recording.
 #[derive(Debug, Clone)]
 pub struct Comparison {
@@ -90,6 +108,19 @@ pub struct Comparison {
     pub depth: Vec<CaptureDepth>,
     /// Per-pixel χ²/sample (residual map).
     pub pixel_chi2: Vec<f64>,
+    /// Size of the whole systematic residual (χ² beyond its expectation under
+    /// noise), over the illuminated samples for the depth equivalent.
+    pub size: Size,
+    /// The noise of one raw acquisition (averaged = 1) in the same units,
+    /// weighted like `size` (σ/A over the samples that inform depth most).
+    pub noise_single: Size,
+}
+
+impl Comparison {
+    /// The default tolerance of the verdict in depth-equivalent mm.
+    pub fn default_tolerance_mm(&self) -> f64 {
+        TOLERANCE_NOISE_SHARE * self.noise_single.mm
+    }
 }
 
 /// Fit the lab model of `spec` to the recording and compare it with the data.
@@ -121,12 +152,45 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
     let res: Vec<f64> = recs.iter().map(|r| r.r).collect();
     let structure = score_all(&recs, &res, prep);
     let mut pix = vec![(0.0, 0usize); prep.npix];
+    // illuminated samples: Σw r², count, Σw·A², Σ A²/var₁ (single acquisition)
+    let (mut ci, mut ni, mut swa2, mut s1) = (0.0, 0usize, 0.0, 0.0);
+    let mut sw = 0.0;
+    let mut sw1 = 0.0;
     for r in &recs {
         let e = &mut pix[r.pix as usize];
         e.0 += r.w * r.r * r.r;
         e.1 += 1;
+        let avg = f64::from(prep.caps[r.cap as usize].averaged.max(1));
+        sw += r.w;
+        sw1 += r.w / avg;
+        if r.a > 0.0 {
+            ci += r.w * r.r * r.r;
+            ni += 1;
+            swa2 += r.w * r.a * r.a;
+            s1 += r.w * r.a * r.a / avg;
+        }
     }
+    let mmr = prep.mm_per_rad();
+    let share = dof / n as f64;
+    let size = Size {
+        lsb: crate::structure::structure_size(chi2 - dof, sw, 1.0, mmr).0,
+        mm: crate::structure::structure_size(ci - ni as f64 * share, 1.0, swa2, mmr).1,
+    };
+    let noise_single = Size {
+        lsb: if sw1 > 0.0 {
+            (n as f64 / sw1).sqrt()
+        } else {
+            f64::NAN
+        },
+        mm: if s1 > 0.0 {
+            (ni as f64 / s1).sqrt() * mmr
+        } else {
+            f64::NAN
+        },
+    };
     Ok(Comparison {
+        size,
+        noise_single,
         fit: FitStats {
             chi2_per_dof: chi2 / dof,
             z: chi2_z(chi2, dof),
@@ -176,7 +240,7 @@ pub fn depth_residuals(
     model: &LabModel,
 ) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
     let sigs = model.signatures(prep)?;
-    let mm_per_rad = 1000.0 / tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz);
+    let mm_per_rad = prep.mm_per_rad();
     let find = |cap: &crate::fit::CapInfo, deg: f64| {
         cap.phases_deg
             .iter()
@@ -306,6 +370,34 @@ pub struct CandidateScore {
     /// Whether the effect cancels in 4-phase ([`crate::signatures::cancels_in_4phase`]).
     #[serde(skip)]
     pub cancels_in_4phase: bool,
+    /// The whole model refitted with this effect (the leading candidates only),
+    /// never worse than the candidate's own fit on top of the model.
+    #[serde(skip)]
+    pub refit: Option<Box<LabModel>>,
+}
+
+/// Something the data still show that is smaller than the tolerance.
+#[derive(Debug, Clone, Serialize)]
+pub struct SmallStructure {
+    /// A condition the residual is structured against, or a catalogue effect.
+    pub name: String,
+    /// `condition` or `effect`.
+    pub kind: &'static str,
+    /// Structure score (conditions) or the global z (effects: z before it).
+    pub z: f64,
+    /// Depth-equivalent RMS size in mm.
+    pub size_mm: f64,
+    /// RMS size in LSB.
+    pub size_lsb: f64,
+}
+
+/// Settings of the verdict.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DiagnoseOptions {
+    /// Remaining structure below this depth-equivalent RMS (mm) is not a
+    /// missing effect; `None`: [`TOLERANCE_NOISE_SHARE`] × the
+    /// single-acquisition noise of the recording.
+    pub tolerance_mm: Option<f64>,
 }
 
 /// The lab's answer to "what is missing from the model?".
@@ -359,12 +451,30 @@ pub struct Diagnosis {
     pub structure_remaining: Vec<ConditionScore>,
     /// The verdict in one sentence.
     pub reason: String,
+    /// Size of what remains unexplained by the model (before any candidate).
+    pub size: Size,
+    /// Single-acquisition noise in the same units.
+    pub noise_single: Size,
+    /// The tolerance the verdict used (mm, depth-equivalent RMS).
+    pub tolerance_mm: f64,
+    /// Detectable (structure z > 6) but below the tolerance.
+    pub small: Vec<SmallStructure>,
 }
 
-/// Rank the catalogue effects the model lacks and give a verdict.
+/// Rank the catalogue effects the model lacks and give a verdict (default tolerance).
 pub fn diagnose(
     prep: &Prepared,
     cmp: &Comparison,
+    progress: Progress<'_>,
+) -> Result<Diagnosis, LabError> {
+    diagnose_with(prep, cmp, &DiagnoseOptions::default(), progress)
+}
+
+/// Rank the catalogue effects the model lacks and give a verdict.
+pub fn diagnose_with(
+    prep: &Prepared,
+    cmp: &Comparison,
+    opts: &DiagnoseOptions,
     progress: Progress<'_>,
 ) -> Result<Diagnosis, LabError> {
     let spec = &cmp.model.spec;
@@ -385,11 +495,12 @@ pub fn diagnose(
         .collect();
     progress("candidates", 0.0);
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let fits: Vec<Result<CandidateScore, LabError>> = ids
+    let fits: Vec<Result<CandidateScore, (String, LabError)>> = ids
         .par_iter()
         .map(|id| {
-            let sig = make_signature(id, prep, spec, &cmp.model.waveform)?;
-            let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None)?;
+            let fail = |e: LabError| (id.to_string(), e);
+            let sig = make_signature(id, prep, spec, &cmp.model.waveform).map_err(fail)?;
+            let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None).map_err(fail)?;
             let dchi = (f.chi2_before - f.chi2).max(0.0);
             let chi_after = cmp.chi2 - dchi;
             let dof_after = cmp.dof - f.n_params as f64;
@@ -418,6 +529,7 @@ pub fn diagnose(
                 structure_after: None,
                 rms_after: None,
                 cancels_in_4phase: cancels_in_4phase(id),
+                refit: None,
             })
         })
         .collect();
@@ -425,7 +537,10 @@ pub fn diagnose(
     for f in fits {
         match f {
             Ok(c) => cands.push(c),
-            Err(e) => tracing::warn!("candidate failed: {e}"),
+            Err((id, e)) => {
+                tracing::warn!("candidate {id} failed: {e}");
+                skipped.push((id, format!("fit failed: {e}")));
+            }
         }
     }
     if !noise_known {
@@ -503,6 +618,7 @@ pub fn diagnose(
         }
         c.rms_after = Some(c2.rms);
         remaining.push(c2.structure);
+        c.refit = Some(Box::new(c2.model));
     }
     // re-rank with the refitted evidence
     cands.sort_by(|a, b| {
@@ -533,7 +649,74 @@ pub fn diagnose(
     {
         d.separate_by = Some(separating_condition(a, b, prep));
     }
+    // Detectable is not the same as relevant: with 10⁶ samples any small
+    // departure of the true law from the model's is significant. What remains
+    // is compared, in depth-equivalent mm, with a tolerance tied to the noise.
+    let tolerance_mm = opts
+        .tolerance_mm
+        .unwrap_or_else(|| cmp.default_tolerance_mm());
+    // without repeats the global excess is not known: the structure's size counts
+    let top_structure = cmp
+        .structure
+        .iter()
+        .map(|s| s.size_mm)
+        .fold(0.0f64, f64::max);
+    let remaining_mm = cmp.size.mm.max(top_structure);
+    let mut small = Vec::new();
+    // a catalogue effect that leaves noise-like residuals is named however small
+    let fully_explained = d.verdict == Verdict::MissingEffect
+        && cands
+            .first()
+            .is_some_and(|c| c.z_after <= Z_NULL && c.explained_excess >= MIN_EXPLAINED);
+    if remaining_mm <= tolerance_mm && !fully_explained {
+        for st in cmp.structure.iter().filter(|s| s.z > STRUCTURE_NULL) {
+            small.push(SmallStructure {
+                name: st.condition.clone(),
+                kind: "condition",
+                z: st.z,
+                size_mm: st.size_mm,
+                size_lsb: st.size_lsb,
+            });
+        }
+        if d.verdict != Verdict::NothingMissing {
+            if let Some(e) = &d.effect {
+                small.push(SmallStructure {
+                    name: e.clone(),
+                    kind: "effect",
+                    z: cmp.fit.z,
+                    size_mm: cmp.size.mm,
+                    size_lsb: cmp.size.lsb,
+                });
+            }
+            d = Decision {
+                verdict: Verdict::NothingMissing,
+                effect: None,
+                runner_up: None,
+                separate_by: None,
+                reason: format!(
+                    "what remains ({remaining_mm:.2} mm depth-equivalent, {:.2} LSB, z = {:.1}) is below the tolerance {tolerance_mm:.2} mm{}",
+                    cmp.size.lsb,
+                    cmp.fit.z,
+                    if opts.tolerance_mm.is_none() {
+                        format!(
+                            " ({TOLERANCE_NOISE_SHARE} × the single-acquisition noise {:.2} mm)",
+                            cmp.noise_single.mm
+                        )
+                    } else {
+                        String::new()
+                    }
+                ),
+            };
+        }
+    }
     Ok(Diagnosis {
+        size: Size {
+            lsb: cmp.size.lsb,
+            mm: remaining_mm,
+        },
+        noise_single: cmp.noise_single,
+        tolerance_mm,
+        small,
         verdict: d.verdict,
         effect: d.effect,
         runner_up: d.runner_up,
@@ -580,6 +763,18 @@ pub struct Decision {
     pub reason: String,
 }
 
+/// Several missing effects: most of the excess explained, on held-out blocks too.
+fn passes_partial(c: &CandidateScore) -> bool {
+    c.explained_excess >= MIN_PARTIAL && c.cv_gain >= MIN_PARTIAL
+}
+
+/// `best` is clearly better than `runner_up` (partial acceptance needs it).
+fn clearly_best(best: &CandidateScore, runner_up: Option<&CandidateScore>) -> bool {
+    runner_up.is_none_or(|ru| {
+        ru.cv_gain <= 0.5 * best.cv_gain || best.cv_gain - ru.cv_gain >= 2.5 * AMBIGUITY_MARGIN
+    })
+}
+
 fn passes(c: &CandidateScore, z_base: f64, struct_base: f64) -> bool {
     let noise_like = c.z_after <= Z_NULL;
     let z_ok = c.z_after <= Z_NULL.max(0.1 * z_base);
@@ -623,7 +818,9 @@ pub fn decide(
             reason: "misfit but no candidate effect could be fitted".into(),
         };
     };
-    if !passes(best, z_base, struct_base) {
+    let full = passes(best, z_base, struct_base);
+    let partial = passes_partial(best) && clearly_best(best, cands.get(1));
+    if !(full || partial) {
         return Decision {
             verdict: Verdict::Unexplained,
             effect: None,
@@ -638,8 +835,16 @@ pub fn decide(
             ),
         };
     }
+    // Occam: a runner-up with more parameters that explains no more than the
+    // best does not make the verdict ambiguous
+    let simpler_suffices = |ru: &CandidateScore| {
+        best.params.len() < ru.params.len()
+            && best.explained_excess >= ru.explained_excess
+            && best.cv_gain >= ru.cv_gain
+    };
     if let Some(ru) = cands.get(1)
-        && passes(ru, z_base, struct_base)
+        && (passes(ru, z_base, struct_base) || passes_partial(ru))
+        && !simpler_suffices(ru)
         && best.cv_gain - ru.cv_gain < AMBIGUITY_MARGIN
         && (best.explained_excess - ru.explained_excess) < AMBIGUITY_MARGIN
     {
@@ -663,11 +868,16 @@ pub fn decide(
         runner_up: cands.get(1).map(|c| c.effect.clone()),
         separate_by: None,
         reason: format!(
-            "{} explains {:.0}% of the excess χ² ({:.0}% on held-out distance blocks), z after {:.1}",
+            "{} explains {:.0}% of the excess χ² ({:.0}% on held-out distance blocks), z after {:.1}{}",
             best.effect,
             100.0 * best.explained_excess,
             100.0 * best.cv_gain,
-            best.z_after
+            best.z_after,
+            if full {
+                ""
+            } else {
+                "; structure remains after it: add it and diagnose again (`lab explain` continues)"
+            }
         ),
     }
 }
@@ -750,6 +960,12 @@ pub fn add_effect(
     effect: &str,
     progress: Progress<'_>,
 ) -> Result<AddOutcome, LabError> {
+    check_addable(prep, spec, effect)?;
+    let before = compare(prep, spec, progress)?;
+    add_effect_to(prep, before, effect, None, progress)
+}
+
+fn check_addable(prep: &Prepared, spec: &LabSpec, effect: &str) -> Result<(), LabError> {
     if !SIGNATURE_IDS.contains(&effect) {
         return Err(LabError::new(
             ErrorKind::UnknownEffect,
@@ -771,43 +987,181 @@ pub fn add_effect(
             format!("cannot fit `{effect}`: {why}"),
         ));
     }
-    let before = compare(prep, spec, progress)?;
-    let spec2 = spec_with(spec, effect);
-    let after = compare(prep, &spec2, progress)?;
-    let sig = make_signature(effect, prep, &spec2, &after.model.waveform)?;
-    let mut params = BTreeMap::new();
-    let fitted = if effect == "waveform_harmonics" {
-        for (h, g) in after.model.waveform.gamma.iter().enumerate().skip(1) {
-            params.insert(format!("h{}_re", h + 1), g[0]);
-            params.insert(format!("h{}_im", h + 1), g[1]);
+    Ok(())
+}
+
+/// Add `effect` to the fitted model of `before`. Two fits compete and the
+/// better (lower χ²/dof) is kept: the whole model refined from the
+/// candidate's fit on top of `before` (`start`: a refit `diagnose` already
+/// made) with step control, so it never ends worse than that start; and a fit
+/// of the extended model from scratch.
+pub fn add_effect_to(
+    prep: &Prepared,
+    before: Comparison,
+    effect: &str,
+    start: Option<&LabModel>,
+    progress: Progress<'_>,
+) -> Result<AddOutcome, LabError> {
+    let spec = before.model.spec.clone();
+    check_addable(prep, &spec, effect)?;
+    let spec2 = spec_with(&spec, effect);
+    let mut warm = match start {
+        Some(m) => m.clone(),
+        None => {
+            let sig = make_signature(effect, prep, &spec, &before.model.waveform)?;
+            let f = fit_signature(sig.as_ref(), &before.recs, prep, None)?;
+            let fit = EffectFit {
+                id: effect.to_string(),
+                lin: f.lin,
+                nl: f.nl,
+            };
+            crate::fit::refit_with(prep, &before.model, &fit, f.nuisance, 3)?
         }
-        EffectFit {
-            id: effect.into(),
-            lin: Vec::new(),
-            nl: Vec::new(),
-        }
-    } else {
-        let f = after
-            .model
-            .effects
-            .iter()
-            .find(|e| e.id == effect)
-            .cloned()
-            .ok_or_else(|| LabError::numerical("effect vanished from the fit"))?;
-        for (n, v) in sig.lin_names().into_iter().zip(&f.lin) {
-            params.insert(n, *v);
-        }
-        for (n, v) in sig.nl_names().into_iter().zip(&f.nl) {
-            params.insert(n, *v);
-        }
-        f
     };
+    crate::fit::refine(prep, &mut warm, 4, false, true, &|_, _| {})?;
+    let warm = comparison_of(prep, warm)?;
+    let scratch = compare(prep, &spec2, progress)?;
+    let after = if scratch.fit.chi2_per_dof < warm.fit.chi2_per_dof {
+        scratch
+    } else {
+        warm
+    };
+    let (fitted, params) = effect_params(prep, &after.model, effect)?;
     Ok(AddOutcome {
         before,
         after,
         effect: fitted,
         params,
     })
+}
+
+/// The fitted parameters of `effect` in `model`, by the signature's names.
+pub fn effect_params(
+    prep: &Prepared,
+    model: &LabModel,
+    effect: &str,
+) -> Result<(EffectFit, BTreeMap<String, f64>), LabError> {
+    let mut params = BTreeMap::new();
+    if effect == "waveform_harmonics" {
+        for (h, g) in model.waveform.gamma.iter().enumerate().skip(1) {
+            params.insert(format!("h{}_re", h + 1), g[0]);
+            params.insert(format!("h{}_im", h + 1), g[1]);
+        }
+        let fit = EffectFit {
+            id: effect.into(),
+            lin: Vec::new(),
+            nl: Vec::new(),
+        };
+        return Ok((fit, params));
+    }
+    let sig = make_signature(effect, prep, &model.spec, &model.waveform)?;
+    let f = model
+        .effects
+        .iter()
+        .find(|e| e.id == effect)
+        .cloned()
+        .ok_or_else(|| LabError::numerical(format!("{effect} is not in the fitted model")))?;
+    for (n, v) in sig.lin_names().into_iter().zip(&f.lin) {
+        params.insert(n, *v);
+    }
+    for (n, v) in sig.nl_names().into_iter().zip(&f.nl) {
+        params.insert(n, *v);
+    }
+    Ok((f, params))
+}
+
+/// One round of `explain`: the comparison and diagnosis at that point and the
+/// effect added after it (none on the last step).
+#[derive(Debug, Clone)]
+pub struct ExplainStep {
+    /// The model at this step compared with the recording (residual table dropped).
+    pub comparison: Comparison,
+    /// The diagnosis of that comparison (candidate refits dropped).
+    pub diagnosis: Diagnosis,
+    /// The effect added after this step (none on the last).
+    pub added: Option<String>,
+}
+
+/// The loop diagnose → add until nothing is missing or the rest is unexplained.
+#[derive(Debug, Clone)]
+pub struct Explanation {
+    /// Every step, the last one with the final verdict.
+    pub steps: Vec<ExplainStep>,
+    /// Effects added, in order.
+    pub added: Vec<String>,
+}
+
+impl Explanation {
+    /// The final verdict (of the last diagnosis).
+    pub fn verdict(&self) -> Verdict {
+        self.steps
+            .last()
+            .map_or(Verdict::Unexplained, |s| s.diagnosis.verdict)
+    }
+    /// The final model.
+    pub fn final_model(&self) -> Option<&LabModel> {
+        self.steps.last().map(|s| &s.comparison.model)
+    }
+}
+
+/// At most this many effects are added by one `explain`.
+pub const MAX_EXPLAIN_STEPS: usize = 6;
+
+/// diagnose → add → diagnose … until the verdict is not `missing_effect` (or
+/// adding the named effect does not lower χ²).
+pub fn explain(
+    prep: &Prepared,
+    spec: &LabSpec,
+    opts: &DiagnoseOptions,
+    progress: Progress<'_>,
+) -> Result<Explanation, LabError> {
+    let mut cmp = compare(prep, spec, progress)?;
+    let mut steps = Vec::new();
+    let mut added = Vec::new();
+    for _ in 0..=MAX_EXPLAIN_STEPS {
+        let mut d = diagnose_with(prep, &cmp, opts, progress)?;
+        let named = d
+            .effect
+            .clone()
+            .filter(|_| d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS);
+        let Some(effect) = named else {
+            cmp.recs = Vec::new();
+            for c in &mut d.candidates {
+                c.refit = None;
+            }
+            steps.push(ExplainStep {
+                comparison: cmp,
+                diagnosis: d,
+                added: None,
+            });
+            break;
+        };
+        let start = d
+            .candidates
+            .iter_mut()
+            .find(|c| c.effect == effect)
+            .and_then(|c| c.refit.take());
+        for c in &mut d.candidates {
+            c.refit = None;
+        }
+        let chi_before = cmp.chi2 / cmp.dof;
+        let out = add_effect_to(prep, cmp, &effect, start.as_deref(), progress)?;
+        let mut before = out.before;
+        before.recs = Vec::new();
+        let improved = out.after.fit.chi2_per_dof < chi_before;
+        steps.push(ExplainStep {
+            comparison: before,
+            diagnosis: d,
+            added: improved.then(|| effect.clone()),
+        });
+        if !improved {
+            tracing::warn!("adding {effect} did not lower χ²/dof; explain stops");
+            break;
+        }
+        added.push(effect);
+        cmp = out.after;
+    }
+    Ok(Explanation { steps, added })
 }
 
 #[cfg(test)]
@@ -827,6 +1181,7 @@ mod tests {
             structure_after: Some(2.0),
             rms_after: None,
             cancels_in_4phase: false,
+            refit: None,
         }
     }
 

@@ -41,6 +41,10 @@ pub struct LabSpec {
     pub per_pixel_phase: bool,
     /// Catalogue effects with a lab signature that the model enables.
     pub effects: Vec<String>,
+    /// Effects whose parameters are held at these values (`compare
+    /// --hold-effects`: the model file's physics); only the per-pixel and
+    /// per-unit parameters are fitted around them.
+    pub held: Vec<EffectFit>,
 }
 
 impl Default for LabSpec {
@@ -51,6 +55,7 @@ impl Default for LabSpec {
             per_pixel_gain: true,
             per_pixel_phase: true,
             effects: Vec::new(),
+            held: Vec::new(),
         }
     }
 }
@@ -84,6 +89,9 @@ pub struct CapInfo {
     pub fold: u8,
     /// Whether the capture enters the fit (illuminated captures need a distance).
     pub used: bool,
+    /// The recording's other numeric conditions, aligned with
+    /// [`Prepared::extra_keys`] (NaN where this capture does not state one).
+    pub extra: Vec<f64>,
 }
 
 /// A recording flattened for fitting: capture c, raw image k, pixel p lives at
@@ -122,6 +130,9 @@ pub struct Prepared {
     pub exposure_varies: bool,
     /// Illuminated captures without a ground-truth distance (left out of every fit).
     pub skipped_captures: usize,
+    /// Names of the recording's other numeric conditions that vary over the
+    /// illuminated captures (the user's own keys, e.g. `supply_voltage_v`).
+    pub extra_keys: Vec<String>,
 }
 
 fn key_f(v: f64) -> i64 {
@@ -158,6 +169,14 @@ impl Prepared {
         let temperature_varies = varies(&|c| c.temperature_c);
         let ambient_varies = varies(&|c| Some(c.ambient_klux));
         let exposure_varies = varies(&|c| Some(c.exposure_us));
+        let mut extra_keys: Vec<String> = ds
+            .captures
+            .iter()
+            .flat_map(|c| c.extra.keys().cloned())
+            .collect();
+        extra_keys.sort();
+        extra_keys.dedup();
+        extra_keys.retain(|k| varies(&|c| c.extra.get(k).copied()));
         // Folds over blocks of distance: sorted distinct distances are cut into
         // 2·FOLDS contiguous blocks, block j goes to fold j mod FOLDS.
         let mut dists: Vec<i64> = ds
@@ -209,6 +228,10 @@ impl Prepared {
                 phi_tof,
                 fold: fold_of(c.distance_m, i),
                 used,
+                extra: extra_keys
+                    .iter()
+                    .map(|k| c.extra.get(k).copied().unwrap_or(f64::NAN))
+                    .collect(),
             });
             base.push(total);
             total += c.phases_deg.len() * npix;
@@ -250,6 +273,7 @@ impl Prepared {
             ambient_varies,
             exposure_varies,
             skipped_captures: skipped,
+            extra_keys,
         })
     }
 
@@ -257,6 +281,12 @@ impl Prepared {
     #[inline]
     pub fn idx(&self, c: usize, k: usize, p: usize) -> usize {
         self.base[c] + k * self.npix + p
+    }
+
+    /// Depth per radian of phase at the recording's modulation frequency in
+    /// mm: c/(4π f) (eq. 2.6).
+    pub fn mm_per_rad(&self) -> f64 {
+        1000.0 / distance_to_phase_rad(1.0, self.modulation_hz)
     }
 
     /// Rail margin used for saturation.
@@ -434,6 +464,39 @@ impl LabModel {
         Ok(out.into_iter().flatten().collect())
     }
 
+    /// χ² = Σ w r² over the valid samples (effects included), without building
+    /// the residual table.
+    pub fn chi2(&self, prep: &Prepared) -> Result<f64, LabError> {
+        let sigs = self.signatures(prep)?;
+        let npix = prep.npix;
+        let parts: Vec<f64> = (0..prep.caps.len())
+            .into_par_iter()
+            .map(|c| {
+                let cap = &prep.caps[c];
+                let mut s = 0.0;
+                if !cap.used {
+                    return s;
+                }
+                let mut buf = vec![0.0; 64];
+                for k in 0..cap.theta_rad.len() {
+                    for p in 0..npix {
+                        if self.sat[c * npix + p] {
+                            continue;
+                        }
+                        let mut r = self.rec(prep, c, k, p);
+                        for (sg, e) in sigs.iter().zip(&self.effects) {
+                            r.r -= eval_delta(sg.as_ref(), e, &r, prep, &mut buf);
+                        }
+                        s += r.w * r.r * r.r;
+                    }
+                }
+                s
+            })
+            .collect();
+        // summed in capture order: the same result on every run
+        Ok(parts.iter().sum())
+    }
+
     /// Modelled code (incl. mid and effects) of sample (c, k, p).
     pub fn predict(
         &self,
@@ -596,6 +659,9 @@ pub fn fit_model(
             .effects
             .iter()
             .map(|id| {
+                if let Some(h) = spec.held.iter().find(|h| &h.id == id) {
+                    return Ok(h.clone());
+                }
                 let s = make_signature(id, prep, spec, &Waveform::sinusoid())?;
                 Ok(EffectFit {
                     id: id.clone(),
@@ -627,8 +693,29 @@ pub fn refine(
     progress: Progress<'_>,
 ) -> Result<(), LabError> {
     let npix = prep.npix;
+    // Step control (when the noise model is held, χ² values are comparable):
+    // a round that ends with a higher χ² than it started from is undone and
+    // the refinement stops, so a refit never ends worse than its start.
+    let mut last = if noise {
+        None
+    } else {
+        Some((model.chi2(prep)?, model.clone()))
+    };
     for round in 0..rounds {
         progress("per-pixel fit", round as f64 / rounds as f64);
+        if let Some((chi_prev, prev)) = &mut last
+            && round > 0
+        {
+            let chi = model.chi2(prep)?;
+            // NaN counts as worse
+            if chi.is_nan() || chi > *chi_prev {
+                tracing::debug!("refit round {round}: χ² {chi:.1} > {chi_prev:.1}, step undone");
+                *model = prev.clone();
+                break;
+            }
+            *chi_prev = chi;
+            *prev = model.clone();
+        }
         let delta = effects_delta(prep, model)?;
         for _ in 0..2 {
             per_pixel_step(prep, model, &delta);
@@ -646,6 +733,12 @@ pub fn refine(
             model.noise = fit_noise(prep, model)?;
         }
     }
+    if let Some((chi_prev, prev)) = last {
+        let chi = model.chi2(prep)?;
+        if chi.is_nan() || chi > chi_prev {
+            *model = prev;
+        }
+    }
     progress("per-pixel fit", 1.0);
     let spec = &model.spec;
     let pp = |b: bool| if b { npix } else { 1 };
@@ -656,6 +749,7 @@ pub fn refine(
         + model
             .effects
             .iter()
+            .filter(|e| !spec.held.iter().any(|h| h.id == e.id))
             .map(|e| e.lin.len() + e.nl.len())
             .sum::<usize>();
     Ok(())
@@ -903,6 +997,9 @@ fn update_saturation(prep: &Prepared, model: &mut LabModel) {
 /// Re-fit the parameters of the model's enabled effects on its residual.
 fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Result<(), LabError> {
     for i in 0..model.effects.len() {
+        if model.spec.held.iter().any(|h| h.id == model.effects[i].id) {
+            continue;
+        }
         // residual with every other effect included
         let mut tmp = model.clone();
         let this = tmp.effects.remove(i);
@@ -946,6 +1043,11 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
             key_f(cap.law),
             i64::from(cap.averaged),
         ]);
+        key.extend(
+            cap.extra
+                .iter()
+                .map(|v| key_f(if v.is_nan() { -1e9 } else { *v })),
+        );
         groups.entry(key).or_default().push(c);
     }
     let mut obs = Vec::new();

@@ -21,6 +21,9 @@ pub mod synth;
 pub mod waveform;
 
 pub use data::{Capture, Dataset};
-pub use diagnose::{AddOutcome, Comparison, Diagnosis, Verdict, add_effect, compare, diagnose};
+pub use diagnose::{
+    AddOutcome, Comparison, DiagnoseOptions, Diagnosis, Explanation, Verdict, add_effect, compare,
+    diagnose, diagnose_with, explain,
+};
 pub use error::{ErrorKind, LabError};
 pub use fit::{LabModel, LabSpec, Prepared};

@@ -6,7 +6,9 @@ use std::fmt::Write as _;
 use plotters::prelude::*;
 use serde_json::{Value, json};
 
-use crate::diagnose::{AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Z_NULL};
+use crate::diagnose::{
+    AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Explanation, Z_NULL,
+};
 use crate::signatures::cancels_in_4phase;
 
 fn num(v: f64) -> Value {
@@ -34,6 +36,39 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "depth_4phase_mm": num(d.rms.depth_4phase_mm),
         },
         "separate_by": d.separate_by,
+        "remaining": {
+            "size_mm": num(d.size.mm),
+            "size_lsb": num(d.size.lsb),
+            "z": num(d.fit.z),
+        },
+        "noise_single_acquisition": {"mm": num(d.noise_single.mm), "lsb": num(d.noise_single.lsb)},
+        "tolerance_mm": num(d.tolerance_mm),
+        "detectable_but_small": d.small.iter().map(|s| json!({
+            "name": s.name, "kind": s.kind, "z": num(s.z),
+            "size_mm": num(s.size_mm), "size_lsb": num(s.size_lsb),
+        })).collect::<Vec<_>>(),
+        "skipped": d.skipped.iter().map(|(e, why)| json!({"effect": e, "reason": why})).collect::<Vec<_>>(),
+        "structure": d.structure_remaining.iter().map(structure_json).collect::<Vec<_>>(),
+    })
+}
+
+fn structure_json(s: &crate::structure::ConditionScore) -> Value {
+    json!({
+        "condition": s.condition, "z": num(s.z), "dof": s.dof, "direction": s.direction,
+        "size_mm": num(s.size_mm), "size_lsb": num(s.size_lsb),
+    })
+}
+
+/// `explain --json`: every step's verdict, the effects added and the final verdict.
+pub fn explanation_json(ex: &Explanation) -> Value {
+    json!({
+        "verdict": ex.verdict().as_str(),
+        "added": ex.added,
+        "steps": ex.steps.iter().map(|s| json!({
+            "added": s.added,
+            "diagnosis": diagnosis_json(&s.diagnosis),
+            "error": summary_json(&ErrorSummary::of(&s.comparison)),
+        })).collect::<Vec<_>>(),
     })
 }
 
@@ -68,9 +103,9 @@ pub fn comparison_json(c: &Comparison) -> Value {
         "samples": c.n,
         "parameters": c.model.n_params,
         "noise": c.model.noise,
-        "structure": c.structure.iter().map(|s| json!({
-            "condition": s.condition, "z": num(s.z), "dof": s.dof, "direction": s.direction,
-        })).collect::<Vec<_>>(),
+        "remaining": {"size_mm": num(c.size.mm), "size_lsb": num(c.size.lsb)},
+        "noise_single_acquisition": {"mm": num(c.noise_single.mm), "lsb": num(c.noise_single.lsb)},
+        "structure": c.structure.iter().map(structure_json).collect::<Vec<_>>(),
     })
 }
 
@@ -97,18 +132,27 @@ pub fn comparison_text(c: &Comparison) -> String {
     );
     let _ = writeln!(
         s,
-        "{:<16} {:>10} {:>6}  direction   (structure z; ≤ 6 is noise)",
-        "condition", "z", "dof"
+        "remaining: {:.2} mm depth-equivalent, {:.3} LSB (single-acquisition noise {:.2} mm, {:.2} LSB)",
+        c.size.mm, c.size.lsb, c.noise_single.mm, c.noise_single.lsb
     );
-    for st in &c.structure {
+    structure_table(&mut s, &c.structure);
+    s
+}
+
+fn structure_table(s: &mut String, st: &[crate::structure::ConditionScore]) {
+    let _ = writeln!(
+        s,
+        "{:<18} {:>10} {:>6} {:>9} {:>9}  direction   (structure z; ≤ 6 is noise)",
+        "condition", "z", "dof", "size[mm]", "size[LSB]"
+    );
+    for st in st {
         let flag = if st.z > 6.0 { "  ◀ model fails" } else { "" };
         let _ = writeln!(
             s,
-            "{:<16} {:>10.1} {:>6}  {:<10}{flag}",
-            st.condition, st.z, st.dof, st.direction
+            "{:<18} {:>10.1} {:>6} {:>9.3} {:>9.3}  {:<10}{flag}",
+            st.condition, st.z, st.dof, st.size_mm, st.size_lsb, st.direction
         );
     }
-    s
 }
 
 /// The compact terminal table of `diagnose`.
@@ -134,6 +178,18 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
         d.fit.chi2_per_dof, d.fit.z, d.rms.raw_lsb, d.rms.depth_2phase_mm, d.rms.depth_4phase_mm
     );
+    let _ = writeln!(
+        s,
+        "remaining: {:.2} mm depth-equivalent ({:.3} LSB) — tolerance {:.2} mm (single-acquisition noise {:.2} mm)",
+        d.size.mm, d.size.lsb, d.tolerance_mm, d.noise_single.mm
+    );
+    for sm in &d.small {
+        let _ = writeln!(
+            s,
+            "detectable but small: {} {} (z = {:.1}, {:.3} mm, {:.3} LSB)",
+            sm.kind, sm.name, sm.z, sm.size_mm, sm.size_lsb
+        );
+    }
     let _ = writeln!(
         s,
         "{:<24} {:>9} {:>8} {:>10} {:>12}  4-phase cancels",
@@ -354,6 +410,16 @@ fn esc(s: &str) -> String {
         .replace('>', "&gt;")
 }
 
+fn html_open(title: &str) -> String {
+    format!(
+        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>\
+         body{{font-family:sans-serif;max-width:820px;margin:auto}} table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}} .bad{{color:#b00}} .ok{{color:#070}}\
+         </style></head><body><h1>{t}</h1>",
+        t = esc(title)
+    )
+}
+
 /// One self-contained HTML page: comparison, optional diagnosis, optional add.
 pub fn html_report(
     title: &str,
@@ -363,15 +429,87 @@ pub fn html_report(
     diag: Option<&Diagnosis>,
     add: Option<(&str, &AddOutcome)>,
 ) -> String {
-    let mut h = String::new();
+    let mut h = html_open(title);
+    h.push_str(&html_sections(
+        rows,
+        cols,
+        cmp,
+        diag,
+        add.map(|(e, o)| (e, &o.before, &o.after)),
+    ));
+    h.push_str("</body></html>\n");
+    h
+}
+
+/// One page for `lab explain`: a table of the steps, then every step's
+/// comparison, diagnosis and before/after.
+pub fn explain_html(title: &str, rows: usize, cols: usize, ex: &Explanation) -> String {
+    let mut h = html_open(title);
     let _ = write!(
         h,
-        "<!DOCTYPE html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>\
-         body{{font-family:sans-serif;max-width:820px;margin:auto}} table{{border-collapse:collapse}}\
-         td,th{{border:1px solid #ccc;padding:2px 6px;text-align:right}} .bad{{color:#b00}} .ok{{color:#070}}\
-         </style></head><body><h1>{t}</h1>",
-        t = esc(title)
+        "<h2>Final verdict: {}</h2><p>{}</p><table><tr><th>step</th><th>verdict</th><th>added</th>\
+         <th>explained</th><th>cv gain</th><th>χ²/dof</th><th>z</th><th>remaining [mm]</th>\
+         <th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th></tr>",
+        ex.verdict().as_str(),
+        esc(ex.steps.last().map_or("", |s| s.diagnosis.reason.as_str()))
     );
+    for (i, st) in ex.steps.iter().enumerate() {
+        let d = &st.diagnosis;
+        let best = st
+            .added
+            .as_ref()
+            .and_then(|e| d.candidates.iter().find(|c| &c.effect == e));
+        let _ = write!(
+            h,
+            "<tr><th>{}</th><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.1}</td>\
+             <td>{:.2}</td><td>{:.3}</td><td>{:.2}</td><td>{:.2}</td></tr>",
+            i + 1,
+            d.verdict.as_str(),
+            esc(st.added.as_deref().unwrap_or("—")),
+            best.map_or("".into(), |c| format!("{:.0}%", 100.0 * c.explained_excess)),
+            best.map_or("".into(), |c| format!("{:.0}%", 100.0 * c.cv_gain)),
+            d.fit.chi2_per_dof,
+            d.fit.z,
+            d.size.mm,
+            d.rms.raw_lsb,
+            d.rms.depth_2phase_mm,
+            d.rms.depth_4phase_mm,
+        );
+    }
+    h.push_str("</table>");
+    for (i, st) in ex.steps.iter().enumerate() {
+        let _ = write!(
+            h,
+            "<hr><h1>Step {}{}</h1>",
+            i + 1,
+            st.added
+                .as_ref()
+                .map_or(String::new(), |e| format!(": add {}", esc(e)))
+        );
+        let next = ex.steps.get(i + 1).map(|n| &n.comparison);
+        h.push_str(&html_sections(
+            rows,
+            cols,
+            &st.comparison,
+            Some(&st.diagnosis),
+            st.added
+                .as_deref()
+                .zip(next)
+                .map(|(e, n)| (e, &st.comparison, n)),
+        ));
+    }
+    h.push_str("</body></html>\n");
+    h
+}
+
+fn html_sections(
+    rows: usize,
+    cols: usize,
+    cmp: &Comparison,
+    diag: Option<&Diagnosis>,
+    add: Option<(&str, &Comparison, &Comparison)>,
+) -> String {
+    let mut h = String::new();
     if let Some(d) = diag {
         let _ = write!(
             h,
@@ -382,6 +520,23 @@ pub fn html_report(
         );
         if let Some(sep) = &d.separate_by {
             let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
+        }
+        let _ = write!(
+            h,
+            "<p>Remaining structure: {:.2} mm depth-equivalent ({:.3} LSB, z = {:.1}); tolerance {:.2} mm \
+             (single-acquisition noise {:.2} mm).</p>",
+            d.size.mm, d.size.lsb, d.fit.z, d.tolerance_mm, d.noise_single.mm
+        );
+        for sm in &d.small {
+            let _ = write!(
+                h,
+                "<p>Detectable but small: {} <b>{}</b> (z = {:.1}, {:.3} mm, {:.3} LSB)</p>",
+                sm.kind,
+                esc(&sm.name),
+                sm.z,
+                sm.size_mm,
+                sm.size_lsb
+            );
         }
     }
     let _ = write!(
@@ -494,9 +649,9 @@ pub fn html_report(
             let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
         }
     }
-    if let Some((effect, out)) = add {
-        let b = ErrorSummary::of(&out.before);
-        let a = ErrorSummary::of(&out.after);
+    if let Some((effect, before, after)) = add {
+        let b = ErrorSummary::of(before);
+        let a = ErrorSummary::of(after);
         let _ = write!(
             h,
             "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
@@ -512,8 +667,8 @@ pub fn html_report(
             a.chi2_per_dof,
             e = esc(effect)
         );
-        let (b2, b4) = depth_series(&out.before.depth);
-        let (a2, a4) = depth_series(&out.after.depth);
+        let (b2, b4) = depth_series(&before.depth);
+        let (a2, a4) = depth_series(&after.depth);
         h.push_str(&chart(
             "depth residual before/after (mean per capture)",
             "distance [m]",
@@ -526,6 +681,5 @@ pub fn html_report(
             ],
         ));
     }
-    h.push_str("</body></html>\n");
     h
 }

@@ -39,6 +39,7 @@ pub trait Signature: Send + Sync {
 /// Every effect id the lab has a signature for, in catalogue order.
 pub const SIGNATURE_IDS: &[&str] = &[
     "sbi_asymmetry",
+    "tap_gain_mismatch",
     "vcsel_droop",
     "amplitude_phase_error",
     "temperature_drift",
@@ -52,6 +53,7 @@ pub const SIGNATURE_IDS: &[&str] = &[
 pub fn effect_conditions(id: &str) -> &'static [&'static str] {
     match id {
         "sbi_asymmetry" => &["ambient_klux", "exposure_us", "amplitude"],
+        "tap_gain_mismatch" => &["amplitude", "ambient_klux"],
         "vcsel_droop" => &["image_index"],
         "amplitude_phase_error" => &["amplitude", "exposure_us"],
         "temperature_drift" => &["temperature_c"],
@@ -66,7 +68,7 @@ pub fn effect_conditions(id: &str) -> &'static [&'static str] {
 /// Whether the effect's residual cancels in the 4-phase algorithm (common to
 /// the raw images) — the 2- vs 4-phase contrast of 5.1.2.3.
 pub fn cancels_in_4phase(id: &str) -> bool {
-    matches!(id, "sbi_asymmetry" | "dark_current")
+    matches!(id, "sbi_asymmetry" | "tap_gain_mismatch" | "dark_current")
 }
 
 /// Why an effect cannot be fitted on this recording, if it cannot.
@@ -105,6 +107,9 @@ pub fn make_signature(
                 g: peak / 0.8,
             })
         }
+        "tap_gain_mismatch" => Box::new(TapGain {
+            ambient_varies: prep.ambient_varies,
+        }),
         "vcsel_droop" => Box::new(Droop),
         "amplitude_phase_error" => Box::new(AmpPhase),
         "temperature_drift" => Box::new(TempDrift),
@@ -234,10 +239,42 @@ impl Signature for Sbi {
     }
 }
 
-/// VCSEL droop (3.3.7.2): illumination power falls while the VCSEL heats over
-/// the successive raw images of a capture, with a thermal time constant:
-/// A_k = A·(1 − D(1 − e^{−k·s/τ})), s = exposure[ms]^β (β = 1: heating by
-/// on-time; β = 0: per image). lin = [D/τ], nl = [ln τ, β].
+/// Tap gain mismatch (2.2.2, eq. 2.1): D = (1 + ε/2)N_A − (1 − ε/2)N_B leaks
+/// ε/2 of the total charge N_A + N_B into the differential code, the same in
+/// every raw image (4-phase cancels it). The total signal charge is
+/// proportional to the fundamental amplitude A, the background charge to
+/// ambient·t[ms] (times the pixel's response): Δ = s·A + b·ambient·t·g_p/ḡ.
+/// lin = [s] (+ [b] when the ambient light varies).
+struct TapGain {
+    ambient_varies: bool,
+}
+impl Signature for TapGain {
+    fn id(&self) -> &'static str {
+        "tap_gain_mismatch"
+    }
+    fn n_lin(&self) -> usize {
+        if self.ambient_varies { 2 } else { 1 }
+    }
+    fn lin_names(&self) -> Vec<String> {
+        let mut v = vec!["signal_share".to_string()];
+        if self.ambient_varies {
+            v.push("ambient_lsb_per_klux_ms".into());
+        }
+        v
+    }
+    fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        out[0] = r.a;
+        if self.ambient_varies {
+            out[1] = cap.ambient_klux * cap.exposure_us * 1e-3 * r.gain_rel;
+        }
+    }
+}
+
+/// VCSEL droop (3.3.7.2) with the model's law
+/// (`tofprox_model::effects::optical::droop_loss`): A_k = A·(1 − D·L_k),
+/// L_k = 1 − e^{−(k + k₀)·s/τ}, s = t[ms]^β (τ here in ms^β; β = 1: heating by
+/// on-time, β = 0: per image; k₀ = 1: the first image is already drooped).
+/// lin = [D/τ], nl = [ln τ, β, k₀].
 struct Droop;
 impl Signature for Droop {
     fn id(&self) -> &'static str {
@@ -250,47 +287,73 @@ impl Signature for Droop {
         vec!["droop_rate".into()]
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["ln_tau".into(), "exposure_power".into()]
+        vec![
+            "ln_tau".into(),
+            "exposure_power".into(),
+            "first_image_index".into(),
+        ]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![5.0, 1.0]
+        vec![5.0, 1.0, 0.0]
     }
     fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
         let mut g = Vec::new();
-        for beta in [0.0, 1.0] {
-            for lt in [-1.0, 0.0, 1.0, 2.0, 3.0, 6.0] {
-                g.push(vec![lt, beta]);
+        for k0 in [0.0, 1.0] {
+            for beta in [0.0, 1.0] {
+                for lt in [-1.0, 0.0, 1.0, 2.0, 3.0, 6.0] {
+                    g.push(vec![lt, beta, k0]);
+                }
             }
         }
         g
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
         let tau = nl[0].clamp(-5.0, 9.0).exp();
-        let s = (cap.exposure_us * 1e-3).powf(nl[1].clamp(-0.5, 2.0));
-        let k = f64::from(r.k) * s;
-        out[0] = -r.a * r.c * tau * (1.0 - (-k / tau).exp());
+        let beta = nl[1].clamp(0.0, 2.0);
+        let k0 = nl.get(2).copied().unwrap_or(0.0).clamp(0.0, 8.0);
+        let loss = tofprox_model::effects::optical::droop_loss(
+            f64::from(r.k),
+            cap.exposure_us,
+            1000.0 * tau,
+            beta,
+            k0,
+        );
+        out[0] = -r.a * r.c * tau * loss;
     }
 }
 
-/// Amplitude-dependent phase error (2.3.1.2): pixel non-linearity makes the
-/// phase depend on the signal: Δφ = φ0/(1 + A/A_ref) + p·A/1000.
-/// lin = [φ0, p], nl = [ln A_ref].
+/// Amplitude-dependent phase error (2.3.1.2) with the model's own saturating
+/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`):
+/// Δφ = φ0·s(A/A_ref; n), s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x);
+/// large A_ref: linear in A). lin = [φ0], nl = [ln A_ref, ln n].
 struct AmpPhase;
+impl AmpPhase {
+    fn shape(nl: &[f64], a: f64) -> f64 {
+        let aref = nl[0].clamp(-5.0, 18.0).exp();
+        let n = nl
+            .get(1)
+            .copied()
+            .unwrap_or(0.0)
+            .clamp(0.25f64.ln(), 10f64.ln())
+            .exp();
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n)
+    }
+}
 impl Signature for AmpPhase {
     fn id(&self) -> &'static str {
         "amplitude_phase_error"
     }
     fn n_lin(&self) -> usize {
-        2
+        1
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase0_rad".into(), "phase_rad_per_1000lsb".into()]
+        vec!["phase0_rad".into()]
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["ln_reference_lsb".into()]
+        vec!["ln_reference_lsb".into(), "ln_shape".into()]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![5.0]
+        vec![5.0, 0.0]
     }
     fn nl_grid(&self, recs: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
@@ -299,15 +362,21 @@ impl Signature for AmpPhase {
             .filter(|r| r.a > 0.0)
             .map(|r| r.a)
             .collect();
-        quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95])
-            .into_iter()
-            .map(|q| vec![q.max(1.0).ln()])
-            .collect()
+        let mut refs = quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]);
+        // far above every amplitude: the linear regime
+        if let Some(&top) = refs.last() {
+            refs.extend([10.0 * top, 100.0 * top]);
+        }
+        let mut g = Vec::new();
+        for q in refs {
+            for ln_n in [0.0, 2f64.ln(), 4f64.ln()] {
+                g.push(vec![q.max(1.0).ln(), ln_n]);
+            }
+        }
+        g
     }
     fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let aref = nl[0].clamp(-5.0, 15.0).exp();
-        out[0] = r.a * r.cd / (1.0 + r.a / aref);
-        out[1] = r.a * r.cd * r.a / 1000.0;
+        out[0] = r.a * r.cd * Self::shape(nl, r.a);
     }
 }
 

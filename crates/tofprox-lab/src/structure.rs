@@ -9,7 +9,8 @@ use serde::Serialize;
 use crate::fit::{Prepared, Rec};
 use crate::stats::solve_sym;
 
-/// The conditions every recording is scored against, when they vary.
+/// The conditions every recording is scored against (when they vary); the
+/// recording's own numeric conditions are added by name ([`conditions`]).
 pub const CONDITIONS: &[&str] = &[
     "distance_m",
     "phase",
@@ -24,6 +25,15 @@ pub const CONDITIONS: &[&str] = &[
     "row",
     "adc_code",
 ];
+
+/// Every condition of this recording: [`CONDITIONS`] and the user's keys.
+pub fn conditions(prep: &Prepared) -> Vec<String> {
+    CONDITIONS
+        .iter()
+        .map(|c| c.to_string())
+        .chain(prep.extra_keys.iter().cloned())
+        .collect()
+}
 
 /// One bin of a condition: the residual projected on the three directions.
 #[derive(Debug, Clone, Serialize)]
@@ -43,7 +53,7 @@ pub struct Bin {
 /// How strongly the residual varies with one condition, beyond the noise.
 #[derive(Debug, Clone, Serialize)]
 pub struct ConditionScore {
-    /// The condition's name (a [`CONDITIONS`] entry).
+    /// The condition's name (a [`CONDITIONS`] entry or one of the user's keys).
     pub condition: String,
     /// Structure score: (χ² − dof)/√(2·dof), the larger of the global and
     /// per-pixel binnings; about N(0, 1) when the residual is noise.
@@ -54,6 +64,13 @@ pub struct ConditionScore {
     pub dof: usize,
     /// Which direction carries most of the structure: offset, amplitude, phase.
     pub direction: &'static str,
+    /// Size of the structure (its χ² beyond the noise's expectation) as an
+    /// RMS code error in LSB: √(max(0, χ² − dof)/Σw).
+    pub size_lsb: f64,
+    /// The same as a depth-equivalent error in mm: the code error over the
+    /// amplitude (phase-equivalent, rad) times c/(4πf),
+    /// √(max(0, χ² − dof)/Σw·A²)·c/(4πf).
+    pub size_mm: f64,
     /// The global bins, those with at least 4 samples.
     pub bins: Vec<Bin>,
 }
@@ -74,10 +91,18 @@ pub fn cond_value(cond: &str, r: &Rec, prep: &Prepared) -> Option<f64> {
         "image_index" => Some(f64::from(r.k)),
         "capture_index" => Some(f64::from(r.cap)),
         "column" => Some((p % prep.cols) as f64),
-        "adc_channel" => Some(((prep.roi_origin[1] + p % prep.cols) % 16) as f64),
+        // the model's mirrored 32-column read-out map (thesis 3.3.7.1)
+        "adc_channel" => Some(tofprox_model::effects::fixed_pattern::adc_channel(
+            prep.roi_origin[1] + p % prep.cols,
+        ) as f64),
         "row" => Some((p / prep.cols) as f64),
         "adc_code" => Some(r.x + prep.mid),
-        _ => None,
+        other => prep
+            .extra_keys
+            .iter()
+            .position(|k| k == other)
+            .and_then(|i| cap.extra.get(i).copied())
+            .filter(|v| v.is_finite()),
     }
 }
 
@@ -111,6 +136,8 @@ struct Acc {
     n: usize,
     swr: f64,
     sw: f64,
+    /// Σ w·A² (phase information).
+    swa2: f64,
 }
 
 const ZERO: Acc = Acc {
@@ -120,6 +147,7 @@ const ZERO: Acc = Acc {
     n: 0,
     swr: 0.0,
     sw: 0.0,
+    swa2: 0.0,
 };
 
 impl Acc {
@@ -134,6 +162,7 @@ impl Acc {
         self.n += y.n;
         self.swr += y.swr;
         self.sw += y.sw;
+        self.swa2 += y.swa2;
     }
     /// (βᵀMβ, rank, β on the active directions) of this accumulator.
     fn stat(&self) -> Option<(f64, usize, [f64; 3])> {
@@ -207,7 +236,7 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
     let per_pixel = matches!(
         cond,
         "ambient_klux" | "temperature_c" | "exposure_us" | "image_index"
-    );
+    ) || prep.extra_keys.iter().any(|k| k == cond);
     let units = if per_pixel { prep.npix } else { 1 };
     // accumulators [pixel][bin] (pixel-resolved) and [bin] (all pixels)
     // partial sums over fixed chunks, merged in order: the same result on
@@ -234,6 +263,7 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
                 one.n = 1;
                 one.swr = r.w * e;
                 one.sw = r.w;
+                one.swa2 = r.w * r.a * r.a;
                 g[b].merge(&one);
                 if per_pixel {
                     acc[r.pix as usize * nb + b].merge(&one);
@@ -305,19 +335,41 @@ pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<C
         })
         .collect();
     let di = (0..3).max_by(|&a, &b| pd[a].total_cmp(&pd[b])).unwrap_or(0);
+    let (sw, swa2) = glob
+        .iter()
+        .fold((0.0, 0.0), |s, a| (s.0 + a.sw, s.1 + a.swa2));
+    let (size_lsb, size_mm) = structure_size(chi2 - dof as f64, sw, swa2, prep.mm_per_rad());
     Some(ConditionScore {
         condition: cond.to_string(),
         z,
         chi2,
         dof,
+        size_lsb,
+        size_mm,
         direction: ["offset", "amplitude", "phase"][di],
         bins,
     })
 }
 
+/// Size of a systematic residual whose χ² exceeds the noise's expectation by
+/// `excess`, over samples with Σw = `sw` and Σw·A² = `swa2`: (RMS code error in
+/// LSB, depth-equivalent RMS in mm). The depth equivalent divides each code
+/// error by its amplitude (a code error δ moves the phase by at most δ/A) and
+/// converts phase to depth by c/(4πf) (eq. 2.6), weighted as the data inform it.
+pub fn structure_size(excess: f64, sw: f64, swa2: f64, mm_per_rad: f64) -> (f64, f64) {
+    let e = excess.max(0.0);
+    let lsb = if sw > 0.0 { (e / sw).sqrt() } else { 0.0 };
+    let mm = if swa2 > 0.0 {
+        (e / swa2).sqrt() * mm_per_rad
+    } else {
+        0.0
+    };
+    (lsb, mm)
+}
+
 /// Scores against every condition that varies, strongest first.
 pub fn score_all(recs: &[Rec], res: &[f64], prep: &Prepared) -> Vec<ConditionScore> {
-    let mut v: Vec<ConditionScore> = CONDITIONS
+    let mut v: Vec<ConditionScore> = conditions(prep)
         .par_iter()
         .filter_map(|c| score(c, recs, res, prep))
         .collect();

@@ -184,6 +184,7 @@ pub fn generate(spec: &SynthSpec) -> Dataset {
             reflectivity: 1.0,
             ambient_klux: amb,
             temperature_c: Some(temp),
+            extra: Default::default(),
             frames: fr,
         }
     };

@@ -55,6 +55,7 @@ fn record(truth: &ModelConfig, seed: u64, vary: Vary, inject: Option<Inject>) ->
                 reflectivity: 1.0,
                 ambient_klux: req.ambient_klux,
                 temperature_c: Some(req.temperature_c),
+                extra: Default::default(),
                 frames,
             });
         };

@@ -280,6 +280,12 @@ impl Simulator {
         // Pass 2, per raw image (acquisition order), contiguous over pixels.
         let dark = px.dark_e;
         let sbi_on = px.sbi.is_some();
+        // tap_gain_mismatch: D = (1 + ε/2) N_A − (1 − ε/2) N_B
+        let tap_eps = if self.model.is_enabled("tap_gain_mismatch") {
+            self.model.p("tap_gain_mismatch", "mismatch_rel")
+        } else {
+            0.0
+        };
         let noisy = rng.is_some();
         for k in 0..k_images {
             let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
@@ -303,11 +309,15 @@ impl Simulator {
                     corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
                 }
                 let mut diff = k_con * corr_e;
+                let total = sk * (1.0 + mp_rel);
                 if sbi_on {
-                    let total = sk * (1.0 + mp_rel);
                     let na = 0.5 * (total + diff) + amb + dark;
                     let nb = 0.5 * (total - diff) + amb + dark;
                     diff += px.sbi_error_e(na, nb);
+                }
+                if tap_eps != 0.0 {
+                    // ε/2 · (N_A + N_B): a share of the total charge leaks into D
+                    diff += 0.5 * tap_eps * (total + 2.0 * (amb + dark));
                 }
                 let mut u = diff * cc.lsb_per_e + offset;
                 if let Some(rng) = rng.as_deref_mut() {

@@ -359,9 +359,29 @@ pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
         return 1.0;
     }
     let d = model.p("vcsel_droop", "droop_rel");
-    let tau = model.p("vcsel_droop", "tau_us").max(1e-9);
-    // P_k = P (1 − D (1 − e^{−k t_exp/τ}))  (3.3.7.2)
-    1.0 - d * (1.0 - (-(k as f64) * exposure_us / tau).exp())
+    1.0 - d * droop_loss(
+        k as f64,
+        exposure_us,
+        model.p("vcsel_droop", "tau_us"),
+        model.p("vcsel_droop", "exposure_power"),
+        model.p("vcsel_droop", "first_image_index"),
+    )
+}
+
+/// The droop law's shape (3.3.7.2): the share 1 − exp(−(k + k₀)·s/τ) of the
+/// asymptotic loss D reached at raw image `k`, s = 1 ms·(t_exp/1 ms)^β the
+/// heating per image. P_k = P·(1 − D·droop_loss). The simulator and the lab's
+/// fit both use this one function.
+#[inline]
+pub fn droop_loss(
+    k: f64,
+    exposure_us: f64,
+    tau_us: f64,
+    exposure_power: f64,
+    first_image_index: f64,
+) -> f64 {
+    let s_us = 1000.0 * (exposure_us * 1e-3).powf(exposure_power);
+    1.0 - (-(k + first_image_index) * s_us / tau_us.max(1e-9)).exp()
 }
 
 #[cfg(test)]

@@ -8,13 +8,25 @@ pub const BOLTZMANN_J_PER_K: f64 = 1.380_649e-23;
 /// Elementary charge in C.
 pub const ELEMENTARY_CHARGE_C: f64 = 1.602_176_634e-19;
 
+/// The saturating law of `amplitude_phase_error` (2.3.1.2, fig. 2.9) as the
+/// share of φ_max left at x = A/A_ref: 1 − x/(1 + xⁿ)^(1/n). n = 1 is the
+/// hyperbolic A_ref/(A_ref + A); larger n saturate more sharply. The
+/// simulator and the lab's fit both use this one function.
+#[inline]
+pub fn amplitude_phase_shape(x: f64, n: f64) -> f64 {
+    if n == 1.0 {
+        return 1.0 / (1.0 + x);
+    }
+    1.0 - x / (1.0 + x.powf(n)).powf(1.0 / n)
+}
+
 /// Per-capture constants of the pixel effects.
 #[derive(Debug, Clone, Copy)]
 pub struct PixelParams {
     /// SBI on: threshold in electrons and mismatch.
     pub sbi: Option<(f64, f64)>,
-    /// Amplitude-phase error: (max_rad, reference_e).
-    pub amp_phase: Option<(f64, f64)>,
+    /// Amplitude-phase error: (max_rad, reference_e, shape n).
+    pub amp_phase: Option<(f64, f64, f64)>,
     /// Phase drift in rad for this temperature.
     pub drift_rad: f64,
     /// Signal gain for this temperature.
@@ -45,6 +57,7 @@ impl PixelParams {
             (
                 model.p("amplitude_phase_error", "max_rad"),
                 model.p("amplitude_phase_error", "reference_e"),
+                model.p("amplitude_phase_error", "shape"),
             )
         });
         let (drift_rad, drift_gain) = if on("temperature_drift") {
@@ -96,12 +109,12 @@ impl PixelParams {
         }
     }
 
-    /// Amplitude-dependent phase error Δφ = φ_max A_ref / (A_ref + A) (2.3.1.2).
+    /// Amplitude-dependent phase error (2.3.1.2).
     #[inline]
     pub fn amplitude_phase_rad(&self, amplitude_e: f64) -> f64 {
         match self.amp_phase {
-            Some((max_rad, reference_e)) => {
-                max_rad * reference_e / (reference_e + amplitude_e.max(0.0))
+            Some((max_rad, reference_e, shape)) => {
+                max_rad * amplitude_phase_shape(amplitude_e.max(0.0) / reference_e, shape)
             }
             None => 0.0,
         }

@@ -5,8 +5,12 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tofprox_lab::adapter::{load_recording, spec_from_model, write_effect};
-use tofprox_lab::diagnose::{add_effect, compare, diagnose};
+use tofprox_lab::adapter::{
+    load_recording, spec_from_model, spec_holding_model, update_model_text, write_effect,
+};
+use tofprox_lab::diagnose::{
+    DiagnoseOptions, add_effect, compare, diagnose_with, effect_params, explain,
+};
 use tofprox_lab::report;
 use tofprox_lab::signatures::{SIGNATURE_IDS, cancels_in_4phase};
 use tofprox_lab::{Comparison, Prepared};
@@ -20,6 +24,9 @@ pub enum LabCommand {
     Diagnose(DiagnoseArgs),
     /// Enable an effect, fit it, write the new model file, print the error before and after.
     Add(AddArgs),
+    /// Loop diagnose → add until nothing is missing or the rest is unexplained;
+    /// write the final model and one report with every step.
+    Explain(ExplainArgs),
     /// The effect catalogue: signature in the residual and the physics behind each effect.
     Effects,
 }
@@ -37,6 +44,10 @@ pub struct CompareArgs {
     /// Print JSON to stdout instead of the table.
     #[arg(long)]
     pub json: bool,
+    /// Hold the effects' parameters at the model file's values (its own
+    /// physics); only per-pixel and per-unit parameters are refitted.
+    #[arg(long)]
+    pub hold_effects: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -52,6 +63,32 @@ pub struct DiagnoseArgs {
     /// Write a self-contained HTML report with SVG plots.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Remaining structure below this depth-equivalent RMS (mm) is not a
+    /// missing effect [default: 0.2 × the recording's single-acquisition noise].
+    #[arg(long)]
+    pub tolerance_mm: Option<f64>,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct ExplainArgs {
+    /// Recording directory (version 1 format).
+    pub rec: PathBuf,
+    /// Model file (TOML) to start from.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Where to write the model with every added effect.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// One self-contained HTML report with every step.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Print the steps as JSON.
+    #[arg(long)]
+    pub json: bool,
+    /// Remaining structure below this depth-equivalent RMS (mm) is not a
+    /// missing effect [default: 0.2 × the recording's single-acquisition noise].
+    #[arg(long)]
+    pub tolerance_mm: Option<f64>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -80,6 +117,7 @@ pub fn run(c: LabCommand) -> anyhow::Result<ExitCode> {
         LabCommand::Compare(a) => run_compare(a),
         LabCommand::Diagnose(a) => run_diagnose(a),
         LabCommand::Add(a) => run_add(a),
+        LabCommand::Explain(a) => run_explain(a),
         LabCommand::Effects => run_effects(),
     }
 }
@@ -126,7 +164,19 @@ fn out(s: &str) -> anyhow::Result<()> {
 fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
     let (prep, m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
-    let cmp = fit(&prep, &m, &pb)?;
+    let cmp = if a.hold_effects {
+        let (spec, notes) = spec_holding_model(&m, &prep);
+        for n in &notes {
+            eprintln!("note: {n}");
+        }
+        let cb = |stage: &str, f: f64| {
+            pb.set_message(stage.to_string());
+            pb.set_position((f * 1000.0) as u64);
+        };
+        compare(&prep, &spec, &cb)?
+    } else {
+        fit(&prep, &m, &pb)?
+    };
     pb.finish_and_clear();
     if a.json {
         out(&format!(
@@ -158,7 +208,8 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
         pb.set_message(stage.to_string());
         pb.set_position((f * 1000.0) as u64);
     };
-    let d = diagnose(&prep, &cmp, &cb)?;
+    let opts = options(a.tolerance_mm)?;
+    let d = diagnose_with(&prep, &cmp, &opts, &cb)?;
     pb.finish_and_clear();
     if a.json {
         out(&format!(
@@ -200,8 +251,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     pb.finish_and_clear();
     let notes = write_effect(&mut m, &a.effect, &res.params, &res.after.model, &prep)?;
     if let Some(p) = &a.out {
-        std::fs::write(p, m.to_toml_string())
-            .with_context(|| format!("writing model {}", p.display()))?;
+        write_model(&a.model, &m, std::slice::from_ref(&a.effect), p)?;
         eprintln!("model with {} written to {}", a.effect, p.display());
     }
     for n in &notes {
@@ -243,6 +293,89 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 Some((&a.effect, &res)),
             ),
         )?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Write `m` to `out` as the user's model file `from` with the `changed`
+/// effects updated (comments and layout of `from` kept).
+fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(from)
+        .with_context(|| format!("reading model {}", from.display()))?;
+    let updated = update_model_text(&text, m, changed)
+        .with_context(|| format!("model file {}", from.display()))?;
+    std::fs::write(out, updated).with_context(|| format!("writing model {}", out.display()))
+}
+
+fn options(tolerance_mm: Option<f64>) -> anyhow::Result<DiagnoseOptions> {
+    if let Some(t) = tolerance_mm
+        && !(t.is_finite() && t >= 0.0)
+    {
+        anyhow::bail!("--tolerance-mm must be a finite number >= 0, got {t}");
+    }
+    Ok(DiagnoseOptions { tolerance_mm })
+}
+
+fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
+    let opts = options(a.tolerance_mm)?;
+    let (prep, mut m) = load(&a.rec, &a.model)?;
+    let pb = progress_bar();
+    let cb = |stage: &str, f: f64| {
+        pb.set_message(stage.to_string());
+        pb.set_position((f * 1000.0) as u64);
+    };
+    let ex = explain(&prep, &spec_from_model(&m), &opts, &cb)?;
+    pb.finish_and_clear();
+    let mut notes = Vec::new();
+    if let Some(fin) = ex.final_model() {
+        for e in &ex.added {
+            let (_, params) = effect_params(&prep, fin, e)?;
+            notes.extend(write_effect(&mut m, e, &params, fin, &prep)?);
+        }
+    }
+    if let Some(p) = &a.out {
+        write_model(&a.model, &m, &ex.added, p)?;
+        eprintln!(
+            "model with {} written to {}",
+            if ex.added.is_empty() {
+                "nothing added".to_string()
+            } else {
+                ex.added.join(", ")
+            },
+            p.display()
+        );
+    }
+    for n in &notes {
+        eprintln!("note: {n}");
+    }
+    if a.json {
+        out(&format!(
+            "{}\n",
+            serde_json::to_string_pretty(&report::explanation_json(&ex))?
+        ))?;
+    } else {
+        let mut t = String::new();
+        for (i, st) in ex.steps.iter().enumerate() {
+            t.push_str(&format!("── step {} ──\n", i + 1));
+            t.push_str(&report::diagnosis_text(&st.diagnosis));
+            if let Some(e) = &st.added {
+                t.push_str(&format!("→ add {e}\n"));
+            }
+        }
+        t.push_str(&format!(
+            "final verdict: {} after adding [{}]\n",
+            ex.verdict().as_str(),
+            ex.added.join(", ")
+        ));
+        out(&t)?;
+    }
+    if let Some(p) = &a.report {
+        let title = format!(
+            "tofprox lab explain: {} from {}",
+            a.rec.display(),
+            a.model.display()
+        );
+        write_report(p, &report::explain_html(&title, prep.rows, prep.cols, &ex))?;
     }
     Ok(ExitCode::SUCCESS)
 }
