@@ -12,6 +12,8 @@
 //! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]) and the
 //!   eight-lane abstraction the kernel is written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
+//! - [`radiometry`]: the `1/d²` law of the returned amplitude (2.2.1), its per-pixel calibration
+//!   and the plausibility test that keeps a wrapped phase from reading as near.
 //! - [`sensor`]: the vocabulary every crate shares: [`SensorGeometry`] (window, full array, ADC,
 //!   modulation; mid/max code, phase per metre, unambiguous range), [`RowWindow`],
 //!   [`CycleRequest`], the physical constants. The measurement mode is [`Algorithm`].
@@ -29,6 +31,7 @@ mod fastmath;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
+pub mod radiometry;
 pub mod sensor;
 mod simd;
 

@@ -48,6 +48,9 @@ pub const FLAG_LOW_AMPLITUDE: u8 = 1 << 1;
 pub const FLAG_INVALID: u8 = 1 << 2;
 /// Flag bit: a used raw value is NaN or infinite.
 pub const FLAG_NON_FINITE: u8 = 1 << 3;
+/// Flag bit: a near depth whose amplitude no real target there could return (a wrapped phase or
+/// stray light; set by [`crate::radiometry::flag_implausible_near`], never by the pipeline).
+pub const FLAG_IMPLAUSIBLE: u8 = 1 << 4;
 
 /// Largest frame a pipeline accepts (64 Mpixel; the IRS1645 has 38 528 pixels).
 pub const MAX_PIXELS: usize = 1 << 26;
@@ -180,7 +183,7 @@ pub struct DepthFrame {
     pub amplitude_lsb: Array2<f32>,
     /// Corrected phase in `[0, 2π)`; 0 where the input was non-finite.
     pub phase_rad: Array2<f32>,
-    /// Per-pixel flags: [`FLAG_SATURATED`], [`FLAG_LOW_AMPLITUDE`], [`FLAG_INVALID`], [`FLAG_NON_FINITE`].
+    /// Per-pixel flags: [`FLAG_SATURATED`], [`FLAG_LOW_AMPLITUDE`], [`FLAG_INVALID`], [`FLAG_NON_FINITE`], [`FLAG_IMPLAUSIBLE`].
     pub flags: Array2<u8>,
 }
 
@@ -399,6 +402,12 @@ impl Pipeline {
     /// The last processed frame (zeros before the first `process`).
     pub fn frame(&self) -> &DepthFrame {
         &self.frame
+    }
+
+    /// The last processed frame, for post-processing steps that flag pixels
+    /// (e.g. [`crate::radiometry::flag_implausible_near`]).
+    pub fn frame_mut(&mut self) -> &mut DepthFrame {
+        &mut self.frame
     }
 
     /// Processes one capture `(K, rows, cols)`: the first 2 (2-phase, phases 0°, 90°) or 4

@@ -7,7 +7,10 @@
 //!   few outlier pixels (flying pixels, noise); see [`NearFarDetector::with_percentile`];
 //! - if the valid fraction is below `min_valid_fraction` the frame has no usable depth: it counts as
 //!   **near** when saturated pixels make up at least half of the ROI's invalid pixels (something is
-//!   too close / too bright), otherwise as **no target → far**;
+//!   too close / too bright), otherwise as **far**; it is a *reading* (`no_target`: nothing in
+//!   range) when pixels without a usable return — amplitude too low, or a near depth no real
+//!   target could return ([`FLAG_IMPLAUSIBLE`], see [`crate::radiometry`]) — make up at least half
+//!   of the invalid pixels, and no reading otherwise (non-finite or otherwise broken data);
 //! - independently, a saturated fraction of the ROI of at least 25 % counts as near.
 //!
 //! State machine (starts and resets to far): far → near immediately at a near reading
@@ -16,7 +19,7 @@
 //! (hysteresis) and reset the debounce counter. `changed` is true only on a transition.
 
 use crate::CoreError;
-use crate::pipeline::{DepthFrame, FLAG_SATURATED};
+use crate::pipeline::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
 use ndarray::s;
 
 /// Fraction of saturated ROI pixels that on its own means "near".
@@ -114,6 +117,9 @@ pub struct ProximityReading {
     pub changed: bool,
     /// Fraction of ROI pixels with valid depth.
     pub valid_fraction: f32,
+    /// Nothing in range: no depth statistic and no saturation, because the ROI's pixels saw no
+    /// usable return (low amplitude or implausible near depth). A valid far reading.
+    pub no_target: bool,
 }
 
 /// Near/far detector with hysteresis and far debounce (see the module docs).
@@ -200,6 +206,7 @@ impl NearFarDetector {
         self.scratch.clear();
         self.scratch.resize(total, 0);
         let mut saturated = 0usize;
+        let mut no_return = 0usize;
         let rows = roi.row0..roi.row0 + roi.rows;
         let cols = roi.col0..roi.col0 + roi.cols;
         let flags = frame.flags.slice(s![rows.clone(), cols.clone()]);
@@ -208,6 +215,9 @@ impl NearFarDetector {
         for ((frow, drow), keys) in flags.rows().into_iter().zip(depth.rows()).zip(keys_rows) {
             for ((k, &f), &mm) in keys.iter_mut().zip(frow.iter()).zip(drow.iter()) {
                 saturated += usize::from(f & FLAG_SATURATED != 0);
+                no_return += usize::from(
+                    f & FLAG_SATURATED == 0 && f & (FLAG_LOW_AMPLITUDE | FLAG_IMPLAUSIBLE) != 0,
+                );
                 *k = if f == 0 { mm } else { 0 };
             }
         }
@@ -233,6 +243,7 @@ impl NearFarDetector {
         };
         let saturated_near = saturated_fraction >= SATURATED_NEAR_FRACTION
             || (!enough && saturated > 0 && 2 * saturated >= invalid);
+        let no_target = total > 0 && !enough && !saturated_near && 2 * no_return >= invalid;
         let reading_near = saturated_near || distance_mm.is_some_and(|d| d <= self.cfg.near_mm);
         let reading_far = !reading_near && distance_mm.is_none_or(|d| d >= self.cfg.far_mm);
 
@@ -257,6 +268,7 @@ impl NearFarDetector {
             distance_mm,
             changed: self.near != was_near,
             valid_fraction,
+            no_target,
         }
     }
 }

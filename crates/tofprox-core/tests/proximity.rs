@@ -210,3 +210,28 @@ fn malformed_frame_does_not_panic() {
     let r = d.update(&empty);
     assert_eq!(r.distance_mm, None);
 }
+
+#[test]
+fn nothing_in_range_is_a_far_reading_broken_data_is_none() {
+    use tofprox_core::pipeline::{FLAG_IMPLAUSIBLE, FLAG_NON_FINITE};
+    let mut d = detector(1);
+    for flags in [FLAG_LOW_AMPLITUDE, FLAG_IMPLAUSIBLE] {
+        let r = d.update(&invalid(flags));
+        assert!(
+            r.no_target && !r.near && r.distance_mm.is_none(),
+            "{flags}: {r:?}"
+        );
+    }
+    let r = d.update(&invalid(FLAG_NON_FINITE));
+    assert!(
+        !r.no_target && !r.near,
+        "non-finite data is no reading: {r:?}"
+    );
+    let r = d.update(&invalid(FLAG_SATURATED));
+    assert!(
+        r.near && !r.no_target,
+        "saturation is near, not nothing: {r:?}"
+    );
+    let r = d.update(&wall(1000));
+    assert!(!r.no_target && r.distance_mm == Some(1000));
+}

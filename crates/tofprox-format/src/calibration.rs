@@ -2,7 +2,8 @@
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
 //! Parts and their dependencies (thesis order of application, 4.3.3):
-//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map.
+//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map; beside them the
+//! amplitude scale of the `1/d²` law (`tofprox_core::radiometry`), which depends on nothing.
 //! Each dependent part records the checksum of the parts it was extracted
 //! with; loading refuses a set whose parts do not fit together, and
 //! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
@@ -18,6 +19,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::pipeline::Calibration;
+use tofprox_core::radiometry::AmplitudeScale;
 use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::error::{
@@ -46,16 +48,19 @@ pub enum CalibPart {
     Fppn,
     /// Per-pixel phase offsets (FPPN) for 2-phase evaluation (absolute w.r.t. the 2-phase LUT).
     Fppn2Phase,
+    /// Per-pixel amplitude scale `K` of `A = K·ρ·t/d²` (thesis 2.2.1), LSB·m²/µs.
+    Amplitude,
 }
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 5] = [
+    pub const ALL: [CalibPart; 6] = [
         CalibPart::Offset,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
         CalibPart::Fppn,
         CalibPart::Fppn2Phase,
+        CalibPart::Amplitude,
     ];
     /// The table name in `calibration.toml` (also the array's file stem).
     pub fn name(self) -> &'static str {
@@ -65,6 +70,7 @@ impl CalibPart {
             CalibPart::Wiggling4Phase => "wiggling_4phase",
             CalibPart::Fppn => "fppn",
             CalibPart::Fppn2Phase => "fppn_2phase",
+            CalibPart::Amplitude => "amplitude",
         }
     }
     /// The array file name.
@@ -88,7 +94,7 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Offset => None,
+            CalibPart::Offset | CalibPart::Amplitude => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -110,8 +116,13 @@ pub struct PartSource {
     pub recording_description: Option<String>,
     /// Indices of the captures used.
     pub captures: Vec<usize>,
-    /// Ground-truth distance of the capture used (wiggling, FPPN).
+    /// Ground-truth distance of the capture used (wiggling, FPPN, amplitude).
     pub distance_m: Option<f64>,
+    /// Reflectivity of the target of the capture used (amplitude); `None` when the capture did
+    /// not say and [`tofprox_core::radiometry::DEFAULT_CALIBRATION_REFLECTIVITY`] was assumed.
+    pub reflectivity: Option<f64>,
+    /// Exposure per raw image of the capture used (amplitude), µs.
+    pub exposure_us: Option<f64>,
     /// When it was extracted (RFC 3339, UTC).
     pub created: String,
     /// Program and version that extracted it.
@@ -132,6 +143,8 @@ pub struct CalibrationSet {
     pub fppn: Option<FppnMap>,
     /// FPPN map for 2-phase evaluation (extracted after the 2-phase wiggling LUT).
     pub fppn_2phase: Option<FppnMap>,
+    /// Amplitude scale of the `1/d²` law (from the correlation capture).
+    pub amplitude: Option<AmplitudeScale>,
     /// What the set is valid for: the sensor setup and window it was extracted on (the
     /// `[valid_for]` table). Applying it to anything else is refused.
     pub validity: SensorGeometry,
@@ -173,6 +186,8 @@ struct CalibToml {
     fppn: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     fppn_2phase: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    amplitude: Option<PartToml>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -188,6 +203,12 @@ struct PartToml {
     lut_size: Option<usize>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     distance_m: Option<f64>,
+    /// Target reflectivity of the capture (amplitude; absent = assumed 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    reflectivity: Option<f64>,
+    /// Exposure per raw image of the capture (amplitude), µs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    exposure_us: Option<f64>,
     /// sha256 of the offset array this part was extracted with, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset_sha256: Option<String>,
@@ -250,6 +271,7 @@ impl CalibrationSet {
             wiggling_4phase: None,
             fppn: None,
             fppn_2phase: None,
+            amplitude: None,
             validity: *sensor,
             sources: BTreeMap::new(),
             description: None,
@@ -290,6 +312,7 @@ impl CalibrationSet {
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
             CalibPart::Fppn => self.fppn.is_some(),
             CalibPart::Fppn2Phase => self.fppn_2phase.is_some(),
+            CalibPart::Amplitude => self.amplitude.is_some(),
         }
     }
 
@@ -312,6 +335,10 @@ impl CalibrationSet {
                 .fppn_2phase
                 .as_ref()
                 .map(|f| npy::encode_f32(&f.phase_offset_rad)),
+            CalibPart::Amplitude => self
+                .amplitude
+                .as_ref()
+                .map(|a| npy::encode_f32(&a.lsb_m2_per_us)),
         }
     }
 
@@ -331,6 +358,7 @@ impl CalibrationSet {
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
             CalibPart::Fppn => self.fppn = None,
             CalibPart::Fppn2Phase => self.fppn_2phase = None,
+            CalibPart::Amplitude => self.amplitude = None,
         }
         self.sources.remove(&part);
         self.deps.remove(&part);
@@ -444,6 +472,22 @@ impl CalibrationSet {
             Algorithm::FourPhase => self.fppn = Some(fppn),
         }
         Ok(self.record_part(part, source, deps))
+    }
+
+    /// Set (or replace) the amplitude scale. It depends on no other part (the N-phase
+    /// amplitude is offset-free). Returns the parts dropped (none).
+    pub fn set_amplitude(
+        &mut self,
+        scale: AmplitudeScale,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let key = CalibPart::Amplitude.name();
+        self.check_map(&scale.lsb_m2_per_us, "amplitude scale", key)?;
+        if let Some(v) = scale.lsb_m2_per_us.iter().find(|v| **v < 0.0) {
+            return Err(invalid(format!("amplitude scale {v} is negative")).key(key));
+        }
+        self.amplitude = Some(scale);
+        Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
     }
 
     /// Record where `part` came from and what it was computed with, then
@@ -563,6 +607,7 @@ impl CalibrationSet {
             wiggling_4phase: None,
             fppn: None,
             fppn_2phase: None,
+            amplitude: None,
         };
         for part in CalibPart::ALL {
             let Some(bytes) = self.part_bytes(part) else {
@@ -589,7 +634,7 @@ impl CalibrationSet {
                         w.map(|w| w.len()),
                     )
                 }
-                CalibPart::Fppn | CalibPart::Fppn2Phase => (
+                CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => (
                     Some(vec![self.validity.rows, self.validity.cols]),
                     part.algorithm(),
                     None,
@@ -602,6 +647,8 @@ impl CalibrationSet {
                 algorithm,
                 lut_size,
                 distance_m: src.distance_m,
+                reflectivity: src.reflectivity,
+                exposure_us: src.exposure_us,
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
                 source_recording: src.recording,
@@ -616,6 +663,7 @@ impl CalibrationSet {
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
                 CalibPart::Fppn => t.fppn = Some(pt),
                 CalibPart::Fppn2Phase => t.fppn_2phase = Some(pt),
+                CalibPart::Amplitude => t.amplitude = Some(pt),
             }
         }
         let path = dir.join(CALIBRATION_TOML);
@@ -661,6 +709,7 @@ impl CalibrationSet {
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
             (CalibPart::Fppn, &t.fppn),
             (CalibPart::Fppn2Phase, &t.fppn_2phase),
+            (CalibPart::Amplitude, &t.amplitude),
         ];
         for (part, pt) in parts {
             let Some(pt) = pt else { continue };
@@ -670,6 +719,14 @@ impl CalibrationSet {
             match (part, arr) {
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
+                }
+                (CalibPart::Amplitude, LoadedArray::Map(a)) => {
+                    if let Some(v) = a.iter().find(|v| **v < 0.0) {
+                        return Err(invalid(format!("amplitude scale {v} is negative"))
+                            .at(&dir.join(&pt.file))
+                            .key(key));
+                    }
+                    set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
                 }
                 (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
                     let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
@@ -747,6 +804,8 @@ impl CalibrationSet {
                     recording_description: pt.source_description.clone(),
                     captures: pt.source_captures.clone(),
                     distance_m: pt.distance_m,
+                    reflectivity: pt.reflectivity,
+                    exposure_us: pt.exposure_us,
                     created: pt.created.clone(),
                     tool: pt.tool.clone(),
                 },
@@ -846,7 +905,7 @@ fn load_part(
             .key(key));
     }
     match part {
-        CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase => {
+        CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => {
             let a = a.into_dimensionality::<Ix2>().map_err(|_| {
                 invalid(format!(
                     "expected a (rows, cols) = ({}, {}) map, found shape {}",

@@ -48,6 +48,8 @@ enum Command {
     Record(cmd::daemon::RecordArgs),
     /// Run the daemon loop against the emulated device with injected faults.
     Soak(cmd::daemon::SoakArgs),
+    /// Run the scene catalogue through the emulated device and the daemon loop (virtual time).
+    Scenes(cmd::daemon::ScenesArgs),
 }
 
 fn main() -> ExitCode {
@@ -73,6 +75,7 @@ fn main() -> ExitCode {
         Command::Status(a) => cmd::daemon::status(a),
         Command::Record(a) => cmd::daemon::record(a),
         Command::Soak(a) => cmd::daemon::soak(a),
+        Command::Scenes(a) => cmd::daemon::scenes(a),
     };
     match result {
         Ok(code) => code,

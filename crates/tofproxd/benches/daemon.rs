@@ -11,13 +11,12 @@
 //! RSS and timer wake-ups are measured on the running binary: `benches/wakeups.sh`.
 
 use std::sync::Arc;
-use std::time::Duration;
 
 use divan::Bencher;
-use tofprox_bridge::{CycleOutput, StateTimings};
 use tofproxd::config::{Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
-use tofproxd::source::{CycleRequest, FrameSource, RawCycle, SourceError, synth_frames};
+use tofproxd::energy::CycleTimings;
+use tofproxd::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, synth_frames};
 
 const ROWS: usize = 172;
 const COLS: usize = 224;
@@ -60,16 +59,11 @@ fn full_frame_config() -> Config {
 fn controller_cycle_2phase_full_frame(b: Bencher) {
     let (frames, phases_deg) = synth_frames(Mode::TwoPhase, ROWS, COLS, 600.0, 300.0, 0.0, 80e6);
     let cycle = RawCycle {
-        capture: CycleOutput {
-            illuminated: vec![true; phases_deg.len()],
-            frames,
-            phases_deg,
-            exposure_us: 100.0,
-            geometry: tofprox_core::SensorGeometry::full(ROWS, COLS, 12, 80e6),
-            timings: StateTimings::default(),
-            flash_written: false,
-            captured_at: Duration::ZERO,
-        },
+        frames: RawImages::U16(frames),
+        phases_deg,
+        exposure_us: 100.0,
+        geometry: tofprox_core::SensorGeometry::full(ROWS, COLS, 12, 80e6),
+        timings: Some(CycleTimings::default()),
         timestamp_ns: 0,
     };
     let mut ctl = Controller::new(

@@ -1,21 +1,18 @@
 //! Concrete frame sources: the bridge's [`SensorDriver`] over USB or over the
 //! emulated device, and replay of a version 1 recording.
 
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Arc;
-use std::time::Duration;
-
-use ndarray::Array3;
-use serde::{Deserialize, Serialize};
 use tofprox_bridge::{
-    BridgeError, Clock, CycleOutput, DriverConfig, DriverConfigFile,
-    EmulatedConfig as BridgeEmulatedConfig, EmulatedDevice, ErrorKind, SensorDriver, SensorMode,
-    StateTimings, SystemClock, UsbTransport, VirtualClock,
+    BridgeError, Clock, DriverConfig, DriverConfigFile, EmulatedConfig as BridgeEmulatedConfig,
+    EmulatedDevice, ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
 };
 use tofprox_format::{RawFrames, Recording};
 
 use crate::config::{Backend, Config};
-use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
+use crate::energy::CycleTimings;
+use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
 /// The emulated device: a path to a bridge config file, or the table inline.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -66,8 +63,8 @@ pub fn chain(e: &dyn std::error::Error) -> String {
     s
 }
 
-/// Map a bridge error to the loop's kinds (context kept in the message).
-pub fn map_bridge_error(e: &BridgeError) -> SourceError {
+/// Map a bridge error to the loop's kinds; the bridge error stays the `source()`.
+pub fn map_bridge_error(e: BridgeError) -> SourceError {
     let kind = match e.kind() {
         ErrorKind::Disconnected | ErrorKind::NotFound | ErrorKind::Access => {
             SourceErrorKind::Disconnected
@@ -80,7 +77,7 @@ pub fn map_bridge_error(e: &BridgeError) -> SourceError {
         ErrorKind::Config => SourceErrorKind::Unsupported,
         _ => SourceErrorKind::Other,
     };
-    SourceError::new(kind, format!("{} ({})", chain(e), e.kind().as_str()))
+    SourceError::new(kind, format!("{} ({})", chain(&e), e.kind().as_str())).with_source(e)
 }
 
 /// The sensor through the bridge's driver stack.
@@ -116,15 +113,19 @@ impl<T: UsbTransport> BridgeSource<T> {
 impl<T: UsbTransport> FrameSource for BridgeSource<T> {
     fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
         let breq = req.map_mode(SensorMode::from);
-        let out = self.driver.cycle(&breq).map_err(|e| map_bridge_error(&e))?;
+        let out = self.driver.cycle(&breq).map_err(map_bridge_error)?;
         Ok(RawCycle {
-            capture: out,
+            geometry: out.geometry,
+            timings: Some(CycleTimings::from(&out.timings)),
+            frames: RawImages::U16(out.frames),
+            phases_deg: out.phases_deg,
+            exposure_us: out.exposure_us,
             timestamp_ns: u64::try_from(self.clock.now().as_nanos()).unwrap_or(u64::MAX),
         })
     }
 
     fn power_off(&mut self) -> Result<(), SourceError> {
-        self.driver.power_off().map_err(|e| map_bridge_error(&e))
+        self.driver.power_off().map_err(map_bridge_error)
     }
 
     fn supports_row_window(&self) -> bool {
@@ -202,24 +203,13 @@ impl ReplaySource {
     }
 }
 
-fn to_u16(frames: RawFrames, adc_bits: u8) -> Array3<u16> {
-    let max = f64::from(tofprox_core::sensor::adc_max_code(adc_bits));
+/// A recording's frames as the loop takes them: codes stay codes, averaged codes stay floats
+/// (f64 narrowed to f32, the pipeline's working precision — as `tofprox process` does).
+fn raw_images(frames: RawFrames) -> RawImages {
     match frames {
-        RawFrames::U16(a) => a,
-        RawFrames::F32(a) => a.mapv(|v| {
-            if v.is_finite() {
-                f64::from(v).round().clamp(0.0, max) as u16
-            } else {
-                0
-            }
-        }),
-        RawFrames::F64(a) => a.mapv(|v| {
-            if v.is_finite() {
-                v.round().clamp(0.0, max) as u16
-            } else {
-                0
-            }
-        }),
+        RawFrames::U16(a) => RawImages::U16(a),
+        RawFrames::F32(a) => RawImages::F32(a),
+        RawFrames::F64(a) => RawImages::F32(a.mapv(|v| v as f32)),
     }
 }
 
@@ -247,26 +237,14 @@ impl FrameSource for ReplaySource {
                 format!("replay capture {idx}: {e}"),
             )
         })?;
-        let frames = to_u16(frames, sensor.adc_bits);
-        let k = frames.dim().0 as u32;
-        let exposure = Duration::from_secs_f64(f64::from(k) * meta.exposure_us.max(0.0) / 1e6);
-        let timestamp_ns = meta.timestamp_ns.unwrap_or(idx as u64);
         Ok(RawCycle {
-            capture: CycleOutput {
-                illuminated: vec![meta.illumination; meta.phases_deg.len()],
-                frames,
-                phases_deg: meta.phases_deg,
-                exposure_us: meta.exposure_us,
-                geometry: sensor,
-                timings: StateTimings {
-                    exposure,
-                    total: exposure,
-                    ..StateTimings::default()
-                },
-                flash_written: false,
-                captured_at: Duration::from_nanos(timestamp_ns),
-            },
-            timestamp_ns,
+            frames: raw_images(frames),
+            phases_deg: meta.phases_deg,
+            exposure_us: meta.exposure_us,
+            geometry: sensor,
+            // A recording holds no state timings: none are invented.
+            timings: None,
+            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
         })
     }
 
@@ -396,8 +374,8 @@ pub struct UsbSource {
 impl UsbSource {
     fn inner(&mut self) -> Result<&mut BridgeSource<tofprox_bridge::RusbTransport>, SourceError> {
         if self.inner.is_none() {
-            let transport = tofprox_bridge::RusbTransport::open(self.sel.clone())
-                .map_err(|e| map_bridge_error(&e))?;
+            let transport =
+                tofprox_bridge::RusbTransport::open(self.sel.clone()).map_err(map_bridge_error)?;
             let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
             let driver =
                 SensorDriver::new(transport, self.dcfg.clone(), clock.clone()).map_err(|e| {
@@ -484,6 +462,16 @@ mod tests {
         let msg = build_err(&usb_config(&zero_poll)).to_string();
         assert!(msg.contains("usb.driver_config"), "{msg}");
         assert!(msg.contains("poll_interval_us"), "{msg}");
+    }
+
+    #[test]
+    fn bridge_errors_keep_their_kind_and_stay_the_source() {
+        use std::error::Error as _;
+        let e = map_bridge_error(BridgeError::new(ErrorKind::Timeout, "bulk read of frame 3"));
+        assert_eq!(e.kind(), SourceErrorKind::Timeout);
+        let src = e.source().expect("the bridge error is the source");
+        assert!(src.to_string().contains("bulk read of frame 3"), "{src}");
+        assert!(e.to_string().contains("bulk read of frame 3"), "{e}");
     }
 
     #[test]

@@ -58,8 +58,16 @@ pub fn load_for(
             cfg.processing.mode.as_str()
         )));
     }
+    if set.amplitude.is_none() {
+        tracing::warn!(
+            "calibration {} has no amplitude part (`tofprox calibrate wiggling` writes it): near readings are checked against the nominal amplitude scale proximity.nominal_amplitude_scale = {}",
+            dir.display(),
+            cfg.proximity.nominal_amplitude_scale
+        );
+    }
     Ok(ModeCalibrations {
         two_phase: set.to_pipeline_calibration(Algorithm::TwoPhase),
         four_phase: set.to_pipeline_calibration(Algorithm::FourPhase),
+        amplitude: set.amplitude.clone(),
     })
 }

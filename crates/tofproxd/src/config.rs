@@ -124,6 +124,9 @@ pub struct LoopConfig {
     pub retry_ms: u64,
     /// Consecutive failed cycles after which `State` becomes `unavailable`.
     pub unavailable_after: u32,
+    /// How long (ms) a published Near is held across failed cycles without a valid reading;
+    /// then Near is released (far). Holding near during a call is the safe side, for ever is not.
+    pub near_hold_ms: u64,
     /// Bounded wait of `ClaimProximity` for the first valid reading (ms).
     pub first_reading_timeout_ms: u64,
 }
@@ -140,6 +143,7 @@ impl Default for LoopConfig {
             approach_mm_per_s: 150.0,
             retry_ms: 200,
             unavailable_after: 5,
+            near_hold_ms: 1000,
             first_reading_timeout_ms: 3000,
         }
     }
@@ -184,6 +188,17 @@ pub struct ProximityConfig {
     pub min_valid_fraction: f32,
     /// Region of interest `[row0, col0, rows, cols]`; empty: the central quarter.
     pub roi: Option<[usize; 4]>,
+    /// Darkest target reflectivity a reading below `far_mm` must be plausible for (thesis
+    /// 2.2.1, `A = K·ρ·t/d²`; `tofprox_core::radiometry`): a dimmer return is a wrapped far
+    /// target or stray light, not a target.
+    pub reflectivity_floor: f64,
+    /// Depth uncertainty (mm) the plausibility test allows: the near hypothesis is tested at
+    /// the measured depth plus this.
+    pub depth_uncertainty_mm: u32,
+    /// Amplitude scale `K` (LSB·m²/µs) used when the calibration set has no `amplitude` part
+    /// (status `AmplitudeCheck = "nominal"`). The default is the emulated IRS1645-class module
+    /// (2 W VCSEL) as `tofprox calibrate wiggling` measures it.
+    pub nominal_amplitude_scale: f64,
 }
 
 impl Default for ProximityConfig {
@@ -194,9 +209,16 @@ impl Default for ProximityConfig {
             far_debounce: 3,
             min_valid_fraction: 0.3,
             roi: None,
+            reflectivity_floor: tofprox_core::radiometry::DEFAULT_REFLECTIVITY_FLOOR,
+            depth_uncertainty_mm: 30,
+            nominal_amplitude_scale: NOMINAL_AMPLITUDE_SCALE,
         }
     }
 }
+
+/// Default of `proximity.nominal_amplitude_scale` (LSB·m²/µs): the emulated sensor's median
+/// scale from its factory calibration (`tofprox info calib/emulated`).
+pub const NOMINAL_AMPLITUDE_SCALE: f64 = 0.09;
 
 /// `[ambient]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -288,8 +310,13 @@ impl Default for ReadoutConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EnergyConfig {
-    /// Power while exposing one raw image (mW).
-    pub capture_mw: f64,
+    /// Power while exposing, mode 2 of table 3.1 (2 raw images: 2-phase), mW.
+    pub capture_mw_mode2: f64,
+    /// Power while exposing, mode 5 of table 3.1 (4 phase images + grey: 4-phase), mW.
+    pub capture_mw_mode5: f64,
+    /// Power while exposing, mode 9 of table 3.1 (2 × 4 phase images + grey: two
+    /// frequencies), mW.
+    pub capture_mw_mode9: f64,
     /// Energy to read out and transfer one raw image (mJ).
     pub readout_mj_per_image: f64,
     /// Power while powered but idle (mW).
@@ -306,10 +333,25 @@ pub struct EnergyConfig {
     pub average_cycles: u32,
 }
 
+impl EnergyConfig {
+    /// Power while exposing a measurement of `raw_images` images (thesis table 3.1: the row of
+    /// the use case the measurement belongs to — up to 2 images mode 2, up to 5 mode 5, more
+    /// mode 9), mW.
+    pub fn capture_mw(&self, raw_images: u32) -> f64 {
+        match raw_images {
+            0..=2 => self.capture_mw_mode2,
+            3..=5 => self.capture_mw_mode5,
+            _ => self.capture_mw_mode9,
+        }
+    }
+}
+
 impl Default for EnergyConfig {
     fn default() -> Self {
         Self {
-            capture_mw: 290.0,
+            capture_mw_mode2: 290.0,
+            capture_mw_mode5: 384.0,
+            capture_mw_mode9: 411.0,
             readout_mj_per_image: 0.3445,
             idle_mw: 9.9,
             off_mw: 0.01,
@@ -509,6 +551,11 @@ impl Config {
             "must be within 1..=60000",
         )?;
         range(
+            "loop.near_hold_ms",
+            l.near_hold_ms <= 60_000,
+            "must be at most 60000",
+        )?;
+        range(
             "loop.unavailable_after",
             l.unavailable_after >= 1,
             "must be at least 1",
@@ -551,6 +598,23 @@ impl Config {
             "must be within 1..=1000",
         )?;
         fraction("proximity.min_valid_fraction", x.min_valid_fraction)?;
+        range(
+            "proximity.reflectivity_floor",
+            x.reflectivity_floor.is_finite()
+                && x.reflectivity_floor > 0.0
+                && x.reflectivity_floor < 1.0,
+            "must be within (0, 1)",
+        )?;
+        range(
+            "proximity.depth_uncertainty_mm",
+            x.depth_uncertainty_mm <= 1000,
+            "must be at most 1000",
+        )?;
+        range(
+            "proximity.nominal_amplitude_scale",
+            x.nominal_amplitude_scale.is_finite() && x.nominal_amplitude_scale > 0.0,
+            "must be > 0",
+        )?;
         if let Some([_, _, rows, cols]) = x.roi {
             range(
                 "proximity.roi",
@@ -605,7 +669,9 @@ impl Config {
             "must be within (1, 10]",
         )?;
         let en = &self.energy;
-        non_neg("energy.capture_mw", en.capture_mw)?;
+        non_neg("energy.capture_mw_mode2", en.capture_mw_mode2)?;
+        non_neg("energy.capture_mw_mode5", en.capture_mw_mode5)?;
+        non_neg("energy.capture_mw_mode9", en.capture_mw_mode9)?;
         non_neg("energy.readout_mj_per_image", en.readout_mj_per_image)?;
         non_neg("energy.idle_mw", en.idle_mw)?;
         non_neg("energy.off_mw", en.off_mw)?;

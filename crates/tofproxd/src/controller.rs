@@ -8,18 +8,21 @@
 use std::time::Duration;
 
 use ndarray::{ArrayView3, Axis, s};
-use tofprox_bridge::CycleOutput;
 use tofprox_core::Algorithm;
 use tofprox_core::SensorGeometry;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
+    RawSample,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
 
 use crate::config::{Config, Mode};
 use crate::energy::{EnergyMeter, cycle_energy};
 use crate::service::{DepthMessage, State, StatusUpdate};
-use crate::source::{CycleRequest, FrameSource, RawCycle, RowWindow, SourceError, SourceErrorKind};
+use crate::source::{
+    CycleRequest, FrameSource, RawCycle, RawImages, RowWindow, SourceError, SourceErrorKind,
+};
 
 /// Full-frame calibrations per mode (cropped to the read-out window on use).
 #[derive(Debug, Clone, Default)]
@@ -28,7 +31,13 @@ pub struct ModeCalibrations {
     pub two_phase: Calibration,
     /// For 4-phase processing.
     pub four_phase: Calibration,
+    /// Amplitude scale of the `1/d²` law (thesis 2.2.1); `None`: the nominal scale of the config.
+    pub amplitude: Option<AmplitudeScale>,
 }
+
+/// `DistanceMm` of a valid reading with nothing in range (no target, or only returns no real
+/// target near the sensor could give): the largest value, so `DistanceMm < threshold` is false.
+pub const DISTANCE_BEYOND_RANGE_MM: u32 = u32::MAX;
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -79,6 +88,8 @@ pub struct Controller<S: FrameSource> {
     pipe2: Option<(SensorGeometry, Pipeline)>,
     pipe4: Option<(SensorGeometry, Pipeline)>,
     detector: Option<(SensorGeometry, NearFarDetector)>,
+    /// Amplitude scale cropped to the current read-out window.
+    amp_scale: Option<(SensorGeometry, ndarray::Array2<f32>)>,
     /// Current processing mode.
     mode: Mode,
     exposure_us: f64,
@@ -88,6 +99,11 @@ pub struct Controller<S: FrameSource> {
     cycles_since_probe: u32,
     ambient_low_count: u32,
     consecutive_failures: u32,
+    /// Time since the last valid reading (sum of the sleeps and cycles since), for the bound
+    /// on holding Near across failures.
+    since_valid: Duration,
+    /// The sleep scheduled after the previous step.
+    last_sleep: Duration,
     partial_ok: bool,
     energy: EnergyMeter,
     near: bool,
@@ -148,11 +164,14 @@ impl<S: FrameSource> Controller<S> {
             pipe2: None,
             pipe4: None,
             detector: None,
+            amp_scale: None,
             still_count: 0,
             last_distance: None,
             cycles_since_probe: 0,
             ambient_low_count: 0,
             consecutive_failures: 0,
+            since_valid: Duration::ZERO,
+            last_sleep: Duration::ZERO,
             partial_ok: true,
             near: false,
             running: false,
@@ -279,22 +298,63 @@ impl<S: FrameSource> Controller<S> {
                 self.consecutive_failures
             );
         }
-        // Near is not changed by a failed cycle: no information, and never a false near.
+        let near_update = self.no_reading();
+        let sleep = Duration::from_millis(self.cfg.loop_.retry_ms);
+        self.last_sleep = sleep;
         StepOutcome {
             update: StatusUpdate {
                 state: Some(state),
+                near: near_update,
                 last_error: Some(self.last_error.clone()),
                 has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
                 cycle: true,
                 error: true,
                 ..StatusUpdate::default()
             },
-            sleep: Duration::from_millis(self.cfg.loop_.retry_ms),
+            sleep,
             end_of_data: err.kind() == SourceErrorKind::EndOfData,
             near: self.near,
             error: Some(err),
             ..StepOutcome::default()
         }
+    }
+
+    /// A cycle without a reading (failed, or nothing usable in it) carries no information:
+    /// Near is held, but only for `loop.near_hold_ms` since the last valid reading — then it is
+    /// released (never held for ever). Returns the new Near when it changed.
+    fn no_reading(&mut self) -> Option<bool> {
+        self.since_valid += self.last_sleep;
+        if self.near && self.since_valid >= Duration::from_millis(self.cfg.loop_.near_hold_ms) {
+            tracing::info!(
+                "no valid reading for {} ms: Near released",
+                self.since_valid.as_millis()
+            );
+            self.near = false;
+            if let Some((_, d)) = &mut self.detector {
+                d.reset();
+            }
+            return Some(false);
+        }
+        None
+    }
+
+    /// The sleep after a cycle that was active for `active`: the rest of the period, none when
+    /// replaying a recording as fast as possible.
+    fn sleep_after(&self, active: Duration) -> Duration {
+        if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
+        }
+    }
+
+    /// Account the energy of a captured cycle (read-out scaled by `rows_fraction`) and the
+    /// sleep after it.
+    fn account_energy(&mut self, cycle: &RawCycle, rows_fraction: f64, sleep: Duration) {
+        let t = cycle.timings();
+        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
+        let e = cycle_energy(&self.cfg.energy, &t, k, cycle.exposure_us, rows_fraction);
+        self.energy.record(&e, t.active(), sleep);
     }
 
     /// One cycle. `want_depth`: build a depth message.
@@ -320,11 +380,11 @@ impl<S: FrameSource> Controller<S> {
                 return self.fail(e);
             }
         };
-        let captured = match check_cycle(&cycle.capture) {
+        let captured = match check_cycle(&cycle) {
             Ok(m) => m,
             Err(e) => return self.fail(e),
         };
-        if rails_only(&cycle.capture) {
+        if rails_only(&cycle) {
             return self.rails_cycle(&cycle);
         }
         if probe || captured == Mode::FourPhase {
@@ -345,7 +405,7 @@ impl<S: FrameSource> Controller<S> {
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
         // Pipelines and the detector are rebuilt when this changes.
-        let g = cycle.capture.geometry;
+        let g = cycle.geometry;
         let (rows, cols) = (g.rows, g.cols);
         // ROI in this frame's coordinates.
         let roi_full = full_roi(&self.cfg, g.full_rows, g.full_cols);
@@ -368,12 +428,15 @@ impl<S: FrameSource> Controller<S> {
         let mut ambient_high = None;
         if captured == Mode::FourPhase {
             let dark = self.dark_level(g, roi);
-            let ind = common_mode_lsb(cycle.capture.frames.view(), roi, dark);
+            let ind = match &cycle.frames {
+                RawImages::U16(a) => common_mode_lsb(a.view(), roi, dark),
+                RawImages::F32(a) => common_mode_lsb(a.view(), roi, dark),
+            };
             self.ambient_lsb = Some(ind);
             ambient_high = Some(ind);
         }
 
-        let frames = cycle.capture.frames.view();
+        let frames = &cycle.frames;
         let min_amp = self.cfg.processing.min_amplitude_lsb;
         let mut discrepancy_mm: Option<f64> = None;
         if captured == Mode::FourPhase && self.cfg.ambient.enabled {
@@ -386,9 +449,7 @@ impl<S: FrameSource> Controller<S> {
                     Mode::TwoPhase,
                     g,
                 )?;
-                let f = p.process(frames.slice(s![0..2, .., ..])).map_err(|e| {
-                    SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-                })?;
+                let f = process_images(p, frames, 2)?;
                 roi_median_mm(f, roi)
             };
             let p4 = pipeline_slot(
@@ -398,9 +459,7 @@ impl<S: FrameSource> Controller<S> {
                 Mode::FourPhase,
                 g,
             )?;
-            let f4 = p4.process(frames).map_err(|e| {
-                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-            })?;
+            let f4 = process_images(p4, frames, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
                 discrepancy_mm = Some((a - b).abs());
             }
@@ -422,13 +481,29 @@ impl<S: FrameSource> Controller<S> {
                 g,
             )?,
         };
-        let frame = if proc_mode == Mode::FourPhase && self.cfg.ambient.enabled {
-            pipe.frame()
-        } else {
-            pipe.process(frames).map_err(|e| {
-                SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}"))
-            })?
+        if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
+            let k = frames.dim().0;
+            process_images(pipe, frames, k)?;
+        }
+        // No near from a wrapped phase: a near depth needs the amplitude of a real target
+        // (thesis 2.2.1, 1/d²).
+        let scale = amplitude_scale_slot(
+            &mut self.amp_scale,
+            self.calib.amplitude.as_ref(),
+            self.cfg.proximity.nominal_amplitude_scale,
+            g,
+        )?;
+        let plaus = NearPlausibility {
+            reflectivity_floor: self.cfg.proximity.reflectivity_floor,
+            depth_uncertainty_m: f64::from(self.cfg.proximity.depth_uncertainty_mm) / 1e3,
+            check_below_m: f64::from(self.cfg.proximity.far_mm) / 1e3,
         };
+        let implausible =
+            flag_implausible_near(pipe.frame_mut(), scale.view(), cycle.exposure_us, &plaus);
+        if let Some(n) = implausible.filter(|&n| n > 0) {
+            tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
+        }
+        let frame = pipe.frame();
         let stats = roi_stats(frame, roi);
         let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
 
@@ -449,12 +524,14 @@ impl<S: FrameSource> Controller<S> {
             Some((_, d)) => d.update(frame),
             None => return Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
         };
-        let valid = reading.distance_mm.is_some() || reading.near;
+        // Nothing in range is a reading too: far, DistanceMm "beyond range".
+        let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
         // Near from saturation (target too close/bright to measure): the statistic of the
         // remaining valid pixels is the background, not the target — publish "unknown" (0).
         let shown_mm = match reading.distance_mm {
             Some(d) if reading.near && d >= self.cfg.proximity.far_mm => 0,
             Some(d) => d,
+            None if reading.no_target && !reading.near => DISTANCE_BEYOND_RANGE_MM,
             None => 0,
         };
 
@@ -538,29 +615,19 @@ impl<S: FrameSource> Controller<S> {
         }
 
         // Energy of this cycle + the sleep that follows (sensor in reset).
-        let active = cycle.timings().active();
-        let sleep =
-            if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
-                Duration::ZERO
-            } else {
-                Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
-            };
-        let rows_fraction = if cycle.capture.geometry.full_rows > 0 {
-            rows as f64 / cycle.capture.geometry.full_rows as f64
+        let sleep = self.sleep_after(cycle.timings().active());
+        let rows_fraction = if g.full_rows > 0 {
+            rows as f64 / g.full_rows as f64
         } else {
             1.0
         };
-        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(
-            &self.cfg.energy,
-            &cycle.timings(),
-            k,
-            cycle.capture.exposure_us,
-            rows_fraction,
-        );
-        self.energy.record(&e, active, sleep);
+        self.account_energy(cycle, rows_fraction, sleep);
 
         self.consecutive_failures = 0;
+        self.last_sleep = sleep;
+        if valid {
+            self.since_valid = Duration::ZERO;
+        }
         let was_error = !self.last_error.is_empty();
         self.last_error.clear();
         if valid {
@@ -578,6 +645,11 @@ impl<S: FrameSource> Controller<S> {
                 last_error: was_error.then(String::new),
                 exposure_us: Some(self.exposure_us),
                 has_sensor: Some(true),
+                amplitude_check: Some(if self.calib.amplitude.is_some() {
+                    "calibrated"
+                } else {
+                    "nominal"
+                }),
                 valid_reading: valid,
                 cycle: true,
                 error: false,
@@ -602,20 +674,19 @@ impl<S: FrameSource> Controller<S> {
             let e = &self.cfg.exposure;
             self.exposure_us = (self.exposure_us / e.step).clamp(e.min_us, e.max_us);
         }
-        let active = cycle.timings().active();
-        let sleep = Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active);
-        let k = u32::try_from(cycle.capture.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(
-            &self.cfg.energy,
-            &cycle.timings(),
-            k,
-            cycle.capture.exposure_us,
-            1.0,
-        );
-        self.energy.record(&e, active, sleep);
+        let near_update = self.no_reading();
+        let sleep = self.sleep_after(cycle.timings().active());
+        let rows_fraction = if cycle.geometry.full_rows > 0 {
+            cycle.frames.dim().1 as f64 / cycle.geometry.full_rows as f64
+        } else {
+            1.0
+        };
+        self.account_energy(cycle, rows_fraction, sleep);
+        self.last_sleep = sleep;
         tracing::debug!("frame without usable codes (all on the rails): no reading");
         StepOutcome {
             update: StatusUpdate {
+                near: near_update,
                 exposure_us: Some(self.exposure_us),
                 power_mw: Some(self.energy.average_mw()),
                 cycle: true,
@@ -650,8 +721,9 @@ impl<S: FrameSource> Controller<S> {
 
 /// Validate a cycle's shape and reject dead frames (every code of every raw image on a
 /// rail): such a frame never reaches the detector (it would read as saturated = near).
-fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
+fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
     let (k, rows, cols) = c.frames.dim();
+    let g = &c.geometry;
     let bad = |m: String| Err(SourceError::new(SourceErrorKind::CorruptFrame, m));
     if rows == 0 || cols == 0 {
         return bad("empty frame".into());
@@ -659,7 +731,6 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     if c.phases_deg.len() != k {
         return bad(format!("{k} raw images but {} phases", c.phases_deg.len()));
     }
-    let g = &c.geometry;
     if let Err(e) = g.validate() {
         return bad(format!("bad sensor geometry: {e}"));
     }
@@ -683,8 +754,8 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
     };
-    let max = u16::try_from(g.max_code()).unwrap_or(u16::MAX);
-    if c.frames.iter().any(|&v| v > max) {
+    let max = g.max_code() as f32;
+    if c.frames.any(|v| v > max) {
         return bad(format!("code above the {}-bit range", g.adc_bits));
     }
     Ok(mode)
@@ -718,29 +789,74 @@ fn pipeline_slot<'a>(
 }
 
 /// Whether every code of every raw image is 0 or full scale.
-fn rails_only(c: &CycleOutput) -> bool {
-    let max = u16::try_from(c.geometry.max_code()).unwrap_or(u16::MAX);
-    c.frames.iter().all(|&v| v == 0 || v >= max)
+fn rails_only(c: &RawCycle) -> bool {
+    let max = c.geometry.max_code() as f32;
+    !c.frames.any(|v| v > 0.0 && v < max)
+}
+
+/// Run a pipeline on the first `k` raw images, whatever their sample type.
+fn process_images<'p>(
+    p: &'p mut Pipeline,
+    frames: &RawImages,
+    k: usize,
+) -> Result<&'p DepthFrame, SourceError> {
+    let r = match frames {
+        RawImages::U16(a) => p.process(a.slice(s![0..k, .., ..])),
+        RawImages::F32(a) => p.process(a.slice(s![0..k, .., ..])),
+    };
+    r.map_err(|e| SourceError::new(SourceErrorKind::CorruptFrame, format!("processing: {e}")))
+}
+
+/// The amplitude scale for the frame's window: the calibration's map cropped, or the nominal
+/// scale everywhere.
+fn amplitude_scale_slot<'a>(
+    slot: &'a mut Option<(SensorGeometry, ndarray::Array2<f32>)>,
+    full: Option<&AmplitudeScale>,
+    nominal: f64,
+    g: SensorGeometry,
+) -> Result<&'a ndarray::Array2<f32>, SourceError> {
+    if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
+        let map = match full {
+            Some(a) => crop_map(&a.lsb_m2_per_us, g, "amplitude")
+                .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?,
+            None => AmplitudeScale::uniform(g.rows, g.cols, nominal as f32).lsb_m2_per_us,
+        };
+        *slot = Some((g, map));
+    }
+    match slot {
+        Some((_, m)) => Ok(m),
+        None => Err(SourceError::new(
+            SourceErrorKind::Other,
+            "amplitude scale missing",
+        )),
+    }
+}
+
+/// A full-array per-pixel map cropped to the frame's window.
+fn crop_map(
+    a: &ndarray::Array2<f32>,
+    g: SensorGeometry,
+    what: &str,
+) -> Result<ndarray::Array2<f32>, String> {
+    let [r0, c0] = g.roi_origin;
+    if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
+        return Ok(a.clone());
+    }
+    if r0 + g.rows > a.nrows() || c0 + g.cols > a.ncols() {
+        return Err(format!(
+            "{what} calibration is {}x{}, frame window {}x{} at {:?} does not fit",
+            a.nrows(),
+            a.ncols(),
+            g.rows,
+            g.cols,
+            g.roi_origin
+        ));
+    }
+    Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
 }
 
 fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, String> {
-    let [r0, c0] = g.roi_origin;
-    let crop = |a: &ndarray::Array2<f32>, what: &str| -> Result<ndarray::Array2<f32>, String> {
-        if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
-            return Ok(a.clone());
-        }
-        if r0 + g.rows > a.nrows() || c0 + g.cols > a.ncols() {
-            return Err(format!(
-                "{what} calibration is {}x{}, frame window {}x{} at {:?} does not fit",
-                a.nrows(),
-                a.ncols(),
-                g.rows,
-                g.cols,
-                g.roi_origin
-            ));
-        }
-        Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
-    };
+    let crop = |a: &ndarray::Array2<f32>, what: &str| crop_map(a, g, what);
     let mut out = full.clone();
     if let Some(o) = &mut out.offset {
         o.dark_lsb = crop(&o.dark_lsb, "offset")?;
@@ -751,7 +867,7 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
     Ok(out)
 }
 
-fn common_mode_lsb(frames: ArrayView3<'_, u16>, roi: Roi, dark: f32) -> f32 {
+fn common_mode_lsb<T: RawSample>(frames: ArrayView3<'_, T>, roi: Roi, dark: f32) -> f32 {
     let mut sum = 0.0f64;
     let mut n = 0usize;
     for img in frames.axis_iter(Axis(0)).take(4) {
@@ -760,7 +876,7 @@ fn common_mode_lsb(frames: ArrayView3<'_, u16>, roi: Roi, dark: f32) -> f32 {
             roi.col0..roi.col0 + roi.cols
         ]);
         for &x in v.iter() {
-            sum += f64::from(x);
+            sum += f64::from(x.to_f32());
             n += 1;
         }
     }

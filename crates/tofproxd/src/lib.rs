@@ -10,6 +10,7 @@ pub mod controller;
 pub mod energy;
 pub mod logging;
 pub mod run;
+pub mod scenes;
 pub mod service;
 pub mod soak;
 pub mod source;

@@ -105,6 +105,10 @@ pub struct Status {
     pub errors: u64,
     /// Backend description.
     pub backend: String,
+    /// How near readings are checked for plausibility (thesis 2.2.1): `"calibrated"` (the
+    /// calibration's amplitude scale), `"nominal"` (no amplitude calibration: the config's
+    /// nominal scale), `""` before the first cycle.
+    pub amplitude_check: &'static str,
 }
 
 /// Per-client claims.
@@ -171,6 +175,7 @@ impl Hub {
             valid_readings: 0,
             errors: 0,
             backend,
+            amplitude_check: "",
         };
         let hub = Arc::new(Self {
             inner: Mutex::new(HubInner {
@@ -423,6 +428,7 @@ impl Proximity {
         m.insert("ValidReadings".into(), OwnedVariant::from(s.valid_readings));
         m.insert("Errors".into(), OwnedVariant::from(s.errors));
         m.insert("Backend".into(), variant_str(&s.backend));
+        m.insert("AmplitudeCheck".into(), variant_str(s.amplitude_check));
         m.insert("Clients".into(), OwnedVariant::from(c.clients));
         m.insert(
             "ProximityClaims".into(),
@@ -450,7 +456,7 @@ impl Proximity {
         self.hub.status().near
     }
 
-    /// Distance of the ROI (mm, 0 = unknown). No change signal: poll it.
+    /// Distance of the ROI (mm, 0 = unknown, 4294967295 = nothing in range: a valid far reading). No change signal: poll it.
     #[zbus(property(emits_changed_signal = "false"))]
     fn distance_mm(&self) -> u32 {
         self.hub.status().distance_mm
@@ -661,6 +667,8 @@ pub struct StatusUpdate {
     pub exposure_us: Option<f64>,
     /// New has_sensor.
     pub has_sensor: Option<bool>,
+    /// How near readings are checked (see [`Status::amplitude_check`]).
+    pub amplitude_check: Option<&'static str>,
     /// This update carries a valid reading.
     pub valid_reading: bool,
     /// This update is one completed cycle (counts).
@@ -759,6 +767,9 @@ pub async fn run_publisher(
                     }
                     if let Some(v) = u.has_sensor {
                         s.has_sensor = v;
+                    }
+                    if let Some(v) = u.amplitude_check {
+                        s.amplitude_check = v;
                     }
                     if u.cycle {
                         s.cycles += 1;

@@ -51,8 +51,15 @@ pub struct SoakReport {
     pub faults_injected: u64,
     /// Failure episodes that ended in a good reading.
     pub recovered: u64,
-    /// Near published while the scripted truth was beyond the far threshold for the whole debounce window.
+    /// Valid readings that published Near while the scripted truth was beyond the far threshold
+    /// for the whole debounce window (the last `far_debounce + 2` valid readings): switched to
+    /// (or kept) near on a wrong reading. Must be 0.
     pub false_near: u64,
+    /// Failed cycles across which a Near of a hand that has since left was held (bounded by
+    /// `loop.near_hold_ms`; the safe side, counted apart from `false_near`).
+    pub held_over_failure: u64,
+    /// Longest time (ms, virtual) Near was held across failures without a valid reading.
+    pub max_hold_ms: u64,
     /// Panics caught in the loop.
     pub panics: u64,
     /// Longest recovery: cycles from the last injected fault of an episode to the next good reading.
@@ -135,6 +142,8 @@ pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
     let mut since_last_fault: u64 = 0;
     let mut last_near = false;
     let mut faults_before = 0u64;
+    // Virtual time of the first cycle without a valid reading while Near was published.
+    let mut hold_started: Option<f64> = None;
     for i in 0..sc.cycles {
         if i == 20 {
             rep.rss_kb_start = rss_kb();
@@ -156,12 +165,28 @@ pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
         let d = scene
             .centre_distance_m(t_before)
             .min(scene.centre_distance_m(t_after));
-        truth.push_back(d);
-        while truth.len() > window {
-            truth.pop_front();
+        // The window is over valid readings: the far debounce counts readings, and a failed
+        // cycle between them neither advances nor breaks it.
+        if out.valid {
+            truth.push_back(d);
+            while truth.len() > window {
+                truth.pop_front();
+            }
         }
-        if out.near && truth.len() == window && truth.iter().all(|&d| d > far_m + 0.05) {
-            rep.false_near += 1;
+        let truth_far = truth.len() == window && truth.iter().all(|&d| d > far_m + 0.05);
+        if out.near && truth_far && d > far_m + 0.05 {
+            if out.valid {
+                rep.false_near += 1;
+            } else {
+                rep.held_over_failure += 1;
+            }
+        }
+        if out.valid || !out.near {
+            hold_started = None;
+        } else {
+            let t0 = *hold_started.get_or_insert(t_before);
+            let held_ms = ((t_after - t0) * 1e3).round() as u64;
+            rep.max_hold_ms = rep.max_hold_ms.max(held_ms);
         }
         if out.near != last_near {
             rep.near_transitions += 1;

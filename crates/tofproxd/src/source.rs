@@ -7,9 +7,9 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
-use ndarray::Array3;
-use tofprox_bridge::{CycleOutput, StateTimings};
+use ndarray::{Array3, ArrayView3};
 use tofprox_core::SensorGeometry;
+use tofprox_core::pipeline::RawSample;
 
 use crate::config::Mode;
 use crate::energy::CycleTimings;
@@ -18,21 +18,61 @@ use crate::energy::CycleTimings;
 /// shared vocabulary of `tofprox-core`.
 pub use tofprox_core::{CycleRequest, RowWindow};
 
-/// One cycle's raw data: the bridge's [`CycleOutput`] (raw images, phases, exposure,
-/// window, ADC/modulation, state timings), filled by the driver for usb/emulated and
-/// from the recording for replay, plus the time stamp published with the reading.
+/// The raw images of one cycle `(K, rows, cols)` in the sample type the source delivers:
+/// ADC codes from a sensor, or a recording's averaged codes as floats — never rounded, so a
+/// replay processes the same numbers as `tofprox process` on the same file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RawImages {
+    /// ADC codes.
+    U16(Array3<u16>),
+    /// Averaged codes (f32 and f64 recordings).
+    F32(Array3<f32>),
+}
+
+impl RawImages {
+    /// `(K, rows, cols)`.
+    pub fn dim(&self) -> (usize, usize, usize) {
+        match self {
+            RawImages::U16(a) => a.dim(),
+            RawImages::F32(a) => a.dim(),
+        }
+    }
+
+    /// Whether any sample satisfies `f` (samples as `f32`, NaN/∞ kept).
+    pub fn any(&self, f: impl Fn(f32) -> bool) -> bool {
+        fn go<T: RawSample>(a: ArrayView3<'_, T>, f: impl Fn(f32) -> bool) -> bool {
+            a.iter().any(|&v| f(v.to_f32()))
+        }
+        match self {
+            RawImages::U16(a) => go(a.view(), f),
+            RawImages::F32(a) => go(a.view(), f),
+        }
+    }
+}
+
+/// One cycle's raw data, source-neutral: the raw images with their phases and exposure,
+/// the sensor geometry and read-out window, the state timings where the source measures them
+/// (a recording has none), and the time stamp published with the reading.
 #[derive(Debug, Clone)]
 pub struct RawCycle {
-    /// What the cycle captured, in the bridge's form.
-    pub capture: CycleOutput,
+    /// The raw images `(K, rows, cols)`.
+    pub frames: RawImages,
+    /// Phase shift of each raw image (degrees).
+    pub phases_deg: Vec<f64>,
+    /// Exposure per raw image (µs).
+    pub exposure_us: f64,
+    /// Sensor geometry and the window the images cover.
+    pub geometry: SensorGeometry,
+    /// Measured state durations (energy model), `None` when the source has none (replay).
+    pub timings: Option<CycleTimings>,
     /// Capture timestamp (ns, source clock).
     pub timestamp_ns: u64,
 }
 
 impl RawCycle {
-    /// State durations for the energy model.
+    /// State durations for the energy model (zero where the source measured none).
     pub fn timings(&self) -> CycleTimings {
-        CycleTimings::from(&self.capture.timings)
+        self.timings.unwrap_or_default()
     }
 }
 
@@ -76,12 +116,15 @@ impl SourceErrorKind {
     }
 }
 
-/// A failed cycle.
+/// A failed cycle: the loop's kind, a message, and the error it came from (e.g. the
+/// bridge's, with its own kind and chain) as its `source()`.
 #[derive(Debug, Clone, thiserror::Error)]
 #[error("{}: {message}", kind.as_str())]
 pub struct SourceError {
     kind: SourceErrorKind,
     message: String,
+    #[source]
+    source: Option<std::sync::Arc<dyn std::error::Error + Send + Sync + 'static>>,
 }
 
 impl SourceError {
@@ -90,7 +133,13 @@ impl SourceError {
         Self {
             kind,
             message: message.into(),
+            source: None,
         }
+    }
+    /// Keep `source` as the cause.
+    pub fn with_source(mut self, source: impl std::error::Error + Send + Sync + 'static) -> Self {
+        self.source = Some(std::sync::Arc::new(source));
+        self
     }
     /// The kind.
     pub fn kind(&self) -> SourceErrorKind {
@@ -250,14 +299,13 @@ impl FrameSource for ScriptedSource {
             _ => (0, self.rows),
         };
         let k = req.mode.raw_images() as u32;
-        let mut timings = StateTimings {
+        let timings = CycleTimings {
             startup: Duration::from_millis(1),
             config_load: Duration::from_millis(10),
             exposure: Duration::from_secs_f64(f64::from(k) * req.exposure_us / 1e6),
             readout: Duration::from_micros(2500 * u64::from(k)),
-            ..StateTimings::default()
+            ..CycleTimings::default()
         };
-        timings.total = timings.startup + timings.config_load + timings.exposure + timings.readout;
         let (frames, phases_deg) = match step {
             Step::Fail(kind) => return Err(SourceError::new(kind, "scripted failure")),
             Step::Target {
@@ -278,25 +326,21 @@ impl FrameSource for ScriptedSource {
                 (Array3::zeros((ph.len(), rows, self.cols)), ph)
             }
         };
+        let geometry = SensorGeometry {
+            rows,
+            cols: self.cols,
+            roi_origin: [row0, 0],
+            full_rows: self.rows,
+            full_cols: self.cols,
+            adc_bits: SYNTH_ADC_BITS,
+            modulation_hz: self.modulation_hz,
+        };
         Ok(RawCycle {
-            capture: CycleOutput {
-                illuminated: vec![true; phases_deg.len()],
-                frames,
-                phases_deg,
-                exposure_us: req.exposure_us,
-                geometry: SensorGeometry {
-                    rows,
-                    cols: self.cols,
-                    roi_origin: [row0, 0],
-                    full_rows: self.rows,
-                    full_cols: self.cols,
-                    adc_bits: SYNTH_ADC_BITS,
-                    modulation_hz: self.modulation_hz,
-                },
-                timings,
-                flash_written: false,
-                captured_at: Duration::from_nanos(self.t_ns),
-            },
+            frames: RawImages::U16(frames),
+            phases_deg,
+            exposure_us: req.exposure_us,
+            geometry,
+            timings: Some(timings),
             timestamp_ns: self.t_ns,
         })
     }

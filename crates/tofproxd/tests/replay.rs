@@ -213,3 +213,82 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
     );
     assert_eq!(runs[0], runs[1], "same Near sequence on every run");
 }
+
+/// Replay of an averaged (float) recording processes the recording's own numbers: the depth
+/// the daemon publishes equals what `tofprox process` computes from the same file (the core
+/// pipeline on the f32 frames) — and differs from what rounding the codes to u16 would give.
+#[test]
+fn replay_of_an_averaged_recording_keeps_the_floats() {
+    use tofprox_core::Algorithm;
+    use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("avg");
+    let mut w = RecordingWriter::create(&rec, SensorGeometry::full(ROWS, COLS, 12, MOD_HZ), None)
+        .expect("create recording");
+    // an averaged capture of a weak target: codes with fractions
+    let phi = tofprox_core::phasor::distance_to_phase_rad(0.6, MOD_HZ);
+    let frames = ndarray::Array3::from_shape_fn((2, ROWS, COLS), |(k, r, c)| {
+        let th = if k == 0 {
+            0.0
+        } else {
+            std::f64::consts::FRAC_PI_2
+        };
+        let a = 11.3 + 0.37 * (r * COLS + c) as f64 / (ROWS * COLS) as f64;
+        (2048.0 + a * (phi - th).cos()) as f32
+    });
+    w.append(
+        CaptureSpec {
+            phases_deg: vec![0.0, 90.0],
+            exposure_us: 100.0,
+            illumination: true,
+            averaged: 64,
+            timestamp_ns: Some(0),
+            conditions: BTreeMap::new(),
+        },
+        &RawFrames::F32(frames.clone()),
+    )
+    .expect("append");
+    drop(w);
+    let cfg = replay_config(&rec);
+    let pcfg = PipelineConfig {
+        algorithm: Algorithm::TwoPhase,
+        modulation_hz: MOD_HZ,
+        adc_bits: 12,
+        min_amplitude_lsb: cfg.processing.min_amplitude_lsb,
+    };
+    let src = ReplaySource::open(&rec, false).expect("open replay");
+    let mut ctl = Controller::new(cfg, src, ModeCalibrations::default()).expect("controller");
+    let out = ctl.step(true);
+    assert!(out.error.is_none(), "{:?}", out.error);
+    let published: Vec<u16> = out
+        .depth
+        .expect("depth frame")
+        .depth_le
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    let mut p = Pipeline::new(ROWS, COLS, pcfg, Calibration::default()).expect("pipeline");
+    let process: Vec<u16> = p
+        .process(frames.view())
+        .expect("process")
+        .depth_mm
+        .iter()
+        .copied()
+        .collect();
+    assert_eq!(
+        published, process,
+        "replay = tofprox process on the same file"
+    );
+    let rounded = frames.mapv(|v| v.round() as u16);
+    let as_u16: Vec<u16> = p
+        .process(rounded.view())
+        .expect("process")
+        .depth_mm
+        .iter()
+        .copied()
+        .collect();
+    assert_ne!(
+        published, as_u16,
+        "rounding to codes would change the depth"
+    );
+}

@@ -24,6 +24,30 @@ fn soak_with_faults_never_publishes_false_near_and_recovers() {
     assert!(rep.rss_kb_end < rep.rss_kb_start + 1024, "{rep:?}");
 }
 
+/// At a high fault rate Near may be held across failures, but only for the documented bound
+/// (`loop.near_hold_ms` = 1 s, plus the one retry that notices it), and it is counted apart:
+/// a near published on a wrong reading stays 0 at every fault rate.
+#[test]
+fn held_near_over_failures_is_bounded_and_counted_apart() {
+    for fault_rate in [0.1, 0.3, 0.6] {
+        let rep = tofproxd::soak::run(&tofproxd::soak::SoakConfig {
+            cycles: 2000,
+            fault_rate,
+            seed: 11,
+            period_s: 8.0,
+        })
+        .expect("soak runs");
+        assert_eq!(rep.false_near, 0, "fault rate {fault_rate}: {rep:?}");
+        assert_eq!(rep.panics, 0, "{rep:?}");
+        let bound_ms = tofproxd::config::LoopConfig::default().near_hold_ms + 400;
+        assert!(
+            rep.max_hold_ms <= bound_ms,
+            "fault rate {fault_rate}: held {} ms > {bound_ms}: {rep:?}",
+            rep.max_hold_ms
+        );
+    }
+}
+
 #[test]
 fn soak_rejects_a_bad_fault_rate() {
     let err = tofproxd::soak::run(&tofproxd::soak::SoakConfig {

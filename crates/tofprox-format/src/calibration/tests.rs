@@ -19,6 +19,8 @@ fn src(name: &str) -> PartSource {
         recording_description: Some("desc".into()),
         captures: vec![0, 2],
         distance_m: Some(0.5),
+        reflectivity: None,
+        exposure_us: None,
         created: now_rfc3339(),
         tool: "test".into(),
     }
@@ -57,7 +59,19 @@ fn full_set() -> CalibrationSet {
     s.set_fppn(fppn(), src("flat")).unwrap();
     s.set_fppn_for(Algorithm::TwoPhase, fppn2(), src("flat"))
         .unwrap();
+    let amp_src = PartSource {
+        reflectivity: Some(0.8),
+        exposure_us: Some(500.0),
+        ..src("corr")
+    };
+    s.set_amplitude(amplitude(), amp_src).unwrap();
     s
+}
+
+fn amplitude() -> AmplitudeScale {
+    AmplitudeScale {
+        lsb_m2_per_us: Array2::from_shape_fn((3, 4), |(r, c)| 1.5 + 0.01 * (r * 4 + c) as f32),
+    }
 }
 
 fn fppn2() -> FppnMap {
@@ -77,6 +91,9 @@ fn save_load_roundtrip() {
     assert_eq!(l.wiggling_4phase, s.wiggling_4phase);
     assert_eq!(l.fppn, s.fppn);
     assert_eq!(l.fppn_2phase, s.fppn_2phase);
+    assert_eq!(l.amplitude, s.amplitude);
+    assert_eq!(l.sources[&CalibPart::Amplitude].reflectivity, Some(0.8));
+    assert_eq!(l.sources[&CalibPart::Amplitude].exposure_us, Some(500.0));
     assert_eq!(l.validity, s.validity);
     assert_eq!(l.sources[&CalibPart::Fppn].captures, vec![0, 2]);
     assert_eq!(l.sources[&CalibPart::Wiggling2Phase].distance_m, Some(0.5));
@@ -130,7 +147,11 @@ fn replacing_a_part_drops_what_depended_on_it() {
             CalibPart::Fppn2Phase
         ]
     );
-    assert_eq!(s.parts(), vec![CalibPart::Offset]);
+    assert_eq!(
+        s.parts(),
+        vec![CalibPart::Offset, CalibPart::Amplitude],
+        "the amplitude scale depends on no other part"
+    );
     // saving removes the dropped arrays' files
     let t = tempfile::tempdir().unwrap();
     full_set().save(t.path()).unwrap();
@@ -139,7 +160,7 @@ fn replacing_a_part_drops_what_depended_on_it() {
     assert!(!t.path().join("fppn.npy").exists());
     assert_eq!(
         CalibrationSet::load(t.path()).unwrap().parts(),
-        vec![CalibPart::Offset]
+        vec![CalibPart::Offset, CalibPart::Amplitude]
     );
 }
 
@@ -156,6 +177,28 @@ fn checksum_mismatch_is_refused() {
     assert_eq!(e.kind(), ErrorKind::Checksum);
     assert_eq!(e.key_name(), Some("wiggling_4phase.sha256"));
     assert!(e.to_string().contains("wiggling_4phase.npy"), "{e}");
+}
+
+#[test]
+fn amplitude_part_is_checksummed_and_must_be_non_negative() {
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    let p = t.path().join("amplitude.npy");
+    let mut b = fs::read(&p).unwrap();
+    let n = b.len();
+    b[n - 1] ^= 0x01;
+    fs::write(&p, b).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert_eq!(e.key_name(), Some("amplitude.sha256"), "{e}");
+    let mut s = full_set();
+    let bad = AmplitudeScale {
+        lsb_m2_per_us: Array2::from_elem((3, 4), -1.0),
+    };
+    let e = s.set_amplitude(bad, src("corr")).unwrap_err();
+    assert_eq!(e.key_name(), Some("amplitude"), "{e}");
+    // a new offset keeps the amplitude scale (it depends on nothing)
+    s.set_offset(offset(1990.0), src("dark2")).unwrap();
+    assert!(s.amplitude.is_some());
 }
 
 #[test]

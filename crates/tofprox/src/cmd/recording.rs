@@ -17,6 +17,9 @@ use tofprox_core::Algorithm;
 use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_core::radiometry::{
+    AmplitudeScale, DEFAULT_CALIBRATION_REFLECTIVITY, expected_amplitude_lsb,
+};
 use tofprox_format::npy;
 use tofprox_format::{
     CalibPart, CalibrationSet, CaptureMeta, PartSource, RawFrames, Recording, now_rfc3339,
@@ -358,6 +361,16 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
                 ),
                 "rad",
             ),
+            CalibPart::Amplitude => (
+                "scale K of A = K·ρ·t/d²",
+                stats(
+                    &mut set
+                        .amplitude
+                        .iter()
+                        .flat_map(|a| a.lsb_m2_per_us.iter().copied()),
+                ),
+                "LSB·m²/µs",
+            ),
             CalibPart::Fppn | CalibPart::Fppn2Phase => (
                 "phase offset",
                 stats(
@@ -467,6 +480,7 @@ fn source(
         distance_m,
         created: now_rfc3339(),
         tool: TOOL.to_string(),
+        ..PartSource::default()
     }
 }
 
@@ -659,6 +673,39 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                 dropped
                     .extend(set.set_wiggling(lut, source(&rec, &a.recording, vec![i], Some(d)))?);
             }
+            // The amplitude scale of the 1/d² law (thesis 2.2.1) from the same capture.
+            let given_rho = c.conditions.get("reflectivity").copied();
+            let rho = match given_rho {
+                Some(r) => r,
+                None => {
+                    eprintln!(
+                        "note: capture {i} has no conditions.reflectivity: the amplitude scale assumes {} (a perfect diffuse reflector: the scale is a lower bound, so no real target is rejected as implausible)",
+                        DEFAULT_CALIBRATION_REFLECTIVITY
+                    );
+                    DEFAULT_CALIBRATION_REFLECTIVITY
+                }
+            };
+            let scale = AmplitudeScale::extract(data.view(), &c.phases_deg, c.exposure_us, d, rho)
+                .with_context(|| format!("extracting the amplitude scale from capture {i}"))?;
+            let k = &scale.lsb_m2_per_us;
+            let mut sorted: Vec<f32> = k.iter().copied().collect();
+            sorted.sort_unstable_by(f32::total_cmp);
+            let median = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
+            report.push(format!(
+                "amplitude: scale K of A = K·ρ·t/d² from capture {i} at {} m, reflectivity {}{}, {} µs: median {:.4} LSB·m²/µs (a 2 % target at 10 cm, 100 µs: {:.0} LSB)",
+                fmt_num(d),
+                fmt_num(rho),
+                if given_rho.is_some() { "" } else { " (assumed)" },
+                fmt_num(c.exposure_us),
+                median,
+                expected_amplitude_lsb(f64::from(median), 0.02, 100.0, 0.1)
+            ));
+            let src = PartSource {
+                reflectivity: given_rho,
+                exposure_us: Some(c.exposure_us),
+                ..source(&rec, &a.recording, vec![i], Some(d))
+            };
+            dropped.extend(set.set_amplitude(scale, src)?);
             dropped
         }
         CalibKind::Fppn => {
@@ -723,6 +770,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                 CalibPart::Offset => "fpn",
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
                 CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
+                CalibPart::Amplitude => "wiggling",
             }
         );
     }
