@@ -107,7 +107,7 @@ fn sorted_finite(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
 const COINCIDENT_FRACTION: f64 = 0.004;
 
 /// For each series, the index of an earlier series it coincides with on the
-/// page (same x values, every y within [`COINCIDENT_FRACTION`] of `y_span`).
+/// page (same x values, every y within 0.4 % of `y_span`).
 pub fn coincident_with(series: &[Series], y_span: f64) -> Vec<Option<usize>> {
     let tol = COINCIDENT_FRACTION * y_span.abs();
     let pts: Vec<Vec<(f64, f64)>> = series.iter().map(|s| sorted_finite(&s.points)).collect();
