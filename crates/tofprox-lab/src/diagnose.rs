@@ -28,6 +28,11 @@ pub const MIN_CV: f64 = 0.4;
 /// Two candidates closer than this in explained share are ambiguous.
 pub const AMBIGUITY_MARGIN: f64 = 0.1;
 
+/// Two candidates are told apart when the runner-up leaves at least this many times the excess
+/// the best one leaves (e.g. 3.5 % against 0.1 %): both "explain most of it", but only one
+/// explains it down to the noise, which is what a measurement can distinguish.
+pub const REMAINDER_RATIO: f64 = 3.0;
+
 /// RMS errors of the model against the recording.
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
 pub struct Rms {
@@ -847,6 +852,7 @@ pub fn decide(
         && !simpler_suffices(ru)
         && best.cv_gain - ru.cv_gain < AMBIGUITY_MARGIN
         && (best.explained_excess - ru.explained_excess) < AMBIGUITY_MARGIN
+        && (1.0 - ru.explained_excess) < REMAINDER_RATIO * (1.0 - best.explained_excess).max(0.0)
     {
         return Decision {
             verdict: Verdict::Ambiguous,
