@@ -358,7 +358,8 @@ fn calibrate_merges_and_drops_stale_parts() {
         vec![
             CalibPart::Offset,
             CalibPart::Wiggling2Phase,
-            CalibPart::Wiggling4Phase
+            CalibPart::Wiggling4Phase,
+            CalibPart::Amplitude
         ]
     );
     assert!(!other.join("fppn.npy").exists());
