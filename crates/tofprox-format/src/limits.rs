@@ -198,6 +198,9 @@ mod tests {
         assert_eq!(e.kind(), ErrorKind::Limit);
         assert!(e.to_string().contains("outside"), "{e}");
         // a symlink that stays inside is followed
-        assert_eq!(read_bounded(&root.join("c.npy"), 100, Some(&root)).unwrap(), b"y");
+        assert_eq!(
+            read_bounded(&root.join("c.npy"), 100, Some(&root)).unwrap(),
+            b"y"
+        );
     }
 }

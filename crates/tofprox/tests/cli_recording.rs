@@ -760,7 +760,10 @@ fn a_long_description_and_too_many_captures_are_refused() {
         &["recording.toml", "description", "limit"],
     );
     // 33 000 captures (limit 32 768) in < 4 MiB: refused before any frames file is looked at
-    let mut many = format!("{head}[sensor]{}", rest.split("[[capture]]").next().unwrap());
+    let mut many = format!(
+        "{head}[sensor]{}",
+        rest.split("[[capture]]").next().unwrap()
+    );
     for i in 0..33_000 {
         many.push_str(&format!(
             "[[capture]]\nframes=\"f/{i}.npy\"\nphases_deg=[0]\nexposure_us=1\nillumination=false\naveraged=1\n"
@@ -770,7 +773,11 @@ fn a_long_description_and_too_many_captures_are_refused() {
     fs::write(&toml, many).unwrap();
     assert_bad(
         &run_bounded(&["info", p(&rec)]),
-        &["recording.toml", "capture", "33000 captures, more than the limit of 32768"],
+        &[
+            "recording.toml",
+            "capture",
+            "33000 captures, more than the limit of 32768",
+        ],
     );
 }
 
@@ -861,7 +868,11 @@ fn a_huge_sensor_window_is_refused_before_anything_is_allocated() {
     let out = t.path().join("out");
     assert_bad(
         &run_bounded(&["process", p(&rec), "--algo", "4phase", "--out", p(&out)]),
-        &["recording.toml", "sensor.rows", "8192 is more than the limit of 4096"],
+        &[
+            "recording.toml",
+            "sensor.rows",
+            "8192 is more than the limit of 4096",
+        ],
     );
 }
 
@@ -882,7 +893,11 @@ fn absurd_phase_tables_are_refused() {
     set.save(&cal).unwrap();
     assert_bad(
         &run_bounded(&["info", p(&cal)]),
-        &["wiggling_2phase.npy", "wiggling_2phase", "beyond one period"],
+        &[
+            "wiggling_2phase.npy",
+            "wiggling_2phase",
+            "beyond one period",
+        ],
     );
 }
 
@@ -901,7 +916,11 @@ fn dependency_checksums_are_required_and_compare_in_any_case() {
     fs::write(&toml, stripped).unwrap();
     assert_bad(
         &run_bounded(&["info", p(&cal)]),
-        &["calibration.toml", "wiggling_2phase.offset_sha256", "missing"],
+        &[
+            "calibration.toml",
+            "wiggling_2phase.offset_sha256",
+            "missing",
+        ],
     );
     // upper-case hex digests are the same digests
     let upper: String = original
