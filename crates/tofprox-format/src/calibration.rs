@@ -26,6 +26,7 @@ use crate::error::{
     ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
 };
 use crate::fsutil;
+use crate::limits;
 use crate::npy::{self, NpyArray, shape_str};
 
 /// `format` value of a calibration set.
@@ -692,14 +693,14 @@ impl CalibrationSet {
             )
             .at(dir));
         }
-        let text =
-            fs::read_to_string(&path).map_err(|e| FormatError::io(&path, "cannot read", e))?;
+        let text = limits::read_text_bounded(&path, limits::MAX_TOML_BYTES)?;
         check_header(&path, &text)?;
         let t: CalibToml = toml::from_str(&text).map_err(|e| from_toml(&path, &text, &e))?;
         let sensor = t.valid_for;
         sensor
             .validate()
             .map_err(|e| geometry_invalid(e, "valid_for").at(&path))?;
+        crate::recording::check_sensor_limits(&sensor, "valid_for").map_err(|e| e.at(&path))?;
         let mut set = CalibrationSet::new(&sensor);
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
@@ -713,8 +714,28 @@ impl CalibrationSet {
         ];
         for (part, pt) in parts {
             let Some(pt) = pt else { continue };
-            let arr = load_part(dir, &path, part, pt, &sensor)?;
             let key = part.name();
+            // the checksums of the parts this one was extracted with are
+            // required: deleting them must not switch the staleness check off
+            let required: &[(&str, &Option<String>)] = match part {
+                CalibPart::Offset => &[],
+                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+                    &[("offset_sha256", &pt.offset_sha256)]
+                }
+                CalibPart::Fppn | CalibPart::Fppn2Phase => &[
+                    ("offset_sha256", &pt.offset_sha256),
+                    ("wiggling_sha256", &pt.wiggling_sha256),
+                ],
+            };
+            if let Some((k, _)) = required.iter().find(|(_, v)| v.is_none()) {
+                return Err(FormatError::new(
+                    ErrorKind::MissingKey,
+                    "missing: the checksum of the part this one was extracted with (\"none\" if there was none) is required",
+                )
+                .at(&path)
+                .key(format!("{key}.{k}")));
+            }
+            let arr = load_part(dir, &path, part, pt, &sensor)?;
             let k = |sub: &str| format!("{key}.{sub}");
             match (part, arr) {
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
@@ -812,9 +833,10 @@ impl CalibrationSet {
             );
             set.deps.insert(
                 part,
+                // hex digests compare case-insensitively
                 Deps {
-                    offset: pt.offset_sha256.clone(),
-                    wiggling: pt.wiggling_sha256.clone(),
+                    offset: pt.offset_sha256.as_deref().map(str::to_ascii_lowercase),
+                    wiggling: pt.wiggling_sha256.as_deref().map(str::to_ascii_lowercase),
                 },
             );
         }
@@ -868,7 +890,8 @@ fn load_part(
         );
     }
     let file = dir.join(&pt.file);
-    let bytes = fs::read(&file).map_err(|e| FormatError::io(&file, "cannot read", e).key(key))?;
+    let bytes =
+        limits::read_bounded(&file, limits::MAX_NPY_BYTES, Some(dir)).map_err(|e| e.key(key))?;
     let sum = sha256_hex(&bytes);
     if !sum.eq_ignore_ascii_case(pt.sha256.trim()) {
         return Err(FormatError::new(
@@ -903,6 +926,16 @@ fn load_part(
         return Err(invalid(format!("element {i} is not finite"))
             .at(&file)
             .key(key));
+    }
+    if part != CalibPart::Offset {
+        let max = limits::MAX_PHASE_CORRECTION_RAD;
+        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
+            return Err(invalid(format!(
+                "element {i} is {v} rad, beyond one period (|correction| ≤ 2π = {max} rad)"
+            ))
+            .at(&file)
+            .key(key));
+        }
     }
     match part {
         CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => {

@@ -29,6 +29,10 @@ pub enum ErrorKind {
     Incompatible,
     /// A file or directory that must not exist yet already exists.
     AlreadyExists,
+    /// A file, a count or a length exceeds a documented limit
+    /// ([`crate::limits`]), or a path is not a regular file inside the
+    /// recording or calibration set.
+    Limit,
 }
 
 /// An error reading, validating or writing a recording or a calibration set.

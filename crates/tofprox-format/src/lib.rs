@@ -11,6 +11,7 @@
 mod calibration;
 mod error;
 mod fsutil;
+pub mod limits;
 pub mod npy;
 mod recording;
 

@@ -14,6 +14,7 @@ use std::path::Path;
 use ndarray::{ArrayD, IxDyn};
 
 use crate::error::{ErrorKind, FormatError};
+use crate::limits;
 
 const MAGIC: &[u8; 6] = b"\x93NUMPY";
 /// Headers larger than this are refused (NumPy itself writes < 200 bytes).
@@ -208,12 +209,11 @@ pub fn parse_header(bytes: &[u8]) -> Result<NpyHeader, FormatError> {
 }
 
 /// Read only the header of a `.npy` file and check the file size matches it.
-pub fn read_header(path: &Path) -> Result<NpyHeader, FormatError> {
-    let mut f = File::open(path).map_err(|e| FormatError::io(path, "cannot open", e))?;
-    let file_len = f
-        .metadata()
-        .map_err(|e| FormatError::io(path, "cannot stat", e))?
-        .len();
+/// Only a regular file of at most [`limits::MAX_NPY_BYTES`] is opened, and
+/// with `inside` only one that resolves inside that directory.
+pub fn read_header(path: &Path, inside: Option<&Path>) -> Result<NpyHeader, FormatError> {
+    let (mut f, meta) = limits::open_regular(path, limits::MAX_NPY_BYTES, inside)?;
+    let file_len = meta.len();
     // the preamble (≤ 12 bytes) says how long the header is; read just that much
     let mut buf = Vec::with_capacity(128);
     (&mut f)
@@ -272,9 +272,10 @@ pub fn decode(bytes: &[u8]) -> Result<NpyArray, FormatError> {
 }
 
 /// Read a whole `.npy` file; nothing larger than the file is allocated.
-pub fn read(path: &Path) -> Result<NpyArray, FormatError> {
-    // fs::read allocates the file's real size; decode checks it against the header
-    let bytes = std::fs::read(path).map_err(|e| FormatError::io(path, "cannot read", e))?;
+/// The file is opened as by [`read_header`].
+pub fn read(path: &Path, inside: Option<&Path>) -> Result<NpyArray, FormatError> {
+    // allocates the file's real size (bounded); decode checks it against the header
+    let bytes = limits::read_bounded(path, limits::MAX_NPY_BYTES, inside)?;
     decode(&bytes).map_err(|e| e.at(path))
 }
 

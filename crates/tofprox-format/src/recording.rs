@@ -16,6 +16,7 @@ use crate::error::{
     ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
 };
 use crate::fsutil;
+use crate::limits;
 use crate::npy::{self, Dtype, NpyArray, shape_str};
 
 /// `format` value of a recording.
@@ -395,7 +396,41 @@ fn validate_frames_path(frames: &str) -> Result<PathBuf, FormatError> {
             "\"{frames}\" must be a relative path inside the recording (no '..', no leading '/')"
         )));
     }
-    Ok(p.to_path_buf())
+    // normalised: `frames/./a.npy` and `frames//a.npy` are `frames/a.npy`
+    Ok(p.components().collect())
+}
+
+/// Window and full array within [`limits::MAX_SIDE_PIXELS`] and
+/// [`limits::MAX_PIXELS`], so that nothing sized by them is absurd; errors
+/// name `<table>.rows` … `<table>.full_cols`.
+pub(crate) fn check_sensor_limits(s: &SensorGeometry, table: &str) -> Result<(), FormatError> {
+    for (key, rows, cols) in [
+        ("rows", s.rows, s.cols),
+        ("full_rows", s.full_rows, s.full_cols),
+    ] {
+        let cols_key = key.replace("rows", "cols");
+        for (k, v) in [(key, rows), (cols_key.as_str(), cols)] {
+            if v > limits::MAX_SIDE_PIXELS {
+                return Err(FormatError::new(
+                    ErrorKind::Limit,
+                    format!("{v} is more than the limit of {}", limits::MAX_SIDE_PIXELS),
+                )
+                .key(format!("{table}.{k}")));
+            }
+        }
+        if rows * cols > limits::MAX_PIXELS {
+            return Err(FormatError::new(
+                ErrorKind::Limit,
+                format!(
+                    "{rows} × {cols} = {} pixels, more than the limit of {}",
+                    rows * cols,
+                    limits::MAX_PIXELS
+                ),
+            )
+            .key(format!("{table}.{key}")));
+        }
+    }
+    Ok(())
 }
 
 // ---------------------------------------------------------------- reader
@@ -423,14 +458,24 @@ impl Recording {
             )
             .at(dir));
         }
-        let text = fs::read_to_string(&toml_path)
-            .map_err(|e| FormatError::io(&toml_path, "cannot read", e))?;
+        let text = limits::read_text_bounded(&toml_path, limits::MAX_TOML_BYTES)?;
         let (sensor, description, captures) = parse_recording_toml(&toml_path, &text)?;
         let mut dtypes = Vec::with_capacity(captures.len());
+        // two names of one file (through a symlink inside the recording) are one capture
+        let mut real_files = BTreeMap::new();
         for (i, c) in captures.iter().enumerate() {
             let file = dir.join(&c.frames);
             let key = format!("capture[{i}].frames");
-            let h = npy::read_header(&file).map_err(|e| e.key_if_none(key.clone()))?;
+            let real = limits::check_inside(&file, dir).map_err(|e| e.key(key.clone()))?;
+            if let Some(j) = real_files.insert(real, i) {
+                return Err(invalid(format!(
+                    "\"{}\" is the same file as capture[{j}]'s",
+                    c.frames
+                ))
+                .at(&toml_path)
+                .key(key));
+            }
+            let h = npy::read_header(&file, Some(dir)).map_err(|e| e.key_if_none(key.clone()))?;
             check_shape(&h.shape, &sensor, c.phases_deg.len())
                 .map_err(|e| e.at(&file).key(key.clone()))?;
             dtypes.push(h.dtype);
@@ -480,7 +525,7 @@ impl Recording {
         };
         let file = self.dir.join(&meta.frames);
         let key = format!("capture[{index}].frames");
-        let arr = npy::read(&file).map_err(|e| e.key_if_none(key.clone()))?;
+        let arr = npy::read(&file, Some(&self.dir)).map_err(|e| e.key_if_none(key.clone()))?;
         let frames = to_raw_frames(arr).map_err(|e| e.at(&file).key(key.clone()))?;
         frames
             .validate(&self.sensor, meta.phases_deg.len())
@@ -545,14 +590,41 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
     sensor
         .validate()
         .map_err(|e| geometry_invalid(e, "sensor").at(path))?;
+    check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;
+    if let Some(d) = &raw.description
+        && d.len() > limits::MAX_DESCRIPTION_BYTES
+    {
+        return Err(FormatError::new(
+            ErrorKind::Limit,
+            format!(
+                "is {} bytes, more than the limit of {} bytes",
+                d.len(),
+                limits::MAX_DESCRIPTION_BYTES
+            ),
+        )
+        .at(path)
+        .key("description"));
+    }
+    if raw.capture.len() > limits::MAX_CAPTURES {
+        return Err(FormatError::new(
+            ErrorKind::Limit,
+            format!(
+                "{} captures, more than the limit of {}",
+                raw.capture.len(),
+                limits::MAX_CAPTURES
+            ),
+        )
+        .at(path)
+        .key("capture"));
+    }
     let mut seen = BTreeSet::new();
     let mut captures = Vec::with_capacity(raw.capture.len());
     for (i, c) in raw.capture.iter().enumerate() {
         let meta = c.to_meta();
         let prefix = format!("capture[{i}]");
-        validate_frames_path(&meta.frames)
+        let normalised = validate_frames_path(&meta.frames)
             .map_err(|e| e.at(path).key(format!("{prefix}.frames")))?;
-        if !seen.insert(meta.frames.clone()) {
+        if !seen.insert(normalised) {
             return Err(invalid(format!(
                 "\"{}\" is already used by an earlier capture",
                 meta.frames

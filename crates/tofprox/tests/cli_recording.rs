@@ -696,3 +696,258 @@ fn info_on_a_calibration_set() {
     fs::write(c.join("fppn.npy"), b"\x93NUMPY").unwrap();
     assert_bad(&run(&["info", p(&c)]), &["fppn.npy", "fppn.sha256"]);
 }
+
+// ---------------------------------------------------------------- hostile inputs (bounded reads)
+
+/// `run` that fails the test instead of hanging: the process is killed after 60 s.
+fn run_bounded(args: &[&str]) -> Output {
+    let mut child = Command::new(bin())
+        .args(args)
+        .current_dir(repo())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run tofprox");
+    let t0 = std::time::Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(60) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("tofprox {args:?} did not finish within 60 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.wait_with_output().expect("output")
+}
+
+fn mkfifo(path: &Path) {
+    let _ = fs::remove_file(path);
+    let st = Command::new("mkfifo").arg(path).status().expect("mkfifo");
+    assert!(st.success());
+}
+
+/// A private copy of the shipped calibration set.
+fn calib_copy(t: &tempfile::TempDir) -> PathBuf {
+    let d = t.path().join("cal");
+    copy_dir(&repo().join("calib/example"), &d);
+    d
+}
+
+#[test]
+fn a_device_or_oversized_header_is_refused_not_read_whole() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    let toml = rec.join("recording.toml");
+    fs::remove_file(&toml).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", &toml).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["recording.toml", "character device"],
+    );
+    // a header above the documented limit (4 MiB)
+    fs::remove_file(&toml).unwrap();
+    fs::copy(example_rec().join("recording.toml"), &toml).unwrap();
+    let mut text = fs::read_to_string(&toml).unwrap();
+    text.push_str(&format!("# {}\n", "x".repeat(5 << 20)));
+    fs::write(&toml, text).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["recording.toml", "limit of 4194304 bytes"],
+    );
+}
+
+#[test]
+fn a_long_description_and_too_many_captures_are_refused() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    let toml = rec.join("recording.toml");
+    let text = fs::read_to_string(&toml).unwrap();
+    let long = format!("description = \"{}\"\n", "d".repeat(100_000));
+    let body: String = text
+        .lines()
+        .filter(|l| !l.starts_with("description"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let (head, rest) = body.split_once("[sensor]").unwrap();
+    fs::write(&toml, format!("{head}{long}[sensor]{rest}")).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["recording.toml", "description", "limit"],
+    );
+    // 33 000 captures (limit 32 768) in < 4 MiB: refused before any frames file is looked at
+    let mut many = format!(
+        "{head}[sensor]{}",
+        rest.split("[[capture]]").next().unwrap()
+    );
+    for i in 0..33_000 {
+        many.push_str(&format!(
+            "[[capture]]\nframes=\"f/{i}.npy\"\nphases_deg=[0]\nexposure_us=1\nillumination=false\naveraged=1\n"
+        ));
+    }
+    assert!(many.len() < 4 << 20);
+    fs::write(&toml, many).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &[
+            "recording.toml",
+            "capture",
+            "33000 captures, more than the limit of 32768",
+        ],
+    );
+}
+
+#[test]
+fn fifos_are_refused_without_hanging() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    mkfifo(&rec.join("frames/000002.npy"));
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["frames/000002.npy", "capture[2].frames", "a FIFO"],
+    );
+    let rec2 = t.path().join("rec2");
+    copy_dir(&example_rec(), &rec2);
+    mkfifo(&rec2.join("recording.toml"));
+    assert_bad(
+        &run_bounded(&["info", p(&rec2)]),
+        &["recording.toml", "a FIFO"],
+    );
+    let cal = calib_copy(&t);
+    mkfifo(&cal.join("offset.npy"));
+    assert_bad(
+        &run_bounded(&["info", p(&cal)]),
+        &["offset.npy", "offset", "a FIFO"],
+    );
+}
+
+#[test]
+fn symlinks_out_of_the_recording_or_set_are_refused() {
+    let t = tempfile::tempdir().unwrap();
+    // the frames directory is a symlink to outside
+    let rec = rec_copy(&t);
+    let outside = t.path().join("elsewhere");
+    fs::rename(rec.join("frames"), &outside).unwrap();
+    std::os::unix::fs::symlink(&outside, rec.join("frames")).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["frames/000000.npy", "capture[0].frames", "outside"],
+    );
+    // one frames file is a symlink to outside
+    let rec2 = t.path().join("rec2");
+    copy_dir(&example_rec(), &rec2);
+    let f = rec2.join("frames/000001.npy");
+    fs::rename(&f, t.path().join("stolen.npy")).unwrap();
+    std::os::unix::fs::symlink(t.path().join("stolen.npy"), &f).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec2)]),
+        &["frames/000001.npy", "capture[1].frames", "outside"],
+    );
+    // a calibration array that is a symlink to outside
+    let cal = calib_copy(&t);
+    fs::rename(cal.join("fppn.npy"), t.path().join("fppn.npy")).unwrap();
+    std::os::unix::fs::symlink(t.path().join("fppn.npy"), cal.join("fppn.npy")).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&cal)]),
+        &["fppn.npy", "fppn", "outside"],
+    );
+}
+
+#[test]
+fn duplicate_captures_are_found_through_dot_and_double_slash() {
+    let t = tempfile::tempdir().unwrap();
+    for alias in ["frames/./000002.npy", "frames//000002.npy"] {
+        let rec = rec_copy(&t);
+        edit(
+            &rec.join("recording.toml"),
+            "frames = \"frames/000003.npy\"",
+            &format!("frames = \"{alias}\""),
+        );
+        assert_bad(
+            &run_bounded(&["info", p(&rec)]),
+            &["recording.toml", "capture[3].frames", "already used"],
+        );
+        fs::remove_dir_all(&rec).unwrap();
+    }
+}
+
+#[test]
+fn a_huge_sensor_window_is_refused_before_anything_is_allocated() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = t.path().join("huge");
+    fs::create_dir(&rec).unwrap();
+    fs::write(
+        rec.join("recording.toml"),
+        "format = \"tofprox-recording\"\nversion = 1\n[sensor]\nrows = 8192\ncols = 8192\nadc_bits = 12\nmodulation_hz = 80e6\n",
+    )
+    .unwrap();
+    let out = t.path().join("out");
+    assert_bad(
+        &run_bounded(&["process", p(&rec), "--algo", "4phase", "--out", p(&out)]),
+        &[
+            "recording.toml",
+            "sensor.rows",
+            "8192 is more than the limit of 4096",
+        ],
+    );
+}
+
+#[test]
+fn absurd_phase_tables_are_refused() {
+    use tofprox_core::calib::WigglingLut;
+    let t = tempfile::tempdir().unwrap();
+    let mut set = tofprox_format::CalibrationSet::load(&repo().join("calib/example")).unwrap();
+    set.set_wiggling(
+        WigglingLut {
+            algorithm: tofprox_core::Algorithm::TwoPhase,
+            correction_rad: ndarray::Array1::from_elem(256, 1e30),
+        },
+        Default::default(),
+    )
+    .unwrap();
+    let cal = t.path().join("cal");
+    set.save(&cal).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&cal)]),
+        &[
+            "wiggling_2phase.npy",
+            "wiggling_2phase",
+            "beyond one period",
+        ],
+    );
+}
+
+#[test]
+fn dependency_checksums_are_required_and_compare_in_any_case() {
+    let t = tempfile::tempdir().unwrap();
+    let cal = calib_copy(&t);
+    let toml = cal.join("calibration.toml");
+    let original = fs::read_to_string(&toml).unwrap();
+    // deleting the dependency checksums must not switch the staleness check off
+    let stripped: String = original
+        .lines()
+        .filter(|l| !l.starts_with("offset_sha256"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    fs::write(&toml, stripped).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&cal)]),
+        &[
+            "calibration.toml",
+            "wiggling_2phase.offset_sha256",
+            "missing",
+        ],
+    );
+    // upper-case hex digests are the same digests
+    let upper: String = original
+        .lines()
+        .map(|l| match l.split_once(" = \"") {
+            Some((k, v)) if k.ends_with("sha256") => format!("{k} = \"{}", v.to_uppercase()),
+            _ => l.to_string(),
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    fs::write(&toml, upper).unwrap();
+    let o = run_bounded(&["info", p(&cal)]);
+    assert_ok(&o);
+}
