@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Speed comparison for issue 2: the Rust 2-phase pipeline (divan bench `process_2phase_u16`,
+# Speed comparison: the Rust 2-phase pipeline (divan bench `process_2phase_u16`,
 # one core) against the same steps in numpy (numpy_reference.py), measured in the same run.
 # Prints both medians and the ratio (target: Rust <= 50 us and >= 20x faster than numpy).
 # Usage: crates/tofprox-core/benches/compare.sh

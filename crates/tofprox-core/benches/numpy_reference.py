@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """numpy version of exactly the steps of tofprox-core's 2-phase pipeline (benches/pipeline.rs,
-`process_2phase_u16`), for the speed comparison in compare.sh (issue 2: Rust >= 20x faster).
+`process_2phase_u16`), for the speed comparison in compare.sh (target: Rust >= 20x faster).
 
 Same frame (224 x 172, uint16 codes, same deterministic generator), same steps, float32 like the
 Rust kernel: saturation + finiteness on the raw codes, per-pixel dark-frame subtraction, eq. 2.2

@@ -1,6 +1,6 @@
 //! Speed of the per-frame pipeline on a full IRS1645 frame (224 × 172), one core.
 //!
-//! Target (issue 2): the full 2-phase pipeline (offset correction, phase, wiggling correction,
+//! Target: the full 2-phase pipeline (offset correction, phase, wiggling correction,
 //! amplitude, validity, depth mm) ≤ 50 µs, ≥ 20× faster than numpy (`benches/compare.sh`).
 //!
 //! Run: `cargo bench -p tofprox-core --bench pipeline`
@@ -60,7 +60,7 @@ fn pipeline(algorithm: Algorithm, with_fppn: bool) -> Pipeline {
     Pipeline::new(ROWS, COLS, config, calibration).expect("pipeline")
 }
 
-/// The issue's target: full 2-phase pipeline, u16 raw codes, offset + wiggling.
+/// The target: full 2-phase pipeline, u16 raw codes, offset + wiggling.
 #[divan::bench]
 fn process_2phase_u16(bencher: Bencher) {
     let raw = raw_frame(2);

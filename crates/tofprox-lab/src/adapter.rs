@@ -14,12 +14,8 @@ use crate::signatures::{MAX_HARMONIC, SIGNATURE_IDS};
 
 /// Load every capture of a recording (codes as f64).
 pub fn load_recording(dir: &Path) -> Result<Dataset, LabError> {
-    let rec = Recording::open(dir).map_err(|e| {
-        LabError::new(
-            ErrorKind::Io,
-            format!("cannot open recording {}: {e}", dir.display()),
-        )
-    })?;
+    let rec = Recording::open(dir)
+        .map_err(|e| LabError::format(format!("cannot open recording {}", dir.display()), e))?;
     dataset_from_recording(&rec)
 }
 
@@ -30,9 +26,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
     for (i, meta) in rec.captures().iter().enumerate() {
         let frames = rec
             .load(i)
-            .map_err(|e| {
-                LabError::new(ErrorKind::Io, format!("capture {i} ({}): {e}", meta.frames))
-            })?
+            .map_err(|e| LabError::format(format!("capture {i} ({})", meta.frames), e))?
             .to_f64();
         let cond = |k: &str| meta.conditions.get(k).copied();
         captures.push(Capture {
@@ -57,7 +51,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
 
 /// Highest harmonic the model file describes (1 when waveform_harmonics is off).
 pub fn harmonic_order(m: &ModelConfig) -> usize {
-    if !m.is_enabled("waveform_harmonics") {
+    if !m.is_enabled(tofprox_model::ids::waveform_harmonics::ID) {
         return 1;
     }
     if m.waveforms().is_some() {
@@ -65,10 +59,7 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
     }
     (2..=MAX_HARMONIC)
         .rev()
-        .find(|h| {
-            m.param("waveform_harmonics", &format!("h{h}_rel"))
-                .is_some_and(|v| v.abs() > 0.0)
-        })
+        .find(|h| tofprox_model::ids::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0))
         .unwrap_or(1)
 }
 
@@ -76,12 +67,13 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
 pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
     LabSpec {
         harmonic_order: harmonic_order(m),
-        per_pixel_offset: m.is_enabled("fpn_offset") || m.is_enabled("adc_offset"),
-        per_pixel_gain: m.is_enabled("prnu"),
-        per_pixel_phase: m.is_enabled("fppn"),
+        per_pixel_offset: m.is_enabled(tofprox_model::ids::fpn_offset::ID)
+            || m.is_enabled(tofprox_model::ids::adc_offset::ID),
+        per_pixel_gain: m.is_enabled(tofprox_model::ids::prnu::ID),
+        per_pixel_phase: m.is_enabled(tofprox_model::ids::fppn::ID),
         effects: SIGNATURE_IDS
             .iter()
-            .filter(|id| **id != "waveform_harmonics" && m.is_enabled(id))
+            .filter(|id| **id != "waveform_harmonics" && m.effect(id).is_some_and(|e| e.enabled))
             .map(|s| s.to_string())
             .collect(),
     }

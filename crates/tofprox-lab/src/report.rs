@@ -1,4 +1,4 @@
-//! Output of the lab: the `--json` documents of the issue's output contract,
+//! Output of the lab: the `--json` documents (`diagnose`, `add`; their fields are the stable output other programs read),
 //! the compact terminal table, and the self-contained HTML report with inline
 //! SVG plots (plotters, rendered to strings; no network, no fonts needed).
 use std::fmt::Write as _;
@@ -13,7 +13,7 @@ fn num(v: f64) -> Value {
     if v.is_finite() { json!(v) } else { Value::Null }
 }
 
-/// `diagnose --json` (issue 4 output contract; `separate_by` added for `ambiguous`).
+/// `diagnose --json` (stable fields; `separate_by` added for `ambiguous`).
 pub fn diagnosis_json(d: &Diagnosis) -> Value {
     json!({
         "verdict": d.verdict.as_str(),
@@ -46,7 +46,7 @@ fn summary_json(s: &ErrorSummary) -> Value {
     })
 }
 
-/// `add --json` (issue 4 output contract).
+/// `add --json` (stable fields).
 pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
     json!({
         "effect": effect,

@@ -46,7 +46,7 @@ pub struct DiagnoseArgs {
     /// Model file (TOML).
     #[arg(long)]
     pub model: PathBuf,
-    /// Print the verdict as JSON (issue 4 output contract).
+    /// Print the verdict as JSON (the `diagnose --json` document of `tofprox_lab::report`).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with SVG plots.
@@ -67,7 +67,7 @@ pub struct AddArgs {
     /// Where to write the model with the effect enabled and fitted.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Print before/after as JSON (issue 4 output contract).
+    /// Print before/after as JSON (the `add --json` document of `tofprox_lab::report`).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with the before/after error curves.
