@@ -1,4 +1,4 @@
-//! "What must hold" (issue 2): on a simulated distance sweep with a non-sinusoidal correlation,
+//! What calibration must achieve (thesis 3.3.6, 4.3.2): on a simulated distance sweep with a non-sinusoidal correlation,
 //! FPN of ~34 LSB sigma and a global delay, offset calibration (dark capture) + wiggling
 //! calibration (24-phase correlation capture) bring 2-phase and 4-phase depth errors below 1 cm
 //! (thesis 5.1.2.2), while without calibration 2-phase depth is unusable (thesis fig. 3.7).

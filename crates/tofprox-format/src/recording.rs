@@ -2,12 +2,10 @@
 //! See `docs/recording-format.md` for the specification and validation rules.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::fmt;
 use std::fs;
 use std::path::{Component, Path, PathBuf};
 
 use ndarray::{Array3, ArrayBase, Data, Ix3};
-use serde::de::{self, Deserializer, Visitor};
 use serde::{Deserialize, Serialize};
 
 use tofprox_core::SensorGeometry;
@@ -46,8 +44,9 @@ pub struct CaptureSpec {
     pub conditions: BTreeMap<String, f64>,
 }
 
-/// One `[[capture]]` table.
-#[derive(Debug, Clone, PartialEq)]
+/// One `[[capture]]` table (numbers may be written as TOML integers or floats).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CaptureMeta {
     /// Path of the `.npy` file relative to the recording directory.
     pub frames: String,
@@ -60,8 +59,10 @@ pub struct CaptureMeta {
     /// Acquisitions averaged into this capture (1 for a single one).
     pub averaged: u32,
     /// Optional acquisition time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub timestamp_ns: Option<u64>,
     /// Numeric ground truth and environment.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub conditions: BTreeMap<String, f64>,
 }
 
@@ -259,33 +260,6 @@ impl From<Array3<f64>> for RawFrames {
 
 // ---------------------------------------------------------------- TOML schema
 
-/// A number that may be written as a TOML integer or float.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-#[serde(transparent)]
-struct Num(f64);
-
-impl<'de> Deserialize<'de> for Num {
-    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        struct V;
-        impl Visitor<'_> for V {
-            type Value = Num;
-            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-                f.write_str("a number")
-            }
-            fn visit_f64<E: de::Error>(self, v: f64) -> Result<Num, E> {
-                Ok(Num(v))
-            }
-            fn visit_i64<E: de::Error>(self, v: i64) -> Result<Num, E> {
-                Ok(Num(v as f64))
-            }
-            fn visit_u64<E: de::Error>(self, v: u64) -> Result<Num, E> {
-                Ok(Num(v as f64))
-            }
-        }
-        d.deserialize_any(V)
-    }
-}
-
 #[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 struct RecordingToml {
@@ -295,54 +269,7 @@ struct RecordingToml {
     description: Option<String>,
     sensor: SensorGeometry,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    capture: Vec<CaptureToml>,
-}
-
-#[derive(Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-struct CaptureToml {
-    frames: String,
-    phases_deg: Vec<Num>,
-    exposure_us: Num,
-    illumination: bool,
-    averaged: u32,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    timestamp_ns: Option<u64>,
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    conditions: BTreeMap<String, Num>,
-}
-
-impl CaptureToml {
-    fn to_meta(&self) -> CaptureMeta {
-        CaptureMeta {
-            frames: self.frames.clone(),
-            phases_deg: self.phases_deg.iter().map(|n| n.0).collect(),
-            exposure_us: self.exposure_us.0,
-            illumination: self.illumination,
-            averaged: self.averaged,
-            timestamp_ns: self.timestamp_ns,
-            conditions: self
-                .conditions
-                .iter()
-                .map(|(k, v)| (k.clone(), v.0))
-                .collect(),
-        }
-    }
-    fn from_meta(m: &CaptureMeta) -> Self {
-        CaptureToml {
-            frames: m.frames.clone(),
-            phases_deg: m.phases_deg.iter().map(|&p| Num(p)).collect(),
-            exposure_us: Num(m.exposure_us),
-            illumination: m.illumination,
-            averaged: m.averaged,
-            timestamp_ns: m.timestamp_ns,
-            conditions: m
-                .conditions
-                .iter()
-                .map(|(k, &v)| (k.clone(), Num(v)))
-                .collect(),
-        }
-    }
+    capture: Vec<CaptureMeta>,
 }
 
 /// Check a capture's metadata (not its file); errors carry the key below `capture[i]`.
@@ -620,7 +547,7 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
     let mut seen = BTreeSet::new();
     let mut captures = Vec::with_capacity(raw.capture.len());
     for (i, c) in raw.capture.iter().enumerate() {
-        let meta = c.to_meta();
+        let meta = c.clone();
         let prefix = format!("capture[{i}]");
         let normalised = validate_frames_path(&meta.frames)
             .map_err(|e| e.at(path).key(format!("{prefix}.frames")))?;
@@ -651,7 +578,7 @@ fn render_recording_toml(
         version: RECORDING_VERSION,
         description: description.map(str::to_string),
         sensor: *sensor,
-        capture: captures.iter().map(CaptureToml::from_meta).collect(),
+        capture: captures.to_vec(),
     };
     toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
 }

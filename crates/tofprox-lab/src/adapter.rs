@@ -23,12 +23,8 @@ pub const KNOWN_CONDITIONS: &[&str] = &[
 
 /// Load every capture of a recording (codes as f64).
 pub fn load_recording(dir: &Path) -> Result<Dataset, LabError> {
-    let rec = Recording::open(dir).map_err(|e| {
-        LabError::new(
-            ErrorKind::Io,
-            format!("cannot open recording {}: {e}", dir.display()),
-        )
-    })?;
+    let rec = Recording::open(dir)
+        .map_err(|e| LabError::format(format!("cannot open recording {}", dir.display()), e))?;
     dataset_from_recording(&rec)
 }
 
@@ -39,9 +35,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
     for (i, meta) in rec.captures().iter().enumerate() {
         let frames = rec
             .load(i)
-            .map_err(|e| {
-                LabError::new(ErrorKind::Io, format!("capture {i} ({}): {e}", meta.frames))
-            })?
+            .map_err(|e| LabError::format(format!("capture {i} ({})", meta.frames), e))?
             .to_f64();
         let cond = |k: &str| meta.conditions.get(k).copied();
         captures.push(Capture {
@@ -72,7 +66,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
 
 /// Highest harmonic the model file describes (1 when waveform_harmonics is off).
 pub fn harmonic_order(m: &ModelConfig) -> usize {
-    if !m.is_enabled("waveform_harmonics") {
+    if !m.is_enabled(tofprox_model::ids::waveform_harmonics::ID) {
         return 1;
     }
     if m.waveforms().is_some() {
@@ -80,10 +74,7 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
     }
     (2..=MAX_HARMONIC)
         .rev()
-        .find(|h| {
-            m.param("waveform_harmonics", &format!("h{h}_rel"))
-                .is_some_and(|v| v.abs() > 0.0)
-        })
+        .find(|h| tofprox_model::ids::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0))
         .unwrap_or(1)
 }
 
@@ -91,12 +82,13 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
 pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
     LabSpec {
         harmonic_order: harmonic_order(m),
-        per_pixel_offset: m.is_enabled("fpn_offset") || m.is_enabled("adc_offset"),
-        per_pixel_gain: m.is_enabled("prnu"),
-        per_pixel_phase: m.is_enabled("fppn"),
+        per_pixel_offset: m.is_enabled(tofprox_model::ids::fpn_offset::ID)
+            || m.is_enabled(tofprox_model::ids::adc_offset::ID),
+        per_pixel_gain: m.is_enabled(tofprox_model::ids::prnu::ID),
+        per_pixel_phase: m.is_enabled(tofprox_model::ids::fppn::ID),
         effects: SIGNATURE_IDS
             .iter()
-            .filter(|id| **id != "waveform_harmonics" && m.is_enabled(id))
+            .filter(|id| **id != "waveform_harmonics" && m.effect(id).is_some_and(|e| e.enabled))
             .map(|s| s.to_string())
             .collect(),
         held: Vec::new(),
@@ -148,7 +140,7 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                     .get(1)
                     .map_or(1.0, |(a, b)| a.hypot(*b))
                     .max(1e-9);
-                let contrast = if m.is_enabled("demodulation_contrast") {
+                let contrast = if m.is_enabled(tofprox_model::ids::demodulation_contrast::ID) {
                     g("demodulation_contrast", "contrast")
                 } else {
                     1.0
@@ -157,7 +149,7 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                 let mut lin = vec![eps / (a1 * 2.0 * contrast.max(1e-9))];
                 if prep.ambient_varies {
                     // ε/2 · 2·N_ambient per tap, in LSB per klux·ms
-                    let amb = if m.is_enabled("ambient_light") {
+                    let amb = if m.is_enabled(tofprox_model::ids::ambient_light::ID) {
                         g("ambient_light", "e_per_us_per_klux")
                     } else {
                         0.0
@@ -258,7 +250,7 @@ pub fn write_effect(
             let peak = (0..360)
                 .map(|i| model.waveform.eval(f64::from(i).to_radians()).0)
                 .fold(1.0f64, f64::max);
-            let contrast = if m.is_enabled("demodulation_contrast") {
+            let contrast = if m.is_enabled(tofprox_model::ids::demodulation_contrast::ID) {
                 m.param("demodulation_contrast", "contrast").unwrap_or(1.0)
             } else {
                 1.0
@@ -359,7 +351,7 @@ mod tests {
         );
         let back = ModelConfig::from_toml_str(&out).unwrap();
         assert_eq!(back.param("vcsel_droop", "droop_rel"), Some(0.071));
-        assert!(back.is_enabled("vcsel_droop") && back.is_enabled("adc_inl"));
+        assert!(back.is_enabled(tofprox_model::ids::vcsel_droop::ID) && back.is_enabled(tofprox_model::ids::adc_inl::ID));
         assert_eq!(back.param("adc_inl", "inl_lsb"), Some(-3.5));
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }

@@ -16,6 +16,9 @@ pub enum ErrorKind {
     Numerical,
     /// Reading or writing a file.
     Io,
+    /// A recording or model file does not read: the file-format (or model) crate's error, with
+    /// its own kind, file and key, is the [`source`](std::error::Error::source).
+    Format,
 }
 
 /// Error of the model lab.
@@ -23,6 +26,8 @@ pub enum ErrorKind {
 pub struct LabError {
     kind: ErrorKind,
     message: String,
+    #[source]
+    source: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
 }
 
 impl LabError {
@@ -31,6 +36,16 @@ impl LabError {
         Self {
             kind,
             message: message.into(),
+            source: None,
+        }
+    }
+    /// A recording that does not read: `message` says what the lab was doing, the format
+    /// crate's error (kind, file, key) is kept as the source.
+    pub fn format(message: impl Into<String>, source: tofprox_format::FormatError) -> Self {
+        Self {
+            kind: ErrorKind::Format,
+            message: message.into(),
+            source: Some(Box::new(source)),
         }
     }
     /// What went wrong, for callers that branch on it.

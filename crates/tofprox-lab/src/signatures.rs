@@ -8,7 +8,7 @@ use crate::error::{ErrorKind, LabError};
 use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
 use crate::waveform::Waveform;
 
-/// Highest harmonic the extra-harmonics signature reaches (issue 3: ≥ 9th).
+/// Highest harmonic the extra-harmonics signature reaches (the measured VCSEL/pulse correlation has harmonics up to the 9th, docs/model.md).
 pub const MAX_HARMONIC: usize = 9;
 
 /// The residual an effect leaves in the raw codes, as a basis in which it is

@@ -1,4 +1,4 @@
-//! What must hold (issue 4): recordings generated with tofprox-model's
+//! What the lab must do (docs/lab.md): recordings generated with tofprox-model's
 //! Simulator whose truth has one effect more than the model under test. The lab
 //! names the hidden effect; after `add` the depth error is within 1.3× of the
 //! same recording without the effect. A control says nothing_missing; an effect

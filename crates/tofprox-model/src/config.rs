@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::error::{ErrorKind, ModelError};
+use crate::ids::{EffectId, ParamId};
 
 /// Settings of one effect.
 #[derive(Debug, Clone, PartialEq)]
@@ -360,9 +361,9 @@ impl ModelConfig {
         out
     }
 
-    /// Whether an effect is enabled (false for unknown ids).
-    pub fn is_enabled(&self, id: &str) -> bool {
-        self.effects.get(id).is_some_and(|s| s.enabled)
+    /// Whether an effect is enabled.
+    pub fn is_enabled(&self, id: EffectId) -> bool {
+        self.effects.get(id.as_str()).is_some_and(|s| s.enabled)
     }
 
     /// Switch an effect on or off.
@@ -419,7 +420,7 @@ impl ModelConfig {
     pub fn enabled_effects(&self) -> Vec<&'static str> {
         CATALOGUE
             .iter()
-            .filter(|e| self.is_enabled(e.id))
+            .filter(|e| self.effects.get(e.id).is_some_and(|s| s.enabled))
             .map(|e| e.id)
             .collect()
     }
@@ -450,9 +451,11 @@ impl ModelConfig {
         self.waveforms = None;
     }
 
-    /// Parameter value with the catalogue default as fallback (internal use).
-    pub(crate) fn p(&self, id: &str, name: &str) -> f64 {
-        self.param(id, name).unwrap_or(0.0)
+    /// A parameter's value. Every [`ParamId`] names a catalogue parameter (checked by the
+    /// tests of [`crate::ids`]) and every catalogue parameter has a value, so this never misses;
+    /// were it to, the value is NaN, which no simulation lets pass unnoticed.
+    pub fn get(&self, p: ParamId) -> f64 {
+        self.param(p.section(), p.name()).unwrap_or(f64::NAN)
     }
 }
 

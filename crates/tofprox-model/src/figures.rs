@@ -13,6 +13,7 @@ use crate::ModelConfig;
 use crate::effects::optical::measured_like_waveforms;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
+use crate::ids;
 use crate::scene::Scene;
 use crate::sim::Simulator;
 
@@ -162,7 +163,7 @@ pub fn fig_3_8() -> Result<Figure, ModelError> {
         m.set_param("adc_inl", "inl_lsb", inl)?;
         // amplitude 1024 LSB = half of the positive/negative range (3.3.4)
         let t = 1000.0;
-        let lsb_per_e = m.p("sensor", "lsb_per_ke") * 1e-3;
+        let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
         m.set_param("sensor", "signal_e_per_us", 1024.0 / (t * lsb_per_e))?;
         let sim = Simulator::new(&m, centre_geometry()?, 1)?;
         let req = CaptureRequest::two_phase(t);
@@ -199,7 +200,7 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
         m.set_enabled("quantization", true)?;
         m.set_enabled("adc_dnl", dnl)?;
         let t = 1000.0;
-        let lsb_per_e = m.p("sensor", "lsb_per_ke") * 1e-3;
+        let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
         m.set_param("sensor", "signal_e_per_us", 300.0 / (t * lsb_per_e))?;
         let sim = Simulator::new(&m, centre_geometry()?, 3)?;
         let req = CaptureRequest::four_phase(t);

@@ -26,6 +26,7 @@ pub mod effects;
 pub mod error;
 pub mod figures;
 pub mod geometry;
+pub mod ids;
 pub mod scene;
 pub mod sim;
 

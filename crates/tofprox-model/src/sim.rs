@@ -11,6 +11,7 @@ use crate::effects::optical::{Correlation, droop_factor};
 use crate::effects::pixel::PixelParams;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
+use crate::ids;
 use crate::scene::Scene;
 
 /// A sensor instance: model + geometry + the fixed patterns drawn from one seed.
@@ -126,32 +127,32 @@ impl Simulator {
                 .map(|k| droop_factor(m, k, t))
                 .collect(),
             signal_e: if illum {
-                m.p("sensor", "signal_e_per_us") * t * px.drift_gain
+                m.get(ids::sensor::SIGNAL_E_PER_US) * t * px.drift_gain
             } else {
                 0.0
             },
-            ambient_e: if m.is_enabled("ambient_light") {
-                m.p("ambient_light", "e_per_us_per_klux") * req.ambient_klux * t
+            ambient_e: if m.is_enabled(ids::ambient_light::ID) {
+                m.get(ids::ambient_light::E_PER_US_PER_KLUX) * req.ambient_klux * t
             } else {
                 0.0
             },
-            contrast: if m.is_enabled("demodulation_contrast") {
-                m.p("demodulation_contrast", "contrast")
+            contrast: if m.is_enabled(ids::demodulation_contrast::ID) {
+                m.get(ids::demodulation_contrast::CONTRAST)
             } else {
                 1.0
             },
             falloff_n: m
-                .is_enabled("signal_falloff")
-                .then(|| m.p("signal_falloff", "exponent")),
-            multipath: m.is_enabled("multipath").then(|| {
+                .is_enabled(ids::signal_falloff::ID)
+                .then(|| m.get(ids::signal_falloff::EXPONENT)),
+            multipath: m.is_enabled(ids::multipath::ID).then(|| {
                 (
-                    m.p("multipath", "relative_amplitude"),
+                    m.get(ids::multipath::RELATIVE_AMPLITUDE),
                     // an extra path L arrives like an extra distance L/2 (eq. 2.6 inverted)
-                    self.geometry.phase_rad_per_m() * m.p("multipath", "extra_path_m") / 2.0,
+                    self.geometry.phase_rad_per_m() * m.get(ids::multipath::EXTRA_PATH_M) / 2.0,
                 )
             }),
             px,
-            lsb_per_e: m.p("sensor", "lsb_per_ke") * 1e-3,
+            lsb_per_e: m.get(ids::sensor::LSB_PER_KE) * 1e-3,
             // eq. 2.6 inverted: φ = 4π f d / c
             tof_rad_per_m: self.geometry.phase_rad_per_m(),
             averaged: f64::from(req.averaged.max(1)),
@@ -281,8 +282,8 @@ impl Simulator {
         let dark = px.dark_e;
         let sbi_on = px.sbi.is_some();
         // tap_gain_mismatch: D = (1 + ε/2) N_A − (1 − ε/2) N_B
-        let tap_eps = if self.model.is_enabled("tap_gain_mismatch") {
-            self.model.p("tap_gain_mismatch", "mismatch_rel")
+        let tap_eps = if self.model.is_enabled(ids::tap_gain_mismatch::ID) {
+            self.model.get(ids::tap_gain_mismatch::MISMATCH_REL)
         } else {
             0.0
         };

@@ -1,4 +1,4 @@
-//! End-to-end tests of `tofprox lab` (issue 4): a recording simulated by
+//! End-to-end tests of `tofprox lab` (docs/lab.md): a recording simulated by
 //! `tofprox sim sweep` whose truth has VCSEL droop that the model lacks;
 //! diagnose names it (JSON per the output contract), add makes the error fall
 //! and writes a loadable model, the report is one self-contained HTML file, and
@@ -116,7 +116,7 @@ fn diagnose_add_report_end_to_end() {
             < a["before"]["chi2_per_dof"].as_f64().unwrap()
     );
     let m = ModelConfig::load(&m2).unwrap();
-    assert!(m.is_enabled("vcsel_droop"));
+    assert!(m.is_enabled(tofprox_model::ids::vcsel_droop::ID));
 
     let o = run(&[
         "lab",

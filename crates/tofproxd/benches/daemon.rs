@@ -1,4 +1,4 @@
-//! Speed of the daemon (issue 6 targets):
+//! Speed of the daemon (targets of docs/daemon.md):
 //! - CPU per cycle ≤ 2 ms (2-phase, full 224×172 frame), excluding sleeps:
 //!   `controller_cycle_2phase_full_frame` (the daemon's own work: checks, processing,
 //!   detector, decisions, energy) and `emulated_stack_cycle_2phase_full_frame` (the same

@@ -1,7 +1,7 @@
 //! Checks shared by the lab's integration tests.
 use tofprox_lab::diagnose::{AddOutcome, Rms};
 
-/// Issue 4: after `add`, the depth error falls to within 1.3× of the same
+/// The lab's promise (docs/lab.md): after `add`, the depth error falls to within 1.3× of the same
 /// recording without the hidden effect (`control`), and the fit improves.
 #[track_caller]
 pub fn assert_add_reaches_control(out: &AddOutcome, control: &Rms) {

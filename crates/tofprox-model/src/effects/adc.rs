@@ -6,6 +6,7 @@ use std::f64::consts::TAU;
 use super::fixed_pattern::{TAG_DNL, hashed_normal};
 use super::optical::fast_floor;
 use crate::config::ModelConfig;
+use crate::ids;
 
 /// Front padding of the windowed DNL searches.
 const PAD: usize = 3;
@@ -43,40 +44,41 @@ impl Adc {
     pub fn new(model: &ModelConfig, bits: u8, seed: u64) -> Self {
         let full = f64::from(1u32 << bits);
         let mid = full / 2.0;
-        let k_gain = if model.is_enabled("adc_gain") {
-            1.0 / (1.0 + model.p("adc_gain", "gain_error_pct_fsr") / 100.0)
+        let k_gain = if model.is_enabled(ids::adc_gain::ID) {
+            1.0 / (1.0 + model.get(ids::adc_gain::GAIN_ERROR_PCT_FSR) / 100.0)
         } else {
             1.0
         };
-        let offset_lsb = if model.is_enabled("adc_offset") {
-            model.p("adc_offset", "offset_lsb")
+        let offset_lsb = if model.is_enabled(ids::adc_offset::ID) {
+            model.get(ids::adc_offset::OFFSET_LSB)
         } else {
             0.0
         };
-        let inl_lsb = if model.is_enabled("adc_inl") {
-            model.p("adc_inl", "inl_lsb")
+        let inl_lsb = if model.is_enabled(ids::adc_inl::ID) {
+            model.get(ids::adc_inl::INL_LSB)
         } else {
             0.0
         };
-        let thresholds = if model.is_enabled("adc_dnl") && model.p("adc_dnl", "dnl_lsb") > 0.0 {
-            let dnl = model.p("adc_dnl", "dnl_lsb");
-            let sigma = dnl / (3.0 * std::f64::consts::SQRT_2);
-            let n = 1usize << bits;
-            let mut t = Vec::with_capacity(n + 1);
-            t.push(-0.5);
-            for k in 1..n {
-                let e = (sigma * hashed_normal(seed, TAG_DNL, k as u64, 0))
-                    .clamp(-dnl / 2.0, dnl / 2.0);
-                let ideal = k as f64 - 0.5;
-                // a transition below its predecessor is a missing code
-                let prev = t.last().copied().unwrap_or(-0.5);
-                t.push((ideal + e).max(prev));
-            }
-            t.push(full - 0.5);
-            Some(t)
-        } else {
-            None
-        };
+        let thresholds =
+            if model.is_enabled(ids::adc_dnl::ID) && model.get(ids::adc_dnl::DNL_LSB) > 0.0 {
+                let dnl = model.get(ids::adc_dnl::DNL_LSB);
+                let sigma = dnl / (3.0 * std::f64::consts::SQRT_2);
+                let n = 1usize << bits;
+                let mut t = Vec::with_capacity(n + 1);
+                t.push(-0.5);
+                for k in 1..n {
+                    let e = (sigma * hashed_normal(seed, TAG_DNL, k as u64, 0))
+                        .clamp(-dnl / 2.0, dnl / 2.0);
+                    let ideal = k as f64 - 0.5;
+                    // a transition below its predecessor is a missing code
+                    let prev = t.last().copied().unwrap_or(-0.5);
+                    t.push((ideal + e).max(prev));
+                }
+                t.push(full - 0.5);
+                Some(t)
+            } else {
+                None
+            };
         let inl_w = TAU / full;
         // one entry per INL_STEP LSB over x ∈ [−2^N, 2^N] as f32 (fits in L1);
         // linear interpolation error ≤ (2π·4/2^N)²/8 · |I| ≈ 5e-6 |I| LSB at 12 bit
@@ -138,7 +140,7 @@ impl Adc {
             inl_table,
             centres,
             inv_width,
-            quantize: model.is_enabled("quantization"),
+            quantize: model.is_enabled(ids::quantization::ID),
             thresholds,
         }
     }

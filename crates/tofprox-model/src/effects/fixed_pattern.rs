@@ -5,6 +5,7 @@
 
 use crate::config::ModelConfig;
 use crate::geometry::SensorGeometry;
+use crate::ids;
 
 /// SplitMix64 step: a well-mixed 64-bit hash.
 pub(crate) fn mix64(mut z: u64) -> u64 {
@@ -68,25 +69,25 @@ impl FixedPatterns {
         let (cr, cc) = (fr / 2.0, fc / 2.0);
         let corner2 = cr * cr + cc * cc;
 
-        let fpn = model.is_enabled("fpn_offset");
+        let fpn = model.is_enabled(ids::fpn_offset::ID);
         let (s_ch, s_col, s_pix, line, mean) = (
-            model.p("fpn_offset", "adc_channel_sigma_lsb"),
-            model.p("fpn_offset", "column_sigma_lsb"),
-            model.p("fpn_offset", "pixel_sigma_lsb"),
-            model.p("fpn_offset", "column_line_lsb"),
-            model.p("fpn_offset", "mean_lsb"),
+            model.get(ids::fpn_offset::ADC_CHANNEL_SIGMA_LSB),
+            model.get(ids::fpn_offset::COLUMN_SIGMA_LSB),
+            model.get(ids::fpn_offset::PIXEL_SIGMA_LSB),
+            model.get(ids::fpn_offset::COLUMN_LINE_LSB),
+            model.get(ids::fpn_offset::MEAN_LSB),
         );
-        let prnu = model.is_enabled("prnu");
+        let prnu = model.is_enabled(ids::prnu::ID);
         let (s_gain, vig) = (
-            model.p("prnu", "sigma_rel"),
-            model.p("prnu", "vignetting_rel"),
+            model.get(ids::prnu::SIGMA_REL),
+            model.get(ids::prnu::VIGNETTING_REL),
         );
-        let fppn = model.is_enabled("fppn");
+        let fppn = model.is_enabled(ids::fppn::ID);
         let w = std::f64::consts::TAU * g.modulation_hz;
         let (tg, tc, tp) = (
-            model.p("fppn", "global_delay_ns") * 1e-9,
-            model.p("fppn", "column_delay_ps") * 1e-12,
-            model.p("fppn", "pixel_sigma_ps") * 1e-12,
+            model.get(ids::fppn::GLOBAL_DELAY_NS) * 1e-9,
+            model.get(ids::fppn::COLUMN_DELAY_PS) * 1e-12,
+            model.get(ids::fppn::PIXEL_SIGMA_PS) * 1e-12,
         );
 
         for r in 0..g.rows {

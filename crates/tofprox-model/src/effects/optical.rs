@@ -6,6 +6,7 @@ use std::path::Path;
 
 use crate::config::ModelConfig;
 use crate::error::{ErrorKind, ModelError};
+use crate::ids;
 
 /// Number of table entries per period of the correlation function.
 const TABLE_SIZE: usize = 8192;
@@ -121,19 +122,15 @@ impl Correlation {
 
     /// Build the correlation the model asks for.
     pub fn from_model(model: &ModelConfig) -> Self {
-        if !model.is_enabled("waveform_harmonics") {
+        if !model.is_enabled(ids::waveform_harmonics::ID) {
             return Self::cosine();
         }
         if let Some(w) = model.waveforms() {
             return Self::from_waveforms(&w.illumination, &w.modulation);
         }
         let rel: Vec<(f64, f64)> = (2..=9)
-            .map(|n| {
-                (
-                    model.p("waveform_harmonics", &format!("h{n}_rel")),
-                    model.p("waveform_harmonics", &format!("h{n}_phase_deg")),
-                )
-            })
+            .filter_map(ids::harmonic)
+            .map(|(rel, phase)| (model.get(rel), model.get(phase)))
             .collect();
         Self::from_harmonics(&rel)
     }
@@ -355,16 +352,16 @@ const GATE_EDGE_NS: f64 = 2.4;
 
 /// Relative optical power of raw image `k` (acquisition order) under `vcsel_droop`.
 pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
-    if !model.is_enabled("vcsel_droop") {
+    if !model.is_enabled(ids::vcsel_droop::ID) {
         return 1.0;
     }
-    let d = model.p("vcsel_droop", "droop_rel");
+    let d = model.get(ids::vcsel_droop::DROOP_REL);
     1.0 - d * droop_loss(
         k as f64,
         exposure_us,
-        model.p("vcsel_droop", "tau_us"),
-        model.p("vcsel_droop", "exposure_power"),
-        model.p("vcsel_droop", "first_image_index"),
+        model.get(ids::vcsel_droop::TAU_US),
+        model.get(ids::vcsel_droop::EXPOSURE_POWER),
+        model.get(ids::vcsel_droop::FIRST_IMAGE_INDEX),
     )
 }
 

@@ -2,6 +2,7 @@
 //! `dark_current`, and the noise sources `shot_noise`, `ktc_noise`, `read_noise`.
 
 use crate::config::ModelConfig;
+use crate::ids;
 
 /// Boltzmann constant in J/K.
 pub const BOLTZMANN_J_PER_K: f64 = 1.380_649e-23;
@@ -46,53 +47,54 @@ pub struct PixelParams {
 impl PixelParams {
     /// Constants for one capture at `exposure_us` and `temperature_c`.
     pub fn new(model: &ModelConfig, exposure_us: f64, temperature_c: f64) -> Self {
-        let on = |id: &str| model.is_enabled(id);
-        let sbi = on("sbi_asymmetry").then(|| {
+        let on = |id: ids::EffectId| model.is_enabled(id);
+        let sbi = on(ids::sbi_asymmetry::ID).then(|| {
             (
-                model.p("sbi_asymmetry", "threshold_e"),
-                model.p("sbi_asymmetry", "mismatch_rel"),
+                model.get(ids::sbi_asymmetry::THRESHOLD_E),
+                model.get(ids::sbi_asymmetry::MISMATCH_REL),
             )
         });
-        let amp_phase = on("amplitude_phase_error").then(|| {
+        let amp_phase = on(ids::amplitude_phase_error::ID).then(|| {
             (
-                model.p("amplitude_phase_error", "max_rad"),
-                model.p("amplitude_phase_error", "reference_e"),
-                model.p("amplitude_phase_error", "shape"),
+                model.get(ids::amplitude_phase_error::MAX_RAD),
+                model.get(ids::amplitude_phase_error::REFERENCE_E),
+                model.get(ids::amplitude_phase_error::SHAPE),
             )
         });
-        let (drift_rad, drift_gain) = if on("temperature_drift") {
-            let dt = temperature_c - model.p("temperature_drift", "reference_c");
+        let (drift_rad, drift_gain) = if on(ids::temperature_drift::ID) {
+            let dt = temperature_c - model.get(ids::temperature_drift::REFERENCE_C);
             (
-                model.p("temperature_drift", "phase_mrad_per_k") * 1e-3 * dt,
-                (1.0 + model.p("temperature_drift", "gain_rel_per_k") * dt).max(0.0),
+                model.get(ids::temperature_drift::PHASE_MRAD_PER_K) * 1e-3 * dt,
+                (1.0 + model.get(ids::temperature_drift::GAIN_REL_PER_K) * dt).max(0.0),
             )
         } else {
             (0.0, 1.0)
         };
         // eq. 2.17 with i_d(T) = i_d,25 · 2^((T − 25)/ΔT₂)
-        let dark_e = if on("dark_current") {
-            model.p("dark_current", "e_per_us")
+        let dark_e = if on(ids::dark_current::ID) {
+            model.get(ids::dark_current::E_PER_US)
                 * exposure_us
-                * 2f64
-                    .powf((temperature_c - 25.0) / model.p("dark_current", "doubling_c").max(1e-6))
+                * 2f64.powf(
+                    (temperature_c - 25.0) / model.get(ids::dark_current::DOUBLING_C).max(1e-6),
+                )
         } else {
             0.0
         };
-        let shot_f = if on("shot_noise") {
-            model.p("shot_noise", "excess_noise_factor")
+        let shot_f = if on(ids::shot_noise::ID) {
+            model.get(ids::shot_noise::EXCESS_NOISE_FACTOR)
         } else {
             0.0
         };
         // eq. 2.15: σ_kTC = √(k T C) / e
-        let ktc_var_e2 = if on("ktc_noise") {
+        let ktc_var_e2 = if on(ids::ktc_noise::ID) {
             let t_k = temperature_c + 273.15;
-            BOLTZMANN_J_PER_K * t_k * model.p("ktc_noise", "c_int_ff") * 1e-15
+            BOLTZMANN_J_PER_K * t_k * model.get(ids::ktc_noise::C_INT_FF) * 1e-15
                 / (ELEMENTARY_CHARGE_C * ELEMENTARY_CHARGE_C)
         } else {
             0.0
         };
-        let read_var_lsb2 = if on("read_noise") {
-            model.p("read_noise", "sigma_lsb").powi(2)
+        let read_var_lsb2 = if on(ids::read_noise::ID) {
+            model.get(ids::read_noise::SIGMA_LSB).powi(2)
         } else {
             0.0
         };
@@ -103,7 +105,7 @@ impl PixelParams {
             drift_gain,
             dark_e,
             shot_f,
-            dark_shot: on("dark_current"),
+            dark_shot: on(ids::dark_current::ID),
             ktc_var_e2,
             read_var_lsb2,
         }

@@ -271,7 +271,9 @@ fn simulate_into(
             .enumerate()
             .map(|(j, p)| {
                 let mut rng = capture_rng(seed, base + j);
-                if p.req.averaged == 1 && sim.model().is_enabled("quantization") {
+                if p.req.averaged == 1
+                    && sim.model().is_enabled(tofprox_model::ids::quantization::ID)
+                {
                     Ok(RawFrames::U16(sim.capture_u16(&p.scene, &p.req, &mut rng)?))
                 } else {
                     Ok(RawFrames::F32(
@@ -549,7 +551,7 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
             }
             effects.insert(
                 e.id.to_string(),
-                serde_json::json!({"enabled": m.is_enabled(e.id), "params": params}),
+                serde_json::json!({"enabled": m.effect(e.id).is_some_and(|s| s.enabled), "params": params}),
             );
         }
         let sensor: serde_json::Map<String, serde_json::Value> =
@@ -584,7 +586,7 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
         );
     }
     for e in catalogue() {
-        let on = m.is_enabled(e.id);
+        let on = m.effect(e.id).is_some_and(|s| s.enabled);
         println!("{} {}", if on { "[x]" } else { "[ ]" }, e.id);
         if on {
             for p in e.params {
