@@ -1,8 +1,10 @@
 //! Calibration sets: `CALIB/calibration.toml` + one `.npy` array per part,
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
-//! Parts and their dependencies (thesis order of application, 4.3.3):
-//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map.
+//! Parts and their dependencies (thesis order of application, 4.3.3; order of
+//! extraction, 5.1.3): lens intrinsics → offset (FPN dark frame) → wiggling
+//! LUTs (2- and 4-phase) → FPPN map. Wiggling and FPPN record the intrinsics
+//! they were extracted through ("none": without a lens model).
 //! Each dependent part records the checksum of the parts it was extracted
 //! with; loading refuses a set whose parts do not fit together, and
 //! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
@@ -18,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::Algorithm;
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use tofprox_core::camera::{Distortion, Intrinsics, RayGrid};
 use tofprox_core::pipeline::Calibration;
 
 use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
@@ -35,6 +38,8 @@ pub const CALIBRATION_TOML: &str = "calibration.toml";
 /// One part of a calibration set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum CalibPart {
+    /// Lens intrinsics and distortion, `[fx, fy, cx, cy, k1, k2, p1, p2, k3]` (OpenCV order).
+    Intrinsics,
     /// Per-pixel dark frame (FPN).
     Offset,
     /// Wiggling LUT for 2-phase evaluation.
@@ -49,7 +54,8 @@ pub enum CalibPart {
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 5] = [
+    pub const ALL: [CalibPart; 6] = [
+        CalibPart::Intrinsics,
         CalibPart::Offset,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
@@ -59,6 +65,7 @@ impl CalibPart {
     /// The table name in `calibration.toml` (also the array's file stem).
     pub fn name(self) -> &'static str {
         match self {
+            CalibPart::Intrinsics => "intrinsics",
             CalibPart::Offset => "offset",
             CalibPart::Wiggling2Phase => "wiggling_2phase",
             CalibPart::Wiggling4Phase => "wiggling_4phase",
@@ -87,7 +94,7 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Offset => None,
+            CalibPart::Intrinsics | CalibPart::Offset => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -156,6 +163,8 @@ pub struct PartSource {
 /// A loaded (or being built) calibration set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationSet {
+    /// Lens intrinsics and distortion (full-array pixel coordinates), stored as float32.
+    pub intrinsics: Option<Intrinsics>,
     /// Per-pixel dark frame.
     pub offset: Option<OffsetCalibration>,
     /// 2-phase wiggling LUT.
@@ -183,6 +192,7 @@ pub struct CalibrationSet {
 struct Deps {
     offset: Option<String>,
     wiggling: Option<String>,
+    intrinsics: Option<String>,
 }
 
 // ---------------------------------------------------------------- TOML schema
@@ -197,6 +207,8 @@ struct CalibToml {
     /// Last time the set was written (RFC 3339).
     updated: String,
     valid_for: CalibrationValidity,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    intrinsics: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -228,6 +240,9 @@ struct PartToml {
     /// sha256 of the wiggling array this part was extracted with, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     wiggling_sha256: Option<String>,
+    /// sha256 of the intrinsics this part was extracted through, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    intrinsics_sha256: Option<String>,
     source_recording: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     source_description: Option<String>,
@@ -279,6 +294,7 @@ impl CalibrationSet {
     /// An empty set for data of `sensor`.
     pub fn new(sensor: &SensorInfo) -> Self {
         CalibrationSet {
+            intrinsics: None,
             offset: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
@@ -319,6 +335,7 @@ impl CalibrationSet {
     /// Whether a part is present.
     pub fn has(&self, part: CalibPart) -> bool {
         match part {
+            CalibPart::Intrinsics => self.intrinsics.is_some(),
             CalibPart::Offset => self.offset.is_some(),
             CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
@@ -329,6 +346,10 @@ impl CalibrationSet {
 
     fn part_bytes(&self, part: CalibPart) -> Option<Vec<u8>> {
         match part {
+            CalibPart::Intrinsics => self
+                .intrinsics
+                .as_ref()
+                .map(|k| npy::encode_f32(&intrinsics_array(k))),
             CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
             CalibPart::Wiggling2Phase => self
                 .wiggling_2phase
@@ -360,6 +381,7 @@ impl CalibrationSet {
 
     fn remove(&mut self, part: CalibPart) {
         match part {
+            CalibPart::Intrinsics => self.intrinsics = None,
             CalibPart::Offset => self.offset = None,
             CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
@@ -374,6 +396,7 @@ impl CalibrationSet {
     pub fn stale_parts(&self) -> Vec<CalibPart> {
         let mut out = Vec::new();
         let off = self.checksum_or_none(CalibPart::Offset);
+        let lens = self.checksum_or_none(CalibPart::Intrinsics);
         for part in [
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
@@ -386,7 +409,9 @@ impl CalibrationSet {
             let Some(d) = self.deps.get(&part) else {
                 continue;
             };
-            if d.offset.as_deref().is_some_and(|o| o != off) {
+            if d.offset.as_deref().is_some_and(|o| o != off)
+                || d.intrinsics.as_deref().is_some_and(|k| k != lens)
+            {
                 out.push(part);
                 continue;
             }
@@ -416,6 +441,36 @@ impl CalibrationSet {
         }
     }
 
+    /// Set (or replace) the lens intrinsics (stored as float32, so the values are rounded to
+    /// float32 here: what is extracted through them is what is saved). Returns the parts dropped
+    /// because they were extracted through the previous intrinsics.
+    pub fn set_intrinsics(
+        &mut self,
+        intrinsics: Intrinsics,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let k = intrinsics_from_array(&intrinsics_array(&intrinsics));
+        k.validate()
+            .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
+        self.rays_of(&k)
+            .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
+        self.intrinsics = Some(k);
+        Ok(self.record_part(CalibPart::Intrinsics, source, Deps::default()))
+    }
+
+    /// The unit rays of the set's window through its intrinsics (`None` without intrinsics).
+    pub fn rays(&self) -> Option<Result<RayGrid, FormatError>> {
+        self.intrinsics.as_ref().map(|k| {
+            self.rays_of(k)
+                .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))
+        })
+    }
+
+    fn rays_of(&self, k: &Intrinsics) -> Result<RayGrid, tofprox_core::CoreError> {
+        let v = &self.validity;
+        k.rays(v.roi_origin[0], v.roi_origin[1], v.rows, v.cols)
+    }
+
     /// Set (or replace) the offset. Returns the parts dropped because they
     /// were extracted with the previous offset.
     pub fn set_offset(
@@ -441,6 +496,7 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: None,
+            intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
         };
         match lut.algorithm {
             Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
@@ -472,6 +528,7 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
+            intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
         };
         match algorithm {
             Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
@@ -592,6 +649,7 @@ impl CalibrationSet {
             description: self.description.clone(),
             updated: now_rfc3339(),
             valid_for: self.validity.clone(),
+            intrinsics: None,
             offset: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
@@ -607,6 +665,7 @@ impl CalibrationSet {
             let src = self.sources.get(&part).cloned().unwrap_or_default();
             let deps = self.deps.get(&part).cloned().unwrap_or_default();
             let (shape, algorithm, lut_size) = match part {
+                CalibPart::Intrinsics => (Some(vec![INTRINSICS_LEN]), None, None),
                 CalibPart::Offset => (
                     self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
                     None,
@@ -638,6 +697,7 @@ impl CalibrationSet {
                 distance_m: src.distance_m,
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
+                intrinsics_sha256: deps.intrinsics,
                 source_recording: src.recording,
                 source_description: src.recording_description,
                 source_captures: src.captures,
@@ -645,6 +705,7 @@ impl CalibrationSet {
                 tool: src.tool,
             };
             match part {
+                CalibPart::Intrinsics => t.intrinsics = Some(pt),
                 CalibPart::Offset => t.offset = Some(pt),
                 CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
@@ -700,6 +761,7 @@ impl CalibrationSet {
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
         let parts = [
+            (CalibPart::Intrinsics, &t.intrinsics),
             (CalibPart::Offset, &t.offset),
             (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
@@ -712,6 +774,22 @@ impl CalibrationSet {
             let key = part.name();
             let k = |sub: &str| format!("{key}.{sub}");
             match (part, arr) {
+                (CalibPart::Intrinsics, LoadedArray::Lut(a)) => {
+                    if a.len() != INTRINSICS_LEN {
+                        return Err(invalid(format!(
+                            "holds {} values, expected {INTRINSICS_LEN}: [fx, fy, cx, cy, k1, k2, p1, p2, k3]",
+                            a.len()
+                        ))
+                        .at(&dir.join(&pt.file))
+                        .key(key));
+                    }
+                    let k = intrinsics_from_array(&a);
+                    k.validate()
+                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
+                    set.rays_of(&k)
+                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
+                    set.intrinsics = Some(k);
+                }
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
                 }
@@ -800,13 +878,18 @@ impl CalibrationSet {
                 Deps {
                     offset: pt.offset_sha256.clone(),
                     wiggling: pt.wiggling_sha256.clone(),
+                    intrinsics: pt.intrinsics_sha256.clone(),
                 },
             );
         }
         if let Some(p) = set.stale_parts().first() {
             return Err(invalid(format!(
                 "[{p}] was extracted with a different {} than the one in this set; re-run `tofprox calibrate` for it",
-                if set.deps.get(p).and_then(|d| d.offset.as_deref())
+                if set.deps.get(p).and_then(|d| d.intrinsics.as_deref()).is_some_and(|k| {
+                    k != set.checksum_or_none(CalibPart::Intrinsics)
+                }) {
+                    "lens intrinsics".to_string()
+                } else if set.deps.get(p).and_then(|d| d.offset.as_deref())
                     != Some(set.checksum_or_none(CalibPart::Offset).as_str())
                 {
                     "offset".to_string()
@@ -924,7 +1007,7 @@ fn load_part(
             }
             Ok(LoadedArray::Map(a))
         }
-        CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+        CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
             let a = a.into_dimensionality::<Ix1>().map_err(|_| {
                 invalid(format!(
                     "expected a 1-dimensional table, found shape {}",
@@ -935,6 +1018,38 @@ fn load_part(
             })?;
             Ok(LoadedArray::Lut(a))
         }
+    }
+}
+
+/// Number of values of the intrinsics array.
+const INTRINSICS_LEN: usize = 9;
+
+/// `[fx, fy, cx, cy, k1, k2, p1, p2, k3]`: OpenCV's camera-matrix entries, then its
+/// `distCoeffs` order.
+fn intrinsics_array(k: &Intrinsics) -> Array1<f32> {
+    let d = &k.distortion;
+    Array1::from_iter(
+        [
+            k.fx_px, k.fy_px, k.cx_px, k.cy_px, d.k1, d.k2, d.p1, d.p2, d.k3,
+        ]
+        .map(|v| v as f32),
+    )
+}
+
+fn intrinsics_from_array(a: &Array1<f32>) -> Intrinsics {
+    let v = |i: usize| a.get(i).copied().map_or(f64::NAN, f64::from);
+    Intrinsics {
+        fx_px: v(0),
+        fy_px: v(1),
+        cx_px: v(2),
+        cy_px: v(3),
+        distortion: Distortion {
+            k1: v(4),
+            k2: v(5),
+            p1: v(6),
+            p2: v(7),
+            k3: v(8),
+        },
     }
 }
 
