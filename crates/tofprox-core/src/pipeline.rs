@@ -457,12 +457,18 @@ impl Pipeline {
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx512 => {
                 // SAFETY: `Avx512` is only selected when the CPU reports these features at runtime.
-                unsafe { kernel_avx512(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx512(raw, four, n, &p, &tabs, out)
+                }
             }
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx2 => {
                 // SAFETY: `Avx2` is only selected when the CPU reports AVX2 and FMA at runtime.
-                unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx2(raw, four, n, &p, &tabs, out)
+                }
             }
             _ => kernel_dispatch::<T, false>(raw, four, n, &p, &tabs, out, gather_scalar),
         }
@@ -615,6 +621,7 @@ fn gather_avx2(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) 
     while j + 8 <= len {
         // SAFETY: j + 8 ≤ len ≤ every slice's length, so the unaligned 8-lane loads/store are in
         // bounds; the gather indices are masked to < LUT_BINS, the length of the table.
+        #[allow(unsafe_code)]
         unsafe {
             let vi = _mm256_and_si256(
                 _mm256_loadu_si256(idx.as_ptr().add(j).cast::<__m256i>()),

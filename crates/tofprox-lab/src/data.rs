@@ -8,14 +8,21 @@ use crate::error::LabError;
 /// One capture: K raw images of (rows, cols) mean codes with its conditions.
 #[derive(Debug, Clone)]
 pub struct Capture {
+    /// Phase shift of each raw image, in acquisition order.
     pub phases_deg: Vec<f64>,
+    /// Exposure (integration) time.
     pub exposure_us: f64,
+    /// false: a dark capture (illumination off).
     pub illumination: bool,
+    /// Acquisitions averaged into each code (1 = a single one).
     pub averaged: u32,
     /// Ground-truth radial distance of the flat target, if known.
     pub distance_m: Option<f64>,
+    /// Target reflectivity (1 when the recording does not say).
     pub reflectivity: f64,
+    /// Background illuminance on the target.
     pub ambient_klux: f64,
+    /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
     /// (K, rows, cols) codes (offset binary, mean of `averaged` acquisitions).
     pub frames: Array3<f64>,
@@ -24,11 +31,17 @@ pub struct Capture {
 /// A recording as the lab sees it, captures in acquisition order.
 #[derive(Debug, Clone)]
 pub struct Dataset {
+    /// Rows of the recorded window.
     pub rows: usize,
+    /// Columns of the recorded window.
     pub cols: usize,
+    /// (row, col) of the window's first pixel on the full array.
     pub roi_origin: [usize; 2],
+    /// ADC resolution; codes are offset binary around `2^(adc_bits-1)`.
     pub adc_bits: u8,
+    /// Modulation frequency.
     pub modulation_hz: f64,
+    /// The captures, in acquisition order.
     pub captures: Vec<Capture>,
 }
 
@@ -110,9 +123,11 @@ impl Dataset {
         Ok(())
     }
 
+    /// Zero differential voltage: `2^(adc_bits-1)`.
     pub fn mid_code(&self) -> f64 {
         f64::from(1u32 << (self.adc_bits - 1))
     }
+    /// Largest code: `2^adc_bits - 1`.
     pub fn max_code(&self) -> f64 {
         f64::from((1u32 << self.adc_bits) - 1)
     }

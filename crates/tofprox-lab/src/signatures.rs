@@ -11,13 +11,20 @@ use crate::waveform::Waveform;
 /// Highest harmonic the extra-harmonics signature reaches (issue 3: ≥ 9th).
 pub const MAX_HARMONIC: usize = 9;
 
+/// The residual an effect leaves in the raw codes, as a basis in which it is
+/// linear (`lin`) given a few non-linear parameters (`nl`).
 pub trait Signature: Send + Sync {
+    /// The catalogue id of the effect.
     fn id(&self) -> &'static str;
+    /// Number of linear coefficients (basis functions).
     fn n_lin(&self) -> usize;
+    /// Names of the linear coefficients, in basis order.
     fn lin_names(&self) -> Vec<String>;
+    /// Names of the non-linear parameters (none by default).
     fn nl_names(&self) -> Vec<String> {
         Vec::new()
     }
+    /// Default starting values of the non-linear parameters.
     fn nl_start(&self) -> Vec<f64> {
         Vec::new()
     }
@@ -78,6 +85,8 @@ pub fn not_identifiable(id: &str, prep: &Prepared, spec: &LabSpec) -> Option<Str
     }
 }
 
+/// The signature of effect `id` for this recording, model and correlation
+/// waveform; [`ErrorKind::UnknownEffect`] when the lab has none.
 pub fn make_signature(
     id: &str,
     prep: &Prepared,

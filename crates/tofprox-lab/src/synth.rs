@@ -11,7 +11,7 @@ use crate::waveform::Waveform;
 /// An effect injected into the synthetic truth.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Hidden {
-    /// Common-mode error m·max(0, ambient·t[ms] + A/100 − q0) on every raw image.
+    /// Common-mode error m·max(0, ambient·t_ms + A/100 − q0) on every raw image.
     Sbi { m: f64, q0: f64 },
     /// A_k = A(1 − eps·k).
     Droop { eps: f64 },

@@ -7,7 +7,7 @@
 //! the differential voltage with fixed-pattern offset, and a 12-bit differential
 //! ADC with gain, offset, INL, DNL, quantisation and saturation.
 //!
-//! Every physical effect is a separately switchable unit of the [`catalogue`];
+//! Every physical effect is a separately switchable unit of the [`catalogue`](mod@catalogue);
 //! a model file (`config/model/*.toml`) enables effects and sets their parameters.
 //!
 //! Conventions (CONTRACTS.md): `code_k = mid + offset + A · C(φ − θ_k)`,

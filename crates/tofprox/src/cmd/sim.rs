@@ -51,7 +51,7 @@ pub struct SweepArgs {
     /// Exposure times in µs (comma list).
     #[arg(long, default_value = "500,1000", value_delimiter = ',')]
     pub exposures: Vec<f64>,
-    /// Raw images per capture: 2 ([0,90]), 4 ([0,90,180,270]) or 24 (correlation).
+    /// Raw images per capture: 2 (0°, 90°), 4 (0°, 90°, 180°, 270°) or 24 (correlation).
     #[arg(long, default_value_t = 4)]
     pub phases: usize,
     /// Ambient light levels in klux (comma list).
