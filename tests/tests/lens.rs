@@ -6,8 +6,6 @@
 //! per-pixel calibration without a lens model leaves decimetres at the corners (printed beside
 //! it); the point cloud of a flat wall at 1 m is flat (plane-fit RMS < 5 mm).
 
-use std::collections::BTreeMap;
-
 use ndarray::{Array2, s};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -18,7 +16,7 @@ use tofprox_core::calib::{
 use tofprox_core::camera::{Distortion, Intrinsics, Plane, SweepCapture, calibrate_intrinsics};
 use tofprox_core::pipeline::{FLAG_INVALID, Pipeline, PipelineConfig};
 use tofprox_format::{
-    CalibrationSet, CaptureSpec, PartSource, RawFrames, Recording, RecordingWriter, SensorInfo,
+    CalibrationSet, PartSource, RawFrames, Recording, RecordingWriter, SensorInfo,
 };
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
 
@@ -31,25 +29,7 @@ const CHECK_M: [(f64, f64); 3] = [(0.35, 1000.0), (0.7, 1000.0), (1.0, 2500.0)];
 const FPPN_AT_M: f64 = 0.5;
 
 fn src() -> PartSource {
-    PartSource {
-        recording: "lens".into(),
-        ..Default::default()
-    }
-}
-
-fn spec(req: &CaptureRequest, distance_m: Option<f64>) -> CaptureSpec {
-    let mut conditions = BTreeMap::new();
-    if let Some(d) = distance_m {
-        conditions.insert("distance_m".to_string(), d);
-    }
-    CaptureSpec {
-        phases_deg: req.phases_deg.clone(),
-        exposure_us: req.exposure_us,
-        illumination: req.illumination,
-        averaged: req.averaged,
-        timestamp_ns: None,
-        conditions,
-    }
+    tofprox_e2e::part_source("lens")
 }
 
 /// A 66° lens with barrel and decentring distortion, principal point off the array centre.
@@ -86,19 +66,26 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 32;
     let x = sim.capture(&wall(1.0), &dark, &mut rng).unwrap();
-    w.append(spec(&dark, None), &RawFrames::F64(x)).unwrap();
+    w.append(tofprox_e2e::capture_spec(&dark, None), &RawFrames::F64(x))
+        .unwrap();
     let mut corr = CaptureRequest::correlation24(exposure_us);
     corr.averaged = 1024;
     let x = sim.capture(&wall(FPPN_AT_M), &corr, &mut rng).unwrap();
-    w.append(spec(&corr, Some(FPPN_AT_M)), &RawFrames::F64(x))
-        .unwrap();
+    w.append(
+        tofprox_e2e::capture_spec(&corr, Some(FPPN_AT_M)),
+        &RawFrames::F64(x),
+    )
+    .unwrap();
     let mut eight =
         CaptureRequest::with_phases((0..8).map(|k| 45.0 * k as f64).collect(), exposure_us);
     eight.averaged = 256;
     for d in SWEEP_M {
         let x = sim.capture(&wall(d), &eight, &mut rng).unwrap();
-        w.append(spec(&eight, Some(d)), &RawFrames::F32(x.mapv(|v| v as f32)))
-            .unwrap();
+        w.append(
+            tofprox_e2e::capture_spec(&eight, Some(d)),
+            &RawFrames::F32(x.mapv(|v| v as f32)),
+        )
+        .unwrap();
     }
     let mut four = CaptureRequest::four_phase(exposure_us);
     four.averaged = 1024;
@@ -106,8 +93,11 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     for (d, exposure_us) in std::iter::once((FPPN_AT_M, exposure_us)).chain(CHECK_M) {
         four.exposure_us = exposure_us;
         let x = sim.capture(&wall(d), &four, &mut rng).unwrap();
-        w.append(spec(&four, Some(d)), &RawFrames::F32(x.mapv(|v| v as f32)))
-            .unwrap();
+        w.append(
+            tofprox_e2e::capture_spec(&four, Some(d)),
+            &RawFrames::F32(x.mapv(|v| v as f32)),
+        )
+        .unwrap();
     }
     drop(w);
     let rec = Recording::open(&dir).unwrap();
