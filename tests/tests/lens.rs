@@ -15,9 +15,7 @@ use tofprox_core::calib::{
 };
 use tofprox_core::camera::{Distortion, Intrinsics, Plane, SweepCapture, calibrate_intrinsics};
 use tofprox_core::pipeline::{FLAG_INVALID, Pipeline, PipelineConfig};
-use tofprox_format::{
-    CalibrationSet, PartSource, RawFrames, Recording, RecordingWriter, SensorInfo,
-};
+use tofprox_format::{CalibrationSet, PartSource, RawFrames, Recording, RecordingWriter};
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
 
 const SWEEP_M: [f64; 6] = [0.3, 0.45, 0.6, 0.75, 0.9, 1.05];
@@ -57,12 +55,12 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     model.set_camera(Some(lens())).unwrap();
     let sim = Simulator::new(&model, geometry, 5).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let sensor = SensorInfo::full(172, 224, 12, 80e6);
+    let sensor = geometry;
     let exposure_us = 1000.0;
     let wall = |d: f64| Scene::wall(d, 0.9);
 
     // --- record: dark, correlation, 8-phase sweep, 4-phase flat walls ----------------------
-    let mut w = RecordingWriter::create(&dir, sensor.clone(), Some("lens".into())).unwrap();
+    let mut w = RecordingWriter::create(&dir, sensor, Some("lens".into())).unwrap();
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 32;
     let x = sim.capture(&wall(1.0), &dark, &mut rng).unwrap();

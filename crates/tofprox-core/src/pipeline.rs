@@ -106,20 +106,12 @@ impl Default for PipelineConfig {
 }
 
 impl PipelineConfig {
-    /// Checks ranges: `modulation_hz` finite > 0, `adc_bits` in 1..=16, `min_amplitude_lsb` finite ≥ 0.
+    /// Checks ranges: `modulation_hz` and `adc_bits` as every sensor geometry
+    /// ([`crate::sensor::validate_modulation_hz`], [`crate::sensor::validate_adc_bits`]),
+    /// `min_amplitude_lsb` finite ≥ 0.
     pub fn validate(&self) -> Result<(), CoreError> {
-        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
-            return Err(CoreError::param(
-                "modulation_hz",
-                format!("must be finite and > 0, got {}", self.modulation_hz),
-            ));
-        }
-        if !(1..=16).contains(&self.adc_bits) {
-            return Err(CoreError::param(
-                "adc_bits",
-                format!("must be 1..=16, got {}", self.adc_bits),
-            ));
-        }
+        crate::sensor::validate_modulation_hz(self.modulation_hz)?;
+        crate::sensor::validate_adc_bits(self.adc_bits)?;
         if !(self.min_amplitude_lsb.is_finite() && self.min_amplitude_lsb >= 0.0) {
             return Err(CoreError::param(
                 "min_amplitude_lsb",
@@ -127,16 +119,6 @@ impl PipelineConfig {
             ));
         }
         Ok(())
-    }
-
-    /// Mid code `2^(adc_bits − 1)` (zero differential voltage).
-    pub fn mid_code(&self) -> f32 {
-        (1u32 << (self.adc_bits.clamp(1, 16) - 1)) as f32
-    }
-
-    /// Upper rail `2^adc_bits − 1`.
-    pub fn max_code(&self) -> f32 {
-        ((1u32 << self.adc_bits.clamp(1, 16)) - 1) as f32
     }
 }
 
@@ -285,7 +267,7 @@ impl Pipeline {
                 )
             })?;
         let params = KernelParams {
-            rail_hi: config.max_code(),
+            rail_hi: crate::sensor::adc_max_code(config.adc_bits) as f32,
             min_amp: config.min_amplitude_lsb,
             lut_scale: LUT_BINS as f32 / TAU,
             rad_to_m: (phasor::unambiguous_range_m(config.modulation_hz) / std::f64::consts::TAU)
@@ -311,7 +293,8 @@ impl Pipeline {
     /// Replaces the calibration (validated as in [`Pipeline::new`]; on error nothing changes).
     pub fn set_calibration(&mut self, calibration: Calibration) -> Result<(), CoreError> {
         let shape = (self.rows, self.cols);
-        let mut dark = vec![self.config.mid_code(); self.rows * self.cols];
+        let mut dark =
+            vec![crate::sensor::adc_mid_code(self.config.adc_bits) as f32; self.rows * self.cols];
         check_offset(calibration.offset.as_ref(), self.rows, self.cols)?;
         if let Some(off) = &calibration.offset {
             for (d, v) in dark.iter_mut().zip(off.dark_lsb.iter()) {

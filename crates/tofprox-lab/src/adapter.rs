@@ -48,11 +48,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
         });
     }
     let ds = Dataset {
-        rows: s.rows,
-        cols: s.cols,
-        roi_origin: s.roi_origin,
-        adc_bits: s.adc_bits,
-        modulation_hz: s.modulation_hz,
+        sensor: *s,
         captures,
     };
     ds.validate()?;

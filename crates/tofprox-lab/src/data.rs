@@ -2,6 +2,7 @@
 //! Independent of the file format so the statistics can be tested on small
 //! synthetic data; `adapter` converts a `tofprox_format::Recording`.
 use ndarray::Array3;
+use tofprox_core::SensorGeometry;
 
 use crate::error::LabError;
 
@@ -31,16 +32,8 @@ pub struct Capture {
 /// A recording as the lab sees it, captures in acquisition order.
 #[derive(Debug, Clone)]
 pub struct Dataset {
-    /// Rows of the recorded window.
-    pub rows: usize,
-    /// Columns of the recorded window.
-    pub cols: usize,
-    /// (row, col) of the window's first pixel on the full array.
-    pub roi_origin: [usize; 2],
-    /// ADC resolution; codes are offset binary around `2^(adc_bits-1)`.
-    pub adc_bits: u8,
-    /// Modulation frequency.
-    pub modulation_hz: f64,
+    /// The recording's window, full array, ADC and modulation.
+    pub sensor: SensorGeometry,
     /// The captures, in acquisition order.
     pub captures: Vec<Capture>,
 }
@@ -48,30 +41,20 @@ pub struct Dataset {
 impl Dataset {
     /// Check shapes and values; every later stage relies on this.
     pub fn validate(&self) -> Result<(), LabError> {
-        if self.rows == 0 || self.cols == 0 {
-            return Err(LabError::data(
-                "recording window is empty (rows or cols = 0)",
-            ));
-        }
-        if !(4..=16).contains(&self.adc_bits) {
-            return Err(LabError::data(format!(
-                "adc_bits = {} outside 4..=16",
-                self.adc_bits
-            )));
-        }
-        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
-            return Err(LabError::data("modulation_hz must be positive and finite"));
+        let s = &self.sensor;
+        if let Err(e) = s.validate() {
+            return Err(LabError::data(format!("sensor: {e}")));
         }
         if self.captures.is_empty() {
             return Err(LabError::data("recording has no captures"));
         }
-        let full = f64::from(1u32 << self.adc_bits);
+        let full = f64::from(s.max_code()) + 1.0;
         for (i, c) in self.captures.iter().enumerate() {
             let (k, r, cc) = c.frames.dim();
-            if r != self.rows || cc != self.cols {
+            if r != s.rows || cc != s.cols {
                 return Err(LabError::data(format!(
                     "capture {i}: frames are {r}x{cc}, sensor window is {}x{}",
-                    self.rows, self.cols
+                    s.rows, s.cols
                 )));
             }
             if k == 0 || k != c.phases_deg.len() {
@@ -116,19 +99,10 @@ impl Dataset {
             {
                 return Err(LabError::data(format!(
                     "capture {i}: codes outside the {}-bit range or not finite",
-                    self.adc_bits
+                    s.adc_bits
                 )));
             }
         }
         Ok(())
-    }
-
-    /// Zero differential voltage: `2^(adc_bits-1)`.
-    pub fn mid_code(&self) -> f64 {
-        f64::from(1u32 << (self.adc_bits - 1))
-    }
-    /// Largest code: `2^adc_bits - 1`.
-    pub fn max_code(&self) -> f64 {
-        f64::from((1u32 << self.adc_bits) - 1)
     }
 }

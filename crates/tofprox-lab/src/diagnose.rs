@@ -6,10 +6,7 @@ use serde::Serialize;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{
-    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, SPEED_OF_LIGHT_M_PER_S, eval_delta,
-    fit_model,
-};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, eval_delta, fit_model};
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -179,8 +176,7 @@ pub fn depth_residuals(
     model: &LabModel,
 ) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
     let sigs = model.signatures(prep)?;
-    let mm_per_rad =
-        SPEED_OF_LIGHT_M_PER_S / (4.0 * std::f64::consts::PI * prep.modulation_hz) * 1000.0;
+    let mm_per_rad = 1000.0 / tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz);
     let find = |cap: &crate::fit::CapInfo, deg: f64| {
         cap.phases_deg
             .iter()

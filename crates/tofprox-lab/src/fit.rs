@@ -16,6 +16,7 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
+use tofprox_core::phasor::distance_to_phase_rad;
 
 use crate::data::Dataset;
 use crate::error::LabError;
@@ -24,8 +25,6 @@ use crate::signatures::{Signature, make_signature};
 use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
 
-/// Speed of light in vacuum, m/s (eq. 2.6).
-pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
 /// Number of cross-validation folds (blocks of distance/condition).
 pub const FOLDS: usize = 5;
 
@@ -133,9 +132,9 @@ impl Prepared {
     /// Validate and flatten a dataset; fails when no illuminated capture has a distance.
     pub fn new(ds: &Dataset) -> Result<Self, LabError> {
         ds.validate()?;
-        let npix = ds.rows * ds.cols;
-        let mid = ds.mid_code();
-        let max_code = ds.max_code();
+        let npix = ds.sensor.pixels();
+        let mid = f64::from(ds.sensor.mid_code());
+        let max_code = f64::from(ds.sensor.max_code());
         let margin = (0.0075 * (max_code + 1.0)).max(2.0);
         // Reference temperature: that of the correlation capture, else the median.
         let temps: Vec<f64> = ds.captures.iter().filter_map(|c| c.temperature_c).collect();
@@ -194,7 +193,7 @@ impl Prepared {
             };
             let phi_tof = c
                 .distance_m
-                .map(|d| 4.0 * std::f64::consts::PI * ds.modulation_hz * d / SPEED_OF_LIGHT_M_PER_S) // eq. 2.6
+                .map(|d| distance_to_phase_rad(d, ds.sensor.modulation_hz)) // eq. 2.6
                 .unwrap_or(0.0);
             caps.push(CapInfo {
                 theta_rad: c.phases_deg.iter().map(|p| p.to_radians()).collect(),
@@ -235,13 +234,13 @@ impl Prepared {
             ));
         }
         Ok(Self {
-            rows: ds.rows,
-            cols: ds.cols,
+            rows: ds.sensor.rows,
+            cols: ds.sensor.cols,
             npix,
-            roi_origin: ds.roi_origin,
+            roi_origin: ds.sensor.roi_origin,
             mid,
             max_code,
-            modulation_hz: ds.modulation_hz,
+            modulation_hz: ds.sensor.modulation_hz,
             caps,
             base,
             meas,

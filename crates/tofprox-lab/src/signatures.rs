@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, SPEED_OF_LIGHT_M_PER_S};
+use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (issue 3: ≥ 9th).
@@ -114,7 +114,7 @@ pub fn make_signature(
         "adc_inl" => Box::new(Inl { mid: prep.mid }),
         "dark_current" => Box::new(Dark),
         "multipath" => Box::new(Multipath {
-            k_phase: 4.0 * PI * prep.modulation_hz / SPEED_OF_LIGHT_M_PER_S,
+            k_phase: tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz),
         }),
         other => {
             return Err(LabError::new(

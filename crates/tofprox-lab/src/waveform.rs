@@ -1,6 +1,6 @@
 //! The correlation function as a Fourier series (thesis 3.2.2, 4.2.2):
 //! C(x) = Σ_h Re[γ_h e^{i h x}], γ_1 = 1, x = φ − θ_k. The raw code of image k
-//! is mid + offset + A·C(φ − θ_k) (CONTRACTS: physical conventions).
+//! is mid + offset + A·C(φ − θ_k) (the conventions of `tofprox_core`, crate documentation).
 use serde::Serialize;
 
 /// Fourier coefficients of the normalised correlation function C(x).

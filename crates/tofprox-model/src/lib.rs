@@ -10,7 +10,7 @@
 //! Every physical effect is a separately switchable unit of the [`catalogue`](mod@catalogue);
 //! a model file (`config/model/*.toml`) enables effects and sets their parameters.
 //!
-//! Conventions (CONTRACTS.md): `code_k = mid + offset + A · C(φ − θ_k)`,
+//! Conventions (those of `tofprox_core`, crate documentation): `code_k = mid + offset + A · C(φ − θ_k)`,
 //! `φ = 4π f d / c + φ_delay`, mid = 2^(bits−1).
 //!
 //! ```
@@ -34,4 +34,4 @@ pub use config::{EffectSettings, MeasuredWaveforms, ModelConfig};
 pub use error::{ErrorKind, ModelError};
 pub use geometry::{CaptureRequest, SensorGeometry};
 pub use scene::{Scene, SceneScript, ScriptKind};
-pub use sim::{SPEED_OF_LIGHT_M_PER_S, Simulator};
+pub use sim::Simulator;

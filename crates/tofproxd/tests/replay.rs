@@ -4,7 +4,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+use tofprox_core::SensorGeometry;
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 use tofproxd::backends::ReplaySource;
 use tofproxd::config::{Backend, Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
@@ -36,7 +37,7 @@ fn script() -> Vec<(f64, Mode)> {
 fn write_recording(dir: &Path) {
     let mut w = RecordingWriter::create(
         dir,
-        SensorInfo::full(ROWS, COLS, 12, MOD_HZ),
+        SensorGeometry::full(ROWS, COLS, 12, MOD_HZ),
         Some("replay test".into()),
     )
     .expect("create recording");

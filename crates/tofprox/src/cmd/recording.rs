@@ -153,7 +153,7 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         return calib_info(&a);
     }
     let rec = Recording::open(&a.recording)?;
-    let s = rec.sensor().clone();
+    let s = *rec.sensor();
     let caps = rec.captures();
     let pb = progress(caps.len(), "reading");
     let mut sat = Vec::with_capacity(caps.len());
@@ -560,7 +560,7 @@ fn need_distance(c: &CaptureMeta) -> Result<f64, String> {
 
 pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
-    let sensor = rec.sensor().clone();
+    let sensor = *rec.sensor();
     let base_dir = a.calib.clone().or_else(|| {
         a.out
             .join(tofprox_format::CALIBRATION_TOML)
@@ -808,7 +808,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
 /// equally spaced phases ([`calibrate_intrinsics`]).
 fn fit_lens(
     rec: &Recording,
-    sensor: &tofprox_format::SensorInfo,
+    sensor: &tofprox_core::SensorGeometry,
 ) -> anyhow::Result<(Intrinsics, Vec<usize>, String)> {
     let mut idx = Vec::new();
     let mut data = Vec::new();
@@ -973,7 +973,7 @@ fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
 
 pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
-    let sensor = rec.sensor().clone();
+    let sensor = *rec.sensor();
     let calibration = match &a.calib {
         Some(dir) => {
             let set = CalibrationSet::load(dir)?;
