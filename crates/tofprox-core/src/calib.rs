@@ -3,7 +3,13 @@
 //!
 //! The order in which the pipeline applies them: offset (per raw image) → phase → wiggling LUT
 //! (includes the global delay) → FPPN (per-pixel residual after that LUT) → depth.
+//!
+//! The order of extraction (thesis 5.1.3, `docs/calibration.md`): lens ([`crate::camera`]) →
+//! offset → wiggling → FPPN. With the lens known, the `*_through_lens` extractions compare each
+//! pixel with its own ray length to the flat target, so the FPPN map is the electrical per-pixel
+//! delay only, not the lens geometry.
 
+use crate::camera::{Plane, RayGrid};
 use crate::phasor::{self, wrap_phase, wrap_to_pi};
 use crate::sensor::{adc_max_code, adc_mid_code, validate_adc_bits, validate_modulation_hz};
 use crate::{Algorithm, CoreError};
@@ -145,8 +151,41 @@ pub fn extract_wiggling(
     algorithm: Algorithm,
     lut_size: usize,
 ) -> Result<WigglingLut, CoreError> {
+    extract_wiggling_through_lens(
+        correlation,
+        phases_deg,
+        offset,
+        distance_m,
+        None,
+        modulation_hz,
+        adc_bits,
+        algorithm,
+        lut_size,
+    )
+}
+
+/// [`extract_wiggling`] after lens correction (thesis 5.1.3): with the window's `rays`, the flat
+/// target at `distance_m` (perpendicular to the optical axis) is seen by each pixel at its ray
+/// length `d / cos θ` ([`RayGrid::ray_lengths_m`]), not at `d`. Each pixel's correlation is shifted
+/// back by its geometric phase excess `Δφ = 4πf (len − d) / c` (Fourier coefficient `X_h · e^{i h
+/// Δφ}`) before the median over the centre, so the table is the correlation of an on-axis pixel
+/// at `d` and holds the global delay without the lens geometry. Without `rays` it is
+/// [`extract_wiggling`].
+#[allow(clippy::too_many_arguments)]
+pub fn extract_wiggling_through_lens(
+    correlation: ArrayView3<f64>,
+    phases_deg: &[f64],
+    offset: Option<&OffsetCalibration>,
+    distance_m: f64,
+    rays: Option<&RayGrid>,
+    modulation_hz: f64,
+    adc_bits: u8,
+    algorithm: Algorithm,
+    lut_size: usize,
+) -> Result<WigglingLut, CoreError> {
     let (n, rows, cols) = correlation.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
+    let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
     if n < 4 || n != phases_deg.len() {
         return Err(CoreError::shape(
             "correlation capture",
@@ -206,9 +245,12 @@ pub fn extract_wiggling(
             if !(fundamental.is_finite() && fundamental > 0.5) {
                 continue;
             }
+            // Shift the pixel's correlation back to the on-axis ray: X_h · e^{i h Δφ}.
+            let delta = excess.as_ref().map_or(0.0, |e| e[(r, c)]);
             for (h, (re, im)) in coeffs.iter().enumerate() {
-                per_coeff[2 * h].push(re / fundamental);
-                per_coeff[2 * h + 1].push(im / fundamental);
+                let (s, co) = (h as f64 * delta).sin_cos();
+                per_coeff[2 * h].push((re * co - im * s) / fundamental);
+                per_coeff[2 * h + 1].push((re * s + im * co) / fundamental);
             }
         }
     }
@@ -314,8 +356,40 @@ pub fn extract_fppn(
     adc_bits: u8,
     algorithm: Algorithm,
 ) -> Result<FppnMap, CoreError> {
+    extract_fppn_through_lens(
+        capture,
+        phases_deg,
+        offset,
+        wiggling,
+        distance_m,
+        None,
+        modulation_hz,
+        adc_bits,
+        algorithm,
+    )
+}
+
+/// [`extract_fppn`] after lens correction (thesis 5.1.3: "it is necessary to apply FPPN
+/// compensation after lens-corrections"): with the window's `rays`, each pixel's expected phase is
+/// that of its own ray length to the flat target at `distance_m` (perpendicular to the optical
+/// axis), `4πf · d / (c cos θ)`, so the map holds only the electrical per-pixel delay. Without
+/// `rays` every pixel is compared with `4πf · d / c` and the map also stores the lens geometry
+/// (decimetres at the corners of a wide lens) as if it were phase noise.
+#[allow(clippy::too_many_arguments)]
+pub fn extract_fppn_through_lens(
+    capture: ArrayView3<f64>,
+    phases_deg: &[f64],
+    offset: Option<&OffsetCalibration>,
+    wiggling: Option<&WigglingLut>,
+    distance_m: f64,
+    rays: Option<&RayGrid>,
+    modulation_hz: f64,
+    adc_bits: u8,
+    algorithm: Algorithm,
+) -> Result<FppnMap, CoreError> {
     let (k, rows, cols) = capture.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
+    let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
     if k != phases_deg.len() || rows == 0 || cols == 0 {
         return Err(CoreError::shape(
             "FPPN capture",
@@ -366,7 +440,8 @@ pub fn extract_fppn(
                 continue;
             }
             let corrected = wiggling.map_or(measured, |w| w.correct(measured));
-            deviation[(r, c)] = wrap_to_pi(corrected - phi_true);
+            let expected = phi_true + excess.as_ref().map_or(0.0, |e| e[(r, c)]);
+            deviation[(r, c)] = wrap_to_pi(corrected - expected);
         }
     }
     if !deviation.iter().any(|v| v.is_finite()) {
@@ -377,6 +452,36 @@ pub fn extract_fppn(
     Ok(FppnMap {
         phase_offset_rad: deviation.mapv(|v| if v.is_finite() { v as f32 } else { 0.0 }),
     })
+}
+
+/// Per-pixel geometric phase excess `4πf (len − d) / c` of a flat target at `distance_m`
+/// perpendicular to the optical axis, `len` the pixel's ray length (`None` without rays).
+fn geometric_excess_rad(
+    rays: Option<&RayGrid>,
+    rows: usize,
+    cols: usize,
+    distance_m: f64,
+    modulation_hz: f64,
+) -> Result<Option<Array2<f64>>, CoreError> {
+    let Some(rays) = rays else {
+        return Ok(None);
+    };
+    if rays.dim() != (rows, cols) {
+        return Err(CoreError::shape(
+            "lens rays",
+            format!("({rows}, {cols})"),
+            format!("{:?}", rays.dim()),
+        ));
+    }
+    let lengths = rays.ray_lengths_m(&Plane::fronto_parallel(distance_m));
+    if let Some(((r, c), _)) = lengths.indexed_iter().find(|(_, v)| !v.is_finite()) {
+        return Err(CoreError::Calibration(format!(
+            "the ray of pixel (row {r}, col {c}) does not reach a target in front of the camera"
+        )));
+    }
+    Ok(Some(lengths.mapv(|len| {
+        phasor::distance_to_phase_rad(len - distance_m, modulation_hz)
+    })))
 }
 
 fn check_common(distance_m: f64, modulation_hz: f64, adc_bits: u8) -> Result<(), CoreError> {

@@ -23,7 +23,7 @@
 //!   outside its valid field) is an error, never a silently wrong ray.
 
 use crate::CoreError;
-use ndarray::{Array2, Array3, ArrayView2};
+use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
 use serde::{Deserialize, Serialize};
 
 /// Convergence tolerance of the undistortion, in normalised image units (see the module docs).
@@ -550,6 +550,58 @@ pub fn ray_factors_from_sweep(
     Ok(out)
 }
 
+/// One capture of the lens calibration's sweep: a flat target perpendicular to the optical axis
+/// at `distance_m`, raw codes `(N, rows, cols)` at `phases_deg` (N ≥ 4 equally spaced over the
+/// full circle; 8 or more make the sweep free of the 3rd-harmonic wiggling that 4 phases leave).
+#[derive(Debug, Clone, Copy)]
+pub struct SweepCapture<'a> {
+    /// Perpendicular distance of the target, metres.
+    pub distance_m: f64,
+    /// Raw codes `(N, rows, cols)`.
+    pub raw: ArrayView3<'a, f64>,
+    /// Phase shift of each raw image, degrees.
+    pub phases_deg: &'a [f64],
+}
+
+/// The lens calibration from raw captures (`tofprox calibrate intrinsics`): per capture the
+/// N-phase phase ([`crate::phasor::nphase_frame`], offsets cancel) with pixels that touch a rail
+/// (`≤ 0` or `≥ 2^adc_bits − 1`) or whose amplitude is below `min_amplitude_lsb` left out, then
+/// [`ray_factors_from_sweep`] and [`fit_intrinsics`] for the window at full-array `(row0, col0)`.
+pub fn calibrate_intrinsics(
+    sweep: &[SweepCapture<'_>],
+    adc_bits: u8,
+    modulation_hz: f64,
+    min_amplitude_lsb: f64,
+    row0: usize,
+    col0: usize,
+) -> Result<IntrinsicsFit, CoreError> {
+    if !(1..=16).contains(&adc_bits) {
+        return Err(CoreError::param(
+            "adc_bits",
+            format!("must be 1..=16, got {adc_bits}"),
+        ));
+    }
+    let max_code = ((1u32 << adc_bits) - 1) as f64;
+    let mut phases = Vec::with_capacity(sweep.len());
+    for cap in sweep {
+        let (mut phase, amplitude) = crate::phasor::nphase_frame(cap.raw, cap.phases_deg)?;
+        for ((r, c), p) in phase.indexed_iter_mut() {
+            let clipped = cap
+                .raw
+                .slice(ndarray::s![.., r, c])
+                .iter()
+                .any(|v| !(*v > 0.0 && *v < max_code));
+            if clipped || amplitude[(r, c)] < min_amplitude_lsb {
+                *p = f64::NAN;
+            }
+        }
+        phases.push((cap.distance_m, phase));
+    }
+    let views: Vec<_> = phases.iter().map(|(d, p)| (*d, p.view())).collect();
+    let factors = ray_factors_from_sweep(&views, modulation_hz)?;
+    fit_intrinsics(factors.view(), row0, col0)
+}
+
 /// Result of [`fit_intrinsics`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IntrinsicsFit {
@@ -569,8 +621,9 @@ pub struct IntrinsicsFit {
 /// Model: `L(u, v) = √(1 + x² + y²)` with `(x, y)` the undistorted normalised coordinates of pixel
 /// `(u, v)` ([`Intrinsics::undistort_pixel`]). Start: the no-distortion closed form
 /// `L² − 1 = ((u − cx)/fx)² + ((v − cy)/fy)²`, a linear least-squares fit of
-/// `A u² + B v² + C u + D v + E`; then Levenberg–Marquardt over all nine parameters with a
-/// numerical Jacobian. Assumes the target is perpendicular to the optical axis (a tilt would read
+/// `A u² + B v² + C u + D v + E`; then Levenberg–Marquardt with a
+/// numerical Jacobian over `fx, fy, cx, cy, k1, k2, p1, p2` (`k3` is held at 0, as OpenCV's
+/// `CALIB_FIX_K3` for lenses that are not fisheyes; a datasheet may still supply it). Assumes the target is perpendicular to the optical axis (a tilt would read
 /// as a principal-point shift). The window must see a good part of the field: the distortion is
 /// only determined where there are pixels. Errors with fewer than 50 finite ray factors or when
 /// the start cannot be formed (no curvature: the window is too small or the data is not a lens).
@@ -586,7 +639,9 @@ pub fn fit_intrinsics(
     for r in (0..rows).step_by(stride) {
         for c in (0..cols).step_by(stride) {
             let l = ray_factor[(r, c)];
-            if l.is_finite() && l > 0.5 {
+            // Physically L ≥ 1 (a ray is never shorter than the axis); far outside is a
+            // mis-measured pixel (unwrap error, defect), not geometry.
+            if l.is_finite() && (0.9..=10.0).contains(&l) {
                 obs.push(((col0 + c) as f64, (row0 + r) as f64, l));
             }
         }
@@ -627,9 +682,11 @@ pub fn fit_intrinsics(
         0.0,
         0.0,
         0.0,
-        0.0,
     ];
-    let to_intrinsics = |p: &[f64; 9]| Intrinsics {
+    // [fx, fy, cx, cy, k1, k2, p1, p2]; k3 stays 0 (OpenCV's CALIB_FIX_K3 advice for lenses that
+    // are not fisheyes: over a field of normalised radius ≲ 1 the r⁶ term trades off against k1
+    // and k2 and lets noise fold the polynomial inside the field).
+    let to_intrinsics = |p: &[f64; 8]| Intrinsics {
         fx_px: p[0],
         fy_px: p[1],
         cx_px: p[2],
@@ -637,9 +694,9 @@ pub fn fit_intrinsics(
         distortion: Distortion {
             k1: p[4],
             k2: p[5],
-            k3: p[6],
-            p1: p[7],
-            p2: p[8],
+            k3: 0.0,
+            p1: p[6],
+            p2: p[7],
         },
     };
     let f0 = start[0];
@@ -650,14 +707,13 @@ pub fn fit_intrinsics(
         1e-4 * f0,
         1e-5,
         1e-5,
-        1e-5,
         1e-6,
         1e-6,
     ];
     // Stage 1, forward (never folds): a pixel whose ray factor says its undistorted radius is
     // ρ = √(L² − 1) must distort onto its own normalised position; the ray's direction is taken
     // from that position (exact without tangential terms, which stage 2 then refines).
-    let forward = |p: &[f64; 9], out: &mut Vec<f64>| -> bool {
+    let forward = |p: &[f64; 8], out: &mut Vec<f64>| -> bool {
         out.clear();
         let k = to_intrinsics(p);
         if k.validate().is_err() {
@@ -678,9 +734,10 @@ pub fn fit_intrinsics(
         }
         true
     };
-    let (p, _, it1) = levenberg_marquardt(start, &step, forward)?;
+    let (p, _, it1) = levenberg_marquardt(start, &step, forward)
+        .map_err(|e| CoreError::InvalidData(format!("{e} (closed-form start {start:?})")))?;
     // Stage 2, the model itself: L(u, v) = √(1 + x² + y²) of the undistorted pixel.
-    let inverse = |p: &[f64; 9], out: &mut Vec<f64>| -> bool {
+    let inverse = |p: &[f64; 8], out: &mut Vec<f64>| -> bool {
         out.clear();
         let k = to_intrinsics(p);
         if k.validate().is_err() {
@@ -694,7 +751,12 @@ pub fn fit_intrinsics(
         }
         true
     };
-    let (p, cost, it2) = levenberg_marquardt(p, &step, inverse)?;
+    let (p, cost, it2) = levenberg_marquardt(p, &step, inverse).map_err(|e| {
+        CoreError::InvalidData(format!(
+            "{e} (after the forward stage {:?})",
+            to_intrinsics(&p)
+        ))
+    })?;
     let intrinsics = to_intrinsics(&p);
     intrinsics.validate()?;
     Ok(IntrinsicsFit {

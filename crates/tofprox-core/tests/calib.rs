@@ -346,3 +346,106 @@ fn nphase_frame_matches_scalar() {
     }
     assert!(tofprox_core::phasor::nphase_frame(cap.view(), &phases[..23]).is_err());
 }
+
+/// A flat wall at `d0` seen through a 62° lens: each pixel's phase is that of its ray length plus
+/// a per-pixel electrical delay. Through the lens the FPPN map is that delay; without the lens the
+/// map stores the geometry as "phase noise" (the issue's −109 mm near the corner at 0.5 m).
+#[test]
+fn fppn_after_lens_correction_is_the_electrical_delay_only() {
+    use tofprox_core::camera::{Distortion, Intrinsics, Plane};
+    let (rows, cols) = (172, 224);
+    let k = Intrinsics {
+        distortion: Distortion {
+            k1: -0.2,
+            k2: 0.05,
+            ..Distortion::default()
+        },
+        ..Intrinsics::pinhole_from_fov(rows, cols, 62.0).unwrap()
+    };
+    let rays = k.rays(0, 0, rows, cols).unwrap();
+    let d0 = 0.5;
+    let len = rays.ray_lengths_m(&Plane::fronto_parallel(d0));
+    let delay = |r: usize, c: usize| 0.02 * ((r * 7 + c * 3) % 11) as f64 - 0.1;
+    let phases = [0.0f64, 90.0, 180.0, 270.0];
+    let cap = Array3::from_shape_fn((4, rows, cols), |(kk, r, c)| {
+        let x = distance_to_phase_rad(len[(r, c)], F) + delay(r, c) - phases[kk].to_radians();
+        2048.0 + 600.0 * x.cos()
+    });
+    let lens = extract_fppn_through_lens(
+        cap.view(),
+        &phases,
+        None,
+        None,
+        d0,
+        Some(&rays),
+        F,
+        12,
+        Algorithm::FourPhase,
+    )
+    .unwrap();
+    let plain = extract_fppn(
+        cap.view(),
+        &phases,
+        None,
+        None,
+        d0,
+        F,
+        12,
+        Algorithm::FourPhase,
+    )
+    .unwrap();
+    let mm_per_rad = 1000.0 * tofprox_core::phasor::unambiguous_range_m(F) / TAU;
+    let mut worst = 0.0f64;
+    for ((r, c), v) in lens.phase_offset_rad.indexed_iter() {
+        worst = worst.max((*v as f64 - delay(r, c)).abs());
+    }
+    let corner = wrap_to_pi(plain.phase_offset_rad[(2, 2)] as f64 - delay(2, 2)) * mm_per_rad;
+    println!(
+        "FPPN through the lens: worst error {:.4} mm; without the lens the corner stores {corner:.1} mm of geometry",
+        worst * mm_per_rad
+    );
+    assert!(worst * mm_per_rad < 0.01, "{worst}");
+    assert!(corner > 80.0 && corner < 300.0, "{corner}");
+    // Rays of another window are refused.
+    let small = k.rays(0, 0, 10, 10).unwrap();
+    assert!(
+        extract_fppn_through_lens(
+            cap.view(),
+            &phases,
+            None,
+            None,
+            d0,
+            Some(&small),
+            F,
+            12,
+            Algorithm::FourPhase,
+        )
+        .is_err()
+    );
+    // Wiggling through the lens: a pure sinusoid gives the constant global delay (here 0) even
+    // though the centre pixels see the wall further away than d0.
+    let lut = extract_wiggling_through_lens(
+        Array3::from_shape_fn((24, rows, cols), |(kk, r, c)| {
+            let x = distance_to_phase_rad(len[(r, c)], F) - (15.0 * kk as f64).to_radians();
+            2048.0 + 600.0 * x.cos()
+        })
+        .view(),
+        &phases24(),
+        None,
+        d0,
+        Some(&rays),
+        F,
+        12,
+        Algorithm::FourPhase,
+        64,
+    )
+    .unwrap();
+    let max = lut
+        .correction_rad
+        .iter()
+        .fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(
+        (max as f64) * mm_per_rad < 0.05,
+        "wiggling through the lens {max} rad"
+    );
+}

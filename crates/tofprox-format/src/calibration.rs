@@ -1,8 +1,10 @@
 //! Calibration sets: `CALIB/calibration.toml` + one `.npy` array per part,
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
-//! Parts and their dependencies (thesis order of application, 4.3.3):
-//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map; beside them the
+//! Parts and their dependencies (thesis order of application, 4.3.3; order of
+//! extraction, 5.1.3): lens intrinsics → offset (FPN dark frame) → wiggling
+//! LUTs (2- and 4-phase) → FPPN map. Wiggling and FPPN record the intrinsics
+//! they were extracted through ("none": without a lens model). Beside them the
 //! amplitude scale of the `1/d²` law (`tofprox_core::radiometry`), which depends on nothing.
 //! Each dependent part records the checksum of the parts it was extracted
 //! with; loading refuses a set whose parts do not fit together, and
@@ -18,6 +20,7 @@ use ndarray::{Array1, Array2, Ix1, Ix2};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use tofprox_core::camera::{Distortion, Intrinsics, RayGrid};
 use tofprox_core::pipeline::Calibration;
 use tofprox_core::radiometry::AmplitudeScale;
 use tofprox_core::{Algorithm, SensorGeometry};
@@ -39,6 +42,8 @@ pub const CALIBRATION_TOML: &str = "calibration.toml";
 /// One part of a calibration set.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum CalibPart {
+    /// Lens intrinsics and distortion, `[fx, fy, cx, cy, k1, k2, p1, p2, k3]` (OpenCV order).
+    Intrinsics,
     /// Per-pixel dark frame (FPN).
     Offset,
     /// Wiggling LUT for 2-phase evaluation.
@@ -55,7 +60,8 @@ pub enum CalibPart {
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 6] = [
+    pub const ALL: [CalibPart; 7] = [
+        CalibPart::Intrinsics,
         CalibPart::Offset,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
@@ -66,6 +72,7 @@ impl CalibPart {
     /// The table name in `calibration.toml` (also the array's file stem).
     pub fn name(self) -> &'static str {
         match self {
+            CalibPart::Intrinsics => "intrinsics",
             CalibPart::Offset => "offset",
             CalibPart::Wiggling2Phase => "wiggling_2phase",
             CalibPart::Wiggling4Phase => "wiggling_4phase",
@@ -95,7 +102,7 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Offset | CalibPart::Amplitude => None,
+            CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -133,6 +140,8 @@ pub struct PartSource {
 /// A loaded (or being built) calibration set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationSet {
+    /// Lens intrinsics and distortion (full-array pixel coordinates), stored as float32.
+    pub intrinsics: Option<Intrinsics>,
     /// Per-pixel dark frame.
     pub offset: Option<OffsetCalibration>,
     /// 2-phase wiggling LUT.
@@ -163,6 +172,7 @@ pub struct CalibrationSet {
 struct Deps {
     offset: Option<String>,
     wiggling: Option<String>,
+    intrinsics: Option<String>,
 }
 
 // ---------------------------------------------------------------- TOML schema
@@ -177,6 +187,8 @@ struct CalibToml {
     /// Last time the set was written (RFC 3339).
     updated: String,
     valid_for: SensorGeometry,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    intrinsics: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -216,6 +228,9 @@ struct PartToml {
     /// sha256 of the wiggling array this part was extracted with, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     wiggling_sha256: Option<String>,
+    /// sha256 of the intrinsics this part was extracted through, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    intrinsics_sha256: Option<String>,
     source_recording: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     source_description: Option<String>,
@@ -267,6 +282,7 @@ impl CalibrationSet {
     /// An empty set for data of `sensor`.
     pub fn new(sensor: &SensorGeometry) -> Self {
         CalibrationSet {
+            intrinsics: None,
             offset: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
@@ -308,6 +324,7 @@ impl CalibrationSet {
     /// Whether a part is present.
     pub fn has(&self, part: CalibPart) -> bool {
         match part {
+            CalibPart::Intrinsics => self.intrinsics.is_some(),
             CalibPart::Offset => self.offset.is_some(),
             CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
@@ -319,6 +336,10 @@ impl CalibrationSet {
 
     fn part_bytes(&self, part: CalibPart) -> Option<Vec<u8>> {
         match part {
+            CalibPart::Intrinsics => self
+                .intrinsics
+                .as_ref()
+                .map(|k| npy::encode_f32(&intrinsics_array(k))),
             CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
             CalibPart::Wiggling2Phase => self
                 .wiggling_2phase
@@ -354,6 +375,7 @@ impl CalibrationSet {
 
     fn remove(&mut self, part: CalibPart) {
         match part {
+            CalibPart::Intrinsics => self.intrinsics = None,
             CalibPart::Offset => self.offset = None,
             CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
@@ -369,6 +391,7 @@ impl CalibrationSet {
     pub fn stale_parts(&self) -> Vec<CalibPart> {
         let mut out = Vec::new();
         let off = self.checksum_or_none(CalibPart::Offset);
+        let lens = self.checksum_or_none(CalibPart::Intrinsics);
         for part in [
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
@@ -381,7 +404,9 @@ impl CalibrationSet {
             let Some(d) = self.deps.get(&part) else {
                 continue;
             };
-            if d.offset.as_deref().is_some_and(|o| o != off) {
+            if d.offset.as_deref().is_some_and(|o| o != off)
+                || d.intrinsics.as_deref().is_some_and(|k| k != lens)
+            {
                 out.push(part);
                 continue;
             }
@@ -411,6 +436,36 @@ impl CalibrationSet {
         }
     }
 
+    /// Set (or replace) the lens intrinsics (stored as float32, so the values are rounded to
+    /// float32 here: what is extracted through them is what is saved). Returns the parts dropped
+    /// because they were extracted through the previous intrinsics.
+    pub fn set_intrinsics(
+        &mut self,
+        intrinsics: Intrinsics,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let k = intrinsics_from_array(&intrinsics_array(&intrinsics));
+        k.validate()
+            .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
+        self.rays_of(&k)
+            .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
+        self.intrinsics = Some(k);
+        Ok(self.record_part(CalibPart::Intrinsics, source, Deps::default()))
+    }
+
+    /// The unit rays of the set's window through its intrinsics (`None` without intrinsics).
+    pub fn rays(&self) -> Option<Result<RayGrid, FormatError>> {
+        self.intrinsics.as_ref().map(|k| {
+            self.rays_of(k)
+                .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))
+        })
+    }
+
+    fn rays_of(&self, k: &Intrinsics) -> Result<RayGrid, tofprox_core::CoreError> {
+        let v = &self.validity;
+        k.rays(v.roi_origin[0], v.roi_origin[1], v.rows, v.cols)
+    }
+
     /// Set (or replace) the offset. Returns the parts dropped because they
     /// were extracted with the previous offset.
     pub fn set_offset(
@@ -436,6 +491,7 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: None,
+            intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
         };
         match lut.algorithm {
             Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
@@ -467,6 +523,7 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
+            intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
         };
         match algorithm {
             Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
@@ -603,6 +660,7 @@ impl CalibrationSet {
             description: self.description.clone(),
             updated: now_rfc3339(),
             valid_for: self.validity,
+            intrinsics: None,
             offset: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
@@ -619,6 +677,7 @@ impl CalibrationSet {
             let src = self.sources.get(&part).cloned().unwrap_or_default();
             let deps = self.deps.get(&part).cloned().unwrap_or_default();
             let (shape, algorithm, lut_size) = match part {
+                CalibPart::Intrinsics => (Some(vec![INTRINSICS_LEN]), None, None),
                 CalibPart::Offset => (
                     self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
                     None,
@@ -652,6 +711,7 @@ impl CalibrationSet {
                 exposure_us: src.exposure_us,
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
+                intrinsics_sha256: deps.intrinsics,
                 source_recording: src.recording,
                 source_description: src.recording_description,
                 source_captures: src.captures,
@@ -659,6 +719,7 @@ impl CalibrationSet {
                 tool: src.tool,
             };
             match part {
+                CalibPart::Intrinsics => t.intrinsics = Some(pt),
                 CalibPart::Offset => t.offset = Some(pt),
                 CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
@@ -705,6 +766,7 @@ impl CalibrationSet {
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
         let parts = [
+            (CalibPart::Intrinsics, &t.intrinsics),
             (CalibPart::Offset, &t.offset),
             (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
@@ -717,16 +779,21 @@ impl CalibrationSet {
             let key = part.name();
             // the checksums of the parts this one was extracted with are
             // required: deleting them must not switch the staleness check off
-            let required: &[(&str, &Option<String>)] = match part {
-                CalibPart::Offset => &[],
+            // (the lens's checksum where the set holds a lens: a part written before lens
+            // models existed was extracted without one)
+            let mut required: Vec<(&str, &Option<String>)> = match part {
+                CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => vec![],
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
-                    &[("offset_sha256", &pt.offset_sha256)]
+                    vec![("offset_sha256", &pt.offset_sha256)]
                 }
-                CalibPart::Fppn | CalibPart::Fppn2Phase => &[
+                CalibPart::Fppn | CalibPart::Fppn2Phase => vec![
                     ("offset_sha256", &pt.offset_sha256),
                     ("wiggling_sha256", &pt.wiggling_sha256),
                 ],
             };
+            if t.intrinsics.is_some() && !required.is_empty() {
+                required.push(("intrinsics_sha256", &pt.intrinsics_sha256));
+            }
             if let Some((k, _)) = required.iter().find(|(_, v)| v.is_none()) {
                 return Err(FormatError::new(
                     ErrorKind::MissingKey,
@@ -738,6 +805,22 @@ impl CalibrationSet {
             let arr = load_part(dir, &path, part, pt, &sensor)?;
             let k = |sub: &str| format!("{key}.{sub}");
             match (part, arr) {
+                (CalibPart::Intrinsics, LoadedArray::Lut(a)) => {
+                    if a.len() != INTRINSICS_LEN {
+                        return Err(invalid(format!(
+                            "holds {} values, expected {INTRINSICS_LEN}: [fx, fy, cx, cy, k1, k2, p1, p2, k3]",
+                            a.len()
+                        ))
+                        .at(&dir.join(&pt.file))
+                        .key(key));
+                    }
+                    let k = intrinsics_from_array(&a);
+                    k.validate()
+                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
+                    set.rays_of(&k)
+                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
+                    set.intrinsics = Some(k);
+                }
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
                 }
@@ -837,13 +920,18 @@ impl CalibrationSet {
                 Deps {
                     offset: pt.offset_sha256.as_deref().map(str::to_ascii_lowercase),
                     wiggling: pt.wiggling_sha256.as_deref().map(str::to_ascii_lowercase),
+                    intrinsics: pt.intrinsics_sha256.as_deref().map(str::to_ascii_lowercase),
                 },
             );
         }
         if let Some(p) = set.stale_parts().first() {
             return Err(invalid(format!(
                 "[{p}] was extracted with a different {} than the one in this set; re-run `tofprox calibrate` for it",
-                if set.deps.get(p).and_then(|d| d.offset.as_deref())
+                if set.deps.get(p).and_then(|d| d.intrinsics.as_deref()).is_some_and(|k| {
+                    k != set.checksum_or_none(CalibPart::Intrinsics)
+                }) {
+                    "lens intrinsics".to_string()
+                } else if set.deps.get(p).and_then(|d| d.offset.as_deref())
                     != Some(set.checksum_or_none(CalibPart::Offset).as_str())
                 {
                     "offset".to_string()
@@ -972,7 +1060,7 @@ fn load_part(
             }
             Ok(LoadedArray::Map(a))
         }
-        CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+        CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
             let a = a.into_dimensionality::<Ix1>().map_err(|_| {
                 invalid(format!(
                     "expected a 1-dimensional table, found shape {}",
@@ -983,6 +1071,38 @@ fn load_part(
             })?;
             Ok(LoadedArray::Lut(a))
         }
+    }
+}
+
+/// Number of values of the intrinsics array.
+const INTRINSICS_LEN: usize = 9;
+
+/// `[fx, fy, cx, cy, k1, k2, p1, p2, k3]`: OpenCV's camera-matrix entries, then its
+/// `distCoeffs` order.
+fn intrinsics_array(k: &Intrinsics) -> Array1<f32> {
+    let d = &k.distortion;
+    Array1::from_iter(
+        [
+            k.fx_px, k.fy_px, k.cx_px, k.cy_px, d.k1, d.k2, d.p1, d.p2, d.k3,
+        ]
+        .map(|v| v as f32),
+    )
+}
+
+fn intrinsics_from_array(a: &Array1<f32>) -> Intrinsics {
+    let v = |i: usize| a.get(i).copied().map_or(f64::NAN, f64::from);
+    Intrinsics {
+        fx_px: v(0),
+        fy_px: v(1),
+        cx_px: v(2),
+        cy_px: v(3),
+        distortion: Distortion {
+            k1: v(4),
+            k2: v(5),
+            p1: v(6),
+            p2: v(7),
+            k3: v(8),
+        },
     }
 }
 

@@ -10,6 +10,10 @@ use std::path::{Path, PathBuf};
 use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::error::{ErrorKind, ModelError};
 use crate::ids::{EffectId, ParamId};
+use tofprox_core::camera::Intrinsics;
+
+/// The model file's lens section: intrinsics in full-array pixels and OpenCV distortion.
+pub const CAMERA_SECTION: &str = "camera";
 
 /// Settings of one effect.
 #[derive(Debug, Clone, PartialEq)]
@@ -41,6 +45,7 @@ pub struct ModelConfig {
     sensor: BTreeMap<&'static str, f64>,
     effects: BTreeMap<&'static str, EffectSettings>,
     waveforms: Option<MeasuredWaveforms>,
+    camera: Option<Intrinsics>,
 }
 
 fn typical_params(params: &'static [ParamInfo]) -> BTreeMap<&'static str, f64> {
@@ -100,6 +105,7 @@ impl ModelConfig {
                 })
                 .collect(),
             waveforms: None,
+            camera: None,
         }
     }
 
@@ -175,6 +181,13 @@ impl ModelConfig {
                         m.sensor.insert(info.name, f);
                     }
                 }
+                CAMERA_SECTION => {
+                    let k: Intrinsics = value
+                        .clone()
+                        .try_into()
+                        .map_err(|e| ModelError::new(ErrorKind::Parse, format!("`camera`: {e}")))?;
+                    m.set_camera(Some(k))?;
+                }
                 "effects" => {
                     let t = value.as_table().ok_or_else(|| {
                         ModelError::new(ErrorKind::Parse, "`effects` must be a table of tables")
@@ -187,7 +200,7 @@ impl ModelConfig {
                     return Err(ModelError::new(
                         ErrorKind::UnknownParam,
                         format!(
-                            "unknown top-level key `{other}` (allowed: description, sensor, effects)"
+                            "unknown top-level key `{other}` (allowed: description, sensor, camera, effects)"
                         ),
                     ));
                 }
@@ -312,11 +325,52 @@ impl ModelConfig {
         Ok(())
     }
 
+    /// The lens (`[camera]`): with it, a flat wall's `distance_m` is its perpendicular distance
+    /// and each pixel sees it along its own ray (`d / cos θ`) with the lens's natural vignetting;
+    /// without it every pixel sees the scene's distance as its radial distance (no lens geometry,
+    /// as model files without `[camera]` always did).
+    pub fn camera(&self) -> Option<&Intrinsics> {
+        self.camera.as_ref()
+    }
+
+    /// Sets or removes the lens (validated: finite values, positive focal lengths).
+    pub fn set_camera(&mut self, camera: Option<Intrinsics>) -> Result<(), ModelError> {
+        if let Some(k) = &camera {
+            k.validate()
+                .map_err(|e| ModelError::new(ErrorKind::OutOfRange, format!("`camera`: {e}")))?;
+        }
+        self.camera = camera;
+        Ok(())
+    }
+
     /// Serialise to a model file that parses back to the same model.
     pub fn to_toml_string(&self) -> String {
         let mut out = String::new();
         if let Some(d) = &self.description {
             let _ = writeln!(out, "description = {}", toml::Value::String(d.clone()));
+            out.push('\n');
+        }
+        if let Some(k) = &self.camera {
+            let d = &k.distortion;
+            let _ = writeln!(out, "[{CAMERA_SECTION}]");
+            for (name, v) in [
+                ("fx_px", k.fx_px),
+                ("fy_px", k.fy_px),
+                ("cx_px", k.cx_px),
+                ("cy_px", k.cy_px),
+            ] {
+                let _ = writeln!(out, "{name} = {v:?}");
+            }
+            let _ = writeln!(out, "\n[{CAMERA_SECTION}.distortion]");
+            for (name, v) in [
+                ("k1", d.k1),
+                ("k2", d.k2),
+                ("k3", d.k3),
+                ("p1", d.p1),
+                ("p2", d.p2),
+            ] {
+                let _ = writeln!(out, "{name} = {v:?}");
+            }
             out.push('\n');
         }
         let _ = writeln!(out, "[sensor]");

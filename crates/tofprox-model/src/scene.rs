@@ -9,14 +9,17 @@ use crate::error::ModelError;
 /// What the sensor looks at during one capture.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Scene {
-    /// Every pixel sees the radial distance `distance_m` (no lens geometry).
+    /// A flat wall facing the camera. Without a `[camera]` in the model every pixel sees the
+    /// radial distance `distance_m` (no lens geometry); with one, `distance_m` is the wall's
+    /// perpendicular distance and each pixel sees it along its ray, `distance_m / cos θ`.
     FlatWall {
-        /// Radial distance in metres.
+        /// Distance in metres (radial without a lens, perpendicular with one).
         distance_m: f64,
         /// Diffuse reflectivity (1 = white wall).
         reflectivity: f64,
     },
-    /// Per-pixel radial distance and reflectivity, shaped like the window or like
+    /// Per-pixel radial distance (along each pixel's ray, with or without a lens) and
+    /// reflectivity, shaped like the window or like
     /// the full array (then the window is cut out at `roi_origin`).
     DepthMap {
         /// Radial distance per pixel in metres.

@@ -13,6 +13,7 @@ use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::ids;
 use crate::scene::Scene;
+use tofprox_core::camera::{Plane, RayGrid};
 
 /// A sensor instance: model + geometry + the fixed patterns drawn from one seed.
 #[derive(Debug, Clone)]
@@ -23,6 +24,8 @@ pub struct Simulator {
     patterns: FixedPatterns,
     adc: Adc,
     correlation: Correlation,
+    /// The window's unit rays through the model's `[camera]` (None: no lens geometry).
+    rays: Option<RayGrid>,
 }
 
 /// Per-capture constants.
@@ -49,7 +52,20 @@ impl Simulator {
         seed: u64,
     ) -> Result<Self, ModelError> {
         geometry.validate()?;
+        let rays = model
+            .camera()
+            .map(|k| {
+                k.rays(
+                    geometry.roi_origin[0],
+                    geometry.roi_origin[1],
+                    geometry.rows,
+                    geometry.cols,
+                )
+            })
+            .transpose()
+            .map_err(|e| ModelError::invalid(format!("camera: {e}")))?;
         Ok(Self {
+            rays,
             model: model.clone(),
             geometry,
             seed,
@@ -82,6 +98,10 @@ impl Simulator {
     /// The ADC model.
     pub fn adc(&self) -> &Adc {
         &self.adc
+    }
+    /// The window's unit rays through the model's `[camera]`, `None` without a lens.
+    pub fn rays(&self) -> Option<&RayGrid> {
+        self.rays.as_ref()
     }
 
     /// Simulate one capture: (K, rows, cols) codes, the mean of `req.averaged`
@@ -248,7 +268,23 @@ impl Simulator {
                     }
                     _ => (wall_d, wall_r),
                 };
-                let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0);
+                // Through the lens (thesis 5.1.3): a flat wall at perpendicular distance d is
+                // seen along the pixel's ray, d / cos θ; the image irradiance falls with cos⁴ θ
+                // (natural vignetting) and the wall is lit at incidence θ (Lambert, cos θ).
+                let (d, lens_gain) = match self.rays.as_ref().and_then(|g| g.dir(r, c)) {
+                    Some(dir) => {
+                        let cos4 = dir[2].powi(4);
+                        match dmap {
+                            None => (
+                                Plane::fronto_parallel(d).ray_length_m(dir).unwrap_or(d),
+                                cos4 * dir[2],
+                            ),
+                            Some(_) => (d, cos4),
+                        }
+                    }
+                    None => (d, 1.0),
+                };
+                let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0) * lens_gain;
                 let delay = self.patterns.delay_rad.get(i).copied().unwrap_or(0.0);
                 // signal_falloff: N ∝ ρ (1 m / d)^n; prnu multiplies all optical electrons
                 let falloff = match cc.falloff_n {

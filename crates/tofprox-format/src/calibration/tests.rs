@@ -45,8 +45,24 @@ fn fppn() -> FppnMap {
     }
 }
 
+fn lens(fx_px: f64) -> tofprox_core::camera::Intrinsics {
+    tofprox_core::camera::Intrinsics {
+        fx_px,
+        distortion: tofprox_core::camera::Distortion {
+            k1: -0.125,
+            ..Default::default()
+        },
+        ..tofprox_core::camera::Intrinsics::pinhole_from_fov(172, 224, 62.0).unwrap()
+    }
+}
+
 fn full_set() -> CalibrationSet {
     let mut s = CalibrationSet::new(&sensor());
+    assert!(
+        s.set_intrinsics(lens(186.5), src("sweep"))
+            .unwrap()
+            .is_empty()
+    );
     assert!(
         s.set_offset(offset(2000.0), src("dark"))
             .unwrap()
@@ -87,6 +103,9 @@ fn save_load_roundtrip() {
     s.save(t.path()).unwrap();
     let l = CalibrationSet::load(t.path()).unwrap();
     assert_eq!(l.offset, s.offset);
+    assert_eq!(l.intrinsics, s.intrinsics);
+    assert_eq!(l.intrinsics.map(|k| k.fx_px), Some(186.5));
+    assert_eq!(l.rays().unwrap().unwrap().dim(), (3, 4));
     assert_eq!(l.wiggling_2phase, s.wiggling_2phase);
     assert_eq!(l.wiggling_4phase, s.wiggling_4phase);
     assert_eq!(l.fppn, s.fppn);
@@ -147,11 +166,8 @@ fn replacing_a_part_drops_what_depended_on_it() {
             CalibPart::Fppn2Phase
         ]
     );
-    assert_eq!(
-        s.parts(),
-        vec![CalibPart::Offset, CalibPart::Amplitude],
-        "the amplitude scale depends on no other part"
-    );
+    // the lens does not depend on the offset
+    assert_eq!(s.parts(), vec![CalibPart::Intrinsics, CalibPart::Offset, CalibPart::Amplitude]);
     // saving removes the dropped arrays' files
     let t = tempfile::tempdir().unwrap();
     full_set().save(t.path()).unwrap();
@@ -160,7 +176,7 @@ fn replacing_a_part_drops_what_depended_on_it() {
     assert!(!t.path().join("fppn.npy").exists());
     assert_eq!(
         CalibrationSet::load(t.path()).unwrap().parts(),
-        vec![CalibPart::Offset, CalibPart::Amplitude]
+        vec![CalibPart::Intrinsics, CalibPart::Offset, CalibPart::Amplitude]
     );
 }
 
@@ -332,4 +348,38 @@ fn rfc3339_known_dates() {
     assert_eq!(rfc3339_from_unix(0), "1970-01-01T00:00:00Z");
     assert_eq!(rfc3339_from_unix(951_782_400), "2000-02-29T00:00:00Z");
     assert_eq!(rfc3339_from_unix(1_700_000_000), "2023-11-14T22:13:20Z");
+}
+
+#[test]
+fn replacing_the_lens_drops_what_was_extracted_through_it() {
+    let mut s = full_set();
+    // The same lens again: nothing changes.
+    assert!(
+        s.set_intrinsics(lens(186.5), src("sweep"))
+            .unwrap()
+            .is_empty()
+    );
+    let dropped = s.set_intrinsics(lens(190.0), src("sweep2")).unwrap();
+    assert_eq!(
+        dropped,
+        vec![
+            CalibPart::Wiggling2Phase,
+            CalibPart::Wiggling4Phase,
+            CalibPart::Fppn,
+            CalibPart::Fppn2Phase
+        ]
+    );
+    assert!(s.offset.is_some());
+    // A lens that folds over inside the window is refused.
+    let folding = tofprox_core::camera::Intrinsics {
+        fx_px: 20.0,
+        fy_px: 20.0,
+        distortion: tofprox_core::camera::Distortion {
+            k1: -2.0,
+            ..Default::default()
+        },
+        ..lens(186.5)
+    };
+    let e = s.set_intrinsics(folding, src("bad")).unwrap_err();
+    assert!(e.to_string().contains("intrinsics"), "{e}");
 }

@@ -14,7 +14,10 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use ndarray::{Array2, Array3, Axis, s};
 use serde_json::json;
 use tofprox_core::Algorithm;
-use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
+use tofprox_core::calib::{
+    extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
+};
+use tofprox_core::camera::{Intrinsics, SweepCapture, calibrate_intrinsics};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
 use tofprox_core::radiometry::{
@@ -41,6 +44,9 @@ pub struct InfoArgs {
 /// What `tofprox calibrate` extracts.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CalibKind {
+    /// Lens intrinsics and distortion: a plane fit over a sweep of a flat target at ≥ 3 known
+    /// distances (every illuminated capture with distance_m), or --datasheet values.
+    Intrinsics,
     /// Per-pixel dark frame (FPN) from the dark captures (illumination = false), averaged.
     Fpn,
     /// 2- and 4-phase wiggling tables from a correlation capture (24 × 15°) with distance_m.
@@ -49,7 +55,7 @@ pub enum CalibKind {
     Fppn,
 }
 
-/// `tofprox calibrate fpn|wiggling|fppn REC --out CALIB`
+/// `tofprox calibrate intrinsics|fpn|wiggling|fppn REC --out CALIB`
 #[derive(clap::Args, Debug)]
 pub struct CalibrateArgs {
     /// Which calibration to extract.
@@ -70,6 +76,11 @@ pub struct CalibrateArgs {
     /// Use only this capture (index in the recording) instead of choosing automatically.
     #[arg(long)]
     pub capture: Option<usize>,
+    /// intrinsics: take the lens from this TOML (a module's datasheet: fx_px, fy_px, cx_px, cy_px
+    /// in full-array pixels and an optional [distortion] table with OpenCV's k1, k2, k3, p1, p2)
+    /// instead of fitting it to the recording.
+    #[arg(long)]
+    pub datasheet: Option<PathBuf>,
 }
 
 /// `tofprox process REC --calib CALIB --algo 2phase|4phase --out OUT [--json]`
@@ -345,6 +356,16 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
     let mut parts = Vec::new();
     for part in set.parts() {
         let (what, (mean, sd, lo, hi), unit) = match part {
+            CalibPart::Intrinsics => (
+                "focal length",
+                stats(
+                    &mut set
+                        .intrinsics
+                        .iter()
+                        .flat_map(|k| [k.fx_px as f32, k.fy_px as f32]),
+                ),
+                "px",
+            ),
             CalibPart::Offset => (
                 "dark level",
                 stats(&mut set.offset.iter().flat_map(|o| o.dark_lsb.iter().copied())),
@@ -439,6 +460,13 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
             }
         };
         let size = match part {
+            CalibPart::Intrinsics => set.intrinsics.as_ref().map_or(String::new(), |k| {
+                let d = &k.distortion;
+                format!(
+                    "; principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}",
+                    k.cx_px, k.cy_px, d.k1, d.k2, d.k3, d.p1, d.p2
+                )
+            }),
             CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => part
                 .algorithm()
                 .and_then(|alg| set.wiggling(alg))
@@ -564,6 +592,32 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     };
     let mut report = Vec::new();
     let dropped = match a.what {
+        CalibKind::Intrinsics => {
+            let (k, src, line) = match &a.datasheet {
+                Some(path) => {
+                    let text = fs::read_to_string(path)
+                        .with_context(|| format!("cannot read {}", path.display()))?;
+                    let k: Intrinsics = toml::from_str(&text)
+                        .with_context(|| format!("{}: not a lens datasheet", path.display()))?;
+                    k.validate()
+                        .with_context(|| format!("{}: invalid lens", path.display()))?;
+                    let mut src = source(&rec, &a.recording, Vec::new(), None);
+                    src.recording = path.display().to_string();
+                    src.recording_description = Some("lens datasheet".into());
+                    (
+                        k,
+                        src,
+                        format!("intrinsics: from the datasheet {}", path.display()),
+                    )
+                }
+                None => {
+                    let (k, idx, line) = fit_lens(&rec, &sensor)?;
+                    (k, source(&rec, &a.recording, idx, None), line)
+                }
+            };
+            report.push(line);
+            set.set_intrinsics(k, src)?
+        }
         CalibKind::Fpn => {
             let idx: Vec<usize> = match a.capture {
                 Some(i) => vec![pick_capture(&rec, Some(i), "a dark capture", |c| {
@@ -635,13 +689,15 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                     "note: no offset (FPN) in the calibration set: the wiggling tables are extracted with the mid code subtracted; run `tofprox calibrate fpn` first for the best 2-phase result"
                 );
             }
+            let rays = set.rays().transpose()?;
             let mut dropped = Vec::new();
             for alg in Algorithm::ALL {
-                let lut = extract_wiggling(
+                let lut = extract_wiggling_through_lens(
                     data.view(),
                     &c.phases_deg,
                     set.offset.as_ref(),
                     d,
+                    rays.as_ref(),
                     sensor.modulation_hz,
                     sensor.adc_bits,
                     alg,
@@ -723,6 +779,13 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             let data = rec.load(i)?.to_f64();
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
+            let rays = set.rays().transpose()?;
+            if rays.is_none() {
+                eprintln!(
+                    "note: no lens intrinsics in the calibration set: every pixel is compared with the on-axis distance {} m, so the FPPN maps also hold the lens geometry (d/cos θ) and are only right at that distance; run `tofprox calibrate intrinsics` first (thesis 5.1.3)",
+                    fmt_num(d)
+                );
+            }
             let mut dropped = Vec::new();
             // one map per algorithm: each is absolute w.r.t. that algorithm's wiggling table
             // (2-phase from the capture's first two images)
@@ -733,12 +796,13 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                         fmt_num(d)
                     );
                 }
-                let map = extract_fppn(
+                let map = extract_fppn_through_lens(
                     data.view(),
                     &c.phases_deg,
                     set.offset.as_ref(),
                     set.wiggling(alg),
                     d,
+                    rays.as_ref(),
                     sensor.modulation_hz,
                     sensor.adc_bits,
                     alg,
@@ -767,6 +831,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
         eprintln!(
             "note: dropped {p} from the set: it was extracted with the part just replaced; re-run `tofprox calibrate {}`",
             match p {
+                CalibPart::Intrinsics => "intrinsics",
                 CalibPart::Offset => "fpn",
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
                 CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
@@ -785,6 +850,82 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     let parts: Vec<&str> = set.parts().iter().map(|p| p.name()).collect();
     println!("  set now holds: {}", parts.join(", "));
     Ok(ExitCode::SUCCESS)
+}
+
+/// Fits the lens to every illuminated capture of a flat target with `distance_m` and N ≥ 4
+/// equally spaced phases ([`calibrate_intrinsics`]).
+fn fit_lens(
+    rec: &Recording,
+    sensor: &tofprox_core::SensorGeometry,
+) -> anyhow::Result<(Intrinsics, Vec<usize>, String)> {
+    let mut idx = Vec::new();
+    let mut data = Vec::new();
+    for (i, c) in rec.captures().iter().enumerate() {
+        let Some(d) = c.distance_m().filter(|d| *d > 0.0) else {
+            continue;
+        };
+        let phases_rad: Vec<f64> = c.phases_deg.iter().map(|p| p.to_radians()).collect();
+        if !c.illumination
+            || c.phases_deg.len() < 4
+            || !tofprox_core::phasor::is_equally_spaced_circle(&phases_rad)
+        {
+            continue;
+        }
+        idx.push(i);
+        data.push((d, rec.load(i)?.to_f64(), c.phases_deg.clone()));
+    }
+    let sweep: Vec<SweepCapture<'_>> = data
+        .iter()
+        .map(|(d, raw, phases)| SweepCapture {
+            distance_m: *d,
+            raw: raw.view(),
+            phases_deg: phases,
+        })
+        .collect();
+    if sensor.rows * 2 < sensor.full_rows || sensor.cols * 2 < sensor.full_cols {
+        eprintln!(
+            "note: the {}×{} window covers less than half of the {}×{} array: the distortion is only determined inside it",
+            sensor.rows, sensor.cols, sensor.full_rows, sensor.full_cols
+        );
+    }
+    let fit = calibrate_intrinsics(
+        &sweep,
+        sensor.adc_bits,
+        sensor.modulation_hz,
+        f64::from(PipelineConfig::default().min_amplitude_lsb),
+        sensor.roi_origin[0],
+        sensor.roi_origin[1],
+    )
+    .with_context(|| {
+        format!(
+            "{}: lens calibration needs illuminated captures of a flat target (perpendicular to the optical axis) at ≥ 3 distances with conditions.distance_m and N ≥ 4 equally spaced phases; {} such captures",
+            rec.dir().display(),
+            idx.len()
+        )
+    })?;
+    let k = fit.intrinsics;
+    let d = &k.distortion;
+    let line = format!(
+        "intrinsics: fitted to {} captures at {} m over {} pixels: fx {:.2} px, fy {:.2} px, principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
+        idx.len(),
+        data.iter()
+            .map(|(d, _, _)| fmt_num(*d))
+            .collect::<Vec<_>>()
+            .join(", "),
+        fit.pixels,
+        k.fx_px,
+        k.fy_px,
+        k.cx_px,
+        k.cy_px,
+        d.k1,
+        d.k2,
+        d.k3,
+        d.p1,
+        d.p2,
+        fit.rms_ray_factor,
+        1000.0 * fit.rms_ray_factor
+    );
+    Ok((k, idx, line))
 }
 
 // ---------------------------------------------------------------- process
