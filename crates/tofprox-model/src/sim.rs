@@ -38,6 +38,9 @@ struct CaptureConsts {
     contrast: f64,
     falloff_n: Option<f64>,
     multipath: Option<(f64, f64)>,
+    /// cover_window_crosstalk: (electrons of the window return before the column
+    /// profile, its time-of-flight phase 4π f d_w / c, gradient across the columns).
+    crosstalk: Option<(f64, f64, f64)>,
     px: PixelParams,
     lsb_per_e: f64,
     tof_rad_per_m: f64,
@@ -155,6 +158,15 @@ impl Simulator {
                         / SPEED_OF_LIGHT_M_PER_S,
                 )
             }),
+            crosstalk: (illum && m.is_enabled("cover_window_crosstalk")).then(|| {
+                let xt = "cover_window_crosstalk";
+                (
+                    m.p(xt, "e_per_us") * (1.0 + m.p(xt, "smudge_rel")) * t * px.drift_gain,
+                    4.0 * PI * self.geometry.modulation_hz * m.p(xt, "window_distance_mm") * 1e-3
+                        / SPEED_OF_LIGHT_M_PER_S,
+                    m.p(xt, "gradient_rel"),
+                )
+            }),
             px,
             lsb_per_e: m.p("sensor", "lsb_per_ke") * 1e-3,
             // eq. 2.6 inverted: φ = 4π f d / c
@@ -204,6 +216,7 @@ impl Simulator {
         };
 
         let cc = self.consts(req);
+        let origin_col = g.roi_origin[1];
         let k_images = cc.thetas.len();
         let mut out = Array3::<f64>::zeros((k_images, rows, cols));
         let plane = rows * cols;
@@ -235,6 +248,14 @@ impl Simulator {
         let mut var_a = vec![0.0f64; plane];
         let mut var_b = vec![0.0f64; plane];
         let mut amb_e = vec![0.0f64; plane];
+        // cover_window_crosstalk per pixel: electrons and phase (empty when off)
+        let xt_on = cc.crosstalk.is_some();
+        let (mut xt_e, mut xt_phi) = if xt_on {
+            (vec![0.0f64; plane], vec![0.0f64; plane])
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let col_span = (g.full_cols.max(2) - 1) as f64;
         for r in 0..rows {
             for c in 0..cols {
                 let i = r * cols + c;
@@ -272,8 +293,18 @@ impl Simulator {
                     phase.get_mut(i),
                     amb_e.get_mut(i),
                 ) {
-                    // shot noise of both taps: F (N_A + N_B) = F (N (1 + a_mp) droop + 2 N_amb) (eq. 2.16)
-                    *a = px.shot_f * s * (1.0 + mp_rel) * g2 / cc.averaged;
+                    // the window return: w(c) g_p N_xt at 4π f d_w / c + the pixel's delay
+                    let mut xe = 0.0;
+                    if let (Some((n_xt, phi_w, grad)), Some(x), Some(xp)) =
+                        (cc.crosstalk, xt_e.get_mut(i), xt_phi.get_mut(i))
+                    {
+                        let u = (c + origin_col) as f64 / col_span - 0.5;
+                        xe = n_xt * (1.0 + grad * u).max(0.0) * gain;
+                        *x = xe;
+                        *xp = phi_w + delay + px.drift_rad;
+                    }
+                    // shot noise of both taps: F (N_A + N_B) = F ((N (1 + a_mp) + N_xt) droop + 2 N_amb) (eq. 2.16)
+                    *a = px.shot_f * (s * (1.0 + mp_rel) + xe) * g2 / cc.averaged;
                     *b = (px.shot_f * 2.0 * amb * g2 + var_const) / cc.averaged;
                     *sg = s;
                     *ph = phi;
@@ -300,16 +331,21 @@ impl Simulator {
                 .zip(&var_b)
                 .zip(&amb_e)
                 .zip(&self.patterns.offset_lsb);
-            for ((((((o, &s), &phi), &va), &vb), &amb), &offset) in pixels {
+            for (i, ((((((o, &s), &phi), &va), &vb), &amb), &offset)) in pixels.enumerate() {
                 let sk = s * dr;
                 // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ)) (2.2.2)
                 let mut corr_e = sk * corr.eval(phi - theta);
                 if mp_rel > 0.0 {
                     corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
                 }
+                let mut xk = 0.0;
+                if xt_on && let (Some(&x), Some(&xp)) = (xt_e.get(i), xt_phi.get(i)) {
+                    xk = x * dr;
+                    corr_e += xk * corr.eval(xp - theta);
+                }
                 let mut diff = k_con * corr_e;
                 if sbi_on {
-                    let total = sk * (1.0 + mp_rel);
+                    let total = sk * (1.0 + mp_rel) + xk;
                     let na = 0.5 * (total + diff) + amb + dark;
                     let nb = 0.5 * (total - diff) + amb + dark;
                     diff += px.sbi_error_e(na, nb);
