@@ -177,6 +177,45 @@ impl CrosstalkCalibration {
         Ok(())
     }
 
+    /// The crosstalk code per µs of pixel `(row, col)` in a raw image at phase shift `theta_deg`:
+    /// the stored value at 0°/90°/180°/270°, elsewhere the first harmonic through them,
+    /// `c + x cos θ + y sin θ` with `x = (v0 − v180)/2`, `y = (v90 − v270)/2`, `c` their mean.
+    pub fn lsb_per_us_at(&self, theta_deg: f64, row: usize, col: usize) -> f64 {
+        let v = |k: usize| f64::from(self.lsb_per_us.get((k, row, col)).copied().unwrap_or(0.0));
+        if let Some(k) = CROSSTALK_PHASES_DEG.iter().position(|&p| same_phase(theta_deg, p)) {
+            return v(k);
+        }
+        let (x, y) = (0.5 * (v(0) - v(2)), 0.5 * (v(1) - v(3)));
+        let c = 0.25 * (v(0) + v(1) + v(2) + v(3));
+        let th = theta_deg.to_radians();
+        c + x * th.cos() + y * th.sin()
+    }
+
+    /// Subtract the crosstalk of a capture `(K, rows, cols)` taken at `phases_deg` with
+    /// `exposure_us` (before extracting wiggling or FPPN from a capture behind the window).
+    pub fn subtract_from(
+        &self,
+        mut codes: ndarray::ArrayViewMut3<'_, f64>,
+        phases_deg: &[f64],
+        exposure_us: f64,
+    ) -> Result<(), CoreError> {
+        let (k, rows, cols) = codes.dim();
+        if k != phases_deg.len() {
+            return Err(CoreError::shape(
+                "capture",
+                format!("({} phases, rows, cols)", phases_deg.len()),
+                format!("{:?}", codes.dim()),
+            ));
+        }
+        self.validate(rows, cols)?;
+        for (mut img, &th) in codes.axis_iter_mut(Axis(0)).zip(phases_deg) {
+            for ((r, c), v) in img.indexed_iter_mut() {
+                *v -= self.lsb_per_us_at(th, r, c) * exposure_us;
+            }
+        }
+        Ok(())
+    }
+
     /// The crosstalk phasor `(x, y)` per µs of pixel `i` (row-major) as the pipeline's
     /// `algorithm` sees it: 2-phase `(u0, u90)`, 4-phase `((u0 − u180)/2, (u90 − u270)/2)` — so
     /// its length is in the units of [`DepthFrame::amplitude_lsb`] per µs (eq. 2.4).
@@ -433,6 +472,12 @@ mod tests {
             assert!((got - want).abs() < 1e-6, "{v:?}");
         }
         assert_eq!(x.phasor_per_us(Algorithm::FourPhase, 0, 0), x.phasor_per_us(Algorithm::TwoPhase, 0, 0));
+        // between the stored phases: the first harmonic A cos(φ − θ) through them
+        let (amp, phi) = (0.06f64.hypot(0.02), 0.02f64.atan2(0.06));
+        for th in [15.0f64, 135.0, 300.0] {
+            let want = amp * (phi - th.to_radians()).cos();
+            assert!((x.lsb_per_us_at(th, 0, 0) - want).abs() < 1e-6);
+        }
         // a saturated capture is not a crosstalk capture; a missing 90°/270° is named
         let sat = Array3::from_elem((2, 1, 1), 4095.0);
         let e = extract_crosstalk(

@@ -2,22 +2,26 @@
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
 //! Parts and their dependencies (thesis order of application, 4.3.3):
-//! offset (FPN dark frame) → wiggling LUTs (2- and 4-phase) → FPPN map.
-//! Each dependent part records the checksum of the parts it was extracted
-//! with; loading refuses a set whose parts do not fit together, and
-//! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
-//! parts that were derived from what they replace.
+//! offset (FPN dark frame) → cover-window crosstalk → wiggling LUTs (2- and
+//! 4-phase) → FPPN map. Each dependent part records the checksum of the parts
+//! it was extracted with; loading refuses a set whose parts do not fit
+//! together, and [`CalibrationSet::set_offset`] / [`CalibrationSet::set_crosstalk`] /
+//! [`CalibrationSet::set_wiggling`] drop the parts that were derived from what
+//! they replace. Wiggling and FPPN extracted without a crosstalk part (a module
+//! calibrated before it was built in behind a cover window) stay valid when a
+//! crosstalk part is added later.
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use ndarray::{Array1, Array2, Ix1, Ix2};
+use ndarray::{Array1, Array2, Array3, Ix1, Ix2, Ix3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::Algorithm;
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
+use tofprox_core::crosstalk::CrosstalkCalibration;
 use tofprox_core::pipeline::Calibration;
 
 use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
@@ -37,6 +41,8 @@ pub const CALIBRATION_TOML: &str = "calibration.toml";
 pub enum CalibPart {
     /// Per-pixel dark frame (FPN).
     Offset,
+    /// Cover-window crosstalk per raw image (0°, 90°, 180°, 270°), LSB per µs.
+    Crosstalk,
     /// Wiggling LUT for 2-phase evaluation.
     Wiggling2Phase,
     /// Wiggling LUT for 4-phase evaluation.
@@ -49,8 +55,9 @@ pub enum CalibPart {
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 5] = [
+    pub const ALL: [CalibPart; 6] = [
         CalibPart::Offset,
+        CalibPart::Crosstalk,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
         CalibPart::Fppn,
@@ -60,6 +67,7 @@ impl CalibPart {
     pub fn name(self) -> &'static str {
         match self {
             CalibPart::Offset => "offset",
+            CalibPart::Crosstalk => "crosstalk",
             CalibPart::Wiggling2Phase => "wiggling_2phase",
             CalibPart::Wiggling4Phase => "wiggling_4phase",
             CalibPart::Fppn => "fppn",
@@ -87,7 +95,7 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Offset => None,
+            CalibPart::Offset | CalibPart::Crosstalk => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -158,6 +166,8 @@ pub struct PartSource {
 pub struct CalibrationSet {
     /// Per-pixel dark frame.
     pub offset: Option<OffsetCalibration>,
+    /// Cover-window crosstalk (extracted after the offset).
+    pub crosstalk: Option<CrosstalkCalibration>,
     /// 2-phase wiggling LUT.
     pub wiggling_2phase: Option<WigglingLut>,
     /// 4-phase wiggling LUT.
@@ -183,6 +193,7 @@ pub struct CalibrationSet {
 struct Deps {
     offset: Option<String>,
     wiggling: Option<String>,
+    crosstalk: Option<String>,
 }
 
 // ---------------------------------------------------------------- TOML schema
@@ -199,6 +210,8 @@ struct CalibToml {
     valid_for: CalibrationValidity,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    crosstalk: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     wiggling_2phase: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -228,6 +241,9 @@ struct PartToml {
     /// sha256 of the wiggling array this part was extracted with, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     wiggling_sha256: Option<String>,
+    /// sha256 of the crosstalk array subtracted before extracting this part, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    crosstalk_sha256: Option<String>,
     source_recording: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     source_description: Option<String>,
@@ -280,6 +296,7 @@ impl CalibrationSet {
     pub fn new(sensor: &SensorInfo) -> Self {
         CalibrationSet {
             offset: None,
+            crosstalk: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
@@ -320,6 +337,7 @@ impl CalibrationSet {
     pub fn has(&self, part: CalibPart) -> bool {
         match part {
             CalibPart::Offset => self.offset.is_some(),
+            CalibPart::Crosstalk => self.crosstalk.is_some(),
             CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
             CalibPart::Fppn => self.fppn.is_some(),
@@ -330,6 +348,10 @@ impl CalibrationSet {
     fn part_bytes(&self, part: CalibPart) -> Option<Vec<u8>> {
         match part {
             CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
+            CalibPart::Crosstalk => self
+                .crosstalk
+                .as_ref()
+                .map(|x| npy::encode_f32(&x.lsb_per_us)),
             CalibPart::Wiggling2Phase => self
                 .wiggling_2phase
                 .as_ref()
@@ -361,6 +383,7 @@ impl CalibrationSet {
     fn remove(&mut self, part: CalibPart) {
         match part {
             CalibPart::Offset => self.offset = None,
+            CalibPart::Crosstalk => self.crosstalk = None,
             CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
             CalibPart::Fppn => self.fppn = None,
@@ -374,7 +397,9 @@ impl CalibrationSet {
     pub fn stale_parts(&self) -> Vec<CalibPart> {
         let mut out = Vec::new();
         let off = self.checksum_or_none(CalibPart::Offset);
+        let xt = self.checksum_or_none(CalibPart::Crosstalk);
         for part in [
+            CalibPart::Crosstalk,
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
             CalibPart::Fppn,
@@ -387,6 +412,12 @@ impl CalibrationSet {
                 continue;
             };
             if d.offset.as_deref().is_some_and(|o| o != off) {
+                out.push(part);
+                continue;
+            }
+            // extracted with a crosstalk subtracted that is no longer the set's ("none":
+            // extracted without one, e.g. before the module went behind a window: still valid)
+            if d.crosstalk.as_deref().is_some_and(|x| x != NONE && x != xt) {
                 out.push(part);
                 continue;
             }
@@ -441,6 +472,7 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: None,
+            crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
         match lut.algorithm {
             Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
@@ -472,12 +504,33 @@ impl CalibrationSet {
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
+            crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
         match algorithm {
             Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
             Algorithm::FourPhase => self.fppn = Some(fppn),
         }
         Ok(self.record_part(part, source, deps))
+    }
+
+    /// Set (or replace) the cover-window crosstalk (extracted with the current
+    /// offset, recorded as its dependency). Returns the parts dropped because
+    /// they were extracted with a previous crosstalk subtracted.
+    pub fn set_crosstalk(
+        &mut self,
+        crosstalk: CrosstalkCalibration,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let key = CalibPart::Crosstalk.name();
+        crosstalk
+            .validate(self.validity.rows, self.validity.cols)
+            .map_err(|e| invalid(format!("the set is for a {}×{} window: {e}", self.validity.rows, self.validity.cols)).key(key))?;
+        let deps = Deps {
+            offset: Some(self.checksum_or_none(CalibPart::Offset)),
+            ..Deps::default()
+        };
+        self.crosstalk = Some(crosstalk);
+        Ok(self.record_part(CalibPart::Crosstalk, source, deps))
     }
 
     /// Record where `part` came from and what it was computed with, then
@@ -569,6 +622,7 @@ impl CalibrationSet {
             offset: self.offset.clone(),
             wiggling: self.wiggling(algorithm).cloned(),
             fppn: self.fppn_for(algorithm).cloned(),
+            crosstalk: self.crosstalk.clone(),
         }
     }
 
@@ -593,6 +647,7 @@ impl CalibrationSet {
             updated: now_rfc3339(),
             valid_for: self.validity.clone(),
             offset: None,
+            crosstalk: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
@@ -609,6 +664,11 @@ impl CalibrationSet {
             let (shape, algorithm, lut_size) = match part {
                 CalibPart::Offset => (
                     self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
+                    None,
+                    None,
+                ),
+                CalibPart::Crosstalk => (
+                    self.crosstalk.as_ref().map(|x| x.lsb_per_us.shape().to_vec()),
                     None,
                     None,
                 ),
@@ -638,6 +698,7 @@ impl CalibrationSet {
                 distance_m: src.distance_m,
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
+                crosstalk_sha256: deps.crosstalk,
                 source_recording: src.recording,
                 source_description: src.recording_description,
                 source_captures: src.captures,
@@ -646,6 +707,7 @@ impl CalibrationSet {
             };
             match part {
                 CalibPart::Offset => t.offset = Some(pt),
+                CalibPart::Crosstalk => t.crosstalk = Some(pt),
                 CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
                 CalibPart::Fppn => t.fppn = Some(pt),
@@ -701,6 +763,7 @@ impl CalibrationSet {
         set.dir = Some(dir.to_path_buf());
         let parts = [
             (CalibPart::Offset, &t.offset),
+            (CalibPart::Crosstalk, &t.crosstalk),
             (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
             (CalibPart::Fppn, &t.fppn),
@@ -714,6 +777,9 @@ impl CalibrationSet {
             match (part, arr) {
                 (CalibPart::Offset, LoadedArray::Map(a)) => {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
+                }
+                (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
+                    set.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
                 }
                 (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
                     let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
@@ -800,6 +866,7 @@ impl CalibrationSet {
                 Deps {
                     offset: pt.offset_sha256.clone(),
                     wiggling: pt.wiggling_sha256.clone(),
+                    crosstalk: pt.crosstalk_sha256.clone(),
                 },
             );
         }
@@ -810,6 +877,10 @@ impl CalibrationSet {
                     != Some(set.checksum_or_none(CalibPart::Offset).as_str())
                 {
                     "offset".to_string()
+                } else if set.deps.get(p).and_then(|d| d.crosstalk.as_deref()).is_some_and(|x| {
+                    x != NONE && x != set.checksum_or_none(CalibPart::Crosstalk)
+                }) {
+                    "crosstalk".to_string()
                 } else {
                     format!("{} wiggling table", p.algorithm().map_or("", |a| a.as_str()))
                 }
@@ -824,6 +895,7 @@ impl CalibrationSet {
 enum LoadedArray {
     Map(Array2<f32>),
     Lut(Array1<f32>),
+    Cube(Array3<f32>),
 }
 
 fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
@@ -923,6 +995,29 @@ fn load_part(
                 }
             }
             Ok(LoadedArray::Map(a))
+        }
+        CalibPart::Crosstalk => {
+            let a = a.into_dimensionality::<Ix3>().map_err(|_| {
+                invalid(format!(
+                    "expected a (4, rows, cols) = (4, {}, {}) array, found shape {}",
+                    sensor.rows,
+                    sensor.cols,
+                    shape_str(&pt.shape)
+                ))
+                .at(&file)
+                .key(key)
+            })?;
+            if a.dim() != (4, sensor.rows, sensor.cols) {
+                return Err(invalid(format!(
+                    "crosstalk is {:?} but valid_for says the window is {}×{} (expected 4 raw images × window)",
+                    a.dim(),
+                    sensor.rows,
+                    sensor.cols
+                ))
+                .at(&file)
+                .key(key));
+            }
+            Ok(LoadedArray::Cube(a))
         }
         CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
             let a = a.into_dimensionality::<Ix1>().map_err(|_| {

@@ -15,6 +15,8 @@ use ndarray::{Array2, Array3, Axis, s};
 use serde_json::json;
 use tofprox_core::Algorithm;
 use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
+use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk, residual_ratio};
+use tofprox_core::proximity::Roi;
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
 use tofprox_format::npy;
@@ -44,9 +46,15 @@ pub enum CalibKind {
     Wiggling,
     /// Per-pixel phase offsets from a flat-target 4-phase capture with distance_m.
     Fppn,
+    /// Cover-window crosstalk from illuminated captures with nothing in range
+    /// (conditions.no_target = 1), per raw image and µs of exposure.
+    Crosstalk,
 }
 
-/// `tofprox calibrate fpn|wiggling|fppn REC --out CALIB`
+/// Condition key marking a capture with nothing in range (crosstalk calibration).
+pub const NO_TARGET_CONDITION: &str = "no_target";
+
+/// `tofprox calibrate fpn|wiggling|fppn|crosstalk REC --out CALIB`
 #[derive(clap::Args, Debug)]
 pub struct CalibrateArgs {
     /// Which calibration to extract.
@@ -358,6 +366,11 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
                 ),
                 "rad",
             ),
+            CalibPart::Crosstalk => (
+                "crosstalk",
+                stats(&mut set.crosstalk.iter().flat_map(|x| x.lsb_per_us.iter().copied())),
+                "LSB/us",
+            ),
             CalibPart::Fppn | CalibPart::Fppn2Phase => (
                 "phase offset",
                 stats(
@@ -530,6 +543,21 @@ fn need_distance(c: &CaptureMeta) -> Result<f64, String> {
     }
 }
 
+/// The capture's codes with the set's cover-window crosstalk subtracted (unchanged without one),
+/// so wiggling and FPPN extracted behind a cover window do not absorb it.
+fn without_crosstalk(
+    set: &CalibrationSet,
+    mut data: Array3<f64>,
+    c: &CaptureMeta,
+) -> anyhow::Result<Array3<f64>> {
+    if let Some(x) = &set.crosstalk {
+        eprintln!("note: subtracting the set's cover-window crosstalk before the extraction");
+        x.subtract_from(data.view_mut(), &c.phases_deg, c.exposure_us)
+            .context("subtracting the crosstalk")?;
+    }
+    Ok(data)
+}
+
 pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
     let sensor = rec.sensor().clone();
@@ -615,7 +643,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                     Ok(())
                 },
             )?;
-            let data = rec.load(i)?.to_f64();
+            let data = without_crosstalk(&set, rec.load(i)?.to_f64(), c)?;
             if set.offset.is_none() {
                 eprintln!(
                     "note: no offset (FPN) in the calibration set: the wiggling tables are extracted with the mid code subtracted; run `tofprox calibrate fpn` first for the best 2-phase result"
@@ -673,7 +701,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                     Ok(())
                 },
             )?;
-            let data = rec.load(i)?.to_f64();
+            let data = without_crosstalk(&set, rec.load(i)?.to_f64(), c)?;
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
             let mut dropped = Vec::new();
@@ -715,12 +743,78 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             }
             dropped
         }
+        CalibKind::Crosstalk => {
+            let caps = rec.captures();
+            let idx: Vec<usize> = match a.capture {
+                Some(i) => vec![pick_capture(&rec, Some(i), "a capture with nothing in range", |c| {
+                    if c.illumination {
+                        Ok(())
+                    } else {
+                        Err("it is a dark capture (illumination = false)".into())
+                    }
+                })?],
+                None => (0..caps.len())
+                    .filter(|&i| {
+                        caps[i].illumination
+                            && caps[i]
+                                .conditions
+                                .get(NO_TARGET_CONDITION)
+                                .is_some_and(|v| *v >= 0.5)
+                    })
+                    .collect(),
+            };
+            if idx.is_empty() {
+                bail!(
+                    "{} has no illuminated capture with nothing in range (conditions.{NO_TARGET_CONDITION} = 1) to extract the crosstalk from; mark one or pass --capture",
+                    a.recording.display()
+                );
+            }
+            if set.offset.is_none() {
+                eprintln!(
+                    "note: no offset (FPN) in the calibration set: the crosstalk is measured against the mid code; run `tofprox calibrate fpn` first"
+                );
+            }
+            let data: Vec<Array3<f64>> = idx
+                .iter()
+                .map(|&i| rec.load(i).map(|f| f.to_f64()))
+                .collect::<Result<_, _>>()?;
+            let captures: Vec<CrosstalkCapture<'_>> = idx
+                .iter()
+                .zip(&data)
+                .map(|(&i, d)| CrosstalkCapture {
+                    codes: d.view(),
+                    phases_deg: &caps[i].phases_deg,
+                    exposure_us: caps[i].exposure_us,
+                })
+                .collect();
+            let x = extract_crosstalk(&captures, set.offset.as_ref(), sensor.adc_bits)
+                .with_context(|| format!("extracting the crosstalk from captures {idx:?}"))?;
+            let roi = Roi::default();
+            let amp = x.mean_amplitude_lsb(Algorithm::TwoPhase, roi, 1.0);
+            let (px, py) = (0..x.lsb_per_us.dim().1)
+                .flat_map(|r| (0..x.lsb_per_us.dim().2).map(move |c| (r, c)))
+                .map(|(r, c)| x.phasor_per_us(Algorithm::TwoPhase, r, c))
+                .fold((0.0f64, 0.0f64), |(a, b), (p, q)| (a + f64::from(p), b + f64::from(q)));
+            let phase = py.atan2(px).rem_euclid(std::f64::consts::TAU);
+            let mm_per_rad =
+                1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
+            report.push(format!(
+                "crosstalk: {} capture(s) with nothing in range, mean amplitude {:.4} LSB/µs in the central ROI ({:.1} LSB at 500 µs), mean phase {:.3} rad ({:.0} mm before the wiggling/delay correction)",
+                idx.len(),
+                amp,
+                500.0 * amp,
+                phase,
+                phase * mm_per_rad
+            ));
+            set.set_crosstalk(x, source(&rec, &a.recording, idx, None))?
+        }
     };
     for p in &dropped {
         eprintln!(
             "note: dropped {p} from the set: it was extracted with the part just replaced; re-run `tofprox calibrate {}`",
             match p {
                 CalibPart::Offset => "fpn",
+                CalibPart::Crosstalk => "crosstalk",
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
                 CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
             }
@@ -908,6 +1002,12 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     }
     for &i in &todo {
         let raw = rec.load(i)?;
+        let crosstalk = pipeline.calibration().crosstalk.clone();
+        if crosstalk.is_some() {
+            pipeline
+                .set_exposure_us(caps[i].exposure_us)
+                .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
+        }
         let t0 = Instant::now();
         let frame = match &raw {
             RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
@@ -918,6 +1018,11 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         let process_us = t0.elapsed().as_secs_f64() * 1e6;
         let median = frame.median_valid_depth_m();
         let valid = frame.valid_fraction();
+        // what is left of the cover-window crosstalk relative to the calibrated one
+        // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
+        let crosstalk_residual = crosstalk.as_ref().and_then(|x| {
+            residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us)
+        });
         let depth_mm = frame.depth_mm.clone();
         let amplitude = frame.amplitude_lsb.clone();
         let stem = format!("{i:06}");
@@ -936,6 +1041,7 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
                 "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
                 "valid_fraction": valid,
                 "process_us": (process_us * 10.0).round() / 10.0,
+                "crosstalk_residual": crosstalk_residual,
             });
             writeln!(out, "{line}").context("writing to stdout")?;
         } else {
