@@ -70,8 +70,7 @@ fn bad_files_name_the_key() {
 #[test]
 fn cover_window_files_are_the_phone_model_clean_and_smudged() {
     let clean = EmulatedConfig::load(&config_dir().join("emulated/window-clean.toml")).unwrap();
-    let smudged =
-        EmulatedConfig::load(&config_dir().join("emulated/window-smudged.toml")).unwrap();
+    let smudged = EmulatedConfig::load(&config_dir().join("emulated/window-smudged.toml")).unwrap();
     let (c, s) = (clean.cover_window.unwrap(), smudged.cover_window.unwrap());
     assert_eq!(c.smudge_rel, 0.0);
     assert_eq!(s.smudge_rel, 1.0, "the smudge doubles the crosstalk");

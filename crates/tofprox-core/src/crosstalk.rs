@@ -182,7 +182,10 @@ impl CrosstalkCalibration {
     /// `c + x cos θ + y sin θ` with `x = (v0 − v180)/2`, `y = (v90 − v270)/2`, `c` their mean.
     pub fn lsb_per_us_at(&self, theta_deg: f64, row: usize, col: usize) -> f64 {
         let v = |k: usize| f64::from(self.lsb_per_us.get((k, row, col)).copied().unwrap_or(0.0));
-        if let Some(k) = CROSSTALK_PHASES_DEG.iter().position(|&p| same_phase(theta_deg, p)) {
+        if let Some(k) = CROSSTALK_PHASES_DEG
+            .iter()
+            .position(|&p| same_phase(theta_deg, p))
+        {
             return v(k);
         }
         let (x, y) = (0.5 * (v(0) - v(2)), 0.5 * (v(1) - v(3)));
@@ -273,7 +276,11 @@ pub fn residual_ratio(
     let (mut proj, mut reference) = (0.0f64, 0.0f64);
     for row in r.row0..r.row0 + r.rows {
         for col in r.col0..r.col0 + r.cols {
-            let flags = frame.flags.get((row, col)).copied().unwrap_or(FLAG_NON_FINITE);
+            let flags = frame
+                .flags
+                .get((row, col))
+                .copied()
+                .unwrap_or(FLAG_NON_FINITE);
             if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
                 continue;
             }
@@ -452,7 +459,9 @@ mod tests {
         let dark = OffsetCalibration {
             dark_lsb: Array2::from_elem((1, 1), 2000.0),
         };
-        let cap = |t: f64| Array3::from_shape_vec((2, 1, 1), vec![2000.0 + 0.06 * t, 2000.0 + 0.02 * t]).unwrap();
+        let cap = |t: f64| {
+            Array3::from_shape_vec((2, 1, 1), vec![2000.0 + 0.06 * t, 2000.0 + 0.02 * t]).unwrap()
+        };
         let (a, b) = (cap(100.0), cap(400.0));
         let caps = [
             CrosstalkCapture {
@@ -471,7 +480,10 @@ mod tests {
         for (got, want) in v.iter().zip([0.06f32, 0.02, -0.06, -0.02]) {
             assert!((got - want).abs() < 1e-6, "{v:?}");
         }
-        assert_eq!(x.phasor_per_us(Algorithm::FourPhase, 0, 0), x.phasor_per_us(Algorithm::TwoPhase, 0, 0));
+        assert_eq!(
+            x.phasor_per_us(Algorithm::FourPhase, 0, 0),
+            x.phasor_per_us(Algorithm::TwoPhase, 0, 0)
+        );
         // between the stored phases: the first harmonic A cos(φ − θ) through them
         let (amp, phi) = (0.06f64.hypot(0.02), 0.02f64.atan2(0.06));
         for th in [15.0f64, 135.0, 300.0] {
@@ -481,14 +493,22 @@ mod tests {
         // a saturated capture is not a crosstalk capture; a missing 90°/270° is named
         let sat = Array3::from_elem((2, 1, 1), 4095.0);
         let e = extract_crosstalk(
-            &[CrosstalkCapture { codes: sat.view(), phases_deg: &[0.0, 90.0], exposure_us: 1.0 }],
+            &[CrosstalkCapture {
+                codes: sat.view(),
+                phases_deg: &[0.0, 90.0],
+                exposure_us: 1.0,
+            }],
             None,
             12,
         )
         .unwrap_err();
         assert!(e.to_string().contains("rail"), "{e}");
         let e = extract_crosstalk(
-            &[CrosstalkCapture { codes: a.view(), phases_deg: &[0.0, 180.0], exposure_us: 1.0 }],
+            &[CrosstalkCapture {
+                codes: a.view(),
+                phases_deg: &[0.0, 180.0],
+                exposure_us: 1.0,
+            }],
             None,
             12,
         )

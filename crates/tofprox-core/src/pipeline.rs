@@ -489,7 +489,11 @@ impl Pipeline {
             for i in 0..need {
                 let dst = &mut st[i * n..(i + 1) * n];
                 let xt = &self.crosstalk_codes[i * n..(i + 1) * n];
-                for ((d, s), x) in dst.iter_mut().zip(raw.index_axis(Axis(0), i).iter()).zip(xt) {
+                for ((d, s), x) in dst
+                    .iter_mut()
+                    .zip(raw.index_axis(Axis(0), i).iter())
+                    .zip(xt)
+                {
                     let v = s.to_f32();
                     let at_rail = (v <= 0.0) | (v >= rail) | !v.is_finite();
                     let c = (v - x).clamp(0.5, rail - 0.5);

@@ -100,7 +100,10 @@ fn compensation_restores_a_weak_far_target_in_both_algorithms() {
         let raw = frames(algorithm.phases_deg(), t_us, Some((d, a)), 0.0);
         let mut plain = pipeline(algorithm, None);
         let wrong = plain.process(raw.view()).unwrap().depth_m[[1, 2]];
-        assert!((f64::from(wrong) - d).abs() > 0.3, "{algorithm}: uncompensated reads {wrong}");
+        assert!(
+            (f64::from(wrong) - d).abs() > 0.3,
+            "{algorithm}: uncompensated reads {wrong}"
+        );
         let mut p = pipeline(algorithm, Some(calibrated()));
         assert!(p.process(raw.view()).is_err(), "exposure required");
         p.set_exposure_us(t_us).unwrap();
@@ -140,22 +143,40 @@ fn a_smudge_that_doubles_the_crosstalk_is_reported_and_can_be_followed() {
         let x = calibrated();
         // nothing in range, window as calibrated: residual ≈ 0
         let clean = frames(algorithm.phases_deg(), 400.0, None, 0.0);
-        let r0 = residual_ratio(p.process(clean.view()).unwrap(), &x, algorithm, roi, 400.0).unwrap();
+        let r0 =
+            residual_ratio(p.process(clean.view()).unwrap(), &x, algorithm, roi, 400.0).unwrap();
         assert!(r0.abs() < 1e-3, "{algorithm}: {r0}");
         // smudged: crosstalk doubled → residual ≈ +1
         let smudged = frames(algorithm.phases_deg(), 400.0, None, 1.0);
-        let r1 = residual_ratio(p.process(smudged.view()).unwrap(), &x, algorithm, roi, 400.0).unwrap();
+        let r1 = residual_ratio(
+            p.process(smudged.view()).unwrap(),
+            &x,
+            algorithm,
+            roi,
+            400.0,
+        )
+        .unwrap();
         assert!((r1 - 1.0).abs() < 0.01, "{algorithm}: {r1}");
         let mut m = CrosstalkMonitor::default();
         let mut s = m.status();
         for _ in 0..10 {
             s = m.update(r1);
         }
-        assert!(matches!(s, CrosstalkStatus::Changed { residual_ratio } if residual_ratio > 0.9), "{s:?}");
+        assert!(
+            matches!(s, CrosstalkStatus::Changed { residual_ratio } if residual_ratio > 0.9),
+            "{s:?}"
+        );
         assert!(s.message().contains("smudged"));
         // following it: the scale makes the smudged window read as calibrated
         p.set_crosstalk_scale(m.suggested_scale()).unwrap();
-        let r2 = residual_ratio(p.process(smudged.view()).unwrap(), &x, algorithm, roi, 400.0).unwrap();
+        let r2 = residual_ratio(
+            p.process(smudged.view()).unwrap(),
+            &x,
+            algorithm,
+            roi,
+            400.0,
+        )
+        .unwrap();
         assert!(r2.abs() < 0.01, "{algorithm}: {r2}");
     }
 }

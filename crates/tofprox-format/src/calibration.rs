@@ -524,7 +524,13 @@ impl CalibrationSet {
         let key = CalibPart::Crosstalk.name();
         crosstalk
             .validate(self.validity.rows, self.validity.cols)
-            .map_err(|e| invalid(format!("the set is for a {}×{} window: {e}", self.validity.rows, self.validity.cols)).key(key))?;
+            .map_err(|e| {
+                invalid(format!(
+                    "the set is for a {}×{} window: {e}",
+                    self.validity.rows, self.validity.cols
+                ))
+                .key(key)
+            })?;
         let deps = Deps {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             ..Deps::default()
@@ -668,7 +674,9 @@ impl CalibrationSet {
                     None,
                 ),
                 CalibPart::Crosstalk => (
-                    self.crosstalk.as_ref().map(|x| x.lsb_per_us.shape().to_vec()),
+                    self.crosstalk
+                        .as_ref()
+                        .map(|x| x.lsb_per_us.shape().to_vec()),
                     None,
                     None,
                 ),

@@ -308,7 +308,9 @@ fn crosstalk_part_roundtrips_checksummed_and_refuses_other_setups() {
     let t = tempfile::tempdir().unwrap();
     let mut s = full_set();
     assert!(
-        s.set_crosstalk(crosstalk(0.05), src("empty")).unwrap().is_empty(),
+        s.set_crosstalk(crosstalk(0.05), src("empty"))
+            .unwrap()
+            .is_empty(),
         "wiggling/FPPN extracted without a crosstalk (a module calibrated before it was built in) stay"
     );
     s.save(t.path()).unwrap();
@@ -320,7 +322,10 @@ fn crosstalk_part_roundtrips_checksummed_and_refuses_other_setups() {
         s.crosstalk
     );
     let text = fs::read_to_string(t.path().join(CALIBRATION_TOML)).unwrap();
-    assert!(text.contains("[crosstalk]") && text.contains("shape = [4, 3, 4]"), "{text}");
+    assert!(
+        text.contains("[crosstalk]") && text.contains("shape = [4, 3, 4]"),
+        "{text}"
+    );
     // the set's validity covers it: another frequency or window is refused
     for edit in [
         |s: &mut SensorInfo| s.modulation_hz = 60e6,
@@ -381,7 +386,11 @@ fn parts_extracted_with_a_crosstalk_are_dropped_when_it_is_replaced() {
     let sum = s.checksum(CalibPart::Crosstalk).unwrap();
     let i = text.find("[wiggling_2phase]").unwrap();
     let (head, tail) = text.split_at(i);
-    fs::write(&p, format!("{head}{}", tail.replacen(&sum, &"0".repeat(64), 1))).unwrap();
+    fs::write(
+        &p,
+        format!("{head}{}", tail.replacen(&sum, &"0".repeat(64), 1)),
+    )
+    .unwrap();
     let e = CalibrationSet::load(t.path()).unwrap_err();
     assert!(e.to_string().contains("crosstalk"), "{e}");
 }

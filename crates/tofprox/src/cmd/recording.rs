@@ -16,9 +16,9 @@ use serde_json::json;
 use tofprox_core::Algorithm;
 use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
 use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk, residual_ratio};
-use tofprox_core::proximity::Roi;
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_core::proximity::Roi;
 use tofprox_format::npy;
 use tofprox_format::{
     CalibPart, CalibrationSet, CaptureMeta, PartSource, RawFrames, Recording, now_rfc3339,
@@ -368,7 +368,12 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
             ),
             CalibPart::Crosstalk => (
                 "crosstalk",
-                stats(&mut set.crosstalk.iter().flat_map(|x| x.lsb_per_us.iter().copied())),
+                stats(
+                    &mut set
+                        .crosstalk
+                        .iter()
+                        .flat_map(|x| x.lsb_per_us.iter().copied()),
+                ),
                 "LSB/us",
             ),
             CalibPart::Fppn | CalibPart::Fppn2Phase => (
@@ -746,13 +751,18 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
         CalibKind::Crosstalk => {
             let caps = rec.captures();
             let idx: Vec<usize> = match a.capture {
-                Some(i) => vec![pick_capture(&rec, Some(i), "a capture with nothing in range", |c| {
-                    if c.illumination {
-                        Ok(())
-                    } else {
-                        Err("it is a dark capture (illumination = false)".into())
-                    }
-                })?],
+                Some(i) => vec![pick_capture(
+                    &rec,
+                    Some(i),
+                    "a capture with nothing in range",
+                    |c| {
+                        if c.illumination {
+                            Ok(())
+                        } else {
+                            Err("it is a dark capture (illumination = false)".into())
+                        }
+                    },
+                )?],
                 None => (0..caps.len())
                     .filter(|&i| {
                         caps[i].illumination
@@ -794,7 +804,9 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             let (px, py) = (0..x.lsb_per_us.dim().1)
                 .flat_map(|r| (0..x.lsb_per_us.dim().2).map(move |c| (r, c)))
                 .map(|(r, c)| x.phasor_per_us(Algorithm::TwoPhase, r, c))
-                .fold((0.0f64, 0.0f64), |(a, b), (p, q)| (a + f64::from(p), b + f64::from(q)));
+                .fold((0.0f64, 0.0f64), |(a, b), (p, q)| {
+                    (a + f64::from(p), b + f64::from(q))
+                });
             let phase = py.atan2(px).rem_euclid(std::f64::consts::TAU);
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
@@ -1020,9 +1032,9 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         let valid = frame.valid_fraction();
         // what is left of the cover-window crosstalk relative to the calibrated one
         // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
-        let crosstalk_residual = crosstalk.as_ref().and_then(|x| {
-            residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us)
-        });
+        let crosstalk_residual = crosstalk
+            .as_ref()
+            .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
         let depth_mm = frame.depth_mm.clone();
         let amplitude = frame.amplitude_lsb.clone();
         let stem = format!("{i:06}");
