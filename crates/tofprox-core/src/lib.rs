@@ -8,6 +8,8 @@
 //! - [`crosstalk`]: cover-window crosstalk (extraction, compensation constants, change monitor).
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
+//! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
+//!   radial → Z depth, point clouds (thesis 5.1.3).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
 //!
 //! # Conventions (shared by every tofprox crate)
@@ -17,6 +19,7 @@
 //! `phi = phi_tof + phi_delay`, `phi_tof = 4π f d / c`.
 
 pub mod calib;
+pub mod camera;
 pub mod crosstalk;
 mod error;
 mod fastmath;
