@@ -255,8 +255,10 @@ impl CrosstalkCalibration {
 /// ROI's unsaturated, finite pixels, with `A`, `φ` the frame's amplitude and corrected phase and
 /// `|X| t` the calibrated crosstalk amplitude at `exposure_us`.
 ///
-/// The pipeline maps the window's return to ≈ zero distance (phase ≈ 4π f d_w / c ≈ 0), so what
-/// remains of it after compensation projects fully onto `cos φ`: ≈ 0 with the window as
+/// With a wiggling table (which holds the global delay of driver and cabling, 3.3.7.2) the
+/// pipeline maps the window's return to ≈ zero distance (phase ≈ 4π f d_w / c ≈ 0), so what
+/// remains of it after compensation projects fully onto `cos φ` (without one the global delay
+/// stays in φ and the ratio shrinks by `cos φ_delay`): ≈ 0 with the window as
 /// calibrated, ≈ 1 when a smudge has doubled the crosstalk, ≈ −0.5 when the crosstalk halved.
 /// **Only meaningful for readings with nothing in range**: a target adds `A_t cos φ_t` (a wall
 /// beyond the range whose phase wraps to a few cm looks like crosstalk). `None` when the ROI has

@@ -136,26 +136,20 @@ fn saturated_codes_stay_flagged_after_compensation() {
 
 #[test]
 fn a_smudge_that_doubles_the_crosstalk_is_reported_and_can_be_followed() {
-    let roi = Roi::default();
+    let x = calibrated();
     for algorithm in Algorithm::ALL {
         let mut p = pipeline(algorithm, Some(calibrated()));
         p.set_exposure_us(400.0).unwrap();
-        let x = calibrated();
-        // nothing in range, window as calibrated: residual ≈ 0
-        let clean = frames(algorithm.phases_deg(), 400.0, None, 0.0);
-        let r0 =
-            residual_ratio(p.process(clean.view()).unwrap(), &x, algorithm, roi, 400.0).unwrap();
+        // nothing in range, with the window as calibrated (smudge 0) or smudged (1)
+        let residual = |p: &mut Pipeline, smudge: f64| {
+            let raw = frames(algorithm.phases_deg(), 400.0, None, smudge);
+            let f = p.process(raw.view()).unwrap();
+            residual_ratio(f, &x, algorithm, Roi::default(), 400.0).unwrap()
+        };
+        let r0 = residual(&mut p, 0.0);
         assert!(r0.abs() < 1e-3, "{algorithm}: {r0}");
         // smudged: crosstalk doubled → residual ≈ +1
-        let smudged = frames(algorithm.phases_deg(), 400.0, None, 1.0);
-        let r1 = residual_ratio(
-            p.process(smudged.view()).unwrap(),
-            &x,
-            algorithm,
-            roi,
-            400.0,
-        )
-        .unwrap();
+        let r1 = residual(&mut p, 1.0);
         assert!((r1 - 1.0).abs() < 0.01, "{algorithm}: {r1}");
         let mut m = CrosstalkMonitor::default();
         let mut s = m.status();
@@ -169,14 +163,7 @@ fn a_smudge_that_doubles_the_crosstalk_is_reported_and_can_be_followed() {
         assert!(s.message().contains("smudged"));
         // following it: the scale makes the smudged window read as calibrated
         p.set_crosstalk_scale(m.suggested_scale()).unwrap();
-        let r2 = residual_ratio(
-            p.process(smudged.view()).unwrap(),
-            &x,
-            algorithm,
-            roi,
-            400.0,
-        )
-        .unwrap();
+        let r2 = residual(&mut p, 1.0);
         assert!(r2.abs() < 0.01, "{algorithm}: {r2}");
     }
 }

@@ -221,7 +221,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
     let dir = tempfile_dir();
     let empty = repo("calib/phone/empty.toml");
     let window = |name: &str, args: &[&str]| {
-        let mut all = vec!["--emulated", "--window", "80,8", "--exposure-us", "500"];
+        let mut all = vec!["--window", "80,8", "--exposure-us", "500"];
         all.extend_from_slice(args);
         emulated_capture(&dir.join(name), &all);
         dir.join(name).display().to_string()
@@ -243,8 +243,25 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
             "no_target=1",
         ],
     );
+    // the wiggling table holds the global delay: with it the window's return lands at ≈ 0 mm
+    let wall = repo("calib/phone/wall-1m.toml");
+    let corr = dir.join("corr");
+    emulated_capture(
+        &corr,
+        &[
+            "--window",
+            "80,8",
+            "--exposure-us",
+            "2000",
+            "--config",
+            &wall,
+            "--mode",
+            "correlation24",
+        ],
+    );
+    let corr = corr.display().to_string();
     let cal = dir.join("cal").display().to_string();
-    for (what, rec) in [("fpn", &dark), ("crosstalk", &none)] {
+    for (what, rec) in [("fpn", &dark), ("crosstalk", &none), ("wiggling", &corr)] {
         let o = run(&["calibrate", what, rec, "--out", &cal]);
         assert!(o.status.success(), "{what}: {}", text(&o.stderr));
     }
@@ -316,7 +333,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
 
     // a crosstalk from another window of the array is refused for this set
     let other = dir.join("other");
-    let mut all = vec!["--emulated", "--window", "40,8", "--exposure-us", "500"];
+    let mut all = vec!["--window", "40,8", "--exposure-us", "500"];
     all.extend_from_slice(&[
         "--config",
         &empty,

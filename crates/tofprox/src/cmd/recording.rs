@@ -1047,14 +1047,17 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         write_depth_png(&a.out.join(format!("{stem}_depth.png")), &depth_mm, max_m)?;
         let mut out = stdout.lock();
         if a.json {
-            let line = json!({
+            let mut line = json!({
                 "index": i,
                 // micrometre resolution: the f32 depth carries no more
                 "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
                 "valid_fraction": valid,
                 "process_us": (process_us * 10.0).round() / 10.0,
-                "crosstalk_residual": crosstalk_residual,
             });
+            // only with a crosstalk calibration
+            if let (Some(r), Some(o)) = (crosstalk_residual, line.as_object_mut()) {
+                o.insert("crosstalk_residual".into(), json!(r));
+            }
             writeln!(out, "{line}").context("writing to stdout")?;
         } else {
             let truth = caps[i].distance_m();
