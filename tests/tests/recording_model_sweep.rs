@@ -15,7 +15,7 @@ use tofprox_core::Algorithm;
 use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_format::{
-    CalibrationSet, CaptureSpec, PartSource, RawFrames, Recording, RecordingWriter, SensorInfo,
+    CalibrationSet, CaptureSpec, PartSource, RawFrames, Recording, RecordingWriter,
 };
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
 
@@ -61,15 +61,7 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
     };
     let sim = Simulator::new(&ModelConfig::baseline(), geometry, 7).unwrap();
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let sensor = SensorInfo {
-        rows: geometry.rows,
-        cols: geometry.cols,
-        roi_origin: geometry.roi_origin,
-        full_rows: geometry.full_rows,
-        full_cols: geometry.full_cols,
-        adc_bits: geometry.adc_bits,
-        modulation_hz: geometry.modulation_hz,
-    };
+    let sensor = geometry;
     let exposure_us = 300.0;
     let wall = |d: f64| Scene::FlatWall {
         distance_m: d,
@@ -77,7 +69,7 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
     };
 
     // --- record -----------------------------------------------------------
-    let mut w = RecordingWriter::create(&dir, sensor.clone(), Some("model sweep".into())).unwrap();
+    let mut w = RecordingWriter::create(&dir, sensor, Some("model sweep".into())).unwrap();
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 32;
     let x = sim.capture(&wall(1.0), &dark, &mut rng).unwrap();

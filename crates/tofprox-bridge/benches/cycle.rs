@@ -10,22 +10,17 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use tofprox_bridge::emulated::synth::{FrameSynth, Geometry, IdealSynth, ModelSynth, RawParams};
+use tofprox_bridge::emulated::synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 use tofprox_bridge::emulated::{EmulatedConfig, FrameSource};
 use tofprox_bridge::uvc::{FrameSpec, Push, Reassembler, split_frame};
 use tofprox_bridge::{
-    BridgeError, CycleRequest, DriverConfig, EmulatedDevice, RowWindow, SensorDriver, SensorMap,
-    SensorMode, VirtualClock,
+    Algorithm, BridgeError, CycleRequest, DriverConfig, EmulatedDevice, RowWindow, SensorDriver,
+    SensorGeometry, SensorMap, SensorMode, VirtualClock,
 };
 use tofprox_model::{ModelConfig, SceneScript};
 
-fn geom() -> Geometry {
-    Geometry {
-        full_rows: 172,
-        cols: 224,
-        adc_bits: 12,
-        modulation_hz: 80e6,
-    }
+fn geom() -> SensorGeometry {
+    SensorGeometry::irs1645()
 }
 
 /// The two illuminated raw images of a 2-phase cycle at 300 µs.
@@ -101,7 +96,7 @@ fn replay_driver() -> SensorDriver<EmulatedDevice> {
 
 fn req(row_window: Option<RowWindow>) -> CycleRequest {
     CycleRequest {
-        mode: SensorMode::TwoPhase,
+        mode: SensorMode::Depth(Algorithm::TwoPhase),
         exposure_us: 300.0,
         row_window,
     }

@@ -13,6 +13,7 @@ use std::time::Duration;
 
 use ndarray::Array3;
 use serde::{Deserialize, Serialize};
+use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::clock::Clock;
 use crate::error::{BridgeError, ErrorKind, ResultExt};
@@ -23,20 +24,19 @@ use crate::regmap::{RegWrite, SensorMap, bursts};
 use crate::transport::UsbTransport;
 use crate::uvc::{FrameSpec, Push, Reassembler, ReassemblyStats};
 
-/// Measurement mode (a use case of the register map).
+/// What one cycle measures: a use case of the register map. The depth modes are the shared
+/// measurement mode [`Algorithm`]; the register map also has a grey and a correlation use case.
+///
+/// Named (serde, [`Display`](std::fmt::Display), [`FromStr`](std::str::FromStr)) by the
+/// register map's use-case names: `2phase`, `4phase`, `4phase-grey`, `correlation24`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(into = "String", try_from = "String")]
 pub enum SensorMode {
-    /// Two raw images, 0° and 90° (the thesis's low-power mode).
-    #[serde(rename = "2phase")]
-    TwoPhase,
-    /// Four raw images 0/90/180/270°.
-    #[serde(rename = "4phase")]
-    FourPhase,
+    /// Depth: two raw images 0°/90° (the thesis's low-power mode) or four 0/90/180/270°.
+    Depth(Algorithm),
     /// Four phase images plus a grey (unilluminated) image.
-    #[serde(rename = "4phase-grey")]
     FourPhaseGrey,
     /// 24 raw images at 15° steps (correlation capture).
-    #[serde(rename = "correlation24")]
     Correlation24,
 }
 
@@ -44,11 +44,37 @@ impl SensorMode {
     /// The use-case name in the register map (also the serde/CLI name).
     pub fn use_case_name(self) -> &'static str {
         match self {
-            SensorMode::TwoPhase => "2phase",
-            SensorMode::FourPhase => "4phase",
+            SensorMode::Depth(a) => a.as_str(),
             SensorMode::FourPhaseGrey => "4phase-grey",
             SensorMode::Correlation24 => "correlation24",
         }
+    }
+
+    /// The depth algorithm of a depth mode.
+    pub fn algorithm(self) -> Option<Algorithm> {
+        match self {
+            SensorMode::Depth(a) => Some(a),
+            _ => None,
+        }
+    }
+}
+
+impl From<Algorithm> for SensorMode {
+    fn from(a: Algorithm) -> Self {
+        SensorMode::Depth(a)
+    }
+}
+
+impl From<SensorMode> for String {
+    fn from(m: SensorMode) -> Self {
+        m.use_case_name().to_string()
+    }
+}
+
+impl TryFrom<String> for SensorMode {
+    type Error = BridgeError;
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        s.parse()
     }
 }
 
@@ -62,8 +88,8 @@ impl std::str::FromStr for SensorMode {
     type Err = BridgeError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
-            "2phase" => Ok(SensorMode::TwoPhase),
-            "4phase" => Ok(SensorMode::FourPhase),
+            "2phase" => Ok(SensorMode::Depth(Algorithm::TwoPhase)),
+            "4phase" => Ok(SensorMode::Depth(Algorithm::FourPhase)),
             "4phase-grey" => Ok(SensorMode::FourPhaseGrey),
             "correlation24" | "correlation" => Ok(SensorMode::Correlation24),
             _ => Err(BridgeError::config(format!(
@@ -73,25 +99,8 @@ impl std::str::FromStr for SensorMode {
     }
 }
 
-/// A window of rows for partial read-out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub struct RowWindow {
-    /// First row.
-    pub row0: u16,
-    /// Number of rows.
-    pub rows: u16,
-}
-
-/// What one cycle should measure.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CycleRequest {
-    /// Use case.
-    pub mode: SensorMode,
-    /// Exposure of every raw image, µs.
-    pub exposure_us: f64,
-    /// Partial read-out window (None: full array).
-    pub row_window: Option<RowWindow>,
-}
+/// What one cycle should measure: the shared request with the driver's [`SensorMode`].
+pub type CycleRequest = tofprox_core::CycleRequest<SensorMode>;
 
 /// How long each state of a cycle took (clock time), for energy accounting.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -127,38 +136,14 @@ pub struct CycleOutput {
     pub illuminated: Vec<bool>,
     /// Exposure actually programmed (after LSB rounding), µs.
     pub exposure_us: f64,
-    /// Window origin `[row0, col0]` in the full array.
-    pub roi_origin: [usize; 2],
-    /// Full array rows.
-    pub full_rows: usize,
-    /// Full array columns.
-    pub full_cols: usize,
-    /// ADC resolution.
-    pub adc_bits: u8,
-    /// Modulation frequency, Hz.
-    pub modulation_hz: f64,
+    /// The captured window (rows and cols as `frames`), the full array, ADC and modulation.
+    pub geometry: SensorGeometry,
     /// State durations.
     pub timings: StateTimings,
     /// True if this cycle (re)wrote the flash image.
     pub flash_written: bool,
     /// Clock time at the end of the capture (for time stamps).
     pub captured_at: Duration,
-}
-
-impl CycleOutput {
-    /// The captured window as the model describes a sensor (rows and cols from `frames`).
-    pub fn geometry(&self) -> tofprox_model::SensorGeometry {
-        let (_, rows, cols) = self.frames.dim();
-        tofprox_model::SensorGeometry {
-            rows,
-            cols,
-            roi_origin: self.roi_origin,
-            full_rows: self.full_rows,
-            full_cols: self.full_cols,
-            adc_bits: self.adc_bits,
-            modulation_hz: self.modulation_hz,
-        }
-    }
 }
 
 /// Driver waits and policies. Every wait is bounded.
@@ -865,11 +850,11 @@ impl<T: UsbTransport> SensorDriver<T> {
             illuminated: (0..k).map(|i| uc.illuminated(i)).collect(),
             phases_deg: uc.phases_deg,
             exposure_us,
-            roi_origin: [row0, 0],
-            full_rows,
-            full_cols: cols,
-            adc_bits: map.sensor.adc_bits,
-            modulation_hz: map.sensor.modulation_hz,
+            geometry: SensorGeometry {
+                rows,
+                roi_origin: [row0, 0],
+                ..map.sensor.geometry()
+            },
             timings,
             flash_written,
             captured_at: t3,

@@ -116,11 +116,8 @@ pub fn decode_frame(
     } else {
         None
     };
-    let limit: u16 = if adc_bits >= 16 {
-        u16::MAX
-    } else {
-        (1u16 << adc_bits) - 1
-    };
+    // the map's adc_bits is validated to at most 16 bits: the rail fits in u16
+    let limit = u16::try_from(tofprox_core::sensor::adc_max_code(adc_bits)).unwrap_or(u16::MAX);
     let mut over = 0u16;
     for (dst, b) in out.iter_mut().zip(pixels.chunks_exact(2)) {
         let v = u16::from_le_bytes([b[0], b[1]]);

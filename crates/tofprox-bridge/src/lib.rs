@@ -29,11 +29,13 @@ pub mod uvc;
 pub use clock::{Clock, SystemClock, VirtualClock};
 pub use driver::{
     CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, DriverConfigFile, DriverStats,
-    DriverTiming, RowWindow, SensorDriver, SensorMode, StateTimings,
+    DriverTiming, SensorDriver, SensorMode, StateTimings,
 };
 pub use emulated::{EmulatedConfig, EmulatedDevice, FaultKind};
 pub use error::{BridgeError, ErrorKind};
 pub use protocol::ProtocolConfig;
 pub use regmap::SensorMap;
+/// The shared vocabulary the driver speaks (`tofprox-core`), re-exported for its callers.
+pub use tofprox_core::{Algorithm, RowWindow, SensorGeometry};
 pub use transport::{ControlSetup, UsbTransport};
 pub use usb::{RusbTransport, UsbSelector};

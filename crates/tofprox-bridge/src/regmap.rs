@@ -56,6 +56,18 @@ fn one() -> usize {
     1
 }
 
+impl SensorSection {
+    /// The full array this map describes, as every crate describes a sensor.
+    pub fn geometry(&self) -> tofprox_core::SensorGeometry {
+        tofprox_core::SensorGeometry::full(
+            usize::from(self.rows),
+            usize::from(self.cols),
+            self.adc_bits,
+            self.modulation_hz,
+        )
+    }
+}
+
 /// Fixed register sequences.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -319,11 +331,14 @@ impl SensorMap {
         if s.status_line && s.cols < 10 {
             return bad("sensor.status_line", "needs at least 10 columns".into());
         }
-        if !(1..=16).contains(&s.adc_bits) {
-            return bad("sensor.adc_bits", format!("{} not in 1..=16", s.adc_bits));
-        }
-        if !(s.modulation_hz.is_finite() && s.modulation_hz > 0.0) {
-            return bad("sensor.modulation_hz", "must be > 0".into());
+        // ADC and modulation: the one check every sensor geometry gets
+        if let Err(e) = s.geometry().validate() {
+            return match e {
+                tofprox_core::CoreError::InvalidParameter { name, reason } => {
+                    bad(&format!("sensor.{name}"), reason)
+                }
+                other => bad("sensor", other.to_string()),
+            };
         }
         if s.pad_align == 0 || s.pad_align > 65536 {
             return bad("sensor.pad_align", "must be in 1..=65536".into());

@@ -4,8 +4,8 @@ use std::sync::Arc;
 
 use tofprox_bridge::emulated::{EmulatedConfig, FaultKind, FrameSource};
 use tofprox_bridge::{
-    Clock, CycleRequest, DriverConfig, EmulatedDevice, ErrorKind, RowWindow, SensorDriver,
-    SensorMode, VirtualClock,
+    Algorithm, Clock, CycleRequest, DriverConfig, EmulatedDevice, ErrorKind, RowWindow,
+    SensorDriver, SensorMode, VirtualClock,
 };
 
 fn driver(cfg: EmulatedConfig, seed: u64) -> (SensorDriver<EmulatedDevice>, Arc<VirtualClock>) {
@@ -39,7 +39,9 @@ fn first_cycle_writes_flash_second_loads_it() {
         ..EmulatedConfig::default()
     };
     let (mut d, _c) = driver(cfg.clone(), 1);
-    let o1 = d.cycle(&req(SensorMode::TwoPhase, 300.0)).unwrap();
+    let o1 = d
+        .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 300.0))
+        .unwrap();
     assert!(o1.flash_written);
     assert!(o1.timings.flash_write > std::time::Duration::ZERO);
     assert_eq!(o1.frames.dim(), (2, 172, 224));
@@ -50,7 +52,9 @@ fn first_cycle_writes_flash_second_loads_it() {
     );
     assert_eq!(o1.timings.idle, std::time::Duration::ZERO);
     _c.sleep(std::time::Duration::from_millis(700)); // the daemon's sleep between readings
-    let o2 = d.cycle(&req(SensorMode::TwoPhase, 300.0)).unwrap();
+    let o2 = d
+        .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 300.0))
+        .unwrap();
     assert_eq!(o2.timings.idle, std::time::Duration::from_millis(700));
     let t = o2.timings;
     assert_eq!(
@@ -63,7 +67,9 @@ fn first_cycle_writes_flash_second_loads_it() {
     assert_eq!(d.stats().flash_writes, 1);
     // a new process (new device + driver) with the persisted flash loads it
     let (mut d2, _c) = driver(cfg, 2);
-    let o3 = d2.cycle(&req(SensorMode::FourPhase, 300.0)).unwrap();
+    let o3 = d2
+        .cycle(&req(SensorMode::Depth(Algorithm::FourPhase), 300.0))
+        .unwrap();
     assert!(!o3.flash_written);
     assert_eq!(o3.frames.dim().0, 4);
 }
@@ -82,8 +88,12 @@ fn amplitude(o: &tofprox_bridge::CycleOutput) -> f64 {
 #[test]
 fn exposure_change_visible_in_frames() {
     let (mut d, _c) = driver(EmulatedConfig::default(), 3);
-    let lo = d.cycle(&req(SensorMode::FourPhase, 100.0)).unwrap();
-    let hi = d.cycle(&req(SensorMode::FourPhase, 400.0)).unwrap();
+    let lo = d
+        .cycle(&req(SensorMode::Depth(Algorithm::FourPhase), 100.0))
+        .unwrap();
+    let hi = d
+        .cycle(&req(SensorMode::Depth(Algorithm::FourPhase), 400.0))
+        .unwrap();
     assert_eq!((lo.exposure_us, hi.exposure_us), (100.0, 400.0));
     // the flash image holds 1000 µs: the requested exposure must win (thesis 3.5.3)
     let (a, b) = (amplitude(&lo), amplitude(&hi));
@@ -97,14 +107,16 @@ fn exposure_change_visible_in_frames() {
 #[test]
 fn row_window_reduces_frame_size() {
     let (mut d, _c) = driver(EmulatedConfig::default(), 4);
-    let full = d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+    let full = d
+        .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+        .unwrap();
     let r = CycleRequest {
         row_window: Some(RowWindow { row0: 60, rows: 40 }),
-        ..req(SensorMode::TwoPhase, 200.0)
+        ..req(SensorMode::Depth(Algorithm::TwoPhase), 200.0)
     };
     let win = d.cycle(&r).unwrap();
     assert_eq!(win.frames.dim(), (2, 40, 224));
-    assert_eq!(win.roi_origin, [60, 0]);
+    assert_eq!(win.geometry.roi_origin, [60, 0]);
     assert!(win.timings.readout < full.timings.readout);
     // misaligned / out of range windows are config errors, device untouched
     let bad = CycleRequest {
@@ -112,7 +124,7 @@ fn row_window_reduces_frame_size() {
             row0: 161,
             rows: 40,
         }),
-        ..r.clone()
+        ..r
     };
     assert_eq!(d.cycle(&bad).unwrap_err().kind(), ErrorKind::Config);
 }
@@ -147,9 +159,10 @@ fn every_fault_gives_typed_error_and_next_cycle_recovers() {
             let mut cfg = fast();
             cfg.faults.spec_mut(kind).at_cycles = vec![2];
             let (mut d, clock) = driver(cfg, seed);
-            d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+            d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+                .unwrap();
             let t = clock.now();
-            let r = d.cycle(&req(SensorMode::TwoPhase, 200.0));
+            let r = d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0));
             let Err(e) = r else {
                 panic!(
                     "{kind:?} seed {seed}: no error, injected {:?}",
@@ -173,7 +186,7 @@ fn every_fault_gives_typed_error_and_next_cycle_recovers() {
             );
             assert!(clock.now() > t);
             let o = d
-                .cycle(&req(SensorMode::TwoPhase, 200.0))
+                .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
                 .unwrap_or_else(|e| panic!("{kind:?}: no recovery: {e}"));
             assert_eq!(o.frames.dim(), (2, 172, 224));
         }
@@ -187,11 +200,13 @@ fn flash_faults_are_repaired_in_the_same_cycle() {
         cfg.faults.spec_mut(kind).at_cycles = vec![2];
         let (mut d, _c) = driver(cfg.clone(), 9);
         assert!(
-            d.cycle(&req(SensorMode::TwoPhase, 200.0))
+            d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
                 .unwrap()
                 .flash_written
         );
-        let o = d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+        let o = d
+            .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+            .unwrap();
         assert!(o.flash_written, "{kind:?}: flash not rewritten");
         assert_eq!(d.transport().stats().faults[&kind], 1);
         // with rewriting disabled the fault is a typed error
@@ -201,7 +216,7 @@ fn flash_faults_are_repaired_in_the_same_cycle() {
         dc.timing.write_flash_if_missing = false;
         let mut d = SensorDriver::new(dev, dc, clock).unwrap();
         assert_eq!(
-            d.cycle(&req(SensorMode::TwoPhase, 200.0))
+            d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
                 .unwrap_err()
                 .kind(),
             ErrorKind::FlashEmpty
@@ -228,9 +243,9 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
         for i in 0..300 {
             let r = CycleRequest {
                 mode: if i % 3 == 0 {
-                    SensorMode::FourPhase
+                    SensorMode::Depth(Algorithm::FourPhase)
                 } else {
-                    SensorMode::TwoPhase
+                    SensorMode::Depth(Algorithm::TwoPhase)
                 },
                 exposure_us: 100.0 + f64::from(i % 5) * 50.0,
                 row_window: (i % 4 == 0).then_some(RowWindow { row0: 40, rows: 60 }),
@@ -256,7 +271,8 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
         }
         assert!(ok > 100 && failed > 10, "ok {ok} failed {failed}");
         d.transport_mut().set_faults(Default::default());
-        d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+        d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+            .unwrap();
         assert!(d.stats().reassembly.frames_dropped > 0);
     }
 }
@@ -268,14 +284,14 @@ fn driver_thread_serves_cycles_over_bounded_channels() {
     let t = DriverThread::spawn(d, 1).unwrap();
     let o = t
         .cycle(
-            req(SensorMode::TwoPhase, 200.0),
+            req(SensorMode::Depth(Algorithm::TwoPhase), 200.0),
             std::time::Duration::from_secs(10),
         )
         .unwrap();
     assert_eq!(o.frames.dim(), (2, 172, 224));
     let bad = CycleRequest {
         exposure_us: -1.0,
-        ..req(SensorMode::TwoPhase, 200.0)
+        ..req(SensorMode::Depth(Algorithm::TwoPhase), 200.0)
     };
     let e = t
         .cycle(bad, std::time::Duration::from_secs(10))
@@ -295,17 +311,21 @@ fn unplugged_device_is_not_found_until_replugged() {
     cfg.faults.unplug.at_cycles = vec![2];
     cfg.timing.replug_after_ms = 500.0;
     let (mut d, clock) = driver(cfg, 12);
-    d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+    d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+        .unwrap();
     assert_eq!(
-        d.cycle(&req(SensorMode::TwoPhase, 200.0))
+        d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
             .unwrap_err()
             .kind(),
         ErrorKind::Disconnected
     );
     // still gone: the reopen fails cleanly, and is tried again next time
-    let e = d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap_err();
+    let e = d
+        .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+        .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::NotFound, "{e}");
     clock.sleep(std::time::Duration::from_millis(600));
-    d.cycle(&req(SensorMode::TwoPhase, 200.0)).unwrap();
+    d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
+        .unwrap();
     assert_eq!(d.stats().reopens, 1);
 }

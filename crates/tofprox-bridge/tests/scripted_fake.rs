@@ -10,8 +10,8 @@ use tofprox_bridge::frame::{StatusLine, encode_frame};
 use tofprox_bridge::protocol::{self, ProtocolConfig};
 use tofprox_bridge::uvc::split_frame;
 use tofprox_bridge::{
-    BridgeError, Clock, ControlSetup, CycleRequest, DriverConfig, ErrorKind, SensorDriver,
-    SensorMap, SensorMode, UsbTransport, VirtualClock,
+    Algorithm, BridgeError, Clock, ControlSetup, CycleRequest, DriverConfig, ErrorKind,
+    SensorDriver, SensorMap, SensorMode, UsbTransport, VirtualClock,
 };
 
 /// One expected operation and the reply to give.
@@ -248,7 +248,7 @@ fn tiny_config() -> DriverConfig {
 
 /// The request every scripted cycle below performs.
 const TWO_PHASE_250US: CycleRequest = CycleRequest {
-    mode: SensorMode::TwoPhase,
+    mode: SensorMode::Depth(Algorithm::TwoPhase),
     exposure_us: 250.0,
     row_window: None,
 };

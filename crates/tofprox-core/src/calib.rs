@@ -5,6 +5,7 @@
 //! (includes the global delay) → FPPN (per-pixel residual after that LUT) → depth.
 
 use crate::phasor::{self, wrap_phase, wrap_to_pi};
+use crate::sensor::{adc_max_code, adc_mid_code, validate_adc_bits, validate_modulation_hz};
 use crate::{Algorithm, CoreError};
 use ndarray::{Array1, Array2, ArrayView3, Axis};
 use std::f64::consts::TAU;
@@ -176,8 +177,8 @@ pub fn extract_wiggling(
         ));
     }
     check_offset(offset, rows, cols)?;
-    let mid = mid_code(adc_bits);
-    let max_code = max_code(adc_bits);
+    let mid = f64::from(adc_mid_code(adc_bits));
+    let max_code = f64::from(adc_max_code(adc_bits));
 
     // Fourier coefficients X_h = (1/N) Σ_k g_k e^{-i h θ_k}, h = 0..=H (Nyquist term dropped for even
     // N), so that g(θ) = X_0 + Σ_h 2 Re(X_h e^{i h θ}) interpolates the captured correlation.
@@ -334,8 +335,8 @@ pub fn extract_fppn(
     }
     let idx = algorithm_indices(phases_deg, algorithm)?;
     let used = algorithm.raw_images();
-    let mid = mid_code(adc_bits);
-    let max_code = max_code(adc_bits);
+    let mid = f64::from(adc_mid_code(adc_bits));
+    let max_code = f64::from(adc_max_code(adc_bits));
     let phi_true = wrap_phase(phasor::distance_to_phase_rad(distance_m, modulation_hz));
     let mut deviation = Array2::<f64>::from_elem((rows, cols), f64::NAN);
     for r in 0..rows {
@@ -378,14 +379,6 @@ pub fn extract_fppn(
     })
 }
 
-fn mid_code(adc_bits: u8) -> f64 {
-    (1u32 << (adc_bits - 1)) as f64
-}
-
-fn max_code(adc_bits: u8) -> f64 {
-    ((1u32 << adc_bits) - 1) as f64
-}
-
 fn check_common(distance_m: f64, modulation_hz: f64, adc_bits: u8) -> Result<(), CoreError> {
     if !(distance_m.is_finite() && distance_m >= 0.0) {
         return Err(CoreError::param(
@@ -393,19 +386,8 @@ fn check_common(distance_m: f64, modulation_hz: f64, adc_bits: u8) -> Result<(),
             format!("must be finite and ≥ 0, got {distance_m}"),
         ));
     }
-    if !(modulation_hz.is_finite() && modulation_hz > 0.0) {
-        return Err(CoreError::param(
-            "modulation_hz",
-            format!("must be finite and > 0, got {modulation_hz}"),
-        ));
-    }
-    if !(1..=16).contains(&adc_bits) {
-        return Err(CoreError::param(
-            "adc_bits",
-            format!("must be 1..=16, got {adc_bits}"),
-        ));
-    }
-    Ok(())
+    validate_modulation_hz(modulation_hz)?;
+    validate_adc_bits(adc_bits)
 }
 
 /// The dark frame (if any) matches `rows × cols` and is finite.

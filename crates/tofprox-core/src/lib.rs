@@ -11,12 +11,15 @@
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
 //!   radial → Z depth, point clouds (thesis 5.1.3).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
+//! - [`sensor`]: the vocabulary every crate shares: [`SensorGeometry`] (window, full array, ADC,
+//!   modulation; mid/max code, phase per metre, unambiguous range), [`RowWindow`],
+//!   [`CycleRequest`], the physical constants. The measurement mode is [`Algorithm`].
 //!
 //! # Conventions (shared by every tofprox crate)
 //! A raw image taken with phase shift `theta_k` of a pixel whose total phase is `phi` is, ideally,
 //! `code_k = mid + offset_pixel + A * cos(phi - theta_k)` with `mid = 2^(adc_bits-1)` (offset binary).
 //! Hence `phi = atan2(u90, u0)` (eq. 2.2) with `u = code - offset`, wrapped to `[0, 2π)`.
-//! `phi = phi_tof + phi_delay`, `phi_tof = 4π f d / c`.
+//! `phi = phi_tof + phi_delay`, `phi_tof = 4π f d / c` ([`phasor::distance_to_phase_rad`]).
 
 pub mod calib;
 pub mod camera;
@@ -26,18 +29,18 @@ mod fastmath;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
+pub mod sensor;
 
 pub use error::CoreError;
 pub use fastmath::{FAST_ATAN2_MAX_ERROR_RAD, fast_atan2_f32};
+pub use sensor::{CycleRequest, RowWindow, SPEED_OF_LIGHT_M_PER_S, SensorGeometry};
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
-/// Speed of light in vacuum, m/s (used by eq. 2.6 / 2.7).
-pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
-
-/// Depth evaluation algorithm (thesis 2.2.1).
+/// Depth evaluation algorithm (thesis 2.2.1): the measurement mode every crate uses (the daemon's
+/// `processing.mode`, the driver's depth use cases, calibration parts).
 ///
 /// Serialised (serde, [`Display`](fmt::Display), [`FromStr`]) as `"2phase"` / `"4phase"`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -109,20 +109,12 @@ impl Default for PipelineConfig {
 }
 
 impl PipelineConfig {
-    /// Checks ranges: `modulation_hz` finite > 0, `adc_bits` in 1..=16, `min_amplitude_lsb` finite ≥ 0.
+    /// Checks ranges: `modulation_hz` and `adc_bits` as every sensor geometry
+    /// ([`crate::sensor::validate_modulation_hz`], [`crate::sensor::validate_adc_bits`]),
+    /// `min_amplitude_lsb` finite ≥ 0.
     pub fn validate(&self) -> Result<(), CoreError> {
-        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
-            return Err(CoreError::param(
-                "modulation_hz",
-                format!("must be finite and > 0, got {}", self.modulation_hz),
-            ));
-        }
-        if !(1..=16).contains(&self.adc_bits) {
-            return Err(CoreError::param(
-                "adc_bits",
-                format!("must be 1..=16, got {}", self.adc_bits),
-            ));
-        }
+        crate::sensor::validate_modulation_hz(self.modulation_hz)?;
+        crate::sensor::validate_adc_bits(self.adc_bits)?;
         if !(self.min_amplitude_lsb.is_finite() && self.min_amplitude_lsb >= 0.0) {
             return Err(CoreError::param(
                 "min_amplitude_lsb",
@@ -130,16 +122,6 @@ impl PipelineConfig {
             ));
         }
         Ok(())
-    }
-
-    /// Mid code `2^(adc_bits − 1)` (zero differential voltage).
-    pub fn mid_code(&self) -> f32 {
-        (1u32 << (self.adc_bits.clamp(1, 16) - 1)) as f32
-    }
-
-    /// Upper rail `2^adc_bits − 1`.
-    pub fn max_code(&self) -> f32 {
-        ((1u32 << self.adc_bits.clamp(1, 16)) - 1) as f32
     }
 }
 
@@ -298,7 +280,7 @@ impl Pipeline {
                 )
             })?;
         let params = KernelParams {
-            rail_hi: config.max_code(),
+            rail_hi: crate::sensor::adc_max_code(config.adc_bits) as f32,
             min_amp: config.min_amplitude_lsb,
             lut_scale: LUT_BINS as f32 / TAU,
             rad_to_m: (phasor::unambiguous_range_m(config.modulation_hz) / std::f64::consts::TAU)
@@ -327,7 +309,8 @@ impl Pipeline {
     /// Replaces the calibration (validated as in [`Pipeline::new`]; on error nothing changes).
     pub fn set_calibration(&mut self, calibration: Calibration) -> Result<(), CoreError> {
         let shape = (self.rows, self.cols);
-        let mut dark = vec![self.config.mid_code(); self.rows * self.cols];
+        let mut dark =
+            vec![crate::sensor::adc_mid_code(self.config.adc_bits) as f32; self.rows * self.cols];
         check_offset(calibration.offset.as_ref(), self.rows, self.cols)?;
         if let Some(off) = &calibration.offset {
             for (d, v) in dark.iter_mut().zip(off.dark_lsb.iter()) {
@@ -562,12 +545,18 @@ impl Pipeline {
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx512 => {
                 // SAFETY: `Avx512` is only selected when the CPU reports these features at runtime.
-                unsafe { kernel_avx512(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx512(raw, four, n, &p, &tabs, out)
+                }
             }
             #[cfg(target_arch = "x86_64")]
             SimdLevel::Avx2 => {
                 // SAFETY: `Avx2` is only selected when the CPU reports AVX2 and FMA at runtime.
-                unsafe { kernel_avx2(raw, four, n, &p, &tabs, out) }
+                #[allow(unsafe_code)]
+                unsafe {
+                    kernel_avx2(raw, four, n, &p, &tabs, out)
+                }
             }
             _ => kernel_dispatch::<T, false>(raw, four, n, &p, &tabs, out, gather_scalar),
         }
@@ -720,6 +709,7 @@ fn gather_avx2(idx: &[u32], fr: &[f32], lut: &[u64; LUT_BINS], out: &mut [f32]) 
     while j + 8 <= len {
         // SAFETY: j + 8 ≤ len ≤ every slice's length, so the unaligned 8-lane loads/store are in
         // bounds; the gather indices are masked to < LUT_BINS, the length of the table.
+        #[allow(unsafe_code)]
         unsafe {
             let vi = _mm256_and_si256(
                 _mm256_loadu_si256(idx.as_ptr().add(j).cast::<__m256i>()),

@@ -8,7 +8,8 @@ use std::collections::BTreeMap;
 
 use divan::Bencher;
 use ndarray::Array3;
-use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter, SensorInfo, npy};
+use tofprox_core::SensorGeometry;
+use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter, npy};
 
 fn main() {
     divan::main();
@@ -42,7 +43,7 @@ fn decode_u16_full_frame(b: Bencher) {
 #[divan::bench(args = ["u16", "f32"])]
 fn load_full_frame(b: Bencher, dtype: &str) {
     let t = tempfile::tempdir().expect("tempdir");
-    let mut w = RecordingWriter::create(t.path(), SensorInfo::full(172, 224, 12, 80e6), None)
+    let mut w = RecordingWriter::create(t.path(), SensorGeometry::full(172, 224, 12, 80e6), None)
         .expect("create");
     let f = match dtype {
         "u16" => RawFrames::U16(frames_u16()),
@@ -57,7 +58,7 @@ fn load_full_frame(b: Bencher, dtype: &str) {
 #[divan::bench(sample_count = 20)]
 fn append_full_frame_u16(b: Bencher) {
     let t = tempfile::tempdir().expect("tempdir");
-    let mut w = RecordingWriter::create(t.path(), SensorInfo::full(172, 224, 12, 80e6), None)
+    let mut w = RecordingWriter::create(t.path(), SensorGeometry::full(172, 224, 12, 80e6), None)
         .expect("create");
     let f = RawFrames::U16(frames_u16());
     b.bench_local(|| w.append(spec(), &f));

@@ -17,13 +17,15 @@
 //! The ground truth lives in each capture's `[capture.conditions]`.
 
 use std::collections::BTreeMap;
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 use std::path::PathBuf;
 
 use ndarray::{Array2, Array3};
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+use tofprox_core::SensorGeometry;
+use tofprox_core::phasor::distance_to_phase_rad;
+use tofprox_core::sensor::{adc_max_code, adc_mid_code};
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 
-const C_M_PER_S: f64 = 299_792_458.0;
 const MODULATION_HZ: f64 = 80e6;
 const ROWS: usize = 16;
 const COLS: usize = 16;
@@ -89,13 +91,13 @@ impl Sensor {
         reflectivity: f64,
         averaged: u32,
     ) -> Array3<f64> {
-        let mid = f64::from(1u32 << (ADC_BITS - 1));
-        let max = f64::from((1u32 << ADC_BITS) - 1);
+        let mid = f64::from(adc_mid_code(ADC_BITS));
+        let max = f64::from(adc_max_code(ADC_BITS));
         let (amp, phi_tof) = match distance_m {
             // amplitude ∝ reflectivity / d² (≈ 1400 LSB at 0.25 m for a white wall)
             Some(d) => (
                 1400.0 * (reflectivity / 0.9) * (0.25 / d).powi(2),
-                4.0 * PI * MODULATION_HZ * d / C_M_PER_S,
+                distance_to_phase_rad(d, MODULATION_HZ),
             ),
             None => (0.0, 0.0),
         };
@@ -141,7 +143,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .nth(1)
         .map(PathBuf::from)
         .ok_or("usage: make_example_recording OUT_DIR")?;
-    let sensor_info = SensorInfo {
+    let sensor_info = SensorGeometry {
         rows: ROWS,
         cols: COLS,
         roi_origin: [78, 104],

@@ -19,15 +19,16 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array1, Array2, Array3, Ix1, Ix2, Ix3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
-use tofprox_core::Algorithm;
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::crosstalk::CrosstalkCalibration;
 use tofprox_core::pipeline::Calibration;
+use tofprox_core::{Algorithm, SensorGeometry};
 
-use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
+use crate::error::{
+    ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
+};
 use crate::fsutil;
 use crate::npy::{self, NpyArray, shape_str};
-use crate::recording::SensorInfo;
 
 /// `format` value of a calibration set.
 pub const CALIBRATION_FORMAT: &str = "tofprox-calibration";
@@ -108,42 +109,6 @@ impl fmt::Display for CalibPart {
     }
 }
 
-/// What a calibration set is valid for: the sensor setup and window it was
-/// extracted on. Applying it to anything else is refused.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CalibrationValidity {
-    /// Modulation frequency the wiggling/FPPN tables belong to.
-    pub modulation_hz: f64,
-    /// ADC resolution (offsets are in codes of this ADC).
-    pub adc_bits: u8,
-    /// Window rows.
-    pub rows: usize,
-    /// Window columns.
-    pub cols: usize,
-    /// (row, col) of the window on the full array.
-    pub roi_origin: [usize; 2],
-    /// Full array rows.
-    pub full_rows: usize,
-    /// Full array columns.
-    pub full_cols: usize,
-}
-
-impl CalibrationValidity {
-    /// The validity of a calibration extracted from a recording of `sensor`.
-    pub fn from_sensor(s: &SensorInfo) -> Self {
-        CalibrationValidity {
-            modulation_hz: s.modulation_hz,
-            adc_bits: s.adc_bits,
-            rows: s.rows,
-            cols: s.cols,
-            roi_origin: s.roi_origin,
-            full_rows: s.full_rows,
-            full_cols: s.full_cols,
-        }
-    }
-}
-
 /// Where a part came from.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct PartSource {
@@ -177,8 +142,9 @@ pub struct CalibrationSet {
     pub fppn: Option<FppnMap>,
     /// FPPN map for 2-phase evaluation (extracted after the 2-phase wiggling LUT).
     pub fppn_2phase: Option<FppnMap>,
-    /// What the set is valid for.
-    pub validity: CalibrationValidity,
+    /// What the set is valid for: the sensor setup and window it was extracted on (the
+    /// `[valid_for]` table). Applying it to anything else is refused.
+    pub validity: SensorGeometry,
     /// Provenance of each present part.
     pub sources: BTreeMap<CalibPart, PartSource>,
     /// Free text.
@@ -207,7 +173,7 @@ struct CalibToml {
     description: Option<String>,
     /// Last time the set was written (RFC 3339).
     updated: String,
-    valid_for: CalibrationValidity,
+    valid_for: SensorGeometry,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -293,7 +259,7 @@ pub fn rfc3339_from_unix(secs: u64) -> String {
 
 impl CalibrationSet {
     /// An empty set for data of `sensor`.
-    pub fn new(sensor: &SensorInfo) -> Self {
+    pub fn new(sensor: &SensorGeometry) -> Self {
         CalibrationSet {
             offset: None,
             crosstalk: None,
@@ -301,7 +267,7 @@ impl CalibrationSet {
             wiggling_4phase: None,
             fppn: None,
             fppn_2phase: None,
-            validity: CalibrationValidity::from_sensor(sensor),
+            validity: *sensor,
             sources: BTreeMap::new(),
             description: None,
             dir: None,
@@ -573,7 +539,7 @@ impl CalibrationSet {
     }
 
     /// Refuse to apply this set to data of another sensor setup.
-    pub fn check_compatible(&self, sensor: &SensorInfo) -> Result<(), FormatError> {
+    pub fn check_compatible(&self, sensor: &SensorGeometry) -> Result<(), FormatError> {
         let v = &self.validity;
         let mut problems = Vec::new();
         let rel =
@@ -651,7 +617,7 @@ impl CalibrationSet {
             version: CALIBRATION_VERSION,
             description: self.description.clone(),
             updated: now_rfc3339(),
-            valid_for: self.validity.clone(),
+            valid_for: self.validity,
             offset: None,
             crosstalk: None,
             wiggling_2phase: None,
@@ -752,20 +718,10 @@ impl CalibrationSet {
             fs::read_to_string(&path).map_err(|e| FormatError::io(&path, "cannot read", e))?;
         check_header(&path, &text)?;
         let t: CalibToml = toml::from_str(&text).map_err(|e| from_toml(&path, &text, &e))?;
-        let v = &t.valid_for;
-        let sensor = SensorInfo {
-            rows: v.rows,
-            cols: v.cols,
-            roi_origin: v.roi_origin,
-            full_rows: v.full_rows,
-            full_cols: v.full_cols,
-            adc_bits: v.adc_bits,
-            modulation_hz: v.modulation_hz,
-        };
-        sensor.validate().map_err(|e| {
-            let k = e.key_name().unwrap_or("").replace("sensor.", "valid_for.");
-            e.at(&path).key(k)
-        })?;
+        let sensor = t.valid_for;
+        sensor
+            .validate()
+            .map_err(|e| geometry_invalid(e, "valid_for").at(&path))?;
         let mut set = CalibrationSet::new(&sensor);
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
@@ -922,7 +878,7 @@ fn load_part(
     toml_path: &Path,
     part: CalibPart,
     pt: &PartToml,
-    sensor: &SensorInfo,
+    sensor: &SensorGeometry,
 ) -> Result<LoadedArray, FormatError> {
     let key = part.name();
     if pt.file != part.file_name() {

@@ -119,6 +119,17 @@ pub(crate) fn invalid(message: impl Into<String>) -> FormatError {
     FormatError::new(ErrorKind::Invalid, message)
 }
 
+/// A sensor geometry that fails [`tofprox_core::SensorGeometry::validate`], as an `Invalid`
+/// error naming `table.key` (`sensor.adc_bits`, `valid_for.full_rows`).
+pub(crate) fn geometry_invalid(e: tofprox_core::CoreError, table: &str) -> FormatError {
+    match e {
+        tofprox_core::CoreError::InvalidParameter { name, reason } => {
+            invalid(reason).key(format!("{table}.{name}"))
+        }
+        other => invalid(other.to_string()).key(table),
+    }
+}
+
 /// Turn a `toml` deserialisation error into a `FormatError` that says the line,
 /// the offending text and the key (`capture[1].gain`), without the multi-line
 /// ASCII art.

@@ -16,10 +16,10 @@ mod recording;
 
 pub use calibration::{
     CALIBRATION_FORMAT, CALIBRATION_TOML, CALIBRATION_VERSION, CalibPart, CalibrationSet,
-    CalibrationValidity, PartSource, now_rfc3339, rfc3339_from_unix,
+    PartSource, now_rfc3339, rfc3339_from_unix,
 };
 pub use error::{ErrorKind, FormatError};
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
-    RawFrames, Recording, RecordingWriter, SensorInfo, validate_spec,
+    RawFrames, Recording, RecordingWriter, validate_spec,
 };

@@ -10,7 +10,11 @@ use ndarray::{Array3, ArrayBase, Data, Ix3};
 use serde::de::{self, Deserializer, Visitor};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ErrorKind, FormatError, check_format_header, from_toml, invalid};
+use tofprox_core::SensorGeometry;
+
+use crate::error::{
+    ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
+};
 use crate::fsutil;
 use crate::npy::{self, Dtype, NpyArray, shape_str};
 
@@ -22,86 +26,6 @@ pub const RECORDING_VERSION: i64 = 1;
 pub const RECORDING_TOML: &str = "recording.toml";
 /// Sub-directory the writer puts frame files in.
 pub const FRAMES_DIR: &str = "frames";
-
-/// The `[sensor]` table: the window this recording covers and the ADC/modulation setup.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SensorInfo {
-    /// Rows in this recording's window.
-    pub rows: usize,
-    /// Columns in this recording's window.
-    pub cols: usize,
-    /// (row, col) of the window's first pixel on the full array.
-    pub roi_origin: [usize; 2],
-    /// Rows of the full pixel array.
-    pub full_rows: usize,
-    /// Columns of the full pixel array.
-    pub full_cols: usize,
-    /// ADC resolution; codes are offset binary around `2^(adc_bits-1)`.
-    pub adc_bits: u8,
-    /// Modulation frequency.
-    pub modulation_hz: f64,
-}
-
-impl SensorInfo {
-    /// A full-array sensor description (window = full array, origin 0).
-    pub fn full(rows: usize, cols: usize, adc_bits: u8, modulation_hz: f64) -> Self {
-        SensorInfo {
-            rows,
-            cols,
-            roi_origin: [0, 0],
-            full_rows: rows,
-            full_cols: cols,
-            adc_bits,
-            modulation_hz,
-        }
-    }
-    /// Largest code: `2^adc_bits - 1`.
-    pub fn max_code(&self) -> u32 {
-        (1u32 << self.adc_bits.min(16)) - 1
-    }
-    /// Zero differential voltage: `2^(adc_bits-1)`.
-    pub fn mid_code(&self) -> u32 {
-        1u32 << (self.adc_bits.clamp(1, 16) - 1)
-    }
-    /// Check every field; errors name the key (`sensor.rows`, …).
-    pub fn validate(&self) -> Result<(), FormatError> {
-        if self.rows == 0 {
-            return Err(invalid("must be at least 1").key("sensor.rows"));
-        }
-        if self.cols == 0 {
-            return Err(invalid("must be at least 1").key("sensor.cols"));
-        }
-        if !(1..=16).contains(&self.adc_bits) {
-            return Err(invalid(format!(
-                "{} is out of range: 1..=16 bits (codes are stored as uint16)",
-                self.adc_bits
-            ))
-            .key("sensor.adc_bits"));
-        }
-        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
-            return Err(invalid(format!(
-                "{} is not a positive finite frequency",
-                self.modulation_hz
-            ))
-            .key("sensor.modulation_hz"));
-        }
-        window_fits("rows", self.roi_origin[0], self.rows, self.full_rows)?;
-        window_fits("cols", self.roi_origin[1], self.cols, self.full_cols)
-    }
-}
-
-/// The window `origin..origin + len` of one axis (`"rows"` / `"cols"`) lies
-/// inside the full array of `full` pixels; the error names `sensor.full_<axis>`.
-fn window_fits(axis: &str, origin: usize, len: usize, full: usize) -> Result<(), FormatError> {
-    if origin.checked_add(len).is_none_or(|e| e > full) {
-        return Err(invalid(format!(
-            "window {axis} {origin}..{} do not fit in full_{axis} = {full}",
-            origin.saturating_add(len)
-        ))
-        .key(format!("sensor.full_{axis}")));
-    }
-    Ok(())
-}
 
 /// What one capture is (everything of a `[[capture]]` table except `frames`).
 #[derive(Debug, Clone, PartialEq)]
@@ -220,7 +144,7 @@ impl RawFrames {
     /// Fraction of pixels with at least one raw image at a rail (code ≤ 0.5
     /// or ≥ max − 0.5): the saturation share `tofprox info` reports.
     pub fn saturated_fraction(&self, adc_bits: u8) -> f64 {
-        let max = f64::from((1u32 << adc_bits.clamp(1, 16)) - 1);
+        let max = f64::from(tofprox_core::sensor::adc_max_code(adc_bits));
         let (_, rows, cols) = self.dim();
         if rows * cols == 0 {
             return 0.0;
@@ -248,7 +172,7 @@ impl RawFrames {
         sat.iter().filter(|&&s| s).count() as f64 / (rows * cols) as f64
     }
     /// Check shape and values against the sensor and the capture's phases.
-    pub fn validate(&self, sensor: &SensorInfo, phases: usize) -> Result<(), FormatError> {
+    pub fn validate(&self, sensor: &SensorGeometry, phases: usize) -> Result<(), FormatError> {
         let (k, rows, cols) = self.dim();
         if (rows, cols) != (sensor.rows, sensor.cols) {
             return Err(invalid(format!(
@@ -368,24 +292,9 @@ struct RecordingToml {
     version: i64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     description: Option<String>,
-    sensor: SensorToml,
+    sensor: SensorGeometry,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     capture: Vec<CaptureToml>,
-}
-
-#[derive(Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-struct SensorToml {
-    rows: usize,
-    cols: usize,
-    #[serde(default)]
-    roi_origin: [usize; 2],
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    full_rows: Option<usize>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    full_cols: Option<usize>,
-    adc_bits: u8,
-    modulation_hz: Num,
 }
 
 #[derive(Debug, Deserialize, Serialize)]
@@ -400,31 +309,6 @@ struct CaptureToml {
     timestamp_ns: Option<u64>,
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     conditions: BTreeMap<String, Num>,
-}
-
-impl SensorToml {
-    fn to_info(&self) -> SensorInfo {
-        SensorInfo {
-            rows: self.rows,
-            cols: self.cols,
-            roi_origin: self.roi_origin,
-            full_rows: self.full_rows.unwrap_or(self.rows),
-            full_cols: self.full_cols.unwrap_or(self.cols),
-            adc_bits: self.adc_bits,
-            modulation_hz: self.modulation_hz.0,
-        }
-    }
-    fn from_info(s: &SensorInfo) -> Self {
-        SensorToml {
-            rows: s.rows,
-            cols: s.cols,
-            roi_origin: s.roi_origin,
-            full_rows: Some(s.full_rows),
-            full_cols: Some(s.full_cols),
-            adc_bits: s.adc_bits,
-            modulation_hz: Num(s.modulation_hz),
-        }
-    }
 }
 
 impl CaptureToml {
@@ -520,7 +404,7 @@ fn validate_frames_path(frames: &str) -> Result<PathBuf, FormatError> {
 #[derive(Debug, Clone)]
 pub struct Recording {
     dir: PathBuf,
-    sensor: SensorInfo,
+    sensor: SensorGeometry,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     dtypes: Vec<Dtype>,
@@ -565,7 +449,7 @@ impl Recording {
         &self.dir
     }
     /// The `[sensor]` table.
-    pub fn sensor(&self) -> &SensorInfo {
+    pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
     }
     /// The free-text description.
@@ -605,7 +489,7 @@ impl Recording {
     }
 }
 
-fn check_shape(shape: &[usize], sensor: &SensorInfo, phases: usize) -> Result<(), FormatError> {
+fn check_shape(shape: &[usize], sensor: &SensorGeometry, phases: usize) -> Result<(), FormatError> {
     let want = [phases, sensor.rows, sensor.cols];
     if shape.len() != 3 {
         return Err(invalid(format!(
@@ -642,7 +526,7 @@ fn to_raw_frames(a: NpyArray) -> Result<RawFrames, FormatError> {
     })
 }
 
-type Parsed = (SensorInfo, Option<String>, Vec<CaptureMeta>);
+type Parsed = (SensorGeometry, Option<String>, Vec<CaptureMeta>);
 
 /// Parse and validate the text of a `recording.toml`.
 fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
@@ -657,8 +541,10 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
         "recording",
     )?;
     let raw: RecordingToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
-    let sensor = raw.sensor.to_info();
-    sensor.validate().map_err(|e| e.at(path))?;
+    let sensor = raw.sensor;
+    sensor
+        .validate()
+        .map_err(|e| geometry_invalid(e, "sensor").at(path))?;
     let mut seen = BTreeSet::new();
     let mut captures = Vec::with_capacity(raw.capture.len());
     for (i, c) in raw.capture.iter().enumerate() {
@@ -684,7 +570,7 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
 }
 
 fn render_recording_toml(
-    sensor: &SensorInfo,
+    sensor: &SensorGeometry,
     description: Option<&str>,
     captures: &[CaptureMeta],
 ) -> Result<String, FormatError> {
@@ -692,7 +578,7 @@ fn render_recording_toml(
         format: RECORDING_FORMAT.to_string(),
         version: RECORDING_VERSION,
         description: description.map(str::to_string),
-        sensor: SensorToml::from_info(sensor),
+        sensor: *sensor,
         capture: captures.iter().map(CaptureToml::from_meta).collect(),
     };
     toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
@@ -708,7 +594,7 @@ fn render_recording_toml(
 #[derive(Debug)]
 pub struct RecordingWriter {
     dir: PathBuf,
-    sensor: SensorInfo,
+    sensor: SensorGeometry,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     next_file: usize,
@@ -719,10 +605,12 @@ impl RecordingWriter {
     /// directory that already holds a `recording.toml` (see [`RecordingWriter::open_append`]).
     pub fn create(
         dir: &Path,
-        sensor: SensorInfo,
+        sensor: SensorGeometry,
         description: Option<String>,
     ) -> Result<Self, FormatError> {
-        sensor.validate()?;
+        sensor
+            .validate()
+            .map_err(|e| geometry_invalid(e, "sensor"))?;
         let toml_path = dir.join(RECORDING_TOML);
         if toml_path.exists() {
             return Err(FormatError::new(
@@ -789,7 +677,7 @@ impl RecordingWriter {
     }
 
     /// The sensor this recording is for.
-    pub fn sensor(&self) -> &SensorInfo {
+    pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
     }
 

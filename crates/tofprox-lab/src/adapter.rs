@@ -23,6 +23,7 @@ pub fn load_recording(dir: &Path) -> Result<Dataset, LabError> {
     dataset_from_recording(&rec)
 }
 
+/// Every capture of an opened recording as a [`Dataset`] (codes as f64).
 pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
     let s = rec.sensor();
     let mut captures = Vec::with_capacity(rec.captures().len());
@@ -47,11 +48,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
         });
     }
     let ds = Dataset {
-        rows: s.rows,
-        cols: s.cols,
-        roi_origin: s.roi_origin,
-        adc_bits: s.adc_bits,
-        modulation_hz: s.modulation_hz,
+        sensor: *s,
         captures,
     };
     ds.validate()?;

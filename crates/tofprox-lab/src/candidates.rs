@@ -11,7 +11,9 @@ use crate::stats::{Normal, levenberg_marquardt, solve_sym};
 /// Result of fitting one signature.
 #[derive(Debug, Clone)]
 pub struct SignatureFit {
+    /// Fitted linear coefficients, one per [`Signature::lin_names`] entry.
     pub lin: Vec<f64>,
+    /// Fitted non-linear parameters, one per [`Signature::nl_names`] entry.
     pub nl: Vec<f64>,
     /// χ² of the residual after the fit (over the given records).
     pub chi2: f64,
@@ -21,6 +23,7 @@ pub struct SignatureFit {
     pub cv_chi2: f64,
     /// Σ over folds of the held-out χ² without the effect.
     pub cv_chi2_before: f64,
+    /// Free parameters of the effect (`lin` + `nl`, nuisance shifts not counted).
     pub n_params: usize,
     /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
     pub nuisance: [f64; NUISANCE],

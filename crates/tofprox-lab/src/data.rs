@@ -2,20 +2,28 @@
 //! Independent of the file format so the statistics can be tested on small
 //! synthetic data; `adapter` converts a `tofprox_format::Recording`.
 use ndarray::Array3;
+use tofprox_core::SensorGeometry;
 
 use crate::error::LabError;
 
 /// One capture: K raw images of (rows, cols) mean codes with its conditions.
 #[derive(Debug, Clone)]
 pub struct Capture {
+    /// Phase shift of each raw image, in acquisition order.
     pub phases_deg: Vec<f64>,
+    /// Exposure (integration) time.
     pub exposure_us: f64,
+    /// false: a dark capture (illumination off).
     pub illumination: bool,
+    /// Acquisitions averaged into each code (1 = a single one).
     pub averaged: u32,
     /// Ground-truth radial distance of the flat target, if known.
     pub distance_m: Option<f64>,
+    /// Target reflectivity (1 when the recording does not say).
     pub reflectivity: f64,
+    /// Background illuminance on the target.
     pub ambient_klux: f64,
+    /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
     /// (K, rows, cols) codes (offset binary, mean of `averaged` acquisitions).
     pub frames: Array3<f64>,
@@ -24,41 +32,29 @@ pub struct Capture {
 /// A recording as the lab sees it, captures in acquisition order.
 #[derive(Debug, Clone)]
 pub struct Dataset {
-    pub rows: usize,
-    pub cols: usize,
-    pub roi_origin: [usize; 2],
-    pub adc_bits: u8,
-    pub modulation_hz: f64,
+    /// The recording's window, full array, ADC and modulation.
+    pub sensor: SensorGeometry,
+    /// The captures, in acquisition order.
     pub captures: Vec<Capture>,
 }
 
 impl Dataset {
     /// Check shapes and values; every later stage relies on this.
     pub fn validate(&self) -> Result<(), LabError> {
-        if self.rows == 0 || self.cols == 0 {
-            return Err(LabError::data(
-                "recording window is empty (rows or cols = 0)",
-            ));
-        }
-        if !(4..=16).contains(&self.adc_bits) {
-            return Err(LabError::data(format!(
-                "adc_bits = {} outside 4..=16",
-                self.adc_bits
-            )));
-        }
-        if !(self.modulation_hz.is_finite() && self.modulation_hz > 0.0) {
-            return Err(LabError::data("modulation_hz must be positive and finite"));
+        let s = &self.sensor;
+        if let Err(e) = s.validate() {
+            return Err(LabError::data(format!("sensor: {e}")));
         }
         if self.captures.is_empty() {
             return Err(LabError::data("recording has no captures"));
         }
-        let full = f64::from(1u32 << self.adc_bits);
+        let full = f64::from(s.max_code()) + 1.0;
         for (i, c) in self.captures.iter().enumerate() {
             let (k, r, cc) = c.frames.dim();
-            if r != self.rows || cc != self.cols {
+            if r != s.rows || cc != s.cols {
                 return Err(LabError::data(format!(
                     "capture {i}: frames are {r}x{cc}, sensor window is {}x{}",
-                    self.rows, self.cols
+                    s.rows, s.cols
                 )));
             }
             if k == 0 || k != c.phases_deg.len() {
@@ -103,17 +99,10 @@ impl Dataset {
             {
                 return Err(LabError::data(format!(
                     "capture {i}: codes outside the {}-bit range or not finite",
-                    self.adc_bits
+                    s.adc_bits
                 )));
             }
         }
         Ok(())
-    }
-
-    pub fn mid_code(&self) -> f64 {
-        f64::from(1u32 << (self.adc_bits - 1))
-    }
-    pub fn max_code(&self) -> f64 {
-        f64::from((1u32 << self.adc_bits) - 1)
     }
 }

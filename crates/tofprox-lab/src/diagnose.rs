@@ -6,10 +6,7 @@ use serde::Serialize;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{
-    EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, SPEED_OF_LIGHT_M_PER_S, eval_delta,
-    fit_model,
-};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, eval_delta, fit_model};
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -27,49 +24,75 @@ pub const MIN_CV: f64 = 0.4;
 /// Two candidates closer than this in explained share are ambiguous.
 pub const AMBIGUITY_MARGIN: f64 = 0.1;
 
+/// RMS errors of the model against the recording.
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
 pub struct Rms {
+    /// RMS raw-code residual (measured − model) over the valid samples, LSB.
     pub raw_lsb: f64,
+    /// RMS 2-phase depth error after the model's calibration ([`depth_residuals`]), mm.
     pub depth_2phase_mm: f64,
+    /// The same for 4-phase (NaN without 4-phase captures), mm.
     pub depth_4phase_mm: f64,
 }
 
+/// Goodness of fit of the noise-weighted residual.
 #[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
 pub struct FitStats {
+    /// χ²/dof (1 when the residual is noise).
     pub chi2_per_dof: f64,
+    /// Global misfit z = (χ² − dof)/√(2 dof).
     pub z: f64,
 }
 
 /// Per-capture depth residual means (for plots).
 #[derive(Debug, Clone, Serialize)]
 pub struct CaptureDepth {
+    /// Capture index in the recording.
     pub capture: usize,
+    /// Ground-truth distance.
     pub distance_m: f64,
+    /// Exposure time.
     pub exposure_us: f64,
+    /// Background illuminance.
     pub ambient_klux: f64,
+    /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
+    /// Mean 2-phase depth error over the capture's pixels, mm.
     pub depth_2phase_mm: f64,
+    /// Mean 4-phase depth error (NaN without 4-phase images), mm.
     pub depth_4phase_mm: f64,
+    /// Mean measured 4-phase amplitude (eq. 2.4) after the model's offset and effects, LSB.
     pub measured_amplitude_lsb: f64,
+    /// Mean amplitude of the model's ideal codes, LSB.
     pub model_amplitude_lsb: f64,
 }
 
 /// The model compared with the recording.
 #[derive(Debug, Clone)]
 pub struct Comparison {
+    /// The fitted model.
     pub model: LabModel,
+    /// The residual table over the valid samples.
     pub recs: Vec<Rec>,
+    /// Σ w r² over `recs`.
     pub chi2: f64,
+    /// Valid samples.
     pub n: usize,
+    /// Degrees of freedom: samples − fitted parameters.
     pub dof: f64,
+    /// χ²/dof and the global misfit z.
     pub fit: FitStats,
+    /// RMS raw and depth errors.
     pub rms: Rms,
+    /// Structure score of every condition that varies, strongest first.
     pub structure: Vec<ConditionScore>,
+    /// Per-capture depth residual means.
     pub depth: Vec<CaptureDepth>,
     /// Per-pixel χ²/sample (residual map).
     pub pixel_chi2: Vec<f64>,
 }
 
+/// Fit the lab model of `spec` to the recording and compare it with the data.
 pub fn compare(
     prep: &Prepared,
     spec: &LabSpec,
@@ -79,6 +102,7 @@ pub fn compare(
     comparison_of(prep, model)
 }
 
+/// Compare an already fitted model with the recording.
 pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, LabError> {
     let recs = model.records(prep)?;
     if recs.len() <= model.n_params + 10 {
@@ -152,8 +176,7 @@ pub fn depth_residuals(
     model: &LabModel,
 ) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
     let sigs = model.signatures(prep)?;
-    let mm_per_rad =
-        SPEED_OF_LIGHT_M_PER_S / (4.0 * std::f64::consts::PI * prep.modulation_hz) * 1000.0;
+    let mm_per_rad = 1000.0 / tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz);
     let find = |cap: &crate::fit::CapInfo, deg: f64| {
         cap.phases_deg
             .iter()
@@ -256,6 +279,7 @@ pub fn depth_residuals(
 /// One candidate effect scored against the residual.
 #[derive(Debug, Clone, Serialize)]
 pub struct CandidateScore {
+    /// Catalogue id of the effect.
     pub effect: String,
     /// BIC(with) − BIC(without); negative supports the effect.
     pub delta_bic: f64,
@@ -265,29 +289,41 @@ pub struct CandidateScore {
     pub cv_gain: f64,
     /// z = (χ² − dof)/√(2 dof) after adding the effect.
     pub z_after: f64,
+    /// Fitted parameters by name.
     pub params: BTreeMap<String, f64>,
+    /// The fitted signature (None when the fit failed).
     #[serde(skip)]
     pub fit: Option<EffectFit>,
+    /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
     #[serde(skip)]
     pub nuisance: [f64; 3],
+    /// Strongest structure score after refitting with the effect (top candidates only).
     #[serde(skip)]
     pub structure_after: Option<f64>,
+    /// RMS errors after refitting with the effect (top candidates only).
     #[serde(skip)]
     pub rms_after: Option<Rms>,
+    /// Whether the effect cancels in 4-phase ([`crate::signatures::cancels_in_4phase`]).
     #[serde(skip)]
     pub cancels_in_4phase: bool,
 }
 
+/// The lab's answer to "what is missing from the model?".
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Verdict {
+    /// One catalogue effect explains the residual.
     MissingEffect,
+    /// The residual is noise.
     NothingMissing,
+    /// Two effects explain it about equally; vary the named condition.
     Ambiguous,
+    /// Something is missing that no catalogue effect explains.
     Unexplained,
 }
 
 impl Verdict {
+    /// The snake_case name used in reports and JSON.
     pub fn as_str(&self) -> &'static str {
         match self {
             Verdict::MissingEffect => "missing_effect",
@@ -298,19 +334,30 @@ impl Verdict {
     }
 }
 
+/// What is missing from the model, with the evidence.
 #[derive(Debug, Clone)]
 pub struct Diagnosis {
+    /// The verdict.
     pub verdict: Verdict,
+    /// The missing effect (`missing_effect`) or the best of two (`ambiguous`).
     pub effect: Option<String>,
     /// For `ambiguous`: the runner-up and the condition to vary.
     pub runner_up: Option<String>,
+    /// For `ambiguous`: the condition whose variation separates the two.
     pub separate_by: Option<String>,
+    /// Every scored candidate, best first.
     pub candidates: Vec<CandidateScore>,
+    /// Candidates not scored, with why (effect id, reason).
     pub skipped: Vec<(String, String)>,
+    /// Goodness of fit of the model without any candidate.
     pub fit: FitStats,
+    /// The condition the remaining residual is most structured against.
     pub strongest_condition: Option<String>,
+    /// RMS errors of the model without any candidate.
     pub rms: Rms,
+    /// Structure scores of what remains to explain.
     pub structure_remaining: Vec<ConditionScore>,
+    /// The verdict in one sentence.
     pub reason: String,
 }
 
@@ -521,10 +568,15 @@ pub fn strongest_condition(st: &[ConditionScore]) -> Option<String> {
 /// Outcome of the decision rule (separate for testing).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Decision {
+    /// As [`Diagnosis::verdict`].
     pub verdict: Verdict,
+    /// As [`Diagnosis::effect`].
     pub effect: Option<String>,
+    /// As [`Diagnosis::runner_up`].
     pub runner_up: Option<String>,
+    /// As [`Diagnosis::separate_by`].
     pub separate_by: Option<String>,
+    /// As [`Diagnosis::reason`].
     pub reason: String,
 }
 
@@ -657,13 +709,18 @@ pub fn spec_with(spec: &LabSpec, effect: &str) -> LabSpec {
 /// Before/after of adding one effect.
 #[derive(Debug, Clone, Serialize)]
 pub struct ErrorSummary {
+    /// As [`Rms::raw_lsb`].
     pub raw_lsb: f64,
+    /// As [`Rms::depth_2phase_mm`].
     pub depth_2phase_mm: f64,
+    /// As [`Rms::depth_4phase_mm`].
     pub depth_4phase_mm: f64,
+    /// As [`FitStats::chi2_per_dof`].
     pub chi2_per_dof: f64,
 }
 
 impl ErrorSummary {
+    /// The errors of one comparison.
     pub fn of(c: &Comparison) -> Self {
         Self {
             raw_lsb: c.rms.raw_lsb,
@@ -674,10 +731,15 @@ impl ErrorSummary {
     }
 }
 
+/// The result of [`add_effect`].
 pub struct AddOutcome {
+    /// The model without the effect.
     pub before: Comparison,
+    /// The model refitted with it.
     pub after: Comparison,
+    /// The effect's fitted signature.
     pub effect: EffectFit,
+    /// Its parameters by name.
     pub params: BTreeMap<String, f64>,
 }
 

@@ -26,12 +26,14 @@ pub struct LabError {
 }
 
 impl LabError {
+    /// An error of `kind` with a message naming what failed.
     pub fn new(kind: ErrorKind, message: impl Into<String>) -> Self {
         Self {
             kind,
             message: message.into(),
         }
     }
+    /// What went wrong, for callers that branch on it.
     pub fn kind(&self) -> ErrorKind {
         self.kind
     }

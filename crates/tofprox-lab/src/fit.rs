@@ -16,6 +16,7 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
+use tofprox_core::phasor::distance_to_phase_rad;
 
 use crate::data::Dataset;
 use crate::error::LabError;
@@ -24,7 +25,6 @@ use crate::signatures::{Signature, make_signature};
 use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
 
-pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
 /// Number of cross-validation folds (blocks of distance/condition).
 pub const FOLDS: usize = 5;
 
@@ -33,8 +33,11 @@ pub const FOLDS: usize = 5;
 pub struct LabSpec {
     /// Highest harmonic of the correlation waveform that is fitted (1 = sinusoid).
     pub harmonic_order: usize,
+    /// Fit an offset per pixel (fpn_offset/adc_offset); otherwise one global offset.
     pub per_pixel_offset: bool,
+    /// Fit a gain per pixel (prnu); otherwise one global gain.
     pub per_pixel_gain: bool,
+    /// Fit a phase offset per pixel (fppn); otherwise one global delay.
     pub per_pixel_phase: bool,
     /// Catalogue effects with a lab signature that the model enables.
     pub effects: Vec<String>,
@@ -55,19 +58,29 @@ impl Default for LabSpec {
 /// Per-capture facts used by every stage.
 #[derive(Debug, Clone)]
 pub struct CapInfo {
+    /// Phase shift θ_k of each raw image.
     pub theta_rad: Vec<f64>,
+    /// The same in degrees, as recorded.
     pub phases_deg: Vec<f64>,
+    /// Exposure (integration) time.
     pub exposure_us: f64,
+    /// Background illuminance.
     pub ambient_klux: f64,
+    /// Sensor temperature, if recorded.
     pub temperature_c: Option<f64>,
     /// temperature − reference (0 when unknown).
     pub temp_rel: f64,
+    /// Ground-truth distance, if recorded.
     pub distance_m: Option<f64>,
+    /// false: a dark capture.
     pub illum: bool,
+    /// Acquisitions averaged into each code.
     pub averaged: u32,
-    /// Signal law exposure[ms]·reflectivity/d² (0 when dark).
+    /// Signal law exposure_ms·reflectivity/d² (0 when dark).
     pub law: f64,
+    /// Time-of-flight phase 4πfd/c of the ground-truth distance (eq. 2.6; 0 when unknown).
     pub phi_tof: f64,
+    /// Cross-validation fold (0..FOLDS), by block of distance.
     pub fold: u8,
     /// Whether the capture enters the fit (illuminated captures need a distance).
     pub used: bool,
@@ -77,22 +90,37 @@ pub struct CapInfo {
 /// `base[c] + k·npix + p`.
 #[derive(Debug, Clone)]
 pub struct Prepared {
+    /// Rows of the window.
     pub rows: usize,
+    /// Columns of the window.
     pub cols: usize,
+    /// Pixels of the window (rows × cols).
     pub npix: usize,
+    /// (row, col) of the window's first pixel on the full array.
     pub roi_origin: [usize; 2],
+    /// Mid code `2^(adc_bits-1)`.
     pub mid: f64,
+    /// Largest code `2^adc_bits - 1`.
     pub max_code: f64,
+    /// Modulation frequency.
     pub modulation_hz: f64,
+    /// Per-capture facts, in recording order.
     pub caps: Vec<CapInfo>,
+    /// Index of each capture's first code in `meas`.
     pub base: Vec<usize>,
+    /// Every measured code, capture by capture, image by image, pixel by pixel.
     pub meas: Vec<f64>,
     /// Saturated (c, p) from the measured codes.
     pub sat_meas: Vec<bool>,
+    /// Reference temperature: the correlation capture's, else the median.
     pub temp_ref: f64,
+    /// Whether temperature varies over the illuminated captures.
     pub temperature_varies: bool,
+    /// Whether ambient light varies over the illuminated captures.
     pub ambient_varies: bool,
+    /// Whether the exposure varies over the illuminated captures.
     pub exposure_varies: bool,
+    /// Illuminated captures without a ground-truth distance (left out of every fit).
     pub skipped_captures: usize,
 }
 
@@ -101,11 +129,12 @@ fn key_f(v: f64) -> i64 {
 }
 
 impl Prepared {
+    /// Validate and flatten a dataset; fails when no illuminated capture has a distance.
     pub fn new(ds: &Dataset) -> Result<Self, LabError> {
         ds.validate()?;
-        let npix = ds.rows * ds.cols;
-        let mid = ds.mid_code();
-        let max_code = ds.max_code();
+        let npix = ds.sensor.pixels();
+        let mid = f64::from(ds.sensor.mid_code());
+        let max_code = f64::from(ds.sensor.max_code());
         let margin = (0.0075 * (max_code + 1.0)).max(2.0);
         // Reference temperature: that of the correlation capture, else the median.
         let temps: Vec<f64> = ds.captures.iter().filter_map(|c| c.temperature_c).collect();
@@ -164,7 +193,7 @@ impl Prepared {
             };
             let phi_tof = c
                 .distance_m
-                .map(|d| 4.0 * std::f64::consts::PI * ds.modulation_hz * d / SPEED_OF_LIGHT_M_PER_S) // eq. 2.6
+                .map(|d| distance_to_phase_rad(d, ds.sensor.modulation_hz)) // eq. 2.6
                 .unwrap_or(0.0);
             caps.push(CapInfo {
                 theta_rad: c.phases_deg.iter().map(|p| p.to_radians()).collect(),
@@ -205,13 +234,13 @@ impl Prepared {
             ));
         }
         Ok(Self {
-            rows: ds.rows,
-            cols: ds.cols,
+            rows: ds.sensor.rows,
+            cols: ds.sensor.cols,
             npix,
-            roi_origin: ds.roi_origin,
+            roi_origin: ds.sensor.roi_origin,
             mid,
             max_code,
-            modulation_hz: ds.modulation_hz,
+            modulation_hz: ds.sensor.modulation_hz,
             caps,
             base,
             meas,
@@ -224,6 +253,7 @@ impl Prepared {
         })
     }
 
+    /// Index in `meas` of capture `c`, raw image `k`, pixel `p`.
     #[inline]
     pub fn idx(&self, c: usize, k: usize, p: usize) -> usize {
         self.base[c] + k * self.npix + p
@@ -250,8 +280,11 @@ pub(crate) fn median(v: &[f64]) -> Option<f64> {
 /// Fitted parameters of one effect signature: linear and non-linear parts.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EffectFit {
+    /// Catalogue id of the effect.
     pub id: String,
+    /// Linear coefficients (see [`Signature::lin_names`]).
     pub lin: Vec<f64>,
+    /// Non-linear parameters (see [`Signature::nl_names`]).
     pub nl: Vec<f64>,
 }
 
@@ -264,29 +297,44 @@ pub struct Rec {
     pub w: f64,
     /// Modelled amplitude A (LSB), phase φ, image phase θ, C and C' at φ−θ.
     pub a: f64,
+    /// Modelled phase φ (rad).
     pub phi: f64,
+    /// The raw image's phase shift θ (rad).
     pub theta: f64,
+    /// C(φ − θ).
     pub c: f64,
+    /// C'(φ − θ).
     pub cd: f64,
     /// Modelled differential code (code − mid) without effects.
     pub x: f64,
     /// The pixel's response relative to the median pixel (PRNU, vignetting).
     pub gain_rel: f64,
+    /// Capture index.
     pub cap: u32,
+    /// Pixel index in the window.
     pub pix: u32,
+    /// Raw image index in the capture.
     pub k: u16,
+    /// The capture's cross-validation fold.
     pub fold: u8,
 }
 
 /// The fitted lab model.
 #[derive(Debug, Clone, Serialize)]
 pub struct LabModel {
+    /// Which parts were free.
     pub spec: LabSpec,
+    /// Offset o_p of each pixel from the mid code, LSB.
     pub offset: Vec<f64>,
+    /// Gain g_p of each pixel: amplitude in LSB per unit of the signal law.
     pub gain: Vec<f64>,
+    /// Phase offset δ_p of each pixel (fppn and the global delay), rad.
     pub phase: Vec<f64>,
+    /// The fitted correlation waveform.
     pub waveform: Waveform,
+    /// The fitted effect signatures.
     pub effects: Vec<EffectFit>,
+    /// The noise model the fit is weighted by.
     pub noise: NoiseModel,
     /// Saturated (c, p), measured or modelled.
     #[serde(skip)]
@@ -342,6 +390,7 @@ impl LabModel {
         }
     }
 
+    /// The signatures of this model's effects on `prep`.
     pub fn signatures(&self, prep: &Prepared) -> Result<Vec<Box<dyn Signature>>, LabError> {
         self.effects
             .iter()

@@ -13,6 +13,7 @@ use crate::stats::solve_sym;
 /// Number of features in the photon-transfer regression.
 pub const NOISE_TERMS: usize = 4;
 
+/// The fitted photon-transfer variance law of one averaged raw code (see the module doc).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct NoiseModel {
     /// Read-noise floor, LSB² per acquisition.
@@ -59,6 +60,8 @@ impl NoiseModel {
         v.max(1e-9) / f64::from(averaged.max(1))
     }
 
+    /// The regression features `[1, A, ambient·exposure, exposure] / averaged`
+    /// whose dot product with `[a, b, c, e]` is [`NoiseModel::var`].
     pub fn features(
         amplitude_lsb: f64,
         ambient_klux: f64,

@@ -5,19 +5,26 @@
 use std::f64::consts::PI;
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, SPEED_OF_LIGHT_M_PER_S};
+use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (issue 3: ≥ 9th).
 pub const MAX_HARMONIC: usize = 9;
 
+/// The residual an effect leaves in the raw codes, as a basis in which it is
+/// linear (`lin`) given a few non-linear parameters (`nl`).
 pub trait Signature: Send + Sync {
+    /// The catalogue id of the effect.
     fn id(&self) -> &'static str;
+    /// Number of linear coefficients (basis functions).
     fn n_lin(&self) -> usize;
+    /// Names of the linear coefficients, in basis order.
     fn lin_names(&self) -> Vec<String>;
+    /// Names of the non-linear parameters (none by default).
     fn nl_names(&self) -> Vec<String> {
         Vec::new()
     }
+    /// Default starting values of the non-linear parameters.
     fn nl_start(&self) -> Vec<f64> {
         Vec::new()
     }
@@ -78,6 +85,8 @@ pub fn not_identifiable(id: &str, prep: &Prepared, spec: &LabSpec) -> Option<Str
     }
 }
 
+/// The signature of effect `id` for this recording, model and correlation
+/// waveform; [`ErrorKind::UnknownEffect`] when the lab has none.
 pub fn make_signature(
     id: &str,
     prep: &Prepared,
@@ -105,7 +114,7 @@ pub fn make_signature(
         "adc_inl" => Box::new(Inl { mid: prep.mid }),
         "dark_current" => Box::new(Dark),
         "multipath" => Box::new(Multipath {
-            k_phase: 4.0 * PI * prep.modulation_hz / SPEED_OF_LIGHT_M_PER_S,
+            k_phase: tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz),
         }),
         other => {
             return Err(LabError::new(

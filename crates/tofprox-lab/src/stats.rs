@@ -7,14 +7,20 @@ use crate::error::LabError;
 /// vector: `jtj = Jᵀ W J`, `jtr = Jᵀ W r` (r = data − model), `chi2 = rᵀ W r`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Normal {
+    /// Number of parameters.
     pub n: usize,
+    /// `Jᵀ W J`, n × n row-major (only the upper triangle until [`Normal::symmetrize`]).
     pub jtj: Vec<f64>,
+    /// `Jᵀ W r`, length n.
     pub jtr: Vec<f64>,
+    /// `rᵀ W r`.
     pub chi2: f64,
+    /// Samples added.
     pub count: usize,
 }
 
 impl Normal {
+    /// Empty normal equations for `n` parameters.
     pub fn zeros(n: usize) -> Self {
         Self {
             n,
@@ -51,6 +57,7 @@ impl Normal {
             }
         }
     }
+    /// Add the samples of `o` (same parameters).
     pub fn merge(&mut self, o: &Normal) {
         for (a, b) in self.jtj.iter_mut().zip(&o.jtj) {
             *a += b;
@@ -61,6 +68,8 @@ impl Normal {
         self.chi2 += o.chi2;
         self.count += o.count;
     }
+    /// These normal equations without the samples of `o` (a subset of them):
+    /// the training part of a cross-validation fold.
     pub fn minus(&self, o: &Normal) -> Normal {
         let mut m = self.clone();
         for (a, b) in m.jtj.iter_mut().zip(&o.jtj) {
@@ -164,9 +173,13 @@ pub fn bic(chi2: f64, k: usize, n: usize) -> f64 {
 /// Result of a Levenberg–Marquardt fit.
 #[derive(Debug, Clone)]
 pub struct LmResult {
+    /// The parameters at the minimum found.
     pub params: Vec<f64>,
+    /// χ² at `params`.
     pub chi2: f64,
+    /// Iterations taken.
     pub iterations: usize,
+    /// The normal equations at `params`.
     pub normal: Normal,
 }
 

@@ -9,6 +9,7 @@ use serde::Serialize;
 use crate::fit::{Prepared, Rec};
 use crate::stats::solve_sym;
 
+/// The conditions every recording is scored against, when they vary.
 pub const CONDITIONS: &[&str] = &[
     "distance_m",
     "phase",
@@ -24,10 +25,12 @@ pub const CONDITIONS: &[&str] = &[
     "adc_code",
 ];
 
+/// One bin of a condition: the residual projected on the three directions.
 #[derive(Debug, Clone, Serialize)]
 pub struct Bin {
     /// Bin centre in the condition's unit.
     pub x: f64,
+    /// Samples (pixel × raw image) in the bin.
     pub samples: usize,
     /// Estimate along offset (LSB), amplitude (relative) and phase (rad).
     pub est: [f64; 3],
@@ -37,14 +40,21 @@ pub struct Bin {
     pub mean_resid_lsb: f64,
 }
 
+/// How strongly the residual varies with one condition, beyond the noise.
 #[derive(Debug, Clone, Serialize)]
 pub struct ConditionScore {
+    /// The condition's name (a [`CONDITIONS`] entry).
     pub condition: String,
+    /// Structure score: (χ² − dof)/√(2·dof), the larger of the global and
+    /// per-pixel binnings; about N(0, 1) when the residual is noise.
     pub z: f64,
+    /// χ² of the bin estimates behind `z`.
     pub chi2: f64,
+    /// Degrees of freedom of `chi2`.
     pub dof: usize,
     /// Which direction carries most of the structure: offset, amplitude, phase.
     pub direction: &'static str,
+    /// The global bins, those with at least 4 samples.
     pub bins: Vec<Bin>,
 }
 

@@ -4,6 +4,8 @@
 use ndarray::Array3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use tofprox_core::SensorGeometry;
+use tofprox_core::phasor::distance_to_phase_rad;
 
 use crate::data::{Capture, Dataset};
 use crate::waveform::Waveform;
@@ -11,7 +13,7 @@ use crate::waveform::Waveform;
 /// An effect injected into the synthetic truth.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Hidden {
-    /// Common-mode error m·max(0, ambient·t[ms] + A/100 − q0) on every raw image.
+    /// Common-mode error m·max(0, ambient·t_ms + A/100 − q0) on every raw image.
     Sbi { m: f64, q0: f64 },
     /// A_k = A(1 − eps·k).
     Droop { eps: f64 },
@@ -125,7 +127,7 @@ pub fn generate(spec: &SynthSpec) -> Dataset {
             } else {
                 0.0
             };
-            let mut phi = 4.0 * std::f64::consts::PI * f_mod * d / 299_792_458.0 + delays[p];
+            let mut phi = distance_to_phase_rad(d, f_mod) + delays[p];
             let mut a = a0;
             for h in &spec.hidden {
                 match *h {
@@ -207,11 +209,7 @@ pub fn generate(spec: &SynthSpec) -> Dataset {
         }
     }
     Dataset {
-        rows: spec.rows,
-        cols: spec.cols,
-        roi_origin: [0, 0],
-        adc_bits: 12,
-        modulation_hz: f_mod,
+        sensor: SensorGeometry::full(spec.rows, spec.cols, 12, f_mod),
         captures: caps,
     }
 }

@@ -1,8 +1,9 @@
 //! The correlation function as a Fourier series (thesis 3.2.2, 4.2.2):
 //! C(x) = Σ_h Re[γ_h e^{i h x}], γ_1 = 1, x = φ − θ_k. The raw code of image k
-//! is mid + offset + A·C(φ − θ_k) (CONTRACTS: physical conventions).
+//! is mid + offset + A·C(φ − θ_k) (the conventions of `tofprox_core`, crate documentation).
 use serde::Serialize;
 
+/// Fourier coefficients of the normalised correlation function C(x).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Waveform {
     /// γ_h = [re, im] for h = 1..=H (γ_1 = [1, 0]).
@@ -10,11 +11,13 @@ pub struct Waveform {
 }
 
 impl Waveform {
+    /// The ideal correlation C(x) = cos x (fundamental only).
     pub fn sinusoid() -> Self {
         Self {
             gamma: vec![[1.0, 0.0]],
         }
     }
+    /// Highest harmonic H in the series.
     pub fn order(&self) -> usize {
         self.gamma.len()
     }

@@ -90,11 +90,7 @@ fn record(truth: &ModelConfig, seed: u64, vary: Vary, inject: Option<Inject>) ->
         }
     }
     Dataset {
-        rows: 16,
-        cols: 16,
-        roi_origin: [78, 104],
-        adc_bits: 12,
-        modulation_hz: geo.modulation_hz,
+        sensor: geo,
         captures: caps,
     }
 }
@@ -258,15 +254,7 @@ fn control_says_nothing_missing_through_the_recording_format() {
     let ds = record(&under, 107, Vary::None, None);
     // round trip through the version-1 recording format
     let dir = tempfile::tempdir().unwrap();
-    let sensor = tofprox_format::SensorInfo {
-        rows: 16,
-        cols: 16,
-        roi_origin: [78, 104],
-        full_rows: 172,
-        full_cols: 224,
-        adc_bits: 12,
-        modulation_hz: ds.modulation_hz,
-    };
+    let sensor = ds.sensor;
     let mut w =
         tofprox_format::RecordingWriter::create(dir.path(), sensor, Some("lab control".into()))
             .unwrap();

@@ -26,6 +26,15 @@ pub struct ModelError {
     kind: ErrorKind,
     message: String,
     path: Option<PathBuf>,
+    #[source]
+    source: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
+}
+
+/// An invalid sensor geometry (`tofprox-core`'s validation), kept as the source.
+impl From<tofprox_core::CoreError> for ModelError {
+    fn from(e: tofprox_core::CoreError) -> Self {
+        Self::new(ErrorKind::InvalidInput, format!("sensor geometry: {e}")).with_source(e)
+    }
 }
 
 impl ModelError {
@@ -34,7 +43,15 @@ impl ModelError {
             kind,
             message: message.into(),
             path: None,
+            source: None,
         }
+    }
+    pub(crate) fn with_source(
+        mut self,
+        source: impl std::error::Error + Send + Sync + 'static,
+    ) -> Self {
+        self.source = Some(Box::new(source));
+        self
     }
     pub(crate) fn invalid(message: impl Into<String>) -> Self {
         Self::new(ErrorKind::InvalidInput, message)

@@ -4,7 +4,7 @@
 //!
 //! All figures evaluate the centre pixel (as the thesis did) with a 1×1 window.
 
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
@@ -14,7 +14,7 @@ use crate::effects::optical::measured_like_waveforms;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::scene::Scene;
-use crate::sim::{SPEED_OF_LIGHT_M_PER_S, Simulator};
+use crate::sim::Simulator;
 
 /// One curve.
 #[derive(Debug, Clone, PartialEq)]
@@ -53,7 +53,7 @@ const MODULATION_HZ: f64 = 80e6;
 
 fn centre_geometry() -> Result<SensorGeometry, ModelError> {
     let g = SensorGeometry::irs1645();
-    g.window(g.full_rows / 2, g.full_cols / 2, 1, 1)
+    Ok(g.window(g.full_rows / 2, g.full_cols / 2, 1, 1)?)
 }
 
 /// The "2-phase, {label}" and "4-phase, {label}" line series of one sweep.
@@ -74,12 +74,12 @@ fn phase_pair(label: &str, p2: Vec<(f64, f64)>, p4: Vec<(f64, f64)>) -> [Series;
 
 /// Metres per radian of phase (eq. 2.6).
 fn m_per_rad() -> f64 {
-    SPEED_OF_LIGHT_M_PER_S / (4.0 * PI * MODULATION_HZ)
+    1.0 / tofprox_core::phasor::distance_to_phase_rad(1.0, MODULATION_HZ)
 }
 
 /// Unambiguous range c / 2f (eq. 2.7).
 fn range_m() -> f64 {
-    SPEED_OF_LIGHT_M_PER_S / (2.0 * MODULATION_HZ)
+    tofprox_core::phasor::unambiguous_range_m(MODULATION_HZ)
 }
 
 /// Depth error wrapped into [−R/2, R/2).

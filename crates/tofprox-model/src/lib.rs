@@ -7,10 +7,10 @@
 //! the differential voltage with fixed-pattern offset, and a 12-bit differential
 //! ADC with gain, offset, INL, DNL, quantisation and saturation.
 //!
-//! Every physical effect is a separately switchable unit of the [`catalogue`];
+//! Every physical effect is a separately switchable unit of the [`catalogue`](mod@catalogue);
 //! a model file (`config/model/*.toml`) enables effects and sets their parameters.
 //!
-//! Conventions (CONTRACTS.md): `code_k = mid + offset + A · C(φ − θ_k)`,
+//! Conventions (those of `tofprox_core`, crate documentation): `code_k = mid + offset + A · C(φ − θ_k)`,
 //! `φ = 4π f d / c + φ_delay`, mid = 2^(bits−1).
 //!
 //! ```
@@ -37,4 +37,4 @@ pub use scene::{
     CoverWindow, Expect, Motion, ObjectPose, PhoneScene, Scene, SceneScript, ScriptKind,
     phone_scenes,
 };
-pub use sim::{SPEED_OF_LIGHT_M_PER_S, Simulator};
+pub use sim::Simulator;

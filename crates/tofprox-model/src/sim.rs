@@ -1,7 +1,5 @@
 //! The forward model: scene → electrons per tap A/B → differential voltage → ADC codes.
 
-use std::f64::consts::{PI, TAU};
-
 use ndarray::{Array3, ArrayView2};
 use rand::Rng;
 use rand_distr::StandardNormal;
@@ -14,9 +12,6 @@ use crate::effects::pixel::PixelParams;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::scene::Scene;
-
-/// Speed of light in m/s.
-pub const SPEED_OF_LIGHT_M_PER_S: f64 = 299_792_458.0;
 
 /// A sensor instance: model + geometry + the fixed patterns drawn from one seed.
 #[derive(Debug, Clone)]
@@ -154,8 +149,8 @@ impl Simulator {
             multipath: m.is_enabled("multipath").then(|| {
                 (
                     m.p("multipath", "relative_amplitude"),
-                    TAU * self.geometry.modulation_hz * m.p("multipath", "extra_path_m")
-                        / SPEED_OF_LIGHT_M_PER_S,
+                    // an extra path L arrives like an extra distance L/2 (eq. 2.6 inverted)
+                    self.geometry.phase_rad_per_m() * m.p("multipath", "extra_path_m") / 2.0,
                 )
             }),
             crosstalk: (illum && m.is_enabled("cover_window_crosstalk")).then(|| {
@@ -170,7 +165,7 @@ impl Simulator {
             px,
             lsb_per_e: m.p("sensor", "lsb_per_ke") * 1e-3,
             // eq. 2.6 inverted: φ = 4π f d / c
-            tof_rad_per_m: 4.0 * PI * self.geometry.modulation_hz / SPEED_OF_LIGHT_M_PER_S,
+            tof_rad_per_m: self.geometry.phase_rad_per_m(),
             averaged: f64::from(req.averaged.max(1)),
         }
     }

@@ -5,9 +5,8 @@ use std::f64::consts::{PI, TAU};
 use proptest::prelude::*;
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
-use tofprox_model::{
-    CaptureRequest, ModelConfig, SPEED_OF_LIGHT_M_PER_S, Scene, SensorGeometry, Simulator,
-};
+use tofprox_core::phasor::distance_to_phase_rad;
+use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
 
 const F: f64 = 80e6;
 
@@ -43,7 +42,7 @@ proptest! {
         let amp = e.iter().fold(0.0f64, |m, v| m.max((v - 2048.0).abs()));
         prop_assume!(amp < 2000.0 && amp > 1e-3); // inside the ADC range
         prop_assert_eq!(&e, &c); // no noise effect on: capture is the mean exactly
-        let truth = 4.0 * PI * F * d / SPEED_OF_LIGHT_M_PER_S;
+        let truth = distance_to_phase_rad(d, F);
         let (p2, p4) = phases(&e, 1, 1);
         prop_assert!(wrap_pm_pi(p2 - truth).abs() < 1e-9, "2-phase {} vs {}", p2, truth);
         prop_assert!(wrap_pm_pi(p4 - truth).abs() < 1e-9, "4-phase {} vs {}", p4, truth);
@@ -68,7 +67,7 @@ proptest! {
         let mut req = CaptureRequest::four_phase(300.0);
         req.temperature_c = temp;
         let e = sim.expected(&Scene::wall(d, 0.7), &req).unwrap();
-        let truth = 4.0 * PI * F * d / SPEED_OF_LIGHT_M_PER_S;
+        let truth = distance_to_phase_rad(d, F);
         for r in 0..3 {
             for c in 0..3 {
                 let (p2, p4) = phases(&e, r, c);

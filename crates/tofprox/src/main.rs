@@ -91,6 +91,7 @@ fn main() -> ExitCode {
 fn restore_default_sigpipe() {
     // SAFETY: called once at start-up before any thread exists; SIG_DFL is a
     // valid disposition for SIGPIPE.
+    #[allow(unsafe_code)]
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }

@@ -14,7 +14,7 @@ use tofprox_bridge::{
 };
 use tofprox_format::{RawFrames, Recording};
 
-use crate::config::{Backend, Config, Mode};
+use crate::config::{Backend, Config};
 use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
 
 /// The emulated device: a path to a bridge config file, or the table inline.
@@ -115,17 +115,7 @@ impl<T: UsbTransport> BridgeSource<T> {
 
 impl<T: UsbTransport> FrameSource for BridgeSource<T> {
     fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
-        let breq = tofprox_bridge::CycleRequest {
-            mode: match req.mode {
-                Mode::TwoPhase => SensorMode::TwoPhase,
-                Mode::FourPhase => SensorMode::FourPhase,
-            },
-            exposure_us: req.exposure_us,
-            row_window: req.row_window.map(|w| tofprox_bridge::RowWindow {
-                row0: w.row0,
-                rows: w.rows,
-            }),
-        };
+        let breq = req.map_mode(SensorMode::from);
         let out = self.driver.cycle(&breq).map_err(|e| map_bridge_error(&e))?;
         Ok(RawCycle {
             capture: out,
@@ -213,7 +203,7 @@ impl ReplaySource {
 }
 
 fn to_u16(frames: RawFrames, adc_bits: u8) -> Array3<u16> {
-    let max = f64::from((1u32 << adc_bits.clamp(1, 16)) - 1);
+    let max = f64::from(tofprox_core::sensor::adc_max_code(adc_bits));
     match frames {
         RawFrames::U16(a) => a,
         RawFrames::F32(a) => a.mapv(|v| {
@@ -247,7 +237,7 @@ impl FrameSource for ReplaySource {
         }
         let idx = self.indices.get(self.pos).copied().unwrap_or(0);
         self.pos += 1;
-        let sensor = self.rec.sensor().clone();
+        let sensor = *self.rec.sensor();
         let meta = self.rec.captures().get(idx).cloned().ok_or_else(|| {
             SourceError::new(SourceErrorKind::Other, "capture index out of range")
         })?;
@@ -267,11 +257,7 @@ impl FrameSource for ReplaySource {
                 frames,
                 phases_deg: meta.phases_deg,
                 exposure_us: meta.exposure_us,
-                roi_origin: sensor.roi_origin,
-                full_rows: sensor.full_rows,
-                full_cols: sensor.full_cols,
-                adc_bits: sensor.adc_bits,
-                modulation_hz: sensor.modulation_hz,
+                geometry: sensor,
                 timings: StateTimings {
                     exposure,
                     total: exposure,

@@ -5,7 +5,7 @@
 use tofprox_core::Algorithm;
 use tofprox_format::CalibrationSet;
 
-use crate::config::{Config, Mode};
+use crate::config::Config;
 use crate::controller::ModeCalibrations;
 use crate::source::FrameSource;
 
@@ -49,8 +49,8 @@ pub fn load_for(
         )));
     }
     let needed = match cfg.processing.mode {
-        Mode::TwoPhase => set.wiggling_2phase.is_some(),
-        Mode::FourPhase => set.wiggling_4phase.is_some(),
+        Algorithm::TwoPhase => set.wiggling_2phase.is_some(),
+        Algorithm::FourPhase => set.wiggling_4phase.is_some(),
     };
     if cfg.processing.require_calibration && (!needed || set.offset.is_none()) {
         return Err(mismatch(format!(

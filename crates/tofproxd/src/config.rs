@@ -48,33 +48,9 @@ pub enum Backend {
     Replay,
 }
 
-/// Processing algorithm (mirrors `tofprox_core::Algorithm`, serde `2phase`/`4phase`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Mode {
-    /// Two raw images (0°, 90°), thesis eq. 2.2 — the low-power mode.
-    #[serde(rename = "2phase")]
-    TwoPhase,
-    /// Four raw images (0°, 90°, 180°, 270°), eq. 2.3 — robust against background light.
-    #[serde(rename = "4phase")]
-    FourPhase,
-}
-
-impl Mode {
-    /// `"2phase"` / `"4phase"` (the D-Bus `Mode` property).
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Mode::TwoPhase => "2phase",
-            Mode::FourPhase => "4phase",
-        }
-    }
-    /// Raw images per reading.
-    pub fn raw_images(self) -> u32 {
-        match self {
-            Mode::TwoPhase => 2,
-            Mode::FourPhase => 4,
-        }
-    }
-}
+/// Processing mode of a reading: the shared measurement mode [`tofprox_core::Algorithm`]
+/// (serde and the D-Bus `Mode` property: `"2phase"` / `"4phase"`, thesis eqs. 2.2 / 2.3).
+pub use tofprox_core::Algorithm as Mode;
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -10,11 +10,11 @@ use std::time::Duration;
 use ndarray::{ArrayView3, Axis, s};
 use tofprox_bridge::CycleOutput;
 use tofprox_core::Algorithm;
+use tofprox_core::SensorGeometry;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
 };
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
-use tofprox_model::SensorGeometry;
 
 use crate::config::{Config, Mode};
 use crate::energy::{EnergyMeter, cycle_energy};
@@ -46,20 +46,6 @@ pub enum ControllerError {
     /// The core refused a parameter.
     #[error("processing setup: {0}")]
     Core(#[from] tofprox_core::CoreError),
-}
-
-fn algorithm(mode: Mode) -> Algorithm {
-    match mode {
-        Mode::TwoPhase => Algorithm::TwoPhase,
-        Mode::FourPhase => Algorithm::FourPhase,
-    }
-}
-
-fn algo_str(a: Algorithm) -> &'static str {
-    match a {
-        Algorithm::TwoPhase => "2phase",
-        Algorithm::FourPhase => "4phase",
-    }
 }
 
 /// Result of one step.
@@ -138,8 +124,8 @@ impl<S: FrameSource> Controller<S> {
                 && w.algorithm != mode
             {
                 return Err(ControllerError::CalibrationMode {
-                    mode: algo_str(mode),
-                    lut: algo_str(w.algorithm),
+                    mode: mode.as_str(),
+                    lut: w.algorithm.as_str(),
                 });
             }
         }
@@ -359,7 +345,7 @@ impl<S: FrameSource> Controller<S> {
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
         // Pipelines and the detector are rebuilt when this changes.
-        let g = cycle.capture.geometry();
+        let g = cycle.capture.geometry;
         let (rows, cols) = (g.rows, g.cols);
         // ROI in this frame's coordinates.
         let roi_full = full_roi(&self.cfg, g.full_rows, g.full_cols);
@@ -563,8 +549,8 @@ impl<S: FrameSource> Controller<S> {
             } else {
                 Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
             };
-        let rows_fraction = if cycle.capture.full_rows > 0 {
-            rows as f64 / cycle.capture.full_rows as f64
+        let rows_fraction = if cycle.capture.geometry.full_rows > 0 {
+            rows as f64 / cycle.capture.geometry.full_rows as f64
         } else {
             1.0
         };
@@ -646,7 +632,7 @@ impl<S: FrameSource> Controller<S> {
     }
 
     fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
-        let mid = (1u32 << (g.adc_bits.clamp(1, 16) - 1)) as f32;
+        let mid = g.mid_code() as f32;
         match &self.calib.four_phase.offset {
             Some(o) => {
                 let r0 = g.roi_origin[0] + roi.row0;
@@ -677,10 +663,14 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     if c.phases_deg.len() != k {
         return bad(format!("{k} raw images but {} phases", c.phases_deg.len()));
     }
-    if !((1..=16).contains(&c.adc_bits) && c.modulation_hz.is_finite() && c.modulation_hz > 0.0) {
+    let g = &c.geometry;
+    if let Err(e) = g.validate() {
+        return bad(format!("bad sensor geometry: {e}"));
+    }
+    if (rows, cols) != (g.rows, g.cols) {
         return bad(format!(
-            "bad sensor info: {} bits, {} Hz",
-            c.adc_bits, c.modulation_hz
+            "{rows}x{cols} images but a {}x{} window",
+            g.rows, g.cols
         ));
     }
     let close = |a: f64, b: f64| (a - b).abs() < 0.5;
@@ -697,9 +687,9 @@ fn check_cycle(c: &CycleOutput) -> Result<Mode, SourceError> {
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
     };
-    let max = ((1u32 << c.adc_bits) - 1) as u16;
+    let max = u16::try_from(g.max_code()).unwrap_or(u16::MAX);
     if c.frames.iter().any(|&v| v > max) {
-        return bad(format!("code above the {}-bit range", c.adc_bits));
+        return bad(format!("code above the {}-bit range", g.adc_bits));
     }
     Ok(mode)
 }
@@ -716,7 +706,7 @@ fn pipeline_slot<'a>(
         let calib = crop_calibration(full, g)
             .map_err(|m| SourceError::new(SourceErrorKind::Unsupported, m))?;
         let pcfg = PipelineConfig {
-            algorithm: algorithm(mode),
+            algorithm: mode,
             modulation_hz: g.modulation_hz,
             adc_bits: g.adc_bits,
             min_amplitude_lsb,
@@ -740,7 +730,7 @@ fn pipeline_slot<'a>(
 
 /// Whether every code of every raw image is 0 or full scale.
 fn rails_only(c: &CycleOutput) -> bool {
-    let max = ((1u32 << c.adc_bits.clamp(1, 16)) - 1) as u16;
+    let max = u16::try_from(c.geometry.max_code()).unwrap_or(u16::MAX);
     c.frames.iter().all(|&v| v == 0 || v >= max)
 }
 

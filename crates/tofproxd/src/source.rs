@@ -9,29 +9,14 @@ use std::time::Duration;
 
 use ndarray::Array3;
 use tofprox_bridge::{CycleOutput, StateTimings};
+use tofprox_core::SensorGeometry;
 
 use crate::config::Mode;
 use crate::energy::CycleTimings;
 
-/// A row window for partial read-out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RowWindow {
-    /// First row (full-frame coordinates).
-    pub row0: u16,
-    /// Number of rows.
-    pub rows: u16,
-}
-
-/// What one cycle should capture.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CycleRequest {
-    /// 2-phase or 4-phase.
-    pub mode: Mode,
-    /// Exposure per raw image (µs).
-    pub exposure_us: f64,
-    /// Partial read-out, if the source supports it.
-    pub row_window: Option<RowWindow>,
-}
+/// What one cycle should capture (mode, exposure, row window) and the read-out window: the
+/// shared vocabulary of `tofprox-core`.
+pub use tofprox_core::{CycleRequest, RowWindow};
 
 /// One cycle's raw data: the bridge's [`CycleOutput`] (raw images, phases, exposure,
 /// window, ADC/modulation, state timings), filled by the driver for usb/emulated and
@@ -168,8 +153,8 @@ impl Step {
 }
 
 /// Scripted fake source: a queue of steps, then repeats the last step.
-/// Synthesises ideal frames by the contract's convention
-/// `code_k = mid + A cos(phi - theta_k) + background` (CONTRACTS.md).
+/// Synthesises ideal frames by the convention of `tofprox-core` (crate documentation)
+/// `code_k = mid + A cos(phi - theta_k) + background` of a 12-bit ADC.
 #[derive(Debug)]
 pub struct ScriptedSource {
     steps: VecDeque<Step>,
@@ -226,7 +211,10 @@ impl ScriptedSource {
     }
 }
 
-/// Synthesise ideal raw frames of a flat target (CONTRACTS.md convention, eq. 2.6 inverted).
+/// ADC resolution of the frames [`synth_frames`] makes.
+const SYNTH_ADC_BITS: u8 = 12;
+
+/// Synthesise ideal raw frames of a flat target (the `tofprox-core` convention, eq. 2.6 inverted).
 pub fn synth_frames(
     mode: Mode,
     rows: usize,
@@ -236,15 +224,14 @@ pub fn synth_frames(
     background_lsb: f64,
     modulation_hz: f64,
 ) -> (Array3<u16>, Vec<f64>) {
-    let phases: Vec<f64> = match mode {
-        Mode::TwoPhase => vec![0.0, 90.0],
-        Mode::FourPhase => vec![0.0, 90.0, 180.0, 270.0],
-    };
-    let phi = 4.0 * std::f64::consts::PI * modulation_hz * (distance_mm / 1e3) / 299_792_458.0;
+    let phases = mode.phases_deg().to_vec();
+    let phi = tofprox_core::phasor::distance_to_phase_rad(distance_mm / 1e3, modulation_hz);
+    let mid = f64::from(tofprox_core::sensor::adc_mid_code(SYNTH_ADC_BITS));
+    let max = f64::from(tofprox_core::sensor::adc_max_code(SYNTH_ADC_BITS));
     let mut frames = Array3::<u16>::zeros((phases.len(), rows, cols));
     for (k, th) in phases.iter().enumerate() {
-        let code = 2048.0 + background_lsb + amplitude_lsb * (phi - th.to_radians()).cos();
-        let code = code.round().clamp(0.0, 4095.0) as u16;
+        let code = mid + background_lsb + amplitude_lsb * (phi - th.to_radians()).cos();
+        let code = code.round().clamp(0.0, max) as u16;
         frames.index_axis_mut(ndarray::Axis(0), k).fill(code);
     }
     (frames, phases)
@@ -262,7 +249,7 @@ impl FrameSource for ScriptedSource {
             }
             _ => (0, self.rows),
         };
-        let k = req.mode.raw_images();
+        let k = req.mode.raw_images() as u32;
         let mut timings = StateTimings {
             startup: Duration::from_millis(1),
             config_load: Duration::from_millis(10),
@@ -297,11 +284,15 @@ impl FrameSource for ScriptedSource {
                 frames,
                 phases_deg,
                 exposure_us: req.exposure_us,
-                roi_origin: [row0, 0],
-                full_rows: self.rows,
-                full_cols: self.cols,
-                adc_bits: 12,
-                modulation_hz: self.modulation_hz,
+                geometry: SensorGeometry {
+                    rows,
+                    cols: self.cols,
+                    roi_origin: [row0, 0],
+                    full_rows: self.rows,
+                    full_cols: self.cols,
+                    adc_bits: SYNTH_ADC_BITS,
+                    modulation_hz: self.modulation_hz,
+                },
                 timings,
                 flash_written: false,
                 captured_at: Duration::from_nanos(self.t_ns),

@@ -3,8 +3,10 @@
 //! client (`tests/dbus/client.py`, the stack iio-sensor-proxy clients use).
 //! The daemon is the real `tofproxd` binary on the emulated device.
 //!
-//! Skips (loudly) only when `dbus-daemon` is absent; CI installs it
-//! (`dbus-daemon`, `systemd` for busctl, `python3-dbus`, `python3-gi`).
+//! When a tool is missing (`dbus-daemon`, `busctl` from `systemd`,
+//! `python3-dbus`, `python3-gi`, `monitor-sensor` from `iio-sensor-proxy`) a
+//! test fails with `CI` set and skips loudly otherwise
+//! (`tofprox_e2e::require_program`); `.ci/run` installs them all.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -30,21 +32,19 @@ impl Drop for Bus {
     }
 }
 
+/// A private bus, or `None` when a tool these tests drive is missing (a loud
+/// skip; a failure in CI): `dbus-daemon`, `busctl`, and python3 with
+/// dbus-python and PyGObject for `tests/dbus/client.py`.
 fn start_bus() -> Option<Bus> {
-    let spawned = Command::new("dbus-daemon")
+    let dbus_daemon = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon")?;
+    tofprox_e2e::require_program("busctl", "systemd")?;
+    python()?;
+    let mut child = Command::new(dbus_daemon)
         .args(["--session", "--print-address", "--nofork"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
-        .spawn();
-    let mut child = match spawned {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!(
-                "\n\n!!!!! SKIPPED: dbus-daemon is not installed ({e}); install the dbus-daemon package !!!!!\n"
-            );
-            return None;
-        }
-    };
+        .spawn()
+        .expect("spawn dbus-daemon");
     let mut line = String::new();
     let stdout = child.stdout.take().expect("piped stdout");
     BufReader::new(stdout)
@@ -55,22 +55,11 @@ fn start_bus() -> Option<Bus> {
     Some(Bus { child, address })
 }
 
-fn python() -> PathBuf {
-    for p in ["/usr/bin/python3", "python3"] {
-        let ok = Command::new(p)
-            .args([
-                "-c",
-                "import dbus, dbus.mainloop.glib; from gi.repository import GLib",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success());
-        if ok {
-            return PathBuf::from(p);
-        }
-    }
-    panic!("python3 with dbus-python and PyGObject is required (apt: python3-dbus python3-gi)");
+fn python() -> Option<PathBuf> {
+    tofprox_e2e::require_python(
+        "import dbus, dbus.mainloop.glib; from gi.repository import GLib",
+        "python3-dbus python3-gi",
+    )
 }
 
 struct Daemon {
@@ -209,7 +198,7 @@ impl Drop for Client {
 
 impl Client {
     fn start(bus: &Bus, args: &[&str]) -> Client {
-        let mut child = Command::new(python())
+        let mut child = Command::new(python().expect("checked by start_bus"))
             .arg(repo().join("tests/dbus/client.py"))
             .args(args)
             .args(["--address", &bus.address])
@@ -851,26 +840,20 @@ fn depth_frames_while_claimed_and_rate_limited() {
 /// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package
 /// iio-sensor-proxy) talks to the system bus, which we point at the private
 /// bus. It must find the proximity sensor, report the absent ones as absent,
-/// and print the hand's near and far. CI installs the package; elsewhere the
-/// test skips loudly when the program is missing.
+/// and print the hand's near and far. CI installs the package.
 #[test]
 fn unmodified_monitor_sensor_sees_near_and_far() {
     let Some(bus) = start_bus() else { return };
-    let spawned = Command::new("monitor-sensor")
+    let Some(monitor_sensor) = tofprox_e2e::require_program("monitor-sensor", "iio-sensor-proxy")
+    else {
+        return;
+    };
+    let mut monitor = Command::new(monitor_sensor)
         .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
-        .spawn();
-    let mut monitor = match spawned {
-        Ok(c) => c,
-        Err(e) if std::env::var_os("CI").is_none() => {
-            eprintln!(
-                "\n\n!!!!! SKIPPED: monitor-sensor not installed ({e}); apt install iio-sensor-proxy !!!!!\n"
-            );
-            return;
-        }
-        Err(e) => panic!("monitor-sensor is required in CI (apt: iio-sensor-proxy): {e}"),
-    };
+        .spawn()
+        .expect("spawn monitor-sensor");
     let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
     let _daemon = start_daemon(&bus, &cfg);
     let (tx, rx) = mpsc::channel();

@@ -44,17 +44,7 @@ fn daemon_sensor() -> (ModelConfig, SensorGeometry, u64) {
     let base = path.parent().expect("config dir");
     let dev = emulated_device_config(&cfg, base).expect("emulated device config");
     let s = dev.sensor_map().expect("sensor map").sensor;
-    let (rows, cols) = (usize::from(s.rows), usize::from(s.cols));
-    let geom = SensorGeometry {
-        rows,
-        cols,
-        roi_origin: [0, 0],
-        full_rows: rows,
-        full_cols: cols,
-        adc_bits: s.adc_bits,
-        modulation_hz: s.modulation_hz,
-    };
-    (model_of(&dev), geom, cfg.emulated.seed)
+    (model_of(&dev), s.geometry(), cfg.emulated.seed)
 }
 
 fn shipped() -> CalibrationSet {
@@ -76,24 +66,18 @@ fn calibration_device_is_the_daemons_sensor() {
     );
     let s = cal_dev.sensor_map().expect("sensor map").sensor;
     assert_eq!(
-        (usize::from(s.rows), usize::from(s.cols), s.adc_bits),
-        (geom.rows, geom.cols, geom.adc_bits),
+        s.geometry(),
+        geom,
         "calib/emulated/wall-1m.toml and config/tofproxd-emulated.toml use different sensors"
     );
-    assert_eq!(s.modulation_hz, geom.modulation_hz);
 }
 
 #[test]
 fn shipped_offset_matches_the_emulated_dark_frame() {
     let (model, geom, seed) = daemon_sensor();
     let set = shipped();
-    set.check_compatible(&tofprox_format::SensorInfo::full(
-        geom.rows,
-        geom.cols,
-        geom.adc_bits,
-        geom.modulation_hz,
-    ))
-    .unwrap_or_else(|e| panic!("{e}\n{REGENERATE}"));
+    set.check_compatible(&geom)
+        .unwrap_or_else(|e| panic!("{e}\n{REGENERATE}"));
     let offset = set
         .offset
         .as_ref()

@@ -4,7 +4,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+use tofprox_core::SensorGeometry;
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 use tofproxd::backends::ReplaySource;
 use tofproxd::config::{Backend, Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
@@ -36,7 +37,7 @@ fn script() -> Vec<(f64, Mode)> {
 fn write_recording(dir: &Path) {
     let mut w = RecordingWriter::create(
         dir,
-        SensorInfo::full(ROWS, COLS, 12, MOD_HZ),
+        SensorGeometry::full(ROWS, COLS, 12, MOD_HZ),
         Some("replay test".into()),
     )
     .expect("create recording");
@@ -122,15 +123,24 @@ fn replay_is_deterministic_and_follows_the_recording() {
 fn replay_over_dbus_gives_the_same_sequence_every_run() {
     use std::io::{BufRead, BufReader};
     use std::process::{Command, Stdio};
-    let Ok(mut bus) = Command::new("dbus-daemon")
+    let Some(dbus_daemon) = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon") else {
+        return;
+    };
+    let Some(_) = tofprox_e2e::require_program("busctl", "systemd") else {
+        return;
+    };
+    let Some(python) = tofprox_e2e::require_python(
+        "import dbus; from gi.repository import GLib",
+        "python3-dbus python3-gi",
+    ) else {
+        return;
+    };
+    let mut bus = Command::new(dbus_daemon)
         .args(["--session", "--print-address", "--nofork"])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
-    else {
-        eprintln!("\n\n!!!!! SKIPPED: dbus-daemon is not installed !!!!!\n");
-        return;
-    };
+        .expect("spawn dbus-daemon");
     let mut addr = String::new();
     BufReader::new(bus.stdout.take().unwrap())
         .read_line(&mut addr)
@@ -148,15 +158,6 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
         ),
     )
     .unwrap();
-    let python = ["/usr/bin/python3", "python3"]
-        .into_iter()
-        .find(|p| {
-            Command::new(p)
-                .args(["-c", "import dbus; from gi.repository import GLib"])
-                .status()
-                .is_ok_and(|s| s.success())
-        })
-        .expect("python3 with dbus-python and PyGObject (apt: python3-dbus python3-gi)");
     let client_py = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/dbus/client.py");
     let mut runs = Vec::new();
     for _ in 0..2 {
@@ -188,7 +189,7 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
             assert!(t0.elapsed().as_secs() < 20, "daemon did not start");
             std::thread::sleep(std::time::Duration::from_millis(50));
         }
-        let out = Command::new(python)
+        let out = Command::new(&python)
             .arg(&client_py)
             .args(["native", "--timeout", "3", "--address", &addr])
             .output()

@@ -34,15 +34,9 @@ fn soak_rejects_a_bad_fault_rate() {
     assert!(err.to_string().contains("fault rate"), "{err}");
 }
 
+/// `systemd-analyze`, or a loud skip (a failure in CI) when it is missing.
 fn systemd_analyze() -> bool {
-    let ok = Command::new("systemd-analyze")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok {
-        eprintln!("\n\n!!!!! SKIPPED: systemd-analyze is not installed (apt: systemd) !!!!!\n");
-    }
-    ok
+    tofprox_e2e::require_program("systemd-analyze", "systemd").is_some()
 }
 
 #[test]

@@ -19,7 +19,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource, TimingModel};
-use synth::{FrameSynth, Geometry, IdealSynth, ModelSynth, RawParams};
+use synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 
 use crate::clock::Clock;
 use crate::error::{BridgeError, ErrorKind};
@@ -124,12 +124,7 @@ impl EmulatedDevice {
     pub fn new(cfg: EmulatedConfig, clock: Arc<dyn Clock>, seed: u64) -> Result<Self, BridgeError> {
         cfg.validate()?;
         let map = cfg.sensor_map()?;
-        let geom = Geometry {
-            full_rows: usize::from(map.sensor.rows),
-            cols: usize::from(map.sensor.cols),
-            adc_bits: map.sensor.adc_bits,
-            modulation_hz: map.sensor.modulation_hz,
-        };
+        let geom = map.sensor.geometry();
         let synth: Box<dyn FrameSynth> = match cfg.frame_source {
             FrameSource::Ideal => Box::new(IdealSynth::new(geom, cfg.scene.clone(), seed)),
             FrameSource::Model => {

@@ -11,12 +11,10 @@ use std::collections::HashMap;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use tofprox_model::{CaptureRequest, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator};
+use tofprox_core::SensorGeometry;
+use tofprox_model::{CaptureRequest, ModelConfig, Scene, SceneScript, Simulator};
 
 use crate::error::{BridgeError, ErrorKind};
-
-/// Speed of light, m/s.
-const C_M_PER_S: f64 = 299_792_458.0;
 
 /// Parameters of one raw image as the registers say.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -27,19 +25,6 @@ pub struct RawParams {
     pub phase_deg: f64,
     /// Illumination on.
     pub illuminated: bool,
-}
-
-/// Sensor geometry for synthesis.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Geometry {
-    /// Full rows.
-    pub full_rows: usize,
-    /// Columns.
-    pub cols: usize,
-    /// ADC bits.
-    pub adc_bits: u8,
-    /// Modulation frequency, Hz.
-    pub modulation_hz: f64,
 }
 
 /// A source of raw frames.
@@ -61,16 +46,16 @@ fn model_err(e: tofprox_model::ModelError) -> BridgeError {
 }
 
 /// `script` sized to the full sensor array of `geom`.
-fn fit_script(mut script: SceneScript, geom: &Geometry) -> SceneScript {
+fn fit_script(mut script: SceneScript, geom: &SensorGeometry) -> SceneScript {
     script.full_rows = geom.full_rows;
-    script.full_cols = geom.cols;
+    script.full_cols = geom.full_cols;
     script
 }
 
 /// Frames from the physical model.
 pub struct ModelSynth {
     model: ModelConfig,
-    geom: Geometry,
+    geom: SensorGeometry,
     script: SceneScript,
     seed: u64,
     ambient_klux: f64,
@@ -83,7 +68,7 @@ impl ModelSynth {
     /// A model-backed source; the fixed patterns are drawn from `seed`.
     pub fn new(
         model: ModelConfig,
-        geom: Geometry,
+        geom: SensorGeometry,
         script: SceneScript,
         seed: u64,
         ambient_klux: f64,
@@ -107,18 +92,10 @@ impl ModelSynth {
 
     fn sim(&mut self, row0: usize, rows: usize) -> Result<&Simulator, BridgeError> {
         if !self.sims.contains_key(&(row0, rows)) {
-            let full = SensorGeometry {
-                rows: self.geom.full_rows,
-                cols: self.geom.cols,
-                roi_origin: [0, 0],
-                full_rows: self.geom.full_rows,
-                full_cols: self.geom.cols,
-                adc_bits: self.geom.adc_bits,
-                modulation_hz: self.geom.modulation_hz,
-            };
-            let g = full
-                .window(row0, 0, rows, self.geom.cols)
-                .map_err(model_err)?;
+            let g = self
+                .geom
+                .window(row0, 0, rows, self.geom.full_cols)
+                .map_err(|e| model_err(e.into()))?;
             let sim = Simulator::new(&self.model, g, self.seed).map_err(model_err)?;
             // bounded: each simulator holds per-pixel patterns
             if self.sims.len() >= 4 {
@@ -180,7 +157,7 @@ impl FrameSynth for ModelSynth {
 
 /// The built-in ideal synthesiser (fast; for soak runs).
 pub struct IdealSynth {
-    geom: Geometry,
+    geom: SensorGeometry,
     script: SceneScript,
     col_offset: Vec<f64>,
     rng: ChaCha8Rng,
@@ -190,9 +167,9 @@ pub struct IdealSynth {
 
 impl IdealSynth {
     /// Draw the fixed column pattern from `seed`.
-    pub fn new(geom: Geometry, script: SceneScript, seed: u64) -> Self {
+    pub fn new(geom: SensorGeometry, script: SceneScript, seed: u64) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_F1ED);
-        let col_offset = (0..geom.cols)
+        let col_offset = (0..geom.full_cols)
             .map(|_| rng.random_range(-20.0..20.0))
             .collect();
         let script = fit_script(script, &geom);
@@ -217,11 +194,11 @@ impl FrameSynth for IdealSynth {
         out: &mut Vec<Vec<u16>>,
     ) -> Result<(), BridgeError> {
         let g = self.geom;
-        let cols = g.cols;
-        let max = f64::from((1u32 << g.adc_bits) - 1);
-        let mid = f64::from(1u32 << (g.adc_bits - 1));
+        let cols = g.full_cols;
+        let max = f64::from(g.max_code());
+        let mid = f64::from(g.mid_code());
         // per-pixel phase (eq. 2.6 inverted) and inverse-square gain (2.1)
-        let k_phi = 4.0 * std::f64::consts::PI * g.modulation_hz / C_M_PER_S;
+        let k_phi = g.phase_rad_per_m();
         self.phi.clear();
         self.gain.clear();
         match self.script.at(t_s) {
@@ -282,13 +259,8 @@ mod tests {
             .to_vec()
     }
 
-    fn geometry_80mhz(full_rows: usize, cols: usize) -> Geometry {
-        Geometry {
-            full_rows,
-            cols,
-            adc_bits: 12,
-            modulation_hz: 80e6,
-        }
+    fn geometry_80mhz(full_rows: usize, cols: usize) -> SensorGeometry {
+        SensorGeometry::full(full_rows, cols, 12, 80e6)
     }
 
     fn wall_at_half_metre() -> SceneScript {
@@ -304,7 +276,7 @@ mod tests {
         let phi = (m(1) - m(3))
             .atan2(m(0) - m(2))
             .rem_euclid(std::f64::consts::TAU); // eq. 2.3
-        phi * C_M_PER_S / (4.0 * std::f64::consts::PI * 80e6)
+        tofprox_core::phasor::phase_to_distance_m(phi, 80e6)
     }
 
     #[test]

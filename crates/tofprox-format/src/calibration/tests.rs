@@ -1,8 +1,8 @@
 use super::*;
 use ndarray::Array2;
 
-fn sensor() -> SensorInfo {
-    SensorInfo {
+fn sensor() -> SensorGeometry {
+    SensorGeometry {
         rows: 3,
         cols: 4,
         roi_origin: [5, 6],

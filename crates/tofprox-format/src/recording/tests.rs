@@ -4,8 +4,8 @@ use ndarray::Array3;
 use proptest::prelude::*;
 use std::time::Duration;
 
-fn sensor() -> SensorInfo {
-    SensorInfo {
+fn sensor() -> SensorGeometry {
+    SensorGeometry {
         rows: 4,
         cols: 5,
         roi_origin: [10, 20],

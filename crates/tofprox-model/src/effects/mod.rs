@@ -1,5 +1,5 @@
 //! Implementations of the effect families. Each module documents the effects it
-//! implements by catalogue id; [`crate::catalogue`] holds their descriptions.
+//! implements by catalogue id; [`crate::catalogue`](mod@crate::catalogue) holds their descriptions.
 //!
 //! - [`optical`]: `signal_falloff`, `demodulation_contrast`, `waveform_harmonics`,
 //!   `multipath`, `vcsel_droop`, `ambient_light`

@@ -119,7 +119,7 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         bail!("--exposure-us must be within (0, 10000], got {exposure}");
     }
     let nominal = Nominal::default();
-    let k = mode.raw_images();
+    let k = mode.raw_images() as u32;
     let low = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, true);
     let powered = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, false);
     let slow = modelled_average_mw(
@@ -349,7 +349,8 @@ pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
-    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+    use tofprox_core::SensorGeometry;
+    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
@@ -378,7 +379,7 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
             if writer.is_none() {
                 writer = Some(RecordingWriter::create(
                     &a.from_daemon,
-                    SensorInfo::full(h, w, 16, 80e6),
+                    SensorGeometry::full(h, w, 16, 80e6),
                     Some("depth frames from tofproxd (DepthFrame): each capture holds ONE image, depth in mm (0 = invalid), not raw phase codes".into()),
                 )?);
             }

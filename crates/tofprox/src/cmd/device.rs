@@ -13,7 +13,7 @@ use tofprox_bridge::{
     Clock, CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, EmulatedConfig,
     EmulatedDevice, RowWindow, RusbTransport, SensorDriver, SensorMode, SystemClock, UsbTransport,
 };
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 
 #[derive(clap::Subcommand, Debug)]
 pub enum DeviceCommand {
@@ -514,16 +514,7 @@ fn create_writer(
     out: &CycleOutput,
     desc: &str,
 ) -> anyhow::Result<RecordingWriter> {
-    let (_, rows, cols) = out.frames.dim();
-    let sensor = SensorInfo {
-        rows,
-        cols,
-        roi_origin: out.roi_origin,
-        full_rows: out.full_rows,
-        full_cols: out.full_cols,
-        adc_bits: out.adc_bits,
-        modulation_hz: out.modulation_hz,
-    };
+    let sensor = out.geometry;
     let description = a
         .description
         .clone()

@@ -150,7 +150,7 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         return calib_info(&a);
     }
     let rec = Recording::open(&a.recording)?;
-    let s = rec.sensor().clone();
+    let s = *rec.sensor();
     let caps = rec.captures();
     let pb = progress(caps.len(), "reading");
     let mut sat = Vec::with_capacity(caps.len());
@@ -565,7 +565,7 @@ fn without_crosstalk(
 
 pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
-    let sensor = rec.sensor().clone();
+    let sensor = *rec.sensor();
     let base_dir = a.calib.clone().or_else(|| {
         a.out
             .join(tofprox_format::CALIBRATION_TOML)
@@ -938,7 +938,7 @@ fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
 
 pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
-    let sensor = rec.sensor().clone();
+    let sensor = *rec.sensor();
     let calibration = match &a.calib {
         Some(dir) => {
             let set = CalibrationSet::load(dir)?;

@@ -16,7 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
 use rayon::prelude::*;
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SensorInfo};
+use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 use tofprox_model::figures::Figure;
 use tofprox_model::{
     CaptureRequest, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator, catalogue,
@@ -51,7 +51,7 @@ pub struct SweepArgs {
     /// Exposure times in µs (comma list).
     #[arg(long, default_value = "500,1000", value_delimiter = ',')]
     pub exposures: Vec<f64>,
-    /// Raw images per capture: 2 ([0,90]), 4 ([0,90,180,270]) or 24 (correlation).
+    /// Raw images per capture: 2 (0°, 90°), 4 (0°, 90°, 180°, 270°) or 24 (correlation).
     #[arg(long, default_value_t = 4)]
     pub phases: usize,
     /// Ambient light levels in klux (comma list).
@@ -223,18 +223,6 @@ fn geometry_for(window: &Option<String>) -> anyhow::Result<SensorGeometry> {
     }
 }
 
-fn sensor_info(g: &SensorGeometry) -> SensorInfo {
-    SensorInfo {
-        rows: g.rows,
-        cols: g.cols,
-        roi_origin: g.roi_origin,
-        full_rows: g.full_rows,
-        full_cols: g.full_cols,
-        adc_bits: g.adc_bits,
-        modulation_hz: g.modulation_hz,
-    }
-}
-
 /// Noise seed of capture `index`: independent of scheduling, so the output is the
 /// same for any thread count.
 fn capture_rng(seed: u64, index: usize) -> SmallRng {
@@ -389,7 +377,7 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
         model.enabled_effects().join(", "),
         a.seed
     );
-    let mut writer = RecordingWriter::create(&a.out, sensor_info(&geometry), Some(description))?;
+    let mut writer = RecordingWriter::create(&a.out, geometry, Some(description))?;
     let pb = progress(plan.len(), "sweep");
     simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
     pb.finish_and_clear();
@@ -463,7 +451,7 @@ fn scene(a: SceneArgs) -> anyhow::Result<ExitCode> {
         a.model.display(),
         a.seed
     );
-    let mut writer = RecordingWriter::create(&a.out, sensor_info(&geometry), Some(description))?;
+    let mut writer = RecordingWriter::create(&a.out, geometry, Some(description))?;
     let pb = progress(plan.len(), "scene");
     simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
     pb.finish_and_clear();
