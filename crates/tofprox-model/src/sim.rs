@@ -157,8 +157,8 @@ impl Simulator {
                 let xt = "cover_window_crosstalk";
                 (
                     m.p(xt, "e_per_us") * (1.0 + m.p(xt, "smudge_rel")) * t * px.drift_gain,
-                    4.0 * PI * self.geometry.modulation_hz * m.p(xt, "window_distance_mm") * 1e-3
-                        / SPEED_OF_LIGHT_M_PER_S,
+                    // eq. 2.6 inverted at the window: 4π f d_w / c
+                    self.geometry.phase_rad_per_m() * m.p(xt, "window_distance_mm") * 1e-3,
                     m.p(xt, "gradient_rel"),
                 )
             }),
