@@ -26,6 +26,7 @@ fn hand_script_depth_follows_the_script_and_close_range_saturates() {
         .capture(&Scene::wall(1.0, 1.0), &dark, &mut rng)
         .unwrap();
     let calibration = Calibration {
+        crosstalk: None,
         offset: Some(extract_offset(dark.view()).unwrap()),
         wiggling: None,
         fppn: None,

@@ -66,3 +66,27 @@ fn bad_files_name_the_key() {
             .contains("poll_interval_us")
     );
 }
+
+#[test]
+fn cover_window_files_are_the_phone_model_clean_and_smudged() {
+    let clean = EmulatedConfig::load(&config_dir().join("emulated/window-clean.toml")).unwrap();
+    let smudged = EmulatedConfig::load(&config_dir().join("emulated/window-smudged.toml")).unwrap();
+    let (c, s) = (clean.cover_window.unwrap(), smudged.cover_window.unwrap());
+    assert_eq!(c.smudge_rel, 0.0);
+    assert_eq!(s.smudge_rel, 1.0, "the smudge doubles the crosstalk");
+    assert_eq!(
+        tofprox_model::CoverWindow {
+            smudge_rel: 0.0,
+            ..s
+        },
+        c,
+        "same window otherwise"
+    );
+    assert!(clean.model.unwrap().ends_with("model/phone.toml"));
+    // an out-of-range window is refused naming the parameter
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("w.toml");
+    std::fs::write(&p, "[cover_window]\nsmudge_rel = -1.0\n").unwrap();
+    let e = EmulatedConfig::load(&p).unwrap_err();
+    assert!(format!("{e:?}").contains("smudge_rel"), "{e:?}");
+}

@@ -37,6 +37,7 @@ fn raw_frame(k: usize) -> Array3<u16> {
 
 fn pipeline(algorithm: Algorithm, with_fppn: bool) -> Pipeline {
     let calibration = Calibration {
+        crosstalk: None,
         offset: Some(OffsetCalibration {
             dark_lsb: Array2::from_shape_fn((ROWS, COLS), |(r, c)| {
                 2048.0 + ((r * 7919 + c * 104_729) % 97) as f32 - 48.0
@@ -136,6 +137,7 @@ fn process_2phase_u16_rows(bencher: Bencher, rows: usize) {
     let raw = full.slice(ndarray::s![.., ..rows, ..]).to_owned();
     let config = PipelineConfig::default();
     let calibration = Calibration {
+        crosstalk: None,
         offset: Some(OffsetCalibration {
             dark_lsb: Array2::from_elem((rows, COLS), 2048.0),
         }),

@@ -5,6 +5,7 @@
 //! - [`phasor`]: scalar phasor math (eqs. 2.2–2.9), N-phase DFT, dual-frequency range extension.
 //! - [`calib`]: extraction of offset (FPN, 2.3.1.3 / 3.3.7.1), wiggling LUT (3.3.6 / 3.3.7.2 /
 //!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
+//! - [`crosstalk`]: cover-window crosstalk (extraction, compensation constants, change monitor).
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
@@ -26,6 +27,7 @@
 
 pub mod calib;
 pub mod camera;
+pub mod crosstalk;
 mod error;
 mod fastmath;
 pub mod phasor;

@@ -4,7 +4,9 @@
 //! 1. validity of the RAW codes: saturation (any used image at a rail: `≤ 0` or `≥ 2^bits − 1`),
 //!    non-finite input;
 //! 2. offset correction (4.3.3.1): `u_k = code_k − dark[p]` (per-pixel dark frame, or the mid code
-//!    `2^(bits−1)` when no dark frame is given);
+//!    `2^(bits−1)` when no dark frame is given); with a crosstalk calibration also
+//!    `− X_k[p] · t_exp` (the cover window's return, [`crate::crosstalk`]), applied while the raw
+//!    images are staged as `f32` (codes at a rail stay there), so the kernels are unchanged;
 //! 3. phase: eq. 2.2 (2-phase, images 0°, 90°) or eq. 2.3 (4-phase, 0°, 90°, 180°, 270°), with a
 //!    branch-free polynomial `atan2` ([`crate::fast_atan2_f32`], error ≤ 1e-4 rad ≈ 0.03 mm);
 //! 4. wiggling correction (3.3.7.2 / 4.3.3.3): `phase − LUT(phase)`, linear periodic interpolation
@@ -31,6 +33,7 @@
 //! figures: `docs/performance.md`; `cargo bench -p tofprox-core --bench pipeline`.
 
 use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
+use crate::crosstalk::CrosstalkCalibration;
 use crate::fastmath::atan2_lanes;
 use crate::phasor::{self, wrap_to_pi};
 pub use crate::simd::SimdLevel;
@@ -170,6 +173,9 @@ pub struct Calibration {
     pub wiggling: Option<WigglingLut>,
     /// Per-pixel phase offsets.
     pub fppn: Option<FppnMap>,
+    /// Cover-window crosstalk per raw image (subtracted scaled to the exposure set with
+    /// [`Pipeline::set_exposure_us`]).
+    pub crosstalk: Option<CrosstalkCalibration>,
 }
 
 /// Output of one [`Pipeline::process`] call, all arrays `(rows, cols)`.
@@ -274,6 +280,13 @@ pub struct Pipeline {
     lut: Box<Lut>,
     /// Staging for non-contiguous input (4 × rows × cols).
     staging: Vec<f32>,
+    /// Crosstalk per raw image in codes at the current exposure and scale (4 × rows × cols;
+    /// empty without a crosstalk calibration).
+    crosstalk_codes: Vec<f32>,
+    /// Exposure the crosstalk is scaled to (`None` until [`Pipeline::set_exposure_us`]).
+    exposure_us: Option<f64>,
+    /// Factor on the calibrated crosstalk ([`Pipeline::set_crosstalk_scale`]).
+    crosstalk_scale: f32,
     frame: DepthFrame,
     simd: SimdLevel,
 }
@@ -322,6 +335,9 @@ impl Pipeline {
             fppn: vec![0.0; n],
             lut: Box::new([0; LUT_BINS]),
             staging: vec![0.0; 4 * n],
+            crosstalk_codes: Vec::new(),
+            exposure_us: None,
+            crosstalk_scale: 1.0,
             frame: DepthFrame::zeros(rows, cols),
             simd: SimdLevel::detect(),
         };
@@ -377,11 +393,66 @@ impl Pipeline {
                 lut[j] = pack_lut(wrap_to_pi(v) as f32, wrap_to_pi(next - v) as f32);
             }
         }
+        if let Some(x) = &calibration.crosstalk {
+            x.validate(self.rows, self.cols)?;
+        }
         self.dark = dark;
         self.fppn = fppn;
         self.lut = lut;
         self.calibration = calibration;
+        self.crosstalk_codes = if self.calibration.crosstalk.is_some() {
+            vec![0.0; 4 * self.rows * self.cols]
+        } else {
+            Vec::new()
+        };
+        self.rescale_crosstalk();
         Ok(())
+    }
+
+    /// The exposure per raw image of the frames that follow, µs: the crosstalk calibration is
+    /// scaled to it (recomputed only when it changes). Required before [`Pipeline::process`]
+    /// when the calibration holds crosstalk; without one it is only recorded.
+    pub fn set_exposure_us(&mut self, exposure_us: f64) -> Result<(), CoreError> {
+        if !(exposure_us.is_finite() && exposure_us > 0.0) {
+            return Err(CoreError::param(
+                "exposure_us",
+                format!("must be finite and > 0, got {exposure_us}"),
+            ));
+        }
+        if self.exposure_us != Some(exposure_us) {
+            self.exposure_us = Some(exposure_us);
+            self.rescale_crosstalk();
+        }
+        Ok(())
+    }
+
+    /// The exposure set with [`Pipeline::set_exposure_us`].
+    pub fn exposure_us(&self) -> Option<f64> {
+        self.exposure_us
+    }
+
+    /// Multiply the calibrated crosstalk by `scale` (default 1; e.g.
+    /// [`crate::crosstalk::CrosstalkMonitor::suggested_scale`] to follow a smudged window).
+    pub fn set_crosstalk_scale(&mut self, scale: f32) -> Result<(), CoreError> {
+        if !(scale.is_finite() && (0.0..=100.0).contains(&scale)) {
+            return Err(CoreError::param(
+                "crosstalk_scale",
+                format!("must be within 0..=100, got {scale}"),
+            ));
+        }
+        self.crosstalk_scale = scale;
+        self.rescale_crosstalk();
+        Ok(())
+    }
+
+    fn rescale_crosstalk(&mut self) {
+        let (Some(x), Some(t)) = (&self.calibration.crosstalk, self.exposure_us) else {
+            return;
+        };
+        let f = (t as f32) * self.crosstalk_scale;
+        for (d, s) in self.crosstalk_codes.iter_mut().zip(x.lsb_per_us.iter()) {
+            *d = s * f;
+        }
     }
 
     /// The configuration.
@@ -433,6 +504,40 @@ impl Pipeline {
             ));
         }
         let n = self.rows * self.cols;
+        if self.calibration.crosstalk.is_some() {
+            if self.exposure_us.is_none() {
+                return Err(CoreError::Calibration(
+                    "the crosstalk calibration is scaled to the exposure: call set_exposure_us first".into(),
+                ));
+            }
+            // Stage `code − X_k · t` (crosstalk, 2.2.1: its phasor adds to every raw image);
+            // rail codes stay at the rail so saturation is still flagged on the raw value.
+            let rail = self.params.rail_hi;
+            let mut st = std::mem::take(&mut self.staging);
+            for i in 0..need {
+                let dst = &mut st[i * n..(i + 1) * n];
+                let xt = &self.crosstalk_codes[i * n..(i + 1) * n];
+                for ((d, s), x) in dst
+                    .iter_mut()
+                    .zip(raw.index_axis(Axis(0), i).iter())
+                    .zip(xt)
+                {
+                    let v = s.to_f32();
+                    let at_rail = (v <= 0.0) | (v >= rail) | !v.is_finite();
+                    let c = (v - x).clamp(0.5, rail - 0.5);
+                    *d = if at_rail { v } else { c };
+                }
+            }
+            {
+                let mut sv: [&[f32]; 4] = [&[]; 4];
+                for (i, v) in sv.iter_mut().enumerate().take(need) {
+                    *v = &st[i * n..(i + 1) * n];
+                }
+                self.run(sv, need, n);
+            }
+            self.staging = st;
+            return Ok(&self.frame);
+        }
         let contiguous = (0..need).all(|i| raw.index_axis(Axis(0), i).as_slice().is_some());
         let mut views: [&[T]; 4] = [&[]; 4];
         if contiguous {

@@ -44,6 +44,7 @@ fn process_is_allocation_free_after_the_first_call() {
     let (rows, cols) = (172, 224);
     for algorithm in Algorithm::ALL {
         let calibration = Calibration {
+            crosstalk: None,
             offset: Some(OffsetCalibration {
                 dark_lsb: Array2::from_elem((rows, cols), 2040.0),
             }),

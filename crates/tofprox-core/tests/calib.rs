@@ -257,6 +257,7 @@ fn fppn_is_per_pixel_residual_after_lut_and_pipeline_removes_it() {
             cols,
             cfg,
             Calibration {
+                crosstalk: None,
                 offset: None,
                 wiggling: Some(lut),
                 fppn: Some(fppn),

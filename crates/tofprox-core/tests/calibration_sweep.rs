@@ -187,6 +187,7 @@ fn run_sweep(noisy: bool) {
     for algorithm in Algorithm::ALL {
         let lut = wiggling(algorithm);
         let calibrated = Calibration {
+            crosstalk: None,
             offset: Some(offset.clone()),
             wiggling: Some(lut),
             fppn: None,
@@ -231,6 +232,7 @@ fn run_sweep(noisy: bool) {
     // 34 LSB FPN still ruins far pixels.
     let lut = wiggling(Algorithm::TwoPhase);
     let no_offset = Calibration {
+        crosstalk: None,
         offset: None,
         wiggling: Some(lut),
         fppn: None,

@@ -2,25 +2,28 @@
 //! each with its SHA-256 recorded in the TOML. See `docs/calibration.md`.
 //!
 //! Parts and their dependencies (thesis order of application, 4.3.3; order of
-//! extraction, 5.1.3): lens intrinsics → offset (FPN dark frame) → wiggling
-//! LUTs (2- and 4-phase) → FPPN map. Wiggling and FPPN record the intrinsics
-//! they were extracted through ("none": without a lens model). Beside them the
+//! extraction, 5.1.3): lens intrinsics → offset (FPN dark frame) → cover-window crosstalk →
+//! wiggling LUTs (2- and 4-phase) → FPPN map. Wiggling and FPPN record the intrinsics they were
+//! extracted through ("none": without a lens model) and the crosstalk subtracted before them;
+//! wiggling and FPPN extracted without a crosstalk part (a module calibrated before it was built
+//! in behind a cover window) stay valid when a crosstalk part is added later. Beside them the
 //! amplitude scale of the `1/d²` law (`tofprox_core::radiometry`), which depends on nothing.
 //! Each dependent part records the checksum of the parts it was extracted
 //! with; loading refuses a set whose parts do not fit together, and
-//! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_wiggling`] drop the
-//! parts that were derived from what they replace.
+//! [`CalibrationSet::set_offset`] / [`CalibrationSet::set_crosstalk`] /
+//! [`CalibrationSet::set_wiggling`] drop the parts that were derived from what they replace.
 
 use std::collections::BTreeMap;
 use std::fmt;
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use ndarray::{Array1, Array2, Ix1, Ix2};
+use ndarray::{Array1, Array2, Array3, Ix1, Ix2, Ix3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
 use tofprox_core::camera::{Distortion, Intrinsics, RayGrid};
+use tofprox_core::crosstalk::CrosstalkCalibration;
 use tofprox_core::pipeline::Calibration;
 use tofprox_core::radiometry::AmplitudeScale;
 use tofprox_core::{Algorithm, SensorGeometry};
@@ -46,6 +49,8 @@ pub enum CalibPart {
     Intrinsics,
     /// Per-pixel dark frame (FPN).
     Offset,
+    /// Cover-window crosstalk per raw image (0°, 90°, 180°, 270°), LSB per µs.
+    Crosstalk,
     /// Wiggling LUT for 2-phase evaluation.
     Wiggling2Phase,
     /// Wiggling LUT for 4-phase evaluation.
@@ -60,9 +65,10 @@ pub enum CalibPart {
 
 impl CalibPart {
     /// All parts, in order of application.
-    pub const ALL: [CalibPart; 7] = [
+    pub const ALL: [CalibPart; 8] = [
         CalibPart::Intrinsics,
         CalibPart::Offset,
+        CalibPart::Crosstalk,
         CalibPart::Wiggling2Phase,
         CalibPart::Wiggling4Phase,
         CalibPart::Fppn,
@@ -74,6 +80,7 @@ impl CalibPart {
         match self {
             CalibPart::Intrinsics => "intrinsics",
             CalibPart::Offset => "offset",
+            CalibPart::Crosstalk => "crosstalk",
             CalibPart::Wiggling2Phase => "wiggling_2phase",
             CalibPart::Wiggling4Phase => "wiggling_4phase",
             CalibPart::Fppn => "fppn",
@@ -102,7 +109,10 @@ impl CalibPart {
     /// The algorithm a wiggling or FPPN part belongs to.
     pub fn algorithm(self) -> Option<Algorithm> {
         match self {
-            CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => None,
+            CalibPart::Intrinsics
+            | CalibPart::Offset
+            | CalibPart::Amplitude
+            | CalibPart::Crosstalk => None,
             CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
@@ -144,6 +154,8 @@ pub struct CalibrationSet {
     pub intrinsics: Option<Intrinsics>,
     /// Per-pixel dark frame.
     pub offset: Option<OffsetCalibration>,
+    /// Cover-window crosstalk (extracted after the offset).
+    pub crosstalk: Option<CrosstalkCalibration>,
     /// 2-phase wiggling LUT.
     pub wiggling_2phase: Option<WigglingLut>,
     /// 4-phase wiggling LUT.
@@ -173,6 +185,7 @@ struct Deps {
     offset: Option<String>,
     wiggling: Option<String>,
     intrinsics: Option<String>,
+    crosstalk: Option<String>,
 }
 
 // ---------------------------------------------------------------- TOML schema
@@ -191,6 +204,8 @@ struct CalibToml {
     intrinsics: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     offset: Option<PartToml>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    crosstalk: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     wiggling_2phase: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -231,6 +246,9 @@ struct PartToml {
     /// sha256 of the intrinsics this part was extracted through, or "none".
     #[serde(default, skip_serializing_if = "Option::is_none")]
     intrinsics_sha256: Option<String>,
+    /// sha256 of the crosstalk array subtracted before extracting this part, or "none".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    crosstalk_sha256: Option<String>,
     source_recording: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     source_description: Option<String>,
@@ -284,6 +302,7 @@ impl CalibrationSet {
         CalibrationSet {
             intrinsics: None,
             offset: None,
+            crosstalk: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
@@ -326,6 +345,7 @@ impl CalibrationSet {
         match part {
             CalibPart::Intrinsics => self.intrinsics.is_some(),
             CalibPart::Offset => self.offset.is_some(),
+            CalibPart::Crosstalk => self.crosstalk.is_some(),
             CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
             CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
             CalibPart::Fppn => self.fppn.is_some(),
@@ -341,6 +361,10 @@ impl CalibrationSet {
                 .as_ref()
                 .map(|k| npy::encode_f32(&intrinsics_array(k))),
             CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
+            CalibPart::Crosstalk => self
+                .crosstalk
+                .as_ref()
+                .map(|x| npy::encode_f32(&x.lsb_per_us)),
             CalibPart::Wiggling2Phase => self
                 .wiggling_2phase
                 .as_ref()
@@ -377,6 +401,7 @@ impl CalibrationSet {
         match part {
             CalibPart::Intrinsics => self.intrinsics = None,
             CalibPart::Offset => self.offset = None,
+            CalibPart::Crosstalk => self.crosstalk = None,
             CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
             CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
             CalibPart::Fppn => self.fppn = None,
@@ -392,7 +417,9 @@ impl CalibrationSet {
         let mut out = Vec::new();
         let off = self.checksum_or_none(CalibPart::Offset);
         let lens = self.checksum_or_none(CalibPart::Intrinsics);
+        let xt = self.checksum_or_none(CalibPart::Crosstalk);
         for part in [
+            CalibPart::Crosstalk,
             CalibPart::Wiggling2Phase,
             CalibPart::Wiggling4Phase,
             CalibPart::Fppn,
@@ -407,6 +434,12 @@ impl CalibrationSet {
             if d.offset.as_deref().is_some_and(|o| o != off)
                 || d.intrinsics.as_deref().is_some_and(|k| k != lens)
             {
+                out.push(part);
+                continue;
+            }
+            // extracted with a crosstalk subtracted that is no longer the set's ("none":
+            // extracted without one, e.g. before the module went behind a window: still valid)
+            if d.crosstalk.as_deref().is_some_and(|x| x != NONE && x != xt) {
                 out.push(part);
                 continue;
             }
@@ -492,6 +525,7 @@ impl CalibrationSet {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: None,
             intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
+            crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
         match lut.algorithm {
             Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
@@ -524,6 +558,7 @@ impl CalibrationSet {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             wiggling: Some(self.checksum_or_none(CalibPart::wiggling(algorithm))),
             intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
+            crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
         match algorithm {
             Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
@@ -546,6 +581,30 @@ impl CalibrationSet {
         }
         self.amplitude = Some(scale);
         Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
+    /// Set (or replace) the cover-window crosstalk (extracted with the current
+    /// offset, recorded as its dependency). Returns the parts dropped because
+    /// they were extracted with a previous crosstalk subtracted.
+    pub fn set_crosstalk(
+        &mut self,
+        crosstalk: CrosstalkCalibration,
+        source: PartSource,
+    ) -> Result<Vec<CalibPart>, FormatError> {
+        let key = CalibPart::Crosstalk.name();
+        crosstalk
+            .validate(self.validity.rows, self.validity.cols)
+            .map_err(|e| {
+                invalid(format!(
+                    "the set is for a {}×{} window: {e}",
+                    self.validity.rows, self.validity.cols
+                ))
+                .key(key)
+            })?;
+        let deps = Deps {
+            offset: Some(self.checksum_or_none(CalibPart::Offset)),
+            ..Deps::default()
+        };
+        self.crosstalk = Some(crosstalk);
+        Ok(self.record_part(CalibPart::Crosstalk, source, deps))
     }
 
     /// Record where `part` came from and what it was computed with, then
@@ -637,6 +696,7 @@ impl CalibrationSet {
             offset: self.offset.clone(),
             wiggling: self.wiggling(algorithm).cloned(),
             fppn: self.fppn_for(algorithm).cloned(),
+            crosstalk: self.crosstalk.clone(),
         }
     }
 
@@ -662,6 +722,7 @@ impl CalibrationSet {
             valid_for: self.validity,
             intrinsics: None,
             offset: None,
+            crosstalk: None,
             wiggling_2phase: None,
             wiggling_4phase: None,
             fppn: None,
@@ -680,6 +741,13 @@ impl CalibrationSet {
                 CalibPart::Intrinsics => (Some(vec![INTRINSICS_LEN]), None, None),
                 CalibPart::Offset => (
                     self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
+                    None,
+                    None,
+                ),
+                CalibPart::Crosstalk => (
+                    self.crosstalk
+                        .as_ref()
+                        .map(|x| x.lsb_per_us.shape().to_vec()),
                     None,
                     None,
                 ),
@@ -712,6 +780,9 @@ impl CalibrationSet {
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
                 intrinsics_sha256: deps.intrinsics,
+    }
+
+                crosstalk_sha256: deps.crosstalk,
                 source_recording: src.recording,
                 source_description: src.recording_description,
                 source_captures: src.captures,
@@ -721,6 +792,7 @@ impl CalibrationSet {
             match part {
                 CalibPart::Intrinsics => t.intrinsics = Some(pt),
                 CalibPart::Offset => t.offset = Some(pt),
+                CalibPart::Crosstalk => t.crosstalk = Some(pt),
                 CalibPart::Wiggling2Phase => t.wiggling_2phase = Some(pt),
                 CalibPart::Wiggling4Phase => t.wiggling_4phase = Some(pt),
                 CalibPart::Fppn => t.fppn = Some(pt),
@@ -768,6 +840,7 @@ impl CalibrationSet {
         let parts = [
             (CalibPart::Intrinsics, &t.intrinsics),
             (CalibPart::Offset, &t.offset),
+            (CalibPart::Crosstalk, &t.crosstalk),
             (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
             (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
             (CalibPart::Fppn, &t.fppn),
@@ -783,6 +856,7 @@ impl CalibrationSet {
             // models existed was extracted without one)
             let mut required: Vec<(&str, &Option<String>)> = match part {
                 CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => vec![],
+                CalibPart::Crosstalk => vec![("offset_sha256", &pt.offset_sha256)],
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
                     vec![("offset_sha256", &pt.offset_sha256)]
                 }
@@ -831,6 +905,8 @@ impl CalibrationSet {
                             .key(key));
                     }
                     set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
+                (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
+                    set.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
                 }
                 (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
                     let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
@@ -921,6 +997,10 @@ impl CalibrationSet {
                     offset: pt.offset_sha256.as_deref().map(str::to_ascii_lowercase),
                     wiggling: pt.wiggling_sha256.as_deref().map(str::to_ascii_lowercase),
                     intrinsics: pt.intrinsics_sha256.as_deref().map(str::to_ascii_lowercase),
+                }
+                    offset: pt.offset_sha256.clone(),
+                    wiggling: pt.wiggling_sha256.clone(),
+                    crosstalk: pt.crosstalk_sha256.clone(),
                 },
             );
         }
@@ -935,6 +1015,10 @@ impl CalibrationSet {
                     != Some(set.checksum_or_none(CalibPart::Offset).as_str())
                 {
                     "offset".to_string()
+                } else if set.deps.get(p).and_then(|d| d.crosstalk.as_deref()).is_some_and(|x| {
+                    x != NONE && x != set.checksum_or_none(CalibPart::Crosstalk)
+                }) {
+                    "crosstalk".to_string()
                 } else {
                     format!("{} wiggling table", p.algorithm().map_or("", |a| a.as_str()))
                 }
@@ -949,6 +1033,7 @@ impl CalibrationSet {
 enum LoadedArray {
     Map(Array2<f32>),
     Lut(Array1<f32>),
+    Cube(Array3<f32>),
 }
 
 fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
@@ -1061,6 +1146,7 @@ fn load_part(
             Ok(LoadedArray::Map(a))
         }
         CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+                    crosstalk: pt.crosstalk_sha256.as_deref().map(str::to_ascii_lowercase),
             let a = a.into_dimensionality::<Ix1>().map_err(|_| {
                 invalid(format!(
                     "expected a 1-dimensional table, found shape {}",

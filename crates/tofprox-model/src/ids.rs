@@ -151,6 +151,8 @@ effect_ids! {
     dark_current { E_PER_US = "e_per_us", DOUBLING_C = "doubling_c" }
     /// SBI circuit with mismatch.
     sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel" }
+    /// Cover-window crosstalk.
+    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
     /// Tap gain mismatch (A/B).
     tap_gain_mismatch { MISMATCH_REL = "mismatch_rel" }
     /// Fixed-pattern offset (FPN) of the read-out.

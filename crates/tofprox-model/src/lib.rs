@@ -34,5 +34,8 @@ pub use catalogue::{EffectInfo, ParamInfo, catalogue};
 pub use config::{EffectSettings, MeasuredWaveforms, ModelConfig};
 pub use error::{ErrorKind, ModelError};
 pub use geometry::{CaptureRequest, SensorGeometry};
-pub use scene::{Scene, SceneScript, ScriptKind};
+pub use scene::{
+    CoverWindow, Expect, Motion, ObjectPose, PhoneScene, Scene, SceneScript, ScriptKind,
+    phone_scenes,
+};
 pub use sim::Simulator;

@@ -1,5 +1,8 @@
 //! Scenes: a flat wall, a per-pixel depth/reflectivity map, and scripted scenes
-//! over time (a hand approaching and leaving in front of a wall, a face).
+//! over time: a hand, a face, a card, a plane filling the view (pocket fabric), a
+//! table top seen at grazing incidence, with approach, sway, swipe or static
+//! motion in front of a wall; [`phone_scenes`] names the scenes a phone meets,
+//! each with its ground truth ("near expected?") over time.
 
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
@@ -86,16 +89,40 @@ impl Scene {
     }
 }
 
-/// Which scripted scene.
+/// Which scripted scene (the object in front of the wall; [`Motion`] says how it moves).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ScriptKind {
-    /// A static wall.
+    /// A static wall (or ceiling) only.
     Wall,
-    /// A hand approaching to `near_m` and leaving again in front of the wall, looping.
+    /// A hand (disc of 4.5 cm radius); by default approaching to `near_m` and leaving again.
     Hand,
-    /// A face-sized object at `face_distance_m` in front of the wall (slight sway).
+    /// A face/head-sized ellipse (15 × 22 cm); by default at `face_distance_m` with a slight sway.
     Face,
+    /// A flat card (20 × 25 cm, e.g. an 18 % grey or a black card); by default approaching like the hand.
+    Card,
+    /// A surface filling the whole field of view (pocket fabric, a table the phone lies
+    /// face down on); by default approaching like the hand.
+    Plane,
+    /// A table top `near_m` below the optical axis, seen at grazing incidence up to its
+    /// edge at `far_m` (horizontal distance); the wall beyond. Static.
+    TableEdge,
+}
+
+/// How the object of a [`SceneScript`] moves (one cycle per `period_s`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Motion {
+    /// At its distance all the time (`face_distance_m` for a face, else `near_m`).
+    Static,
+    /// Absent for 15 % of the period, approaches from `far_m` to `near_m` (30 %), stays
+    /// (15 %), leaves to `far_m` (25 %), absent again (15 %); smooth (cosine) ramps.
+    Approach,
+    /// ±1 cm sinusoidal sway around its distance.
+    Sway,
+    /// Crosses the field of view sideways at `near_m` with `swipe_m_per_s`, once per
+    /// period, starting at 20 % of it.
+    Swipe,
 }
 
 /// A scene scripted over time, for the emulated sensor and `tofprox sim scene`.
@@ -131,6 +158,11 @@ pub struct SceneScript {
     pub full_rows: usize,
     /// Columns of the full array.
     pub full_cols: usize,
+    /// How the object moves; unset: the kind's own (hand, card, plane: approach;
+    /// face: sway; wall, table edge: static).
+    pub motion: Option<Motion>,
+    /// Lateral speed of a swipe (a fast hand swipe is 1–2 m/s).
+    pub swipe_m_per_s: f64,
 }
 
 impl Default for SceneScript {
@@ -147,6 +179,8 @@ impl Default for SceneScript {
             fov_deg: 60.0,
             full_rows: 172,
             full_cols: 224,
+            motion: None,
+            swipe_m_per_s: 1.5,
         }
     }
 }
@@ -155,6 +189,17 @@ impl Default for SceneScript {
 const HAND_RADIUS_M: f64 = 0.045;
 /// Half axes of a face (width, height).
 const FACE_HALF_AXES_M: (f64, f64) = (0.075, 0.11);
+/// Half axes of a card (20 × 25 cm test card).
+const CARD_HALF_AXES_M: (f64, f64) = (0.10, 0.125);
+
+/// Where the scripted object is at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ObjectPose {
+    /// Distance along the optical axis, m.
+    pub distance_m: f64,
+    /// Lateral offset of its centre from the optical axis (columns direction), m.
+    pub lateral_m: f64,
+}
 
 impl SceneScript {
     /// The default hand script.
@@ -183,10 +228,26 @@ impl SceneScript {
         check_value("object ", self.near_m, self.object_reflectivity)?;
         check_value("far ", self.far_m, self.object_reflectivity)?;
         check_value("face ", self.face_distance_m, self.object_reflectivity)?;
-        if self.near_m >= self.far_m || self.far_m >= self.wall_distance_m {
+        let motion = self.motion();
+        let uses_near_far = matches!(self.kind, ScriptKind::TableEdge)
+            || (self.kind != ScriptKind::Wall && motion == Motion::Approach);
+        if uses_near_far && (self.near_m >= self.far_m || self.far_m >= self.wall_distance_m) {
             return Err(ModelError::invalid(format!(
                 "scene script: need near_m < far_m < wall_distance_m, got {} / {} / {}",
                 self.near_m, self.far_m, self.wall_distance_m
+            )));
+        }
+        if self.kind != ScriptKind::Wall && self.object_base_m() >= self.wall_distance_m {
+            return Err(ModelError::invalid(format!(
+                "scene script: the object ({} m) must be in front of the wall ({} m)",
+                self.object_base_m(),
+                self.wall_distance_m
+            )));
+        }
+        if !(self.swipe_m_per_s.is_finite() && (0.01..=20.0).contains(&self.swipe_m_per_s)) {
+            return Err(ModelError::invalid(format!(
+                "scene script: swipe_m_per_s = {} outside the allowed range [0.01, 20] m/s",
+                self.swipe_m_per_s
             )));
         }
         if self.kind == ScriptKind::Face && self.face_distance_m >= self.wall_distance_m {
@@ -214,62 +275,623 @@ impl SceneScript {
         Ok(())
     }
 
-    /// Distance of the scripted object (hand/face) at time `t_s`, `None` when only the wall is seen.
-    pub fn object_distance_m(&self, t_s: f64) -> Option<f64> {
+    /// The motion in effect (the configured one, else the kind's own).
+    pub fn motion(&self) -> Motion {
+        self.motion.unwrap_or(match self.kind {
+            ScriptKind::Wall | ScriptKind::TableEdge => Motion::Static,
+            ScriptKind::Face => Motion::Sway,
+            ScriptKind::Hand | ScriptKind::Card | ScriptKind::Plane => Motion::Approach,
+        })
+    }
+
+    /// The object's resting distance: `face_distance_m` for a face, else `near_m`.
+    fn object_base_m(&self) -> f64 {
+        match self.kind {
+            ScriptKind::Face => self.face_distance_m,
+            _ => self.near_m,
+        }
+    }
+
+    /// Half axes (columns, rows direction) of the object, m; `None` when it fills the view.
+    fn half_axes_m(&self) -> Option<(f64, f64)> {
+        match self.kind {
+            ScriptKind::Face => Some(FACE_HALF_AXES_M),
+            ScriptKind::Card => Some(CARD_HALF_AXES_M),
+            ScriptKind::Hand => Some((HAND_RADIUS_M, HAND_RADIUS_M)),
+            ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge => None,
+        }
+    }
+
+    /// Pinhole focal length in pixels from the horizontal field of view.
+    fn focal_px(&self) -> f64 {
+        (self.full_cols.max(1) as f64 / 2.0) / (self.fov_deg.to_radians() / 2.0).tan().max(1e-6)
+    }
+
+    /// Where the scripted object is at `t_s`, `None` when it is out of view (or there is none).
+    pub fn object_pose(&self, t_s: f64) -> Option<ObjectPose> {
+        if matches!(self.kind, ScriptKind::Wall | ScriptKind::TableEdge) {
+            return None;
+        }
         let p = self.period_s.max(1e-3);
         let u = (t_s / p).rem_euclid(1.0);
-        match self.kind {
-            ScriptKind::Wall => None,
-            ScriptKind::Face => {
-                Some(self.face_distance_m + 0.01 * (std::f64::consts::TAU * u).sin())
+        let base = self.object_base_m();
+        let at = |distance_m: f64| {
+            Some(ObjectPose {
+                distance_m,
+                lateral_m: 0.0,
+            })
+        };
+        match self.motion() {
+            Motion::Static => at(base),
+            Motion::Sway => {
+                at((base + 0.01 * (std::f64::consts::TAU * u).sin()).max(MIN_DISTANCE_M))
             }
-            ScriptKind::Hand => {
+            Motion::Approach => {
                 let smooth = |x: f64| 0.5 - 0.5 * (std::f64::consts::PI * x.clamp(0.0, 1.0)).cos();
                 let (near, far) = (self.near_m, self.far_m);
                 match u {
                     u if u < 0.15 => None,
-                    u if u < 0.45 => Some(far + (near - far) * smooth((u - 0.15) / 0.30)),
-                    u if u < 0.60 => Some(near),
-                    u if u < 0.85 => Some(near + (far - near) * smooth((u - 0.60) / 0.25)),
+                    u if u < 0.45 => at(far + (near - far) * smooth((u - 0.15) / 0.30)),
+                    u if u < 0.60 => at(near),
+                    u if u < 0.85 => at(near + (far - near) * smooth((u - 0.60) / 0.25)),
                     _ => None,
                 }
+            }
+            Motion::Swipe => {
+                // enters at the left edge of the field at 20 % of the period
+                let half_field = base * self.fov_half_tan();
+                let half_obj = self.half_axes_m().map_or(half_field, |a| a.0);
+                let span = half_field + half_obj;
+                let x = -span + self.swipe_m_per_s * (t_s.rem_euclid(p) - 0.2 * p);
+                (x.abs() < span).then_some(ObjectPose {
+                    distance_m: base,
+                    lateral_m: x,
+                })
             }
         }
     }
 
-    /// Distance seen by the centre pixel at `t_s` (object if present, else the wall).
+    fn fov_half_tan(&self) -> f64 {
+        (self.fov_deg.to_radians() / 2.0).tan()
+    }
+
+    /// Distance of the scripted object at time `t_s`, `None` when only the wall is seen.
+    pub fn object_distance_m(&self, t_s: f64) -> Option<f64> {
+        self.object_pose(t_s).map(|o| o.distance_m)
+    }
+
+    /// Radial distances seen by the pixels of the central `roi_fraction` of the field
+    /// of view (each dimension) at `t_s`.
+    pub fn roi_distances_m(&self, t_s: f64, roi_fraction: f64) -> Vec<f64> {
+        let (rows, cols) = (self.full_rows.max(1), self.full_cols.max(1));
+        let f = roi_fraction.clamp(0.0, 1.0);
+        let (r0, r1) = (
+            ((1.0 - f) / 2.0 * rows as f64) as usize,
+            ((1.0 + f) / 2.0 * rows as f64).ceil() as usize,
+        );
+        let (c0, c1) = (
+            ((1.0 - f) / 2.0 * cols as f64) as usize,
+            ((1.0 + f) / 2.0 * cols as f64).ceil() as usize,
+        );
+        let pose = self.object_pose(t_s);
+        let mut out = Vec::new();
+        for r in r0..r1.min(rows) {
+            for c in c0..c1.min(cols) {
+                out.push(self.pixel_at(pose, r, c).0);
+            }
+        }
+        out
+    }
+
+    /// Distance seen by the centre pixel at `t_s` (object if present there, else the wall).
     pub fn centre_distance_m(&self, t_s: f64) -> f64 {
-        self.object_distance_m(t_s).unwrap_or(self.wall_distance_m)
+        let (rows, cols) = (self.full_rows.max(1), self.full_cols.max(1));
+        self.pixel(t_s, rows / 2, cols / 2).0
+    }
+
+    /// What full-array pixel `(r, c)` sees at `t_s`: radial distance, effective
+    /// reflectivity, and whether that is the object (not the wall).
+    fn pixel(&self, t_s: f64, r: usize, c: usize) -> (f64, f64, bool) {
+        self.pixel_at(self.object_pose(t_s), r, c)
+    }
+
+    /// [`Self::pixel`] with the object's pose already known.
+    fn pixel_at(&self, pose: Option<ObjectPose>, r: usize, c: usize) -> (f64, f64, bool) {
+        let wall = (self.wall_distance_m, self.wall_reflectivity, false);
+        let (rows, cols) = (self.full_rows.max(1), self.full_cols.max(1));
+        let f_px = self.focal_px();
+        let (cr, cc) = ((rows as f64 - 1.0) / 2.0, (cols as f64 - 1.0) / 2.0);
+        let (y, x) = ((r as f64 - cr) / f_px, (c as f64 - cc) / f_px);
+        if self.kind == ScriptKind::TableEdge {
+            // the table top lies near_m below the axis (rows below the centre look down):
+            // the ray (x, y, 1) meets it at depth z = h / y; radial range z·√(1+x²+y²).
+            // A Lambertian surface returns ρ cos θ_i / d² (2.2.1), cos θ_i = y / √(1+x²+y²).
+            if y <= 0.0 {
+                return wall;
+            }
+            let z = self.near_m / y;
+            if z > self.far_m {
+                return wall;
+            }
+            let norm = (1.0 + x * x + y * y).sqrt();
+            return (z * norm, self.object_reflectivity * y / norm, true);
+        }
+        let Some(pose) = pose else {
+            return wall;
+        };
+        let z = pose.distance_m;
+        let inside = match self.half_axes_m() {
+            None => true,
+            Some((half_w, half_h)) => {
+                let (dx, dy) = ((x * z - pose.lateral_m) / half_w, y * z / half_h);
+                dx * dx + dy * dy <= 1.0
+            }
+        };
+        if inside {
+            (z, self.object_reflectivity, true)
+        } else {
+            wall
+        }
     }
 
     /// The scene at time `t_s`: a full-array depth map, or a flat wall when nothing is in front.
     pub fn at(&self, t_s: f64) -> Scene {
-        let Some(z) = self.object_distance_m(t_s) else {
+        if self.kind != ScriptKind::TableEdge && self.object_pose(t_s).is_none() {
             return Scene::wall(self.wall_distance_m, self.wall_reflectivity);
-        };
+        }
         let (rows, cols) = (self.full_rows.max(1), self.full_cols.max(1));
-        // pinhole focal length in pixels from the horizontal field of view
-        let f_px = (cols as f64 / 2.0) / (self.fov_deg.to_radians() / 2.0).tan().max(1e-6);
-        let (half_w, half_h) = match self.kind {
-            ScriptKind::Face => FACE_HALF_AXES_M,
-            _ => (HAND_RADIUS_M, HAND_RADIUS_M),
-        };
-        let (rx, ry) = (f_px * half_w / z, f_px * half_h / z);
-        let (cr, cc) = ((rows as f64 - 1.0) / 2.0, (cols as f64 - 1.0) / 2.0);
         let mut distance_m = Array2::from_elem((rows, cols), self.wall_distance_m);
         let mut reflectivity = Array2::from_elem((rows, cols), self.wall_reflectivity);
+        let pose = self.object_pose(t_s);
         for ((r, c), d) in distance_m.indexed_iter_mut() {
-            let (dy, dx) = ((r as f64 - cr) / ry, (c as f64 - cc) / rx);
-            if dx * dx + dy * dy <= 1.0 {
-                *d = z;
-                if let Some(v) = reflectivity.get_mut((r, c)) {
-                    *v = self.object_reflectivity;
-                }
+            let (dist, refl, _) = self.pixel_at(pose, r, c);
+            *d = dist.clamp(MIN_DISTANCE_M, MAX_DISTANCE_M);
+            if let Some(v) = reflectivity.get_mut((r, c)) {
+                *v = refl;
             }
         }
         Scene::DepthMap {
             distance_m,
             reflectivity,
+        }
+    }
+}
+
+/// The cover window in front of emitter and lens: the scene-side settings of the
+/// `cover_window_crosstalk` effect (clean or smudged). Serde-configurable
+/// (`[cover_window]` of the emulated device):
+/// ```toml
+/// e_per_us = 20.0          # clean-window crosstalk, e-/µs (both taps)
+/// smudge_rel = 1.0         # a smudge doubling it
+/// window_distance_mm = 3.0
+/// gradient_rel = 0.5
+/// ```
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CoverWindow {
+    /// Crosstalk electrons per µs of exposure of the clean window (both taps).
+    pub e_per_us: f64,
+    /// Extra crosstalk of a smudge relative to the clean window (1 = doubled).
+    pub smudge_rel: f64,
+    /// Distance of the reflecting surface from the sensor, mm.
+    pub window_distance_mm: f64,
+    /// Relative change across the columns of the full array.
+    pub gradient_rel: f64,
+}
+
+/// Catalogue id of the effect a [`CoverWindow`] sets.
+pub const COVER_WINDOW_EFFECT: &str = crate::ids::cover_window_crosstalk::ID.as_str();
+
+impl Default for CoverWindow {
+    /// The catalogue's typical clean window.
+    fn default() -> Self {
+        let typical = |name: &str| {
+            crate::catalogue::effect(COVER_WINDOW_EFFECT)
+                .and_then(|e| e.param(name))
+                .map_or(0.0, |p| p.typical)
+        };
+        CoverWindow {
+            e_per_us: typical("e_per_us"),
+            smudge_rel: 0.0,
+            window_distance_mm: typical("window_distance_mm"),
+            gradient_rel: typical("gradient_rel"),
+        }
+    }
+}
+
+impl CoverWindow {
+    /// The typical window with a smudge that multiplies its crosstalk by `1 + smudge_rel`.
+    pub fn smudged(smudge_rel: f64) -> Self {
+        CoverWindow {
+            smudge_rel,
+            ..Self::default()
+        }
+    }
+
+    /// Enable `cover_window_crosstalk` in `model` with these parameters (range-checked:
+    /// the error names the parameter and its physical range).
+    pub fn apply(&self, model: &mut crate::ModelConfig) -> Result<(), ModelError> {
+        model.set_enabled(COVER_WINDOW_EFFECT, true)?;
+        for (name, v) in [
+            ("e_per_us", self.e_per_us),
+            ("smudge_rel", self.smudge_rel),
+            ("window_distance_mm", self.window_distance_mm),
+            ("gradient_rel", self.gradient_rel),
+        ] {
+            model.set_param(COVER_WINDOW_EFFECT, name, v)?;
+        }
+        Ok(())
+    }
+}
+
+/// Ground truth of a proximity reading at one instant.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Expect {
+    /// At least half of the ROI sees something at or within the near threshold.
+    Near,
+    /// Every ROI pixel sees something at or beyond the far threshold (or nothing).
+    Far,
+    /// Between the thresholds, or partly covered: either answer is right.
+    Either,
+}
+
+/// A named scene a phone meets, for the scene bench: script, light, cover window,
+/// how long to run it, and the ground truth over time.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PhoneScene {
+    /// Stable name (`[a-z0-9_]`), for listing and selecting scenes.
+    pub name: &'static str,
+    /// One line: what it is and why it is hard.
+    pub description: &'static str,
+    /// Object, wall and motion.
+    pub script: SceneScript,
+    /// Background light (sunlight ≈ 30–100 klux).
+    pub ambient_klux: f64,
+    /// The cover window in front of the sensor (clean unless the scene says smudged).
+    pub cover_window: CoverWindow,
+    /// How long to run the scene (one period of its motion).
+    pub duration_s: f64,
+}
+
+/// Share of ROI pixels at or within the near threshold that makes "near" the truth.
+pub const NEAR_TRUTH_SHARE: f64 = 0.5;
+
+impl PhoneScene {
+    /// The ground truth at `t_s` for a detector with thresholds `near_m` / `far_m` over
+    /// the central `roi_fraction` of the field of view (each dimension; the daemon's
+    /// default ROI is the central half): [`Expect::Near`] when at least
+    /// [`NEAR_TRUTH_SHARE`] of the ROI sees something within `near_m`, [`Expect::Far`]
+    /// when all of it sees `far_m` or more, [`Expect::Either`] otherwise. Ranges are the
+    /// true radial distances: a wall beyond the unambiguous range is far.
+    pub fn expect(&self, t_s: f64, near_m: f64, far_m: f64, roi_fraction: f64) -> Expect {
+        let d = self.script.roi_distances_m(t_s, roi_fraction);
+        if d.is_empty() {
+            return Expect::Either;
+        }
+        let near = d.iter().filter(|&&x| x <= near_m).count() as f64 / d.len() as f64;
+        if near >= NEAR_TRUTH_SHARE {
+            Expect::Near
+        } else if d.iter().all(|&x| x >= far_m) {
+            Expect::Far
+        } else {
+            Expect::Either
+        }
+    }
+}
+
+/// Reflectivities at 850–940 nm used by [`phone_scenes`].
+pub mod reflectivity {
+    /// White wall or ceiling paint (the thesis's white wall, 5.1).
+    pub const WHITE: f64 = 0.9;
+    /// Dark wall (dark grey/black paint, wood).
+    pub const DARK_WALL: f64 = 0.08;
+    /// Skin (palm, face).
+    pub const SKIN: f64 = 0.5;
+    /// Black card (the usual "black" proximity test target).
+    pub const BLACK_CARD: f64 = 0.05;
+    /// 18 % grey card (the usual proximity test target).
+    pub const GREY_CARD: f64 = 0.18;
+    /// Dark (black) hair.
+    pub const DARK_HAIR: f64 = 0.06;
+    /// Dark pocket fabric (denim, lining).
+    pub const DARK_FABRIC: f64 = 0.1;
+    /// Wooden table top.
+    pub const TABLE: f64 = 0.3;
+}
+
+/// The scenes a phone meets, with stable names, for near/far thresholds `near_m` /
+/// `far_m` (the threshold scenes are placed relative to them; tofproxd's defaults are
+/// 0.10 / 0.15 m). Every scene has the typical clean cover window unless its name
+/// says `smudged` (crosstalk doubled); ambient light is 0 unless it says `klux`.
+pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
+    use reflectivity::*;
+    let base = SceneScript::default();
+    let wall = |d: f64, r: f64| SceneScript {
+        wall_reflectivity: r,
+        ..SceneScript::wall(d)
+    };
+    let object = |kind: ScriptKind, r: f64, near: f64| SceneScript {
+        kind,
+        object_reflectivity: r,
+        near_m: near,
+        far_m: 0.6,
+        wall_distance_m: 1.5,
+        wall_reflectivity: 0.5,
+        ..base.clone()
+    };
+    let clean = CoverWindow::default();
+    let scene = |name, description, script: SceneScript, ambient_klux, cover_window, duration_s| {
+        PhoneScene {
+            name,
+            description,
+            script,
+            ambient_klux,
+            cover_window,
+            duration_s,
+        }
+    };
+    let approach_s = base.period_s;
+    let static_s = 4.0;
+    vec![
+        scene(
+            "nothing_in_range",
+            "nothing within 30 m (open space, sky): no return but the cover window's",
+            wall(30.0, 0.2),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_white_030cm",
+            "white ceiling at 0.3 m (a low shelf)",
+            wall(0.3, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_white_100cm",
+            "white ceiling at 1 m",
+            wall(1.0, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_white_195cm",
+            "white ceiling at 1.95 m, just beyond the unambiguous range c/2f = 1.874 m: its phase wraps to ≈ 8 cm",
+            wall(1.95, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_white_250cm",
+            "white ceiling at 2.5 m (wraps to ≈ 63 cm)",
+            wall(2.5, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "wall_white_380cm",
+            "white wall at 3.8 m, just beyond twice the range (wraps to ≈ 5 cm)",
+            wall(3.8, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_dark_030cm",
+            "dark ceiling at 0.3 m",
+            wall(0.3, DARK_WALL),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "ceiling_dark_195cm",
+            "dark ceiling at 1.95 m (wraps, weak: the window crosstalk dominates)",
+            wall(1.95, DARK_WALL),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "wall_dark_400cm",
+            "dark wall at 4 m (weaker than the window crosstalk)",
+            wall(4.0, DARK_WALL),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "hand_approach_05cm",
+            "a hand approaching to 5 cm and leaving",
+            object(ScriptKind::Hand, SKIN, 0.05),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "hand_approach_03cm_saturating",
+            "a hand approaching to 3 cm: the ROI saturates",
+            object(ScriptKind::Hand, SKIN, 0.03),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "face_dark_hair_02cm",
+            "a head with dark hair (6 %) approaching to 2 cm (a call, hair against the sensor)",
+            object(ScriptKind::Face, DARK_HAIR, 0.02).with_motion(Motion::Approach),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "face_dark_hair_05cm",
+            "a head with dark hair (6 %) approaching to 5 cm",
+            object(ScriptKind::Face, DARK_HAIR, 0.05).with_motion(Motion::Approach),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "face_30cm",
+            "a face at 30 cm, swaying ±1 cm (reading the screen): far",
+            SceneScript {
+                face_distance_m: 0.3,
+                ..object(ScriptKind::Face, SKIN, 0.05)
+            }
+            .with_motion(Motion::Sway),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "black_card_02cm",
+            "a black card (5 %) approaching to 2 cm",
+            object(ScriptKind::Card, BLACK_CARD, 0.02),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "black_card_05cm",
+            "a black card (5 %) approaching to 5 cm",
+            object(ScriptKind::Card, BLACK_CARD, 0.05),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "grey_card_near_threshold",
+            "an 18 % grey card approaching to 0.9 × the near threshold: switches to near",
+            object(ScriptKind::Card, GREY_CARD, 0.9 * near_m),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "grey_card_beyond_far",
+            "an 18 % grey card held at 1.2 × the far threshold: stays far",
+            object(ScriptKind::Card, GREY_CARD, 1.2 * far_m).with_motion(Motion::Static),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "pocket",
+            "sliding into a pocket: dark fabric (10 %) over the whole view down to 1 cm, everything dark",
+            SceneScript {
+                wall_reflectivity: DARK_FABRIC,
+                wall_distance_m: 0.5,
+                far_m: 0.3,
+                ..object(ScriptKind::Plane, DARK_FABRIC, 0.01)
+            },
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "table_edge",
+            "standing in a stand at a table's edge: the table top 4 cm below the axis at grazing incidence (≥ 18 cm in the ROI) up to its edge at 0.3 m, a wall at 2 m beyond",
+            SceneScript {
+                kind: ScriptKind::TableEdge,
+                object_reflectivity: TABLE,
+                near_m: 0.04,
+                far_m: 0.3,
+                wall_distance_m: 2.0,
+                wall_reflectivity: 0.5,
+                ..base.clone()
+            },
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "swipe_fast",
+            "a hand swiping across the view at 5 cm with 1.5 m/s (≈ 0.1 s in view)",
+            object(ScriptKind::Hand, SKIN, 0.05).with_motion(Motion::Swipe),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "sunlight_far_30klux",
+            "30 klux of sunlight on a far scene (grass/ground at 1.2 m)",
+            wall(1.2, 0.3),
+            30.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "sunlight_far_100klux",
+            "100 klux of direct sunlight on a far scene (ground at 1.2 m)",
+            wall(1.2, 0.3),
+            100.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "sunlight_hand_30klux",
+            "a hand approaching to 5 cm in 30 klux",
+            object(ScriptKind::Hand, SKIN, 0.05),
+            30.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "sunlight_hand_100klux",
+            "a hand approaching to 5 cm in 100 klux of direct sunlight",
+            object(ScriptKind::Hand, SKIN, 0.05),
+            100.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "window_smudged_nothing_in_range",
+            "smudged cover window (crosstalk doubled after calibration), nothing in range",
+            wall(30.0, 0.2),
+            0.0,
+            CoverWindow::smudged(1.0),
+            static_s,
+        ),
+        scene(
+            "window_smudged_ceiling_195cm",
+            "smudged cover window, white ceiling at 1.95 m",
+            wall(1.95, WHITE),
+            0.0,
+            CoverWindow::smudged(1.0),
+            static_s,
+        ),
+        scene(
+            "window_smudged_hand_approach_05cm",
+            "smudged cover window, a hand approaching to 5 cm",
+            object(ScriptKind::Hand, SKIN, 0.05),
+            0.0,
+            CoverWindow::smudged(1.0),
+            approach_s,
+        ),
+        scene(
+            "window_smudged_black_card_05cm",
+            "smudged cover window, a black card approaching to 5 cm",
+            object(ScriptKind::Card, BLACK_CARD, 0.05),
+            0.0,
+            CoverWindow::smudged(1.0),
+            approach_s,
+        ),
+    ]
+}
+
+impl SceneScript {
+    /// This script with another motion.
+    pub fn with_motion(self, motion: Motion) -> Self {
+        SceneScript {
+            motion: Some(motion),
+            ..self
         }
     }
 }

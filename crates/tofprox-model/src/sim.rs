@@ -37,6 +37,9 @@ struct CaptureConsts {
     contrast: f64,
     falloff_n: Option<f64>,
     multipath: Option<(f64, f64)>,
+    /// cover_window_crosstalk: (electrons of the window return before the column
+    /// profile, its time-of-flight phase 4π f d_w / c, gradient across the columns).
+    crosstalk: Option<(f64, f64, f64)>,
     px: PixelParams,
     lsb_per_e: f64,
     tof_rad_per_m: f64,
@@ -171,6 +174,15 @@ impl Simulator {
                     self.geometry.phase_rad_per_m() * m.get(ids::multipath::EXTRA_PATH_M) / 2.0,
                 )
             }),
+            crosstalk: (illum && m.is_enabled(ids::cover_window_crosstalk::ID)).then(|| {
+                use ids::cover_window_crosstalk as xt;
+                (
+                    m.get(xt::E_PER_US) * (1.0 + m.get(xt::SMUDGE_REL)) * t * px.drift_gain,
+                    // eq. 2.6 inverted at the window: 4π f d_w / c
+                    self.geometry.phase_rad_per_m() * m.get(xt::WINDOW_DISTANCE_MM) * 1e-3,
+                    m.get(xt::GRADIENT_REL),
+                )
+            }),
             px,
             lsb_per_e: m.get(ids::sensor::LSB_PER_KE) * 1e-3,
             // eq. 2.6 inverted: φ = 4π f d / c
@@ -220,6 +232,7 @@ impl Simulator {
         };
 
         let cc = self.consts(req);
+        let origin_col = g.roi_origin[1];
         let k_images = cc.thetas.len();
         let mut out = Array3::<f64>::zeros((k_images, rows, cols));
         let plane = rows * cols;
@@ -251,6 +264,14 @@ impl Simulator {
         let mut var_a = vec![0.0f64; plane];
         let mut var_b = vec![0.0f64; plane];
         let mut amb_e = vec![0.0f64; plane];
+        // cover_window_crosstalk per pixel: electrons and phase (empty when off)
+        let xt_on = cc.crosstalk.is_some();
+        let (mut xt_e, mut xt_phi) = if xt_on {
+            (vec![0.0f64; plane], vec![0.0f64; plane])
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let col_span = (g.full_cols.max(2) - 1) as f64;
         for r in 0..rows {
             for c in 0..cols {
                 let i = r * cols + c;
@@ -304,8 +325,18 @@ impl Simulator {
                     phase.get_mut(i),
                     amb_e.get_mut(i),
                 ) {
-                    // shot noise of both taps: F (N_A + N_B) = F (N (1 + a_mp) droop + 2 N_amb) (eq. 2.16)
-                    *a = px.shot_f * s * (1.0 + mp_rel) * g2 / cc.averaged;
+                    // the window return: w(c) g_p N_xt at 4π f d_w / c + the pixel's delay
+                    let mut xe = 0.0;
+                    if let (Some((n_xt, phi_w, grad)), Some(x), Some(xp)) =
+                        (cc.crosstalk, xt_e.get_mut(i), xt_phi.get_mut(i))
+                    {
+                        let u = (c + origin_col) as f64 / col_span - 0.5;
+                        xe = n_xt * (1.0 + grad * u).max(0.0) * gain;
+                        *x = xe;
+                        *xp = phi_w + delay + px.drift_rad;
+                    }
+                    // shot noise of both taps: F (N_A + N_B) = F ((N (1 + a_mp) + N_xt) droop + 2 N_amb) (eq. 2.16)
+                    *a = px.shot_f * (s * (1.0 + mp_rel) + xe) * g2 / cc.averaged;
                     *b = (px.shot_f * 2.0 * amb * g2 + var_const) / cc.averaged;
                     *sg = s;
                     *ph = phi;
@@ -338,15 +369,20 @@ impl Simulator {
                 .zip(&var_b)
                 .zip(&amb_e)
                 .zip(&self.patterns.offset_lsb);
-            for ((((((o, &s), &phi), &va), &vb), &amb), &offset) in pixels {
+            for (i, ((((((o, &s), &phi), &va), &vb), &amb), &offset)) in pixels.enumerate() {
                 let sk = s * dr;
                 // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ)) (2.2.2)
                 let mut corr_e = sk * corr.eval(phi - theta);
                 if mp_rel > 0.0 {
                     corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
                 }
+                let mut xk = 0.0;
+                if xt_on && let (Some(&x), Some(&xp)) = (xt_e.get(i), xt_phi.get(i)) {
+                    xk = x * dr;
+                    corr_e += xk * corr.eval(xp - theta);
+                }
                 let mut diff = k_con * corr_e;
-                let total = sk * (1.0 + mp_rel);
+                let total = sk * (1.0 + mp_rel) + xk;
                 if sbi_on {
                     let na = 0.5 * (total + diff) + amb + dark;
                     let nb = 0.5 * (total - diff) + amb + dark;

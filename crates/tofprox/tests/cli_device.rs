@@ -203,3 +203,157 @@ fn flash_status_and_write_on_a_persisted_emulated_flash() {
     assert!(text(&o.stdout).contains("valid configuration image"));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+fn repo(rel: &str) -> String {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(rel)
+        .display()
+        .to_string()
+}
+
+/// The phone's factory calibration with the cover window, end to end through the CLI:
+/// captures with nothing in range → `calibrate crosstalk` → the set holds it keyed and
+/// checksummed → `process` compensates it and reports what is left (a smudge: ≈ +1);
+/// a crosstalk of another window is refused.
+#[test]
+fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
+    let dir = tempfile_dir();
+    let empty = repo("calib/phone/empty.toml");
+    let window = |name: &str, args: &[&str]| {
+        let mut all = vec!["--window", "80,8", "--exposure-us", "500"];
+        all.extend_from_slice(args);
+        emulated_capture(&dir.join(name), &all);
+        dir.join(name).display().to_string()
+    };
+    let dark = window(
+        "dark",
+        &["--config", &empty, "--mode", "4phase-grey", "--count", "8"],
+    );
+    let none = window(
+        "none",
+        &[
+            "--config",
+            &empty,
+            "--mode",
+            "4phase",
+            "--count",
+            "4",
+            "--condition",
+            "no_target=1",
+        ],
+    );
+    // the wiggling table holds the global delay: with it the window's return lands at ≈ 0 mm
+    let wall = repo("calib/phone/wall-1m.toml");
+    let corr = dir.join("corr");
+    emulated_capture(
+        &corr,
+        &[
+            "--window",
+            "80,8",
+            "--exposure-us",
+            "2000",
+            "--config",
+            &wall,
+            "--mode",
+            "correlation24",
+        ],
+    );
+    let corr = corr.display().to_string();
+    let cal = dir.join("cal").display().to_string();
+    for (what, rec) in [("fpn", &dark), ("crosstalk", &none), ("wiggling", &corr)] {
+        let o = run(&["calibrate", what, rec, "--out", &cal]);
+        assert!(o.status.success(), "{what}: {}", text(&o.stderr));
+    }
+    let o = run(&["info", &cal, "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let x = &v["parts"]["crosstalk"];
+    assert_eq!(x["sha256"].as_str().map(str::len), Some(64), "{v}");
+    // typical window: 20 e-/µs × K 0.8 × 3 LSB/ke ≈ 0.048 LSB/µs (× PRNU/vignetting)
+    let mean_abs = x["max"].as_f64().unwrap().max(-x["min"].as_f64().unwrap());
+    assert!((0.02..0.1).contains(&mean_abs), "{x}");
+
+    // the same window, nothing in range, and the window smudged (crosstalk doubled)
+    let smudged_cfg = dir.join("smudged.toml");
+    std::fs::write(
+        &smudged_cfg,
+        std::fs::read_to_string(&empty)
+            .unwrap()
+            .replace("smudge_rel = 0.0", "smudge_rel = 1.0")
+            .replace("\"../../config/", &format!("\"{}/", repo("config"))),
+    )
+    .unwrap();
+    let smudged = window(
+        "smudged",
+        &[
+            "--config",
+            smudged_cfg.to_str().unwrap(),
+            "--mode",
+            "2phase",
+            "--count",
+            "2",
+        ],
+    );
+    let clean = window(
+        "clean",
+        &["--config", &empty, "--mode", "2phase", "--count", "2"],
+    );
+    let residual = |rec: &str| -> Vec<f64> {
+        let o = run(&[
+            "process",
+            rec,
+            "--calib",
+            &cal,
+            "--algo",
+            "2phase",
+            "--json",
+            "--out",
+            &dir.join("out").display().to_string(),
+        ]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+            .lines()
+            .map(|l| {
+                serde_json::from_str::<serde_json::Value>(l).unwrap()["crosstalk_residual"]
+                    .as_f64()
+                    .unwrap()
+            })
+            .collect()
+    };
+    assert!(
+        residual(&clean).iter().all(|r| r.abs() < 0.2),
+        "{:?}",
+        residual(&clean)
+    );
+    assert!(
+        residual(&smudged).iter().all(|r| (r - 1.0).abs() < 0.2),
+        "{:?}",
+        residual(&smudged)
+    );
+
+    // a crosstalk from another window of the array is refused for this set
+    let other = dir.join("other");
+    let mut all = vec!["--window", "40,8", "--exposure-us", "500"];
+    all.extend_from_slice(&[
+        "--config",
+        &empty,
+        "--mode",
+        "4phase",
+        "--condition",
+        "no_target=1",
+    ]);
+    emulated_capture(&other, &all);
+    let o = run(&[
+        "calibrate",
+        "crosstalk",
+        other.to_str().unwrap(),
+        "--out",
+        &cal,
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("roi_origin"),
+        "{}",
+        text(&o.stderr)
+    );
+}

@@ -448,6 +448,7 @@ impl<S: FrameSource> Controller<S> {
                     min_amp,
                     Mode::TwoPhase,
                     g,
+                    cycle.capture.exposure_us,
                 )?;
                 let f = process_images(p, frames, 2)?;
                 roi_median_mm(f, roi)
@@ -458,6 +459,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::FourPhase,
                 g,
+                cycle.capture.exposure_us,
             )?;
             let f4 = process_images(p4, frames, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
@@ -472,6 +474,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::TwoPhase,
                 g,
+                cycle.capture.exposure_us,
             )?,
             Mode::FourPhase => pipeline_slot(
                 &mut self.pipe4,
@@ -479,6 +482,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::FourPhase,
                 g,
+                cycle.capture.exposure_us,
             )?,
         };
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
@@ -767,6 +771,7 @@ fn pipeline_slot<'a>(
     min_amplitude_lsb: f32,
     mode: Mode,
     g: SensorGeometry,
+    exposure_us: f64,
 ) -> Result<&'a mut Pipeline, SourceError> {
     if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
         let calib = crop_calibration(full, g)
@@ -783,7 +788,13 @@ fn pipeline_slot<'a>(
         *slot = Some((g, p));
     }
     match slot {
-        Some((_, p)) => Ok(p),
+        Some((_, p)) => {
+            // scales the crosstalk calibration (if any) to this cycle's exposure
+            p.set_exposure_us(exposure_us).map_err(|e| {
+                SourceError::new(SourceErrorKind::CorruptFrame, format!("pipeline: {e}"))
+            })?;
+            Ok(p)
+        }
         None => Err(SourceError::new(SourceErrorKind::Other, "pipeline missing")),
     }
 }
@@ -863,6 +874,15 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
     }
     if let Some(f) = &mut out.fppn {
         f.phase_offset_rad = crop(&f.phase_offset_rad, "fppn")?;
+    }
+    if let Some(x) = &mut out.crosstalk {
+        let planes = x
+            .lsb_per_us
+            .outer_iter()
+            .map(|p| crop(&p.to_owned(), "crosstalk"))
+            .collect::<Result<Vec<_>, _>>()?;
+        let views: Vec<_> = planes.iter().map(|p| p.view()).collect();
+        x.lsb_per_us = ndarray::stack(Axis(0), &views).map_err(|e| format!("crosstalk: {e}"))?;
     }
     Ok(out)
 }

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use tofprox_model::SceneScript;
+use tofprox_model::{CoverWindow, SceneScript};
 
 use crate::error::{BridgeError, ErrorKind};
 use crate::protocol::ProtocolConfig;
@@ -264,6 +264,11 @@ pub struct EmulatedConfig {
     /// Scene script in front of the sensor (tofprox-model `SceneScript`:
     /// `kind = "wall" | "hand" | "face"`, distances, period).
     pub scene: SceneScript,
+    /// The cover window in front of the sensor (tofprox-model `CoverWindow`):
+    /// enables the model's `cover_window_crosstalk` effect with these
+    /// parameters (clean or smudged); unset: as the model file says. Only the
+    /// `model` frame source renders it.
+    pub cover_window: Option<CoverWindow>,
     /// Ambient light, klux (model input).
     pub ambient_klux: f64,
     /// Sensor temperature, °C (model input).
@@ -283,6 +288,7 @@ impl Default for EmulatedConfig {
             timing: TimingModel::default(),
             frame_source: FrameSource::Model,
             scene: SceneScript::wall(1.0),
+            cover_window: None,
             ambient_klux: 0.0,
             temperature_c: 25.0,
             faults: FaultConfig::default(),
@@ -355,6 +361,10 @@ impl EmulatedConfig {
             .validate()
             .map_err(|e| BridgeError::with_source(ErrorKind::Config, "scene", e))?;
         self.faults.validate()?;
+        if let Some(w) = &self.cover_window {
+            w.apply(&mut tofprox_model::ModelConfig::ideal())
+                .map_err(|e| BridgeError::with_source(ErrorKind::Config, "cover_window", e))?;
+        }
         if !(4096..=(64 << 20)).contains(&self.flash_size_bytes)
             || !self.flash_size_bytes.is_multiple_of(4096)
         {

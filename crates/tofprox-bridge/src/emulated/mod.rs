@@ -128,7 +128,7 @@ impl EmulatedDevice {
         let synth: Box<dyn FrameSynth> = match cfg.frame_source {
             FrameSource::Ideal => Box::new(IdealSynth::new(geom, cfg.scene.clone(), seed)),
             FrameSource::Model => {
-                let model = match &cfg.model {
+                let mut model = match &cfg.model {
                     Some(p) => tofprox_model::ModelConfig::load(p).map_err(|e| {
                         BridgeError::with_source(
                             ErrorKind::Config,
@@ -138,6 +138,11 @@ impl EmulatedDevice {
                     })?,
                     None => tofprox_model::ModelConfig::baseline(),
                 };
+                if let Some(w) = &cfg.cover_window {
+                    w.apply(&mut model).map_err(|e| {
+                        BridgeError::with_source(ErrorKind::Config, "cover_window", e)
+                    })?;
+                }
                 Box::new(ModelSynth::new(
                     model,
                     geom,

@@ -116,7 +116,11 @@ fn save_load_roundtrip() {
     assert_eq!(l.validity, s.validity);
     assert_eq!(l.sources[&CalibPart::Fppn].captures, vec![0, 2]);
     assert_eq!(l.sources[&CalibPart::Wiggling2Phase].distance_m, Some(0.5));
-    assert_eq!(l.parts(), CalibPart::ALL.to_vec());
+    let without_crosstalk: Vec<CalibPart> = CalibPart::ALL
+        .into_iter()
+        .filter(|p| *p != CalibPart::Crosstalk)
+        .collect();
+    assert_eq!(l.parts(), without_crosstalk);
     let c = l.to_pipeline_calibration(Algorithm::TwoPhase);
     assert_eq!(c.wiggling.unwrap().algorithm, Algorithm::TwoPhase);
     assert_eq!(
@@ -382,4 +386,102 @@ fn replacing_the_lens_drops_what_was_extracted_through_it() {
     };
     let e = s.set_intrinsics(folding, src("bad")).unwrap_err();
     assert!(e.to_string().contains("intrinsics"), "{e}");
+fn crosstalk(v: f32) -> CrosstalkCalibration {
+    CrosstalkCalibration {
+        lsb_per_us: ndarray::Array3::from_shape_fn((4, 3, 4), |(k, r, c)| {
+            v * [1.0, 0.3, -1.0, -0.3][k] * (1.0 + 0.1 * (r + c) as f32)
+        }),
+    }
+}
+
+#[test]
+fn crosstalk_part_roundtrips_checksummed_and_refuses_other_setups() {
+    let t = tempfile::tempdir().unwrap();
+    let mut s = full_set();
+    assert!(
+        s.set_crosstalk(crosstalk(0.05), src("empty"))
+            .unwrap()
+            .is_empty(),
+        "wiggling/FPPN extracted without a crosstalk (a module calibrated before it was built in) stay"
+    );
+    s.save(t.path()).unwrap();
+    let l = CalibrationSet::load(t.path()).unwrap();
+    assert_eq!(l.crosstalk, s.crosstalk);
+    assert!(l.parts().contains(&CalibPart::Crosstalk));
+    assert_eq!(
+        l.to_pipeline_calibration(Algorithm::TwoPhase).crosstalk,
+        s.crosstalk
+    );
+    let text = fs::read_to_string(t.path().join(CALIBRATION_TOML)).unwrap();
+    assert!(
+        text.contains("[crosstalk]") && text.contains("shape = [4, 3, 4]"),
+        "{text}"
+    );
+    // the set's validity covers it: another frequency or window is refused
+    for edit in [
+        |s: &mut SensorInfo| s.modulation_hz = 60e6,
+        |s: &mut SensorInfo| s.roi_origin = [0, 0],
+        |s: &mut SensorInfo| s.adc_bits = 10,
+    ] {
+        let mut other = sensor();
+        edit(&mut other);
+        let e = l.check_compatible(&other).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Incompatible, "{e}");
+    }
+    // a crosstalk of another window size is refused when building, naming the part
+    let mut s2 = CalibrationSet::new(&sensor());
+    let bad = CrosstalkCalibration {
+        lsb_per_us: ndarray::Array3::zeros((4, 4, 3)),
+    };
+    let e = s2.set_crosstalk(bad, src("x")).unwrap_err();
+    assert_eq!(e.key_name(), Some("crosstalk"), "{e}");
+    // a modified array is refused by its checksum
+    let f = t.path().join("crosstalk.npy");
+    let mut bytes = fs::read(&f).unwrap();
+    let n = bytes.len();
+    bytes[n - 1] ^= 0x40;
+    fs::write(&f, bytes).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Checksum, "{e}");
+}
+
+#[test]
+fn parts_extracted_with_a_crosstalk_are_dropped_when_it_is_replaced() {
+    let mut s = CalibrationSet::new(&sensor());
+    s.set_offset(offset(2000.0), src("dark")).unwrap();
+    s.set_crosstalk(crosstalk(0.05), src("empty")).unwrap();
+    s.set_wiggling(lut(Algorithm::TwoPhase, 64, 0.05), src("corr"))
+        .unwrap();
+    s.set_fppn_for(Algorithm::TwoPhase, fppn2(), src("flat"))
+        .unwrap();
+    // a new offset drops the crosstalk (extracted against the old dark frame) and what follows
+    let mut o = s.clone();
+    let dropped = o.set_offset(offset(2001.0), src("dark2")).unwrap();
+    assert!(dropped.contains(&CalibPart::Crosstalk), "{dropped:?}");
+    // a new crosstalk drops the wiggling and FPPN extracted with the old one subtracted
+    let dropped = s.set_crosstalk(crosstalk(0.1), src("empty2")).unwrap();
+    assert_eq!(
+        dropped,
+        vec![CalibPart::Wiggling2Phase, CalibPart::Fppn2Phase]
+    );
+    // and a file whose wiggling names another crosstalk is refused naming it
+    let t = tempfile::tempdir().unwrap();
+    let mut s = CalibrationSet::new(&sensor());
+    s.set_offset(offset(2000.0), src("dark")).unwrap();
+    s.set_crosstalk(crosstalk(0.05), src("empty")).unwrap();
+    s.set_wiggling(lut(Algorithm::TwoPhase, 64, 0.05), src("corr"))
+        .unwrap();
+    s.save(t.path()).unwrap();
+    let p = t.path().join(CALIBRATION_TOML);
+    let text = fs::read_to_string(&p).unwrap();
+    let sum = s.checksum(CalibPart::Crosstalk).unwrap();
+    let i = text.find("[wiggling_2phase]").unwrap();
+    let (head, tail) = text.split_at(i);
+    fs::write(
+        &p,
+        format!("{head}{}", tail.replacen(&sum, &"0".repeat(64), 1)),
+    )
+    .unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert!(e.to_string().contains("crosstalk"), "{e}");
 }

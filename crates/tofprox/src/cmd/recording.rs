@@ -18,8 +18,10 @@ use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
 use tofprox_core::camera::{Intrinsics, SweepCapture, calibrate_intrinsics};
+use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk, residual_ratio};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_core::proximity::Roi;
 use tofprox_core::radiometry::{
     AmplitudeScale, DEFAULT_CALIBRATION_REFLECTIVITY, expected_amplitude_lsb,
 };
@@ -53,9 +55,15 @@ pub enum CalibKind {
     Wiggling,
     /// Per-pixel phase offsets from a flat-target 4-phase capture with distance_m.
     Fppn,
+    /// Cover-window crosstalk from illuminated captures with nothing in range
+    /// (conditions.no_target = 1), per raw image and µs of exposure.
+    Crosstalk,
 }
 
-/// `tofprox calibrate intrinsics|fpn|wiggling|fppn REC --out CALIB`
+/// Condition key marking a capture with nothing in range (crosstalk calibration).
+pub const NO_TARGET_CONDITION: &str = "no_target";
+
+/// `tofprox calibrate intrinsics|fpn|crosstalk|wiggling|fppn REC --out CALIB`
 #[derive(clap::Args, Debug)]
 pub struct CalibrateArgs {
     /// Which calibration to extract.
@@ -392,6 +400,16 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
                 ),
                 "LSB·m²/µs",
             ),
+            CalibPart::Crosstalk => (
+                "crosstalk",
+                stats(
+                    &mut set
+                        .crosstalk
+                        .iter()
+                        .flat_map(|x| x.lsb_per_us.iter().copied()),
+                ),
+                "LSB/us",
+            ),
             CalibPart::Fppn | CalibPart::Fppn2Phase => (
                 "phase offset",
                 stats(
@@ -572,6 +590,21 @@ fn need_distance(c: &CaptureMeta) -> Result<f64, String> {
     }
 }
 
+/// The capture's codes with the set's cover-window crosstalk subtracted (unchanged without one),
+/// so wiggling and FPPN extracted behind a cover window do not absorb it.
+fn without_crosstalk(
+    set: &CalibrationSet,
+    mut data: Array3<f64>,
+    c: &CaptureMeta,
+) -> anyhow::Result<Array3<f64>> {
+    if let Some(x) = &set.crosstalk {
+        eprintln!("note: subtracting the set's cover-window crosstalk before the extraction");
+        x.subtract_from(data.view_mut(), &c.phases_deg, c.exposure_us)
+            .context("subtracting the crosstalk")?;
+    }
+    Ok(data)
+}
+
 pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
     let sensor = *rec.sensor();
@@ -683,7 +716,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                     Ok(())
                 },
             )?;
-            let data = rec.load(i)?.to_f64();
+            let data = without_crosstalk(&set, rec.load(i)?.to_f64(), c)?;
             if set.offset.is_none() {
                 eprintln!(
                     "note: no offset (FPN) in the calibration set: the wiggling tables are extracted with the mid code subtracted; run `tofprox calibrate fpn` first for the best 2-phase result"
@@ -776,7 +809,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
                     Ok(())
                 },
             )?;
-            let data = rec.load(i)?.to_f64();
+            let data = without_crosstalk(&set, rec.load(i)?.to_f64(), c)?;
             let mm_per_rad =
                 1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
             let rays = set.rays().transpose()?;
@@ -826,6 +859,78 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             }
             dropped
         }
+        CalibKind::Crosstalk => {
+            let caps = rec.captures();
+            let idx: Vec<usize> = match a.capture {
+                Some(i) => vec![pick_capture(
+                    &rec,
+                    Some(i),
+                    "a capture with nothing in range",
+                    |c| {
+                        if c.illumination {
+                            Ok(())
+                        } else {
+                            Err("it is a dark capture (illumination = false)".into())
+                        }
+                    },
+                )?],
+                None => (0..caps.len())
+                    .filter(|&i| {
+                        caps[i].illumination
+                            && caps[i]
+                                .conditions
+                                .get(NO_TARGET_CONDITION)
+                                .is_some_and(|v| *v >= 0.5)
+                    })
+                    .collect(),
+            };
+            if idx.is_empty() {
+                bail!(
+                    "{} has no illuminated capture with nothing in range (conditions.{NO_TARGET_CONDITION} = 1) to extract the crosstalk from; mark one or pass --capture",
+                    a.recording.display()
+                );
+            }
+            if set.offset.is_none() {
+                eprintln!(
+                    "note: no offset (FPN) in the calibration set: the crosstalk is measured against the mid code; run `tofprox calibrate fpn` first"
+                );
+            }
+            let data: Vec<Array3<f64>> = idx
+                .iter()
+                .map(|&i| rec.load(i).map(|f| f.to_f64()))
+                .collect::<Result<_, _>>()?;
+            let captures: Vec<CrosstalkCapture<'_>> = idx
+                .iter()
+                .zip(&data)
+                .map(|(&i, d)| CrosstalkCapture {
+                    codes: d.view(),
+                    phases_deg: &caps[i].phases_deg,
+                    exposure_us: caps[i].exposure_us,
+                })
+                .collect();
+            let x = extract_crosstalk(&captures, set.offset.as_ref(), sensor.adc_bits)
+                .with_context(|| format!("extracting the crosstalk from captures {idx:?}"))?;
+            let roi = Roi::default();
+            let amp = x.mean_amplitude_lsb(Algorithm::TwoPhase, roi, 1.0);
+            let (px, py) = (0..x.lsb_per_us.dim().1)
+                .flat_map(|r| (0..x.lsb_per_us.dim().2).map(move |c| (r, c)))
+                .map(|(r, c)| x.phasor_per_us(Algorithm::TwoPhase, r, c))
+                .fold((0.0f64, 0.0f64), |(a, b), (p, q)| {
+                    (a + f64::from(p), b + f64::from(q))
+                });
+            let phase = py.atan2(px).rem_euclid(std::f64::consts::TAU);
+            let mm_per_rad =
+                1000.0 * unambiguous_range_m(sensor.modulation_hz) / std::f64::consts::TAU;
+            report.push(format!(
+                "crosstalk: {} capture(s) with nothing in range, mean amplitude {:.4} LSB/µs in the central ROI ({:.1} LSB at 500 µs), mean phase {:.3} rad ({:.0} mm before the wiggling/delay correction)",
+                idx.len(),
+                amp,
+                500.0 * amp,
+                phase,
+                phase * mm_per_rad
+            ));
+            set.set_crosstalk(x, source(&rec, &a.recording, idx, None))?
+        }
     };
     for p in &dropped {
         eprintln!(
@@ -833,6 +938,7 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
             match p {
                 CalibPart::Intrinsics => "intrinsics",
                 CalibPart::Offset => "fpn",
+                CalibPart::Crosstalk => "crosstalk",
                 CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
                 CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
                 CalibPart::Amplitude => "wiggling",
@@ -1077,6 +1183,12 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     }
     for &i in &todo {
         let raw = rec.load(i)?;
+        let crosstalk = pipeline.calibration().crosstalk.clone();
+        if crosstalk.is_some() {
+            pipeline
+                .set_exposure_us(caps[i].exposure_us)
+                .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
+        }
         let t0 = Instant::now();
         let frame = match &raw {
             RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
@@ -1087,6 +1199,11 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         let process_us = t0.elapsed().as_secs_f64() * 1e6;
         let median = frame.median_valid_depth_m();
         let valid = frame.valid_fraction();
+        // what is left of the cover-window crosstalk relative to the calibrated one
+        // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
+        let crosstalk_residual = crosstalk
+            .as_ref()
+            .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
         let depth_mm = frame.depth_mm.clone();
         let amplitude = frame.amplitude_lsb.clone();
         let stem = format!("{i:06}");
@@ -1106,7 +1223,7 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         let truth = caps[i].distance_m();
         let error_mm = truth.zip(median).map(|(t, m)| (m - t) * 1000.0);
         if a.json {
-            let line = json!({
+            let mut line = json!({
                 "index": i,
                 // micrometre resolution: the f32 depth carries no more
                 "distance_m": truth,
@@ -1115,6 +1232,10 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
                 "valid_fraction": valid,
                 "process_us": (process_us * 10.0).round() / 10.0,
             });
+            // only with a crosstalk calibration
+            if let (Some(r), Some(o)) = (crosstalk_residual, line.as_object_mut()) {
+                o.insert("crosstalk_residual".into(), json!(r));
+            }
             writeln!(out, "{line}").context("writing to stdout")?;
         } else {
             let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));

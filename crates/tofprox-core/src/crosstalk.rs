@@ -1,0 +1,520 @@
+//! Cover-window crosstalk: extraction, compensation constants and change detection.
+//!
+//! The cover window in front of emitter and lens reflects part of the illumination straight
+//! back into the pixels. Every return adds its phasor to the raw images (2.2.1, eq. 2.2/2.3); the
+//! window's return does not depend on the scene and scales with exposure and illumination power,
+//! so per pixel and raw image it is a constant rate of ADC codes per µs of exposure. Measured once
+//! with nothing in range ([`extract_crosstalk`]), it is subtracted from the raw codes before phase
+//! and amplitude (the pipeline's offset stage, [`crate::pipeline::Calibration::crosstalk`]) — the
+//! stray-light correction step of the thesis's processing chain (3.1, fig. 3.1).
+//!
+//! A smudge on the window changes the crosstalk after calibration. What is left after the
+//! compensation then shows up in readings with nothing in range as a phasor at ≈ zero distance;
+//! [`residual_ratio`] measures it relative to the calibrated crosstalk and [`CrosstalkMonitor`]
+//! turns a persistent change into a typed [`CrosstalkStatus`].
+
+use crate::calib::OffsetCalibration;
+use crate::pipeline::{DepthFrame, FLAG_NON_FINITE, FLAG_SATURATED};
+use crate::proximity::Roi;
+use crate::{Algorithm, CoreError};
+use ndarray::{Array3, ArrayView3, Axis};
+
+/// Phase shifts (degrees) of the raw images a [`CrosstalkCalibration`] holds, in order: the
+/// images the 2-phase (first two) and 4-phase evaluations use.
+pub const CROSSTALK_PHASES_DEG: [f64; 4] = [0.0, 90.0, 180.0, 270.0];
+
+/// Per-pixel cover-window crosstalk of each raw image, in ADC codes per µs of exposure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CrosstalkCalibration {
+    /// Shape `(4, rows, cols)`: the code the window's return adds to the raw image at
+    /// [`CROSSTALK_PHASES_DEG`]`[k]`, per µs of exposure, above the dark level.
+    pub lsb_per_us: Array3<f32>,
+}
+
+/// One capture with nothing in range, for [`extract_crosstalk`].
+#[derive(Debug, Clone, Copy)]
+pub struct CrosstalkCapture<'a> {
+    /// Raw codes `(K, rows, cols)`, illuminated.
+    pub codes: ArrayView3<'a, f64>,
+    /// Phase shift of each raw image, degrees.
+    pub phases_deg: &'a [f64],
+    /// Exposure per raw image, µs.
+    pub exposure_us: f64,
+}
+
+fn same_phase(a: f64, b: f64) -> bool {
+    let d = (a - b).rem_euclid(360.0);
+    a.is_finite() && d.min(360.0 - d) < 1e-6
+}
+
+/// Extracts the crosstalk from illuminated captures with nothing in range (a black absorber, the
+/// sky, a room much farther than the illumination reaches).
+///
+/// Per pixel and phase θ ∈ [`CROSSTALK_PHASES_DEG`]: `u = code − dark` (the offset's dark frame,
+/// or the mid code `2^(adc_bits−1)` without one) of every image taken at θ, fitted through the
+/// origin over the exposures, `b = Σ t·u / Σ t²` (the window's return is ∝ exposure). An image at
+/// θ + 180° stands in for a missing θ with its sign flipped (the correlation's fundamental and odd
+/// harmonics are antisymmetric: `C(x + π) = −C(x)`), so 2-phase captures `[0°, 90°]` suffice.
+///
+/// Errors: no captures, shapes that differ, a non-positive exposure, non-finite codes, a code at
+/// a rail (something in range saturates: not a crosstalk capture), or neither θ nor θ + 180° for
+/// some θ.
+pub fn extract_crosstalk(
+    captures: &[CrosstalkCapture<'_>],
+    offset: Option<&OffsetCalibration>,
+    adc_bits: u8,
+) -> Result<CrosstalkCalibration, CoreError> {
+    let first = captures
+        .first()
+        .ok_or_else(|| CoreError::InvalidData("no crosstalk capture".into()))?;
+    let (_, rows, cols) = first.codes.dim();
+    if !(1..=16).contains(&adc_bits) {
+        return Err(CoreError::param(
+            "adc_bits",
+            format!("must be 1..=16, got {adc_bits}"),
+        ));
+    }
+    let rail = f64::from((1u32 << adc_bits) - 1);
+    let mid = f64::from(1u32 << (adc_bits - 1));
+    if let Some(o) = offset
+        && o.dark_lsb.dim() != (rows, cols)
+    {
+        return Err(CoreError::shape(
+            "offset calibration",
+            format!("({rows}, {cols})"),
+            format!("{:?}", o.dark_lsb.dim()),
+        ));
+    }
+    // Σ t·u and Σ t² per phase slot; u enters with the sign of its slot (θ or θ + 180°)
+    let mut num = Array3::<f64>::zeros((4, rows, cols));
+    let mut den = [0.0f64; 4];
+    for c in captures {
+        let (k, r, cc) = c.codes.dim();
+        if (r, cc) != (rows, cols) || k != c.phases_deg.len() || k == 0 {
+            return Err(CoreError::shape(
+                "crosstalk capture",
+                format!("(K = {} phases, {rows}, {cols})", c.phases_deg.len()),
+                format!("{:?}", c.codes.dim()),
+            ));
+        }
+        if !(c.exposure_us.is_finite() && c.exposure_us > 0.0) {
+            return Err(CoreError::param(
+                "exposure_us",
+                format!("must be finite and > 0, got {}", c.exposure_us),
+            ));
+        }
+        if let Some(v) = c.codes.iter().find(|v| !v.is_finite()) {
+            return Err(CoreError::InvalidData(format!(
+                "crosstalk capture holds {v}"
+            )));
+        }
+        if c.codes.iter().any(|&v| v <= 0.0 || v >= rail) {
+            return Err(CoreError::InvalidData(
+                "crosstalk capture has codes at a rail: something in range saturates (captures for the crosstalk need nothing in range)".into(),
+            ));
+        }
+        let t = c.exposure_us;
+        for (img, &ph) in c.codes.axis_iter(Axis(0)).zip(c.phases_deg) {
+            for (slot, &want) in CROSSTALK_PHASES_DEG.iter().enumerate() {
+                let sign = if same_phase(ph, want) {
+                    1.0
+                } else if same_phase(ph, want + 180.0) {
+                    -1.0
+                } else {
+                    continue;
+                };
+                let mut acc = num.index_axis_mut(Axis(0), slot);
+                match offset {
+                    Some(o) => ndarray::Zip::from(&mut acc)
+                        .and(&img)
+                        .and(&o.dark_lsb)
+                        .for_each(|a, &v, &d| *a += sign * t * (v - f64::from(d))),
+                    None => acc.zip_mut_with(&img, |a, &v| *a += sign * t * (v - mid)),
+                }
+                den[slot] += t * t;
+            }
+        }
+    }
+    let mut out = Array3::<f32>::zeros((4, rows, cols));
+    for (slot, d) in den.iter().enumerate() {
+        if *d <= 0.0 {
+            let phases: Vec<f64> = captures
+                .iter()
+                .flat_map(|c| c.phases_deg.iter().copied())
+                .collect();
+            return Err(CoreError::InvalidPhases {
+                phases_deg: phases,
+                reason: format!(
+                    "the crosstalk needs images at {}° or {}°",
+                    CROSSTALK_PHASES_DEG[slot],
+                    CROSSTALK_PHASES_DEG[slot] + 180.0
+                ),
+            });
+        }
+        out.index_axis_mut(Axis(0), slot)
+            .zip_mut_with(&num.index_axis(Axis(0), slot), |o, &n| {
+                *o = (n / d) as f32;
+            });
+    }
+    Ok(CrosstalkCalibration { lsb_per_us: out })
+}
+
+impl CrosstalkCalibration {
+    /// Checks the shape `(4, rows, cols)` and that every value is finite.
+    pub fn validate(&self, rows: usize, cols: usize) -> Result<(), CoreError> {
+        if self.lsb_per_us.dim() != (4, rows, cols) {
+            return Err(CoreError::shape(
+                "crosstalk calibration (lsb_per_us)",
+                format!("(4, {rows}, {cols})"),
+                format!("{:?}", self.lsb_per_us.dim()),
+            ));
+        }
+        if self.lsb_per_us.iter().any(|v| !v.is_finite()) {
+            return Err(CoreError::Calibration(
+                "crosstalk calibration contains non-finite values".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The crosstalk code per µs of pixel `(row, col)` in a raw image at phase shift `theta_deg`:
+    /// the stored value at 0°/90°/180°/270°, elsewhere the first harmonic through them,
+    /// `c + x cos θ + y sin θ` with `x = (v0 − v180)/2`, `y = (v90 − v270)/2`, `c` their mean.
+    pub fn lsb_per_us_at(&self, theta_deg: f64, row: usize, col: usize) -> f64 {
+        let v = |k: usize| f64::from(self.lsb_per_us.get((k, row, col)).copied().unwrap_or(0.0));
+        if let Some(k) = CROSSTALK_PHASES_DEG
+            .iter()
+            .position(|&p| same_phase(theta_deg, p))
+        {
+            return v(k);
+        }
+        let (x, y) = (0.5 * (v(0) - v(2)), 0.5 * (v(1) - v(3)));
+        let c = 0.25 * (v(0) + v(1) + v(2) + v(3));
+        let th = theta_deg.to_radians();
+        c + x * th.cos() + y * th.sin()
+    }
+
+    /// Subtract the crosstalk of a capture `(K, rows, cols)` taken at `phases_deg` with
+    /// `exposure_us` (before extracting wiggling or FPPN from a capture behind the window).
+    pub fn subtract_from(
+        &self,
+        mut codes: ndarray::ArrayViewMut3<'_, f64>,
+        phases_deg: &[f64],
+        exposure_us: f64,
+    ) -> Result<(), CoreError> {
+        let (k, rows, cols) = codes.dim();
+        if k != phases_deg.len() {
+            return Err(CoreError::shape(
+                "capture",
+                format!("({} phases, rows, cols)", phases_deg.len()),
+                format!("{:?}", codes.dim()),
+            ));
+        }
+        self.validate(rows, cols)?;
+        for (mut img, &th) in codes.axis_iter_mut(Axis(0)).zip(phases_deg) {
+            for ((r, c), v) in img.indexed_iter_mut() {
+                *v -= self.lsb_per_us_at(th, r, c) * exposure_us;
+            }
+        }
+        Ok(())
+    }
+
+    /// The crosstalk phasor `(x, y)` per µs of pixel `i` (row-major) as the pipeline's
+    /// `algorithm` sees it: 2-phase `(u0, u90)`, 4-phase `((u0 − u180)/2, (u90 − u270)/2)` — so
+    /// its length is in the units of [`DepthFrame::amplitude_lsb`] per µs (eq. 2.4).
+    pub fn phasor_per_us(&self, algorithm: Algorithm, row: usize, col: usize) -> (f32, f32) {
+        let v = |k: usize| self.lsb_per_us.get((k, row, col)).copied().unwrap_or(0.0);
+        match algorithm {
+            Algorithm::TwoPhase => (v(0), v(1)),
+            Algorithm::FourPhase => (0.5 * (v(0) - v(2)), 0.5 * (v(1) - v(3))),
+        }
+    }
+
+    /// Mean crosstalk amplitude over `roi` of a `rows × cols` frame at `exposure_us`, in the
+    /// units of [`DepthFrame::amplitude_lsb`] (0 for an empty ROI).
+    pub fn mean_amplitude_lsb(&self, algorithm: Algorithm, roi: Roi, exposure_us: f64) -> f32 {
+        let (_, rows, cols) = self.lsb_per_us.dim();
+        let r = roi.resolve(rows, cols);
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for row in r.row0..r.row0 + r.rows {
+            for col in r.col0..r.col0 + r.cols {
+                let (x, y) = self.phasor_per_us(algorithm, row, col);
+                sum += f64::from(x.hypot(y));
+                n += 1;
+            }
+        }
+        if n == 0 {
+            0.0
+        } else {
+            (sum / n as f64 * exposure_us) as f32
+        }
+    }
+}
+
+/// The crosstalk left in a frame, relative to the calibrated one: `Σ A cos φ / Σ |X| t` over the
+/// ROI's unsaturated, finite pixels, with `A`, `φ` the frame's amplitude and corrected phase and
+/// `|X| t` the calibrated crosstalk amplitude at `exposure_us`.
+///
+/// With a wiggling table (which holds the global delay of driver and cabling, 3.3.7.2) the
+/// pipeline maps the window's return to ≈ zero distance (phase ≈ 4π f d_w / c ≈ 0), so what
+/// remains of it after compensation projects fully onto `cos φ` (without one the global delay
+/// stays in φ and the ratio shrinks by `cos φ_delay`): ≈ 0 with the window as
+/// calibrated, ≈ 1 when a smudge has doubled the crosstalk, ≈ −0.5 when the crosstalk halved.
+/// **Only meaningful for readings with nothing in range**: a target adds `A_t cos φ_t` (a wall
+/// beyond the range whose phase wraps to a few cm looks like crosstalk). `None` when the ROI has
+/// no usable pixel or the calibrated crosstalk is zero there.
+pub fn residual_ratio(
+    frame: &DepthFrame,
+    calibration: &CrosstalkCalibration,
+    algorithm: Algorithm,
+    roi: Roi,
+    exposure_us: f64,
+) -> Option<f32> {
+    let (rows, cols) = frame.dim();
+    if calibration.lsb_per_us.dim() != (4, rows, cols) || !(exposure_us.is_finite()) {
+        return None;
+    }
+    let r = roi.resolve(rows, cols);
+    let (mut proj, mut reference) = (0.0f64, 0.0f64);
+    for row in r.row0..r.row0 + r.rows {
+        for col in r.col0..r.col0 + r.cols {
+            let flags = frame
+                .flags
+                .get((row, col))
+                .copied()
+                .unwrap_or(FLAG_NON_FINITE);
+            if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
+                continue;
+            }
+            let a = frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0);
+            let ph = frame.phase_rad.get((row, col)).copied().unwrap_or(0.0);
+            let (x, y) = calibration.phasor_per_us(algorithm, row, col);
+            proj += f64::from(a) * f64::from(ph).cos();
+            reference += f64::from(x.hypot(y)) * exposure_us;
+        }
+    }
+    (reference > 0.0).then(|| (proj / reference) as f32)
+}
+
+/// What [`CrosstalkMonitor`] concludes about the cover window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CrosstalkStatus {
+    /// No crosstalk calibration: nothing is compensated, nothing monitored.
+    Uncalibrated,
+    /// Too few readings with nothing in range yet.
+    Unknown,
+    /// The crosstalk is as calibrated (`residual_ratio`: the smoothed residual / calibrated).
+    AsCalibrated {
+        /// Smoothed residual relative to the calibrated crosstalk.
+        residual_ratio: f32,
+    },
+    /// The crosstalk changed since calibration: above +threshold a smudge or a new cover (more
+    /// crosstalk), below −threshold a cleaned window (less). Recalibrate
+    /// (`tofprox calibrate crosstalk`) or clean the window.
+    Changed {
+        /// Smoothed residual relative to the calibrated crosstalk (+1: doubled).
+        residual_ratio: f32,
+    },
+}
+
+impl CrosstalkStatus {
+    /// A one-line description for logs and the daemon's `LastError`/status.
+    pub fn message(&self) -> String {
+        match self {
+            CrosstalkStatus::Uncalibrated => "no crosstalk calibration".into(),
+            CrosstalkStatus::Unknown => "crosstalk not checked yet".into(),
+            CrosstalkStatus::AsCalibrated { residual_ratio } => format!(
+                "cover-window crosstalk as calibrated (residual {:+.0} %)",
+                100.0 * residual_ratio
+            ),
+            CrosstalkStatus::Changed { residual_ratio } => format!(
+                "cover-window crosstalk changed by {:+.0} % since calibration ({}); clean the window or run `tofprox calibrate crosstalk`",
+                100.0 * residual_ratio,
+                if *residual_ratio > 0.0 {
+                    "smudged or another cover"
+                } else {
+                    "cleaner than when calibrated"
+                }
+            ),
+        }
+    }
+}
+
+/// Turns per-reading [`residual_ratio`]s (of readings with nothing in range) into a status: an
+/// exponential average with weight `1/readings`, [`CrosstalkStatus::Changed`] once the average's
+/// magnitude reaches `threshold`, back to [`CrosstalkStatus::AsCalibrated`] below `threshold / 2`
+/// (hysteresis), [`CrosstalkStatus::Unknown`] before `readings` updates.
+#[derive(Debug, Clone)]
+pub struct CrosstalkMonitor {
+    threshold: f32,
+    readings: u32,
+    seen: u32,
+    average: f32,
+    changed: bool,
+}
+
+/// Default relative change that counts as "changed" (a smudge doubling the crosstalk gives 1).
+pub const DEFAULT_CHANGE_THRESHOLD: f32 = 0.5;
+/// Default number of readings averaged.
+pub const DEFAULT_MONITOR_READINGS: u32 = 8;
+
+impl Default for CrosstalkMonitor {
+    fn default() -> Self {
+        CrosstalkMonitor::new(DEFAULT_CHANGE_THRESHOLD, DEFAULT_MONITOR_READINGS)
+    }
+}
+
+impl CrosstalkMonitor {
+    /// A monitor with the given threshold (> 0; non-finite or ≤ 0 takes the default) and
+    /// averaging length (0 is treated as 1).
+    pub fn new(threshold: f32, readings: u32) -> Self {
+        CrosstalkMonitor {
+            threshold: if threshold.is_finite() && threshold > 0.0 {
+                threshold
+            } else {
+                DEFAULT_CHANGE_THRESHOLD
+            },
+            readings: readings.max(1),
+            seen: 0,
+            average: 0.0,
+            changed: false,
+        }
+    }
+
+    /// Feed the residual ratio of one reading with nothing in range (non-finite values are
+    /// ignored); returns the status after it.
+    pub fn update(&mut self, residual_ratio: f32) -> CrosstalkStatus {
+        if residual_ratio.is_finite() {
+            self.seen = self.seen.saturating_add(1);
+            let w = 1.0 / self.seen.min(self.readings) as f32;
+            self.average += w * (residual_ratio - self.average);
+            if self.seen >= self.readings {
+                let m = self.average.abs();
+                if m >= self.threshold {
+                    self.changed = true;
+                } else if m < 0.5 * self.threshold {
+                    self.changed = false;
+                }
+            }
+        }
+        self.status()
+    }
+
+    /// The current status.
+    pub fn status(&self) -> CrosstalkStatus {
+        if self.seen < self.readings {
+            CrosstalkStatus::Unknown
+        } else if self.changed {
+            CrosstalkStatus::Changed {
+                residual_ratio: self.average,
+            }
+        } else {
+            CrosstalkStatus::AsCalibrated {
+                residual_ratio: self.average,
+            }
+        }
+    }
+
+    /// The crosstalk scale that would cancel the residual: `1 + average` (for
+    /// [`crate::pipeline::Pipeline::set_crosstalk_scale`] when the application chooses to
+    /// tolerate a changed window instead of only reporting it); 1 before any reading.
+    pub fn suggested_scale(&self) -> f32 {
+        (1.0 + self.average).max(0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ndarray::Array2;
+
+    #[test]
+    fn monitor_reports_a_persistent_change_with_hysteresis() {
+        let mut m = CrosstalkMonitor::new(0.5, 4);
+        assert_eq!(m.update(0.02), CrosstalkStatus::Unknown);
+        for _ in 0..3 {
+            m.update(0.0);
+        }
+        assert!(matches!(m.status(), CrosstalkStatus::AsCalibrated { .. }));
+        // a smudge doubles the crosstalk: residual ≈ 1
+        let mut s = m.status();
+        for _ in 0..8 {
+            s = m.update(1.0);
+        }
+        let CrosstalkStatus::Changed { residual_ratio } = s else {
+            panic!("{s:?}");
+        };
+        assert!(residual_ratio > 0.9);
+        assert!((m.suggested_scale() - 2.0).abs() < 0.1);
+        // one clean reading does not clear it; a cleaned window does, eventually
+        assert!(matches!(m.update(0.0), CrosstalkStatus::Changed { .. }));
+        for _ in 0..20 {
+            s = m.update(0.0);
+        }
+        assert!(matches!(s, CrosstalkStatus::AsCalibrated { .. }), "{s:?}");
+        assert!(m.update(f32::NAN) == s, "NaN ignored");
+    }
+
+    #[test]
+    fn extraction_fits_the_rate_through_the_origin_and_fills_opposite_phases() {
+        // one pixel, crosstalk 0.06 / 0.02 LSB/µs at 0° / 90° above a dark level of 2000
+        let dark = OffsetCalibration {
+            dark_lsb: Array2::from_elem((1, 1), 2000.0),
+        };
+        let cap = |t: f64| {
+            Array3::from_shape_vec((2, 1, 1), vec![2000.0 + 0.06 * t, 2000.0 + 0.02 * t]).unwrap()
+        };
+        let (a, b) = (cap(100.0), cap(400.0));
+        let caps = [
+            CrosstalkCapture {
+                codes: a.view(),
+                phases_deg: &[0.0, 90.0],
+                exposure_us: 100.0,
+            },
+            CrosstalkCapture {
+                codes: b.view(),
+                phases_deg: &[360.0, 90.0],
+                exposure_us: 400.0,
+            },
+        ];
+        let x = extract_crosstalk(&caps, Some(&dark), 12).unwrap();
+        let v: Vec<f32> = x.lsb_per_us.iter().copied().collect();
+        for (got, want) in v.iter().zip([0.06f32, 0.02, -0.06, -0.02]) {
+            assert!((got - want).abs() < 1e-6, "{v:?}");
+        }
+        assert_eq!(
+            x.phasor_per_us(Algorithm::FourPhase, 0, 0),
+            x.phasor_per_us(Algorithm::TwoPhase, 0, 0)
+        );
+        // between the stored phases: the first harmonic A cos(φ − θ) through them
+        let (amp, phi) = (0.06f64.hypot(0.02), 0.02f64.atan2(0.06));
+        for th in [15.0f64, 135.0, 300.0] {
+            let want = amp * (phi - th.to_radians()).cos();
+            assert!((x.lsb_per_us_at(th, 0, 0) - want).abs() < 1e-6);
+        }
+        // a saturated capture is not a crosstalk capture; a missing 90°/270° is named
+        let sat = Array3::from_elem((2, 1, 1), 4095.0);
+        let e = extract_crosstalk(
+            &[CrosstalkCapture {
+                codes: sat.view(),
+                phases_deg: &[0.0, 90.0],
+                exposure_us: 1.0,
+            }],
+            None,
+            12,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("rail"), "{e}");
+        let e = extract_crosstalk(
+            &[CrosstalkCapture {
+                codes: a.view(),
+                phases_deg: &[0.0, 180.0],
+                exposure_us: 1.0,
+            }],
+            None,
+            12,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("90°"), "{e}");
+    }
+}
