@@ -581,6 +581,8 @@ impl CalibrationSet {
         }
         self.amplitude = Some(scale);
         Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
+    }
+
     /// Set (or replace) the cover-window crosstalk (extracted with the current
     /// offset, recorded as its dependency). Returns the parts dropped because
     /// they were extracted with a previous crosstalk subtracted.
@@ -780,8 +782,6 @@ impl CalibrationSet {
                 offset_sha256: deps.offset,
                 wiggling_sha256: deps.wiggling,
                 intrinsics_sha256: deps.intrinsics,
-    }
-
                 crosstalk_sha256: deps.crosstalk,
                 source_recording: src.recording,
                 source_description: src.recording_description,
@@ -905,6 +905,7 @@ impl CalibrationSet {
                             .key(key));
                     }
                     set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
+                }
                 (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
                     set.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
                 }
@@ -997,10 +998,7 @@ impl CalibrationSet {
                     offset: pt.offset_sha256.as_deref().map(str::to_ascii_lowercase),
                     wiggling: pt.wiggling_sha256.as_deref().map(str::to_ascii_lowercase),
                     intrinsics: pt.intrinsics_sha256.as_deref().map(str::to_ascii_lowercase),
-                }
-                    offset: pt.offset_sha256.clone(),
-                    wiggling: pt.wiggling_sha256.clone(),
-                    crosstalk: pt.crosstalk_sha256.clone(),
+                    crosstalk: pt.crosstalk_sha256.as_deref().map(str::to_ascii_lowercase),
                 },
             );
         }
@@ -1145,8 +1143,30 @@ fn load_part(
             }
             Ok(LoadedArray::Map(a))
         }
+        CalibPart::Crosstalk => {
+            let a = a.into_dimensionality::<Ix3>().map_err(|_| {
+                invalid(format!(
+                    "expected a (4, rows, cols) = (4, {}, {}) array, found shape {}",
+                    sensor.rows,
+                    sensor.cols,
+                    shape_str(&pt.shape)
+                ))
+                .at(&file)
+                .key(key)
+            })?;
+            if a.dim() != (4, sensor.rows, sensor.cols) {
+                return Err(invalid(format!(
+                    "crosstalk is {:?} but valid_for says the window is {}×{} (expected 4 raw images × window)",
+                    a.dim(),
+                    sensor.rows,
+                    sensor.cols
+                ))
+                .at(&file)
+                .key(key));
+            }
+            Ok(LoadedArray::Cube(a))
+        }
         CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
-                    crosstalk: pt.crosstalk_sha256.as_deref().map(str::to_ascii_lowercase),
             let a = a.into_dimensionality::<Ix1>().map_err(|_| {
                 invalid(format!(
                     "expected a 1-dimensional table, found shape {}",

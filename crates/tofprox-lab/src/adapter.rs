@@ -320,7 +320,11 @@ pub fn update_model_text(
             .or_insert(toml_edit::table())
             .as_table_mut()
             .ok_or_else(|| bad(format!("`effects.{id}` in the model file is not a table")))?;
-        set(t, "enabled", Value::from(m.is_enabled(id)));
+        set(
+            t,
+            "enabled",
+            Value::from(m.effect(id).is_some_and(|e| e.enabled)),
+        );
         for p in info.params {
             if let Some(v) = m.param(id, p.name) {
                 set(t, p.name, Value::from(v));
@@ -351,7 +355,10 @@ mod tests {
         );
         let back = ModelConfig::from_toml_str(&out).unwrap();
         assert_eq!(back.param("vcsel_droop", "droop_rel"), Some(0.071));
-        assert!(back.is_enabled(tofprox_model::ids::vcsel_droop::ID) && back.is_enabled(tofprox_model::ids::adc_inl::ID));
+        assert!(
+            back.is_enabled(tofprox_model::ids::vcsel_droop::ID)
+                && back.is_enabled(tofprox_model::ids::adc_inl::ID)
+        );
         assert_eq!(back.param("adc_inl", "inl_lsb"), Some(-3.5));
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }

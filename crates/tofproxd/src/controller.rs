@@ -448,7 +448,7 @@ impl<S: FrameSource> Controller<S> {
                     min_amp,
                     Mode::TwoPhase,
                     g,
-                    cycle.capture.exposure_us,
+                    cycle.exposure_us,
                 )?;
                 let f = process_images(p, frames, 2)?;
                 roi_median_mm(f, roi)
@@ -459,7 +459,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::FourPhase,
                 g,
-                cycle.capture.exposure_us,
+                cycle.exposure_us,
             )?;
             let f4 = process_images(p4, frames, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
@@ -474,7 +474,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::TwoPhase,
                 g,
-                cycle.capture.exposure_us,
+                cycle.exposure_us,
             )?,
             Mode::FourPhase => pipeline_slot(
                 &mut self.pipe4,
@@ -482,7 +482,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::FourPhase,
                 g,
-                cycle.capture.exposure_us,
+                cycle.exposure_us,
             )?,
         };
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {

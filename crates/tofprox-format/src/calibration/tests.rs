@@ -171,7 +171,14 @@ fn replacing_a_part_drops_what_depended_on_it() {
         ]
     );
     // the lens does not depend on the offset
-    assert_eq!(s.parts(), vec![CalibPart::Intrinsics, CalibPart::Offset, CalibPart::Amplitude]);
+    assert_eq!(
+        s.parts(),
+        vec![
+            CalibPart::Intrinsics,
+            CalibPart::Offset,
+            CalibPart::Amplitude
+        ]
+    );
     // saving removes the dropped arrays' files
     let t = tempfile::tempdir().unwrap();
     full_set().save(t.path()).unwrap();
@@ -180,7 +187,11 @@ fn replacing_a_part_drops_what_depended_on_it() {
     assert!(!t.path().join("fppn.npy").exists());
     assert_eq!(
         CalibrationSet::load(t.path()).unwrap().parts(),
-        vec![CalibPart::Intrinsics, CalibPart::Offset, CalibPart::Amplitude]
+        vec![
+            CalibPart::Intrinsics,
+            CalibPart::Offset,
+            CalibPart::Amplitude
+        ]
     );
 }
 
@@ -386,6 +397,8 @@ fn replacing_the_lens_drops_what_was_extracted_through_it() {
     };
     let e = s.set_intrinsics(folding, src("bad")).unwrap_err();
     assert!(e.to_string().contains("intrinsics"), "{e}");
+}
+
 fn crosstalk(v: f32) -> CrosstalkCalibration {
     CrosstalkCalibration {
         lsb_per_us: ndarray::Array3::from_shape_fn((4, 3, 4), |(k, r, c)| {
@@ -419,9 +432,9 @@ fn crosstalk_part_roundtrips_checksummed_and_refuses_other_setups() {
     );
     // the set's validity covers it: another frequency or window is refused
     for edit in [
-        |s: &mut SensorInfo| s.modulation_hz = 60e6,
-        |s: &mut SensorInfo| s.roi_origin = [0, 0],
-        |s: &mut SensorInfo| s.adc_bits = 10,
+        |s: &mut SensorGeometry| s.modulation_hz = 60e6,
+        |s: &mut SensorGeometry| s.roi_origin = [0, 0],
+        |s: &mut SensorGeometry| s.adc_bits = 10,
     ] {
         let mut other = sensor();
         edit(&mut other);

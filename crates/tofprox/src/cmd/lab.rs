@@ -298,7 +298,10 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
             Some(p) => format!("[effects.{}] as written to {}:\n", a.effect, p.display()),
             None => format!("[effects.{}] (not written: pass --out FILE):\n", a.effect),
         });
-        t.push_str(&format!("  enabled = {}\n", m.is_enabled(&a.effect)));
+        t.push_str(&format!(
+            "  enabled = {}\n",
+            m.effect(&a.effect).is_some_and(|e| e.enabled)
+        ));
         for pi in info.map(|e| e.params).unwrap_or_default() {
             if let Some(v) = m.param(&a.effect, pi.name) {
                 t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
