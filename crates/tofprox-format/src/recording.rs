@@ -8,7 +8,8 @@ use std::path::{Component, Path, PathBuf};
 use ndarray::{Array3, ArrayBase, Data, Ix3};
 use serde::{Deserialize, Serialize};
 
-use tofprox_core::SensorGeometry;
+use tofprox_core::phasor::{PhaseConvention, Quadrature, ShiftedSignal};
+use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::error::{
     ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
@@ -82,29 +83,36 @@ impl CaptureMeta {
     pub fn distance_m(&self) -> Option<f64> {
         self.conditions.get("distance_m").copied()
     }
-    /// True when the phases are `[0, 90, 180, 270]` (a 4-phase capture).
+    /// True for a 4-phase capture: four images whose (canonical) shifts are
+    /// `[a, b, a + 180, b + 180]`, `a ∈ {0, 180}`, `b ∈ {90, 270}` — `[0, 90,
+    /// 180, 270]`, or what a sensor with another phase convention records as such.
     pub fn is_four_phase(&self) -> bool {
-        phases_match(&self.phases_deg, &[0.0, 90.0, 180.0, 270.0])
+        self.phases_deg.len() == 4 && self.quadrature(Algorithm::FourPhase).is_some()
     }
-    /// True when the phases start with `[0, 90]` (processable as 2-phase).
+    /// True when the first two images are a 2-phase pair (`[0, 90]`, or what a
+    /// sensor with another phase convention records as such).
     pub fn starts_two_phase(&self) -> bool {
-        self.phases_deg.len() >= 2 && phases_match(&self.phases_deg[..2], &[0.0, 90.0])
+        self.quadrature(Algorithm::TwoPhase).is_some()
     }
-    /// True when the phases are `n >= 8` equally spaced steps starting at 0
-    /// (a correlation capture; the standard one is 24 × 15°).
+    /// How `algorithm` evaluates the first 2 or 4 images
+    /// ([`tofprox_core::pipeline::Pipeline::set_quadrature`]), or `None` when they are
+    /// not such a set.
+    pub fn quadrature(&self, algorithm: Algorithm) -> Option<Quadrature> {
+        Quadrature::of_canonical(&self.phases_deg, algorithm)
+    }
+    /// True when the phases are `n >= 8` equally spaced steps covering the
+    /// circle, in any order (a correlation capture; the standard one is 24 × 15°
+    /// from 0°; a sensor shifting its illumination records them descending).
     pub fn is_correlation(&self) -> bool {
         let n = self.phases_deg.len();
+        let mut sorted = self.phases_deg.clone();
+        sorted.sort_by(f64::total_cmp);
         n >= 8
-            && self
-                .phases_deg
+            && sorted
                 .iter()
                 .enumerate()
                 .all(|(i, p)| (p - 360.0 * i as f64 / n as f64).abs() < 1e-6)
     }
-}
-
-fn phases_match(a: &[f64], b: &[f64]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6)
 }
 
 /// The raw images of one capture, shape `(K, rows, cols)`.
@@ -267,9 +275,85 @@ struct RecordingToml {
     version: i64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     description: Option<String>,
-    sensor: SensorGeometry,
+    sensor: SensorSection,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     capture: Vec<CaptureMeta>,
+}
+
+/// The `[sensor]` table: the geometry and the phase convention
+/// (`phase_shift_applies_to`, `phase_sign`; written only when not the canonical one).
+#[derive(Debug, Serialize)]
+struct SensorSection {
+    #[serde(flatten)]
+    geometry: SensorGeometry,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    phase_shift_applies_to: Option<&'static str>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    phase_sign: Option<i8>,
+}
+
+/// Keys of the phase convention in `[sensor]`.
+const PHASE_SHIFT_KEY: &str = "phase_shift_applies_to";
+const PHASE_SIGN_KEY: &str = "phase_sign";
+
+impl SensorSection {
+    fn new(geometry: SensorGeometry, convention: PhaseConvention) -> Self {
+        let canonical = PhaseConvention::CANONICAL;
+        SensorSection {
+            geometry,
+            phase_shift_applies_to: (convention.shifted != canonical.shifted).then(|| {
+                match convention.shifted {
+                    ShiftedSignal::Demodulation => "demodulation",
+                    ShiftedSignal::Illumination => "illumination",
+                }
+            }),
+            phase_sign: (convention.sign != canonical.sign).then_some(convention.sign),
+        }
+    }
+
+    fn convention(&self) -> PhaseConvention {
+        PhaseConvention {
+            shifted: match self.phase_shift_applies_to {
+                Some("illumination") => ShiftedSignal::Illumination,
+                _ => ShiftedSignal::Demodulation,
+            },
+            sign: self.phase_sign.unwrap_or(1),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for SensorSection {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        use serde::de::Error as _;
+        let mut table = toml::Table::deserialize(d)?;
+        let shifted = match table.remove(PHASE_SHIFT_KEY) {
+            None => None,
+            Some(toml::Value::String(v)) if v == "demodulation" => Some("demodulation"),
+            Some(toml::Value::String(v)) if v == "illumination" => Some("illumination"),
+            Some(v) => {
+                return Err(D::Error::custom(format!(
+                    "invalid value for field `{PHASE_SHIFT_KEY}`: {v}, expected \"demodulation\" or \"illumination\""
+                )));
+            }
+        };
+        let sign = match table.remove(PHASE_SIGN_KEY) {
+            None => None,
+            Some(toml::Value::Integer(1)) => Some(1),
+            Some(toml::Value::Integer(-1)) => Some(-1),
+            Some(v) => {
+                return Err(D::Error::custom(format!(
+                    "invalid value for field `{PHASE_SIGN_KEY}`: {v}, expected 1 or -1"
+                )));
+            }
+        };
+        let geometry = SensorGeometry::deserialize(toml::Value::Table(table))
+            .map_err(|e| D::Error::custom(e.message()))?;
+        Ok(SensorSection {
+            geometry,
+            phase_shift_applies_to: shifted,
+            phase_sign: sign,
+        })
+    }
 }
 
 /// Check a capture's metadata (not its file); errors carry the key below `capture[i]`.
@@ -367,6 +451,7 @@ pub(crate) fn check_sensor_limits(s: &SensorGeometry, table: &str) -> Result<(),
 pub struct Recording {
     dir: PathBuf,
     sensor: SensorGeometry,
+    convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     dtypes: Vec<Dtype>,
@@ -386,7 +471,7 @@ impl Recording {
             .at(dir));
         }
         let text = limits::read_text_bounded(&toml_path, limits::MAX_TOML_BYTES)?;
-        let (sensor, description, captures) = parse_recording_toml(&toml_path, &text)?;
+        let (sensor, convention, description, captures) = parse_recording_toml(&toml_path, &text)?;
         let mut dtypes = Vec::with_capacity(captures.len());
         // two names of one file (through a symlink inside the recording) are one capture
         let mut real_files = BTreeMap::new();
@@ -410,6 +495,7 @@ impl Recording {
         Ok(Recording {
             dir: dir.to_path_buf(),
             sensor,
+            convention,
             description,
             captures,
             dtypes,
@@ -423,6 +509,12 @@ impl Recording {
     /// The `[sensor]` table.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
+    }
+    /// The phase convention the file's shifts were written in (`[sensor]
+    /// phase_shift_applies_to`, `phase_sign`). Every `phases_deg` this crate
+    /// returns is already canonical (`u = A·cos(φ − θ)`).
+    pub fn phase_convention(&self) -> PhaseConvention {
+        self.convention
     }
     /// The free-text description.
     pub fn description(&self) -> Option<&str> {
@@ -498,7 +590,12 @@ fn to_raw_frames(a: NpyArray) -> Result<RawFrames, FormatError> {
     })
 }
 
-type Parsed = (SensorGeometry, Option<String>, Vec<CaptureMeta>);
+type Parsed = (
+    SensorGeometry,
+    PhaseConvention,
+    Option<String>,
+    Vec<CaptureMeta>,
+);
 
 /// Parse and validate the text of a `recording.toml`.
 fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
@@ -513,7 +610,8 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
         "recording",
     )?;
     let raw: RecordingToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
-    let sensor = raw.sensor;
+    let convention = raw.sensor.convention();
+    let sensor = raw.sensor.geometry;
     sensor
         .validate()
         .map_err(|e| geometry_invalid(e, "sensor").at(path))?;
@@ -563,22 +661,38 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
             let k = e.key_name().unwrap_or("").to_string();
             e.at(path).key(format!("{prefix}.{k}"))
         })?;
+        // in memory every shift is canonical: u = A·cos(φ − θ) (docs/recording-format.md)
+        let mut meta = meta;
+        if !convention.is_canonical() {
+            for p in &mut meta.phases_deg {
+                *p = convention.canonical_deg(*p);
+            }
+        }
         captures.push(meta);
     }
-    Ok((sensor, raw.description, captures))
+    Ok((sensor, convention, raw.description, captures))
 }
 
 fn render_recording_toml(
     sensor: &SensorGeometry,
+    convention: PhaseConvention,
     description: Option<&str>,
     captures: &[CaptureMeta],
 ) -> Result<String, FormatError> {
+    let mut captures = captures.to_vec();
+    if !convention.is_canonical() {
+        for c in &mut captures {
+            for p in &mut c.phases_deg {
+                *p = convention.label_deg(*p);
+            }
+        }
+    }
     let t = RecordingToml {
         format: RECORDING_FORMAT.to_string(),
         version: RECORDING_VERSION,
         description: description.map(str::to_string),
-        sensor: *sensor,
-        capture: captures.to_vec(),
+        sensor: SensorSection::new(*sensor, convention),
+        capture: captures,
     };
     toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
 }
@@ -594,6 +708,7 @@ fn render_recording_toml(
 pub struct RecordingWriter {
     dir: PathBuf,
     sensor: SensorGeometry,
+    convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     next_file: usize,
@@ -624,6 +739,7 @@ impl RecordingWriter {
         let w = RecordingWriter {
             dir: dir.to_path_buf(),
             sensor,
+            convention: PhaseConvention::CANONICAL,
             description,
             captures: Vec::new(),
             next_file: 0,
@@ -693,6 +809,7 @@ impl RecordingWriter {
         Ok(RecordingWriter {
             dir: dir.to_path_buf(),
             sensor: rec.sensor,
+            convention: rec.convention,
             description: rec.description,
             captures: rec.captures,
             next_file,
@@ -702,6 +819,23 @@ impl RecordingWriter {
     /// The sensor this recording is for.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
+    }
+
+    /// Write the file's shifts in `convention` (before the first capture; the
+    /// default is the canonical one). Shifts given to [`RecordingWriter::append`]
+    /// stay canonical (`u = A·cos(φ − θ)`); the file carries them relabelled.
+    pub fn set_phase_convention(&mut self, convention: PhaseConvention) -> Result<(), FormatError> {
+        convention
+            .validate()
+            .map_err(|e| invalid(e.to_string()).key(format!("sensor.{PHASE_SIGN_KEY}")))?;
+        if !self.captures.is_empty() {
+            return Err(invalid(
+                "the phase convention is set before the first capture is appended",
+            )
+            .key(format!("sensor.{PHASE_SHIFT_KEY}")));
+        }
+        self.convention = convention;
+        self.write_toml()
     }
 
     /// Number of complete captures.
@@ -758,8 +892,13 @@ impl RecordingWriter {
 
     fn write_toml(&self) -> Result<(), FormatError> {
         let path = self.dir.join(RECORDING_TOML);
-        let text = render_recording_toml(&self.sensor, self.description.as_deref(), &self.captures)
-            .map_err(|e| e.at(&path))?;
+        let text = render_recording_toml(
+            &self.sensor,
+            self.convention,
+            self.description.as_deref(),
+            &self.captures,
+        )
+        .map_err(|e| e.at(&path))?;
         fsutil::write_atomic(&path, text.as_bytes())
     }
 }
