@@ -837,6 +837,42 @@ fn depth_frames_while_claimed_and_rate_limited() {
     assert_eq!(status(&bus)["DepthClaims"], 1);
 }
 
+/// Privacy: depth frames go only to the unique names holding a depth claim. A second client
+/// on the same bus with a match rule for `DepthFrame` (it claims proximity, not depth)
+/// receives none while the claimer receives them.
+#[test]
+fn depth_frames_only_reach_the_depth_claimer() {
+    let Some(bus) = start_bus() else { return };
+    let cfg = format!("{HAND}\n[dbus]\ndepth_max_hz = 4.0\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let mut outsider = Client::start(&bus, &["native", "--watch-depth", "--timeout", "30"]);
+    outsider.wait_for(Duration::from_secs(10), "outsider's claim", |v| {
+        v["event"] == "claimed"
+    });
+    let mut claimer = Client::start(&bus, &["native", "--depth", "--timeout", "30"]);
+    claimer.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    claimer.collect(Duration::from_secs(3));
+    outsider.collect(Duration::from_millis(100));
+    let got = |c: &Client| c.seen.iter().filter(|v| v["event"] == "depth").count();
+    assert!(
+        got(&claimer) >= 4,
+        "claimer got {} frames in 3 s",
+        got(&claimer)
+    );
+    assert_eq!(
+        got(&outsider),
+        0,
+        "a client without a depth claim received depth frames"
+    );
+    let s = status(&bus);
+    assert_eq!(
+        (s["DepthClaims"].clone(), s["Clients"].clone()),
+        (1.into(), 2.into())
+    );
+}
+
 /// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package
 /// iio-sensor-proxy) talks to the system bus, which we point at the private
 /// bus. It must find the proximity sensor, report the absent ones as absent,
