@@ -449,10 +449,11 @@ mod tests {
         let c = h.claim_counts();
         assert_eq!((c.clients, c.proximity, c.compat_proximity), (1, 0, 1));
         assert_eq!(c.proximity_clients, 1);
+        assert!(h.depth_claimers().is_empty());
         h.set_claim(":1.8", Claim::Depth, true);
         let c = h.claim_counts();
         assert_eq!((c.clients, c.proximity_clients, c.depth), (2, 1, 1));
-        assert!(h.depth_claimers().is_empty());
+        assert_eq!(h.depth_claimers(), vec![":1.8".to_string()]);
     }
 
     #[test]
