@@ -15,7 +15,7 @@ use crate::controller::Controller;
 use crate::hub::{Demand, Event, Hub, State, StatusUpdate};
 use crate::service::{
     self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
-    SensorProxyCompass, SensorProxyCompat,
+    ReadOnlyProperties, SensorProxyCompass, SensorProxyCompat,
 };
 use crate::source::FrameSource;
 
@@ -255,14 +255,17 @@ impl Daemon {
         let (hub, demand_rx) = Hub::new(cfg, backend);
         let compat = cfg.dbus.iio_sensor_proxy_compat;
         conn.object_server()
-            .at(OBJECT_PATH, Proximity::new(hub.clone()))
+            .at(OBJECT_PATH, ReadOnlyProperties(Proximity::new(hub.clone())))
             .await?;
         if compat {
             conn.object_server()
-                .at(COMPAT_PATH, SensorProxyCompat::new(hub.clone()))
+                .at(
+                    COMPAT_PATH,
+                    ReadOnlyProperties(SensorProxyCompat::new(hub.clone())),
+                )
                 .await?;
             conn.object_server()
-                .at(COMPAT_COMPASS_PATH, SensorProxyCompass)
+                .at(COMPAT_COMPASS_PATH, ReadOnlyProperties(SensorProxyCompass))
                 .await?;
         }
         let mut tasks = Vec::new();
