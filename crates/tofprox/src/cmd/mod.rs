@@ -1,10 +1,13 @@
 //! One module per command group; each owns its clap arguments.
 
+pub mod calibrate;
+pub mod common;
 pub mod daemon;
 pub mod device;
+pub mod info;
 pub mod lab;
 pub mod live;
-pub mod recording;
+pub mod process;
 pub mod sim;
 
 use std::path::Path;
