@@ -5,6 +5,7 @@ use std::io::IsTerminal;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tofprox_format::CaptureMeta;
+pub use tofprox_format::fmt_num;
 
 /// The tool name and version recorded in the provenance of what the commands write.
 pub const TOOL: &str = concat!("tofprox ", env!("CARGO_PKG_VERSION"));
@@ -36,16 +37,5 @@ pub fn mode_label(c: &CaptureMeta) -> String {
     } else {
         let p: Vec<String> = c.phases_deg.iter().map(|p| format!("{p}")).collect();
         format!("{n}-phase[{}]", p.join(","))
-    }
-}
-
-/// A number with up to six decimals and no trailing zeros (`0.25`, `80`).
-pub fn fmt_num(v: f64) -> String {
-    let s = format!("{v:.6}");
-    let s = s.trim_end_matches('0').trim_end_matches('.');
-    if s.is_empty() || s == "-" {
-        "0".into()
-    } else {
-        s.to_string()
     }
 }

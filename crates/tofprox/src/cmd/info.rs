@@ -7,7 +7,7 @@ use std::process::ExitCode;
 
 use serde_json::json;
 use tofprox_core::phasor::unambiguous_range_m;
-use tofprox_format::{CalibPart, CalibrationSet, Recording};
+use tofprox_format::{CalibPart, CalibrationSet, DepthRecording, Recording, RecordingKind};
 
 use super::common::{fmt_num, mode_label, progress};
 
@@ -27,6 +27,9 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         && !a.recording.join(tofprox_format::RECORDING_TOML).exists();
     if is_calib {
         return calib_info(&a);
+    }
+    if tofprox_format::recording_kind(&a.recording).ok() == Some(RecordingKind::Depth) {
+        return depth_info(&a);
     }
     let rec = Recording::open(&a.recording)?;
     let s = *rec.sensor();
@@ -372,6 +375,104 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
     }
     if parts.is_empty() {
         println!("(no parts)");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `tofprox info REC` of a depth recording (`kind = "depth"`, as `tofprox record` writes it):
+/// images, time span and rate, valid share and median depth per image.
+fn depth_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
+    let rec = DepthRecording::open(&a.recording)?;
+    let size = rec.size();
+    let caps = rec.captures();
+    let pb = progress(caps.len(), "reading");
+    // (valid fraction, median valid depth in mm) per image; 0 mm = invalid
+    let mut per = Vec::with_capacity(caps.len());
+    for i in 0..caps.len() {
+        let d = rec.load_depth_mm(i)?;
+        let mut valid: Vec<u16> = d.iter().copied().filter(|&v| v > 0).collect();
+        valid.sort_unstable();
+        let median = valid.get(valid.len() / 2).copied();
+        per.push((valid.len() as f64 / d.len().max(1) as f64, median));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let stamps: Vec<u64> = caps.iter().filter_map(|c| c.timestamp_ns).collect();
+    let span_s = match (stamps.iter().min(), stamps.iter().max()) {
+        (Some(lo), Some(hi)) if hi > lo => Some((hi - lo) as f64 / 1e9),
+        _ => None,
+    };
+    let rate_hz = span_s.map(|s| (stamps.len() - 1) as f64 / s);
+    let with_amplitude = caps.iter().filter(|c| c.amplitude_lsb.is_some()).count();
+    let valid_all = if per.is_empty() {
+        0.0
+    } else {
+        per.iter().map(|p| p.0).sum::<f64>() / per.len() as f64
+    };
+    if a.json {
+        let per_json: Vec<_> = caps
+            .iter()
+            .zip(&per)
+            .enumerate()
+            .map(|(i, (c, (valid, median)))| {
+                json!({
+                    "index": i,
+                    "timestamp_ns": c.timestamp_ns,
+                    "valid_fraction": valid,
+                    "median_depth_mm": median,
+                    "amplitude": c.amplitude_lsb.is_some(),
+                })
+            })
+            .collect();
+        let out = json!({
+            "recording": a.recording.display().to_string(),
+            "kind": RecordingKind::Depth.name(),
+            "description": rec.description(),
+            "depth": {"rows": size.rows, "cols": size.cols},
+            "captures": caps.len(),
+            "with_amplitude": with_amplitude,
+            "span_s": span_s,
+            "rate_hz": rate_hz,
+            "valid_fraction": valid_all,
+            "per_capture": per_json,
+        });
+        println!("{out}");
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("recording   {} (depth images, mm)", a.recording.display());
+    if let Some(d) = rec.description() {
+        println!("description {d}");
+    }
+    println!(
+        "images      {} of {}×{} pixels, {with_amplitude} with amplitude",
+        caps.len(),
+        size.rows,
+        size.cols
+    );
+    if let (Some(s), Some(r)) = (span_s, rate_hz) {
+        println!(
+            "time        {} s at {} Hz",
+            fmt_num(s),
+            fmt_num((r * 100.0).round() / 100.0)
+        );
+    }
+    println!(
+        "valid       {:.1} % of pixels (depth > 0)",
+        100.0 * valid_all
+    );
+    println!();
+    println!(
+        "{:>5}  {:>20}  {:>8}  {:>16}",
+        "index", "timestamp_ns", "valid_%", "median_depth_mm"
+    );
+    for (i, (c, (valid, median))) in caps.iter().zip(&per).enumerate() {
+        println!(
+            "{:>5}  {:>20}  {:>8.1}  {:>16}",
+            i,
+            c.timestamp_ns.map_or("-".into(), |t| t.to_string()),
+            100.0 * valid,
+            median.map_or("-".into(), |m| m.to_string())
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
