@@ -12,9 +12,10 @@ use zbus::fdo::{RequestNameFlags, RequestNameReply};
 
 use crate::config::Config;
 use crate::controller::Controller;
+use crate::hub::{Demand, Event, Hub, State, StatusUpdate};
 use crate::service::{
-    self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, Demand, Event, Hub, OBJECT_PATH,
-    Proximity, SensorProxyCompass, SensorProxyCompat, State, StatusUpdate,
+    self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
+    SensorProxyCompass, SensorProxyCompat,
 };
 use crate::source::FrameSource;
 
@@ -277,7 +278,7 @@ impl Daemon {
             }
         }
         let (ev_tx, ev_rx) = mpsc::unbounded_channel();
-        tasks.push(tokio::spawn(service::run_publisher(
+        tasks.push(tokio::spawn(crate::publisher::run_publisher(
             conn.clone(),
             hub.clone(),
             ev_rx,
