@@ -53,7 +53,7 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub capture: Option<usize>,
     /// intrinsics: take the lens from this TOML (a module's datasheet: fx_px, fy_px, cx_px, cy_px
-    /// in full-array pixels and an optional [distortion] table with OpenCV's k1, k2, k3, p1, p2)
+    /// in full-array pixels and an optional `[distortion]` table with OpenCV's k1, k2, k3, p1, p2)
     /// instead of fitting it to the recording.
     #[arg(long)]
     pub datasheet: Option<PathBuf>,
