@@ -149,6 +149,8 @@ pub struct Hub {
 pub struct ClaimCounts {
     /// Clients with any claim.
     pub clients: u32,
+    /// Clients with a proximity claim (native or compat).
+    pub proximity_clients: u32,
     /// Proximity claims (native).
     pub proximity: u32,
     /// Depth claims.
@@ -209,6 +211,7 @@ impl Hub {
         let mut c = ClaimCounts::default();
         for cl in g.claims.values() {
             c.clients += 1;
+            c.proximity_clients += u32::from(cl.proximity || cl.compat_proximity);
             c.proximity += u32::from(cl.proximity);
             c.depth += u32::from(cl.depth);
             c.compat_proximity += u32::from(cl.compat_proximity);
@@ -445,7 +448,12 @@ mod tests {
         assert!(h.demand().proximity);
         let c = h.claim_counts();
         assert_eq!((c.clients, c.proximity, c.compat_proximity), (1, 0, 1));
+        assert_eq!(c.proximity_clients, 1);
         assert!(h.depth_claimers().is_empty());
+        h.set_claim(":1.8", Claim::Depth, true);
+        let c = h.claim_counts();
+        assert_eq!((c.clients, c.proximity_clients, c.depth), (2, 1, 1));
+        assert_eq!(h.depth_claimers(), vec![":1.8".to_string()]);
     }
 
     #[test]

@@ -7,11 +7,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
-use zbus::names::InterfaceName;
+use zbus::names::{BusName, InterfaceName};
 use zbus::object_server::SignalEmitter;
 use zbus::{Connection, Variant, fdo};
 
-use crate::hub::{Event, Hub};
+use crate::hub::{DepthMessage, Event, Hub};
 use crate::service::{COMPAT_BUS_NAME, COMPAT_PATH, INTERFACE, OBJECT_PATH, Proximity};
 
 /// Emit PropertiesChanged for `iface` with the given changes (one signal).
@@ -32,6 +32,45 @@ async fn emit_changes(
         Cow::Borrowed(&[]),
     )
     .await
+}
+
+/// Send a depth frame to each unique name holding a depth claim, and to no one else: a
+/// unicast signal (with a destination) per claimer. A broadcast would reach every client
+/// with a match rule — on a session bus anyone, on the system bus every member of the depth
+/// group — so depth images never go out without a destination on a bus. On a peer-to-peer
+/// connection the single peer is the only possible receiver.
+async fn send_depth(conn: &Connection, hub: &Hub, d: &DepthMessage) {
+    let Ok(emitter) = SignalEmitter::new(conn, OBJECT_PATH) else {
+        return;
+    };
+    let emitters: Vec<SignalEmitter<'_>> = if conn.is_bus() {
+        hub.depth_claimers()
+            .into_iter()
+            .filter_map(|name| match BusName::try_from(name) {
+                Ok(dest) => Some(emitter.clone().set_destination(dest)),
+                Err(e) => {
+                    tracing::warn!("depth claimer with an invalid bus name: {e}");
+                    None
+                }
+            })
+            .collect()
+    } else {
+        vec![emitter]
+    };
+    for em in &emitters {
+        if let Err(e) = Proximity::depth_frame(
+            em,
+            d.timestamp_ns,
+            d.width,
+            d.height,
+            &d.depth_le,
+            &d.amplitude_le,
+        )
+        .await
+        {
+            tracing::warn!("DepthFrame emit failed: {e}");
+        }
+    }
 }
 
 /// The publisher: applies loop events to the hub and emits signals. Runs until the
@@ -61,19 +100,7 @@ pub async fn run_publisher(
                     continue;
                 }
                 last_depth = Some(now);
-                if let Ok(emitter) = SignalEmitter::new(&conn, OBJECT_PATH)
-                    && let Err(e) = Proximity::depth_frame(
-                        &emitter,
-                        d.timestamp_ns,
-                        d.width,
-                        d.height,
-                        &d.depth_le,
-                        &d.amplitude_le,
-                    )
-                    .await
-                {
-                    tracing::warn!("DepthFrame emit failed: {e}");
-                }
+                send_depth(&conn, &hub, &d).await;
             }
             Event::Status(u) => {
                 let power = u.power_mw;

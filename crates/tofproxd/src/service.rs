@@ -7,8 +7,13 @@ use std::collections::HashMap;
 use std::pin::Pin;
 use std::sync::Arc;
 
-use zbus::object_server::SignalEmitter;
-use zbus::{Connection, OwnedVariant, Str, fdo, interface, message::Header};
+use zbus::message::Message;
+use zbus::names::{InterfaceName, MemberName};
+use zbus::object_server::{DispatchResult, Interface, SignalEmitter};
+use zbus::{
+    BoxDBusError, Connection, ObjectServer, OwnedVariant, Str, Variant, fdo, interface,
+    message::Header,
+};
 
 use crate::hub::{Claim, Hub};
 
@@ -131,7 +136,8 @@ impl Proximity {
         release_for_caller(&self.hub, &hdr, Claim::Depth)
     }
 
-    /// Every property plus counters, as a dictionary.
+    /// Every property plus counters, as a dictionary (public: nothing in it tells whether
+    /// anyone holds a depth claim; `Clients` counts clients holding a proximity claim).
     async fn get_status(
         &self,
         #[zbus(header)] hdr: Header<'_>,
@@ -162,11 +168,24 @@ impl Proximity {
         m.insert("Errors".into(), OwnedVariant::from(s.errors));
         m.insert("Backend".into(), variant_str(&s.backend));
         m.insert("AmplitudeCheck".into(), variant_str(s.amplitude_check));
-        m.insert("Clients".into(), OwnedVariant::from(c.clients));
+        m.insert("Clients".into(), OwnedVariant::from(c.proximity_clients));
         m.insert(
             "ProximityClaims".into(),
             OwnedVariant::from(c.proximity + c.compat_proximity),
         );
+        Ok(m)
+    }
+
+    /// Claim counts including depth (`DepthClaims`, `Clients` = every client holding any
+    /// claim); the bus policy limits this, like `ClaimDepth`, to the depth group.
+    async fn get_depth_status(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> fdo::Result<HashMap<String, OwnedVariant>> {
+        no_args(&hdr)?;
+        let c = self.hub.claim_counts();
+        let mut m = HashMap::new();
+        m.insert("Clients".into(), OwnedVariant::from(c.clients));
         m.insert("DepthClaims".into(), OwnedVariant::from(c.depth));
         Ok(m)
     }
@@ -352,6 +371,111 @@ impl SensorProxyCompass {
     /// Succeeds.
     async fn release_compass(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
         no_args(&hdr)
+    }
+}
+
+/// A zbus interface whose properties are all read-only, answering a write with
+/// `org.freedesktop.DBus.Error.PropertyReadOnly` (zbus alone answers `UnknownProperty` for a
+/// property without a setter, which tells the caller the wrong thing). Everything else is
+/// the wrapped interface's.
+pub struct ReadOnlyProperties<I>(pub I);
+
+#[async_trait::async_trait]
+impl<I: Interface> Interface for ReadOnlyProperties<I> {
+    fn name() -> InterfaceName<'static>
+    where
+        Self: Sized,
+    {
+        I::name()
+    }
+
+    fn spawn_tasks_for_methods(&self) -> bool {
+        self.0.spawn_tasks_for_methods()
+    }
+
+    async fn get(
+        &self,
+        property_name: &str,
+        server: &ObjectServer,
+        connection: &Connection,
+        header: Option<&Header<'_>>,
+        emitter: &SignalEmitter<'_>,
+    ) -> Option<Result<OwnedVariant, BoxDBusError>> {
+        self.0
+            .get(property_name, server, connection, header, emitter)
+            .await
+    }
+
+    async fn get_all(
+        &self,
+        object_server: &ObjectServer,
+        connection: &Connection,
+        header: Option<&Header<'_>>,
+        emitter: &SignalEmitter<'_>,
+    ) -> fdo::Result<HashMap<String, OwnedVariant>> {
+        self.0
+            .get_all(object_server, connection, header, emitter)
+            .await
+    }
+
+    fn set<'call>(
+        &'call self,
+        property_name: &'call str,
+        _value: &'call Variant<'_>,
+        object_server: &'call ObjectServer,
+        connection: &'call Connection,
+        header: Option<&'call Header<'_>>,
+        emitter: &'call SignalEmitter<'_>,
+    ) -> DispatchResult<'call> {
+        DispatchResult::Async(Box::pin(async move {
+            let exists = self
+                .0
+                .get(property_name, object_server, connection, header, emitter)
+                .await
+                .is_some();
+            let e = if exists {
+                fdo::Error::PropertyReadOnly(format!("property '{property_name}' is read-only"))
+            } else {
+                fdo::Error::UnknownProperty(format!("Unknown property '{property_name}'"))
+            };
+            Err(Box::new(e) as BoxDBusError)
+        }))
+    }
+
+    async fn set_mut(
+        &mut self,
+        _property_name: &str,
+        _value: &Variant<'_>,
+        _object_server: &ObjectServer,
+        _connection: &Connection,
+        _header: Option<&Header<'_>>,
+        _emitter: &SignalEmitter<'_>,
+    ) -> Option<Result<(), BoxDBusError>> {
+        None
+    }
+
+    fn call<'call>(
+        &'call self,
+        server: &'call ObjectServer,
+        connection: &'call Connection,
+        msg: &'call Message,
+        name: MemberName<'call>,
+    ) -> DispatchResult<'call> {
+        self.0.call(server, connection, msg, name)
+    }
+
+    fn call_mut<'call>(
+        &'call mut self,
+        server: &'call ObjectServer,
+        connection: &'call Connection,
+        msg: &'call Message,
+        name: MemberName<'call>,
+    ) -> DispatchResult<'call> {
+        self.0.call_mut(server, connection, msg, name)
+    }
+
+    fn introspect_to_writer(&self, writer: &mut dyn std::fmt::Write, level: usize) {
+        self.0.introspect_to_writer(writer, level)
     }
 }
 
