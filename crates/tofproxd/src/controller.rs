@@ -57,6 +57,18 @@ pub enum ControllerError {
         /// The LUT's algorithm.
         lut: &'static str,
     },
+    /// The configured ROI does not lie inside the sensor (no silent fallback to another ROI).
+    #[error(
+        "proximity.roi = {roi:?} ([row0, col0, rows, cols]) does not lie inside the {full_rows}x{full_cols} sensor"
+    )]
+    RoiOutsideSensor {
+        /// The configured ROI.
+        roi: [usize; 4],
+        /// Rows of the sensor.
+        full_rows: usize,
+        /// Columns of the sensor.
+        full_cols: usize,
+    },
     /// The core refused a parameter.
     #[error("processing setup: {0}")]
     Core(#[from] tofprox_core::CoreError),
@@ -143,6 +155,21 @@ impl<S: FrameSource> Controller<S> {
                 return Err(ControllerError::CalibrationMode {
                     mode: mode.as_str(),
                     lut: w.algorithm.as_str(),
+                });
+            }
+        }
+        // The ROI must lie inside the sensor: `Roi::resolve` would otherwise clip it or fall
+        // back to the central ROI and publish readings of a region nobody configured.
+        if let Some(roi @ [row0, col0, rows, cols]) = cfg.proximity.roi {
+            let (full_rows, full_cols) = source.full_size();
+            let inside = |o: usize, n: usize, full: usize| {
+                n > 0 && o.checked_add(n).is_some_and(|e| e <= full)
+            };
+            if full_rows > 0 && !(inside(row0, rows, full_rows) && inside(col0, cols, full_cols)) {
+                return Err(ControllerError::RoiOutsideSensor {
+                    roi,
+                    full_rows,
+                    full_cols,
                 });
             }
         }
@@ -1050,6 +1077,42 @@ mod tests {
             .err()
             .unwrap();
         assert!(err.to_string().contains("refused"), "{err}");
+    }
+
+    #[test]
+    fn roi_outside_the_sensor_is_refused_naming_the_key() {
+        for roi in [
+            [20, 0, 10, 10],
+            [0, 30, 4, 4],
+            [0, 0, 0, 4],
+            [usize::MAX, 0, 2, 2],
+        ] {
+            let mut c = cfg();
+            c.proximity.roi = Some(roi);
+            let err = Controller::new(
+                c,
+                ScriptedSource::new(24, 32, vec![]),
+                ModeCalibrations::default(),
+            )
+            .err()
+            .unwrap_or_else(|| panic!("{roi:?} accepted"));
+            let msg = err.to_string();
+            assert!(
+                msg.contains("proximity.roi") && msg.contains("24x32"),
+                "{msg}"
+            );
+        }
+        let mut c = cfg();
+        c.proximity.roi = Some([14, 22, 10, 10]);
+        assert!(
+            Controller::new(
+                c,
+                ScriptedSource::new(24, 32, vec![]),
+                ModeCalibrations::default()
+            )
+            .is_ok(),
+            "touching the last row and column is inside"
+        );
     }
 
     #[test]

@@ -106,6 +106,34 @@ async fn request_name(
     }
 }
 
+/// Why the daemon cannot start with a config (every check [`prepare`] runs).
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The frame source cannot be built (replay directory, emulated device file or table,
+    /// USB driver config).
+    #[error("frame source: {0}")]
+    Source(#[source] crate::source::SourceError),
+    /// The calibration set cannot be loaded or does not fit the sensor or mode.
+    #[error("calibration: {0}")]
+    Calibration(#[source] crate::calibration::CalibrationError),
+    /// The controller refused the config (ROI outside the sensor, calibration of the other mode).
+    #[error("{0}")]
+    Controller(#[source] crate::controller::ControllerError),
+}
+
+/// Everything the start does before touching the bus: build the frame source (a USB
+/// device is opened only at the first cycle), load and check the calibration against the
+/// sensor, build the controller. `tofproxd --check-config` runs exactly this, so a config it
+/// accepts is one the daemon starts with. `base`: the config file's directory.
+pub fn prepare(
+    cfg: &Config,
+    base: &std::path::Path,
+) -> Result<Controller<Box<dyn FrameSource>>, StartError> {
+    let source = crate::backends::build_source(cfg, base).map_err(StartError::Source)?;
+    let calib = crate::calibration::load_for(cfg, &*source).map_err(StartError::Calibration)?;
+    Controller::new(cfg.clone(), source, calib).map_err(StartError::Controller)
+}
+
 /// Commands to the loop thread.
 #[derive(Debug, Clone, Copy)]
 pub enum LoopCmd {
