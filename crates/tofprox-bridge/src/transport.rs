@@ -5,7 +5,7 @@
 //!
 //! All calls **block** until the transfer completes or its timeout expires.
 //! In an async program run them off the runtime: the whole driver cycle on a
-//! dedicated thread feeding a bounded channel (see [`crate::stream`]), or
+//! dedicated thread feeding a bounded channel (as the daemon's loop thread does), or
 //! short control transfers on a blocking pool.
 
 use std::time::Duration;
