@@ -389,7 +389,8 @@ impl PhaseConvention {
             ShiftedSignal::Illumination => -label_deg,
         };
         let t = if self.sign < 0 { t + 180.0 } else { t };
-        t.rem_euclid(360.0)
+        // (+ 0.0: a −0° label is written as 0°)
+        t.rem_euclid(360.0) + 0.0
     }
 
     /// The quadrature of this sensor's own 2-phase pair (the images it labels `[0°, 90°]`);
@@ -411,7 +412,8 @@ impl PhaseConvention {
             ShiftedSignal::Demodulation => t,
             ShiftedSignal::Illumination => -t,
         };
-        t.rem_euclid(360.0)
+        // (+ 0.0: a −0° label is written as 0°)
+        t.rem_euclid(360.0) + 0.0
     }
 }
 

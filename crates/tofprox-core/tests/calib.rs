@@ -466,9 +466,18 @@ fn wiggling_is_extracted_for_the_sensors_own_two_phase_pair() {
         2048.0 + g(phi0 + delay - phases24()[k].to_radians())
     });
     for q in [
-        Quadrature { x_sign: 1, y_sign: -1 },
-        Quadrature { x_sign: -1, y_sign: -1 },
-        Quadrature { x_sign: -1, y_sign: 1 },
+        Quadrature {
+            x_sign: 1,
+            y_sign: -1,
+        },
+        Quadrature {
+            x_sign: -1,
+            y_sign: -1,
+        },
+        Quadrature {
+            x_sign: -1,
+            y_sign: 1,
+        },
     ] {
         let own = extract_wiggling_for(
             corr.view(),
@@ -483,9 +492,17 @@ fn wiggling_is_extracted_for_the_sensors_own_two_phase_pair() {
             256,
         )
         .unwrap();
-        let standard =
-            extract_wiggling(corr.view(), &phases24(), None, d0, F, 12, Algorithm::TwoPhase, 256)
-                .unwrap();
+        let standard = extract_wiggling(
+            corr.view(),
+            &phases24(),
+            None,
+            d0,
+            F,
+            12,
+            Algorithm::TwoPhase,
+            256,
+        )
+        .unwrap();
         let (a, b) = (
             if q.x_sign < 0 { PI } else { 0.0 },
             if q.y_sign < 0 { 1.5 * PI } else { 0.5 * PI },
@@ -502,6 +519,9 @@ fn wiggling_is_extracted_for_the_sensors_own_two_phase_pair() {
             worst_std = worst_std.max(wrap_to_pi(standard.correct(m) - tof).abs());
         }
         assert!(worst_own < 2e-4, "{q:?}: own table leaves {worst_own} rad");
-        assert!(worst_std > 1e-2, "{q:?}: the standard table leaves only {worst_std} rad");
+        assert!(
+            worst_std > 1e-2,
+            "{q:?}: the standard table leaves only {worst_std} rad"
+        );
     }
 }

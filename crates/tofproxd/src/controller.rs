@@ -13,6 +13,7 @@ use std::time::Duration;
 use ndarray::{ArrayView3, Axis, s};
 use tofprox_core::Algorithm;
 use tofprox_core::SensorGeometry;
+use tofprox_core::phasor::Quadrature;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
     RawSample,
@@ -436,7 +437,7 @@ impl<S: FrameSource> Controller<S> {
                     g,
                     cycle.exposure_us,
                 )?;
-                let f = process_images(p, frames, 2)?;
+                let f = process_images(p, frames, &cycle.phases_deg, 2)?;
                 roi_median_mm(f, roi)
             };
             let p4 = pipeline_slot(
@@ -447,7 +448,7 @@ impl<S: FrameSource> Controller<S> {
                 g,
                 cycle.exposure_us,
             )?;
-            let f4 = process_images(p4, frames, 4)?;
+            let f4 = process_images(p4, frames, &cycle.phases_deg, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
                 discrepancy_mm = Some((a - b).abs());
             }
@@ -473,7 +474,7 @@ impl<S: FrameSource> Controller<S> {
         };
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
             let k = frames.dim().0;
-            process_images(pipe, frames, k)?;
+            process_images(pipe, frames, &cycle.phases_deg, k)?;
         }
         // No near from a wrapped phase: a near depth needs the amplitude of a real target
         // (thesis 2.2.1, 1/d²).
@@ -656,16 +657,12 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
             g.rows, g.cols
         ));
     }
-    let close = |a: f64, b: f64| (a - b).abs() < 0.5;
-    let mode = if k >= 4
-        && close(c.phases_deg[0], 0.0)
-        && close(c.phases_deg[1], 90.0)
-        && close(c.phases_deg[2], 180.0)
-        && close(c.phases_deg[3], 270.0)
-        && k == 4
+    // [0, 90(, 180, 270)], or the same images of a sensor with another phase convention
+    // (canonical shifts such as [0, 270]: evaluated with their quadrature)
+    let mode = if k == 4 && Quadrature::of_canonical(&c.phases_deg, Algorithm::FourPhase).is_some()
     {
         Mode::FourPhase
-    } else if k == 2 && close(c.phases_deg[0], 0.0) && close(c.phases_deg[1], 90.0) {
+    } else if k == 2 && Quadrature::of_canonical(&c.phases_deg, Algorithm::TwoPhase).is_some() {
         Mode::TwoPhase
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
@@ -721,8 +718,17 @@ fn rails_only(c: &RawCycle) -> bool {
 fn process_images<'p>(
     p: &'p mut Pipeline,
     frames: &RawImages,
+    phases_deg: &[f64],
     k: usize,
 ) -> Result<&'p DepthFrame, SourceError> {
+    // the images' canonical shifts (a replayed recording of a sensor with another phase
+    // convention: docs/recording-format.md); check_cycle accepted them
+    let algorithm = if k == 4 {
+        Algorithm::FourPhase
+    } else {
+        Algorithm::TwoPhase
+    };
+    p.set_quadrature(Quadrature::of_canonical(phases_deg, algorithm).unwrap_or_default());
     let r = match frames {
         RawImages::U16(a) => p.process(a.slice(s![0..k, .., ..])),
         RawImages::F32(a) => p.process(a.slice(s![0..k, .., ..])),
