@@ -392,12 +392,12 @@ impl SensorSection {
         let canonical = PhaseConvention::CANONICAL;
         SensorSection {
             geometry,
-            phase_shift_applies_to: (convention.shifted != canonical.shifted).then(|| {
+            phase_shift_applies_to: (convention.shifted != canonical.shifted).then_some(
                 match convention.shifted {
                     ShiftedSignal::Demodulation => "demodulation",
                     ShiftedSignal::Illumination => "illumination",
-                }
-            }),
+                },
+            ),
             phase_sign: (convention.sign != canonical.sign).then_some(convention.sign),
         }
     }
