@@ -296,6 +296,39 @@ pub fn residual_ratio(
     (reference > 0.0).then(|| (proj / reference) as f32)
 }
 
+/// Whether the ROI's light comes from the cover window alone: the sum of its unsaturated
+/// pixels' phasors `Σ A·e^{iφ}` (eq. 2.2/2.3, after the compensation) points at the window,
+/// `|arg| ≤ tolerance_rad` (e.g. the phase of a few cm, [`crate::phasor::distance_to_phase_rad`]).
+/// A changed window leaves exactly such a residual (its phase is the window's ≈ 0, whatever its
+/// size); a target at range `d` points at `4π f d / c` instead. Use it beside "nothing in range"
+/// to pick the readings [`residual_ratio`] is meaningful for: a residual large enough to be a
+/// valid depth reads ≈ 0 mm or, with noise pushing the phase below 0, just under the unambiguous
+/// range — either way its phasor points at 0. A target within `tolerance` of a multiple of the
+/// unambiguous range is indistinguishable from it with one frequency (a documented limit).
+/// `false` when the ROI has no usable pixel.
+pub fn phasor_points_at_window(frame: &DepthFrame, roi: Roi, tolerance_rad: f64) -> bool {
+    let (rows, cols) = frame.dim();
+    let r = roi.resolve(rows, cols);
+    let (mut re, mut im) = (0.0f64, 0.0f64);
+    for row in r.row0..r.row0 + r.rows {
+        for col in r.col0..r.col0 + r.cols {
+            let flags = frame
+                .flags
+                .get((row, col))
+                .copied()
+                .unwrap_or(FLAG_NON_FINITE);
+            if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
+                continue;
+            }
+            let a = f64::from(frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0));
+            let ph = f64::from(frame.phase_rad.get((row, col)).copied().unwrap_or(0.0));
+            re += a * ph.cos();
+            im += a * ph.sin();
+        }
+    }
+    re > 0.0 && im.atan2(re).abs() <= tolerance_rad
+}
+
 /// What [`CrosstalkMonitor`] concludes about the cover window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CrosstalkStatus {
