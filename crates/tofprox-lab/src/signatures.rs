@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (the measured VCSEL/pulse correlation has harmonics up to the 9th, docs/model.md).
@@ -29,7 +29,7 @@ pub trait Signature: Send + Sync {
         Vec::new()
     }
     /// Starting points for the non-linear parameters (variable projection).
-    fn nl_grid(&self, _recs: &[Rec], _prep: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _recs: &[Sample], _prep: &Prepared) -> Vec<Vec<f64>> {
         vec![self.nl_start()]
     }
     /// Basis values b_j at one sample.
@@ -193,7 +193,7 @@ impl Signature for Sbi {
             vec![0.0]
         }
     }
-    fn nl_grid(&self, recs: &[Rec], prep: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let kappas: Vec<f64> = if self.ambient_varies {
             // signal vs ambient charge per unit: unknown over many decades
             // (ambient responsivity, contrast, conversion gain of the sensor)
@@ -214,7 +214,8 @@ impl Signature for Sbi {
             let qs: Vec<f64> = recs
                 .iter()
                 .step_by((recs.len() / 4000).max(1))
-                .map(|r| {
+                .map(|s| {
+                    let r = &s.rec(prep);
                     let (a, b) = self.taps(&nl0, r, &prep.caps[r.cap as usize]);
                     a.max(b)
                 })
@@ -296,7 +297,7 @@ impl Signature for Droop {
     fn nl_start(&self) -> Vec<f64> {
         vec![5.0, 1.0, 0.0]
     }
-    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         let mut g = Vec::new();
         for k0 in [0.0, 1.0] {
             for beta in [0.0, 1.0] {
@@ -355,12 +356,12 @@ impl Signature for AmpPhase {
     fn nl_start(&self) -> Vec<f64> {
         vec![5.0, 0.0]
     }
-    fn nl_grid(&self, recs: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
             .iter()
             .step_by((recs.len() / 4000).max(1))
             .filter(|r| r.a > 0.0)
-            .map(|r| r.a)
+            .map(|r| f64::from(r.a))
             .collect();
         let mut refs = quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]);
         // far above every amplitude: the linear regime
@@ -415,11 +416,16 @@ impl Signature for Harmonics {
             .collect()
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let x = r.phi - r.theta;
-        for (i, h) in (self.from..=MAX_HARMONIC).enumerate() {
-            let (s, c) = (h as f64 * x).sin_cos();
-            out[2 * i] = r.a * c;
-            out[2 * i + 1] = -r.a * s;
+        // e^{ihx} by complex multiplication from e^{ix}: one sin_cos per sample
+        let (s1, c1) = (r.phi - r.theta).sin_cos();
+        let (mut zr, mut zi) = (c1, s1);
+        for _ in 1..self.from {
+            (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
+        }
+        for i in 0..=MAX_HARMONIC.saturating_sub(self.from) {
+            out[2 * i] = r.a * zr;
+            out[2 * i + 1] = -r.a * zi;
+            (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
         }
     }
 }
@@ -483,7 +489,7 @@ impl Signature for Multipath {
     fn nl_start(&self) -> Vec<f64> {
         vec![0.3]
     }
-    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         [0.05, 0.1, 0.2, 0.4, 0.8, 1.6]
             .iter()
             .map(|v| vec![*v])
@@ -495,7 +501,8 @@ impl Signature for Multipath {
         let g = (d / (d + l)).powi(2);
         let x = r.phi + self.k_phase * l - r.theta;
         // first harmonic of the second return (the higher ones are small)
-        out[0] = r.a * g * x.cos();
-        out[1] = -r.a * g * x.sin();
+        let (sx, cx) = x.sin_cos();
+        out[0] = r.a * g * cx;
+        out[1] = -r.a * g * sx;
     }
 }
