@@ -461,6 +461,44 @@ mod tests {
     use super::*;
     use ndarray::Array2;
 
+    /// A frame whose every pixel has amplitude `a` and phase `ph` (wrapped into [0, 2π) as the
+    /// pipeline does).
+    fn uniform_frame(a: f32, ph: f32) -> DepthFrame {
+        let mut f = DepthFrame::zeros(4, 6);
+        f.amplitude_lsb.fill(a);
+        f.phase_rad.fill(ph.rem_euclid(std::f32::consts::TAU));
+        f
+    }
+
+    #[test]
+    fn the_window_residual_points_at_zero_phase_a_target_does_not() {
+        let roi = Roi::centered(4, 6, 1.0);
+        let tol = crate::phasor::distance_to_phase_rad(0.05, 80e6);
+        // a residual at ≈ 0 mm, also with noise pushing it below 0 (reads just under d_u)
+        assert!(phasor_points_at_window(
+            &uniform_frame(20.0, 0.02),
+            roi,
+            tol
+        ));
+        assert!(phasor_points_at_window(
+            &uniform_frame(20.0, -0.05),
+            roi,
+            tol
+        ));
+        // a wall at 1 m (φ = 3.35 rad at 80 MHz) or 30 cm does not
+        for d in [1.0, 0.3] {
+            let ph = crate::phasor::distance_to_phase_rad(d, 80e6) as f32;
+            assert!(
+                !phasor_points_at_window(&uniform_frame(20.0, ph), roi, tol),
+                "{d} m"
+            );
+        }
+        // saturated pixels are left out: nothing usable, no verdict
+        let mut f = uniform_frame(20.0, 0.0);
+        f.flags.fill(FLAG_SATURATED);
+        assert!(!phasor_points_at_window(&f, roi, tol));
+    }
+
     #[test]
     fn monitor_reports_a_persistent_change_with_hysteresis() {
         let mut m = CrosstalkMonitor::new(0.5, 4);

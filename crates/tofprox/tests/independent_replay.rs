@@ -131,7 +131,7 @@ fn independent_phone_simulation_replays_without_false_or_missed_near() {
             && (hand_like || r.near_captures == 0)
             && (!hand_like || r.near_captures > 0);
         if !ok {
-            bad.push(format!("{r:?}"));
+            bad.push(format!("{}: {r:?}", r.name));
         }
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));
