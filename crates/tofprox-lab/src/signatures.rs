@@ -112,7 +112,11 @@ pub fn make_signature(
         }),
         "vcsel_droop" => Box::new(Droop),
         "amplitude_phase_error" => Box::new(AmpPhase),
-        "temperature_drift" => Box::new(TempDrift),
+        "temperature_drift" => Box::new(TempDrift {
+            // a held model keeps its own law; a fit takes the ΔT² terms only
+            // where ≥ 3 temperatures tell them from the linear ones
+            second_order: spec.held.iter().any(|h| h.id == id) || distinct_temperatures(prep) >= 3,
+        }),
         "waveform_harmonics" => Box::new(Harmonics {
             from: spec.harmonic_order.max(1) + 1,
         }),
@@ -382,21 +386,46 @@ impl Signature for AmpPhase {
 }
 
 /// Temperature drift: phase and gain linear in T − T_ref.
-struct TempDrift;
+struct TempDrift {
+    /// With the ΔT² terms (identifiable from ≥ 3 distinct temperatures).
+    second_order: bool,
+}
 impl Signature for TempDrift {
     fn id(&self) -> &'static str {
         "temperature_drift"
     }
     fn n_lin(&self) -> usize {
-        2
+        if self.second_order { 4 } else { 2 }
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase_rad_per_k".into(), "gain_per_k".into()]
+        let mut v = vec!["phase_rad_per_k".into(), "gain_per_k".into()];
+        if self.second_order {
+            v.extend(["phase_rad_per_k2".into(), "gain_per_k2".into()]);
+        }
+        v
     }
     fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        out[0] = r.a * r.cd * cap.temp_rel;
-        out[1] = r.a * r.c * cap.temp_rel;
+        // the model's law: Δφ and the relative gain are polynomials in ΔT
+        let t = tofprox_model::effects::pixel::temperature_drift_terms(cap.temp_rel);
+        for (i, ti) in t.iter().take(self.n_lin() / 2).enumerate() {
+            out[2 * i] = r.a * r.cd * ti;
+            out[2 * i + 1] = r.a * r.c * ti;
+        }
     }
+}
+
+/// Distinct temperatures of the illuminated captures the fit uses.
+fn distinct_temperatures(prep: &Prepared) -> usize {
+    let mut t: Vec<i64> = prep
+        .caps
+        .iter()
+        .filter(|c| c.illum && c.used)
+        .filter_map(|c| c.temperature_c)
+        .map(|t| (t * 1e3).round() as i64)
+        .collect();
+    t.sort_unstable();
+    t.dedup();
+    t.len()
 }
 
 /// Harmonics of the correlation above the fitted order (3.2.2): A·Re[γ_h e^{ih(φ−θ)}].

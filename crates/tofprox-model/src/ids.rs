@@ -131,10 +131,12 @@ effect_ids! {
     /// Demodulation contrast.
     demodulation_contrast { CONTRAST = "contrast" }
     /// Non-sinusoidal correlation (wiggling).
-    /// Parameters by harmonic: [`harmonic`](super::harmonic).
+    /// Parameters by harmonic: [`harmonic`].
     waveform_harmonics {}
     /// Multipath return.
     multipath { RELATIVE_AMPLITUDE = "relative_amplitude", EXTRA_PATH_M = "extra_path_m" }
+    /// Cover-window crosstalk.
+    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
     /// VCSEL power droop over successive raw images.
     vcsel_droop { DROOP_REL = "droop_rel", TAU_US = "tau_us", EXPOSURE_POWER = "exposure_power", FIRST_IMAGE_INDEX = "first_image_index" }
     /// Photo-response non-uniformity incl. vignetting.
@@ -144,15 +146,13 @@ effect_ids! {
     /// Amplitude-dependent phase error.
     amplitude_phase_error { MAX_RAD = "max_rad", REFERENCE_E = "reference_e", SHAPE = "shape" }
     /// Temperature drift of phase and gain.
-    temperature_drift { PHASE_MRAD_PER_K = "phase_mrad_per_k", GAIN_REL_PER_K = "gain_rel_per_k", REFERENCE_C = "reference_c" }
+    temperature_drift { PHASE_MRAD_PER_K = "phase_mrad_per_k", GAIN_REL_PER_K = "gain_rel_per_k", PHASE_MRAD_PER_K2 = "phase_mrad_per_k2", GAIN_REL_PER_K2 = "gain_rel_per_k2", REFERENCE_C = "reference_c" }
     /// Uncorrelated background light.
     ambient_light { E_PER_US_PER_KLUX = "e_per_us_per_klux" }
     /// Dark current and its shot noise.
     dark_current { E_PER_US = "e_per_us", DOUBLING_C = "doubling_c" }
     /// SBI circuit with mismatch.
     sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel" }
-    /// Cover-window crosstalk.
-    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
     /// Tap gain mismatch (A/B).
     tap_gain_mismatch { MISMATCH_REL = "mismatch_rel" }
     /// Fixed-pattern offset (FPN) of the read-out.
