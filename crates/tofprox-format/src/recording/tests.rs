@@ -192,7 +192,11 @@ fn toml_errors_name_the_key() {
     assert_eq!(e.kind(), ErrorKind::Syntax);
     assert!(e.to_string().contains("my_custom_key"), "{e}");
     // the key path of the value itself (serde_path_to_error), not only its table
-    assert_eq!(e.key_name(), Some("capture[0].conditions.my_custom_key"), "{e}");
+    assert_eq!(
+        e.key_name(),
+        Some("capture[0].conditions.my_custom_key"),
+        "{e}"
+    );
 
     let e = open_err_after(|t| t.replacen("distance_m = 0.35", "distance_m = nan", 1));
     assert_eq!(e.key_name(), Some("capture[0].conditions.distance_m"));
