@@ -378,85 +378,103 @@ struct RecordingToml {
     kind: Option<RecordingKind>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     description: Option<String>,
-    sensor: SensorSection,
+    sensor: SensorGeometry,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     capture: Vec<CaptureMeta>,
 }
 
-/// The `[sensor]` table: the geometry and the phase convention
-/// (`phase_shift_applies_to`, `phase_sign`; written only when not the canonical one).
-#[derive(Debug, Serialize)]
-struct SensorSection {
-    #[serde(flatten)]
-    geometry: SensorGeometry,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    phase_shift_applies_to: Option<&'static str>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    phase_sign: Option<i8>,
-}
-
-/// Keys of the phase convention in `[sensor]`.
+/// Keys of the phase convention in `[sensor]` (version 2; docs/recording-format.md).
 const PHASE_SHIFT_KEY: &str = "phase_shift_applies_to";
 const PHASE_SIGN_KEY: &str = "phase_sign";
 
-impl SensorSection {
-    fn new(geometry: SensorGeometry, convention: PhaseConvention) -> Self {
-        let canonical = PhaseConvention::CANONICAL;
-        SensorSection {
-            geometry,
-            phase_shift_applies_to: (convention.shifted != canonical.shifted).then_some(
-                match convention.shifted {
-                    ShiftedSignal::Demodulation => "demodulation",
-                    ShiftedSignal::Illumination => "illumination",
-                },
-            ),
-            phase_sign: (convention.sign != canonical.sign).then_some(convention.sign),
+/// Read the phase convention keys of `[sensor]` and blank their lines (line numbers kept), so
+/// the geometry's own strict reading (unknown keys refused, key paths of errors) sees the rest.
+/// Only `key = value` lines are recognised; anywhere else the keys are unknown keys.
+fn take_phase_convention<'t>(
+    path: &Path,
+    text: &'t str,
+) -> Result<(PhaseConvention, std::borrow::Cow<'t, str>), FormatError> {
+    let mut table = String::new();
+    let mut convention = PhaseConvention::CANONICAL;
+    let mut out = String::with_capacity(text.len());
+    let mut changed = false;
+    for (n, line) in text.split_inclusive('\n').enumerate() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            table = l
+                .trim_start_matches('[')
+                .split(']')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_string();
+        }
+        let key = l.split('=').next().unwrap_or("").trim();
+        if table == "sensor" && (key == PHASE_SHIFT_KEY || key == PHASE_SIGN_KEY) {
+            let at = |msg: String| {
+                invalid(format!("line {}: {msg}", n + 1))
+                    .at(path)
+                    .key(format!("sensor.{key}"))
+            };
+            let value: toml::Table =
+                toml::from_str(l).map_err(|e| at(e.message().trim().to_string()))?;
+            match (key, value.get(key)) {
+                (PHASE_SHIFT_KEY, Some(toml::Value::String(v))) if v == "demodulation" => {
+                    convention.shifted = ShiftedSignal::Demodulation
+                }
+                (PHASE_SHIFT_KEY, Some(toml::Value::String(v))) if v == "illumination" => {
+                    convention.shifted = ShiftedSignal::Illumination
+                }
+                (PHASE_SIGN_KEY, Some(toml::Value::Integer(v))) if *v == 1 || *v == -1 => {
+                    convention.sign = if *v < 0 { -1 } else { 1 }
+                }
+                (PHASE_SHIFT_KEY, _) => {
+                    return Err(at("must be \"demodulation\" or \"illumination\"".into()));
+                }
+                _ => return Err(at("must be 1 or -1".into())),
+            }
+            out.push_str(if line.ends_with('\n') { "\n" } else { "" });
+            changed = true;
+        } else {
+            out.push_str(line);
         }
     }
-
-    fn convention(&self) -> PhaseConvention {
-        PhaseConvention {
-            shifted: match self.phase_shift_applies_to {
-                Some("illumination") => ShiftedSignal::Illumination,
-                _ => ShiftedSignal::Demodulation,
-            },
-            sign: self.phase_sign.unwrap_or(1),
-        }
-    }
+    Ok((
+        convention,
+        if changed {
+            std::borrow::Cow::Owned(out)
+        } else {
+            std::borrow::Cow::Borrowed(text)
+        },
+    ))
 }
 
-impl<'de> Deserialize<'de> for SensorSection {
-    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
-        use serde::de::Error as _;
-        let mut table = toml::Table::deserialize(d)?;
-        let shifted = match table.remove(PHASE_SHIFT_KEY) {
-            None => None,
-            Some(toml::Value::String(v)) if v == "demodulation" => Some("demodulation"),
-            Some(toml::Value::String(v)) if v == "illumination" => Some("illumination"),
-            Some(v) => {
-                return Err(D::Error::custom(format!(
-                    "invalid value for field `{PHASE_SHIFT_KEY}`: {v}, expected \"demodulation\" or \"illumination\""
-                )));
-            }
-        };
-        let sign = match table.remove(PHASE_SIGN_KEY) {
-            None => None,
-            Some(toml::Value::Integer(1)) => Some(1),
-            Some(toml::Value::Integer(-1)) => Some(-1),
-            Some(v) => {
-                return Err(D::Error::custom(format!(
-                    "invalid value for field `{PHASE_SIGN_KEY}`: {v}, expected 1 or -1"
-                )));
-            }
-        };
-        let geometry = SensorGeometry::deserialize(toml::Value::Table(table))
-            .map_err(|e| D::Error::custom(e.message()))?;
-        Ok(SensorSection {
-            geometry,
-            phase_shift_applies_to: shifted,
-            phase_sign: sign,
-        })
+/// `text` (a rendered `recording.toml`) with the phase convention's keys at the end of
+/// `[sensor]` when it is not the canonical one.
+fn with_phase_convention(text: String, convention: PhaseConvention) -> String {
+    if convention.is_canonical() {
+        return text;
     }
+    let mut keys = String::new();
+    if convention.shifted == ShiftedSignal::Illumination {
+        keys.push_str(&format!("{PHASE_SHIFT_KEY} = \"illumination\"\n"));
+    }
+    if convention.sign < 0 {
+        keys.push_str(&format!("{PHASE_SIGN_KEY} = -1\n"));
+    }
+    let Some(start) = text.find("[sensor]\n") else {
+        return text;
+    };
+    // the table ends at the next blank line or header
+    let body = start + "[sensor]\n".len();
+    let end = text[body..]
+        .find("\n\n")
+        .map(|e| body + e + 1)
+        .or_else(|| text[body..].find("\n[").map(|e| body + e + 1))
+        .unwrap_or(text.len());
+    let mut out = text;
+    out.insert_str(end, &keys);
+    out
 }
 
 /// Check a capture's metadata (not its file); errors carry the key below `capture[i]`.
@@ -821,9 +839,9 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
     if kind != RecordingKind::Raw {
         return Err(wrong_kind(path, kind));
     }
-    let raw: RecordingToml = parse_toml(path, text)?;
-    let convention = raw.sensor.convention();
-    let sensor = raw.sensor.geometry;
+    let (convention, text) = take_phase_convention(path, text)?;
+    let raw: RecordingToml = parse_toml(path, &text)?;
+    let sensor = raw.sensor;
     // the documented limits first, then the geometry's own rules
     check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;
     sensor
@@ -871,10 +889,12 @@ fn render_recording_toml(
         version: RECORDING_VERSION,
         kind: Some(RecordingKind::Raw),
         description: description.map(str::to_string),
-        sensor: SensorSection::new(*sensor, convention),
+        sensor: *sensor,
         capture: captures,
     };
-    toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
+    toml::to_string(&t)
+        .map(|text| with_phase_convention(text, convention))
+        .map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
 }
 
 // ---------------------------------------------------------------- writer
