@@ -865,7 +865,7 @@ impl CalibrationSet {
                     ("wiggling_sha256", &pt.wiggling_sha256),
                 ],
             };
-            if t.intrinsics.is_some() && !required.is_empty() {
+            if t.intrinsics.is_some() && part.algorithm().is_some() {
                 required.push(("intrinsics_sha256", &pt.intrinsics_sha256));
             }
             if let Some((k, _)) = required.iter().find(|(_, v)| v.is_none()) {
@@ -1098,7 +1098,15 @@ fn load_part(
             .at(&file)
             .key(key));
     }
-    if part != CalibPart::Offset {
+    // phase tables and maps (the other parts are bounded where they are checked: the offset by
+    // the ADC range, the intrinsics by `Intrinsics::validate`, the amplitude scale ≥ 0)
+    if matches!(
+        part,
+        CalibPart::Wiggling2Phase
+            | CalibPart::Wiggling4Phase
+            | CalibPart::Fppn
+            | CalibPart::Fppn2Phase
+    ) {
         let max = limits::MAX_PHASE_CORRECTION_RAD;
         if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
             return Err(invalid(format!(

@@ -135,6 +135,8 @@ effect_ids! {
     waveform_harmonics {}
     /// Multipath return.
     multipath { RELATIVE_AMPLITUDE = "relative_amplitude", EXTRA_PATH_M = "extra_path_m" }
+    /// Cover-window crosstalk.
+    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
     /// VCSEL power droop over successive raw images.
     vcsel_droop { DROOP_REL = "droop_rel", TAU_US = "tau_us", EXPOSURE_POWER = "exposure_power", FIRST_IMAGE_INDEX = "first_image_index" }
     /// Photo-response non-uniformity incl. vignetting.
@@ -151,8 +153,6 @@ effect_ids! {
     dark_current { E_PER_US = "e_per_us", DOUBLING_C = "doubling_c" }
     /// SBI circuit with mismatch.
     sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel" }
-    /// Cover-window crosstalk.
-    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
     /// Tap gain mismatch (A/B).
     tap_gain_mismatch { MISMATCH_REL = "mismatch_rel" }
     /// Fixed-pattern offset (FPN) of the read-out.
