@@ -4,6 +4,8 @@ iio-sensor-proxy clients use). Prints one JSON object per line on stdout.
 
 Modes:
   native   claim org.tofprox.Proximity1 proximity, report Near changes
+           (--depth: claim depth too and report DepthFrame signals;
+            --watch-depth: report DepthFrame signals without claiming depth)
   compat   act like an iio-sensor-proxy client: claim accelerometer, light,
            proximity and compass on net.hadess.SensorProxy, report ProximityNear
   own      own a bus name (a stand-in for a running iio-sensor-proxy)
@@ -64,11 +66,13 @@ def native(bus, args):
     iface, props = interfaces(bus, "org.tofprox.Proximity1", "/org/tofprox/Proximity1",
                               "org.tofprox.Proximity1")
     watch_properties(bus, "/org/tofprox/Proximity1")
-    if args.depth:
+    if args.depth or args.watch_depth:
+        # --watch-depth: listen for DepthFrame without claiming depth (an outsider)
         def depth(ts, w, h, d, a):
             emit(event="depth", width=int(w), height=int(h), bytes=len(d))
         bus.add_signal_receiver(depth, signal_name="DepthFrame", dbus_interface="org.tofprox.Proximity1",
                                 path="/org/tofprox/Proximity1")
+    if args.depth:
         iface.ClaimDepth()
     iface.ClaimProximity(timeout=30)
     allp = props.GetAll("org.tofprox.Proximity1")
@@ -160,6 +164,7 @@ def main():
     ap.add_argument("--address", required=True)
     ap.add_argument("--timeout", type=float, default=60)
     ap.add_argument("--depth", action="store_true")
+    ap.add_argument("--watch-depth", action="store_true")
     ap.add_argument("--name", default="net.hadess.SensorProxy")
     ap.add_argument("--release-after", type=float, default=0)
     ap.add_argument("--clients", type=int, default=100)

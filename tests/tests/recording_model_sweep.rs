@@ -1,7 +1,8 @@
 //! The whole file path of a calibration, with data from the physical model:
 //! simulate a distance sweep (baseline model: non-sinusoidal correlation,
 //! FPN, FPPN, global delay, noise) → write it as a version 1 recording →
-//! read it back → extract offset + wiggling + FPPN → save and reload the
+//! read it back → extract offset + wiggling + FPPN with the calibration
+//! workflow (`tofprox_format::extract`, what `tofprox calibrate` runs) → save and reload the
 //! calibration set (checksums) → process every capture with the pipeline.
 //! Calibrated 2- and 4-phase depth must be within 1 cm of the ground truth
 //! (thesis 5.1.2.2); uncalibrated 2-phase must be far off (fig. 3.7).
@@ -12,21 +13,14 @@ use ndarray::{Axis, s};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tofprox_core::Algorithm;
-use tofprox_core::calib::{extract_fppn, extract_offset, extract_wiggling};
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_format::{
-    CalibrationSet, CaptureSpec, PartSource, RawFrames, Recording, RecordingWriter,
+    CalibPart, CalibrationSet, CaptureSpec, Extract, ExtractOptions, RawFrames, Recording,
+    RecordingWriter, extract,
 };
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
 
 const DISTANCES_M: [f64; 6] = [0.15, 0.3, 0.45, 0.6, 0.8, 1.0];
-
-fn src() -> PartSource {
-    PartSource {
-        recording: "sweep".into(),
-        ..Default::default()
-    }
-}
 
 fn spec(req: &CaptureRequest, distance_m: Option<f64>) -> CaptureSpec {
     let mut conditions = BTreeMap::new();
@@ -91,41 +85,41 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
     // --- read back and calibrate -------------------------------------------
     let rec = Recording::open(&dir).unwrap();
     assert_eq!(rec.captures().len(), 2 + DISTANCES_M.len());
+    // the workflow `tofprox calibrate` runs: fpn → wiggling (+ amplitude) → fppn
     let mut set = CalibrationSet::new(rec.sensor());
-    let off = extract_offset(rec.load(0).unwrap().to_f64().view()).unwrap();
-    set.set_offset(off, src()).unwrap();
-    let c = &rec.captures()[1];
-    let data = rec.load(1).unwrap().to_f64();
-    for alg in Algorithm::ALL {
-        let lut = extract_wiggling(
-            data.view(),
-            &c.phases_deg,
-            set.offset.as_ref(),
-            c.distance_m().unwrap(),
-            sensor.modulation_hz,
-            sensor.adc_bits,
-            alg,
-            256,
-        )
-        .unwrap();
-        set.set_wiggling(lut, src()).unwrap();
+    let mut notes = Vec::new();
+    for (what, capture) in [
+        (Extract::Offset, None),
+        (Extract::Wiggling, None),
+        (Extract::Fppn, Some(3)),
+    ] {
+        let opts = ExtractOptions {
+            capture,
+            lut_size: 256,
+            tool: "recording_model_sweep".into(),
+        };
+        let done = extract(&rec, &mut set, &what, &opts, &mut |n| {
+            notes.push(n.to_string())
+        })
+        .unwrap_or_else(|e| panic!("{what:?}: {e}"));
+        assert!(
+            done.dropped.is_empty(),
+            "{what:?} dropped {:?}",
+            done.dropped
+        );
     }
-    let flat = &rec.captures()[3];
-    let flat_data = rec.load(3).unwrap().to_f64();
-    for alg in Algorithm::ALL {
-        let fppn = extract_fppn(
-            flat_data.view(),
-            &flat.phases_deg,
-            set.offset.as_ref(),
-            set.wiggling(alg),
-            flat.distance_m().unwrap(),
-            sensor.modulation_hz,
-            sensor.adc_bits,
-            alg,
-        )
-        .unwrap();
-        set.set_fppn_for(alg, fppn, src()).unwrap();
-    }
+    assert_eq!(
+        set.sources[&CalibPart::Offset].captures,
+        vec![0],
+        "the one dark capture"
+    );
+    assert_eq!(set.sources[&CalibPart::Wiggling4Phase].captures, vec![1]);
+    assert_eq!(set.sources[&CalibPart::Fppn].captures, vec![3]);
+    // every earlier part was there when the next was extracted; only the lens was missing
+    assert!(
+        notes.iter().all(|n| n.contains("no lens intrinsics")),
+        "{notes:?}"
+    );
     let cdir = t.path().join("calib");
     set.save(&cdir).unwrap();
     let set = CalibrationSet::load(&cdir).unwrap();

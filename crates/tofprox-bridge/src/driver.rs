@@ -5,9 +5,10 @@
 //! times (the flash image overwrites them every time) → start → read K raw
 //! frames → stop measurement → stop sensor (reset low).
 //!
-//! Every wait is a bounded poll that sleeps on the injected [`Clock`].
+//! Every wait is a bounded poll that sleeps on the injected [`Clock`]. The
+//! SPI-flash commands are in `spi`, the configuration and its files in
+//! `config`.
 
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -17,12 +18,16 @@ use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::clock::Clock;
 use crate::error::{BridgeError, ErrorKind, ResultExt};
-use crate::flash;
 use crate::frame::{ContentError, decode_frame};
-use crate::protocol::{Cx3, ProtocolConfig};
-use crate::regmap::{RegWrite, SensorMap, bursts};
+use crate::protocol::Cx3;
+use crate::regmap::{RegWrite, bursts};
 use crate::transport::UsbTransport;
 use crate::uvc::{FrameSpec, Push, Reassembler, ReassemblyStats};
+
+mod config;
+mod spi;
+
+pub use config::{DeviceConfigFile, DriverConfig, DriverConfigFile, DriverTiming};
 
 /// What one cycle measures: a use case of the register map. The depth modes are the shared
 /// measurement mode [`Algorithm`]; the register map also has a grey and a correlation use case.
@@ -144,123 +149,6 @@ pub struct CycleOutput {
     pub flash_written: bool,
     /// Clock time at the end of the capture (for time stamps).
     pub captured_at: Duration,
-}
-
-/// Driver waits and policies. Every wait is bounded.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DriverTiming {
-    /// Reset held low before release, µs.
-    pub reset_low_us: u64,
-    /// Sleep after reset release before the first chip-id read, µs.
-    pub startup_delay_us: u64,
-    /// Give up on the chip id after this long (→ `ResetStuck`), ms.
-    pub startup_timeout_ms: u64,
-    /// Sleep between status polls, µs.
-    pub poll_interval_us: u64,
-    /// Flash load must finish in this time, ms.
-    pub flash_load_timeout_ms: u64,
-    /// One sector erase must finish in this time, ms.
-    pub flash_erase_timeout_ms: u64,
-    /// One page program must finish in this time, ms.
-    pub flash_program_timeout_ms: u64,
-    /// One SPI forwarding transfer must finish in this time, ms.
-    pub spi_timeout_ms: u64,
-    /// Write the flash image when it is missing or corrupt (thesis 4.10).
-    pub write_flash_if_missing: bool,
-    /// Extra measurements to try within a cycle after a dropped frame
-    /// (0: the cycle fails with `CorruptFrame`).
-    pub frame_retries: u32,
-}
-
-impl Default for DriverTiming {
-    fn default() -> Self {
-        DriverTiming {
-            reset_low_us: 100,
-            startup_delay_us: 1000,
-            startup_timeout_ms: 20,
-            poll_interval_us: 200,
-            flash_load_timeout_ms: 50,
-            flash_erase_timeout_ms: 500,
-            flash_program_timeout_ms: 10,
-            spi_timeout_ms: 5,
-            write_flash_if_missing: true,
-            frame_retries: 0,
-        }
-    }
-}
-
-/// Driver configuration: protocol, register map, waits.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DriverConfig {
-    /// Bridge protocol.
-    pub protocol: ProtocolConfig,
-    /// Register map.
-    pub map: SensorMap,
-    /// Waits and policies.
-    pub timing: DriverTiming,
-}
-
-/// The file form of [`DriverConfig`] (`[driver]` table or a file).
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DriverConfigFile {
-    /// Register map file, relative to the config file (default: the
-    /// built-in emulated map).
-    #[serde(default)]
-    pub sensor_map: Option<PathBuf>,
-    /// Bridge protocol.
-    #[serde(default)]
-    pub protocol: ProtocolConfig,
-    /// Waits and policies.
-    #[serde(default)]
-    pub timing: DriverTiming,
-}
-
-impl DriverConfigFile {
-    /// Resolve into a [`DriverConfig`]; relative map paths are taken from
-    /// `base_dir`.
-    pub fn resolve(&self, base_dir: &Path) -> Result<DriverConfig, BridgeError> {
-        let map = match &self.sensor_map {
-            Some(p) => SensorMap::load(&base_dir.join(p))?,
-            None => SensorMap::emulated(),
-        };
-        let c = DriverConfig {
-            protocol: self.protocol.clone(),
-            map,
-            timing: self.timing.clone(),
-        };
-        c.validate()?;
-        Ok(c)
-    }
-}
-
-impl DriverConfig {
-    /// The built-in emulated map with default protocol and waits.
-    pub fn emulated_default() -> Self {
-        DriverConfig {
-            protocol: ProtocolConfig::default(),
-            map: SensorMap::emulated(),
-            timing: DriverTiming::default(),
-        }
-    }
-
-    /// Range checks of everything.
-    pub fn validate(&self) -> Result<(), BridgeError> {
-        self.protocol.validate()?;
-        self.map.validate()?;
-        let t = &self.timing;
-        if t.poll_interval_us == 0 {
-            return Err(BridgeError::config("timing.poll_interval_us must be > 0"));
-        }
-        let words = usize::from(self.map.spi.window_bytes) / 2;
-        if words > usize::from(u16::MAX) - usize::from(self.map.spi.tx_base) {
-            return Err(BridgeError::config(
-                "spi.window_bytes runs past register 0xffff",
-            ));
-        }
-        Ok(())
-    }
 }
 
 /// Counters over the driver's life.
@@ -585,159 +473,6 @@ impl<T: UsbTransport> SensorDriver<T> {
         )
     }
 
-    /// Issue the flash load command and wait for its status.
-    fn load_from_flash(&mut self) -> Result<(), BridgeError> {
-        let f = self.cfg.map.flash.clone();
-        self.write_reg(f.load_register, f.load_value)
-            .ctx(|| "flash load command")?;
-        let v = self.poll_reg(
-            f.status_register,
-            ms(self.cfg.timing.flash_load_timeout_ms),
-            "flash load",
-            |v| v != f.status_busy,
-        )?;
-        if v == f.status_ok {
-            Ok(())
-        } else if v == f.status_empty {
-            Err(BridgeError::new(
-                ErrorKind::FlashEmpty,
-                "flash holds no configuration image",
-            ))
-        } else if v == f.status_corrupt {
-            Err(BridgeError::new(
-                ErrorKind::FlashCorrupt,
-                "flash configuration image is corrupt (checksum)",
-            ))
-        } else {
-            Err(BridgeError::new(
-                ErrorKind::Protocol,
-                format!("flash load status {v:#06x} unknown"),
-            ))
-        }
-    }
-
-    /// One SPI transfer through the forwarding registers; returns the bytes
-    /// clocked in (same length as `tx`) if `want_rx`.
-    fn spi_transfer(&mut self, tx: &[u8], want_rx: bool) -> Result<Vec<u8>, BridgeError> {
-        let s = self.cfg.map.spi.clone();
-        if tx.is_empty() || tx.len() > usize::from(s.window_bytes) {
-            return Err(BridgeError::config(format!(
-                "SPI transfer of {} bytes exceeds the {}-byte window",
-                tx.len(),
-                s.window_bytes
-            )));
-        }
-        let words: Vec<u16> = tx
-            .chunks(2)
-            .map(|c| u16::from_be_bytes([c[0], c.get(1).copied().unwrap_or(0)]))
-            .collect();
-        let addr = self.addr();
-        self.cx3
-            .i2c_write(&mut self.transport, addr, s.tx_base, &words)?;
-        let len = u16::try_from(tx.len()).unwrap_or(u16::MAX);
-        self.write_reg(s.length_register, len)?;
-        self.write_reg(s.trigger_register, 1)?;
-        self.poll_reg(
-            s.busy_register,
-            ms(self.cfg.timing.spi_timeout_ms),
-            "SPI forwarding",
-            |v| v & 1 == 0,
-        )?;
-        if !want_rx {
-            return Ok(Vec::new());
-        }
-        let rx = self
-            .cx3
-            .i2c_read(&mut self.transport, addr, s.rx_base, words.len())?;
-        let mut out = Vec::with_capacity(tx.len());
-        for w in rx {
-            out.extend_from_slice(&w.to_be_bytes());
-        }
-        out.truncate(tx.len());
-        Ok(out)
-    }
-
-    fn spi_wait_ready(&mut self, timeout: Duration, what: &str) -> Result<(), BridgeError> {
-        self.poll_until(
-            timeout,
-            |d| {
-                let rx = d.spi_transfer(&[flash::CMD_RDSR, 0], true)?;
-                let sr = rx.get(1).copied().unwrap_or(0xFF);
-                Ok(if sr & flash::SR_WIP == 0 {
-                    Ok(())
-                } else {
-                    Err(sr)
-                })
-            },
-            |sr| {
-                BridgeError::new(
-                    ErrorKind::Timeout,
-                    format!("{what}: flash still busy (status {sr:#04x}) after {timeout:?}"),
-                )
-            },
-        )
-    }
-
-    /// Write the full configuration image to flash through the SPI
-    /// forwarding registers: erase, page program, busy poll, read-back
-    /// verify with CRC-32.
-    fn write_flash(&mut self) -> Result<(), BridgeError> {
-        let image = flash::encode_image(&self.cfg.map.sequences.flash_image);
-        let base = self.cfg.map.flash.image_address;
-        let s = self.cfg.map.spi.clone();
-        let t = self.cfg.timing.clone();
-        let len =
-            u32::try_from(image.len()).map_err(|_| BridgeError::config("flash image too large"))?;
-        // erase
-        let mut sector = base;
-        while sector < base + len {
-            self.spi_transfer(&[flash::CMD_WREN], false)?;
-            self.spi_transfer(&flash::cmd_addr(flash::CMD_SE, sector), false)?;
-            self.spi_wait_ready(
-                ms(t.flash_erase_timeout_ms),
-                &format!("erase sector {sector:#08x}"),
-            )?;
-            sector += s.sector_bytes;
-        }
-        // program, never crossing a page or the window
-        let max_data = u32::from(s.window_bytes) - 4;
-        let mut off = 0u32;
-        while off < len {
-            let addr = base + off;
-            let page_left = s.page_bytes - addr % s.page_bytes;
-            let n = page_left.min(max_data).min(len - off);
-            let mut tx = flash::cmd_addr(flash::CMD_PP, addr).to_vec();
-            tx.extend_from_slice(&image[off as usize..(off + n) as usize]);
-            self.spi_transfer(&[flash::CMD_WREN], false)?;
-            self.spi_transfer(&tx, false)?;
-            self.spi_wait_ready(
-                ms(t.flash_program_timeout_ms),
-                &format!("program {addr:#08x}"),
-            )?;
-            off += n;
-        }
-        // verify
-        let mut back = Vec::with_capacity(image.len());
-        let mut off = 0u32;
-        while off < len {
-            let n = max_data.min(len - off);
-            let mut tx = flash::cmd_addr(flash::CMD_READ, base + off).to_vec();
-            tx.resize(4 + n as usize, 0);
-            let rx = self.spi_transfer(&tx, true)?;
-            back.extend_from_slice(rx.get(4..).unwrap_or(&[]));
-            off += n;
-        }
-        let (want, got) = (crc32fast::hash(&image), crc32fast::hash(&back));
-        if back.len() != image.len() || want != got {
-            return Err(BridgeError::new(
-                ErrorKind::FlashCorrupt,
-                format!("flash verify failed: CRC-32 {got:#010x}, written {want:#010x}"),
-            ));
-        }
-        self.stats.flash_writes += 1;
-        Ok(())
-    }
-
     fn cycle_inner(&mut self, req: &CycleRequest) -> Result<CycleOutput, BridgeError> {
         let clock = Arc::clone(&self.clock);
         let t0 = clock.now();
@@ -987,54 +722,4 @@ impl<T: UsbTransport> SensorDriver<T> {
             format!("measurement incomplete: {next} of {k} raw frames before the deadline"),
         ))
     }
-}
-
-/// A real-hardware device file (`config/sensor/device.toml`): which USB
-/// device, and the driver settings.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct DeviceConfigFile {
-    /// USB device selection.
-    pub usb: crate::usb::UsbSelector,
-    /// Driver (register map, protocol, waits).
-    pub driver: DriverConfigFile,
-}
-
-impl DeviceConfigFile {
-    /// Load a device file; returns it with the resolved driver config.
-    pub fn load(path: &Path) -> Result<(Self, DriverConfig), BridgeError> {
-        let f: DeviceConfigFile = read_toml(path, "device config")?;
-        let d = f.driver.resolve_beside(path)?;
-        Ok((f, d))
-    }
-}
-
-impl DriverConfigFile {
-    /// Load a driver file (the `[driver]` table's keys at top level) and resolve
-    /// it; a relative register map path is taken from the file's directory.
-    pub fn load(path: &Path) -> Result<DriverConfig, BridgeError> {
-        read_toml::<DriverConfigFile>(path, "driver config")?.resolve_beside(path)
-    }
-
-    /// [`Self::resolve`] relative to the directory of the file at `path`, errors
-    /// prefixed with that path.
-    fn resolve_beside(&self, path: &Path) -> Result<DriverConfig, BridgeError> {
-        let base = path.parent().unwrap_or(Path::new("."));
-        self.resolve(base)
-            .map_err(|e| e.context_prefix(path.display()))
-    }
-}
-
-/// Read and parse a TOML config file (`what` names it in the error).
-fn read_toml<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T, BridgeError> {
-    let s = std::fs::read_to_string(path).map_err(|e| {
-        BridgeError::with_source(
-            ErrorKind::Config,
-            format!("cannot read {}", path.display()),
-            e,
-        )
-    })?;
-    toml::from_str(&s).map_err(|e| {
-        BridgeError::with_source(ErrorKind::Config, format!("{what} {}", path.display()), e)
-    })
 }

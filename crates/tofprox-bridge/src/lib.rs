@@ -3,25 +3,28 @@
 //!
 //! Layers, each behind a trait and tested without the one below:
 //! 1. [`transport`]: [`UsbTransport`] (blocking control/bulk transfers with
-//!    timeouts); [`usb::RusbTransport`] over libusb, [`EmulatedDevice`].
+//!    timeouts); [`usb::RusbTransport`] over libusb, `EmulatedDevice`.
 //! 2. [`protocol`] (CX3 vendor requests: I2C, GPIO, streaming) and [`uvc`]
 //!    (payload headers, frame reassembly), [`frame`] (status line, pixels).
 //! 3. [`driver`]: [`SensorDriver`] runs the thesis's per-cycle sequence
 //!    using the register map of [`regmap`] and the flash image of [`flash`].
-//! 4. [`emulated`]: the transfer-level emulated device with fault injection.
+//! 4. `emulated` (cargo feature `emulated`, on by default): the transfer-level
+//!    emulated device with fault injection, synthesising frames with the
+//!    physical model (`tofprox-model`). Without the feature the crate does
+//!    not link the model: `cargo build -p tofprox-bridge --no-default-features`.
 //!
-//! Every call blocks; see [`stream::DriverThread`] for running the driver off
-//! an async runtime. All waits sleep on an injected [`Clock`].
+//! Every call blocks (the daemon runs the driver on its own loop thread). All
+//! waits sleep on an injected [`Clock`].
 
 pub mod clock;
 pub mod driver;
+#[cfg(feature = "emulated")]
 pub mod emulated;
 pub mod error;
 pub mod flash;
 pub mod frame;
 pub mod protocol;
 pub mod regmap;
-pub mod stream;
 pub mod transport;
 pub mod usb;
 pub mod uvc;
@@ -31,6 +34,7 @@ pub use driver::{
     CycleOutput, CycleRequest, DeviceConfigFile, DriverConfig, DriverConfigFile, DriverStats,
     DriverTiming, SensorDriver, SensorMode, StateTimings,
 };
+#[cfg(feature = "emulated")]
 pub use emulated::{EmulatedConfig, EmulatedDevice, FaultKind};
 pub use error::{BridgeError, ErrorKind};
 pub use protocol::ProtocolConfig;

@@ -1,11 +1,11 @@
 //! Layer 1: the USB transport trait. Everything above (CX3 protocol, sensor
 //! driver) talks to a [`UsbTransport`]; the real one is
 //! [`crate::usb::RusbTransport`], the emulated one
-//! [`crate::emulated::EmulatedDevice`], and tests use scripted fakes.
+//! `emulated::EmulatedDevice` (feature `emulated`), and tests use scripted fakes.
 //!
 //! All calls **block** until the transfer completes or its timeout expires.
 //! In an async program run them off the runtime: the whole driver cycle on a
-//! dedicated thread feeding a bounded channel (see [`crate::stream`]), or
+//! dedicated thread feeding a bounded channel (as the daemon's loop thread does), or
 //! short control transfers on a blocking pool.
 
 use std::time::Duration;

@@ -278,34 +278,6 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
 }
 
 #[test]
-fn driver_thread_serves_cycles_over_bounded_channels() {
-    use tofprox_bridge::stream::{DriverCommand, DriverThread};
-    let (d, _c) = driver(fast(), 11);
-    let t = DriverThread::spawn(d, 1).unwrap();
-    let o = t
-        .cycle(
-            req(SensorMode::Depth(Algorithm::TwoPhase), 200.0),
-            std::time::Duration::from_secs(10),
-        )
-        .unwrap();
-    assert_eq!(o.frames.dim(), (2, 172, 224));
-    let bad = CycleRequest {
-        exposure_us: -1.0,
-        ..req(SensorMode::Depth(Algorithm::TwoPhase), 200.0)
-    };
-    let e = t
-        .cycle(bad, std::time::Duration::from_secs(10))
-        .unwrap_err();
-    assert_eq!(e.kind(), ErrorKind::Config);
-    t.send(DriverCommand::PowerOff).unwrap();
-    assert!(matches!(
-        t.recv_timeout(std::time::Duration::from_secs(10)).unwrap(),
-        tofprox_bridge::stream::DriverReply::PowerOff(Ok(()))
-    ));
-    drop(t); // joins the thread
-}
-
-#[test]
 fn unplugged_device_is_not_found_until_replugged() {
     let mut cfg = fast();
     cfg.faults.unplug.at_cycles = vec![2];

@@ -830,10 +830,11 @@ impl CalibrationSet {
         check_header(&path, &text)?;
         let t: CalibToml = toml::from_str(&text).map_err(|e| from_toml(&path, &text, &e))?;
         let sensor = t.valid_for;
+        // the documented limits first, then the geometry's own rules
+        crate::recording::check_sensor_limits(&sensor, "valid_for").map_err(|e| e.at(&path))?;
         sensor
             .validate()
             .map_err(|e| geometry_invalid(e, "valid_for").at(&path))?;
-        crate::recording::check_sensor_limits(&sensor, "valid_for").map_err(|e| e.at(&path))?;
         let mut set = CalibrationSet::new(&sensor);
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
@@ -865,7 +866,15 @@ impl CalibrationSet {
                     ("wiggling_sha256", &pt.wiggling_sha256),
                 ],
             };
-            if t.intrinsics.is_some() && part.algorithm().is_some() {
+            // (only the parts extracted through the lens record it: wiggling and FPPN)
+            let through_lens = matches!(
+                part,
+                CalibPart::Wiggling2Phase
+                    | CalibPart::Wiggling4Phase
+                    | CalibPart::Fppn
+                    | CalibPart::Fppn2Phase
+            );
+            if t.intrinsics.is_some() && through_lens {
                 required.push(("intrinsics_sha256", &pt.intrinsics_sha256));
             }
             if let Some((k, _)) = required.iter().find(|(_, v)| v.is_none()) {
@@ -1039,10 +1048,11 @@ fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
         path,
         text,
         CALIBRATION_FORMAT,
-        CALIBRATION_VERSION,
+        &[CALIBRATION_VERSION],
         "calibration set",
         "calibration",
     )
+    .map(|_| ())
 }
 
 fn load_part(
@@ -1098,8 +1108,20 @@ fn load_part(
             .at(&file)
             .key(key));
     }
-    // phase tables and maps (the other parts are bounded where they are checked: the offset by
-    // the ADC range, the intrinsics by `Intrinsics::validate`, the amplitude scale ≥ 0)
+    // each array within its physical range (issue 12 item 7): phase corrections within one
+    // period; the crosstalk (LSB per µs of exposure, per raw image) within one full-scale code
+    // per µs, as no exposure is shorter than 1 µs; the dark level within the ADC range (below);
+    // the lens by `Intrinsics::validate` when the set is assembled.
+    if part == CalibPart::Crosstalk {
+        let max = sensor.max_code() as f32;
+        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
+            return Err(invalid(format!(
+                "element {i} is {v} LSB/µs, beyond one full-scale code per µs (|crosstalk| ≤ {max})"
+            ))
+            .at(&file)
+            .key(key));
+        }
+    }
     if matches!(
         part,
         CalibPart::Wiggling2Phase

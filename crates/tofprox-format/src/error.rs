@@ -201,18 +201,18 @@ struct FormatHeader {
     version: Option<toml::Value>,
 }
 
-/// Check `format = "<format>"` and `version = <version>` first, so that
-/// another file or a newer version is reported as such rather than as a list
-/// of unknown keys. `what` names the file in messages (`recording`,
-/// `calibration set`), `version_of` the format (`recording`, `calibration`).
+/// Check `format = "<format>"` and `version` (one of `versions`, the newest last) first, so
+/// that another file or a newer version is reported as such rather than as a list of unknown
+/// keys; returns the version read. `what` names the file in messages (`recording`, `calibration
+/// set`), `version_of` the format (`recording`, `calibration`).
 pub(crate) fn check_format_header(
     path: &Path,
     text: &str,
     format: &str,
-    version: i64,
+    versions: &[i64],
     what: &str,
     version_of: &str,
-) -> Result<(), FormatError> {
+) -> Result<i64, FormatError> {
     let header: FormatHeader = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
     match &header.format {
         None => {
@@ -233,17 +233,24 @@ pub(crate) fn check_format_header(
             .key("format"));
         }
     }
+    let readable = versions
+        .iter()
+        .map(i64::to_string)
+        .collect::<Vec<_>>()
+        .join(" or ");
+    let newest = versions.last().copied().unwrap_or(0);
     match &header.version {
-        None => Err(
-            FormatError::new(ErrorKind::MissingKey, format!("missing (expected {version})"))
-                .at(path)
-                .key("version"),
-        ),
-        Some(toml::Value::Integer(v)) if *v == version => Ok(()),
+        None => Err(FormatError::new(
+            ErrorKind::MissingKey,
+            format!("missing (expected {newest})"),
+        )
+        .at(path)
+        .key("version")),
+        Some(toml::Value::Integer(v)) if versions.contains(v) => Ok(*v),
         Some(v) => Err(FormatError::new(
             ErrorKind::Unsupported,
             format!(
-                "{version_of} format version {v} is not supported (this tofprox reads version {version})"
+                "{version_of} format version {v} is not supported (this tofprox reads version {readable})"
             ),
         )
         .at(path)

@@ -1,26 +1,40 @@
-//! tofprox file formats: recordings (version 1) and calibration sets.
+//! tofprox file formats: recordings (version 2, version 1 read) and calibration sets.
 //!
 //! - [`Recording`] / [`RecordingWriter`]: `REC/recording.toml` +
 //!   `REC/frames/NNNNNN.npy`, validated on read, crash-safe on write
 //!   (`docs/recording-format.md`).
+//! - [`DepthRecording`] / [`DepthRecordingWriter`]: the same layout holding
+//!   depth images (`kind = "depth"`), as `tofprox record` writes them.
 //! - [`CalibrationSet`]: `CALIB/calibration.toml` + checksummed `.npy`
 //!   arrays (`docs/calibration.md`).
+//! - [`extract()`]: a calibration part extracted from a recording into a set
+//!   (the workflow `tofprox calibrate` runs).
 //!
 //! Every error is a [`FormatError`] naming the file and the key.
 
 mod calibration;
+mod depth;
 mod error;
+mod extract;
 mod fsutil;
 pub mod limits;
 pub mod npy;
 mod recording;
+mod text;
 
 pub use calibration::{
     CALIBRATION_FORMAT, CALIBRATION_TOML, CALIBRATION_VERSION, CalibPart, CalibrationSet,
     PartSource, now_rfc3339, rfc3339_from_unix,
 };
+pub use depth::{DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter};
 pub use error::{ErrorKind, FormatError};
+pub use extract::{
+    Extract, ExtractError, ExtractOptions, Extraction, NO_TARGET_CONDITION, extract,
+    load_lens_datasheet,
+};
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
-    RawFrames, Recording, RecordingWriter, validate_spec,
+    RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind, RecordingWriter, recording_kind,
+    validate_spec,
 };
+pub use text::fmt_num;

@@ -1,5 +1,7 @@
-//! Recording format version 1: `REC/recording.toml` + `REC/frames/NNNNNN.npy`.
-//! See `docs/recording-format.md` for the specification and validation rules.
+//! Recording format (version 2; version 1 still read): `REC/recording.toml` +
+//! `REC/frames/NNNNNN.npy`. A recording is of one [`RecordingKind`]: raw phase
+//! images (this module) or depth images ([`crate::depth`]). See
+//! `docs/recording-format.md` for the specification and validation rules.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs;
@@ -19,8 +21,94 @@ use crate::npy::{self, Dtype, NpyArray, shape_str};
 
 /// `format` value of a recording.
 pub const RECORDING_FORMAT: &str = "tofprox-recording";
-/// The recording format version this crate reads and writes.
-pub const RECORDING_VERSION: i64 = 1;
+/// The recording format version this crate writes.
+pub const RECORDING_VERSION: i64 = 2;
+/// The recording format versions this crate reads, oldest first. Version 2 added `kind`
+/// ([`RecordingKind`]); a version 1 file is a raw recording.
+pub const RECORDING_VERSIONS_READ: [i64; 2] = [1, RECORDING_VERSION];
+
+/// What a recording holds (`kind`, format version 2).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RecordingKind {
+    /// Raw phase images (ADC codes) with the sensor setup: [`Recording`].
+    Raw,
+    /// Depth images in mm (and amplitudes) as `tofproxd` publishes them:
+    /// [`crate::DepthRecording`].
+    Depth,
+}
+
+impl RecordingKind {
+    /// The `kind` value in `recording.toml`.
+    pub fn name(self) -> &'static str {
+        match self {
+            RecordingKind::Raw => "raw",
+            RecordingKind::Depth => "depth",
+        }
+    }
+}
+
+/// The `kind` key, read before the rest of the file (other keys ignored here).
+#[derive(Deserialize)]
+struct KindProbe {
+    kind: Option<toml::Value>,
+}
+
+/// Check `format` and `version` ([`RECORDING_VERSIONS_READ`]) and read `kind`: the one place
+/// that knows which version brought which key.
+pub(crate) fn read_header(path: &Path, text: &str) -> Result<RecordingKind, FormatError> {
+    let version = check_format_header(
+        path,
+        text,
+        RECORDING_FORMAT,
+        &RECORDING_VERSIONS_READ,
+        "recording",
+        "recording",
+    )?;
+    let probe: KindProbe = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    match (version, probe.kind) {
+        (1, None) => Ok(RecordingKind::Raw),
+        (1, Some(_)) => Err(FormatError::new(
+            ErrorKind::UnknownKey,
+            "not defined in recording format version 1 (it came with version 2: write version = 2)",
+        )
+        .at(path)
+        .key("kind")),
+        (_, None) => Err(FormatError::new(
+            ErrorKind::MissingKey,
+            "missing; a version 2 recording says kind = \"raw\" (phase images) or kind = \"depth\" (depth images)",
+        )
+        .at(path)
+        .key("kind")),
+        (_, Some(toml::Value::String(k))) if k == "raw" => Ok(RecordingKind::Raw),
+        (_, Some(toml::Value::String(k))) if k == "depth" => Ok(RecordingKind::Depth),
+        (_, Some(v)) => Err(invalid(format!(
+            "{v} is not a recording kind (\"raw\" or \"depth\")"
+        ))
+        .at(path)
+        .key("kind")),
+    }
+}
+
+/// Which kind of recording `dir` holds (reads only `recording.toml`, bounded).
+pub fn recording_kind(dir: &Path) -> Result<RecordingKind, FormatError> {
+    let path = dir.join(RECORDING_TOML);
+    let text = limits::read_text_bounded(&path, limits::MAX_TOML_BYTES)?;
+    read_header(&path, &text)
+}
+
+/// The error for a recording of another kind than the reader's.
+pub(crate) fn wrong_kind(path: &Path, found: RecordingKind) -> FormatError {
+    let message = match found {
+        RecordingKind::Depth => {
+            "\"depth\": a depth recording (depth in mm as tofproxd publishes it), not raw phase images: it cannot be calibrated, processed or fitted; `tofprox info` summarises it"
+        }
+        RecordingKind::Raw => "\"raw\": a recording of raw phase images, not of depth images",
+    };
+    FormatError::new(ErrorKind::Unsupported, message)
+        .at(path)
+        .key("kind")
+}
 /// File name of the recording header.
 pub const RECORDING_TOML: &str = "recording.toml";
 /// Sub-directory the writer puts frame files in.
@@ -265,6 +353,9 @@ impl From<Array3<f64>> for RawFrames {
 struct RecordingToml {
     format: String,
     version: i64,
+    /// Absent in version 1 (checked by [`read_header`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    kind: Option<RecordingKind>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     description: Option<String>,
     sensor: SensorGeometry,
@@ -327,35 +418,158 @@ fn validate_frames_path(frames: &str) -> Result<PathBuf, FormatError> {
     Ok(p.components().collect())
 }
 
+/// `description` and the number of captures within [`limits::MAX_DESCRIPTION_BYTES`] and
+/// [`limits::MAX_CAPTURES`] (both kinds of recording).
+pub(crate) fn check_header_limits(
+    path: &Path,
+    description: Option<&str>,
+    captures: usize,
+) -> Result<(), FormatError> {
+    if let Some(d) = description
+        && d.len() > limits::MAX_DESCRIPTION_BYTES
+    {
+        return Err(FormatError::new(
+            ErrorKind::Limit,
+            format!(
+                "is {} bytes, more than the limit of {} bytes",
+                d.len(),
+                limits::MAX_DESCRIPTION_BYTES
+            ),
+        )
+        .at(path)
+        .key("description"));
+    }
+    if captures > limits::MAX_CAPTURES {
+        return Err(FormatError::new(
+            ErrorKind::Limit,
+            format!(
+                "{captures} captures, more than the limit of {}",
+                limits::MAX_CAPTURES
+            ),
+        )
+        .at(path)
+        .key("capture"));
+    }
+    Ok(())
+}
+
+/// The frames file names of one `recording.toml`: each a valid relative `.npy` path
+/// ([`validate_frames_path`]), none used twice (compared normalised).
+#[derive(Default)]
+pub(crate) struct FramesNames {
+    seen: BTreeSet<PathBuf>,
+}
+
+impl FramesNames {
+    /// Check `name` (the value of `key` in the TOML file at `path`).
+    pub(crate) fn add(&mut self, path: &Path, key: &str, name: &str) -> Result<(), FormatError> {
+        let normalised = validate_frames_path(name).map_err(|e| e.at(path).key(key))?;
+        if !self.seen.insert(normalised) {
+            return Err(
+                invalid(format!("\"{name}\" is already used by an earlier capture"))
+                    .at(path)
+                    .key(key),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The frames files of an opened recording: each resolving (symlinks followed) inside the
+/// recording directory, and two names of one file (through a symlink inside it) refused.
+pub(crate) struct FramesFiles<'d> {
+    dir: &'d Path,
+    real: BTreeMap<PathBuf, String>,
+}
+
+impl<'d> FramesFiles<'d> {
+    pub(crate) fn new(dir: &'d Path) -> Self {
+        FramesFiles {
+            dir,
+            real: BTreeMap::new(),
+        }
+    }
+
+    /// The full path of `name` (the value of `key`), checked.
+    pub(crate) fn add(&mut self, key: &str, name: &str) -> Result<PathBuf, FormatError> {
+        let file = self.dir.join(name);
+        let real = limits::check_inside(&file, self.dir).map_err(|e| e.key(key))?;
+        if let Some(other) = self.real.insert(real, key.to_string()) {
+            return Err(invalid(format!("\"{name}\" is the same file as {other}"))
+                .at(&self.dir.join(RECORDING_TOML))
+                .key(key));
+        }
+        Ok(file)
+    }
+}
+
+/// Make `dir` ready for a new recording: refuse (or, with `replace`, first remove) the
+/// recording already there — its `recording.toml` and frames directory; nothing else in `dir`
+/// is touched — and create the frames directory.
+pub(crate) fn prepare_new_recording(dir: &Path, replace: bool) -> Result<(), FormatError> {
+    let toml_path = dir.join(RECORDING_TOML);
+    let frames = dir.join(FRAMES_DIR);
+    if toml_path.exists() {
+        if !replace {
+            return Err(FormatError::new(
+                ErrorKind::AlreadyExists,
+                "a recording already exists here (write to another directory, or replace it)",
+            )
+            .at(&toml_path));
+        }
+        fs::remove_file(&toml_path).map_err(|e| FormatError::io(&toml_path, "cannot remove", e))?;
+        if frames.exists() {
+            fs::remove_dir_all(&frames)
+                .map_err(|e| FormatError::io(&frames, "cannot remove", e))?;
+        }
+    }
+    fs::create_dir_all(&frames).map_err(|e| FormatError::io(&frames, "cannot create directory", e))
+}
+
+/// After the first `recording.toml` of a new recording is written: make the new directory
+/// entry itself durable.
+pub(crate) fn sync_new_recording(dir: &Path) {
+    if let Some(parent) = dir.parent() {
+        let _ = fsutil::sync_dir(parent);
+    }
+}
+
 /// Window and full array within [`limits::MAX_SIDE_PIXELS`] and
 /// [`limits::MAX_PIXELS`], so that nothing sized by them is absurd; errors
 /// name `<table>.rows` … `<table>.full_cols`.
 pub(crate) fn check_sensor_limits(s: &SensorGeometry, table: &str) -> Result<(), FormatError> {
-    for (key, rows, cols) in [
-        ("rows", s.rows, s.cols),
-        ("full_rows", s.full_rows, s.full_cols),
-    ] {
-        let cols_key = key.replace("rows", "cols");
-        for (k, v) in [(key, rows), (cols_key.as_str(), cols)] {
-            if v > limits::MAX_SIDE_PIXELS {
-                return Err(FormatError::new(
-                    ErrorKind::Limit,
-                    format!("{v} is more than the limit of {}", limits::MAX_SIDE_PIXELS),
-                )
-                .key(format!("{table}.{k}")));
-            }
-        }
-        if rows * cols > limits::MAX_PIXELS {
+    check_window_limits(table, "rows", "cols", s.rows, s.cols)?;
+    check_window_limits(table, "full_rows", "full_cols", s.full_rows, s.full_cols)
+}
+
+/// A `rows × cols` image within [`limits::MAX_SIDE_PIXELS`] and [`limits::MAX_PIXELS`]; errors
+/// name `<table>.<rows_key>` or `<table>.<cols_key>`.
+pub(crate) fn check_window_limits(
+    table: &str,
+    rows_key: &str,
+    cols_key: &str,
+    rows: usize,
+    cols: usize,
+) -> Result<(), FormatError> {
+    for (k, v) in [(rows_key, rows), (cols_key, cols)] {
+        if v > limits::MAX_SIDE_PIXELS {
             return Err(FormatError::new(
                 ErrorKind::Limit,
-                format!(
-                    "{rows} × {cols} = {} pixels, more than the limit of {}",
-                    rows * cols,
-                    limits::MAX_PIXELS
-                ),
+                format!("{v} is more than the limit of {}", limits::MAX_SIDE_PIXELS),
             )
-            .key(format!("{table}.{key}")));
+            .key(format!("{table}.{k}")));
         }
+    }
+    if rows * cols > limits::MAX_PIXELS {
+        return Err(FormatError::new(
+            ErrorKind::Limit,
+            format!(
+                "{rows} × {cols} = {} pixels, more than the limit of {}",
+                rows * cols,
+                limits::MAX_PIXELS
+            ),
+        )
+        .key(format!("{table}.{rows_key}")));
     }
     Ok(())
 }
@@ -388,20 +602,10 @@ impl Recording {
         let text = limits::read_text_bounded(&toml_path, limits::MAX_TOML_BYTES)?;
         let (sensor, description, captures) = parse_recording_toml(&toml_path, &text)?;
         let mut dtypes = Vec::with_capacity(captures.len());
-        // two names of one file (through a symlink inside the recording) are one capture
-        let mut real_files = BTreeMap::new();
+        let mut files = FramesFiles::new(dir);
         for (i, c) in captures.iter().enumerate() {
-            let file = dir.join(&c.frames);
             let key = format!("capture[{i}].frames");
-            let real = limits::check_inside(&file, dir).map_err(|e| e.key(key.clone()))?;
-            if let Some(j) = real_files.insert(real, i) {
-                return Err(invalid(format!(
-                    "\"{}\" is the same file as capture[{j}]'s",
-                    c.frames
-                ))
-                .at(&toml_path)
-                .key(key));
-            }
+            let file = files.add(&key, &c.frames)?;
             let h = npy::read_header(&file, Some(dir)).map_err(|e| e.key_if_none(key.clone()))?;
             check_shape(&h.shape, &sensor, c.phases_deg.len())
                 .map_err(|e| e.at(&file).key(key.clone()))?;
@@ -502,63 +706,26 @@ type Parsed = (SensorGeometry, Option<String>, Vec<CaptureMeta>);
 
 /// Parse and validate the text of a `recording.toml`.
 fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
-    // format and version first, so that another file or a newer version is
-    // reported as such rather than as a list of unknown keys.
-    check_format_header(
-        path,
-        text,
-        RECORDING_FORMAT,
-        RECORDING_VERSION,
-        "recording",
-        "recording",
-    )?;
+    // format, version and kind first, so that another file, a newer version or
+    // a depth recording is reported as such rather than as a list of unknown keys.
+    let kind = read_header(path, text)?;
+    if kind != RecordingKind::Raw {
+        return Err(wrong_kind(path, kind));
+    }
     let raw: RecordingToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
     let sensor = raw.sensor;
+    // the documented limits first, then the geometry's own rules
+    check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;
     sensor
         .validate()
         .map_err(|e| geometry_invalid(e, "sensor").at(path))?;
-    check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;
-    if let Some(d) = &raw.description
-        && d.len() > limits::MAX_DESCRIPTION_BYTES
-    {
-        return Err(FormatError::new(
-            ErrorKind::Limit,
-            format!(
-                "is {} bytes, more than the limit of {} bytes",
-                d.len(),
-                limits::MAX_DESCRIPTION_BYTES
-            ),
-        )
-        .at(path)
-        .key("description"));
-    }
-    if raw.capture.len() > limits::MAX_CAPTURES {
-        return Err(FormatError::new(
-            ErrorKind::Limit,
-            format!(
-                "{} captures, more than the limit of {}",
-                raw.capture.len(),
-                limits::MAX_CAPTURES
-            ),
-        )
-        .at(path)
-        .key("capture"));
-    }
-    let mut seen = BTreeSet::new();
+    check_header_limits(path, raw.description.as_deref(), raw.capture.len())?;
+    let mut names = FramesNames::default();
     let mut captures = Vec::with_capacity(raw.capture.len());
     for (i, c) in raw.capture.iter().enumerate() {
         let meta = c.clone();
         let prefix = format!("capture[{i}]");
-        let normalised = validate_frames_path(&meta.frames)
-            .map_err(|e| e.at(path).key(format!("{prefix}.frames")))?;
-        if !seen.insert(normalised) {
-            return Err(invalid(format!(
-                "\"{}\" is already used by an earlier capture",
-                meta.frames
-            ))
-            .at(path)
-            .key(format!("{prefix}.frames")));
-        }
+        names.add(path, &format!("{prefix}.frames"), &meta.frames)?;
         validate_spec(&meta.spec()).map_err(|e| {
             let k = e.key_name().unwrap_or("").to_string();
             e.at(path).key(format!("{prefix}.{k}"))
@@ -576,6 +743,7 @@ fn render_recording_toml(
     let t = RecordingToml {
         format: RECORDING_FORMAT.to_string(),
         version: RECORDING_VERSION,
+        kind: Some(RecordingKind::Raw),
         description: description.map(str::to_string),
         sensor: *sensor,
         capture: captures.to_vec(),
@@ -607,33 +775,7 @@ impl RecordingWriter {
         sensor: SensorGeometry,
         description: Option<String>,
     ) -> Result<Self, FormatError> {
-        sensor
-            .validate()
-            .map_err(|e| geometry_invalid(e, "sensor"))?;
-        let toml_path = dir.join(RECORDING_TOML);
-        if toml_path.exists() {
-            return Err(FormatError::new(
-                ErrorKind::AlreadyExists,
-                "a recording already exists here (write to another directory, or replace it)",
-            )
-            .at(&toml_path));
-        }
-        let frames = dir.join(FRAMES_DIR);
-        fs::create_dir_all(&frames)
-            .map_err(|e| FormatError::io(&frames, "cannot create directory", e))?;
-        let w = RecordingWriter {
-            dir: dir.to_path_buf(),
-            sensor,
-            description,
-            captures: Vec::new(),
-            next_file: 0,
-        };
-        w.write_toml()?;
-        if let Some(parent) = dir.parent() {
-            // make the new directory entry itself durable
-            let _ = fsutil::sync_dir(parent);
-        }
-        Ok(w)
+        Self::start(dir, sensor, description, false)
     }
 
     /// Start a new recording in `dir`, first removing the recording already
@@ -644,20 +786,29 @@ impl RecordingWriter {
         sensor: SensorGeometry,
         description: Option<String>,
     ) -> Result<Self, FormatError> {
+        Self::start(dir, sensor, description, true)
+    }
+
+    fn start(
+        dir: &Path,
+        sensor: SensorGeometry,
+        description: Option<String>,
+        replace: bool,
+    ) -> Result<Self, FormatError> {
         sensor
             .validate()
             .map_err(|e| geometry_invalid(e, "sensor"))?;
-        let toml_path = dir.join(RECORDING_TOML);
-        if toml_path.exists() {
-            fs::remove_file(&toml_path)
-                .map_err(|e| FormatError::io(&toml_path, "cannot remove", e))?;
-            let frames = dir.join(FRAMES_DIR);
-            if frames.exists() {
-                fs::remove_dir_all(&frames)
-                    .map_err(|e| FormatError::io(&frames, "cannot remove", e))?;
-            }
-        }
-        Self::create(dir, sensor, description)
+        prepare_new_recording(dir, replace)?;
+        let w = RecordingWriter {
+            dir: dir.to_path_buf(),
+            sensor,
+            description,
+            captures: Vec::new(),
+            next_file: 0,
+        };
+        w.write_toml()?;
+        sync_new_recording(dir);
+        Ok(w)
     }
 
     /// Continue an existing recording (for example after its writer was

@@ -1,5 +1,7 @@
 //! Stage timings of compare + diagnose on the benchmark's recording
-//! (`cargo run --release -p tofprox-lab --example profile_diagnose`).
+//! (`cargo run --release -p tofprox-lab --example profile_diagnose`), or on a
+//! full-array sweep (`… --example profile_diagnose -- full`: 224×172 pixels,
+//! 101 captures; peak memory with `/usr/bin/time -v`).
 use std::time::Instant;
 
 use tofprox_lab::diagnose::{compare, diagnose};
@@ -7,7 +9,14 @@ use tofprox_lab::fit::{LabSpec, Prepared};
 use tofprox_lab::synth::{SynthSpec, generate};
 
 fn main() {
-    let ds = generate(&SynthSpec::diagnose_benchmark());
+    let full = std::env::args().nth(1).is_some_and(|a| a == "full");
+    let spec = if full {
+        SynthSpec::full_array_sweep()
+    } else {
+        SynthSpec::diagnose_benchmark()
+    };
+    let t0 = Instant::now();
+    let ds = generate(&spec);
     let prep = match Prepared::new(&ds) {
         Ok(p) => p,
         Err(e) => {
@@ -15,6 +24,13 @@ fn main() {
             return;
         }
     };
+    drop(ds);
+    eprintln!(
+        "{:>8.2} s  recording generated ({} captures, {} samples)",
+        t0.elapsed().as_secs_f64(),
+        prep.caps.len(),
+        prep.meas.len()
+    );
     let lab = LabSpec {
         harmonic_order: 3,
         ..LabSpec::default()
@@ -29,11 +45,7 @@ fn main() {
             return;
         }
     };
-    eprintln!(
-        "{:>8.2} s  compare done ({} captures)",
-        t0.elapsed().as_secs_f64(),
-        ds.captures.len()
-    );
+    eprintln!("{:>8.2} s  compare done", t0.elapsed().as_secs_f64());
     match diagnose(&prep, &cmp, &cb) {
         Ok(d) => eprintln!(
             "{:>8.2} s  diagnose done: {:?} {:?}",

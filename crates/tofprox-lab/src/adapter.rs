@@ -124,12 +124,21 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                     g(&id, "shape").max(1e-6).ln(),
                 ],
             )),
-            // a different reference temperature only shifts the per-pixel
-            // phase and gain by constants (refitted): the slopes are held
-            "temperature_drift" => Some((
-                vec![g(&id, "phase_mrad_per_k") * 1e-3, g(&id, "gain_rel_per_k")],
-                Vec::new(),
-            )),
+            // about the lab's reference T_l instead of the file's T_r
+            // (δ = T_l − T_r): k(u + δ) + k2(u + δ)² = const + (k + 2k2δ)u + k2u²;
+            // the constants shift the per-pixel phase and gain (refitted)
+            "temperature_drift" => {
+                let d = prep.temp_ref - g(&id, "reference_c");
+                let (k, k2) = (
+                    g(&id, "phase_mrad_per_k") * 1e-3,
+                    g(&id, "phase_mrad_per_k2") * 1e-3,
+                );
+                let (kg, kg2) = (g(&id, "gain_rel_per_k"), g(&id, "gain_rel_per_k2"));
+                Some((
+                    vec![k + 2.0 * k2 * d, kg + 2.0 * kg2 * d, k2, kg2],
+                    Vec::new(),
+                ))
+            }
             "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
             "tap_gain_mismatch" => {
                 // s = ε·peak/(2·contrast) (see write_effect); the lab's C has
@@ -221,6 +230,14 @@ pub fn write_effect(
             if let Some(v) = g("gain_per_k") {
                 set(m, "gain_rel_per_k", v);
             }
+            // second order: fitted when the recording has ≥ 3 temperatures,
+            // else the linear law (0)
+            set(
+                m,
+                "phase_mrad_per_k2",
+                g("phase_rad_per_k2").unwrap_or(0.0) * 1000.0,
+            );
+            set(m, "gain_rel_per_k2", g("gain_per_k2").unwrap_or(0.0));
             set(m, "reference_c", prep.temp_ref);
         }
         "adc_inl" => {

@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use crate::error::LabError;
-use crate::fit::{EffectFit, FOLDS, Prepared, Rec};
+use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
 use crate::signatures::Signature;
 use crate::stats::{Normal, levenberg_marquardt, solve_sym};
 
@@ -39,10 +39,14 @@ fn nuisance(r: &Rec) -> [f64; NUISANCE] {
     [1.0, r.a * r.c, r.a * r.cd]
 }
 
+/// Convergence of the non-linear parameters: a χ² decrease below this (in
+/// units of the noise) is a parameter change of 0.1 standard errors.
+const LM_TOL_CHI2: f64 = 1e-2;
+
 /// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
 fn accumulate(
     sig: &dyn Signature,
-    recs: &[Rec],
+    recs: &[Sample],
     prep: &Prepared,
     p: &[f64],
     deriv: bool,
@@ -63,7 +67,8 @@ fn accumulate(
             let mut b2 = vec![0.0; nsig];
             let mut j = vec![0.0; n];
             let mut nlh = nl.to_vec();
-            for r in ch.iter().step_by(stride) {
+            for s in ch.iter().step_by(stride) {
+                let r = &s.rec(prep);
                 let cap = &prep.caps[r.cap as usize];
                 sig.basis(nl, r, cap, &mut b);
                 let nu = nuisance(r);
@@ -108,7 +113,7 @@ fn total(folds: &[Normal]) -> Normal {
 /// Fit `sig` to the residuals in `recs` (r = measured − current model).
 pub fn fit_signature(
     sig: &dyn Signature,
-    recs: &[Rec],
+    recs: &[Sample],
     prep: &Prepared,
     start: Option<&EffectFit>,
 ) -> Result<SignatureFit, LabError> {
@@ -156,21 +161,24 @@ pub fn fit_signature(
             |q| total(&accumulate(sig, recs, prep, q, true, stride)),
             &p,
             30,
+            LM_TOL_CHI2,
         )?;
         p = r.params;
     }
-    // … then the linear parameters exactly on all data at those values.
-    {
+    // … then the linear parameters exactly on all data at those values, and
+    // the block cross-validation, from one pass: the normal equations of the
+    // linear parameters do not depend on their values (taken at zero here),
+    // so the total gives the solution and each training part its own.
+    let folds = {
         let mut q = vec![0.0; nlin];
         q.extend_from_slice(&p[nlin..]);
-        let t = total(&accumulate(sig, recs, prep, &q, false, 1));
-        if let Some(lin) = solve_sym(&t.jtj, &t.jtr) {
-            p[..nlin].copy_from_slice(&lin);
-        }
-    }
-    // Final per-fold normal equations at the solution (linear block only) and CV.
-    let folds = accumulate(sig, recs, prep, &p, false, 1);
+        accumulate(sig, recs, prep, &q, false, 1)
+    };
     let tot = total(&folds);
+    if let Some(lin) = solve_sym(&tot.jtj, &tot.jtr) {
+        p[..nlin].copy_from_slice(&lin);
+    }
+    let chi2 = tot.chi2_after(&p[..nlin]);
     let mut cv = 0.0;
     for f in &folds {
         if f.count == 0 {
@@ -178,13 +186,13 @@ pub fn fit_signature(
         }
         let train = tot.minus(f);
         let step = solve_sym(&train.jtj, &train.jtr).unwrap_or_else(|| vec![0.0; nlin]);
-        // held-out χ² with the training optimum, relative to p̂
+        // held-out χ² at the training optimum
         cv += f.chi2_after(&step);
     }
     let before: Vec<f64> = {
         let mut v = vec![0.0; FOLDS];
         for r in recs {
-            v[usize::from(r.fold) % FOLDS] += r.w * r.r * r.r;
+            v[usize::from(r.fold) % FOLDS] += r.chi2();
         }
         v
     };
@@ -196,7 +204,7 @@ pub fn fit_signature(
         n_params: p.len() + nl.len(),
         lin: p,
         nl,
-        chi2: tot.chi2,
+        chi2,
         chi2_before,
         cv_chi2: cv,
         cv_chi2_before: chi2_before,

@@ -6,7 +6,7 @@ use serde::Serialize;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Rec, eval_delta, fit_model};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, eval_delta, fit_model};
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -96,7 +96,7 @@ pub struct Comparison {
     /// The fitted model.
     pub model: LabModel,
     /// The residual table over the valid samples.
-    pub recs: Vec<Rec>,
+    pub recs: Vec<Sample>,
     /// Σ w r² over `recs`.
     pub chi2: f64,
     /// Valid samples.
@@ -149,19 +149,19 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
         )));
     }
     // sequential sums: the same result on every run (a rayon sum's order is not)
-    let chi2: f64 = recs.iter().map(|r| r.w * r.r * r.r).sum();
+    let chi2: f64 = recs.iter().map(Sample::chi2).sum();
     let n = recs.len();
     let dof = (n - model.n_params) as f64;
-    let raw = (recs.iter().map(|r| r.r * r.r).sum::<f64>() / n as f64).sqrt();
+    let raw = (recs.iter().map(|r| f64::from(r.r).powi(2)).sum::<f64>() / n as f64).sqrt();
     let (d2, d4, depth) = depth_residuals(prep, &model)?;
-    let res: Vec<f64> = recs.iter().map(|r| r.r).collect();
-    let structure = score_all(&recs, &res, prep);
+    let structure = score_all(&recs, prep);
     let mut pix = vec![(0.0, 0usize); prep.npix];
     // illuminated samples: Σw r², count, Σw·A², Σ A²/var₁ (single acquisition)
     let (mut ci, mut ni, mut swa2, mut s1) = (0.0, 0usize, 0.0, 0.0);
     let mut sw = 0.0;
     let mut sw1 = 0.0;
-    for r in &recs {
+    for s in &recs {
+        let r = s.rec(prep);
         let e = &mut pix[r.pix as usize];
         e.0 += r.w * r.r * r.r;
         e.1 += 1;
@@ -582,21 +582,19 @@ pub fn diagnose_with(
     {
         top.push(1);
     }
-    let extra: Vec<Result<Comparison, LabError>> = top
-        .par_iter()
-        .map(|&i| {
-            let c = &cands[i];
+    // One after the other (each refit is parallel inside): only one refitted
+    // residual table is alive beside the comparison's.
+    let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();
+    for i in &top {
+        let mut c2 = {
+            let c = &cands[*i];
             let fit = c
                 .fit
                 .clone()
                 .ok_or_else(|| LabError::numerical("candidate without fit"))?;
             let m = crate::fit::refit_with(prep, &cmp.model, &fit, c.nuisance, 3)?;
-            comparison_of(prep, m)
-        })
-        .collect();
-    let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();
-    for (i, e) in top.iter().zip(extra) {
-        let c2 = e?;
+            comparison_of(prep, m)?
+        };
         let c = &mut cands[*i];
         c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
         c.z_after = c2.fit.z;
@@ -608,10 +606,11 @@ pub fn diagnose_with(
         // into the residual and refitted on training blocks only.
         if let Some(e) = c2.model.effects.iter().find(|e| e.id == c.effect) {
             let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
-            let mut recs = c2.recs.clone();
+            let mut recs = std::mem::take(&mut c2.recs);
             let mut buf = vec![0.0; 64];
-            for r in &mut recs {
-                r.r += crate::fit::eval_delta(sig.as_ref(), e, r, prep, &mut buf);
+            for s in &mut recs {
+                let d = crate::fit::eval_delta(sig.as_ref(), e, &s.rec(prep), prep, &mut buf);
+                s.r = (f64::from(s.r) + d) as f32;
             }
             let f = fit_signature(sig.as_ref(), &recs, prep, Some(e))?;
             let ex = f.chi2_before - c2.dof;

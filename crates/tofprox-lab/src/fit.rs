@@ -349,6 +349,91 @@ pub struct Rec {
     pub fold: u8,
 }
 
+/// One valid sample as stored in residual tables: the compact form of a
+/// [`Rec`] (44 bytes instead of 88; a full-array sweep has 10⁷ samples).
+///
+/// f32 where the precision allows: a code, residual or amplitude below 2¹²
+/// LSB keeps 2.4·10⁻⁴ LSB (f32's 2⁻²⁴ relative), far below the noise of one
+/// acquisition (≥ 0.3 LSB); a phase below 16 rad keeps 10⁻⁶ rad, 0.3 µm of
+/// depth at 80 MHz (eq. 2.6). Every sum over samples (χ², normal equations)
+/// is accumulated in f64. θ is not stored: it is the capture's phase of raw
+/// image `k`.
+#[derive(Debug, Clone, Copy)]
+pub struct Sample {
+    /// measured − model (the model of the stage that built the table).
+    pub r: f32,
+    /// 1/σ².
+    pub w: f32,
+    /// Modelled amplitude A (LSB).
+    pub a: f32,
+    /// Modelled phase φ (rad).
+    pub phi: f32,
+    /// C(φ − θ).
+    pub c: f32,
+    /// C'(φ − θ).
+    pub cd: f32,
+    /// Modelled differential code (code − mid) without effects.
+    pub x: f32,
+    /// The pixel's response relative to the median pixel.
+    pub gain_rel: f32,
+    /// Capture index.
+    pub cap: u32,
+    /// Pixel index in the window.
+    pub pix: u32,
+    /// Raw image index in the capture.
+    pub k: u16,
+    /// The capture's cross-validation fold.
+    pub fold: u8,
+}
+
+impl Sample {
+    /// The stored form of a sample's context.
+    #[inline]
+    pub fn of(r: &Rec) -> Self {
+        Self {
+            r: r.r as f32,
+            w: r.w as f32,
+            a: r.a as f32,
+            phi: r.phi as f32,
+            c: r.c as f32,
+            cd: r.cd as f32,
+            x: r.x as f32,
+            gain_rel: r.gain_rel as f32,
+            cap: r.cap,
+            pix: r.pix,
+            k: r.k,
+            fold: r.fold,
+        }
+    }
+
+    /// The full context of this sample (θ from the capture).
+    #[inline]
+    pub fn rec(&self, prep: &Prepared) -> Rec {
+        Rec {
+            r: f64::from(self.r),
+            w: f64::from(self.w),
+            a: f64::from(self.a),
+            phi: f64::from(self.phi),
+            theta: prep.caps[self.cap as usize].theta_rad[usize::from(self.k)],
+            c: f64::from(self.c),
+            cd: f64::from(self.cd),
+            x: f64::from(self.x),
+            gain_rel: f64::from(self.gain_rel),
+            cap: self.cap,
+            pix: self.pix,
+            k: self.k,
+            fold: self.fold,
+        }
+    }
+
+    /// w·r², in f64.
+    #[inline]
+    pub fn chi2(&self) -> f64 {
+        let r = f64::from(self.r);
+        f64::from(self.w) * r * r
+    }
+}
+
 /// The fitted lab model.
 #[derive(Debug, Clone, Serialize)]
 pub struct LabModel {
@@ -395,10 +480,20 @@ impl LabModel {
     #[inline]
     pub fn rec(&self, prep: &Prepared, c: usize, k: usize, p: usize) -> Rec {
         let cap = &prep.caps[c];
+        let x = cap.phi_tof + self.phase[p] - cap.theta_rad[k];
+        let (s, co) = x.sin_cos();
+        self.rec_at(prep, c, k, p, (co, s))
+    }
+
+    /// [`LabModel::rec`] with e^{i(φ−θ_k)} = (cos, sin) given (from
+    /// [`rotation`]: one sin_cos per pixel and capture instead of per raw image).
+    #[inline]
+    pub fn rec_at(&self, prep: &Prepared, c: usize, k: usize, p: usize, e: (f64, f64)) -> Rec {
+        let cap = &prep.caps[c];
         let (a, phi, var) = self.amp_phase_var(cap, p);
         let theta = cap.theta_rad[k];
         let (cv, cd) = if cap.illum {
-            self.waveform.eval(phi - theta)
+            self.waveform.eval_at(e.0, e.1)
         } else {
             (0.0, 0.0)
         };
@@ -429,46 +524,97 @@ impl LabModel {
     }
 
     /// Residual table over valid samples (effects included in the model).
-    pub fn records(&self, prep: &Prepared) -> Result<Vec<Rec>, LabError> {
+    pub fn records(&self, prep: &Prepared) -> Result<Vec<Sample>, LabError> {
         self.records_of(prep, 1)
     }
 
-    /// Residual table over every `step`-th capture (all when 1).
-    pub fn records_of(&self, prep: &Prepared, step: usize) -> Result<Vec<Rec>, LabError> {
+    /// Residual table over every `step`-th capture (all when 1), in capture,
+    /// raw image, pixel order. Filled in place (one allocation of the exact
+    /// size, no per-capture tables).
+    pub fn records_of(&self, prep: &Prepared, step: usize) -> Result<Vec<Sample>, LabError> {
         let sigs = self.signatures(prep)?;
         let npix = prep.npix;
-        let out: Vec<Vec<Rec>> = (0..prep.caps.len())
-            .into_par_iter()
+        let step = step.max(1);
+        // valid samples of each capture: its unsaturated pixels × raw images
+        let counts: Vec<usize> = (0..prep.caps.len())
             .map(|c| {
                 let cap = &prep.caps[c];
-                let mut v = Vec::new();
-                if !cap.used || c % step.max(1) != 0 {
-                    return v;
+                if !cap.used || c % step != 0 {
+                    return 0;
                 }
-                let mut buf = vec![0.0; 64];
-                for k in 0..cap.theta_rad.len() {
-                    for p in 0..npix {
-                        if self.sat[c * npix + p] {
-                            continue;
-                        }
-                        let mut r = self.rec(prep, c, k, p);
-                        for (s, e) in sigs.iter().zip(&self.effects) {
-                            r.r -= eval_delta(s.as_ref(), e, &r, prep, &mut buf);
-                        }
-                        v.push(r);
-                    }
-                }
-                v
+                let valid = self.sat[c * npix..(c + 1) * npix]
+                    .iter()
+                    .filter(|s| !**s)
+                    .count();
+                valid * cap.theta_rad.len()
             })
             .collect();
-        Ok(out.into_iter().flatten().collect())
+        let blank = Sample {
+            r: 0.0,
+            w: 0.0,
+            a: 0.0,
+            phi: 0.0,
+            c: 0.0,
+            cd: 0.0,
+            x: 0.0,
+            gain_rel: 0.0,
+            cap: 0,
+            pix: 0,
+            k: 0,
+            fold: 0,
+        };
+        let mut out = vec![blank; counts.iter().sum()];
+        let mut parts: Vec<(usize, &mut [Sample])> = Vec::with_capacity(counts.len());
+        let mut rest = out.as_mut_slice();
+        for (c, &n) in counts.iter().enumerate() {
+            let (head, tail) = rest.split_at_mut(n);
+            if n > 0 {
+                parts.push((c, head));
+            }
+            rest = tail;
+        }
+        parts.into_par_iter().for_each(|(c, dst)| {
+            let mut i = 0;
+            self.residuals_of(prep, &sigs, c, |r| {
+                dst[i] = Sample::of(&r);
+                i += 1;
+            });
+        });
+        Ok(out)
+    }
+
+    /// Every valid sample of capture `c` with its residual (effects
+    /// included), in raw image, pixel order.
+    #[inline]
+    fn residuals_of(
+        &self,
+        prep: &Prepared,
+        sigs: &[Box<dyn Signature>],
+        c: usize,
+        mut f: impl FnMut(Rec),
+    ) {
+        let npix = prep.npix;
+        let mut buf = vec![0.0; 64];
+        let (th, ph) = rotation(self, &prep.caps[c]);
+        let sat = &self.sat[c * npix..(c + 1) * npix];
+        for (k, &et) in th.iter().enumerate() {
+            for (p, &e_phi) in ph.iter().enumerate() {
+                if sat[p] {
+                    continue;
+                }
+                let mut r = self.rec_at(prep, c, k, p, rotate(e_phi, et));
+                for (s, e) in sigs.iter().zip(&self.effects) {
+                    r.r -= eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+                }
+                f(r);
+            }
+        }
     }
 
     /// χ² = Σ w r² over the valid samples (effects included), without building
     /// the residual table.
     pub fn chi2(&self, prep: &Prepared) -> Result<f64, LabError> {
         let sigs = self.signatures(prep)?;
-        let npix = prep.npix;
         let parts: Vec<f64> = (0..prep.caps.len())
             .into_par_iter()
             .map(|c| {
@@ -477,19 +623,7 @@ impl LabModel {
                 if !cap.used {
                     return s;
                 }
-                let mut buf = vec![0.0; 64];
-                for k in 0..cap.theta_rad.len() {
-                    for p in 0..npix {
-                        if self.sat[c * npix + p] {
-                            continue;
-                        }
-                        let mut r = self.rec(prep, c, k, p);
-                        for (sg, e) in sigs.iter().zip(&self.effects) {
-                            r.r -= eval_delta(sg.as_ref(), e, &r, prep, &mut buf);
-                        }
-                        s += r.w * r.r * r.r;
-                    }
-                }
+                self.residuals_of(prep, &sigs, c, |r| s += r.w * r.r * r.r);
                 s
             })
             .collect();
@@ -514,6 +648,44 @@ impl LabModel {
         }
         v
     }
+}
+
+/// e^{i(φ − θ)} = (cos, sin) from e^{iφ} = (cφ, sφ) and e^{−iθ} = (cθ, sθ).
+#[inline]
+pub fn rotate(e_phi: (f64, f64), e_mtheta: (f64, f64)) -> (f64, f64) {
+    (
+        e_phi.0 * e_mtheta.0 - e_phi.1 * e_mtheta.1,
+        e_phi.0 * e_mtheta.1 + e_phi.1 * e_mtheta.0,
+    )
+}
+
+/// A unit phasor e^{ix} as (cos x, sin x).
+pub type Phasor = (f64, f64);
+
+/// e^{−iθ_k} = (cos θ_k, −sin θ_k) of every raw image of a capture.
+pub fn theta_rotation(cap: &CapInfo) -> Vec<Phasor> {
+    cap.theta_rad
+        .iter()
+        .map(|t| {
+            let (s, c) = t.sin_cos();
+            (c, -s)
+        })
+        .collect()
+}
+
+/// Per capture: e^{−iθ_k} of every raw image; per pixel: e^{iφ_p} of the
+/// model's phase in that capture. `rotate` of the two gives e^{i(φ−θ_k)}.
+pub fn rotation(model: &LabModel, cap: &CapInfo) -> (Vec<Phasor>, Vec<Phasor>) {
+    let th = theta_rotation(cap);
+    let ph = model
+        .phase
+        .iter()
+        .map(|d| {
+            let (s, c) = (cap.phi_tof + d).sin_cos();
+            (c, s)
+        })
+        .collect();
+    (th, ph)
 }
 
 /// Δcode of one fitted effect at a sample.
@@ -802,9 +974,10 @@ fn effects_delta(prep: &Prepared, model: &LabModel) -> Result<Vec<f64>, LabError
             let mut buf = vec![0.0; 64];
             let kk = prep.caps[c].theta_rad.len();
             let mut v = vec![0.0; kk * npix];
-            for k in 0..kk {
+            let (th, ph) = rotation(model, &prep.caps[c]);
+            for (k, &et) in th.iter().enumerate() {
                 for p in 0..npix {
-                    let r = model.rec(prep, c, k, p);
+                    let r = model.rec_at(prep, c, k, p, rotate(ph[p], et));
                     v[k * npix + p] = sigs
                         .iter()
                         .zip(&model.effects)
@@ -857,10 +1030,16 @@ fn fit_gain_only(prep: &Prepared, model: &mut LabModel) {
         .collect();
 }
 
+/// e^{−iθ_k} of every raw image of every capture.
+fn theta_rotations(prep: &Prepared) -> Vec<Vec<(f64, f64)>> {
+    prep.caps.iter().map(theta_rotation).collect()
+}
+
 /// One Gauss–Newton step of (o_p, g_p, δ_p) for every pixel, effects fixed.
 fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
     let npix = prep.npix;
     let m = &*model;
+    let rot = theta_rotations(prep);
     let steps: Vec<(Normal, [f64; 3])> = (0..npix)
         .into_par_iter()
         .map(|p| {
@@ -871,10 +1050,12 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 }
                 let (a, phi, var) = m.amp_phase_var(cap, p);
                 let w = 1.0 / var;
-                for (k, th) in cap.theta_rad.iter().enumerate() {
+                let (s, co) = phi.sin_cos();
+                for (k, et) in rot[c].iter().enumerate() {
                     let i = prep.idx(c, k, p);
                     let (cv, cd) = if cap.illum {
-                        m.waveform.eval(phi - th)
+                        let (ec, es) = rotate((co, s), *et);
+                        m.waveform.eval_at(ec, es)
                     } else {
                         (0.0, 0.0)
                     };
@@ -939,21 +1120,25 @@ fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 return acc;
             }
             let mut j = vec![0.0; n];
+            let rot = theta_rotation(cap);
             for p in 0..npix {
                 if m.sat[c * npix + p] {
                     continue;
                 }
                 let (a, phi, var) = m.amp_phase_var(cap, p);
                 let w = 1.0 / var;
-                for (k, th) in cap.theta_rad.iter().enumerate() {
+                let (s, co) = phi.sin_cos();
+                for (k, et) in rot.iter().enumerate() {
                     let i = prep.idx(c, k, p);
-                    let x = phi - th;
-                    let (cv, _) = m.waveform.eval(x);
+                    let (c1, s1) = rotate((co, s), *et);
+                    let (cv, _) = m.waveform.eval_at(c1, s1);
                     let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
+                    // e^{i h x} for h = 2.. by complex multiplication
+                    let (mut zr, mut zi) = rotate((c1, s1), (c1, s1));
                     for h in 0..nh {
-                        let (s, co) = ((h + 2) as f64 * x).sin_cos();
-                        j[2 * h] = a * co;
-                        j[2 * h + 1] = -a * s;
+                        j[2 * h] = a * zr;
+                        j[2 * h + 1] = -a * zi;
+                        (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
                     }
                     acc.add(&j, r, w);
                 }
@@ -1080,8 +1265,13 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
         .map(|r| {
             let cap = &prep.caps[r.cap as usize];
             (
-                NoiseModel::features(r.a, cap.ambient_klux, cap.exposure_us, cap.averaged),
-                r.r * r.r,
+                NoiseModel::features(
+                    f64::from(r.a),
+                    cap.ambient_klux,
+                    cap.exposure_us,
+                    cap.averaged,
+                ),
+                f64::from(r.r).powi(2),
             )
         })
         .collect();

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (the measured VCSEL/pulse correlation has harmonics up to the 9th, docs/model.md).
@@ -29,7 +29,7 @@ pub trait Signature: Send + Sync {
         Vec::new()
     }
     /// Starting points for the non-linear parameters (variable projection).
-    fn nl_grid(&self, _recs: &[Rec], _prep: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _recs: &[Sample], _prep: &Prepared) -> Vec<Vec<f64>> {
         vec![self.nl_start()]
     }
     /// Basis values b_j at one sample.
@@ -112,7 +112,11 @@ pub fn make_signature(
         }),
         "vcsel_droop" => Box::new(Droop),
         "amplitude_phase_error" => Box::new(AmpPhase),
-        "temperature_drift" => Box::new(TempDrift),
+        "temperature_drift" => Box::new(TempDrift {
+            // a held model keeps its own law; a fit takes the ΔT² terms only
+            // where ≥ 3 temperatures tell them from the linear ones
+            second_order: spec.held.iter().any(|h| h.id == id) || distinct_temperatures(prep) >= 3,
+        }),
         "waveform_harmonics" => Box::new(Harmonics {
             from: spec.harmonic_order.max(1) + 1,
         }),
@@ -193,7 +197,7 @@ impl Signature for Sbi {
             vec![0.0]
         }
     }
-    fn nl_grid(&self, recs: &[Rec], prep: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let kappas: Vec<f64> = if self.ambient_varies {
             // signal vs ambient charge per unit: unknown over many decades
             // (ambient responsivity, contrast, conversion gain of the sensor)
@@ -214,7 +218,8 @@ impl Signature for Sbi {
             let qs: Vec<f64> = recs
                 .iter()
                 .step_by((recs.len() / 4000).max(1))
-                .map(|r| {
+                .map(|s| {
+                    let r = &s.rec(prep);
                     let (a, b) = self.taps(&nl0, r, &prep.caps[r.cap as usize]);
                     a.max(b)
                 })
@@ -296,7 +301,7 @@ impl Signature for Droop {
     fn nl_start(&self) -> Vec<f64> {
         vec![5.0, 1.0, 0.0]
     }
-    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         let mut g = Vec::new();
         for k0 in [0.0, 1.0] {
             for beta in [0.0, 1.0] {
@@ -355,12 +360,12 @@ impl Signature for AmpPhase {
     fn nl_start(&self) -> Vec<f64> {
         vec![5.0, 0.0]
     }
-    fn nl_grid(&self, recs: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
             .iter()
             .step_by((recs.len() / 4000).max(1))
             .filter(|r| r.a > 0.0)
-            .map(|r| r.a)
+            .map(|r| f64::from(r.a))
             .collect();
         let mut refs = quantiles(a, &[0.05, 0.2, 0.5, 0.8, 0.95]);
         // far above every amplitude: the linear regime
@@ -381,21 +386,46 @@ impl Signature for AmpPhase {
 }
 
 /// Temperature drift: phase and gain linear in T − T_ref.
-struct TempDrift;
+struct TempDrift {
+    /// With the ΔT² terms (identifiable from ≥ 3 distinct temperatures).
+    second_order: bool,
+}
 impl Signature for TempDrift {
     fn id(&self) -> &'static str {
         "temperature_drift"
     }
     fn n_lin(&self) -> usize {
-        2
+        if self.second_order { 4 } else { 2 }
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase_rad_per_k".into(), "gain_per_k".into()]
+        let mut v = vec!["phase_rad_per_k".into(), "gain_per_k".into()];
+        if self.second_order {
+            v.extend(["phase_rad_per_k2".into(), "gain_per_k2".into()]);
+        }
+        v
     }
     fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        out[0] = r.a * r.cd * cap.temp_rel;
-        out[1] = r.a * r.c * cap.temp_rel;
+        // the model's law: Δφ and the relative gain are polynomials in ΔT
+        let t = tofprox_model::effects::pixel::temperature_drift_terms(cap.temp_rel);
+        for (i, ti) in t.iter().take(self.n_lin() / 2).enumerate() {
+            out[2 * i] = r.a * r.cd * ti;
+            out[2 * i + 1] = r.a * r.c * ti;
+        }
     }
+}
+
+/// Distinct temperatures of the illuminated captures the fit uses.
+fn distinct_temperatures(prep: &Prepared) -> usize {
+    let mut t: Vec<i64> = prep
+        .caps
+        .iter()
+        .filter(|c| c.illum && c.used)
+        .filter_map(|c| c.temperature_c)
+        .map(|t| (t * 1e3).round() as i64)
+        .collect();
+    t.sort_unstable();
+    t.dedup();
+    t.len()
 }
 
 /// Harmonics of the correlation above the fitted order (3.2.2): A·Re[γ_h e^{ih(φ−θ)}].
@@ -415,11 +445,16 @@ impl Signature for Harmonics {
             .collect()
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let x = r.phi - r.theta;
-        for (i, h) in (self.from..=MAX_HARMONIC).enumerate() {
-            let (s, c) = (h as f64 * x).sin_cos();
-            out[2 * i] = r.a * c;
-            out[2 * i + 1] = -r.a * s;
+        // e^{ihx} by complex multiplication from e^{ix}: one sin_cos per sample
+        let (s1, c1) = (r.phi - r.theta).sin_cos();
+        let (mut zr, mut zi) = (c1, s1);
+        for _ in 1..self.from {
+            (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
+        }
+        for i in 0..=MAX_HARMONIC.saturating_sub(self.from) {
+            out[2 * i] = r.a * zr;
+            out[2 * i + 1] = -r.a * zi;
+            (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
         }
     }
 }
@@ -483,7 +518,7 @@ impl Signature for Multipath {
     fn nl_start(&self) -> Vec<f64> {
         vec![0.3]
     }
-    fn nl_grid(&self, _: &[Rec], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         [0.05, 0.1, 0.2, 0.4, 0.8, 1.6]
             .iter()
             .map(|v| vec![*v])
@@ -495,7 +530,8 @@ impl Signature for Multipath {
         let g = (d / (d + l)).powi(2);
         let x = r.phi + self.k_phase * l - r.theta;
         // first harmonic of the second return (the higher ones are small)
-        out[0] = r.a * g * x.cos();
-        out[1] = -r.a * g * x.sin();
+        let (sx, cx) = x.sin_cos();
+        out[0] = r.a * g * cx;
+        out[1] = -r.a * g * sx;
     }
 }

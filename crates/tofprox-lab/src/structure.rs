@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::fit::{Prepared, Rec};
+use crate::fit::{Prepared, Rec, Sample};
 use crate::stats::solve_sym;
 
 /// The conditions every recording is scored against (when they vary); the
@@ -75,35 +75,74 @@ pub struct ConditionScore {
     pub bins: Vec<Bin>,
 }
 
+/// A condition resolved once per scan (not matched by name per sample).
+#[derive(Debug, Clone, Copy)]
+enum Cond {
+    Distance,
+    Phase,
+    Ambient,
+    Temperature,
+    Exposure,
+    Amplitude,
+    ImageIndex,
+    CaptureIndex,
+    Column,
+    AdcChannel,
+    Row,
+    AdcCode,
+    /// One of the recording's own keys, by its index in `Prepared::extra_keys`.
+    Extra(usize),
+}
+
+impl Cond {
+    fn parse(cond: &str, prep: &Prepared) -> Option<Self> {
+        Some(match cond {
+            "distance_m" => Self::Distance,
+            "phase" => Self::Phase,
+            "ambient_klux" => Self::Ambient,
+            "temperature_c" => Self::Temperature,
+            "exposure_us" => Self::Exposure,
+            "amplitude" => Self::Amplitude,
+            "image_index" => Self::ImageIndex,
+            "capture_index" => Self::CaptureIndex,
+            "column" => Self::Column,
+            "adc_channel" => Self::AdcChannel,
+            "row" => Self::Row,
+            "adc_code" => Self::AdcCode,
+            other => Self::Extra(prep.extra_keys.iter().position(|k| k == other)?),
+        })
+    }
+
+    #[inline]
+    fn value(self, r: &Rec, prep: &Prepared) -> Option<f64> {
+        let cap = &prep.caps[r.cap as usize];
+        let p = r.pix as usize;
+        match self {
+            Self::Distance => cap.distance_m.filter(|_| cap.illum),
+            Self::Phase => cap
+                .illum
+                .then(|| r.phi.rem_euclid(std::f64::consts::TAU).to_degrees()),
+            Self::Ambient => Some(cap.ambient_klux),
+            Self::Temperature => cap.temperature_c,
+            Self::Exposure => Some(cap.exposure_us),
+            Self::Amplitude => cap.illum.then_some(r.a),
+            Self::ImageIndex => Some(f64::from(r.k)),
+            Self::CaptureIndex => Some(f64::from(r.cap)),
+            Self::Column => Some((p % prep.cols) as f64),
+            // the model's mirrored 32-column read-out map (thesis 3.3.7.1)
+            Self::AdcChannel => Some(tofprox_model::effects::fixed_pattern::adc_channel(
+                prep.roi_origin[1] + p % prep.cols,
+            ) as f64),
+            Self::Row => Some((p / prep.cols) as f64),
+            Self::AdcCode => Some(r.x + prep.mid),
+            Self::Extra(i) => cap.extra.get(i).copied().filter(|v| v.is_finite()),
+        }
+    }
+}
+
 /// Value of condition `cond` at a sample (None = not applicable).
 pub fn cond_value(cond: &str, r: &Rec, prep: &Prepared) -> Option<f64> {
-    let cap = &prep.caps[r.cap as usize];
-    let p = r.pix as usize;
-    match cond {
-        "distance_m" => cap.distance_m.filter(|_| cap.illum),
-        "phase" => cap
-            .illum
-            .then(|| r.phi.rem_euclid(std::f64::consts::TAU).to_degrees()),
-        "ambient_klux" => Some(cap.ambient_klux),
-        "temperature_c" => cap.temperature_c,
-        "exposure_us" => Some(cap.exposure_us),
-        "amplitude" => cap.illum.then_some(r.a),
-        "image_index" => Some(f64::from(r.k)),
-        "capture_index" => Some(f64::from(r.cap)),
-        "column" => Some((p % prep.cols) as f64),
-        // the model's mirrored 32-column read-out map (thesis 3.3.7.1)
-        "adc_channel" => Some(tofprox_model::effects::fixed_pattern::adc_channel(
-            prep.roi_origin[1] + p % prep.cols,
-        ) as f64),
-        "row" => Some((p / prep.cols) as f64),
-        "adc_code" => Some(r.x + prep.mid),
-        other => prep
-            .extra_keys
-            .iter()
-            .position(|k| k == other)
-            .and_then(|i| cap.extra.get(i).copied())
-            .filter(|v| v.is_finite()),
-    }
+    Cond::parse(cond, prep)?.value(r, prep)
 }
 
 /// Bin edges: one bin per distinct value when there are few, else quantiles.
@@ -151,6 +190,30 @@ const ZERO: Acc = Acc {
 };
 
 impl Acc {
+    /// Add one sample: weight `w`, directions `dir`, residual `e`, condition value `x`.
+    #[inline]
+    fn add(&mut self, w: f64, dir: &[f64; 3], e: f64, x: f64, a: f64) {
+        for i in 0..3 {
+            let wd = w * dir[i];
+            self.v[i] += wd * e;
+            for (j, dj) in dir.iter().enumerate().skip(i) {
+                self.m[i * 3 + j] += wd * dj;
+            }
+        }
+        self.sx += x;
+        self.n += 1;
+        self.swr += w * e;
+        self.sw += w;
+        self.swa2 += w * a * a;
+    }
+    /// Mirror the upper triangle filled by `add` into the lower one.
+    fn symmetrize(&mut self) {
+        for i in 0..3 {
+            for j in 0..i {
+                self.m[i * 3 + j] = self.m[j * 3 + i];
+            }
+        }
+    }
     fn merge(&mut self, y: &Acc) {
         for i in 0..9 {
             self.m[i] += y.m[i];
@@ -219,68 +282,45 @@ fn between(bins: &[Acc], per_dir: &mut [f64; 3]) -> (f64, usize) {
     (s.max(0.0), dof)
 }
 
-/// Structure score of residuals `res` (one per record) against one condition:
+/// Structure score of the residuals in `recs` against one condition:
 /// the larger of the all-pixel score and the pixel-resolved score (structure
 /// that differs between pixels, e.g. a row pattern growing with exposure).
-pub fn score(cond: &str, recs: &[Rec], res: &[f64], prep: &Prepared) -> Option<ConditionScore> {
+pub fn score(cond: &str, recs: &[Sample], prep: &Prepared) -> Option<ConditionScore> {
+    let which = Cond::parse(cond, prep)?;
     let stride = (recs.len() / 20_000).max(1);
     let sample: Vec<f64> = recs
         .iter()
         .step_by(stride)
-        .filter_map(|r| cond_value(cond, r, prep))
+        .filter_map(|s| which.value(&s.rec(prep), prep))
         .collect();
     let edges = binning(&sample)?;
     let nb = edges.len() + 1;
     // pixel-resolved scores for the stepped conditions (few bins); the
     // continuous ones are scored over all pixels
     let per_pixel = matches!(
-        cond,
-        "ambient_klux" | "temperature_c" | "exposure_us" | "image_index"
-    ) || prep.extra_keys.iter().any(|k| k == cond);
+        which,
+        Cond::Ambient | Cond::Temperature | Cond::Exposure | Cond::ImageIndex | Cond::Extra(_)
+    );
     let units = if per_pixel { prep.npix } else { 1 };
-    // accumulators [pixel][bin] (pixel-resolved) and [bin] (all pixels)
-    // partial sums over fixed chunks, merged in order: the same result on
-    // every run whatever the thread scheduling (rayon's fold splits are not)
-    let parts: Vec<(Vec<Acc>, Vec<Acc>)> = recs
-        .par_chunks(16_384)
-        .zip(res.par_chunks(16_384))
-        .map(|(rc, rs)| {
-            let (mut acc, mut g) = (vec![ZERO; units * nb], vec![ZERO; nb]);
-            for (r, &e) in rc.iter().zip(rs) {
-                let Some(x) = cond_value(cond, r, prep) else {
-                    continue;
-                };
-                let b = edges.partition_point(|&t| t < x);
-                let dir = [1.0, r.a * r.c, r.a * r.cd];
-                let mut one = ZERO;
-                for i in 0..3 {
-                    one.v[i] = r.w * dir[i] * e;
-                    for j in 0..3 {
-                        one.m[i * 3 + j] = r.w * dir[i] * dir[j];
-                    }
-                }
-                one.sx = x;
-                one.n = 1;
-                one.swr = r.w * e;
-                one.sw = r.w;
-                one.swa2 = r.w * r.a * r.a;
-                g[b].merge(&one);
-                if per_pixel {
-                    acc[r.pix as usize * nb + b].merge(&one);
-                }
-            }
-            (acc, g)
-        })
-        .collect();
+    // accumulators [pixel][bin] (pixel-resolved) and [bin] (all pixels), one
+    // sequential pass (the conditions run in parallel, `score_all`): one
+    // set of accumulators per condition whatever the size of the recording,
+    // and the same sums in the same order on every run
     let (mut accs, mut glob) = (vec![ZERO; units * nb], vec![ZERO; nb]);
-    for (b, gb) in &parts {
-        for (x, y) in accs.iter_mut().zip(b) {
-            x.merge(y);
-        }
-        for (x, y) in glob.iter_mut().zip(gb) {
-            x.merge(y);
+    for s in recs {
+        let r = s.rec(prep);
+        let Some(x) = which.value(&r, prep) else {
+            continue;
+        };
+        let b = edges.partition_point(|&t| t < x);
+        let dir = [1.0, r.a * r.c, r.a * r.cd];
+        glob[b].add(r.w, &dir, r.r, x, r.a);
+        if per_pixel {
+            accs[r.pix as usize * nb + b].add(r.w, &dir, r.r, x, r.a);
         }
     }
+    accs.iter_mut().for_each(Acc::symmetrize);
+    glob.iter_mut().for_each(Acc::symmetrize);
     let mut per_dir = [0.0f64; 3];
     let (chi_g, dof_g) = between(&glob, &mut per_dir);
     let zf = |c: f64, d: usize| {
@@ -368,10 +408,10 @@ pub fn structure_size(excess: f64, sw: f64, swa2: f64, mm_per_rad: f64) -> (f64,
 }
 
 /// Scores against every condition that varies, strongest first.
-pub fn score_all(recs: &[Rec], res: &[f64], prep: &Prepared) -> Vec<ConditionScore> {
+pub fn score_all(recs: &[Sample], prep: &Prepared) -> Vec<ConditionScore> {
     let mut v: Vec<ConditionScore> = conditions(prep)
         .par_iter()
-        .filter_map(|c| score(c, recs, res, prep))
+        .filter_map(|c| score(c, recs, prep))
         .collect();
     v.sort_by(|a, b| b.z.total_cmp(&a.z));
     v

@@ -79,6 +79,18 @@ impl SynthSpec {
             ..Self::default()
         }
     }
+
+    /// A full-array sweep (224×172 pixels): 2 darks per exposure, 1
+    /// correlation capture, 2 exposures × 24 distances × 2 repeats = 96 sweep
+    /// captures → 101 captures, 15.4 M samples, with a 1 % VCSEL droop hidden.
+    pub fn full_array_sweep() -> Self {
+        Self {
+            rows: 172,
+            cols: 224,
+            hidden: vec![Hidden::Droop { eps: 0.01 }],
+            ..Self::default()
+        }
+    }
 }
 
 fn gauss(rng: &mut ChaCha8Rng) -> f64 {

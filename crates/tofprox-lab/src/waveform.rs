@@ -25,6 +25,13 @@ impl Waveform {
     #[inline]
     pub fn eval(&self, x: f64) -> (f64, f64) {
         let (s, c) = x.sin_cos();
+        self.eval_at(c, s)
+    }
+    /// (C(x), C'(x)) from cos x and sin x (the harmonics by complex
+    /// multiplication: callers that know e^{ix} from a rotation skip the
+    /// sin_cos).
+    #[inline]
+    pub fn eval_at(&self, c: f64, s: f64) -> (f64, f64) {
         let (mut zr, mut zi) = (c, s);
         let mut cv = 0.0;
         let mut dv = 0.0;

@@ -46,6 +46,9 @@ enum Hidden {
     SaturatingPhase { phi_s: f64, s_sat_e: f64 },
     /// Phase a1·ΔT + a2·ΔT² and gain 1 + g1·ΔT + g2·ΔT², ΔT = T − 25 °C.
     TempSecondOrder { a1: f64, a2: f64, g1: f64, g2: f64 },
+    /// A drift that bends exponentially (neither linear nor a polynomial):
+    /// phase a·τ·(e^{ΔT/τ} − 1), gain e^{g·ΔT}, ΔT = T − 25 °C.
+    TempExponential { a: f64, tau_k: f64, g: f64 },
     /// Phase k·(V − 3.3 V) with the supply voltage (a user condition).
     SupplyPhase { rad_per_v: f64 },
     /// Tap B converts charge with gain 1 − eps relative to tap A.
@@ -117,6 +120,10 @@ fn capture(
                     phi += a1 * dt + a2 * dt * dt;
                     s_e *= 1.0 + g1 * dt + g2 * dt * dt;
                 }
+                Hidden::TempExponential { a, tau_k, g } => {
+                    phi += a * tau_k * ((dt / tau_k).exp() - 1.0);
+                    s_e *= (g * dt).exp();
+                }
                 Hidden::SupplyPhase { rad_per_v } => phi += rad_per_v * (c.supply_v - 3.3),
                 Hidden::DroopFirstImage { .. } | Hidden::TapGain { .. } => {}
             }
@@ -166,6 +173,8 @@ fn capture(
 enum Vary {
     Nothing,
     Temperature,
+    /// Five temperatures from 0 to 55 °C.
+    Temperatures5,
     Supply,
 }
 
@@ -203,6 +212,10 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
     let levels: Vec<(f64, f64)> = match vary {
         Vary::Nothing => vec![(25.0, 3.3)],
         Vary::Temperature => vec![(10.0, 3.3), (25.0, 3.3), (45.0, 3.3)],
+        Vary::Temperatures5 => [0.0, 15.0, 25.0, 40.0, 55.0]
+            .iter()
+            .map(|t| (*t, 3.3))
+            .collect(),
         Vary::Supply => vec![(25.0, 3.0), (25.0, 3.3), (25.0, 3.6)],
     };
     let n_d = if matches!(vary, Vary::Nothing) { 16 } else { 8 };
@@ -372,6 +385,23 @@ fn two_effects_droop_and_second_order_temperature() {
         Vary::Temperature,
         33,
         &["vcsel_droop", "temperature_drift"],
+    );
+}
+
+/// A temperature drift that bends (exponential in the test's formulation, not
+/// the model's polynomial) over five temperatures: the linear law leaves
+/// millimetres; the widened law (ΔT² terms) closes the loop.
+#[test]
+fn bending_temperature_drift() {
+    check_explain(
+        &[Hidden::TempExponential {
+            a: 0.003,
+            tau_k: 80.0,
+            g: -0.003,
+        }],
+        Vary::Temperatures5,
+        37,
+        &["temperature_drift"],
     );
 }
 

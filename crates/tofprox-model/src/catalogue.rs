@@ -472,9 +472,9 @@ pub static CATALOGUE: &[EffectInfo] = &[
     EffectInfo {
         id: "temperature_drift",
         title: "Temperature drift of phase and gain",
-        explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ · (T − T_ref), gain ×(1 + k_g · (T − T_ref)). T is the capture's temperature_c.",
+        explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ·ΔT + k_φ2·ΔT², gain ×(1 + k_g·ΔT + k_g2·ΔT²), ΔT = T − T_ref. The second-order terms describe a drift that bends (delays and responsivity that change faster when hot); 0 gives the linear law. T is the capture's temperature_c.",
         thesis_ref: "3.1 (temperature compensation step of fig. 3.1)",
-        signature: "depth offset and amplitude change linear in temperature_c",
+        signature: "depth offset and amplitude change with temperature_c (linear, or bending with the second-order terms)",
         params: &[
             p(
                 "phase_mrad_per_k",
@@ -491,6 +491,22 @@ pub static CATALOGUE: &[EffectInfo] = &[
                 -0.05,
                 0.05,
                 "relative signal drift k_g",
+            ),
+            p(
+                "phase_mrad_per_k2",
+                "mrad/K^2",
+                0.0,
+                -5.0,
+                5.0,
+                "second-order phase drift k_φ2",
+            ),
+            p(
+                "gain_rel_per_k2",
+                "1/K^2",
+                0.0,
+                -0.002,
+                0.002,
+                "second-order relative signal drift k_g2",
             ),
             p(
                 "reference_c",

@@ -146,7 +146,7 @@ effect_ids! {
     /// Amplitude-dependent phase error.
     amplitude_phase_error { MAX_RAD = "max_rad", REFERENCE_E = "reference_e", SHAPE = "shape" }
     /// Temperature drift of phase and gain.
-    temperature_drift { PHASE_MRAD_PER_K = "phase_mrad_per_k", GAIN_REL_PER_K = "gain_rel_per_k", REFERENCE_C = "reference_c" }
+    temperature_drift { PHASE_MRAD_PER_K = "phase_mrad_per_k", GAIN_REL_PER_K = "gain_rel_per_k", PHASE_MRAD_PER_K2 = "phase_mrad_per_k2", GAIN_REL_PER_K2 = "gain_rel_per_k2", REFERENCE_C = "reference_c" }
     /// Uncorrelated background light.
     ambient_light { E_PER_US_PER_KLUX = "e_per_us_per_klux" }
     /// Dark current and its shot noise.

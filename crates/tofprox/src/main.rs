@@ -21,11 +21,11 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Summarise a recording (captures by mode/exposure/conditions, saturation share).
-    Info(cmd::recording::InfoArgs),
+    Info(cmd::info::InfoArgs),
     /// Extract a calibration (fpn, wiggling, fppn) from a recording.
-    Calibrate(cmd::recording::CalibrateArgs),
+    Calibrate(cmd::calibrate::CalibrateArgs),
     /// Process a recording's captures to depth and amplitude.
-    Process(cmd::recording::ProcessArgs),
+    Process(cmd::process::ProcessArgs),
     /// Simulate recordings with the physical model.
     #[command(subcommand)]
     Sim(cmd::sim::SimCommand),
@@ -63,9 +63,9 @@ fn main() -> ExitCode {
     };
     tofproxd::logging::init_logging(filter);
     let result = match cli.command {
-        Command::Info(a) => cmd::recording::info(a),
-        Command::Calibrate(a) => cmd::recording::calibrate(a),
-        Command::Process(a) => cmd::recording::process(a),
+        Command::Info(a) => cmd::info::info(a),
+        Command::Calibrate(a) => cmd::calibrate::calibrate(a),
+        Command::Process(a) => cmd::process::process(a),
         Command::Sim(c) => cmd::sim::run_sim(c),
         Command::Model(c) => cmd::sim::run_model(c),
         Command::Lab(c) => cmd::lab::run(c),

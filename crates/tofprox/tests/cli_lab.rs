@@ -168,3 +168,112 @@ fn bad_input_exits_2_with_a_message() {
     assert!(o.status.success());
     assert!(text(&o.stdout).contains("sbi_asymmetry"));
 }
+
+/// `sim sweep --like REC`: the recording's window, modulation frequency and
+/// per-capture conditions through the model; its own keys are copied and
+/// named as ignored, an illuminated capture without distance is skipped.
+#[test]
+fn sim_sweep_like_simulates_the_recordings_conditions() {
+    use std::collections::BTreeMap;
+    use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter};
+    let tmp = tempfile::tempdir().unwrap();
+    // 60 MHz (not the model's default 80.32 MHz), a 6×10 window off the centre
+    let f_hz = 60e6;
+    let sensor = tofprox_core::SensorGeometry::irs1645();
+    let sensor = tofprox_core::SensorGeometry {
+        modulation_hz: f_hz,
+        ..sensor
+    }
+    .window(40, 60, 6, 10)
+    .unwrap();
+    let src = tmp.path().join("src");
+    let mut w = RecordingWriter::create(&src, sensor, None).unwrap();
+    let frames = RawFrames::U16(ndarray::Array3::from_elem((4, 6, 10), 2048u16));
+    let four = vec![0.0, 90.0, 180.0, 270.0];
+    let spec = |illum: bool, cond: &[(&str, f64)]| CaptureSpec {
+        phases_deg: four.clone(),
+        exposure_us: 700.0,
+        illumination: illum,
+        averaged: 8,
+        timestamp_ns: None,
+        conditions: cond
+            .iter()
+            .map(|(k, v)| (k.to_string(), *v))
+            .collect::<BTreeMap<_, _>>(),
+    };
+    w.append(spec(false, &[("supply_voltage_v", 3.3)]), &frames)
+        .unwrap();
+    for (d, v) in [(0.5, 3.3), (0.8, 3.1)] {
+        let c = [
+            ("distance_m", d),
+            ("reflectivity", 0.8),
+            ("temperature_c", 35.0),
+            ("supply_voltage_v", v),
+        ];
+        w.append(spec(true, &c), &frames).unwrap();
+    }
+    // illuminated without ground truth: cannot be simulated
+    w.append(spec(true, &[("supply_voltage_v", 3.2)]), &frames)
+        .unwrap();
+    drop(w);
+    let model = tmp.path().join("m.toml");
+    std::fs::write(&model, ModelConfig::baseline().to_toml_string()).unwrap();
+    let like = |extra: &[&str], out: &Path| {
+        let mut args = vec![
+            "sim",
+            "sweep",
+            "--like",
+            src.to_str().unwrap(),
+            "--model",
+            model.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    let out = tmp.path().join("out");
+    let o = like(&[], &out);
+    let err = text(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("supply_voltage_v"), "{err}");
+    assert!(err.contains("skipped 1"), "{err}");
+    let rec = Recording::open(&out).unwrap();
+    assert_eq!(*rec.sensor(), sensor);
+    let caps = rec.captures();
+    assert_eq!(caps.len(), 3);
+    for (c, want_illum) in caps.iter().zip([false, true, true]) {
+        assert_eq!(c.phases_deg, four);
+        assert_eq!(c.exposure_us, 700.0);
+        assert_eq!(c.averaged, 8);
+        assert_eq!(c.illumination, want_illum);
+    }
+    assert_eq!(caps[1].conditions.get("distance_m"), Some(&0.5));
+    assert_eq!(caps[2].conditions.get("supply_voltage_v"), Some(&3.1));
+    assert_eq!(caps[2].conditions.get("temperature_c"), Some(&35.0));
+    // the phase moves with distance at the recording's 60 MHz: 4πfΔd/c (eq. 2.6)
+    let phase = |i: usize| {
+        let f = rec.load(i).unwrap().to_f64();
+        let (mut re, mut im) = (0.0, 0.0);
+        for r in 0..6 {
+            for c in 0..10 {
+                // eq. 2.3 per pixel, averaged as phasors
+                let (x, y) = (f[[0, r, c]] - f[[2, r, c]], f[[1, r, c]] - f[[3, r, c]]);
+                let n = x.hypot(y);
+                re += x / n;
+                im += y / n;
+            }
+        }
+        im.atan2(re)
+    };
+    let dphi = (phase(2) - phase(1)).rem_euclid(std::f64::consts::TAU);
+    let want = tofprox_core::phasor::distance_to_phase_rad(0.3, f_hz);
+    let at_default = tofprox_core::phasor::distance_to_phase_rad(0.3, 80.32e6);
+    assert!(
+        (dphi - want).abs() < 0.4 * (at_default - want).abs(),
+        "phase step {dphi:.3} rad, expected {want:.3} (80 MHz would give {at_default:.3})"
+    );
+    // sweep options conflict with --like
+    let o = like(&["--exposures", "100"], &tmp.path().join("x"));
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+}

@@ -248,7 +248,7 @@ fn calibrate_then_process_is_within_1_cm() {
     assert_eq!(
         set.parts(),
         module_parts(),
-        "one set with every part but the cover window's crosstalk (no capture with nothing in range)"
+        "one set with every part but the lens and the cover window's crosstalk"
     );
     for (algo, n) in [("2phase", 6), ("4phase", 5)] {
         let out = t.path().join(algo);
@@ -953,11 +953,59 @@ fn dependency_checksums_are_required_and_compare_in_any_case() {
     assert_ok(&o);
 }
 
-/// Every part but `crosstalk` and `intrinsics`: what the example recording (no capture with
-/// nothing in range, no flat-wall sweep for a lens) gives.
+/// Every part but `intrinsics` and `crosstalk`: what the example recording gives.
 fn module_parts() -> Vec<CalibPart> {
+    // the example has no lens sweep (`calibrate intrinsics`) and no capture with nothing in
+    // range (`calibrate crosstalk`)
     CalibPart::ALL
         .into_iter()
         .filter(|p| !matches!(p, CalibPart::Crosstalk | CalibPart::Intrinsics))
         .collect()
+}
+
+/// What `tofprox record` writes: a depth recording (format version 2, `kind = "depth"`), read
+/// as depth by `info` and refused by every command that needs raw phase images, naming the
+/// file and the key.
+#[test]
+fn a_depth_recording_is_read_as_depth_and_refused_by_raw_commands() {
+    use tofprox_format::{DepthImageSize, DepthRecordingWriter};
+    let t = tempfile::tempdir().unwrap();
+    let rec = t.path().join("depth");
+    let size = DepthImageSize { rows: 4, cols: 6 };
+    let mut w = DepthRecordingWriter::create(&rec, size, None, false).unwrap();
+    for (i, mm) in [250u16, 260, 0].into_iter().enumerate() {
+        let d = ndarray::Array2::from_elem((4, 6), mm);
+        let amp = ndarray::Array2::from_elem((4, 6), 900u16);
+        w.append(Some(1_000_000_000 + 100_000_000 * i as u64), &d, Some(&amp))
+            .unwrap();
+    }
+    let o = run(&["info", p(&rec), "--json"]);
+    assert_ok(&o);
+    let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(v["kind"], "depth");
+    assert_eq!(v["captures"], 3);
+    assert_eq!(v["depth"]["cols"], 6);
+    assert_eq!(v["per_capture"][0]["median_depth_mm"], 250);
+    assert_eq!(v["per_capture"][2]["valid_fraction"], 0.0);
+    assert!((v["rate_hz"].as_f64().unwrap() - 10.0).abs() < 1e-9, "{v}");
+    let o = run(&["info", p(&rec)]);
+    assert_ok(&o);
+    assert!(stdout(&o).contains("depth images"), "{}", stdout(&o));
+
+    let toml = format!("{}", rec.join("recording.toml").display());
+    let calib = t.path().join("calib");
+    let o = run(&["calibrate", "fpn", p(&rec), "--out", p(&calib)]);
+    assert_bad(&o, &[&toml, "kind", "depth recording"]);
+    assert!(!calib.exists(), "nothing written");
+    let out = t.path().join("out");
+    let o = run(&["process", p(&rec), "--algo", "4phase", "--out", p(&out)]);
+    assert_bad(&o, &[&toml, "kind", "depth recording"]);
+    let o = run(&[
+        "lab",
+        "compare",
+        p(&rec),
+        "--model",
+        "config/model/baseline.toml",
+    ]);
+    assert_bad(&o, &[&toml, "kind", "depth recording"]);
 }

@@ -105,7 +105,8 @@ fn emulated_stack_cycle_2phase_full_frame(b: Bencher) {
 #[divan::bench(sample_count = 200)]
 fn frame_to_properties_changed(b: Bencher) {
     use std::io::BufRead;
-    use tofproxd::service::{Event, Hub, OBJECT_PATH, Proximity, StatusUpdate, next_item};
+    use tofproxd::hub::{Event, Hub, StatusUpdate};
+    use tofproxd::service::{OBJECT_PATH, Proximity, next_item};
     let Ok(mut bus) = std::process::Command::new("dbus-daemon")
         .args(["--session", "--print-address", "--nofork"])
         .stdout(std::process::Stdio::piped())
@@ -141,7 +142,7 @@ fn frame_to_properties_changed(b: Bencher) {
             .await
             .expect("name");
         let (tx, erx) = tokio::sync::mpsc::unbounded_channel();
-        tokio::spawn(tofproxd::service::run_publisher(
+        tokio::spawn(tofproxd::publisher::run_publisher(
             server.clone(),
             hub.clone(),
             erx,

@@ -270,35 +270,36 @@ impl FrameSource for ReplaySource {
     }
 }
 
-/// Load the emulated device configuration of a daemon config.
+/// Load the emulated device configuration of a daemon config. A `device = "FILE"` path is
+/// used as it stands in `cfg` ([`Config::load`] already made it relative to the config
+/// file's directory — joining `base` again would resolve it twice); paths inside an inline
+/// `[emulated.device]` table are resolved against `base` (the config file's directory).
+/// Errors keep the bridge's reason (an unknown key is named).
 pub fn emulated_device_config(
     cfg: &Config,
     base: &Path,
 ) -> Result<BridgeEmulatedConfig, SourceError> {
-    let err = |e: BridgeError| {
+    let err = |what: &str, e: BridgeError| {
         SourceError::new(
             SourceErrorKind::Unsupported,
-            format!("emulated device: {e}"),
+            format!("{what}: {}", chain(&e)),
         )
+        .with_source(e)
     };
     match &cfg.emulated.device {
         None => Ok(BridgeEmulatedConfig::default()),
         Some(DeviceSpec::Path(p)) => {
-            let p = if p.is_relative() {
-                base.join(p)
-            } else {
-                p.clone()
-            };
-            BridgeEmulatedConfig::load(&p).map_err(err)
+            BridgeEmulatedConfig::load(p).map_err(|e| err("emulated.device", e))
         }
         Some(DeviceSpec::Inline(t)) => {
             let text = toml::to_string(t).map_err(|e| {
                 SourceError::new(
                     SourceErrorKind::Unsupported,
-                    format!("emulated.device: {e}"),
+                    format!("[emulated.device]: {e}"),
                 )
             })?;
-            BridgeEmulatedConfig::from_toml_str(&text, base).map_err(err)
+            BridgeEmulatedConfig::from_toml_str(&text, base)
+                .map_err(|e| err("[emulated.device]", e))
         }
     }
 }

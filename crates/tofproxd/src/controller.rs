@@ -1,9 +1,12 @@
 //! The loop's brain, free of I/O timing: one [`Controller::step`] = one reading
 //! (thesis fig. 3.23 / listing 4.11: restart → flash → exposure → capture →
-//! process → stop), then the decisions for the next one — mode (2-phase ↔
-//! 4-phase on background light), exposure (auto, eye-safe bounded), rate
-//! (adaptive), and the sleep until the next cycle. The daemon thread and
-//! `tofprox soak` both drive it.
+//! process → stop), then the decisions for the next one, each taken by its own
+//! unit in [`crate::policy`] — mode ([`AmbientSwitch`]: 2-phase ↔ 4-phase on
+//! background light), exposure ([`AutoExposure`], eye-safe bounded), rate
+//! ([`AdaptiveRate`]), rows read ([`ReadoutWindow`]) and the sleep until the next
+//! cycle with its energy ([`EnergyAccount`]). The controller composes them, runs
+//! the pipeline and the detector and reports in the [`crate::hub`] vocabulary. The
+//! daemon thread and `tofprox soak` both drive it.
 
 use std::time::Duration;
 
@@ -18,11 +21,13 @@ use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
 use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
 
 use crate::config::{Config, Mode};
-use crate::energy::{EnergyMeter, cycle_energy};
-use crate::service::{DepthMessage, State, StatusUpdate};
-use crate::source::{
-    CycleRequest, FrameSource, RawCycle, RawImages, RowWindow, SourceError, SourceErrorKind,
+use crate::energy::EnergyMeter;
+use crate::hub::{DepthMessage, State, StatusUpdate};
+use crate::policy::{
+    AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CycleObservation, EnergyAccount,
+    ExposureObservation, Pacing, RateObservation, ReadoutObservation, ReadoutWindow,
 };
+use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
 /// Full-frame calibrations per mode (cropped to the read-out window on use).
 #[derive(Debug, Clone, Default)]
@@ -51,6 +56,18 @@ pub enum ControllerError {
         mode: &'static str,
         /// The LUT's algorithm.
         lut: &'static str,
+    },
+    /// The configured ROI does not lie inside the sensor (no silent fallback to another ROI).
+    #[error(
+        "proximity.roi = {roi:?} ([row0, col0, rows, cols]) does not lie inside the {full_rows}x{full_cols} sensor"
+    )]
+    RoiOutsideSensor {
+        /// The configured ROI.
+        roi: [usize; 4],
+        /// Rows of the sensor.
+        full_rows: usize,
+        /// Columns of the sensor.
+        full_cols: usize,
     },
     /// The core refused a parameter.
     #[error("processing setup: {0}")]
@@ -90,22 +107,18 @@ pub struct Controller<S: FrameSource> {
     detector: Option<(SensorGeometry, NearFarDetector)>,
     /// Amplitude scale cropped to the current read-out window.
     amp_scale: Option<(SensorGeometry, ndarray::Array2<f32>)>,
-    /// Current processing mode.
-    mode: Mode,
-    exposure_us: f64,
-    rate_hz: f64,
-    still_count: u32,
-    last_distance: Option<u32>,
-    cycles_since_probe: u32,
-    ambient_low_count: u32,
+    /// Processing mode (2 ↔ 4-phase on background light).
+    ambient: AmbientSwitch,
+    exposure: AutoExposure,
+    rate: AdaptiveRate,
+    readout: ReadoutWindow,
+    energy: EnergyAccount,
     consecutive_failures: u32,
     /// Time since the last valid reading (sum of the sleeps and cycles since), for the bound
     /// on holding Near across failures.
     since_valid: Duration,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
-    partial_ok: bool,
-    energy: EnergyMeter,
     near: bool,
     running: bool,
     last_error: String,
@@ -145,6 +158,21 @@ impl<S: FrameSource> Controller<S> {
                 });
             }
         }
+        // The ROI must lie inside the sensor: `Roi::resolve` would otherwise clip it or fall
+        // back to the central ROI and publish readings of a region nobody configured.
+        if let Some(roi @ [row0, col0, rows, cols]) = cfg.proximity.roi {
+            let (full_rows, full_cols) = source.full_size();
+            let inside = |o: usize, n: usize, full: usize| {
+                n > 0 && o.checked_add(n).is_some_and(|e| e <= full)
+            };
+            if full_rows > 0 && !(inside(row0, rows, full_rows) && inside(col0, cols, full_cols)) {
+                return Err(ControllerError::RoiOutsideSensor {
+                    roi,
+                    full_rows,
+                    full_cols,
+                });
+            }
+        }
         // Validate detector parameters once up front.
         NearFarDetector::new(NearFarConfig {
             near_mm: cfg.proximity.near_mm,
@@ -154,10 +182,15 @@ impl<S: FrameSource> Controller<S> {
             min_valid_fraction: cfg.proximity.min_valid_fraction,
         })?;
         Ok(Self {
-            mode: cfg.processing.mode,
-            exposure_us: cfg.exposure.initial_us,
-            rate_hz: cfg.loop_.rate_hz,
-            energy: EnergyMeter::new(cfg.energy.clone()),
+            ambient: AmbientSwitch::new(
+                cfg.ambient.clone(),
+                cfg.processing.mode,
+                source.supports_mode_switch(),
+            ),
+            exposure: AutoExposure::new(cfg.exposure.clone()),
+            rate: AdaptiveRate::new(cfg.loop_.clone()),
+            readout: ReadoutWindow::new(cfg.readout.clone()),
+            energy: EnergyAccount::new(cfg.energy.clone(), Pacing::of(&cfg)),
             cfg,
             source,
             calib,
@@ -165,14 +198,9 @@ impl<S: FrameSource> Controller<S> {
             pipe4: None,
             detector: None,
             amp_scale: None,
-            still_count: 0,
-            last_distance: None,
-            cycles_since_probe: 0,
-            ambient_low_count: 0,
             consecutive_failures: 0,
             since_valid: Duration::ZERO,
             last_sleep: Duration::ZERO,
-            partial_ok: true,
             near: false,
             running: false,
             last_error: String::new(),
@@ -192,15 +220,15 @@ impl<S: FrameSource> Controller<S> {
     }
     /// Current processing mode.
     pub fn mode(&self) -> Mode {
-        self.mode
+        self.ambient.mode()
     }
     /// Current exposure (µs).
     pub fn exposure_us(&self) -> f64 {
-        self.exposure_us
+        self.exposure.exposure_us()
     }
     /// Current rate (Hz).
     pub fn rate_hz(&self) -> f64 {
-        self.rate_hz
+        self.rate.rate_hz()
     }
     /// Published near.
     pub fn near(&self) -> bool {
@@ -208,7 +236,7 @@ impl<S: FrameSource> Controller<S> {
     }
     /// Energy meter.
     pub fn energy(&self) -> &EnergyMeter {
-        &self.energy
+        self.energy.meter()
     }
     /// Consecutive failed cycles.
     pub fn consecutive_failures(&self) -> u32 {
@@ -225,8 +253,7 @@ impl<S: FrameSource> Controller<S> {
         if let Some((_, d)) = &mut self.detector {
             d.reset();
         }
-        self.last_distance = None;
-        self.still_count = 0;
+        self.rate.reset();
         self.state = State::Off;
         StatusUpdate {
             state: Some(State::Off),
@@ -237,36 +264,21 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    fn request(&self, probe: bool) -> CycleRequest {
+    fn request(&mut self, probe: bool) -> CycleRequest {
         let (full_rows, full_cols) = self.source.full_size();
-        let mode = if probe { Mode::FourPhase } else { self.mode };
-        let row_window = if self.partial_ok
-            && self.cfg.readout.partial
-            && self.source.supports_row_window()
-            && full_rows > 0
-        {
-            let roi = full_roi(&self.cfg, full_rows, full_cols);
-            let m = usize::from(self.cfg.readout.margin_rows);
-            let align = usize::from(self.source.row_window_align().max(1));
-            let row0 = roi.row0.saturating_sub(m) / align * align;
-            let end = (roi.row0 + roi.rows + m).div_ceil(align) * align;
-            let end = if end > full_rows {
-                full_rows / align * align
-            } else {
-                end
-            };
-            match (u16::try_from(row0), u16::try_from(end.saturating_sub(row0))) {
-                (Ok(row0), Ok(rows)) if rows > 0 && usize::from(rows) < full_rows => {
-                    Some(RowWindow { row0, rows })
-                }
-                _ => None,
-            }
-        } else {
-            None
-        };
+        let row_window = self.readout.next(ReadoutObservation {
+            full_rows,
+            roi: full_roi(&self.cfg, full_rows, full_cols),
+            source_supports: self.source.supports_row_window(),
+            align_rows: self.source.row_window_align(),
+        });
         CycleRequest {
-            mode,
-            exposure_us: self.exposure_us,
+            mode: if probe {
+                Mode::FourPhase
+            } else {
+                self.ambient.mode()
+            },
+            exposure_us: self.exposure.exposure_us(),
             row_window,
         }
     }
@@ -338,35 +350,13 @@ impl<S: FrameSource> Controller<S> {
         None
     }
 
-    /// The sleep after a cycle that was active for `active`: the rest of the period, none when
-    /// replaying a recording as fast as possible.
-    fn sleep_after(&self, active: Duration) -> Duration {
-        if self.cfg.backend == crate::config::Backend::Replay && !self.cfg.replay.realtime {
-            Duration::ZERO
-        } else {
-            Duration::from_secs_f64(1.0 / self.rate_hz).saturating_sub(active)
-        }
-    }
-
-    /// Account the energy of a captured cycle (read-out scaled by `rows_fraction`) and the
-    /// sleep after it.
-    fn account_energy(&mut self, cycle: &RawCycle, rows_fraction: f64, sleep: Duration) {
-        let t = cycle.timings();
-        let k = u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX);
-        let e = cycle_energy(&self.cfg.energy, &t, k, cycle.exposure_us, rows_fraction);
-        self.energy.record(&e, t.active(), sleep);
-    }
-
     /// One cycle. `want_depth`: build a depth message.
     pub fn step(&mut self, want_depth: bool) -> StepOutcome {
         if !self.running {
             self.running = true;
             self.state = State::Starting;
         }
-        let probe = self.cfg.ambient.enabled
-            && self.mode == Mode::TwoPhase
-            && self.source.supports_mode_switch()
-            && self.cycles_since_probe + 1 >= self.cfg.ambient.probe_every;
+        let probe = self.ambient.probe_due();
         let req = self.request(probe);
         let cycle = match self.source.cycle(&req) {
             Ok(c) => c,
@@ -375,7 +365,7 @@ impl<S: FrameSource> Controller<S> {
                     tracing::warn!(
                         "partial read-out refused by the source ({e}): reading full frames"
                     );
-                    self.partial_ok = false;
+                    self.readout.refused_by_source();
                 }
                 return self.fail(e);
             }
@@ -387,11 +377,7 @@ impl<S: FrameSource> Controller<S> {
         if rails_only(&cycle) {
             return self.rails_cycle(&cycle);
         }
-        if probe || captured == Mode::FourPhase {
-            self.cycles_since_probe = 0;
-        } else {
-            self.cycles_since_probe += 1;
-        }
+        self.ambient.note_capture(probe, captured);
         match self.process(&cycle, captured, want_depth) {
             Ok(out) => out,
             Err(e) => self.fail(e),
@@ -539,93 +525,25 @@ impl<S: FrameSource> Controller<S> {
             None => 0,
         };
 
-        // Mode switching with hysteresis.
-        let mut new_mode = self.mode;
-        if self.cfg.ambient.enabled && self.source.supports_mode_switch() {
-            let disc_high =
-                discrepancy_mm.is_some_and(|d| d > f64::from(self.cfg.ambient.discrepancy_mm));
-            if let Some(ind) = ambient_high {
-                let high = ind > self.cfg.ambient.high_lsb || disc_high;
-                let low = ind < self.cfg.ambient.low_lsb && !disc_high;
-                match self.mode {
-                    Mode::TwoPhase if high => {
-                        tracing::info!(
-                            "switching to 4-phase: background indicator {ind:.0} LSB (high above {:.0}), \
-                             2-vs-4-phase discrepancy {} mm (high above {})",
-                            self.cfg.ambient.high_lsb,
-                            discrepancy_mm.map_or("n/a".to_string(), |d| format!("{d:.0}")),
-                            self.cfg.ambient.discrepancy_mm
-                        );
-                        new_mode = Mode::FourPhase;
-                        self.ambient_low_count = 0;
-                    }
-                    Mode::FourPhase if self.cfg.processing.mode == Mode::TwoPhase => {
-                        if low {
-                            self.ambient_low_count += 1;
-                            if self.ambient_low_count >= self.cfg.ambient.low_readings {
-                                tracing::info!("background light low again: back to 2-phase");
-                                new_mode = Mode::TwoPhase;
-                                self.ambient_low_count = 0;
-                            }
-                        } else {
-                            self.ambient_low_count = 0;
-                        }
-                    }
-                    _ => {}
-                }
-            }
+        // The policies decide the next cycle.
+        if let Some(indicator_lsb) = ambient_high {
+            self.ambient.next(AmbientObservation {
+                indicator_lsb,
+                discrepancy_mm,
+            });
         }
-        self.mode = new_mode;
-
-        // Auto-exposure within the eye-safe limits.
-        if self.cfg.exposure.auto {
-            let e = &self.cfg.exposure;
-            if stats.saturated_fraction > e.saturated_fraction {
-                self.exposure_us = (self.exposure_us / e.step).max(e.min_us);
-            } else if stats.low_amplitude_fraction > e.low_amplitude_fraction {
-                self.exposure_us = (self.exposure_us * e.step).min(e.max_us);
-            }
-            self.exposure_us = self.exposure_us.clamp(e.min_us, e.max_us);
-        }
-
-        // Adaptive rate.
-        let l = &self.cfg.loop_;
-        let period_s = 1.0 / self.rate_hz;
-        let new_rate = if reading.near {
-            self.still_count = 0;
-            l.fast_rate_hz
-        } else if let (Some(d), Some(prev)) = (reading.distance_mm, self.last_distance) {
-            let speed = (f64::from(prev) - f64::from(d)) / period_s; // + = approaching
-            if speed > l.approach_mm_per_s {
-                self.still_count = 0;
-                l.fast_rate_hz
-            } else if d.abs_diff(prev) <= l.still_tolerance_mm {
-                self.still_count = self.still_count.saturating_add(1);
-                if self.still_count >= l.still_readings {
-                    l.slow_rate_hz
-                } else {
-                    l.rate_hz
-                }
-            } else {
-                self.still_count = 0;
-                l.rate_hz
-            }
-        } else {
-            l.rate_hz
-        };
-        self.rate_hz = new_rate.clamp(l.slow_rate_hz, l.fast_rate_hz);
-        if reading.distance_mm.is_some() {
-            self.last_distance = reading.distance_mm;
-        }
-
-        // Energy of this cycle + the sleep that follows (sensor in reset).
-        let sleep = self.sleep_after(cycle.timings().active());
-        let rows_fraction = if g.full_rows > 0 {
-            rows as f64 / g.full_rows as f64
-        } else {
-            1.0
-        };
-        self.account_energy(cycle, rows_fraction, sleep);
+        self.exposure.next(ExposureObservation::Roi {
+            saturated_fraction: stats.saturated_fraction,
+            low_amplitude_fraction: stats.low_amplitude_fraction,
+        });
+        self.rate.next(RateObservation {
+            near: reading.near,
+            distance_mm: reading.distance_mm,
+        });
+        let energy = self
+            .energy
+            .next(CycleObservation::of(cycle, self.rate.rate_hz()));
+        let sleep = energy.sleep;
 
         self.consecutive_failures = 0;
         self.last_sleep = sleep;
@@ -643,11 +561,11 @@ impl<S: FrameSource> Controller<S> {
                 state: Some(self.state),
                 near: valid.then_some(self.near),
                 distance_mm: Some(shown_mm),
-                mode: Some(self.mode),
-                rate_hz: Some(self.rate_hz),
-                power_mw: Some(self.energy.average_mw()),
+                mode: Some(self.ambient.mode()),
+                rate_hz: Some(self.rate.rate_hz()),
+                power_mw: Some(energy.average_mw),
                 last_error: was_error.then(String::new),
-                exposure_us: Some(self.exposure_us),
+                exposure_us: Some(self.exposure.exposure_us()),
                 has_sensor: Some(true),
                 amplitude_check: Some(if self.calib.amplitude.is_some() {
                     "calibrated"
@@ -674,25 +592,19 @@ impl<S: FrameSource> Controller<S> {
     /// detector (it would read as saturated = near), Near is left alone, and the exposure is
     /// shortened so a real target becomes measurable in the next cycle.
     fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
-        if self.cfg.exposure.auto {
-            let e = &self.cfg.exposure;
-            self.exposure_us = (self.exposure_us / e.step).clamp(e.min_us, e.max_us);
-        }
+        self.exposure.next(ExposureObservation::Rails);
         let near_update = self.no_reading();
-        let sleep = self.sleep_after(cycle.timings().active());
-        let rows_fraction = if cycle.geometry.full_rows > 0 {
-            cycle.frames.dim().1 as f64 / cycle.geometry.full_rows as f64
-        } else {
-            1.0
-        };
-        self.account_energy(cycle, rows_fraction, sleep);
+        let energy = self
+            .energy
+            .next(CycleObservation::of(cycle, self.rate.rate_hz()));
+        let sleep = energy.sleep;
         self.last_sleep = sleep;
         tracing::debug!("frame without usable codes (all on the rails): no reading");
         StepOutcome {
             update: StatusUpdate {
                 near: near_update,
-                exposure_us: Some(self.exposure_us),
-                power_mw: Some(self.energy.average_mw()),
+                exposure_us: Some(self.exposure.exposure_us()),
+                power_mw: Some(energy.average_mw),
                 cycle: true,
                 ..StatusUpdate::default()
             },
@@ -1168,6 +1080,42 @@ mod tests {
     }
 
     #[test]
+    fn roi_outside_the_sensor_is_refused_naming_the_key() {
+        for roi in [
+            [20, 0, 10, 10],
+            [0, 30, 4, 4],
+            [0, 0, 0, 4],
+            [usize::MAX, 0, 2, 2],
+        ] {
+            let mut c = cfg();
+            c.proximity.roi = Some(roi);
+            let err = Controller::new(
+                c,
+                ScriptedSource::new(24, 32, vec![]),
+                ModeCalibrations::default(),
+            )
+            .err()
+            .unwrap_or_else(|| panic!("{roi:?} accepted"));
+            let msg = err.to_string();
+            assert!(
+                msg.contains("proximity.roi") && msg.contains("24x32"),
+                "{msg}"
+            );
+        }
+        let mut c = cfg();
+        c.proximity.roi = Some([14, 22, 10, 10]);
+        assert!(
+            Controller::new(
+                c,
+                ScriptedSource::new(24, 32, vec![]),
+                ModeCalibrations::default()
+            )
+            .is_ok(),
+            "touching the last row and column is inside"
+        );
+    }
+
+    #[test]
     fn stop_powers_off() {
         let mut c = ctl(vec![Step::target(50.0)]);
         assert!(c.step(false).near);
@@ -1175,6 +1123,43 @@ mod tests {
         assert_eq!(u.state, Some(State::Off));
         assert_eq!(u.near, Some(false));
         assert_eq!(c.source().power_offs, 1);
+    }
+
+    /// The rails path (every code on a rail) is paced and accounted by the same rule as a
+    /// processed cycle: no sleep when a recording is replayed as fast as possible, the rest
+    /// of the period otherwise, and the cycle enters the energy meter either way.
+    #[test]
+    fn rails_cycles_follow_the_replay_pacing_and_are_accounted() {
+        let mut replay = cfg();
+        replay.backend = crate::config::Backend::Replay;
+        replay.replay.realtime = false;
+        let mut c = Controller::new(
+            replay,
+            ScriptedSource::new(24, 32, vec![Step::Garbage, Step::target(800.0)]),
+            ModeCalibrations::default(),
+        )
+        .unwrap();
+        let rails = c.step(false);
+        assert!(!rails.valid && rails.error.is_none(), "{rails:?}");
+        assert_eq!(
+            rails.sleep,
+            Duration::ZERO,
+            "unpaced replay: no sleep after a rails frame"
+        );
+        let ok = c.step(false);
+        assert!(ok.valid);
+        assert_eq!(ok.sleep, Duration::ZERO);
+        assert_eq!(c.energy().cycles(), 2, "both cycles accounted");
+
+        let mut c = ctl(vec![Step::Garbage]);
+        let rails = c.step(false);
+        let period = Duration::from_secs_f64(1.0 / c.rate_hz());
+        assert!(
+            rails.sleep > Duration::ZERO && rails.sleep < period,
+            "paced: the rest of the period, {:?}",
+            rails.sleep
+        );
+        assert!(rails.update.power_mw.is_some_and(|p| p > 0.0));
     }
 
     #[test]

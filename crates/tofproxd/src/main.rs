@@ -31,7 +31,8 @@ struct Args {
     /// Demo duration (s).
     #[arg(long, default_value_t = 25)]
     demo_seconds: u64,
-    /// Validate the configuration and exit.
+    /// Run every check the start runs (config values, frame source, calibration against the
+    /// sensor, ROI) without touching the bus, and exit.
     #[arg(long)]
     check_config: bool,
     /// More log output (repeat for more).
@@ -80,11 +81,14 @@ async fn run(mut args: Args) -> anyhow::Result<()> {
         );
     }
     let cfg = Config::load(&args.config)?;
+    let base = args.config.parent().unwrap_or(Path::new(".")).to_path_buf();
     if args.check_config {
+        // every check the start runs (source, calibration vs the sensor, controller)
+        tofproxd::run::prepare(&cfg, &base)
+            .with_context(|| format!("{}", args.config.display()))?;
         println!("{}: ok", args.config.display());
         return Ok(());
     }
-    let base = args.config.parent().unwrap_or(Path::new(".")).to_path_buf();
     if args.demo {
         return demo(cfg, &base, args.demo_seconds).await;
     }
@@ -106,9 +110,7 @@ fn demo_config_path() -> anyhow::Result<PathBuf> {
 }
 
 async fn build_daemon(cfg: &Config, base: &Path, conn: zbus::Connection) -> anyhow::Result<Daemon> {
-    let source = tofproxd::backends::build_source(cfg, base).context("frame source")?;
-    let calib = tofproxd::calibration::load_for(cfg, &*source).context("calibration")?;
-    let ctl = tofproxd::controller::Controller::new(cfg.clone(), source, calib)?;
+    let ctl = tofproxd::run::prepare(cfg, base)?;
     Ok(Daemon::start(conn, cfg, ctl).await?)
 }
 

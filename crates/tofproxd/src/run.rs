@@ -12,9 +12,10 @@ use zbus::fdo::{RequestNameFlags, RequestNameReply};
 
 use crate::config::Config;
 use crate::controller::Controller;
+use crate::hub::{Demand, Event, Hub, State, StatusUpdate};
 use crate::service::{
-    self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, Demand, Event, Hub, OBJECT_PATH,
-    Proximity, SensorProxyCompass, SensorProxyCompat, State, StatusUpdate,
+    self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
+    ReadOnlyProperties, SensorProxyCompass, SensorProxyCompat,
 };
 use crate::source::FrameSource;
 
@@ -103,6 +104,34 @@ async fn request_name(
         }
         Err(e) => Err(e.into()),
     }
+}
+
+/// Why the daemon cannot start with a config (every check [`prepare`] runs).
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The frame source cannot be built (replay directory, emulated device file or table,
+    /// USB driver config).
+    #[error("frame source: {0}")]
+    Source(#[source] crate::source::SourceError),
+    /// The calibration set cannot be loaded or does not fit the sensor or mode.
+    #[error("calibration: {0}")]
+    Calibration(#[source] crate::calibration::CalibrationError),
+    /// The controller refused the config (ROI outside the sensor, calibration of the other mode).
+    #[error("{0}")]
+    Controller(#[source] crate::controller::ControllerError),
+}
+
+/// Everything the start does before touching the bus: build the frame source (a USB
+/// device is opened only at the first cycle), load and check the calibration against the
+/// sensor, build the controller. `tofproxd --check-config` runs exactly this, so a config it
+/// accepts is one the daemon starts with. `base`: the config file's directory.
+pub fn prepare(
+    cfg: &Config,
+    base: &std::path::Path,
+) -> Result<Controller<Box<dyn FrameSource>>, StartError> {
+    let source = crate::backends::build_source(cfg, base).map_err(StartError::Source)?;
+    let calib = crate::calibration::load_for(cfg, &*source).map_err(StartError::Calibration)?;
+    Controller::new(cfg.clone(), source, calib).map_err(StartError::Controller)
 }
 
 /// Commands to the loop thread.
@@ -254,14 +283,17 @@ impl Daemon {
         let (hub, demand_rx) = Hub::new(cfg, backend);
         let compat = cfg.dbus.iio_sensor_proxy_compat;
         conn.object_server()
-            .at(OBJECT_PATH, Proximity::new(hub.clone()))
+            .at(OBJECT_PATH, ReadOnlyProperties(Proximity::new(hub.clone())))
             .await?;
         if compat {
             conn.object_server()
-                .at(COMPAT_PATH, SensorProxyCompat::new(hub.clone()))
+                .at(
+                    COMPAT_PATH,
+                    ReadOnlyProperties(SensorProxyCompat::new(hub.clone())),
+                )
                 .await?;
             conn.object_server()
-                .at(COMPAT_COMPASS_PATH, SensorProxyCompass)
+                .at(COMPAT_COMPASS_PATH, ReadOnlyProperties(SensorProxyCompass))
                 .await?;
         }
         let mut tasks = Vec::new();
@@ -277,7 +309,7 @@ impl Daemon {
             }
         }
         let (ev_tx, ev_rx) = mpsc::unbounded_channel();
-        tasks.push(tokio::spawn(service::run_publisher(
+        tasks.push(tokio::spawn(crate::publisher::run_publisher(
             conn.clone(),
             hub.clone(),
             ev_rx,

@@ -1,19 +1,21 @@
-//! The D-Bus service: `org.tofprox.Proximity1` (and the iio-sensor-proxy
-//! compatible `net.hadess.SensorProxy`), claims per unique bus name, and the
-//! publisher that turns loop events into property changes and signals.
+//! The D-Bus adapter: `org.tofprox.Proximity1` (and the iio-sensor-proxy compatible
+//! `net.hadess.SensorProxy` with its absent compass) as thin zbus interfaces over the
+//! [`Hub`], plus tracking of clients that leave the bus. Claims, demand and status live in
+//! [`crate::hub`]; the publisher in [`crate::publisher`].
 
-use std::borrow::Cow;
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::pin::Pin;
-use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::{Duration, Instant};
+use std::sync::Arc;
 
-use tokio::sync::{mpsc, watch};
-use zbus::names::InterfaceName;
-use zbus::object_server::SignalEmitter;
-use zbus::{Connection, OwnedVariant, Str, Variant, fdo, interface, message::Header};
+use zbus::message::Message;
+use zbus::names::{InterfaceName, MemberName};
+use zbus::object_server::{DispatchResult, Interface, SignalEmitter};
+use zbus::{
+    BoxDBusError, Connection, ObjectServer, OwnedVariant, Str, Variant, fdo, interface,
+    message::Header,
+};
 
-use crate::config::{Config, Mode};
+use crate::hub::{Claim, Hub};
 
 /// Bus name of the native interface.
 pub const BUS_NAME: &str = "org.tofprox.Proximity1";
@@ -27,266 +29,6 @@ pub const COMPAT_BUS_NAME: &str = "net.hadess.SensorProxy";
 pub const COMPAT_PATH: &str = "/net/hadess/SensorProxy";
 /// iio-sensor-proxy compass object path.
 pub const COMPAT_COMPASS_PATH: &str = "/net/hadess/SensorProxy/Compass";
-
-/// Service state (the `State` property).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum State {
-    /// Sensor held in reset (no claim).
-    Off,
-    /// Claimed, no valid reading yet.
-    Starting,
-    /// Readings flowing.
-    Running,
-    /// The last cycle failed; retrying.
-    Error,
-    /// Several cycles in a row failed (device gone?); retrying.
-    Unavailable,
-}
-
-impl State {
-    /// The property string.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            State::Off => "off",
-            State::Starting => "starting",
-            State::Running => "running",
-            State::Error => "error",
-            State::Unavailable => "unavailable",
-        }
-    }
-}
-
-/// What the clients currently want from the loop.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Demand {
-    /// Someone claims proximity (native or compat).
-    pub proximity: bool,
-    /// Someone claims depth frames.
-    pub depth: bool,
-}
-
-impl Demand {
-    /// Whether the loop must run.
-    pub fn any(self) -> bool {
-        self.proximity || self.depth
-    }
-}
-
-/// Everything the properties show.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Status {
-    /// `HasSensor`.
-    pub has_sensor: bool,
-    /// `State`.
-    pub state: State,
-    /// `Near`.
-    pub near: bool,
-    /// `DistanceMm` (0 = unknown).
-    pub distance_mm: u32,
-    /// `NearThresholdMm`.
-    pub near_threshold_mm: u32,
-    /// `FarThresholdMm`.
-    pub far_threshold_mm: u32,
-    /// `Mode`.
-    pub mode: Mode,
-    /// `RateHz`.
-    pub rate_hz: f64,
-    /// `PowerEstimateMw`.
-    pub power_mw: f64,
-    /// `LastError`.
-    pub last_error: String,
-    /// Exposure per raw image (µs).
-    pub exposure_us: f64,
-    /// Cycles run.
-    pub cycles: u64,
-    /// Valid readings.
-    pub valid_readings: u64,
-    /// Failed cycles.
-    pub errors: u64,
-    /// Backend description.
-    pub backend: String,
-    /// How near readings are checked for plausibility (thesis 2.2.1): `"calibrated"` (the
-    /// calibration's amplitude scale), `"nominal"` (no amplitude calibration: the config's
-    /// nominal scale), `""` before the first cycle.
-    pub amplitude_check: &'static str,
-}
-
-/// Per-client claims.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-struct ClientClaims {
-    proximity: bool,
-    depth: bool,
-    compat_proximity: bool,
-}
-
-impl ClientClaims {
-    fn any(self) -> bool {
-        self.proximity || self.depth || self.compat_proximity
-    }
-}
-
-struct HubInner {
-    status: Status,
-    claims: BTreeMap<String, ClientClaims>,
-    /// A valid reading exists since the loop last started.
-    have_reading: bool,
-}
-
-/// Shared between the D-Bus interfaces, the publisher and the loop.
-pub struct Hub {
-    inner: Mutex<HubInner>,
-    demand_tx: watch::Sender<Demand>,
-    /// Incremented on every valid reading.
-    reading_tx: watch::Sender<u64>,
-    first_reading_timeout: Duration,
-}
-
-/// Claim counts (for `GetStatus` and leak checks).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ClaimCounts {
-    /// Clients with any claim.
-    pub clients: u32,
-    /// Proximity claims (native).
-    pub proximity: u32,
-    /// Depth claims.
-    pub depth: u32,
-    /// Compat proximity claims.
-    pub compat_proximity: u32,
-}
-
-impl Hub {
-    /// New hub for `cfg`, with the demand receiver for the loop.
-    pub fn new(cfg: &Config, backend: String) -> (Arc<Self>, watch::Receiver<Demand>) {
-        let (demand_tx, demand_rx) = watch::channel(Demand::default());
-        let (reading_tx, _) = watch::channel(0u64);
-        let status = Status {
-            has_sensor: true,
-            state: State::Off,
-            near: false,
-            distance_mm: 0,
-            near_threshold_mm: cfg.proximity.near_mm,
-            far_threshold_mm: cfg.proximity.far_mm,
-            mode: cfg.processing.mode,
-            rate_hz: 0.0,
-            power_mw: 0.0,
-            last_error: String::new(),
-            exposure_us: cfg.exposure.initial_us,
-            cycles: 0,
-            valid_readings: 0,
-            errors: 0,
-            backend,
-            amplitude_check: "",
-        };
-        let hub = Arc::new(Self {
-            inner: Mutex::new(HubInner {
-                status,
-                claims: BTreeMap::new(),
-                have_reading: false,
-            }),
-            demand_tx,
-            reading_tx,
-            first_reading_timeout: Duration::from_millis(cfg.loop_.first_reading_timeout_ms),
-        });
-        (hub, demand_rx)
-    }
-
-    fn lock(&self) -> MutexGuard<'_, HubInner> {
-        // A poisoned lock only means a panic elsewhere while holding it; the data is plain values.
-        self.inner.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// Snapshot of the status.
-    pub fn status(&self) -> Status {
-        self.lock().status.clone()
-    }
-
-    /// Claim counts.
-    pub fn claim_counts(&self) -> ClaimCounts {
-        let g = self.lock();
-        let mut c = ClaimCounts::default();
-        for cl in g.claims.values() {
-            c.clients += 1;
-            c.proximity += u32::from(cl.proximity);
-            c.depth += u32::from(cl.depth);
-            c.compat_proximity += u32::from(cl.compat_proximity);
-        }
-        c
-    }
-
-    /// Current demand.
-    pub fn demand(&self) -> Demand {
-        *self.demand_tx.borrow()
-    }
-
-    fn recompute_demand(&self, g: &HubInner) {
-        let d = Demand {
-            proximity: g.claims.values().any(|c| c.proximity || c.compat_proximity),
-            depth: g.claims.values().any(|c| c.depth),
-        };
-        self.demand_tx.send_if_modified(|cur| {
-            if *cur != d {
-                *cur = d;
-                true
-            } else {
-                false
-            }
-        });
-    }
-
-    fn modify_claim(&self, client: &str, f: impl FnOnce(&mut ClientClaims)) {
-        let mut g = self.lock();
-        let entry = g.claims.entry(client.to_string()).or_default();
-        f(entry);
-        if !entry.any() {
-            g.claims.remove(client);
-        }
-        self.recompute_demand(&g);
-    }
-
-    /// Drop every claim of a client (it left the bus).
-    pub fn client_gone(&self, client: &str) -> bool {
-        let mut g = self.lock();
-        let had = g.claims.remove(client).is_some();
-        if had {
-            self.recompute_demand(&g);
-        }
-        had
-    }
-
-    /// Names of clients holding claims.
-    pub fn clients(&self) -> Vec<String> {
-        self.lock().claims.keys().cloned().collect()
-    }
-
-    /// Wait (bounded) until a valid reading exists since the loop started.
-    async fn wait_first_reading(&self) {
-        let mut rx = self.reading_tx.subscribe();
-        if self.lock().have_reading {
-            return;
-        }
-        let start = *rx.borrow_and_update();
-        let _ =
-            tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await;
-    }
-
-    /// Apply a change to the status; returns the names of changed signalled properties.
-    pub fn update(&self, f: impl FnOnce(&mut Status)) -> (Status, Status) {
-        let mut g = self.lock();
-        let before = g.status.clone();
-        f(&mut g.status);
-        let after = g.status.clone();
-        if after.state == State::Off || after.state == State::Starting {
-            g.have_reading = false;
-        }
-        (before, after)
-    }
-
-    /// Note a valid reading (wakes waiting claimers).
-    pub fn note_valid_reading(&self) {
-        self.lock().have_reading = true;
-        self.reading_tx.send_modify(|n| *n = n.wrapping_add(1));
-    }
-}
 
 /// Methods without arguments refuse a call that carries a body.
 fn no_args(hdr: &Header<'_>) -> fdo::Result<()> {
@@ -331,21 +73,17 @@ async fn claim_for_caller(
     hub: &Hub,
     hdr: &Header<'_>,
     conn: &Connection,
-    set: impl FnOnce(&mut ClientClaims),
+    claim: Claim,
 ) -> fdo::Result<()> {
     let client = caller(hdr)?;
-    hub.modify_claim(&client, set);
+    hub.set_claim(&client, claim, true);
     drop_if_gone(conn, hub, &client).await;
     Ok(())
 }
 
 /// Clear one of the calling client's claims (no-op without one).
-fn release_for_caller(
-    hub: &Hub,
-    hdr: &Header<'_>,
-    clear: impl FnOnce(&mut ClientClaims),
-) -> fdo::Result<()> {
-    hub.modify_claim(&caller(hdr)?, clear);
+fn release_for_caller(hub: &Hub, hdr: &Header<'_>, claim: Claim) -> fdo::Result<()> {
+    hub.set_claim(&caller(hdr)?, claim, false);
     Ok(())
 }
 
@@ -374,14 +112,14 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, |c| c.proximity = true).await?;
+        claim_for_caller(&self.hub, &hdr, conn, Claim::Proximity).await?;
         self.hub.wait_first_reading().await;
         Ok(())
     }
 
     /// Release the caller's proximity claim (no-op without one).
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        release_for_caller(&self.hub, &hdr, |c| c.proximity = false)
+        release_for_caller(&self.hub, &hdr, Claim::Proximity)
     }
 
     /// Claim depth frames (`DepthFrame` signals while held; bus policy limits this to a group).
@@ -390,15 +128,16 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, |c| c.depth = true).await
+        claim_for_caller(&self.hub, &hdr, conn, Claim::Depth).await
     }
 
     /// Release the caller's depth claim.
     async fn release_depth(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        release_for_caller(&self.hub, &hdr, |c| c.depth = false)
+        release_for_caller(&self.hub, &hdr, Claim::Depth)
     }
 
-    /// Every property plus counters, as a dictionary.
+    /// Every property plus counters, as a dictionary (public: nothing in it tells whether
+    /// anyone holds a depth claim; `Clients` counts clients holding a proximity claim).
     async fn get_status(
         &self,
         #[zbus(header)] hdr: Header<'_>,
@@ -429,11 +168,24 @@ impl Proximity {
         m.insert("Errors".into(), OwnedVariant::from(s.errors));
         m.insert("Backend".into(), variant_str(&s.backend));
         m.insert("AmplitudeCheck".into(), variant_str(s.amplitude_check));
-        m.insert("Clients".into(), OwnedVariant::from(c.clients));
+        m.insert("Clients".into(), OwnedVariant::from(c.proximity_clients));
         m.insert(
             "ProximityClaims".into(),
             OwnedVariant::from(c.proximity + c.compat_proximity),
         );
+        Ok(m)
+    }
+
+    /// Claim counts including depth (`DepthClaims`, `Clients` = every client holding any
+    /// claim); the bus policy limits this, like `ClaimDepth`, to the depth group.
+    async fn get_depth_status(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> fdo::Result<HashMap<String, OwnedVariant>> {
+        no_args(&hdr)?;
+        let c = self.hub.claim_counts();
+        let mut m = HashMap::new();
+        m.insert("Clients".into(), OwnedVariant::from(c.clients));
         m.insert("DepthClaims".into(), OwnedVariant::from(c.depth));
         Ok(m)
     }
@@ -500,7 +252,7 @@ impl Proximity {
 
     /// A depth frame (only while a depth claim is held; rate-limited).
     #[zbus(signal)]
-    async fn depth_frame(
+    pub async fn depth_frame(
         emitter: &SignalEmitter<'_>,
         timestamp_ns: u64,
         width: u16,
@@ -587,13 +339,13 @@ impl SensorProxyCompat {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, |c| c.compat_proximity = true).await?;
+        claim_for_caller(&self.hub, &hdr, conn, Claim::CompatProximity).await?;
         self.hub.wait_first_reading().await;
         Ok(())
     }
     /// Releases it.
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
-        release_for_caller(&self.hub, &hdr, |c| c.compat_proximity = false)
+        release_for_caller(&self.hub, &hdr, Claim::CompatProximity)
     }
 }
 
@@ -622,218 +374,108 @@ impl SensorProxyCompass {
     }
 }
 
-/// A depth frame to publish.
-#[derive(Debug, Clone)]
-pub struct DepthMessage {
-    /// Capture time (ns).
-    pub timestamp_ns: u64,
-    /// Columns.
-    pub width: u16,
-    /// Rows.
-    pub height: u16,
-    /// depth (mm) as little-endian u16.
-    pub depth_le: Vec<u8>,
-    /// amplitude (LSB, saturating) as little-endian u16.
-    pub amplitude_le: Vec<u8>,
-}
+/// A zbus interface whose properties are all read-only, answering a write with
+/// `org.freedesktop.DBus.Error.PropertyReadOnly` (zbus alone answers `UnknownProperty` for a
+/// property without a setter, which tells the caller the wrong thing). Everything else is
+/// the wrapped interface's.
+pub struct ReadOnlyProperties<I>(pub I);
 
-/// What the loop reports to the publisher.
-#[derive(Debug, Clone)]
-pub enum Event {
-    /// Apply a status change (the closure-free form: a full new status fragment).
-    Status(StatusUpdate),
-    /// A depth frame (sent only while a depth claim is held).
-    Depth(DepthMessage),
-}
-
-/// A status fragment from the loop.
-#[derive(Debug, Clone, Default)]
-pub struct StatusUpdate {
-    /// New state.
-    pub state: Option<State>,
-    /// New near.
-    pub near: Option<bool>,
-    /// New distance (0 = unknown).
-    pub distance_mm: Option<u32>,
-    /// New mode.
-    pub mode: Option<Mode>,
-    /// New rate.
-    pub rate_hz: Option<f64>,
-    /// New power estimate (the publisher limits updates to 1 Hz).
-    pub power_mw: Option<f64>,
-    /// New last error.
-    pub last_error: Option<String>,
-    /// New exposure.
-    pub exposure_us: Option<f64>,
-    /// New has_sensor.
-    pub has_sensor: Option<bool>,
-    /// How near readings are checked (see [`Status::amplitude_check`]).
-    pub amplitude_check: Option<&'static str>,
-    /// This update carries a valid reading.
-    pub valid_reading: bool,
-    /// This update is one completed cycle (counts).
-    pub cycle: bool,
-    /// This update is a failed cycle.
-    pub error: bool,
-}
-
-/// Sender side for the loop.
-pub type EventSender = mpsc::UnboundedSender<Event>;
-
-/// Emit PropertiesChanged for `iface` with the given changes (one signal).
-async fn emit_changes(
-    conn: &Connection,
-    path: &str,
-    iface: &'static str,
-    changes: HashMap<&str, Variant<'_>>,
-) -> zbus::Result<()> {
-    if changes.is_empty() {
-        return Ok(());
+#[async_trait::async_trait]
+impl<I: Interface> Interface for ReadOnlyProperties<I> {
+    fn name() -> InterfaceName<'static>
+    where
+        Self: Sized,
+    {
+        I::name()
     }
-    let emitter = SignalEmitter::new(conn, path)?;
-    fdo::Properties::properties_changed(
-        &emitter,
-        InterfaceName::from_static_str_unchecked(iface),
-        changes,
-        Cow::Borrowed(&[]),
-    )
-    .await
-}
 
-/// The publisher: applies loop events to the hub and emits signals. Runs until the
-/// event channel closes.
-pub async fn run_publisher(
-    conn: Connection,
-    hub: Arc<Hub>,
-    mut events: mpsc::UnboundedReceiver<Event>,
-    compat: bool,
-    depth_max_hz: f64,
-) {
-    // PowerEstimateMw: at most one change signal per second, carried by the cycle's own
-    // update (no timer of its own: no extra wake-up between cycles).
-    let mut last_power_emit: Option<Instant> = None;
-    let mut last_depth: Option<Instant> = None;
-    let depth_interval = Duration::from_secs_f64(1.0 / depth_max_hz.max(0.001));
-    loop {
-        let ev = events.recv().await;
-        let Some(ev) = ev else { break };
-        match ev {
-            Event::Depth(d) => {
-                if !hub.demand().depth {
-                    continue;
-                }
-                let now = Instant::now();
-                if last_depth.is_some_and(|t| now.duration_since(t) < depth_interval) {
-                    continue;
-                }
-                last_depth = Some(now);
-                if let Ok(emitter) = SignalEmitter::new(&conn, OBJECT_PATH)
-                    && let Err(e) = Proximity::depth_frame(
-                        &emitter,
-                        d.timestamp_ns,
-                        d.width,
-                        d.height,
-                        &d.depth_le,
-                        &d.amplitude_le,
-                    )
-                    .await
-                {
-                    tracing::warn!("DepthFrame emit failed: {e}");
-                }
-            }
-            Event::Status(u) => {
-                let power = u.power_mw;
-                let (before, after) = hub.update(|s| {
-                    if let Some(v) = u.state {
-                        s.state = v;
-                    }
-                    if let Some(v) = u.near {
-                        s.near = v;
-                    }
-                    if let Some(v) = u.distance_mm {
-                        s.distance_mm = v;
-                    }
-                    if let Some(v) = u.mode {
-                        s.mode = v;
-                    }
-                    if let Some(v) = u.rate_hz {
-                        s.rate_hz = v;
-                    }
-                    if let Some(v) = &u.last_error {
-                        s.last_error.clone_from(v);
-                    }
-                    if let Some(v) = u.exposure_us {
-                        s.exposure_us = v;
-                    }
-                    if let Some(v) = u.has_sensor {
-                        s.has_sensor = v;
-                    }
-                    if let Some(v) = u.amplitude_check {
-                        s.amplitude_check = v;
-                    }
-                    if u.cycle {
-                        s.cycles += 1;
-                    }
-                    if u.error {
-                        s.errors += 1;
-                    }
-                    if u.valid_reading {
-                        s.valid_readings += 1;
-                    }
-                });
-                let mut ch: HashMap<&str, Variant<'_>> = HashMap::new();
-                if before.has_sensor != after.has_sensor {
-                    ch.insert("HasSensor", Variant::from(after.has_sensor));
-                }
-                if before.state != after.state {
-                    ch.insert("State", Variant::from(after.state.as_str()));
-                }
-                if before.near != after.near {
-                    ch.insert("Near", Variant::from(after.near));
-                }
-                if before.mode != after.mode {
-                    ch.insert("Mode", Variant::from(after.mode.as_str()));
-                }
-                if before.rate_hz != after.rate_hz {
-                    ch.insert("RateHz", Variant::from(after.rate_hz));
-                }
-                if before.last_error != after.last_error {
-                    ch.insert("LastError", Variant::from(after.last_error.as_str()));
-                }
-                if let Some(p) = power
-                    && p != after.power_mw
-                {
-                    let now = Instant::now();
-                    if last_power_emit
-                        .is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1))
-                    {
-                        hub.update(|s| s.power_mw = p);
-                        ch.insert("PowerEstimateMw", Variant::from(p));
-                        last_power_emit = Some(now);
-                    }
-                }
-                let compat_near = before.near != after.near;
-                let compat_has = before.has_sensor != after.has_sensor;
-                if let Err(e) = emit_changes(&conn, OBJECT_PATH, INTERFACE, ch).await {
-                    tracing::warn!("PropertiesChanged emit failed: {e}");
-                }
-                if compat && (compat_near || compat_has) {
-                    let mut c: HashMap<&str, Variant<'_>> = HashMap::new();
-                    if compat_near {
-                        c.insert("ProximityNear", Variant::from(after.near));
-                    }
-                    if compat_has {
-                        c.insert("HasProximity", Variant::from(after.has_sensor));
-                    }
-                    if let Err(e) = emit_changes(&conn, COMPAT_PATH, COMPAT_BUS_NAME, c).await {
-                        tracing::warn!("compat PropertiesChanged emit failed: {e}");
-                    }
-                }
-                if u.valid_reading {
-                    hub.note_valid_reading();
-                }
-            }
-        }
+    fn spawn_tasks_for_methods(&self) -> bool {
+        self.0.spawn_tasks_for_methods()
+    }
+
+    async fn get(
+        &self,
+        property_name: &str,
+        server: &ObjectServer,
+        connection: &Connection,
+        header: Option<&Header<'_>>,
+        emitter: &SignalEmitter<'_>,
+    ) -> Option<Result<OwnedVariant, BoxDBusError>> {
+        self.0
+            .get(property_name, server, connection, header, emitter)
+            .await
+    }
+
+    async fn get_all(
+        &self,
+        object_server: &ObjectServer,
+        connection: &Connection,
+        header: Option<&Header<'_>>,
+        emitter: &SignalEmitter<'_>,
+    ) -> fdo::Result<HashMap<String, OwnedVariant>> {
+        self.0
+            .get_all(object_server, connection, header, emitter)
+            .await
+    }
+
+    fn set<'call>(
+        &'call self,
+        property_name: &'call str,
+        _value: &'call Variant<'_>,
+        object_server: &'call ObjectServer,
+        connection: &'call Connection,
+        header: Option<&'call Header<'_>>,
+        emitter: &'call SignalEmitter<'_>,
+    ) -> DispatchResult<'call> {
+        DispatchResult::Async(Box::pin(async move {
+            let exists = self
+                .0
+                .get(property_name, object_server, connection, header, emitter)
+                .await
+                .is_some();
+            let e = if exists {
+                fdo::Error::PropertyReadOnly(format!("property '{property_name}' is read-only"))
+            } else {
+                fdo::Error::UnknownProperty(format!("Unknown property '{property_name}'"))
+            };
+            Err(Box::new(e) as BoxDBusError)
+        }))
+    }
+
+    async fn set_mut(
+        &mut self,
+        _property_name: &str,
+        _value: &Variant<'_>,
+        _object_server: &ObjectServer,
+        _connection: &Connection,
+        _header: Option<&Header<'_>>,
+        _emitter: &SignalEmitter<'_>,
+    ) -> Option<Result<(), BoxDBusError>> {
+        None
+    }
+
+    fn call<'call>(
+        &'call self,
+        server: &'call ObjectServer,
+        connection: &'call Connection,
+        msg: &'call Message,
+        name: MemberName<'call>,
+    ) -> DispatchResult<'call> {
+        self.0.call(server, connection, msg, name)
+    }
+
+    fn call_mut<'call>(
+        &'call mut self,
+        server: &'call ObjectServer,
+        connection: &'call Connection,
+        msg: &'call Message,
+        name: MemberName<'call>,
+    ) -> DispatchResult<'call> {
+        self.0.call_mut(server, connection, msg, name)
+    }
+
+    fn introspect_to_writer(&self, writer: &mut dyn std::fmt::Write, level: usize) {
+        self.0.introspect_to_writer(writer, level)
     }
 }
 

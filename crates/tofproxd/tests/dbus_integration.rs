@@ -273,6 +273,16 @@ fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
 
 /// GetStatus through busctl's JSON output: name → value.
 fn status(bus: &Bus) -> serde_json::Map<String, Value> {
+    call_dict(bus, "GetStatus")
+}
+
+/// GetDepthStatus (the depth group's counts) as name → value.
+fn depth_status(bus: &Bus) -> serde_json::Map<String, Value> {
+    call_dict(bus, "GetDepthStatus")
+}
+
+/// A native method returning `a{sv}`, as name → value.
+fn call_dict(bus: &Bus, method: &str) -> serde_json::Map<String, Value> {
     let out = busctl(
         bus,
         &[
@@ -281,12 +291,12 @@ fn status(bus: &Bus) -> serde_json::Map<String, Value> {
             "org.tofprox.Proximity1",
             "/org/tofprox/Proximity1",
             "org.tofprox.Proximity1",
-            "GetStatus",
+            method,
         ],
     );
     assert!(
         out.status.success(),
-        "GetStatus failed: {}",
+        "{method} failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
     let v: Value = serde_json::from_slice(&out.stdout).expect("busctl json");
@@ -653,13 +663,20 @@ fn hundred_clients_claim_and_release_concurrently_without_leaks() {
         &bus,
         Duration::from_secs(5),
         "no claims left, sensor off",
-        |s| {
-            s["Clients"] == 0
-                && s["ProximityClaims"] == 0
-                && s["DepthClaims"] == 0
-                && s["State"] == "off"
-        },
+        |s| s["Clients"] == 0 && s["ProximityClaims"] == 0 && s["State"] == "off",
     );
+    let t0 = Instant::now();
+    loop {
+        let d = depth_status(&bus);
+        if d["Clients"] == 0 && d["DepthClaims"] == 0 {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(5),
+            "depth claims or clients left: {d:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
     let rss1 = daemon.rss_kb();
     assert!(rss1 < rss0 + 4096, "RSS grew from {rss0} kB to {rss1} kB");
     // Still fully functional afterwards.
@@ -834,7 +851,240 @@ fn depth_frames_while_claimed_and_rate_limited() {
         assert!(w > 0 && h > 0);
         assert_eq!(f["bytes"].as_u64().unwrap(), w * h * 2);
     }
-    assert_eq!(status(&bus)["DepthClaims"], 1);
+    assert_eq!(depth_status(&bus)["DepthClaims"], 1);
+    let s = status(&bus);
+    assert!(
+        !s.contains_key("DepthClaims"),
+        "GetStatus is public: no depth-claim information in it: {s:?}"
+    );
+}
+
+/// Privacy: depth frames go only to the unique names holding a depth claim. A second client
+/// on the same bus with a match rule for `DepthFrame` (it claims proximity, not depth)
+/// receives none while the claimer receives them.
+#[test]
+fn depth_frames_only_reach_the_depth_claimer() {
+    let Some(bus) = start_bus() else { return };
+    let cfg = format!("{HAND}\n[dbus]\ndepth_max_hz = 4.0\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let mut outsider = Client::start(&bus, &["native", "--watch-depth", "--timeout", "30"]);
+    outsider.wait_for(Duration::from_secs(10), "outsider's claim", |v| {
+        v["event"] == "claimed"
+    });
+    let mut claimer = Client::start(&bus, &["native", "--depth", "--timeout", "30"]);
+    claimer.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    claimer.collect(Duration::from_secs(3));
+    outsider.collect(Duration::from_millis(100));
+    let got = |c: &Client| c.seen.iter().filter(|v| v["event"] == "depth").count();
+    assert!(
+        got(&claimer) >= 4,
+        "claimer got {} frames in 3 s",
+        got(&claimer)
+    );
+    assert_eq!(
+        got(&outsider),
+        0,
+        "a client without a depth claim received depth frames"
+    );
+    let d = depth_status(&bus);
+    assert_eq!(
+        (d["DepthClaims"].clone(), d["Clients"].clone()),
+        (1.into(), 2.into())
+    );
+}
+
+/// Writing a read-only property answers `PropertyReadOnly` (not `UnknownProperty`, which
+/// would tell the caller the property does not exist); an unknown one `UnknownProperty`.
+#[test]
+fn writing_a_read_only_property_is_refused_as_read_only() {
+    let Some(bus) = start_bus() else { return };
+    // dbus-send prints the D-Bus error name (busctl only its message)
+    let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
+        return;
+    };
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    let set = |dest: &str, path: &str, iface: &str, prop: &str| -> String {
+        let out = Command::new(&dbus_send)
+            .arg(format!("--bus={}", bus.address))
+            .args(["--print-reply", &format!("--dest={dest}"), path])
+            .arg("org.freedesktop.DBus.Properties.Set")
+            .arg(format!("string:{iface}"))
+            .arg(format!("string:{prop}"))
+            .arg("variant:boolean:true")
+            .output()
+            .expect("dbus-send");
+        assert!(!out.status.success(), "{iface}.{prop} was written");
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    for (dest, path, prop) in [
+        ("org.tofprox.Proximity1", "/org/tofprox/Proximity1", "Near"),
+        (
+            "net.hadess.SensorProxy",
+            "/net/hadess/SensorProxy",
+            "ProximityNear",
+        ),
+    ] {
+        let err = set(dest, path, dest, prop);
+        assert!(
+            err.contains("org.freedesktop.DBus.Error.PropertyReadOnly"),
+            "{prop}: {err}"
+        );
+        let err = set(dest, path, dest, "NoSuchThing");
+        assert!(
+            err.contains("org.freedesktop.DBus.Error.UnknownProperty"),
+            "{err}"
+        );
+    }
+}
+
+/// The shipped system-bus policy, enforced by a real `dbus-daemon` with a system-bus style
+/// default (method calls denied unless a rule allows them), the daemon in compatibility
+/// mode, and an unprivileged client (`nobody`, outside the depth group): compatibility mode
+/// keeps the native policy as narrow as without it (no `Properties.Set`, no `ClaimDepth`),
+/// and the depth-claim counts stay with the depth group. Needs root to run the client as
+/// `nobody` (skips loudly otherwise).
+#[test]
+fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
+    let Some(dbus_daemon) = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon") else {
+        return;
+    };
+    let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
+        return;
+    };
+    let Some(setpriv) = tofprox_e2e::require_program("setpriv", "util-linux") else {
+        return;
+    };
+    if !Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+    {
+        eprintln!(
+            "SKIPPED system_policy_in_compat_mode_keeps_native_and_depth_closed: needs root to run a client as nobody"
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    let socket = dir.path().join("bus");
+    let conf = dir.path().join("bus.conf");
+    let policy = repo().join("systemd/org.tofprox.Proximity1.conf");
+    std::fs::write(
+        &conf,
+        format!(
+            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-BUS Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>system</type>
+  <listen>unix:path={socket}</listen>
+  <auth>EXTERNAL</auth>
+  <policy context="default">
+    <allow user="*"/>
+    <deny own="*"/>
+    <deny send_type="method_call"/>
+    <allow send_type="signal"/>
+    <allow send_requested_reply="true" send_type="method_return"/>
+    <allow send_requested_reply="true" send_type="error"/>
+    <allow receive_type="method_call"/>
+    <allow receive_type="method_return"/>
+    <allow receive_type="error"/>
+    <allow receive_type="signal"/>
+    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus"/>
+    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus.Introspectable"/>
+  </policy>
+  <include>{policy}</include>
+  <!-- the test runs the daemon as root instead of the tofprox user -->
+  <policy user="root">
+    <allow own="org.tofprox.Proximity1"/>
+    <allow own="net.hadess.SensorProxy"/>
+  </policy>
+</busconfig>
+"#,
+            socket = socket.display(),
+            policy = policy.display()
+        ),
+    )
+    .expect("write bus config");
+    let child = Command::new(dbus_daemon)
+        .arg(format!("--config-file={}", conf.display()))
+        .args(["--nofork", "--print-address"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("spawn dbus-daemon");
+    let mut bus = Bus {
+        child,
+        address: String::new(),
+    };
+    let mut line = String::new();
+    BufReader::new(bus.child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("bus address");
+    bus.address = line.trim().to_string();
+    assert!(!bus.address.is_empty(), "dbus-daemon printed no address");
+    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let _daemon = start_daemon(&bus, &cfg);
+    // (ok, stdout + stderr) of a call by `nobody`
+    let as_nobody = |args: &[&str]| -> (bool, String) {
+        let out = Command::new(&setpriv)
+            .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
+            .arg(&dbus_send)
+            .arg(format!("--bus={}", bus.address))
+            .args(["--print-reply", "--dest=org.tofprox.Proximity1"])
+            .args(args)
+            .output()
+            .expect("setpriv dbus-send");
+        let text = format!(
+            "{}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+        (out.status.success(), text)
+    };
+    let path = "/org/tofprox/Proximity1";
+    let (ok, text) = as_nobody(&[
+        path,
+        "org.freedesktop.DBus.Properties.Get",
+        "string:org.tofprox.Proximity1",
+        "string:Near",
+    ]);
+    assert!(ok, "reading a property is public: {text}");
+    for (what, args) in [
+        (
+            "Properties.Set on the native object",
+            vec![
+                path,
+                "org.freedesktop.DBus.Properties.Set",
+                "string:org.tofprox.Proximity1",
+                "string:Near",
+                "variant:boolean:true",
+            ],
+        ),
+        (
+            "ClaimDepth",
+            vec![path, "org.tofprox.Proximity1.ClaimDepth"],
+        ),
+        (
+            "GetDepthStatus",
+            vec![path, "org.tofprox.Proximity1.GetDepthStatus"],
+        ),
+    ] {
+        let (ok, text) = as_nobody(&args);
+        assert!(
+            !ok && text.contains("org.freedesktop.DBus.Error.AccessDenied"),
+            "{what} by nobody in compatibility mode: {text}"
+        );
+    }
+    let (ok, text) = as_nobody(&[path, "org.tofprox.Proximity1.GetStatus"]);
+    assert!(ok, "GetStatus is public: {text}");
+    assert!(
+        text.contains("ProximityClaims") && !text.contains("DepthClaims"),
+        "{text}"
+    );
 }
 
 /// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package

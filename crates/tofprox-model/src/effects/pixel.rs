@@ -21,6 +21,24 @@ pub fn amplitude_phase_shape(x: f64, n: f64) -> f64 {
     1.0 - x / (1.0 + x.powf(n)).powf(1.0 / n)
 }
 
+/// The powers of ΔT = T − T_ref the temperature drift is a polynomial in:
+/// [ΔT, ΔT²] (catalogue `temperature_drift`).
+pub fn temperature_drift_terms(dt: f64) -> [f64; 2] {
+    [dt, dt * dt]
+}
+
+/// Temperature drift (catalogue `temperature_drift`, thesis 3.1):
+/// Δφ = k_φ·ΔT + k_φ2·ΔT² (rad) and the relative gain change
+/// k_g·ΔT + k_g2·ΔT², from the coefficients per K and per K²
+/// (`phase_rad_per_k` = [k_φ, k_φ2], `gain_per_k` = [k_g, k_g2]).
+pub fn temperature_drift(dt: f64, phase_rad_per_k: [f64; 2], gain_per_k: [f64; 2]) -> (f64, f64) {
+    let t = temperature_drift_terms(dt);
+    (
+        phase_rad_per_k[0] * t[0] + phase_rad_per_k[1] * t[1],
+        gain_per_k[0] * t[0] + gain_per_k[1] * t[1],
+    )
+}
+
 /// Per-capture constants of the pixel effects.
 #[derive(Debug, Clone, Copy)]
 pub struct PixelParams {
@@ -62,11 +80,19 @@ impl PixelParams {
             )
         });
         let (drift_rad, drift_gain) = if on(ids::temperature_drift::ID) {
-            let dt = temperature_c - model.get(ids::temperature_drift::REFERENCE_C);
-            (
-                model.get(ids::temperature_drift::PHASE_MRAD_PER_K) * 1e-3 * dt,
-                (1.0 + model.get(ids::temperature_drift::GAIN_REL_PER_K) * dt).max(0.0),
-            )
+            use ids::temperature_drift as td;
+            let (phase, gain) = temperature_drift(
+                temperature_c - model.get(td::REFERENCE_C),
+                [
+                    model.get(td::PHASE_MRAD_PER_K) * 1e-3,
+                    model.get(td::PHASE_MRAD_PER_K2) * 1e-3,
+                ],
+                [
+                    model.get(td::GAIN_REL_PER_K),
+                    model.get(td::GAIN_REL_PER_K2),
+                ],
+            );
+            (phase, (1.0 + gain).max(0.0))
         } else {
             (0.0, 1.0)
         };

@@ -457,18 +457,31 @@ pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
     })
 }
 
+/// `DepthFrame` image bytes (little-endian u16, row-major) as a `rows × cols` image.
+fn u16_le_image(bytes: &[u8], rows: usize, cols: usize) -> Option<ndarray::Array2<u16>> {
+    if bytes.len() != rows * cols * 2 {
+        return None;
+    }
+    let v: Vec<u16> = bytes
+        .chunks_exact(2)
+        .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        .collect();
+    ndarray::Array2::from_shape_vec((rows, cols), v).ok()
+}
+
 pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
-    use tofprox_core::SensorGeometry;
-    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
+    use tofprox_format::{DepthImageSize, DepthRecordingWriter};
     if a.frames == 0 {
         bail!("--frames must be at least 1");
     }
     rt()?.block_on(async {
         let (_conn, p) = proxy(&a.bus).await?;
         let mut frames = p.receive_depth_frame().await?;
-        p.claim_depth().await.context("ClaimDepth (is tofproxd running, are you in the tofprox-depth group?)")?;
+        p.claim_depth()
+            .await
+            .context("ClaimDepth (is tofproxd running, are you in the tofprox-depth group?)")?;
         let deadline = tokio::time::Instant::now() + Duration::from_secs(a.timeout_s);
-        let mut writer: Option<RecordingWriter> = None;
+        let mut writer: Option<DepthRecordingWriter> = None;
         let mut n = 0usize;
         while n < a.frames {
             let f = tokio::select! {
@@ -478,46 +491,45 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
             let Some(f) = f else { break };
             let args = f.args()?;
             let (w, h) = (usize::from(*args.width()), usize::from(*args.height()));
-            let bytes = args.depth_mm_u16_le();
-            if w == 0 || h == 0 || bytes.len() != w * h * 2 {
-                eprintln!("skipping a malformed DepthFrame ({w}x{h}, {} bytes)", bytes.len());
+            let Some(depth) = u16_le_image(args.depth_mm_u16_le(), h, w).filter(|_| w > 0 && h > 0)
+            else {
+                eprintln!(
+                    "skipping a malformed DepthFrame ({w}x{h}, {} depth bytes)",
+                    args.depth_mm_u16_le().len()
+                );
                 continue;
-            }
-            let depth: Vec<u16> = bytes.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
-            let arr = ndarray::Array3::from_shape_vec((1, h, w), depth)?;
+            };
+            // the amplitude is kept when it is well formed (an empty one is "not sent")
+            let amplitude = u16_le_image(args.amplitude_u16_le(), h, w);
             if writer.is_none() {
-                writer = Some(super::new_recording(
-                    &a.out,
-                    SensorGeometry::full(h, w, 16, 80e6),
-                    Some("depth frames from tofproxd (DepthFrame): each capture holds ONE image, depth in mm (0 = invalid), not raw phase codes".into()),
-                    a.force,
-                )?);
+                let size = DepthImageSize { rows: h, cols: w };
+                let description =
+                    Some("depth frames from tofproxd (DepthFrame signals)".to_string());
+                writer = Some(
+                    DepthRecordingWriter::create(&a.out, size, description, a.force)
+                        .map_err(|e| super::output_error(&a.out, e))?,
+                );
             }
             let Some(wr) = writer.as_mut() else { continue };
-            if (wr.sensor().rows, wr.sensor().cols) != (h, w) {
-                eprintln!("skipping a {w}x{h} frame (recording is {}x{})", wr.sensor().cols, wr.sensor().rows);
+            if (wr.size().rows, wr.size().cols) != (h, w) {
+                eprintln!(
+                    "skipping a {w}x{h} frame (recording is {}x{})",
+                    wr.size().cols,
+                    wr.size().rows
+                );
                 continue;
             }
-            let mut conditions = std::collections::BTreeMap::new();
-            conditions.insert("depth_frame".to_string(), 1.0);
-            wr.append(
-                CaptureSpec {
-                    phases_deg: vec![0.0],
-                    exposure_us: 0.0,
-                    illumination: true,
-                    averaged: 1,
-                    timestamp_ns: Some(*args.timestamp_ns()),
-                    conditions,
-                },
-                &RawFrames::U16(arr),
-            )?;
+            wr.append(Some(*args.timestamp_ns()), &depth, amplitude.as_ref())?;
             n += 1;
         }
         let _ = p.release_depth().await;
         if n == 0 {
             bail!("no DepthFrame received within {} s", a.timeout_s);
         }
-        eprintln!("recorded {n} depth frames to {}", a.out.display());
+        eprintln!(
+            "recorded {n} depth frames to {} (a depth recording: `tofprox info` summarises it)",
+            a.out.display()
+        );
         Ok(ExitCode::SUCCESS)
     })
 }

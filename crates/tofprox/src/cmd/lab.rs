@@ -130,6 +130,51 @@ fn progress_bar() -> ProgressBar {
     pb
 }
 
+/// The lab's progress callback drawing on `pb`.
+fn on_progress(pb: &ProgressBar) -> impl Fn(&str, f64) + Sync + '_ {
+    move |stage: &str, f: f64| {
+        pb.set_message(stage.to_string());
+        pb.set_position((f * 1000.0) as u64);
+    }
+}
+
+/// Print `json` (with `--json`) or the text `text` makes.
+fn emit(
+    as_json: bool,
+    json: &serde_json::Value,
+    text: impl FnOnce() -> anyhow::Result<String>,
+) -> anyhow::Result<()> {
+    if as_json {
+        out(&format!("{}\n", serde_json::to_string_pretty(json)?))
+    } else {
+        out(&text()?)
+    }
+}
+
+/// Write the HTML report of a comparison (with its diagnosis or added effect) to `path`.
+fn html(
+    path: Option<&Path>,
+    title: &str,
+    prep: &Prepared,
+    cmp: &Comparison,
+    diagnosis: Option<&tofprox_lab::diagnose::Diagnosis>,
+    added: Option<(&str, &tofprox_lab::diagnose::AddOutcome)>,
+) -> anyhow::Result<()> {
+    let Some(p) = path else { return Ok(()) };
+    write_report(
+        p,
+        &report::html_report(
+            title,
+            prep.rows,
+            prep.cols,
+            prep.roi_origin,
+            cmp,
+            diagnosis,
+            added,
+        ),
+    )
+}
+
 fn load(rec: &Path, model: &Path) -> anyhow::Result<(Prepared, ModelConfig)> {
     let m = ModelConfig::load(model).with_context(|| format!("model file {}", model.display()))?;
     let ds = load_recording(rec)?;
@@ -138,10 +183,7 @@ fn load(rec: &Path, model: &Path) -> anyhow::Result<(Prepared, ModelConfig)> {
 }
 
 fn fit(prep: &Prepared, m: &ModelConfig, pb: &ProgressBar) -> anyhow::Result<Comparison> {
-    let cb = |stage: &str, f: f64| {
-        pb.set_message(stage.to_string());
-        pb.set_position((f * 1000.0) as u64);
-    };
+    let cb = on_progress(pb);
     Ok(compare(prep, &spec_from_model(m), &cb)?)
 }
 
@@ -169,42 +211,21 @@ fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
         for n in &notes {
             eprintln!("note: {n}");
         }
-        let cb = |stage: &str, f: f64| {
-            pb.set_message(stage.to_string());
-            pb.set_position((f * 1000.0) as u64);
-        };
+        let cb = on_progress(&pb);
         compare(&prep, &spec, &cb)?
     } else {
         fit(&prep, &m, &pb)?
     };
     pb.finish_and_clear();
-    if a.json {
-        out(&format!(
-            "{}\n",
-            serde_json::to_string_pretty(&report::comparison_json(&cmp))?
-        ))?;
-    } else {
-        out(&report::comparison_text(&cmp))?;
-    }
-    if let Some(p) = &a.report {
-        let title = format!(
-            "tofprox lab compare: {} vs {}",
-            a.rec.display(),
-            a.model.display()
-        );
-        write_report(
-            p,
-            &report::html_report(
-                &title,
-                prep.rows,
-                prep.cols,
-                prep.roi_origin,
-                &cmp,
-                None,
-                None,
-            ),
-        )?;
-    }
+    emit(a.json, &report::comparison_json(&cmp), || {
+        Ok(report::comparison_text(&cmp))
+    })?;
+    let title = format!(
+        "tofprox lab compare: {} vs {}",
+        a.rec.display(),
+        a.model.display()
+    );
+    html(a.report.as_deref(), &title, &prep, &cmp, None, None)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -212,40 +233,19 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let (prep, m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
     let cmp = fit(&prep, &m, &pb)?;
-    let cb = |stage: &str, f: f64| {
-        pb.set_message(stage.to_string());
-        pb.set_position((f * 1000.0) as u64);
-    };
+    let cb = on_progress(&pb);
     let opts = options(a.tolerance_mm)?;
     let d = diagnose_with(&prep, &cmp, &opts, &cb)?;
     pb.finish_and_clear();
-    if a.json {
-        out(&format!(
-            "{}\n",
-            serde_json::to_string_pretty(&report::diagnosis_json(&d))?
-        ))?;
-    } else {
-        out(&report::diagnosis_text(&d))?;
-    }
-    if let Some(p) = &a.report {
-        let title = format!(
-            "tofprox lab diagnose: {} vs {}",
-            a.rec.display(),
-            a.model.display()
-        );
-        write_report(
-            p,
-            &report::html_report(
-                &title,
-                prep.rows,
-                prep.cols,
-                prep.roi_origin,
-                &cmp,
-                Some(&d),
-                None,
-            ),
-        )?;
-    }
+    emit(a.json, &report::diagnosis_json(&d), || {
+        Ok(report::diagnosis_text(&d))
+    })?;
+    let title = format!(
+        "tofprox lab diagnose: {} vs {}",
+        a.rec.display(),
+        a.model.display()
+    );
+    html(a.report.as_deref(), &title, &prep, &cmp, Some(&d), None)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -259,10 +259,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     }
     let (prep, mut m) = load(&a.data, &a.model)?;
     let pb = progress_bar();
-    let cb = |stage: &str, f: f64| {
-        pb.set_message(stage.to_string());
-        pb.set_position((f * 1000.0) as u64);
-    };
+    let cb = on_progress(&pb);
     let res = add_effect(&prep, &spec_from_model(&m), &a.effect, &cb)?;
     pb.finish_and_clear();
     let notes = write_effect(&mut m, &a.effect, &res.params, &res.after.model, &prep)?;
@@ -273,12 +270,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     for n in &notes {
         eprintln!("note: {n}");
     }
-    if a.json {
-        out(&format!(
-            "{}\n",
-            serde_json::to_string_pretty(&report::add_json(&a.effect, &res))?
-        ))?;
-    } else {
+    emit(a.json, &report::add_json(&a.effect, &res), || {
         let b = tofprox_lab::diagnose::ErrorSummary::of(&res.before);
         let f = tofprox_lab::diagnose::ErrorSummary::of(&res.after);
         let mut t = format!(
@@ -307,23 +299,17 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
             }
         }
-        out(&t)?;
-    }
-    if let Some(p) = &a.report {
-        let title = format!("tofprox lab add {}: {}", a.effect, a.data.display());
-        write_report(
-            p,
-            &report::html_report(
-                &title,
-                prep.rows,
-                prep.cols,
-                prep.roi_origin,
-                &res.after,
-                None,
-                Some((&a.effect, &res)),
-            ),
-        )?;
-    }
+        Ok(t)
+    })?;
+    let title = format!("tofprox lab add {}: {}", a.effect, a.data.display());
+    html(
+        a.report.as_deref(),
+        &title,
+        &prep,
+        &res.after,
+        None,
+        Some((&a.effect, &res)),
+    )?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -350,10 +336,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     let opts = options(a.tolerance_mm)?;
     let (prep, mut m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
-    let cb = |stage: &str, f: f64| {
-        pb.set_message(stage.to_string());
-        pb.set_position((f * 1000.0) as u64);
-    };
+    let cb = on_progress(&pb);
     let ex = explain(&prep, &spec_from_model(&m), &opts, &cb)?;
     pb.finish_and_clear();
     let mut notes = Vec::new();
@@ -378,12 +361,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     for n in &notes {
         eprintln!("note: {n}");
     }
-    if a.json {
-        out(&format!(
-            "{}\n",
-            serde_json::to_string_pretty(&report::explanation_json(&ex))?
-        ))?;
-    } else {
+    emit(a.json, &report::explanation_json(&ex), || {
         let mut t = String::new();
         for (i, st) in ex.steps.iter().enumerate() {
             t.push_str(&format!("── step {} ──\n", i + 1));
@@ -397,8 +375,8 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             ex.verdict().as_str(),
             ex.added.join(", ")
         ));
-        out(&t)?;
-    }
+        Ok(t)
+    })?;
     if let Some(p) = &a.report {
         let title = format!(
             "tofprox lab explain: {} from {}",

@@ -16,7 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
 use rayon::prelude::*;
-use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
+use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter};
 use tofprox_model::figures::Figure;
 use tofprox_model::{
     CaptureRequest, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator, catalogue,
@@ -45,6 +45,17 @@ pub struct SweepArgs {
     /// Model file (config/model/*.toml).
     #[arg(long)]
     pub model: PathBuf,
+    /// Simulate the conditions of this recording instead of a sweep: its
+    /// window, ADC and modulation frequency, and capture by capture its
+    /// phases, exposure, illumination, averaging, distance_m, reflectivity,
+    /// ambient_klux and temperature_c (the model's inputs). Its other
+    /// conditions are copied to the output unchanged and listed as ignored;
+    /// illuminated captures without distance_m are skipped.
+    #[arg(long, conflicts_with_all = [
+        "distances", "exposures", "phases", "ambient", "temperatures", "reflectivity",
+        "repeats", "averaged", "window", "correlation_distance",
+    ])]
+    pub like: Option<PathBuf>,
     /// Distances: FROM:TO:STEP or a comma list, in metres.
     #[arg(long, default_value = "0.15:1.80:0.05")]
     pub distances: String,
@@ -242,6 +253,8 @@ struct Planned {
     req: CaptureRequest,
     scene: Scene,
     conditions: Vec<(&'static str, f64)>,
+    /// Conditions copied from a recording (`sweep --like`) that are no model input.
+    copied: Vec<(String, f64)>,
 }
 
 fn progress(n: usize, what: &str) -> ProgressBar {
@@ -294,6 +307,7 @@ fn simulate_into(
                     .conditions
                     .iter()
                     .map(|(k, v)| (k.to_string(), *v))
+                    .chain(p.copied.iter().cloned())
                     .collect(),
             };
             writer.append(spec, &f)?;
@@ -307,7 +321,113 @@ fn load_model(path: &Path) -> anyhow::Result<ModelConfig> {
     Ok(ModelConfig::load(path)?)
 }
 
+/// The conditions of a recorded capture that the model takes as inputs.
+const MODEL_INPUTS: &[&str] = &[
+    "distance_m",
+    "reflectivity",
+    "ambient_klux",
+    "temperature_c",
+];
+
+/// The plan of `sweep --like`: every capture of `rec` under its own
+/// conditions. Returns the plan, the conditions copied but not simulated
+/// (by name) and the illuminated captures skipped for want of a distance.
+fn plan_like(rec: &Recording) -> anyhow::Result<(Vec<Planned>, Vec<String>, usize)> {
+    let mut plan = Vec::new();
+    let mut ignored = std::collections::BTreeSet::new();
+    let mut skipped = 0;
+    for (i, meta) in rec.captures().iter().enumerate() {
+        let cond = |k: &str| meta.conditions.get(k).copied();
+        let distance = cond("distance_m");
+        if meta.illumination && distance.is_none() {
+            skipped += 1;
+            continue;
+        }
+        let refl = cond("reflectivity").unwrap_or(1.0);
+        let req = CaptureRequest {
+            phases_deg: meta.phases_deg.clone(),
+            exposure_us: meta.exposure_us,
+            illumination: meta.illumination,
+            averaged: meta.averaged,
+            ambient_klux: cond("ambient_klux").unwrap_or(0.0),
+            // the model's default temperature when the recording states none
+            temperature_c: cond("temperature_c").unwrap_or(25.0),
+        };
+        req.validate()
+            .with_context(|| format!("{}: capture {i}", rec.dir().display()))?;
+        // a dark capture sees no target; the wall only sets the geometry
+        let scene = Scene::wall(distance.unwrap_or(1.0), refl);
+        scene
+            .validate()
+            .with_context(|| format!("{}: capture {i}", rec.dir().display()))?;
+        let conditions = MODEL_INPUTS
+            .iter()
+            .filter_map(|k| cond(k).map(|v| (*k, v)))
+            .collect();
+        let copied = meta
+            .conditions
+            .iter()
+            .filter(|(k, _)| !MODEL_INPUTS.contains(&k.as_str()))
+            .map(|(k, v)| (k.clone(), *v))
+            .collect::<Vec<_>>();
+        ignored.extend(copied.iter().map(|(k, _)| k.clone()));
+        plan.push(Planned {
+            copied,
+            req,
+            scene,
+            conditions,
+        });
+    }
+    if plan.is_empty() {
+        bail!(
+            "{}: no capture to simulate (illuminated captures need distance_m)",
+            rec.dir().display()
+        );
+    }
+    Ok((plan, ignored.into_iter().collect(), skipped))
+}
+
+/// `sim sweep --like REC`: the recording's own conditions through the model.
+fn sweep_like(a: &SweepArgs, like: &Path) -> anyhow::Result<ExitCode> {
+    let model = load_model(&a.model)?;
+    let rec = Recording::open(like)
+        .with_context(|| format!("cannot open recording {}", like.display()))?;
+    let geometry = *rec.sensor();
+    let (plan, ignored, skipped) = plan_like(&rec)?;
+    let sim = Simulator::new(&model, geometry, a.seed)?;
+    let description = format!(
+        "tofprox sim sweep --like {}: model {} (effects: {}), seed {}",
+        like.display(),
+        a.model.display(),
+        model.enabled_effects().join(", "),
+        a.seed
+    );
+    let mut writer = super::new_recording(&a.out, geometry, Some(description), a.force)?;
+    let pb = progress(plan.len(), "sweep --like");
+    simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
+    pb.finish_and_clear();
+    if !ignored.is_empty() {
+        eprintln!(
+            "conditions copied but not simulated (no model input): {}",
+            ignored.join(", ")
+        );
+    }
+    if skipped > 0 {
+        eprintln!("skipped {skipped} illuminated captures without distance_m");
+    }
+    eprintln!(
+        "wrote {} captures like {} to {}",
+        writer.len(),
+        like.display(),
+        a.out.display()
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
 fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
+    if let Some(like) = &a.like {
+        return sweep_like(&a, like);
+    }
     let model = load_model(&a.model)?;
     let distances = parse_distances(&a.distances)?;
     let phases = phases_for(a.phases)?;
@@ -333,6 +453,7 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
     for &temp in &a.temperatures {
         for &t in &a.exposures {
             plan.push(Planned {
+                copied: Vec::new(),
                 req: request(&phases, t, false, 0.0, temp),
                 scene: Scene::wall(a.correlation_distance, refl),
                 conditions: vec![("ambient_klux", 0.0), ("temperature_c", temp)],
@@ -343,6 +464,7 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
     let corr_phases = phases_for(24)?;
     let (t0, temp0) = (a.exposures[0], a.temperatures[0]);
     plan.push(Planned {
+        copied: Vec::new(),
         req: request(&corr_phases, t0, true, 0.0, temp0),
         scene: Scene::wall(a.correlation_distance, refl),
         conditions: vec![
@@ -359,6 +481,7 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
                 for &d in &distances {
                     for rep in 0..a.repeats {
                         plan.push(Planned {
+                            copied: Vec::new(),
                             req: request(&phases, t, true, amb, temp),
                             scene: Scene::wall(d, refl),
                             conditions: vec![
@@ -431,6 +554,7 @@ fn scene(a: SceneArgs) -> anyhow::Result<ExitCode> {
             let mut req = CaptureRequest::with_phases(phases.clone(), a.exposure_us);
             req.averaged = 1;
             Planned {
+                copied: Vec::new(),
                 req,
                 scene: script.at(t),
                 conditions: vec![

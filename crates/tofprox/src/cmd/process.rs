@@ -1,0 +1,271 @@
+//! `tofprox process`: a recording's captures to depth and amplitude.
+
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use ndarray::{Array2, s};
+use serde_json::json;
+use tofprox_core::Algorithm;
+use tofprox_core::crosstalk::residual_ratio;
+use tofprox_core::phasor::unambiguous_range_m;
+use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_core::proximity::Roi;
+use tofprox_format::npy;
+use tofprox_format::{CalibrationSet, CaptureMeta, RawFrames, Recording};
+
+use super::common::{fmt_num, mode_label, progress};
+
+#[derive(clap::Args, Debug)]
+pub struct ProcessArgs {
+    /// Recording directory.
+    pub recording: PathBuf,
+    /// Calibration set to apply (without it: mid-code offset, no wiggling/FPPN correction).
+    #[arg(long)]
+    pub calib: Option<PathBuf>,
+    /// Evaluation algorithm: 2phase (images at 0°, 90°) or 4phase (0°, 90°, 180°, 270°).
+    #[arg(long)]
+    pub algo: Algorithm,
+    /// Output directory for NNNNNN_depth_mm.npy, NNNNNN_amplitude_lsb.npy and NNNNNN_depth.png.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print one JSON object per processed capture on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Pixels with a lower amplitude (LSB) are invalid.
+    #[arg(long, default_value_t = PipelineConfig::default().min_amplitude_lsb)]
+    pub min_amplitude_lsb: f32,
+    /// Depth at the top of the PNG colour scale (default: the unambiguous range).
+    #[arg(long)]
+    pub png_max_m: Option<f64>,
+}
+
+/// Write a colour-mapped depth preview with row/column axes in sensor
+/// coordinates and a colour bar in metres (0 … `max_m`; invalid = black), drawn
+/// by the one chart component.
+fn write_depth_png(
+    path: &Path,
+    depth_mm: &Array2<u16>,
+    origin: [usize; 2],
+    max_m: f64,
+) -> anyhow::Result<()> {
+    let (rows, cols) = depth_mm.dim();
+    let values: Vec<f64> = depth_mm
+        .iter()
+        .map(|&d| {
+            if d == 0 {
+                f64::NAN
+            } else {
+                f64::from(d) / 1000.0
+            }
+        })
+        .collect();
+    let img = tofprox_chart::raster::annotated(&tofprox_chart::raster::RasterMap {
+        rows,
+        cols,
+        values: &values,
+        origin: (origin[0], origin[1]),
+        range: (0.0, max_m),
+        unit: "m",
+    });
+    let f = fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(f),
+        img.width as u32,
+        img.height as u32,
+    );
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut wr = enc
+        .write_header()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    wr.write_image_data(&img.rgb)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    wr.finish()
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(())
+}
+
+/// Why a capture cannot be processed with `alg`, if it cannot.
+fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
+    if !c.illumination {
+        return Some("dark capture".into());
+    }
+    let need = alg.phases_deg();
+    let ok = c.phases_deg.len() >= need.len()
+        && c.phases_deg
+            .iter()
+            .zip(need)
+            .all(|(a, b)| (a - b).abs() < 1e-6);
+    if ok {
+        None
+    } else {
+        let need: Vec<String> = need.iter().map(|p| fmt_num(*p)).collect();
+        Some(format!(
+            "a {} capture; {alg} needs phases starting [{}]",
+            mode_label(c),
+            need.join(", ")
+        ))
+    }
+}
+
+pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
+    let rec = Recording::open(&a.recording)?;
+    let sensor = *rec.sensor();
+    let calibration = match &a.calib {
+        Some(dir) => {
+            let set = CalibrationSet::load(dir)?;
+            set.check_compatible(&sensor).with_context(|| {
+                format!(
+                    "refusing to apply {} to {}",
+                    dir.display(),
+                    a.recording.display()
+                )
+            })?;
+            if set.wiggling(a.algo).is_none() {
+                eprintln!(
+                    "note: {} has no {} wiggling table: depth is not wiggling corrected",
+                    dir.display(),
+                    a.algo
+                );
+            }
+            if set.offset.is_none() {
+                eprintln!(
+                    "note: {} has no offset (FPN): the mid code is subtracted instead",
+                    dir.display()
+                );
+            }
+            set.to_pipeline_calibration(a.algo)
+        }
+        None => {
+            eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
+            Default::default()
+        }
+    };
+    let max_m = match a.png_max_m {
+        Some(m) if m.is_finite() && m > 0.0 => m,
+        Some(m) => bail!("--png-max-m {m} is not a positive distance"),
+        None => unambiguous_range_m(sensor.modulation_hz),
+    };
+    let config = PipelineConfig {
+        algorithm: a.algo,
+        modulation_hz: sensor.modulation_hz,
+        adc_bits: sensor.adc_bits,
+        min_amplitude_lsb: a.min_amplitude_lsb,
+    };
+    let mut pipeline = Pipeline::new(sensor.rows, sensor.cols, config, calibration)
+        .context("setting up the processing pipeline")?;
+    fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+
+    let caps = rec.captures();
+    let todo: Vec<usize> = (0..caps.len())
+        .filter(|&i| match unusable_reason(&caps[i], a.algo) {
+            None => true,
+            Some(why) => {
+                if caps[i].illumination {
+                    eprintln!("note: skipping capture {i}: {why}");
+                }
+                false
+            }
+        })
+        .collect();
+    if todo.is_empty() {
+        bail!(
+            "{} has no illuminated capture that can be processed as {}",
+            a.recording.display(),
+            a.algo
+        );
+    }
+    let k = a.algo.raw_images();
+    let pb = progress(todo.len(), "processing");
+    let stdout = std::io::stdout();
+    if !a.json {
+        println!(
+            "{:>5}  {:>10}  {:>14}  {:>9}  {:>8}  {:>10}",
+            "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
+        );
+    }
+    for &i in &todo {
+        let raw = rec.load(i)?;
+        let crosstalk = pipeline.calibration().crosstalk.clone();
+        if crosstalk.is_some() {
+            pipeline
+                .set_exposure_us(caps[i].exposure_us)
+                .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
+        }
+        let t0 = Instant::now();
+        let frame = match &raw {
+            RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
+            RawFrames::F32(x) => pipeline.process(x.slice(s![..k, .., ..])),
+            RawFrames::F64(x) => pipeline.process(x.slice(s![..k, .., ..])),
+        }
+        .with_context(|| format!("processing capture {i}"))?;
+        let process_us = t0.elapsed().as_secs_f64() * 1e6;
+        let median = frame.median_valid_depth_m();
+        let valid = frame.valid_fraction();
+        // what is left of the cover-window crosstalk relative to the calibrated one
+        // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
+        let crosstalk_residual = crosstalk
+            .as_ref()
+            .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
+        let depth_mm = frame.depth_mm.clone();
+        let amplitude = frame.amplitude_lsb.clone();
+        let stem = format!("{i:06}");
+        let p = a.out.join(format!("{stem}_depth_mm.npy"));
+        fs::write(&p, npy::encode_u16(&depth_mm))
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
+        fs::write(&p, npy::encode_f32(&amplitude))
+            .with_context(|| format!("cannot write {}", p.display()))?;
+        write_depth_png(
+            &a.out.join(format!("{stem}_depth.png")),
+            &depth_mm,
+            sensor.roi_origin,
+            max_m,
+        )?;
+        let mut out = stdout.lock();
+        let truth = caps[i].distance_m();
+        let error_mm = truth.zip(median).map(|(t, m)| (m - t) * 1000.0);
+        if a.json {
+            let mut line = json!({
+                "index": i,
+                // micrometre resolution: the f32 depth carries no more
+                "distance_m": truth,
+                "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
+                "error_mm": error_mm.map(|e| (e * 1e3).round() / 1e3),
+                "valid_fraction": valid,
+                "process_us": (process_us * 10.0).round() / 10.0,
+            });
+            // only with a crosstalk calibration
+            if let (Some(r), Some(o)) = (crosstalk_residual, line.as_object_mut()) {
+                o.insert("crosstalk_residual".into(), json!(r));
+            }
+            writeln!(out, "{line}").context("writing to stdout")?;
+        } else {
+            let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));
+            writeln!(
+                out,
+                "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
+                i,
+                truth.map_or("-".into(), fmt_num),
+                median.map_or("-".into(), |m| format!("{m:.4}")),
+                err,
+                100.0 * valid,
+                process_us
+            )
+            .context("writing to stdout")?;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if !a.json {
+        println!(
+            "wrote depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
+            a.out.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,482 @@
+//! The daemon's domain state, apart from any bus: the service [`State`], what clients
+//! [`Claim`] (per unique bus name) and the [`Demand`] that follows, the [`Status`] the
+//! properties show, and the [`Event`]s the loop sends to the publisher. The zbus adapter
+//! (`service`) and the publisher (`publisher`) are thin layers over the [`Hub`]; the
+//! controller only speaks this vocabulary.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use tokio::sync::{mpsc, watch};
+
+use crate::config::{Config, Mode};
+
+/// Service state (the `State` property).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum State {
+    /// Sensor held in reset (no claim).
+    Off,
+    /// Claimed, no valid reading yet.
+    Starting,
+    /// Readings flowing.
+    Running,
+    /// The last cycle failed; retrying.
+    Error,
+    /// Several cycles in a row failed (device gone?); retrying.
+    Unavailable,
+}
+
+impl State {
+    /// The property string.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            State::Off => "off",
+            State::Starting => "starting",
+            State::Running => "running",
+            State::Error => "error",
+            State::Unavailable => "unavailable",
+        }
+    }
+}
+
+/// What the clients currently want from the loop.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Demand {
+    /// Someone claims proximity (native or compat).
+    pub proximity: bool,
+    /// Someone claims depth frames.
+    pub depth: bool,
+}
+
+impl Demand {
+    /// Whether the loop must run.
+    pub fn any(self) -> bool {
+        self.proximity || self.depth
+    }
+}
+
+/// Everything the properties show.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Status {
+    /// `HasSensor`.
+    pub has_sensor: bool,
+    /// `State`.
+    pub state: State,
+    /// `Near`.
+    pub near: bool,
+    /// `DistanceMm` (0 = unknown).
+    pub distance_mm: u32,
+    /// `NearThresholdMm`.
+    pub near_threshold_mm: u32,
+    /// `FarThresholdMm`.
+    pub far_threshold_mm: u32,
+    /// `Mode`.
+    pub mode: Mode,
+    /// `RateHz`.
+    pub rate_hz: f64,
+    /// `PowerEstimateMw`.
+    pub power_mw: f64,
+    /// `LastError`.
+    pub last_error: String,
+    /// Exposure per raw image (µs).
+    pub exposure_us: f64,
+    /// Cycles run.
+    pub cycles: u64,
+    /// Valid readings.
+    pub valid_readings: u64,
+    /// Failed cycles.
+    pub errors: u64,
+    /// Backend description.
+    pub backend: String,
+    /// How near readings are checked for plausibility (thesis 2.2.1): `"calibrated"` (the
+    /// calibration's amplitude scale), `"nominal"` (no amplitude calibration: the config's
+    /// nominal scale), `""` before the first cycle.
+    pub amplitude_check: &'static str,
+}
+
+/// What a client can claim (each held per unique bus name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Claim {
+    /// Native proximity (`ClaimProximity` on `org.tofprox.Proximity1`).
+    Proximity,
+    /// Depth frames (`ClaimDepth`).
+    Depth,
+    /// Proximity through the iio-sensor-proxy compatible interface.
+    CompatProximity,
+}
+
+/// One client's claims.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+struct ClientClaims {
+    proximity: bool,
+    depth: bool,
+    compat_proximity: bool,
+}
+
+impl ClientClaims {
+    fn any(self) -> bool {
+        self.proximity || self.depth || self.compat_proximity
+    }
+
+    fn slot(&mut self, claim: Claim) -> &mut bool {
+        match claim {
+            Claim::Proximity => &mut self.proximity,
+            Claim::Depth => &mut self.depth,
+            Claim::CompatProximity => &mut self.compat_proximity,
+        }
+    }
+}
+
+struct HubInner {
+    status: Status,
+    claims: BTreeMap<String, ClientClaims>,
+    /// A valid reading exists since the loop last started.
+    have_reading: bool,
+}
+
+/// Shared between the D-Bus interfaces, the publisher and the loop.
+pub struct Hub {
+    inner: Mutex<HubInner>,
+    demand_tx: watch::Sender<Demand>,
+    /// Incremented on every valid reading.
+    reading_tx: watch::Sender<u64>,
+    first_reading_timeout: Duration,
+}
+
+/// Claim counts (for `GetStatus` and leak checks).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ClaimCounts {
+    /// Clients with any claim.
+    pub clients: u32,
+    /// Clients with a proximity claim (native or compat).
+    pub proximity_clients: u32,
+    /// Proximity claims (native).
+    pub proximity: u32,
+    /// Depth claims.
+    pub depth: u32,
+    /// Compat proximity claims.
+    pub compat_proximity: u32,
+}
+
+impl Hub {
+    /// New hub for `cfg`, with the demand receiver for the loop.
+    pub fn new(cfg: &Config, backend: String) -> (Arc<Self>, watch::Receiver<Demand>) {
+        let (demand_tx, demand_rx) = watch::channel(Demand::default());
+        let (reading_tx, _) = watch::channel(0u64);
+        let status = Status {
+            has_sensor: true,
+            state: State::Off,
+            near: false,
+            distance_mm: 0,
+            near_threshold_mm: cfg.proximity.near_mm,
+            far_threshold_mm: cfg.proximity.far_mm,
+            mode: cfg.processing.mode,
+            rate_hz: 0.0,
+            power_mw: 0.0,
+            last_error: String::new(),
+            exposure_us: cfg.exposure.initial_us,
+            cycles: 0,
+            valid_readings: 0,
+            errors: 0,
+            backend,
+            amplitude_check: "",
+        };
+        let hub = Arc::new(Self {
+            inner: Mutex::new(HubInner {
+                status,
+                claims: BTreeMap::new(),
+                have_reading: false,
+            }),
+            demand_tx,
+            reading_tx,
+            first_reading_timeout: Duration::from_millis(cfg.loop_.first_reading_timeout_ms),
+        });
+        (hub, demand_rx)
+    }
+
+    fn lock(&self) -> MutexGuard<'_, HubInner> {
+        // A poisoned lock only means a panic elsewhere while holding it; the data is plain values.
+        self.inner.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Snapshot of the status.
+    pub fn status(&self) -> Status {
+        self.lock().status.clone()
+    }
+
+    /// Claim counts.
+    pub fn claim_counts(&self) -> ClaimCounts {
+        let g = self.lock();
+        let mut c = ClaimCounts::default();
+        for cl in g.claims.values() {
+            c.clients += 1;
+            c.proximity_clients += u32::from(cl.proximity || cl.compat_proximity);
+            c.proximity += u32::from(cl.proximity);
+            c.depth += u32::from(cl.depth);
+            c.compat_proximity += u32::from(cl.compat_proximity);
+        }
+        c
+    }
+
+    /// Current demand.
+    pub fn demand(&self) -> Demand {
+        *self.demand_tx.borrow()
+    }
+
+    fn recompute_demand(&self, g: &HubInner) {
+        let d = Demand {
+            proximity: g.claims.values().any(|c| c.proximity || c.compat_proximity),
+            depth: g.claims.values().any(|c| c.depth),
+        };
+        self.demand_tx.send_if_modified(|cur| {
+            if *cur != d {
+                *cur = d;
+                true
+            } else {
+                false
+            }
+        });
+    }
+
+    /// Set (`held = true`) or clear one claim of `client`; a client without any claim left is
+    /// forgotten. The demand is recomputed.
+    pub fn set_claim(&self, client: &str, claim: Claim, held: bool) {
+        let mut g = self.lock();
+        let entry = g.claims.entry(client.to_string()).or_default();
+        *entry.slot(claim) = held;
+        if !entry.any() {
+            g.claims.remove(client);
+        }
+        self.recompute_demand(&g);
+    }
+
+    /// Drop every claim of a client (it left the bus).
+    pub fn client_gone(&self, client: &str) -> bool {
+        let mut g = self.lock();
+        let had = g.claims.remove(client).is_some();
+        if had {
+            self.recompute_demand(&g);
+        }
+        had
+    }
+
+    /// Names of clients holding claims.
+    pub fn clients(&self) -> Vec<String> {
+        self.lock().claims.keys().cloned().collect()
+    }
+
+    /// Unique names of the clients holding a depth claim (the only receivers of depth frames).
+    pub fn depth_claimers(&self) -> Vec<String> {
+        let g = self.lock();
+        g.claims
+            .iter()
+            .filter(|(_, c)| c.depth)
+            .map(|(n, _)| n.clone())
+            .collect()
+    }
+
+    /// Wait (bounded) until a valid reading exists since the loop started.
+    pub async fn wait_first_reading(&self) {
+        let mut rx = self.reading_tx.subscribe();
+        if self.lock().have_reading {
+            return;
+        }
+        let start = *rx.borrow_and_update();
+        let _ =
+            tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await;
+    }
+
+    /// Apply a change to the status; returns the status before and after it.
+    pub fn update(&self, f: impl FnOnce(&mut Status)) -> (Status, Status) {
+        let mut g = self.lock();
+        let before = g.status.clone();
+        f(&mut g.status);
+        let after = g.status.clone();
+        if after.state == State::Off || after.state == State::Starting {
+            g.have_reading = false;
+        }
+        (before, after)
+    }
+
+    /// Apply a status fragment from the loop (counters counted, `power_mw` left to the
+    /// publisher's rate limit); returns the status before and after it.
+    pub fn apply(&self, u: &StatusUpdate) -> (Status, Status) {
+        self.update(|s| {
+            if let Some(v) = u.state {
+                s.state = v;
+            }
+            if let Some(v) = u.near {
+                s.near = v;
+            }
+            if let Some(v) = u.distance_mm {
+                s.distance_mm = v;
+            }
+            if let Some(v) = u.mode {
+                s.mode = v;
+            }
+            if let Some(v) = u.rate_hz {
+                s.rate_hz = v;
+            }
+            if let Some(v) = &u.last_error {
+                s.last_error.clone_from(v);
+            }
+            if let Some(v) = u.exposure_us {
+                s.exposure_us = v;
+            }
+            if let Some(v) = u.has_sensor {
+                s.has_sensor = v;
+            }
+            if let Some(v) = u.amplitude_check {
+                s.amplitude_check = v;
+            }
+            if u.cycle {
+                s.cycles += 1;
+            }
+            if u.error {
+                s.errors += 1;
+            }
+            if u.valid_reading {
+                s.valid_readings += 1;
+            }
+        })
+    }
+
+    /// Note a valid reading (wakes waiting claimers).
+    pub fn note_valid_reading(&self) {
+        self.lock().have_reading = true;
+        self.reading_tx.send_modify(|n| *n = n.wrapping_add(1));
+    }
+}
+
+/// A depth frame to publish.
+#[derive(Debug, Clone)]
+pub struct DepthMessage {
+    /// Capture time (ns).
+    pub timestamp_ns: u64,
+    /// Columns.
+    pub width: u16,
+    /// Rows.
+    pub height: u16,
+    /// depth (mm) as little-endian u16.
+    pub depth_le: Vec<u8>,
+    /// amplitude (LSB, saturating) as little-endian u16.
+    pub amplitude_le: Vec<u8>,
+}
+
+/// What the loop reports to the publisher.
+#[derive(Debug, Clone)]
+pub enum Event {
+    /// Apply a status change (the closure-free form: a full new status fragment).
+    Status(StatusUpdate),
+    /// A depth frame (sent only while a depth claim is held).
+    Depth(DepthMessage),
+}
+
+/// A status fragment from the loop.
+#[derive(Debug, Clone, Default)]
+pub struct StatusUpdate {
+    /// New state.
+    pub state: Option<State>,
+    /// New near.
+    pub near: Option<bool>,
+    /// New distance (0 = unknown).
+    pub distance_mm: Option<u32>,
+    /// New mode.
+    pub mode: Option<Mode>,
+    /// New rate.
+    pub rate_hz: Option<f64>,
+    /// New power estimate (the publisher limits updates to 1 Hz).
+    pub power_mw: Option<f64>,
+    /// New last error.
+    pub last_error: Option<String>,
+    /// New exposure.
+    pub exposure_us: Option<f64>,
+    /// New has_sensor.
+    pub has_sensor: Option<bool>,
+    /// How near readings are checked (see [`Status::amplitude_check`]).
+    pub amplitude_check: Option<&'static str>,
+    /// This update carries a valid reading.
+    pub valid_reading: bool,
+    /// This update is one completed cycle (counts).
+    pub cycle: bool,
+    /// This update is a failed cycle.
+    pub error: bool,
+}
+
+/// Sender side for the loop.
+pub type EventSender = mpsc::UnboundedSender<Event>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hub() -> Arc<Hub> {
+        Hub::new(&Config::default(), "test".into()).0
+    }
+
+    #[test]
+    fn claims_drive_demand_and_are_forgotten_when_released() {
+        let h = hub();
+        h.set_claim(":1.1", Claim::Proximity, true);
+        h.set_claim(":1.2", Claim::Depth, true);
+        assert_eq!(
+            h.demand(),
+            Demand {
+                proximity: true,
+                depth: true
+            }
+        );
+        assert_eq!(h.depth_claimers(), vec![":1.2".to_string()]);
+        h.set_claim(":1.2", Claim::Depth, false);
+        assert_eq!(
+            h.clients(),
+            vec![":1.1".to_string()],
+            "no claim left: forgotten"
+        );
+        assert!(!h.demand().depth);
+        assert!(h.client_gone(":1.1"));
+        assert!(!h.client_gone(":1.1"), "already gone");
+        assert!(!h.demand().any());
+        assert_eq!(h.claim_counts(), ClaimCounts::default());
+    }
+
+    #[test]
+    fn compat_claim_counts_as_proximity_demand() {
+        let h = hub();
+        h.set_claim(":1.7", Claim::CompatProximity, true);
+        assert!(h.demand().proximity);
+        let c = h.claim_counts();
+        assert_eq!((c.clients, c.proximity, c.compat_proximity), (1, 0, 1));
+        assert_eq!(c.proximity_clients, 1);
+        assert!(h.depth_claimers().is_empty());
+        h.set_claim(":1.8", Claim::Depth, true);
+        let c = h.claim_counts();
+        assert_eq!((c.clients, c.proximity_clients, c.depth), (2, 1, 1));
+        assert_eq!(h.depth_claimers(), vec![":1.8".to_string()]);
+    }
+
+    #[test]
+    fn apply_counts_and_leaves_power_to_the_publisher() {
+        let h = hub();
+        let (before, after) = h.apply(&StatusUpdate {
+            state: Some(State::Running),
+            near: Some(true),
+            power_mw: Some(3.0),
+            cycle: true,
+            valid_reading: true,
+            ..StatusUpdate::default()
+        });
+        assert_eq!(before.state, State::Off);
+        assert_eq!(after.state, State::Running);
+        assert!(after.near);
+        assert_eq!(
+            (after.cycles, after.valid_readings, after.errors),
+            (1, 1, 0)
+        );
+        assert_eq!(
+            after.power_mw, 0.0,
+            "power is rate-limited by the publisher"
+        );
+    }
+}

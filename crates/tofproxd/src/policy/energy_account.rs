@@ -1,0 +1,190 @@
+//! Energy accounting and the sleep after each cycle (thesis 3.5.3: the sensor is held in
+//! reset between readings; table 3.1: energy per reading from the state durations, the
+//! number of raw images and the exposure — [`crate::energy::cycle_energy`]). Every captured
+//! cycle, processed or not, goes through [`EnergyAccount::next`] once: the sleep is the rest
+//! of the period (none when replaying a recording as fast as possible) and the cycle plus
+//! that sleep enter the running average.
+
+use std::time::Duration;
+
+use crate::config::{Backend, Config, EnergyConfig};
+use crate::energy::{CycleTimings, EnergyMeter, cycle_energy};
+use crate::source::RawCycle;
+
+/// Whether cycles are paced at the reading rate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pacing {
+    /// Sleep the rest of each period (a sensor, an emulation, a real-time replay).
+    RealTime,
+    /// No sleep at all: a recording replayed as fast as possible (`replay.realtime = false`).
+    AsFastAsPossible,
+}
+
+impl Pacing {
+    /// The pacing a config asks for.
+    pub fn of(cfg: &Config) -> Self {
+        if cfg.backend == Backend::Replay && !cfg.replay.realtime {
+            Pacing::AsFastAsPossible
+        } else {
+            Pacing::RealTime
+        }
+    }
+}
+
+/// One captured cycle, as the energy model sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleObservation {
+    /// Measured state durations (zero where the source has none).
+    pub timings: CycleTimings,
+    /// Raw images captured (K).
+    pub raw_images: u32,
+    /// Exposure per raw image (µs).
+    pub exposure_us: f64,
+    /// Rows read out.
+    pub rows_read: usize,
+    /// Rows of the full array (0: unknown, taken as a full read-out).
+    pub full_rows: usize,
+    /// The reading rate the period follows (Hz).
+    pub rate_hz: f64,
+}
+
+impl CycleObservation {
+    /// The observation of a captured cycle at the reading rate `rate_hz`.
+    pub fn of(cycle: &RawCycle, rate_hz: f64) -> Self {
+        Self {
+            timings: cycle.timings(),
+            raw_images: u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX),
+            exposure_us: cycle.exposure_us,
+            rows_read: cycle.geometry.rows,
+            full_rows: cycle.geometry.full_rows,
+            rate_hz,
+        }
+    }
+
+    /// Fraction of the array read out (scales the read-out energy).
+    fn rows_fraction(&self) -> f64 {
+        if self.full_rows > 0 {
+            self.rows_read as f64 / self.full_rows as f64
+        } else {
+            1.0
+        }
+    }
+}
+
+/// The accounting's decision for one cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnergyDecision {
+    /// Sleep (sensor in reset) before the next cycle.
+    pub sleep: Duration,
+    /// Average power over the meter's window, this cycle included (mW).
+    pub average_mw: f64,
+}
+
+/// The energy account of the loop.
+#[derive(Debug, Clone)]
+pub struct EnergyAccount {
+    cfg: EnergyConfig,
+    meter: EnergyMeter,
+    pacing: Pacing,
+}
+
+impl EnergyAccount {
+    /// New account.
+    pub fn new(cfg: EnergyConfig, pacing: Pacing) -> Self {
+        Self {
+            meter: EnergyMeter::new(cfg.clone()),
+            cfg,
+            pacing,
+        }
+    }
+
+    /// The meter (totals since start).
+    pub fn meter(&self) -> &EnergyMeter {
+        &self.meter
+    }
+
+    /// Decide the sleep after `obs` and account the cycle with it.
+    pub fn next(&mut self, obs: CycleObservation) -> EnergyDecision {
+        let active = obs.timings.active();
+        let sleep = match self.pacing {
+            Pacing::AsFastAsPossible => Duration::ZERO,
+            Pacing::RealTime => Duration::from_secs_f64(1.0 / obs.rate_hz).saturating_sub(active),
+        };
+        let e = cycle_energy(
+            &self.cfg,
+            &obs.timings,
+            obs.raw_images,
+            obs.exposure_us,
+            obs.rows_fraction(),
+        );
+        self.meter.record(&e, active, sleep);
+        EnergyDecision {
+            sleep,
+            average_mw: self.meter.average_mw(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn obs(rows_read: usize) -> CycleObservation {
+        CycleObservation {
+            timings: CycleTimings {
+                startup: Duration::from_millis(1),
+                config_load: Duration::from_millis(10),
+                flash_write: Duration::ZERO,
+                exposure: Duration::from_micros(200),
+                readout: Duration::from_millis(5),
+            },
+            raw_images: 2,
+            exposure_us: 100.0,
+            rows_read,
+            full_rows: 120,
+            rate_hz: 2.0,
+        }
+    }
+
+    #[test]
+    fn sleeps_the_rest_of_the_period_and_accounts_it() {
+        let mut a = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let d = a.next(obs(120));
+        let active = obs(120).timings.active();
+        assert_eq!(d.sleep, Duration::from_millis(500) - active);
+        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, 2, 100.0, 1.0);
+        let off_mj = EnergyConfig::default().off_mw * d.sleep.as_secs_f64();
+        let want_mw = (e.total_mj() + off_mj) / 0.5;
+        assert!(
+            (d.average_mw - want_mw).abs() < 1e-9,
+            "{} vs {want_mw}",
+            d.average_mw
+        );
+        assert_eq!(a.meter().cycles(), 1);
+    }
+
+    #[test]
+    fn unpaced_replay_never_sleeps() {
+        let cfg = Config {
+            backend: Backend::Replay,
+            replay: crate::config::ReplayConfig {
+                realtime: false,
+                ..crate::config::ReplayConfig::default()
+            },
+            ..Config::default()
+        };
+        assert_eq!(Pacing::of(&cfg), Pacing::AsFastAsPossible);
+        assert_eq!(Pacing::of(&Config::default()), Pacing::RealTime);
+        let mut a = EnergyAccount::new(EnergyConfig::default(), Pacing::AsFastAsPossible);
+        assert_eq!(a.next(obs(120)).sleep, Duration::ZERO);
+    }
+
+    #[test]
+    fn partial_readout_costs_less() {
+        let mut full = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let mut part = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let f = full.next(obs(120)).average_mw;
+        let p = part.next(obs(30)).average_mw;
+        assert!(p < f, "a quarter of the rows: {p} < {f} mW");
+    }
+}

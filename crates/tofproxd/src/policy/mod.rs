@@ -1,0 +1,24 @@
+//! The controller's policies, one unit each: every unit holds only its own state and
+//! decides the next value from one observation (`fn next(&mut self, observation) ->
+//! decision`). [`crate::controller::Controller`] composes them after each cycle; none of
+//! them touches the source, the pipeline or the bus.
+//!
+//! | unit | decides | from | thesis |
+//! |---|---|---|---|
+//! | [`AmbientSwitch`] | 2- or 4-phase | background indicator, 2-vs-4 discrepancy | 5.1.2.3, eq. 2.2/2.3 |
+//! | [`AutoExposure`] | exposure per raw image | saturated / weak fraction of the ROI | 3.1.2, eye-safe max |
+//! | [`AdaptiveRate`] | reading rate | near, approach speed, stillness | 3.5.3 |
+//! | [`ReadoutWindow`] | rows read out | ROI, margin, source alignment | 3.1.2 (read-out ∝ rows) |
+//! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
+
+mod ambient;
+mod energy_account;
+mod exposure;
+mod rate;
+mod readout;
+
+pub use ambient::{AmbientObservation, AmbientSwitch};
+pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
+pub use exposure::{AutoExposure, ExposureObservation};
+pub use rate::{AdaptiveRate, RateObservation};
+pub use readout::{ReadoutObservation, ReadoutWindow};

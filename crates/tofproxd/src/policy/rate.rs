@@ -1,0 +1,138 @@
+//! Adaptive reading rate (thesis 3.5.3: the energy per reading is fixed, so the average
+//! power is set by the rate): fast while near or while a target approaches faster than
+//! `loop.approach_mm_per_s`, slow after `loop.still_readings` readings that moved less than
+//! `loop.still_tolerance_mm`, the nominal rate otherwise; always within [slow, fast].
+
+use crate::config::LoopConfig;
+
+/// What a processed cycle read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RateObservation {
+    /// The detector's near.
+    pub near: bool,
+    /// The ROI distance (mm), when one was measured.
+    pub distance_mm: Option<u32>,
+}
+
+/// The rate controller.
+#[derive(Debug, Clone)]
+pub struct AdaptiveRate {
+    cfg: LoopConfig,
+    rate_hz: f64,
+    still_count: u32,
+    last_distance_mm: Option<u32>,
+}
+
+impl AdaptiveRate {
+    /// Starts at the nominal `loop.rate_hz`.
+    pub fn new(cfg: LoopConfig) -> Self {
+        Self {
+            rate_hz: cfg.rate_hz,
+            cfg,
+            still_count: 0,
+            last_distance_mm: None,
+        }
+    }
+
+    /// Current rate (Hz).
+    pub fn rate_hz(&self) -> f64 {
+        self.rate_hz
+    }
+
+    /// Forget the motion history (the loop stopped); the rate is kept.
+    pub fn reset(&mut self) {
+        self.still_count = 0;
+        self.last_distance_mm = None;
+    }
+
+    /// The rate after a reading `obs` taken one period after the previous one.
+    pub fn next(&mut self, obs: RateObservation) -> f64 {
+        let l = &self.cfg;
+        let period_s = 1.0 / self.rate_hz;
+        let new_rate = if obs.near {
+            self.still_count = 0;
+            l.fast_rate_hz
+        } else if let (Some(d), Some(prev)) = (obs.distance_mm, self.last_distance_mm) {
+            let speed = (f64::from(prev) - f64::from(d)) / period_s; // + = approaching
+            if speed > l.approach_mm_per_s {
+                self.still_count = 0;
+                l.fast_rate_hz
+            } else if d.abs_diff(prev) <= l.still_tolerance_mm {
+                self.still_count = self.still_count.saturating_add(1);
+                if self.still_count >= l.still_readings {
+                    l.slow_rate_hz
+                } else {
+                    l.rate_hz
+                }
+            } else {
+                self.still_count = 0;
+                l.rate_hz
+            }
+        } else {
+            l.rate_hz
+        };
+        self.rate_hz = new_rate.clamp(l.slow_rate_hz, l.fast_rate_hz);
+        if obs.distance_mm.is_some() {
+            self.last_distance_mm = obs.distance_mm;
+        }
+        self.rate_hz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(d: u32) -> RateObservation {
+        RateObservation {
+            near: false,
+            distance_mm: Some(d),
+        }
+    }
+
+    fn cfg() -> LoopConfig {
+        LoopConfig {
+            rate_hz: 2.0,
+            fast_rate_hz: 10.0,
+            slow_rate_hz: 1.0,
+            still_readings: 3,
+            still_tolerance_mm: 20,
+            approach_mm_per_s: 150.0,
+            ..LoopConfig::default()
+        }
+    }
+
+    #[test]
+    fn fast_when_near_or_approaching() {
+        let mut r = AdaptiveRate::new(cfg());
+        assert_eq!(r.next(at(900)), 2.0, "first reading: nominal");
+        assert_eq!(r.next(at(700)), 10.0, "200 mm in 0.5 s = 400 mm/s");
+        assert_eq!(r.next(at(690)), 2.0, "10 mm in 0.1 s = 100 mm/s: nominal");
+        let near = RateObservation {
+            near: true,
+            distance_mm: Some(40),
+        };
+        assert_eq!(r.next(near), 10.0);
+    }
+
+    #[test]
+    fn slow_after_still_readings_and_reset_forgets_motion() {
+        let mut r = AdaptiveRate::new(cfg());
+        r.next(at(900));
+        assert_eq!(r.next(at(905)), 2.0);
+        assert_eq!(r.next(at(900)), 2.0);
+        assert_eq!(r.next(at(910)), 1.0, "three still readings: slow");
+        assert_eq!(r.next(at(800)), 2.0, "moved away by 110 mm: nominal again");
+        r.reset();
+        assert_eq!(
+            r.next(at(100)),
+            2.0,
+            "no history after a reset: no approach seen"
+        );
+        let nothing = RateObservation {
+            near: false,
+            distance_mm: None,
+        };
+        assert_eq!(r.next(nothing), 2.0);
+    }
+}

@@ -1,0 +1,118 @@
+//! `tofproxd --check-config` runs every check the start runs, and the start refuses what it
+//! cannot serve, naming the file and key (exit 2): a missing replay or calibration
+//! directory, a calibration for another window, an unknown key in `[emulated.device]`, an
+//! ROI outside the sensor. A relative emulated-device path is resolved once, against the
+//! config file's directory, whatever the working directory.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+const EMULATED: &str = r#"
+backend = "emulated"
+[emulated]
+seed = 1
+"#;
+
+/// Write `text` as `cfg/x.toml` under a fresh directory; run `tofproxd --check-config` from
+/// that directory with the relative path `cfg/x.toml`.
+fn check(text: &str, extra: &[(&str, &str)]) -> (tempfile::TempDir, Output) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::create_dir_all(dir.path().join("cfg/emulated")).expect("mkdir");
+    std::fs::write(dir.path().join("cfg/x.toml"), text).expect("write config");
+    for (name, body) in extra {
+        std::fs::write(dir.path().join("cfg").join(name), body).expect("write file");
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
+        .args(["--config", "cfg/x.toml", "--check-config"])
+        .current_dir(dir.path())
+        .output()
+        .expect("run tofproxd");
+    (dir, out)
+}
+
+fn refused(out: &Output, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{n:?} not named in: {err}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn relative_device_path_resolves_once_against_the_config_directory() {
+    let cfg = format!("{EMULATED}device = \"emulated/hand.toml\"\n");
+    let (_d, out) = check(
+        &cfg,
+        &[(
+            "emulated/hand.toml",
+            "[scene]\nkind = \"hand\"\nwall_distance_m = 1.0\n",
+        )],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("cfg/x.toml: ok"));
+}
+
+#[test]
+fn unknown_key_in_the_emulated_device_table_is_named() {
+    let cfg = format!("{EMULATED}[emulated.device]\nframe_source = \"ideal\"\nbogus_key = 1\n");
+    let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "emulated.device", "bogus_key"]);
+    // the same in a device file names the file
+    let cfg = format!("{EMULATED}device = \"emulated/typo.toml\"\n");
+    let (_d, out) = check(
+        &cfg,
+        &[("emulated/typo.toml", "frame_sourse = \"ideal\"\n")],
+    );
+    refused(&out, &["typo.toml", "frame_sourse"]);
+}
+
+#[test]
+fn missing_replay_and_calibration_directories_are_refused() {
+    let (_d, out) = check(
+        "backend = \"replay\"\n[replay]\nrecording = \"no-such-recording\"\n",
+        &[],
+    );
+    refused(&out, &["cfg/x.toml", "no-such-recording"]);
+    let cfg = format!(
+        "{EMULATED}[emulated.device]\nframe_source = \"ideal\"\n[processing]\ncalibration = \"no-such-set\"\n"
+    );
+    // [processing] after [emulated.device] is a new table: fine in TOML
+    let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "no-such-set"]);
+}
+
+#[test]
+fn calibration_for_another_window_is_refused() {
+    // calib/example is a 16x16 window; the daemon needs a full-array set
+    let example = repo().join("calib/example");
+    let cfg = format!(
+        "{EMULATED}[processing]\ncalibration = \"{}\"\n[emulated.device]\nframe_source = \"ideal\"\n",
+        example.display()
+    );
+    let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "calibration", "16x16"]);
+}
+
+#[test]
+fn roi_outside_the_sensor_is_refused_naming_the_key() {
+    let cfg = format!(
+        "{EMULATED}[proximity]\nroi = [170, 0, 20, 20]\n[emulated.device]\nframe_source = \"ideal\"\n"
+    );
+    let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "proximity.roi"]);
+    let cfg = format!(
+        "{EMULATED}[proximity]\nroi = [76, 102, 20, 20]\n[emulated.device]\nframe_source = \"ideal\"\n"
+    );
+    let (_d, out) = check(&cfg, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
