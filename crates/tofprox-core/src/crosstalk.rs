@@ -296,6 +296,39 @@ pub fn residual_ratio(
     (reference > 0.0).then(|| (proj / reference) as f32)
 }
 
+/// Whether the ROI's light comes from the cover window alone: the sum of its unsaturated
+/// pixels' phasors `Σ A·e^{iφ}` (eq. 2.2/2.3, after the compensation) points at the window,
+/// `|arg| ≤ tolerance_rad` (e.g. the phase of a few cm, [`crate::phasor::distance_to_phase_rad`]).
+/// A changed window leaves exactly such a residual (its phase is the window's ≈ 0, whatever its
+/// size); a target at range `d` points at `4π f d / c` instead. Use it beside "nothing in range"
+/// to pick the readings [`residual_ratio`] is meaningful for: a residual large enough to be a
+/// valid depth reads ≈ 0 mm or, with noise pushing the phase below 0, just under the unambiguous
+/// range — either way its phasor points at 0. A target within `tolerance` of a multiple of the
+/// unambiguous range is indistinguishable from it with one frequency (a documented limit).
+/// `false` when the ROI has no usable pixel.
+pub fn phasor_points_at_window(frame: &DepthFrame, roi: Roi, tolerance_rad: f64) -> bool {
+    let (rows, cols) = frame.dim();
+    let r = roi.resolve(rows, cols);
+    let (mut re, mut im) = (0.0f64, 0.0f64);
+    for row in r.row0..r.row0 + r.rows {
+        for col in r.col0..r.col0 + r.cols {
+            let flags = frame
+                .flags
+                .get((row, col))
+                .copied()
+                .unwrap_or(FLAG_NON_FINITE);
+            if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
+                continue;
+            }
+            let a = f64::from(frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0));
+            let ph = f64::from(frame.phase_rad.get((row, col)).copied().unwrap_or(0.0));
+            re += a * ph.cos();
+            im += a * ph.sin();
+        }
+    }
+    re > 0.0 && im.atan2(re).abs() <= tolerance_rad
+}
+
 /// What [`CrosstalkMonitor`] concludes about the cover window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum CrosstalkStatus {
@@ -427,6 +460,44 @@ impl CrosstalkMonitor {
 mod tests {
     use super::*;
     use ndarray::Array2;
+
+    /// A frame whose every pixel has amplitude `a` and phase `ph` (wrapped into [0, 2π) as the
+    /// pipeline does).
+    fn uniform_frame(a: f32, ph: f32) -> DepthFrame {
+        let mut f = DepthFrame::zeros(4, 6);
+        f.amplitude_lsb.fill(a);
+        f.phase_rad.fill(ph.rem_euclid(std::f32::consts::TAU));
+        f
+    }
+
+    #[test]
+    fn the_window_residual_points_at_zero_phase_a_target_does_not() {
+        let roi = Roi::centered(4, 6, 1.0);
+        let tol = crate::phasor::distance_to_phase_rad(0.05, 80e6);
+        // a residual at ≈ 0 mm, also with noise pushing it below 0 (reads just under d_u)
+        assert!(phasor_points_at_window(
+            &uniform_frame(20.0, 0.02),
+            roi,
+            tol
+        ));
+        assert!(phasor_points_at_window(
+            &uniform_frame(20.0, -0.05),
+            roi,
+            tol
+        ));
+        // a wall at 1 m (φ = 3.35 rad at 80 MHz) or 30 cm does not
+        for d in [1.0, 0.3] {
+            let ph = crate::phasor::distance_to_phase_rad(d, 80e6) as f32;
+            assert!(
+                !phasor_points_at_window(&uniform_frame(20.0, ph), roi, tol),
+                "{d} m"
+            );
+        }
+        // saturated pixels are left out: nothing usable, no verdict
+        let mut f = uniform_frame(20.0, 0.0);
+        f.flags.fill(FLAG_SATURATED);
+        assert!(!phasor_points_at_window(&f, roi, tol));
+    }
 
     #[test]
     fn monitor_reports_a_persistent_change_with_hysteresis() {

@@ -35,6 +35,7 @@ pub mod pipeline;
 pub mod proximity;
 pub mod radiometry;
 pub mod sensor;
+pub mod serde_exact;
 mod simd;
 
 pub use error::CoreError;

@@ -104,7 +104,7 @@ pub struct SensorGeometry {
 struct GeometryKeys {
     rows: usize,
     cols: usize,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "crate::serde_exact::array")]
     roi_origin: [usize; 2],
     full_rows: Option<usize>,
     full_cols: Option<usize>,

@@ -29,7 +29,7 @@ use tofprox_core::radiometry::AmplitudeScale;
 use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::error::{
-    ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
+    ErrorKind, FormatError, check_format_header, geometry_invalid, invalid, parse_toml,
 };
 use crate::fsutil;
 use crate::limits;
@@ -828,7 +828,7 @@ impl CalibrationSet {
         }
         let text = limits::read_text_bounded(&path, limits::MAX_TOML_BYTES)?;
         check_header(&path, &text)?;
-        let t: CalibToml = toml::from_str(&text).map_err(|e| from_toml(&path, &text, &e))?;
+        let t: CalibToml = parse_toml(&path, &text)?;
         let sensor = t.valid_for;
         // the documented limits first, then the geometry's own rules
         crate::recording::check_sensor_limits(&sensor, "valid_for").map_err(|e| e.at(&path))?;

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use ndarray::{Array2, Ix2};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ErrorKind, FormatError, from_toml, invalid};
+use crate::error::{ErrorKind, FormatError, invalid, parse_toml};
 use crate::fsutil;
 use crate::limits;
 use crate::npy::{self, Dtype, NpyArray, shape_str};
@@ -61,12 +61,12 @@ struct DepthToml {
 
 type Parsed = (DepthImageSize, Option<String>, Vec<DepthCaptureMeta>);
 
-fn parse_depth_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
+pub(crate) fn parse_depth_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
     let kind = read_header(path, text)?;
     if kind != RecordingKind::Depth {
         return Err(wrong_kind(path, kind));
     }
-    let t: DepthToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    let t: DepthToml = parse_toml(path, text)?;
     check_size(&t.depth).map_err(|e| e.at(path))?;
     check_header_limits(path, t.description.as_deref(), t.capture.len())?;
     let mut names = FramesNames::default();

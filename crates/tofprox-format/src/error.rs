@@ -134,6 +134,26 @@ pub(crate) fn geometry_invalid(e: tofprox_core::CoreError, table: &str) -> Forma
     }
 }
 
+/// Parse a whole TOML file into `T`: errors as [`from_toml`] says, with the key path of the
+/// value that failed (`sensor.roi_origin[2]`, `capture[1].exposure_us`) taken from
+/// `serde_path_to_error` where serde's message names none (wrong types, wrong lengths).
+pub(crate) fn parse_toml<T: serde::de::DeserializeOwned>(
+    path: &Path,
+    text: &str,
+) -> Result<T, FormatError> {
+    let de = toml::Deserializer::parse(text).map_err(|e| from_toml(path, text, &e))?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        let out = from_toml(path, text, e.inner());
+        let named = matches!(out.kind, ErrorKind::MissingKey | ErrorKind::UnknownKey);
+        if named || key.is_empty() || key == "." {
+            out
+        } else {
+            out.key(key)
+        }
+    })
+}
+
 /// Turn a `toml` deserialisation error into a `FormatError` that says the line,
 /// the offending text and the key (`capture[1].gain`), without the multi-line
 /// ASCII art.
@@ -213,7 +233,7 @@ pub(crate) fn check_format_header(
     what: &str,
     version_of: &str,
 ) -> Result<i64, FormatError> {
-    let header: FormatHeader = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    let header: FormatHeader = parse_toml(path, text)?;
     match &header.format {
         None => {
             return Err(FormatError::new(

@@ -27,7 +27,7 @@ use tofprox_core::radiometry::{
 use tofprox_core::{Algorithm, CoreError};
 
 use crate::calibration::{CalibPart, CalibrationSet, PartSource, now_rfc3339};
-use crate::error::{FormatError, from_toml};
+use crate::error::{FormatError, parse_toml};
 use crate::limits;
 use crate::recording::{CaptureMeta, Recording};
 use crate::text::fmt_num;
@@ -135,7 +135,7 @@ fn core(context: impl Into<String>) -> impl FnOnce(CoreError) -> ExtractError {
 /// like every file this crate reads and validated.
 pub fn load_lens_datasheet(path: &Path) -> Result<Intrinsics, FormatError> {
     let text = limits::read_text_bounded(path, limits::MAX_TOML_BYTES)?;
-    let lens: Intrinsics = toml::from_str(&text).map_err(|e| from_toml(path, &text, &e))?;
+    let lens: Intrinsics = parse_toml(path, &text)?;
     lens.validate().map_err(|e| {
         FormatError::new(crate::ErrorKind::Invalid, format!("not a valid lens: {e}")).at(path)
     })?;

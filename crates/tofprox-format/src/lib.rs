@@ -35,6 +35,6 @@ pub use extract::{
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
     RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind, RecordingWriter, recording_kind,
-    validate_spec,
+    validate_recording_toml, validate_spec,
 };
 pub use text::fmt_num;

@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use tofprox_core::SensorGeometry;
 
 use crate::error::{
-    ErrorKind, FormatError, check_format_header, from_toml, geometry_invalid, invalid,
+    ErrorKind, FormatError, check_format_header, geometry_invalid, invalid, parse_toml,
 };
 use crate::fsutil;
 use crate::limits;
@@ -65,7 +65,7 @@ pub(crate) fn read_header(path: &Path, text: &str) -> Result<RecordingKind, Form
         "recording",
         "recording",
     )?;
-    let probe: KindProbe = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    let probe: KindProbe = parse_toml(path, text)?;
     match (version, probe.kind) {
         (1, None) => Ok(RecordingKind::Raw),
         (1, Some(_)) => Err(FormatError::new(
@@ -95,6 +95,18 @@ pub fn recording_kind(dir: &Path) -> Result<RecordingKind, FormatError> {
     let path = dir.join(RECORDING_TOML);
     let text = limits::read_text_bounded(&path, limits::MAX_TOML_BYTES)?;
     read_header(&path, &text)
+}
+
+/// Parse and validate the text of a `recording.toml` of either kind, without touching any
+/// other file (the frames files are checked by [`Recording::open`] /
+/// [`crate::DepthRecording::open`]); errors name `path` and the key. For tools that check a
+/// header on its own, and the fuzz target.
+pub fn validate_recording_toml(path: &Path, text: &str) -> Result<RecordingKind, FormatError> {
+    let kind = read_header(path, text)?;
+    match kind {
+        RecordingKind::Raw => parse_recording_toml(path, text).map(|_| kind),
+        RecordingKind::Depth => crate::depth::parse_depth_toml(path, text).map(|_| kind),
+    }
 }
 
 /// The error for a recording of another kind than the reader's.
@@ -712,7 +724,7 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
     if kind != RecordingKind::Raw {
         return Err(wrong_kind(path, kind));
     }
-    let raw: RecordingToml = toml::from_str(text).map_err(|e| from_toml(path, text, &e))?;
+    let raw: RecordingToml = parse_toml(path, text)?;
     let sensor = raw.sensor;
     // the documented limits first, then the geometry's own rules
     check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;

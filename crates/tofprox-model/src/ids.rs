@@ -131,7 +131,7 @@ effect_ids! {
     /// Demodulation contrast.
     demodulation_contrast { CONTRAST = "contrast" }
     /// Non-sinusoidal correlation (wiggling).
-    /// Parameters by harmonic: [`harmonic`](super::harmonic).
+    /// Parameters by harmonic: [`harmonic`].
     waveform_harmonics {}
     /// Multipath return.
     multipath { RELATIVE_AMPLITUDE = "relative_amplitude", EXTRA_PATH_M = "extra_path_m" }

@@ -373,10 +373,22 @@ impl SceneScript {
             ((1.0 - f) / 2.0 * cols as f64) as usize,
             ((1.0 + f) / 2.0 * cols as f64).ceil() as usize,
         );
+        self.window_distances_m(t_s, r0..r1, c0..c1)
+    }
+
+    /// Radial distances seen by the full-array pixels `rows × cols` at `t_s` (ranges are
+    /// clipped to the array).
+    pub fn window_distances_m(
+        &self,
+        t_s: f64,
+        rows: std::ops::Range<usize>,
+        cols: std::ops::Range<usize>,
+    ) -> Vec<f64> {
+        let (n_rows, n_cols) = (self.full_rows.max(1), self.full_cols.max(1));
         let pose = self.object_pose(t_s);
         let mut out = Vec::new();
-        for r in r0..r1.min(rows) {
-            for c in c0..c1.min(cols) {
+        for r in rows.start..rows.end.min(n_rows) {
+            for c in cols.start.min(n_cols)..cols.end.min(n_cols) {
                 out.push(self.pixel_at(pose, r, c).0);
             }
         }
@@ -565,7 +577,31 @@ impl PhoneScene {
     /// when all of it sees `far_m` or more, [`Expect::Either`] otherwise. Ranges are the
     /// true radial distances: a wall beyond the unambiguous range is far.
     pub fn expect(&self, t_s: f64, near_m: f64, far_m: f64, roi_fraction: f64) -> Expect {
-        let d = self.script.roi_distances_m(t_s, roi_fraction);
+        Self::expect_from(
+            &self.script.roi_distances_m(t_s, roi_fraction),
+            near_m,
+            far_m,
+        )
+    }
+
+    /// [`Self::expect`] over an explicit ROI of the full array (`rows × cols`, e.g. the
+    /// daemon's configured `proximity.roi`).
+    pub fn expect_in(
+        &self,
+        t_s: f64,
+        near_m: f64,
+        far_m: f64,
+        rows: std::ops::Range<usize>,
+        cols: std::ops::Range<usize>,
+    ) -> Expect {
+        Self::expect_from(
+            &self.script.window_distances_m(t_s, rows, cols),
+            near_m,
+            far_m,
+        )
+    }
+
+    fn expect_from(d: &[f64], near_m: f64, far_m: f64) -> Expect {
         if d.is_empty() {
             return Expect::Either;
         }
@@ -683,9 +719,25 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             static_s,
         ),
         scene(
+            "wall_white_400cm",
+            "white wall at 4 m (wraps to ≈ 25 cm, weak)",
+            wall(4.0, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
             "ceiling_dark_030cm",
             "dark ceiling at 0.3 m",
             wall(0.3, DARK_WALL),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "wall_dark_100cm",
+            "dark wall at 1 m",
+            wall(1.0, DARK_WALL),
             0.0,
             clean,
             static_s,
@@ -737,6 +789,18 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             0.0,
             clean,
             approach_s,
+        ),
+        scene(
+            "face_20cm",
+            "a face at 20 cm, swaying ±1 cm (reading the screen up close): far",
+            SceneScript {
+                face_distance_m: 0.2,
+                ..object(ScriptKind::Face, SKIN, 0.05)
+            }
+            .with_motion(Motion::Sway),
+            0.0,
+            clean,
+            static_s,
         ),
         scene(
             "face_30cm",

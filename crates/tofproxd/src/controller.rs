@@ -13,6 +13,10 @@ use std::time::Duration;
 use ndarray::{ArrayView3, Axis, s};
 use tofprox_core::Algorithm;
 use tofprox_core::SensorGeometry;
+use tofprox_core::crosstalk::{
+    CrosstalkMonitor, CrosstalkStatus, phasor_points_at_window, residual_ratio,
+};
+use tofprox_core::phasor::distance_to_phase_rad;
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
     RawSample,
@@ -43,6 +47,12 @@ pub struct ModeCalibrations {
 /// `DistanceMm` of a valid reading with nothing in range (no target, or only returns no real
 /// target near the sensor could give): the largest value, so `DistanceMm < threshold` is false.
 pub const DISTANCE_BEYOND_RANGE_MM: u32 = u32::MAX;
+
+/// How far from the cover window (m) the ROI's summed phasor may point for a far reading to
+/// count as "only the window returns" for the smudge monitor (a few cm: the depth noise of a
+/// weak residual; a real target this close to a multiple of the unambiguous range is the
+/// documented limit of one frequency).
+const WINDOW_TOLERANCE_M: f64 = 0.05;
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -122,6 +132,8 @@ pub struct Controller<S: FrameSource> {
     near: bool,
     running: bool,
     last_error: String,
+    /// The cover window as the readings with nothing in range see it (smudge detection).
+    crosstalk: CrosstalkMonitor,
     state: State,
     prev_state: State,
     /// Last ambient indicator (LSB).
@@ -204,6 +216,7 @@ impl<S: FrameSource> Controller<S> {
             near: false,
             running: false,
             last_error: String::new(),
+            crosstalk: CrosstalkMonitor::default(),
             state: State::Off,
             prev_state: State::Off,
             ambient_lsb: None,
@@ -234,6 +247,20 @@ impl<S: FrameSource> Controller<S> {
     pub fn near(&self) -> bool {
         self.near
     }
+    /// The cover window as the readings with nothing in range see it: `Uncalibrated` without
+    /// a crosstalk calibration, `Changed` once the compensated residual stays beyond ±50 % of
+    /// the calibrated crosstalk (a smudge doubling it reads ≈ +100 %; also in `LastError`).
+    pub fn crosstalk_status(&self) -> CrosstalkStatus {
+        let calibrated = [&self.calib.two_phase, &self.calib.four_phase]
+            .iter()
+            .any(|c| c.crosstalk.is_some());
+        if calibrated {
+            self.crosstalk.status()
+        } else {
+            CrosstalkStatus::Uncalibrated
+        }
+    }
+
     /// Energy meter.
     pub fn energy(&self) -> &EnergyMeter {
         self.energy.meter()
@@ -516,6 +543,25 @@ impl<S: FrameSource> Controller<S> {
         };
         // Nothing in range is a reading too: far, DistanceMm "beyond range".
         let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
+        // With nothing in range only the cover window returns light: what is left of it after
+        // the compensation says whether the window changed since calibration (a smudge).
+        // Those readings: nothing in range, or a far reading whose light points at the window
+        // (a residual big enough to be a depth: ≈ 0 mm or wrapped just under the range).
+        let window_tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, g.modulation_hz);
+        if valid
+            && !reading.near
+            && (reading.no_target || phasor_points_at_window(frame, roi, window_tolerance_rad))
+            && let Some(x) = &pipe.calibration().crosstalk
+            && let Some(ratio) = residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)
+        {
+            let was = self.crosstalk.status();
+            let now = self.crosstalk.update(ratio);
+            if matches!(now, CrosstalkStatus::Changed { .. })
+                && !matches!(was, CrosstalkStatus::Changed { .. })
+            {
+                tracing::warn!("{}", now.message());
+            }
+        }
         // Near from saturation (target too close/bright to measure): the statistic of the
         // remaining valid pixels is the background, not the target — publish "unknown" (0).
         let shown_mm = match reading.distance_mm {
@@ -550,8 +596,13 @@ impl<S: FrameSource> Controller<S> {
         if valid {
             self.since_valid = Duration::ZERO;
         }
-        let was_error = !self.last_error.is_empty();
-        self.last_error.clear();
+        // LastError after a good cycle: "" — or the changed cover window, while it lasts.
+        let note = match self.crosstalk.status() {
+            s @ CrosstalkStatus::Changed { .. } => s.message(),
+            _ => String::new(),
+        };
+        let last_error_changed = self.last_error != note;
+        self.last_error = note;
         if valid {
             self.near = reading.near;
             self.state = State::Running;
@@ -564,7 +615,7 @@ impl<S: FrameSource> Controller<S> {
                 mode: Some(self.ambient.mode()),
                 rate_hz: Some(self.rate.rate_hz()),
                 power_mw: Some(energy.average_mw),
-                last_error: was_error.then(String::new),
+                last_error: last_error_changed.then(|| self.last_error.clone()),
                 exposure_us: Some(self.exposure.exposure_us()),
                 has_sensor: Some(true),
                 amplitude_check: Some(if self.calib.amplitude.is_some() {

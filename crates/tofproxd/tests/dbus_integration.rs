@@ -1087,6 +1087,115 @@ fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
     );
 }
 
+/// Memory under large calls: clients send `ClaimProximity` with a 31 MiB body (refused);
+/// the daemon, started with the unit's `Environment=` (systemd/tofproxd.service), peaks below
+/// the unit's `MemoryMax` and gives the memory back afterwards. (Figures for more senders:
+/// `crates/tofproxd/benches/large_calls.sh`, docs/daemon.md.)
+#[test]
+fn large_calls_stay_below_memory_max_and_are_released() {
+    let Some(bus) = start_bus() else { return };
+    let unit = std::fs::read_to_string(repo().join("systemd/tofproxd.service")).expect("unit");
+    let env: Vec<(String, String)> = unit
+        .lines()
+        .filter_map(|l| l.strip_prefix("Environment="))
+        .flat_map(|l| l.split_whitespace())
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    assert!(!env.is_empty(), "the unit sets the allocator's environment");
+    let memory_max_kb: u64 = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("MemoryMax="))
+        .and_then(|v| v.strip_suffix('M'))
+        .and_then(|v| v.parse::<u64>().ok())
+        .expect("MemoryMax=<n>M in the unit")
+        * 1024;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = dir.path().join("tofproxd.toml");
+    std::fs::write(&cfg, HAND).expect("write config");
+    let stderr = dir.path().join("stderr.log");
+    let child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
+        .arg("--config")
+        .arg(&cfg)
+        .args(["--bus", &bus.address])
+        .envs(env)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&stderr).expect("stderr file"))
+        .spawn()
+        .expect("spawn tofproxd");
+    let mut daemon = Daemon {
+        child,
+        stderr,
+        _dir: dir,
+    };
+    let t0 = Instant::now();
+    while !name_has_owner(&bus, "org.tofprox.Proximity1") {
+        assert!(t0.elapsed() < Duration::from_secs(20), "{}", daemon.log());
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let mut warm = Client::start(&bus, &["native", "--timeout", "30"]);
+    warm.wait_for(Duration::from_secs(10), "claim", |v| {
+        v["event"] == "claimed"
+    });
+    drop(warm);
+    wait_status(&bus, Duration::from_secs(5), "idle", |s| {
+        s["State"] == "off"
+    });
+    let rss0 = daemon.rss_kb();
+    let sender = r#"
+import sys, dbus
+bus = dbus.bus.BusConnection(sys.argv[1])
+body = dbus.ByteArray(b"\0" * (31 * 1024 * 1024))
+for _ in range(3):
+    try:
+        bus.call_blocking("org.tofprox.Proximity1", "/org/tofprox/Proximity1",
+                          "org.tofprox.Proximity1", "ClaimProximity", "ay", [body], timeout=60)
+        print("accepted")
+    except dbus.exceptions.DBusException as e:
+        print(e.get_dbus_name())
+"#;
+    let senders: Vec<_> = (0..3)
+        .map(|_| {
+            Command::new(python().expect("checked by start_bus"))
+                .args(["-c", sender, &bus.address])
+                .stdout(Stdio::piped())
+                .spawn()
+                .expect("spawn sender")
+        })
+        .collect();
+    for s in senders {
+        let out = s.wait_with_output().expect("sender");
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.lines()
+                .all(|l| l == "org.freedesktop.DBus.Error.InvalidArgs"
+                    || l == "org.freedesktop.DBus.Error.LimitsExceeded"),
+            "{text}"
+        );
+    }
+    let status_text = std::fs::read_to_string(format!("/proc/{}/status", daemon.pid())).unwrap();
+    let hwm_kb: u64 = status_text
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .expect("VmHWM");
+    let rss1 = daemon.rss_kb();
+    assert!(
+        hwm_kb < memory_max_kb,
+        "peak {hwm_kb} kB above the unit's MemoryMax {memory_max_kb} kB"
+    );
+    assert!(
+        rss1 < rss0 + 8 * 1024,
+        "large bodies kept: RSS {rss0} kB before, {rss1} kB after"
+    );
+    assert!(
+        daemon.child.try_wait().expect("wait").is_none(),
+        "{}",
+        daemon.log()
+    );
+}
+
 /// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package
 /// iio-sensor-proxy) talks to the system bus, which we point at the private
 /// bus. It must find the proximity sensor, report the absent ones as absent,

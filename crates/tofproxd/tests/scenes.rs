@@ -1,45 +1,52 @@
-//! Proximity in the scenes a phone meets (the scene bench, `tofproxd::scenes`),
-//! with the shipped defaults (`config/tofproxd.toml`) on the emulated device and
-//! the emulated sensor's factory calibration `calib/emulated/`.
+//! Proximity in the scenes a phone meets (the scene bench, `tofproxd::scenes`, over the one
+//! catalogue `tofprox_model::phone_scenes`), with the shipped defaults
+//! (`config/tofproxd.toml`) on the emulated phone sensor (`config/model/phone.toml`, the
+//! scene's cover window in front) and its factory calibration `calib/phone/` (offset,
+//! crosstalk, wiggling, amplitude, FPPN).
 
 use std::path::{Path, PathBuf};
 
+use tofprox_model::PhoneScene;
 use tofproxd::config::Config;
-use tofproxd::controller::DISTANCE_BEYOND_RANGE_MM;
-use tofproxd::scenes::{SceneSpec, bench_config, catalogue, run_scene};
+use tofproxd::scenes::{Bench, bench, catalogue, run_scene};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-fn shipped() -> Config {
+fn shipped() -> Bench {
     let c = Config::load(&repo().join("config/tofproxd.toml")).expect("config/tofproxd.toml");
-    let mut b = bench_config(Some(&repo().join("calib/emulated")));
-    b.loop_ = c.loop_;
-    b.processing.min_amplitude_lsb = c.processing.min_amplitude_lsb;
-    b.proximity = c.proximity;
-    b.exposure = c.exposure;
-    b.ambient = c.ambient;
+    let mut b = bench(
+        &repo().join("config/model/phone.toml"),
+        Some(&repo().join("calib/phone")),
+    );
+    b.config.loop_ = c.loop_;
+    b.config.processing.min_amplitude_lsb = c.processing.min_amplitude_lsb;
+    b.config.processing.mode = c.processing.mode;
+    b.config.proximity = c.proximity;
+    b.config.exposure = c.exposure;
+    b.config.ambient = c.ambient;
     b
 }
 
-fn scene(name: &str) -> SceneSpec {
-    catalogue()
+fn scene(b: &Bench, name: &str) -> PhoneScene {
+    catalogue(&b.config)
         .into_iter()
-        .find(|s| s.name.starts_with(name))
+        .find(|s| s.name == name)
         .unwrap_or_else(|| panic!("no scene {name}"))
 }
 
-/// Issue reproduction: a white wall just beyond the unambiguous range (1.95 m at 80 MHz)
-/// used to read 36 mm → Near. It is a far reading now, State running.
+/// Issue reproduction: a white ceiling just beyond the unambiguous range (1.95 m at 80 MHz)
+/// used to read 36 mm → Near. It is a far reading now (State running), with the calibrated
+/// amplitude scale and with the nominal one.
 #[test]
-fn white_wall_just_beyond_range_reads_far_running() {
+fn white_ceiling_just_beyond_range_reads_far_running() {
     for (calib, what) in [(true, "calibrated"), (false, "nominal amplitude scale")] {
-        let mut cfg = shipped();
+        let mut b = shipped();
         if !calib {
-            cfg.processing.calibration = None;
+            b.config.processing.calibration = None;
         }
-        let r = run_scene(&cfg, &scene("white wall 1.95 m (just"), 1).expect("runs");
+        let r = run_scene(&b, &scene(&b, "ceiling_white_195cm"), 1).expect("runs");
         assert_eq!(r.false_near, 0, "{what}: {r:?}");
         assert_eq!(r.near_transitions, 0, "{what}: never near: {r:?}");
         assert!(
@@ -53,26 +60,43 @@ fn white_wall_just_beyond_range_reads_far_running() {
 /// (State stuck in starting). Nothing in range is a valid far reading now.
 #[test]
 fn nothing_in_range_is_a_reading_even_with_a_high_amplitude_floor() {
-    let mut cfg = shipped();
-    cfg.processing.min_amplitude_lsb = 20.0;
-    for name in ["white wall 1.95 m (just", "nothing in range"] {
-        let r = run_scene(&cfg, &scene(name), 1).expect("runs");
-        assert!(r.readings >= r.cycles - 1, "{name}: {r:?}");
+    let mut b = shipped();
+    b.config.processing.min_amplitude_lsb = 20.0;
+    for name in ["ceiling_white_195cm", "nothing_in_range"] {
+        let r = run_scene(&b, &scene(&b, name), 1).expect("runs");
+        assert!(r.readings + 1 >= r.cycles, "{name}: {r:?}");
         assert_eq!(r.near_transitions, 0, "{name}: {r:?}");
     }
-    // and what the loop publishes for it
-    let _ = DISTANCE_BEYOND_RANGE_MM;
 }
 
-/// Zero false near and zero missed near over the whole catalogue.
+/// The smudge monitor: a window whose crosstalk doubled after calibration is reported
+/// changed; the clean window as calibrated is not.
+#[test]
+fn a_smudged_cover_window_is_reported_and_a_clean_one_is_not() {
+    let b = shipped();
+    // long enough for the monitor's 8 readings at the slow rate (1 Hz when nothing changes)
+    let long = |name: &str| {
+        let mut s = scene(&b, name);
+        s.duration_s = 12.0;
+        s
+    };
+    let clean = run_scene(&b, &long("nothing_in_range"), 1).expect("runs");
+    assert!(!clean.cover_window_changed, "{clean:?}");
+    assert!(clean.cover_window.contains("as calibrated"), "{clean:?}");
+    let smudged = run_scene(&b, &long("window_smudged_nothing_in_range"), 1).expect("runs");
+    assert!(smudged.cover_window_changed, "{smudged:?}");
+    assert_eq!(smudged.false_near, 0, "{smudged:?}");
+}
+
+/// Zero false near and zero missed near over the whole catalogue (issue 10 item 8's scenes).
 #[test]
 fn catalogue_has_no_false_and_no_missed_near() {
-    let cfg = shipped();
-    let cat = catalogue();
+    let b = shipped();
+    let cat = catalogue(&b.config);
     assert!(cat.len() >= 20, "{} scenes", cat.len());
     let mut bad = Vec::new();
     for s in &cat {
-        let r = run_scene(&cfg, s, 1).expect("runs");
+        let r = run_scene(&b, s, 1).expect("runs");
         if r.false_near > 0 || r.missed_near > 0 {
             bad.push(format!("{r:?}"));
         }

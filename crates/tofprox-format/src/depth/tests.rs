@@ -150,3 +150,18 @@ fn the_writer_refuses_a_wrong_size_and_keeps_the_recording() {
             .is_empty()
     );
 }
+
+#[test]
+fn a_header_is_validated_on_its_own() {
+    let t = tempfile::tempdir().unwrap();
+    written(t.path());
+    let p = t.path().join(RECORDING_TOML);
+    let text = fs::read_to_string(&p).unwrap();
+    let check = crate::validate_recording_toml;
+    assert_eq!(check(&p, &text).unwrap(), RecordingKind::Depth);
+    // the frames files are not read: a header naming missing files is still a valid header
+    fs::remove_dir_all(t.path().join(FRAMES_DIR)).unwrap();
+    assert_eq!(check(&p, &text).unwrap(), RecordingKind::Depth);
+    let e = check(&p, &text.replace("rows = 3", "rows = 9000")).unwrap_err();
+    assert_eq!(e.key_name(), Some("depth.rows"));
+}

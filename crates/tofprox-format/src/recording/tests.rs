@@ -191,7 +191,12 @@ fn toml_errors_name_the_key() {
     let e = open_err_after(|t| t.replacen("my_custom_key = -1.5", "my_custom_key = \"text\"", 1));
     assert_eq!(e.kind(), ErrorKind::Syntax);
     assert!(e.to_string().contains("my_custom_key"), "{e}");
-    assert_eq!(e.key_name(), Some("capture[0].conditions"), "{e}");
+    // the key path of the value itself (serde_path_to_error), not only its table
+    assert_eq!(
+        e.key_name(),
+        Some("capture[0].conditions.my_custom_key"),
+        "{e}"
+    );
 
     let e = open_err_after(|t| t.replacen("distance_m = 0.35", "distance_m = nan", 1));
     assert_eq!(e.key_name(), Some("capture[0].conditions.distance_m"));
@@ -505,5 +510,20 @@ proptest! {
         let r = Recording::open(t.path()).and_then(|r| r.load(1));
         let e = r.unwrap_err();
         prop_assert!(e.to_string().contains("000001.npy"), "{}", e);
+    }
+}
+
+/// Issue 12 item 5: extra array elements are refused, not dropped (`[sensor]` here,
+/// `valid_for` of a calibration set shares the type).
+#[test]
+fn roi_origin_has_exactly_two_elements() {
+    for bad in [
+        "roi_origin = [10, 20, 99, \"junk\", {x = 1}]",
+        "roi_origin = [10, 20, 99]",
+        "roi_origin = [10]",
+    ] {
+        let e = open_err_after(|t| t.replace("roi_origin = [10, 20]", bad));
+        let key = e.key_name().unwrap_or_default();
+        assert!(key.starts_with("sensor.roi_origin"), "{bad}: {e}");
     }
 }

@@ -100,9 +100,12 @@ pub struct ScenesArgs {
     /// Daemon configuration (default: the shipped defaults with the emulated backend).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Calibration set of the emulated sensor (default: calib/emulated when it exists).
+    /// Calibration set of the emulated sensor (default: calib/phone when it exists).
     #[arg(long)]
     calib: Option<PathBuf>,
+    /// Model file of the emulated sensor (the phone sensor behind its cover window).
+    #[arg(long, default_value = "config/model/phone.toml")]
+    model: PathBuf,
     /// Only scenes whose name contains this.
     #[arg(long)]
     only: Option<String>,
@@ -578,35 +581,36 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
 
 pub fn scenes(a: ScenesArgs) -> anyhow::Result<ExitCode> {
     let calib = a.calib.clone().or_else(|| {
-        let d = PathBuf::from("calib/emulated");
+        let d = PathBuf::from("calib/phone");
         d.join("calibration.toml").exists().then_some(d)
     });
-    let mut cfg = match &a.config {
-        Some(p) => Config::load(p)?,
-        None => tofproxd::scenes::bench_config(None),
-    };
-    cfg.backend = tofproxd::config::Backend::Emulated;
-    if calib.is_some() {
-        cfg.processing.calibration = calib;
+    let mut bench = tofproxd::scenes::bench(&a.model, calib.as_deref());
+    if let Some(p) = &a.config {
+        let mut c = Config::load(p)?;
+        if a.calib.is_some() || c.processing.calibration.is_none() {
+            c.processing.calibration = calib;
+        }
+        bench.config = c;
     }
+    bench.config.backend = tofproxd::config::Backend::Emulated;
     let mut results = Vec::new();
-    for s in tofproxd::scenes::catalogue() {
+    for s in tofproxd::scenes::catalogue(&bench.config) {
         if a.only.as_deref().is_some_and(|o| !s.name.contains(o)) {
             continue;
         }
-        results.push(tofproxd::scenes::run_scene(&cfg, &s, a.seed)?);
+        results.push(tofproxd::scenes::run_scene(&bench, &s, a.seed)?);
     }
     if a.json {
         println!("{}", serde_json::to_string(&results)?);
     } else {
         let ms = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.0}"));
         println!(
-            "| scene | readings | false near | missed near | to near (ms) | to far (ms) | energy/reading (mJ) |"
+            "| scene | readings | false near | missed near | to near (ms) | to far (ms) | energy/reading (mJ) | cover window |"
         );
-        println!("|---|---|---|---|---|---|---|");
+        println!("|---|---|---|---|---|---|---|---|");
         for r in &results {
             println!(
-                "| {} | {}/{} | {} | {} | {} | {} | {:.3} |",
+                "| {} | {}/{} | {} | {} | {} | {} | {:.3} | {} |",
                 r.name,
                 r.readings,
                 r.cycles,
@@ -614,7 +618,12 @@ pub fn scenes(a: ScenesArgs) -> anyhow::Result<ExitCode> {
                 r.missed_near,
                 ms(r.latency_to_near_ms),
                 ms(r.latency_to_far_ms),
-                r.energy_per_reading_mj
+                r.energy_per_reading_mj,
+                if r.cover_window_changed {
+                    "changed"
+                } else {
+                    "ok"
+                }
             );
         }
     }
