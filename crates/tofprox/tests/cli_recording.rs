@@ -886,9 +886,9 @@ fn a_huge_sensor_window_is_refused_before_anything_is_allocated() {
         &run_bounded(&["process", p(&rec), "--algo", "4phase", "--out", p(&out)]),
         &[
             "recording.toml",
-            // the array size (full_rows defaults to rows) is checked against the limit
-            "sensor.full_rows",
-            "8192 × 8192 array has more than 16777216 pixels",
+            // the documented limits are checked before the geometry's own rules
+            "sensor.rows",
+            "8192 is more than the limit of 4096",
         ],
     );
 }
