@@ -221,7 +221,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
     let dir = tempfile_dir();
     let empty = repo("calib/phone/empty.toml");
     let window = |name: &str, args: &[&str]| {
-        let mut all = vec!["--window", "80,8", "--exposure-us", "500"];
+        let mut all = vec!["--rows", "80,8", "--exposure-us", "500"];
         all.extend_from_slice(args);
         emulated_capture(&dir.join(name), &all);
         dir.join(name).display().to_string()
@@ -249,7 +249,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
     emulated_capture(
         &corr,
         &[
-            "--window",
+            "--rows",
             "80,8",
             "--exposure-us",
             "2000",
@@ -333,7 +333,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
 
     // a crosstalk from another window of the array is refused for this set
     let other = dir.join("other");
-    let mut all = vec!["--window", "40,8", "--exposure-us", "500"];
+    let mut all = vec!["--rows", "40,8", "--exposure-us", "500"];
     all.extend_from_slice(&[
         "--config",
         &empty,

@@ -886,6 +886,7 @@ fn a_huge_sensor_window_is_refused_before_anything_is_allocated() {
         &run_bounded(&["process", p(&rec), "--algo", "4phase", "--out", p(&out)]),
         &[
             "recording.toml",
+            // the documented limits are checked before the geometry's own rules
             "sensor.rows",
             "8192 is more than the limit of 4096",
         ],
