@@ -602,13 +602,31 @@ reset_stuck = { probability = 0.04 }
         daemon.log()
     );
     assert!(!errors.is_empty(), "LastError says why");
-    let last_bad = states
+    // Every fault seen during the collection was followed by a recovery ...
+    let bad: Vec<usize> = states
         .iter()
-        .rposition(|s| s == "error" || s == "unavailable")
-        .unwrap_or(0);
+        .enumerate()
+        .filter(|(_, s)| *s == "error" || *s == "unavailable")
+        .map(|(i, _)| i)
+        .collect();
+    let last_bad = bad.last().copied().unwrap_or(0);
     assert!(
-        states[last_bad..].iter().any(|s| s == "running") || status(&bus)["State"] == "running",
+        bad.iter()
+            .filter(|&&i| i != last_bad)
+            .all(|&i| states[i + 1..].iter().any(|s| s == "running")),
         "recovers by itself: {states:?}"
+    );
+    // ... and the last one too. The faults stay on (≈ 34 % of cycles have one at 20 Hz),
+    // so the state is sampled until it reads `running`, not once at an arbitrary moment.
+    let recovered = states[last_bad..].iter().any(|s| s == "running")
+        || (0..200).any(|_| {
+            std::thread::sleep(Duration::from_millis(50));
+            status(&bus)["State"] == "running"
+        });
+    assert!(
+        recovered,
+        "recovers by itself: {states:?}\n{}",
+        daemon.log()
     );
     assert!(
         !c.seen
