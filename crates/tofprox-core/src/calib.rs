@@ -591,8 +591,8 @@ pub(crate) fn check_offset(
     Ok(())
 }
 
-/// Indices of the images at 0°, 90° (, 180°, 270°) within `phases_deg` (first match, ±1e-6°,
-/// modulo 360°). For 2-phase the last two slots are 0 and unused.
+/// Indices of the images at 0°, 90° (, 180°, 270°) within `phases_deg` (first match, within
+/// [`crate::phasor::SHIFT_TOLERANCE_DEG`] modulo 360°). For 2-phase the last two slots are 0 and unused.
 pub fn algorithm_indices(
     phases_deg: &[f64],
     algorithm: Algorithm,
@@ -614,10 +614,7 @@ pub fn quadrature_indices(
     for (slot, want) in out.iter_mut().zip(&wanted[..algorithm.raw_images()]) {
         *slot = phases_deg
             .iter()
-            .position(|p| {
-                let d = (p - want).rem_euclid(360.0);
-                p.is_finite() && d.min(360.0 - d) < 1e-6
-            })
+            .position(|p| crate::phasor::same_shift_deg(*p, *want))
             .ok_or_else(|| CoreError::InvalidPhases {
                 phases_deg: phases_deg.to_vec(),
                 reason: format!("{algorithm} needs an image at {want}°"),

@@ -417,6 +417,20 @@ impl PhaseConvention {
     }
 }
 
+/// How far (degrees, modulo 360°) a recorded phase shift may lie from a nominal one and still
+/// be that shift: `1e-3°`. Shifts reach tofprox through text, f32 radians and register LSB
+/// products (a `π/2` stored as f32 radians is `90.0000025°`); `1e-3°` is `0.07 mm` at 60 MHz,
+/// far below any depth the sensor resolves, and far below the smallest register step
+/// (`360°/4096 ≈ 0.088°`) a deliberately different shift would have.
+pub const SHIFT_TOLERANCE_DEG: f64 = 1e-3;
+
+/// Whether shifts `a_deg` and `b_deg` are the same modulo 360° within
+/// [`SHIFT_TOLERANCE_DEG`] (false for non-finite shifts).
+pub fn same_shift_deg(a_deg: f64, b_deg: f64) -> bool {
+    let d = (a_deg - b_deg).rem_euclid(360.0);
+    d.min(360.0 - d) < SHIFT_TOLERANCE_DEG
+}
+
 /// Signs of the in-phase and quadrature parts of eqs. 2.2/2.3 for raw images whose canonical
 /// shifts are `[a, b]` (2-phase) or `[a, b, a + 180°, b + 180°]` (4-phase) with `a ∈ {0°, 180°}`
 /// and `b ∈ {90°, 270°}`: `x = s_x·u_a` (or `s_x·(u_a − u_{a+180})`), `y = s_y·u_b` (…), then
@@ -449,10 +463,7 @@ impl Quadrature {
     pub fn of_canonical(canonical_deg: &[f64], algorithm: crate::Algorithm) -> Option<Quadrature> {
         let n = algorithm.raw_images();
         let p = canonical_deg.get(..n)?;
-        let near = |a: f64, b: f64| {
-            let d = (a - b).rem_euclid(360.0);
-            d.min(360.0 - d) < 1e-6
-        };
+        let near = same_shift_deg;
         let x_sign = if near(p[0], 0.0) {
             1
         } else if near(p[0], 180.0) {

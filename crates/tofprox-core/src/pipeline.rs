@@ -1104,6 +1104,18 @@ mod tests {
             Quadrature::of_canonical(&[0.0, 90.0, 270.0, 180.0], Algorithm::FourPhase),
             None
         );
+        // real-world float shifts: π/2 stored as f32 radians is 90.0000025°, a −0° is 359.99…°
+        let f32_quarter_deg = f64::from(std::f32::consts::FRAC_PI_2).to_degrees();
+        assert!((f32_quarter_deg - 90.0).abs() > 1e-6);
+        assert_eq!(
+            Quadrature::of_canonical(&[360.0 - 1e-9, f32_quarter_deg], Algorithm::TwoPhase),
+            Some(Quadrature::STANDARD)
+        );
+        // one register step (360°/4096) off is another shift, not the nominal one
+        assert_eq!(
+            Quadrature::of_canonical(&[0.0, 90.0 + 360.0 / 4096.0], Algorithm::TwoPhase),
+            None
+        );
     }
 
     #[test]

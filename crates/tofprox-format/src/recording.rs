@@ -10,7 +10,7 @@ use std::path::{Component, Path, PathBuf};
 use ndarray::{Array3, ArrayBase, Data, Ix3};
 use serde::{Deserialize, Serialize};
 
-use tofprox_core::phasor::{PhaseConvention, Quadrature, ShiftedSignal};
+use tofprox_core::phasor::{PhaseConvention, Quadrature, ShiftedSignal, same_shift_deg};
 use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::error::{
@@ -211,7 +211,7 @@ impl CaptureMeta {
             && sorted
                 .iter()
                 .enumerate()
-                .all(|(i, p)| (p - 360.0 * i as f64 / n as f64).abs() < 1e-6)
+                .all(|(i, p)| same_shift_deg(*p, 360.0 * i as f64 / n as f64))
     }
 }
 

@@ -957,6 +957,32 @@ mod tests {
     }
 
     #[test]
+    fn cycles_with_real_world_float_shifts_are_accepted_other_shifts_refused() {
+        let mut src = ScriptedSource::new(24, 32, vec![Step::target(800.0)]);
+        let req = CycleRequest {
+            mode: Mode::FourPhase,
+            exposure_us: 100.0,
+            row_window: None,
+        };
+        let mut c = src.cycle(&req).unwrap();
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // shifts as f32 radians (π/2 → 90.0000025°) and a −0° wrapped to 359.99…°
+        c.phases_deg = [0.0f32, 90.0, 180.0, 270.0]
+            .iter()
+            .map(|d| f64::from(d.to_radians()).to_degrees())
+            .collect();
+        c.phases_deg[0] = 360.0 - 1e-9;
+        assert!(c.phases_deg.iter().any(|p| (p - p.round()).abs() > 1e-6));
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // a sensor shifting its illumination: [0, 270, 180, 90] canonical
+        c.phases_deg = vec![0.0, 270.0, 180.0, 90.0];
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // a 1° offset is another shift (a wrong depth, not a float rounding)
+        c.phases_deg = vec![0.0, 91.0, 180.0, 270.0];
+        assert!(check_cycle(&c).is_err());
+    }
+
+    #[test]
     fn near_at_once_far_after_debounce() {
         let mut c = ctl(vec![
             Step::target(800.0),
