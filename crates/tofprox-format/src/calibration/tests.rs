@@ -260,10 +260,15 @@ fn absurd_amplitude_scales_are_refused_when_set_and_when_loaded() {
     assert_eq!(e.kind(), ErrorKind::Invalid, "{e}");
     assert_eq!(e.key_name(), Some("amplitude"), "{e}");
     let msg = e.to_string();
-    assert!(msg.contains("amplitude.npy") && msg.contains("element 6"), "{msg}");
+    assert!(
+        msg.contains("amplitude.npy") && msg.contains("element 6"),
+        "{msg}"
+    );
     // the shipped sets stay inside the range
     for set in ["calib/emulated", "calib/phone"] {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(set);
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(set);
         CalibrationSet::load(&dir).unwrap_or_else(|e| panic!("{set}: {e}"));
     }
 }
