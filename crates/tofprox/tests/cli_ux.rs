@@ -205,7 +205,15 @@ fn lab_add_prints_what_it_wrote_with_units() {
 /// `--json`; `-v` shows the warnings.
 #[test]
 fn soak_summarises_its_faults_instead_of_flooding_stderr() {
-    let args = ["soak", "--cycles", "600", "--fault-rate", "0.2", "--seed", "3"];
+    let args = [
+        "soak",
+        "--cycles",
+        "600",
+        "--fault-rate",
+        "0.2",
+        "--seed",
+        "3",
+    ];
     let o = run(&args);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
     let out = text(&o.stdout);
