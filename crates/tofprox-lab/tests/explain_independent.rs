@@ -248,7 +248,6 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
                         temperature_c: temp,
                         supply_v: v,
                         ambient_klux,
-                        ..base
                     };
                     caps.push(capture(&px, hidden, &four, c, 8, &mut rng));
                 }
