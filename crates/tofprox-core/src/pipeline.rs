@@ -15,7 +15,10 @@
 //! 5. FPPN (2.3.1.4): `− fppn[p]`, then wrap into `[0, 2π)`;
 //! 6. amplitude (eq. 2.4 or its 2-phase form `|z|`), low-amplitude check;
 //! 7. depth (eq. 2.6) in metres and `u16` millimetres (0 = invalid; a valid depth that would round
-//!    to 0 mm is reported as 1 mm; beyond 65535 mm → invalid).
+//!    to 0 mm is reported as 1 mm; beyond 65535 mm → invalid). This depth is **radial**: the length
+//!    of the pixel's ray to the surface, what the phase measures. Z depth (along the optical axis)
+//!    and points need the lens: [`crate::camera::RayGrid::radial_to_z`] and
+//!    [`crate::camera::RayGrid::points`].
 //!
 //! Invalid pixels have `depth_m = 0`, `depth_mm = 0` — never NaN. Buffers are allocated in
 //! [`Pipeline::new`]; [`Pipeline::process`] does not allocate.
@@ -40,7 +43,7 @@ pub use crate::simd::SimdLevel;
 use crate::simd::generic::Arr;
 use crate::simd::{self, LANES, LUT_BINS, Lanes, Lut};
 use crate::{Algorithm, CoreError};
-use ndarray::{Array2, ArrayView3, Axis};
+use ndarray::{Array2, ArrayView2, ArrayView3, Axis};
 use std::f32::consts::TAU;
 
 /// Flag bit: at least one used raw image of the pixel is at a rail (0 or `2^bits − 1`).
@@ -181,9 +184,10 @@ pub struct Calibration {
 /// Output of one [`Pipeline::process`] call, all arrays `(rows, cols)`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DepthFrame {
-    /// Depth in metres (eq. 2.6); 0 where invalid, never NaN.
+    /// **Radial** distance in metres (eq. 2.6: the length of the pixel's ray to the surface, not
+    /// Z depth); 0 where invalid, never NaN.
     pub depth_m: Array2<f32>,
-    /// Depth in millimetres; 0 = invalid.
+    /// Radial distance in millimetres ([`depth_m_to_mm`]); 0 = invalid.
     pub depth_mm: Array2<u16>,
     /// Amplitude in LSB (eq. 2.4 / `|z|`); 0 where the input was non-finite.
     pub amplitude_lsb: Array2<f32>,
@@ -230,27 +234,49 @@ impl DepthFrame {
             / n as f32
     }
 
-    /// Median of valid `depth_m` (metres) over the whole frame, `None` if nothing is valid.
-    /// Allocates (not for the hot path).
+    /// Median of valid `depth_m` (metres, radial) over the whole frame, `None` if nothing is
+    /// valid. Allocates (not for the hot path).
     pub fn median_valid_depth_m(&self) -> Option<f64> {
-        let mut v: Vec<f32> = self
-            .depth_m
-            .iter()
-            .zip(self.flags.iter())
-            .filter(|(_, f)| **f & FLAG_INVALID == 0)
-            .map(|(d, _)| *d)
-            .collect();
-        if v.is_empty() {
-            return None;
-        }
-        v.sort_unstable_by(f32::total_cmp);
-        let n = v.len();
-        let m = if n % 2 == 1 {
-            v[n / 2] as f64
-        } else {
-            0.5 * (v[n / 2 - 1] as f64 + v[n / 2] as f64)
-        };
-        Some(m)
+        median_valid_m(self.depth_m.view(), self.flags.view())
+    }
+}
+
+/// Median of `depth_m` over the pixels whose `flags` have no [`FLAG_INVALID`] (any depth of a
+/// frame: radial, or Z from [`crate::camera::RayGrid::radial_to_z`]), `None` if nothing is
+/// valid or the shapes differ. Allocates (not for the hot path).
+pub fn median_valid_m(depth_m: ArrayView2<f32>, flags: ArrayView2<u8>) -> Option<f64> {
+    if depth_m.dim() != flags.dim() {
+        return None;
+    }
+    let mut v: Vec<f32> = depth_m
+        .iter()
+        .zip(flags.iter())
+        .filter(|(_, f)| **f & FLAG_INVALID == 0)
+        .map(|(d, _)| *d)
+        .collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_unstable_by(f32::total_cmp);
+    let n = v.len();
+    let m = if n % 2 == 1 {
+        v[n / 2] as f64
+    } else {
+        0.5 * (v[n / 2 - 1] as f64 + v[n / 2] as f64)
+    };
+    Some(m)
+}
+
+/// A valid depth in metres as the frame's `u16` millimetres: `d · 1000` rounded (ties to even,
+/// as the kernel), at least 1 mm;
+/// 0 (invalid) for a depth that is not finite and positive or beyond 65 535 mm. The scalar form
+/// of what the kernel stores (step 7 of the module docs), for depths derived from a frame (Z).
+pub fn depth_m_to_mm(depth_m: f32) -> u16 {
+    let mm = depth_m * 1000.0;
+    if depth_m > 0.0 && mm < 65_535.5 {
+        (mm.round_ties_even() as u16).max(1)
+    } else {
+        0
     }
 }
 
@@ -1137,8 +1163,19 @@ mod tests {
                 let mm = f.depth_mm[(1, 2)] as f64;
                 assert!((mm - d * 1000.0).abs() <= 1.0);
                 assert!((f.amplitude_lsb[(0, 0)] as f64 - 800.0).abs() < 0.5);
+                // the scalar rounding is the kernel's, pixel for pixel
+                assert_eq!(f.depth_m.mapv(depth_m_to_mm), f.depth_mm);
+                assert_eq!(
+                    median_valid_m(f.depth_m.view(), f.flags.view()),
+                    f.median_valid_depth_m()
+                );
             }
         }
+        assert_eq!(depth_m_to_mm(0.0), 0);
+        assert_eq!(depth_m_to_mm(f32::NAN), 0);
+        assert_eq!(depth_m_to_mm(1e-5), 1);
+        assert_eq!(depth_m_to_mm(65.6), 0);
+        assert_eq!(depth_m_to_mm(0.0125), 12, "ties to even, as the kernel");
     }
 
     #[test]

@@ -7,6 +7,7 @@
 //!   depth images (`kind = "depth"`), as `tofprox record` writes them.
 //! - [`CalibrationSet`]: `CALIB/calibration.toml` + checksummed `.npy`
 //!   arrays (`docs/calibration.md`).
+//! - [`encode_points`]: a frame's point cloud as `.npy` or `.ply`.
 //! - [`extract()`]: a calibration part extracted from a recording into a set
 //!   (the workflow `tofprox calibrate` runs).
 //!
@@ -19,6 +20,7 @@ mod extract;
 mod fsutil;
 pub mod limits;
 pub mod npy;
+mod points;
 mod recording;
 mod text;
 
@@ -32,6 +34,7 @@ pub use extract::{
     Extract, ExtractError, ExtractOptions, Extraction, NO_TARGET_CONDITION, extract,
     load_lens_datasheet,
 };
+pub use points::{PointCloudFormat, encode_points};
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
     RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind, RecordingWriter, recording_kind,

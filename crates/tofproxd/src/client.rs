@@ -52,7 +52,7 @@ pub trait Proximity {
     /// LastError.
     #[zbus(property)]
     fn last_error(&self) -> zbus::Result<String>;
-    /// DepthFrame signal.
+    /// DepthFrame signal (radial depth in mm, amplitude).
     #[zbus(signal)]
     fn depth_frame(
         &self,

@@ -10,14 +10,39 @@ use anyhow::{Context, bail};
 use ndarray::{Array2, s};
 use serde_json::json;
 use tofprox_core::Algorithm;
+use tofprox_core::camera::RayGrid;
 use tofprox_core::crosstalk::residual_ratio;
 use tofprox_core::phasor::unambiguous_range_m;
-use tofprox_core::pipeline::{Pipeline, PipelineConfig};
+use tofprox_core::pipeline::{
+    DepthFrame, FLAG_INVALID, Pipeline, PipelineConfig, depth_m_to_mm, median_valid_m,
+};
 use tofprox_core::proximity::Roi;
 use tofprox_format::npy;
-use tofprox_format::{CalibrationSet, CaptureMeta, RawFrames, Recording};
+use tofprox_format::{
+    CalibrationSet, CaptureMeta, PointCloudFormat, RawFrames, Recording, encode_points,
+};
 
 use super::common::{fmt_num, mode_label, progress};
+
+/// Which depth the depth outputs carry.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DepthKind {
+    /// Radial distance: the length of each pixel's ray to the surface (eq. 2.6, what the phase
+    /// measures).
+    Radial,
+    /// Z depth: the distance along the optical axis (radial · cos θ of the pixel's ray; needs the
+    /// calibration set's intrinsics).
+    Z,
+}
+
+impl DepthKind {
+    fn name(self) -> &'static str {
+        match self {
+            DepthKind::Radial => "radial",
+            DepthKind::Z => "z",
+        }
+    }
+}
 
 #[derive(clap::Args, Debug)]
 pub struct ProcessArgs {
@@ -32,6 +57,16 @@ pub struct ProcessArgs {
     /// Output directory for NNNNNN_depth_mm.npy, NNNNNN_amplitude_lsb.npy and NNNNNN_depth.png.
     #[arg(long)]
     pub out: PathBuf,
+    /// Depth in NNNNNN_depth_mm.npy, the preview and the printed median: radial (along each
+    /// pixel's ray) or z (along the optical axis; needs --calib with intrinsics).
+    #[arg(long, value_enum, default_value_t = DepthKind::Radial)]
+    pub depth_kind: DepthKind,
+    /// Also write each capture's point cloud (metres, camera frame X right, Y down, Z forward;
+    /// needs --calib with intrinsics) to DIR/NAME_NNNNNN.EXT for --points DIR/NAME.EXT: .npy
+    /// (float32 (rows·cols, 3) in pixel order, NaN where invalid) or .ply (binary little-endian,
+    /// valid pixels only).
+    #[arg(long, value_name = "PATH")]
+    pub points: Option<PathBuf>,
     /// Print one JSON object per processed capture on stdout.
     #[arg(long)]
     pub json: bool,
@@ -109,10 +144,75 @@ fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
     }
 }
 
+/// The depth image (`u16` mm, 0 = invalid) and its median over the valid pixels (metres) of
+/// `kind`: the frame's radial distance, or Z = radial · cos θ through `rays`.
+fn depth_output(
+    frame: &DepthFrame,
+    kind: DepthKind,
+    rays: Option<&RayGrid>,
+) -> anyhow::Result<(Array2<u16>, Option<f64>)> {
+    Ok(match (kind, rays) {
+        (DepthKind::Z, Some(rays)) => {
+            let z_m = rays
+                .radial_to_z(frame.depth_m.view())
+                .context("Z depth through the lens")?;
+            let median = median_valid_m(z_m.view(), frame.flags.view());
+            (z_m.mapv(depth_m_to_mm), median)
+        }
+        (DepthKind::Z, None) => bail!("--depth-kind z needs the lens (intrinsics)"),
+        (DepthKind::Radial, _) => (frame.depth_mm.clone(), frame.median_valid_depth_m()),
+    })
+}
+
+/// Where and how `--points DIR/NAME.EXT` writes each capture's cloud: `DIR/NAME_NNNNNN.EXT`.
+struct PointsOutput {
+    dir: PathBuf,
+    name: String,
+    format: PointCloudFormat,
+}
+
+impl PointsOutput {
+    fn new(path: &Path) -> anyhow::Result<Self> {
+        let format = PointCloudFormat::from_path(path).context("--points")?;
+        let name = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .filter(|s| !s.is_empty())
+            .with_context(|| format!("--points {}: no file name", path.display()))?
+            .to_string();
+        let dir = path
+            .parent()
+            .filter(|d| !d.as_os_str().is_empty())
+            .unwrap_or(Path::new("."))
+            .to_path_buf();
+        fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        Ok(PointsOutput { dir, name, format })
+    }
+
+    fn path(&self, index: usize) -> PathBuf {
+        self.dir.join(format!(
+            "{}_{index:06}.{}",
+            self.name,
+            self.format.extension()
+        ))
+    }
+
+    /// Points `radial · ray` of the frame's valid pixels (invalid: NaN in .npy, left out of .ply).
+    fn write(&self, index: usize, frame: &DepthFrame, rays: &RayGrid) -> anyhow::Result<()> {
+        let pts = rays
+            .points(frame.depth_m.view())
+            .context("points through the lens")?;
+        let valid = frame.flags.mapv(|f| f & FLAG_INVALID == 0);
+        let bytes = encode_points(pts.view(), valid.view(), self.format)?;
+        let p = self.path(index);
+        fs::write(&p, bytes).with_context(|| format!("cannot write {}", p.display()))
+    }
+}
+
 pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
     let sensor = *rec.sensor();
-    let calibration = match &a.calib {
+    let (calibration, rays) = match &a.calib {
         Some(dir) => {
             let set = CalibrationSet::load(dir)?;
             set.check_compatible(&sensor).with_context(|| {
@@ -135,13 +235,33 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
                     dir.display()
                 );
             }
-            set.to_pipeline_calibration(a.algo)
+            let rays = set
+                .rays()
+                .transpose()
+                .with_context(|| format!("the lens of {}", dir.display()))?;
+            (set.to_pipeline_calibration(a.algo), rays)
         }
         None => {
             eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
-            Default::default()
+            (Default::default(), None)
         }
     };
+    let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
+    // Z depth and points need each pixel's ray (thesis 5.1.3; docs/calibration.md)
+    let needs_lens = a.depth_kind == DepthKind::Z || a.points.is_some();
+    if needs_lens && rays.is_none() {
+        bail!(
+            "{} needs the lens: a --calib set with intrinsics (tofprox calibrate intrinsics; docs/calibration.md){}",
+            if a.points.is_some() {
+                "--points"
+            } else {
+                "--depth-kind z"
+            },
+            a.calib
+                .as_ref()
+                .map_or(String::new(), |d| format!(", and {} has none", d.display()))
+        );
+    }
     let max_m = match a.png_max_m {
         Some(m) if m.is_finite() && m > 0.0 => m,
         Some(m) => bail!("--png-max-m {m} is not a positive distance"),
@@ -203,16 +323,18 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         }
         .with_context(|| format!("processing capture {i}"))?;
         let process_us = t0.elapsed().as_secs_f64() * 1e6;
-        let median = frame.median_valid_depth_m();
         let valid = frame.valid_fraction();
         // what is left of the cover-window crosstalk relative to the calibrated one
         // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
         let crosstalk_residual = crosstalk
             .as_ref()
             .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
-        let depth_mm = frame.depth_mm.clone();
+        let (depth_mm, median) = depth_output(frame, a.depth_kind, rays.as_ref())?;
         let amplitude = frame.amplitude_lsb.clone();
         let stem = format!("{i:06}");
+        if let (Some(out), Some(rays)) = (&points, &rays) {
+            out.write(i, frame, rays)?;
+        }
         let p = a.out.join(format!("{stem}_depth_mm.npy"));
         fs::write(&p, npy::encode_u16(&depth_mm))
             .with_context(|| format!("cannot write {}", p.display()))?;
@@ -231,6 +353,7 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
         if a.json {
             let mut line = json!({
                 "index": i,
+                "depth_kind": a.depth_kind.name(),
                 // micrometre resolution: the f32 depth carries no more
                 "distance_m": truth,
                 "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
@@ -262,9 +385,16 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     pb.finish_and_clear();
     if !a.json {
         println!(
-            "wrote depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
+            "wrote {} depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
+            a.depth_kind.name(),
             a.out.display()
         );
+        if let Some(p) = &points {
+            println!(
+                "wrote a point cloud per capture to {}",
+                p.path(todo[0]).display()
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
