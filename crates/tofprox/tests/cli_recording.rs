@@ -209,6 +209,7 @@ fn process_errors(calib: Option<&Path>, algo: &str, out: &Path) -> Vec<(u64, f64
             assert_eq!(
                 keys,
                 [
+                    "depth_kind",
                     "distance_m",
                     "error_mm",
                     "index",
