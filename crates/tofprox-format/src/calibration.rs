@@ -576,8 +576,8 @@ impl CalibrationSet {
     ) -> Result<Vec<CalibPart>, FormatError> {
         let key = CalibPart::Amplitude.name();
         self.check_map(&scale.lsb_m2_per_us, "amplitude scale", key)?;
-        if let Some(v) = scale.lsb_m2_per_us.iter().find(|v| **v < 0.0) {
-            return Err(invalid(format!("amplitude scale {v} is negative")).key(key));
+        if let Some(problem) = amplitude_scale_problem(&scale.lsb_m2_per_us, &self.validity) {
+            return Err(invalid(problem).key(key));
         }
         self.amplitude = Some(scale);
         Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
@@ -908,11 +908,6 @@ impl CalibrationSet {
                     set.offset = Some(OffsetCalibration { dark_lsb: a })
                 }
                 (CalibPart::Amplitude, LoadedArray::Map(a)) => {
-                    if let Some(v) = a.iter().find(|v| **v < 0.0) {
-                        return Err(invalid(format!("amplitude scale {v} is negative"))
-                            .at(&dir.join(&pt.file))
-                            .key(key));
-                    }
                     set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
                 }
                 (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
@@ -1055,6 +1050,26 @@ fn check_header(path: &Path, text: &str) -> Result<(), FormatError> {
     .map(|_| ())
 }
 
+/// Why an amplitude scale `K` (LSB·m²/µs, `A = K·ρ·t/d²`, thesis 2.2.1) is outside its
+/// physical range, if it is (issue 12 item 7): `K ≥ 0`, and a white target (ρ = 1) at 1 m
+/// with a 1 µs exposure reaches at most one full-scale code, `K ≤ max_code·1 m²/1 µs`. A
+/// larger `K` would saturate every pixel at every working distance with any practical
+/// exposure (the shipped modules measure K ≈ 0.1, five orders of magnitude below).
+fn amplitude_scale_problem(a: &Array2<f32>, sensor: &SensorGeometry) -> Option<String> {
+    let max = sensor.max_code() as f32;
+    let (i, v) = a
+        .iter()
+        .enumerate()
+        .find(|(_, v)| !(0.0..=max).contains(*v))?;
+    Some(if *v < 0.0 {
+        format!("amplitude scale {v} (element {i}) is negative")
+    } else {
+        format!(
+            "amplitude scale {v} LSB·m²/µs (element {i}) is beyond its physical range: a white target at 1 m would exceed full scale ({max} LSB) within 1 µs"
+        )
+    })
+}
+
 fn load_part(
     dir: &Path,
     toml_path: &Path,
@@ -1160,6 +1175,11 @@ fn load_part(
                 ))
                 .at(&file)
                 .key(key));
+            }
+            if part == CalibPart::Amplitude
+                && let Some(problem) = amplitude_scale_problem(&a, sensor)
+            {
+                return Err(invalid(problem).at(&file).key(key));
             }
             if part == CalibPart::Offset {
                 let max = sensor.max_code() as f32;

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::error::LabError;
 use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
-use crate::signatures::Signature;
+use crate::signatures::{ImageMemo, Signature};
 use crate::stats::{Normal, levenberg_marquardt, solve_sym};
 
 /// Result of fitting one signature.
@@ -67,10 +67,13 @@ fn accumulate(
             let mut b2 = vec![0.0; nsig];
             let mut j = vec![0.0; n];
             let mut nlh = nl.to_vec();
+            // one memo per parameter vector: nl and each finite-difference step
+            let mut memo = ImageMemo::default();
+            let mut memo_h = vec![ImageMemo::default(); nnl];
             for s in ch.iter().step_by(stride) {
                 let r = &s.rec(prep);
                 let cap = &prep.caps[r.cap as usize];
-                sig.basis(nl, r, cap, &mut b);
+                memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
                 let d: f64 = b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
                     + nu.iter().zip(nui).map(|(x, y)| x * y).sum::<f64>();
@@ -80,7 +83,7 @@ fn accumulate(
                 for i in 0..nnl {
                     let h = 1e-4 * nl[i].abs().max(1e-2);
                     nlh[i] = nl[i] + h;
-                    sig.basis(&nlh, r, cap, &mut b2);
+                    memo_h[i].basis(sig, &nlh, r, cap, &mut b2);
                     nlh[i] = nl[i];
                     let d2: f64 = b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;

@@ -6,7 +6,7 @@ use serde::Serialize;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, eval_delta, fit_model};
+use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -119,9 +119,22 @@ pub struct Comparison {
     /// The noise of one raw acquisition (averaged = 1) in the same units,
     /// weighted like `size` (σ/A over the samples that inform depth most).
     pub noise_single: Size,
+    /// Σw over the samples and Σw·A² over the illuminated ones: the scales
+    /// that turn a χ² difference into a size (`structure::structure_size`).
+    pub weight_sums: (f64, f64),
 }
 
 impl Comparison {
+    /// Size (LSB, depth-equivalent mm) of a systematic residual carrying χ²
+    /// `chi2` on these samples.
+    pub fn size_of(&self, chi2: f64, prep: &Prepared) -> Size {
+        let mmr = prep.mm_per_rad();
+        Size {
+            lsb: crate::structure::structure_size(chi2, self.weight_sums.0, 1.0, mmr).0,
+            mm: crate::structure::structure_size(chi2, 1.0, self.weight_sums.1, mmr).1,
+        }
+    }
+
     /// The default tolerance of the verdict in depth-equivalent mm.
     pub fn default_tolerance_mm(&self) -> f64 {
         TOLERANCE_NOISE_SHARE * self.noise_single.mm
@@ -196,6 +209,7 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
     Ok(Comparison {
         size,
         noise_single,
+        weight_sums: (sw, swa2),
         fit: FitStats {
             chi2_per_dof: chi2 / dof,
             z: chi2_z(chi2, dof),
@@ -269,7 +283,7 @@ pub fn depth_residuals(
             // per raw image: the model's ideal code A·C and the codes its effects add
             let mut ideal = vec![0.0; cap.theta_rad.len()];
             let mut eff = vec![0.0; cap.theta_rad.len()];
-            let mut buf = vec![0.0; 64];
+            let mut eval = crate::fit::DeltaEval::new(&sigs, &model.effects);
             for p in 0..npix {
                 if model.sat[c * npix + p] {
                     continue;
@@ -279,11 +293,7 @@ pub fn depth_residuals(
                     if k == i0 || k == i90 || four.is_some_and(|(a, b)| k == a || k == b) {
                         let r = model.rec(prep, c, k, p);
                         *v = r.x - model.offset[p];
-                        *e = sigs
-                            .iter()
-                            .zip(&model.effects)
-                            .map(|(s, f)| eval_delta(s.as_ref(), f, &r, prep, &mut buf))
-                            .sum();
+                        *e = eval.sum(&r, prep);
                     }
                 }
                 // measured codes calibrated by the model (offset and effects removed)
@@ -352,10 +362,18 @@ pub struct CandidateScore {
     pub effect: String,
     /// BIC(with) − BIC(without); negative supports the effect.
     pub delta_bic: f64,
-    /// Share of the excess χ² (χ² − dof) the effect removes.
+    /// Share of the excess χ² (χ² − dof) the effect removes; NaN (no score,
+    /// shown as "—") when the residual has no significant excess over the
+    /// noise (z ≤ [`Z_NULL`] with the noise known from repeats): a share of a
+    /// vanishing excess is a ratio of noise over noise. `explained` gives the
+    /// size then.
     pub explained_excess: f64,
-    /// The same share on held-out blocks of distance (5 block folds).
+    /// The same share on held-out blocks of distance (5 block folds); NaN
+    /// when `explained_excess` is.
     pub cv_gain: f64,
+    /// Size of what the effect removes (χ² before − after, as
+    /// `structure::structure_size`): depth-equivalent mm and LSB.
+    pub explained: Size,
     /// z = (χ² − dof)/√(2 dof) after adding the effect.
     pub z_after: f64,
     /// Fitted parameters by name.
@@ -485,6 +503,11 @@ pub fn diagnose_with(
     let spec = &cmp.model.spec;
     let mut excess = (cmp.chi2 - cmp.dof).max(1e-9);
     let noise_known = cmp.model.noise.from_repeats;
+    // Shares of the excess are scores only while there is an excess: at
+    // z ≤ Z_NULL it is noise, and a share of it is noise over noise (values of
+    // 10⁹ % when it vanishes). Then each candidate is given by its size only.
+    let significant = !noise_known || cmp.fit.z > Z_NULL;
+    let share = |x: f64| if significant { x } else { f64::NAN };
     let mut skipped = Vec::new();
     let ids: Vec<&str> = SIGNATURE_IDS
         .iter()
@@ -521,8 +544,9 @@ pub fn diagnose_with(
             Ok(CandidateScore {
                 effect: id.to_string(),
                 delta_bic: bic(chi_after, f.n_params, cmp.n) - bic(cmp.chi2, 0, cmp.n),
-                explained_excess: dchi / excess,
-                cv_gain: (f.cv_chi2_before - f.cv_chi2) / excess,
+                explained_excess: share(dchi / excess),
+                cv_gain: share((f.cv_chi2_before - f.cv_chi2) / excess),
+                explained: cmp.size_of(dchi, prep),
                 z_after: chi2_z(chi_after, dof_after),
                 params,
                 fit: Some(EffectFit {
@@ -565,17 +589,14 @@ pub fn diagnose_with(
             excess = best;
         }
     }
-    cands.sort_by(|a, b| {
-        b.cv_gain
-            .total_cmp(&a.cv_gain)
-            .then(b.explained_excess.total_cmp(&a.explained_excess))
-    });
+    cands.sort_by(rank);
     // The leading candidates are refitted with the whole model (the per-pixel
     // parameters re-adjust with the effect present): z after, structure left
     // and depth errors after come from that refit.
     // The runner-up is refitted only when it could compete (screening share
     // at least half the leader's).
-    let mut top: Vec<usize> = (0..cands.len().min(1)).collect();
+    // (none without an excess: the verdict is `nothing_missing` whatever they do)
+    let mut top: Vec<usize> = (0..cands.len().min(usize::from(significant))).collect();
     if cands.len() > 1
         && cands[1].explained_excess >= 0.5 * cands[0].explained_excess.max(0.0)
         && cands[1].explained_excess > 0.05
@@ -607,12 +628,13 @@ pub fn diagnose_with(
         if let Some(e) = c2.model.effects.iter().find(|e| e.id == c.effect) {
             let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
             let mut recs = std::mem::take(&mut c2.recs);
-            let mut buf = vec![0.0; 64];
+            let sigs = [sig];
+            let mut eval = crate::fit::DeltaEval::new(&sigs, std::slice::from_ref(e));
             for s in &mut recs {
-                let d = crate::fit::eval_delta(sig.as_ref(), e, &s.rec(prep), prep, &mut buf);
+                let d = eval.one(0, &s.rec(prep), prep);
                 s.r = (f64::from(s.r) + d) as f32;
             }
-            let f = fit_signature(sig.as_ref(), &recs, prep, Some(e))?;
+            let f = fit_signature(sigs[0].as_ref(), &recs, prep, Some(e))?;
             let ex = f.chi2_before - c2.dof;
             if ex > 0.0 {
                 // never credited beyond what the refit explains of the baseline excess
@@ -625,11 +647,7 @@ pub fn diagnose_with(
         c.refit = Some(Box::new(c2.model));
     }
     // re-rank with the refitted evidence
-    cands.sort_by(|a, b| {
-        b.cv_gain
-            .total_cmp(&a.cv_gain)
-            .then(b.explained_excess.total_cmp(&a.explained_excess))
-    });
+    cands.sort_by(rank);
     progress("candidates", 1.0);
     let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
     let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, &cands);
@@ -733,6 +751,16 @@ pub fn diagnose_with(
         structure_remaining: remaining_structure,
         reason: d.reason,
     })
+}
+
+/// Candidate order: by held-out share, then share, then (when there is no
+/// excess to share) by the size of what the candidate removes.
+fn rank(a: &CandidateScore, b: &CandidateScore) -> std::cmp::Ordering {
+    let key = |x: f64| if x.is_nan() { f64::NEG_INFINITY } else { x };
+    key(b.cv_gain)
+        .total_cmp(&key(a.cv_gain))
+        .then(key(b.explained_excess).total_cmp(&key(a.explained_excess)))
+        .then(b.explained.lsb.total_cmp(&a.explained.lsb))
 }
 
 /// The condition the residual is most structured against. Acquisition order
@@ -1179,6 +1207,7 @@ mod tests {
             delta_bic: dbic,
             explained_excess: explained,
             cv_gain: cv,
+            explained: Size::default(),
             z_after,
             params: BTreeMap::new(),
             fit: None,

@@ -21,7 +21,7 @@ use tofprox_core::phasor::distance_to_phase_rad;
 use crate::data::Dataset;
 use crate::error::LabError;
 use crate::noise::NoiseModel;
-use crate::signatures::{Signature, make_signature};
+use crate::signatures::{ImageMemo, Signature, make_signature};
 use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
 
@@ -594,7 +594,7 @@ impl LabModel {
         mut f: impl FnMut(Rec),
     ) {
         let npix = prep.npix;
-        let mut buf = vec![0.0; 64];
+        let mut eval = DeltaEval::new(sigs, &self.effects);
         let (th, ph) = rotation(self, &prep.caps[c]);
         let sat = &self.sat[c * npix..(c + 1) * npix];
         for (k, &et) in th.iter().enumerate() {
@@ -603,8 +603,8 @@ impl LabModel {
                     continue;
                 }
                 let mut r = self.rec_at(prep, c, k, p, rotate(e_phi, et));
-                for (s, e) in sigs.iter().zip(&self.effects) {
-                    r.r -= eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+                for i in 0..sigs.len().min(self.effects.len()) {
+                    r.r -= eval.one(i, &r, prep);
                 }
                 f(r);
             }
@@ -641,10 +641,10 @@ impl LabModel {
         p: usize,
     ) -> f64 {
         let r = self.rec(prep, c, k, p);
-        let mut buf = vec![0.0; 64];
+        let mut eval = DeltaEval::new(sigs, &self.effects);
         let mut v = prep.mid + r.x;
-        for (s, e) in sigs.iter().zip(&self.effects) {
-            v += eval_delta(s.as_ref(), e, &r, prep, &mut buf);
+        for i in 0..sigs.len().min(self.effects.len()) {
+            v += eval.one(i, &r, prep);
         }
         v
     }
@@ -688,21 +688,52 @@ pub fn rotation(model: &LabModel, cap: &CapInfo) -> (Vec<Phasor>, Vec<Phasor>) {
     (th, ph)
 }
 
-/// Δcode of one fitted effect at a sample.
-#[inline]
-pub fn eval_delta(
-    sig: &dyn Signature,
-    e: &EffectFit,
-    r: &Rec,
-    prep: &Prepared,
-    buf: &mut Vec<f64>,
-) -> f64 {
-    let n = sig.n_lin();
-    if buf.len() < n {
-        buf.resize(n, 0.0);
+/// Δcode of fitted effects, sample by sample: each effect's per-raw-image
+/// terms are computed once per raw image ([`ImageMemo`]) when the samples come
+/// in capture, raw-image order.
+pub struct DeltaEval<'a> {
+    sigs: &'a [Box<dyn Signature>],
+    effects: &'a [EffectFit],
+    memos: Vec<ImageMemo>,
+    buf: Vec<f64>,
+}
+
+impl<'a> DeltaEval<'a> {
+    /// For the effects `effects` with their signatures `sigs` (same order).
+    pub fn new(sigs: &'a [Box<dyn Signature>], effects: &'a [EffectFit]) -> Self {
+        Self {
+            sigs,
+            effects,
+            memos: vec![ImageMemo::default(); sigs.len()],
+            buf: vec![0.0; 64],
+        }
     }
-    sig.basis(&e.nl, r, &prep.caps[r.cap as usize], &mut buf[..n]);
-    buf[..n].iter().zip(&e.lin).map(|(b, l)| b * l).sum()
+
+    /// Δcode of effect `i` at a sample.
+    #[inline]
+    pub fn one(&mut self, i: usize, r: &Rec, prep: &Prepared) -> f64 {
+        let (sig, e) = (self.sigs[i].as_ref(), &self.effects[i]);
+        let n = sig.n_lin();
+        if self.buf.len() < n {
+            self.buf.resize(n, 0.0);
+        }
+        self.memos[i].basis(
+            sig,
+            &e.nl,
+            r,
+            &prep.caps[r.cap as usize],
+            &mut self.buf[..n],
+        );
+        self.buf[..n].iter().zip(&e.lin).map(|(b, l)| b * l).sum()
+    }
+
+    /// Σ of every effect's Δcode at a sample.
+    #[inline]
+    pub fn sum(&mut self, r: &Rec, prep: &Prepared) -> f64 {
+        (0..self.sigs.len().min(self.effects.len()))
+            .map(|i| self.one(i, r, prep))
+            .sum()
+    }
 }
 
 /// Fit the lab model with the given spec to a prepared recording.
@@ -971,18 +1002,14 @@ fn effects_delta(prep: &Prepared, model: &LabModel) -> Result<Vec<f64>, LabError
         .into_par_iter()
         .filter(|&c| prep.caps[c].used)
         .map(|c| {
-            let mut buf = vec![0.0; 64];
+            let mut eval = DeltaEval::new(&sigs, &model.effects);
             let kk = prep.caps[c].theta_rad.len();
             let mut v = vec![0.0; kk * npix];
             let (th, ph) = rotation(model, &prep.caps[c]);
             for (k, &et) in th.iter().enumerate() {
                 for p in 0..npix {
                     let r = model.rec_at(prep, c, k, p, rotate(ph[p], et));
-                    v[k * npix + p] = sigs
-                        .iter()
-                        .zip(&model.effects)
-                        .map(|(s, e)| eval_delta(s.as_ref(), e, &r, prep, &mut buf))
-                        .sum();
+                    v[k * npix + p] = eval.sum(&r, prep);
                 }
             }
             (c, v)

@@ -28,6 +28,8 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "delta_bic": num(c.delta_bic),
             "explained_excess": num(c.explained_excess),
             "cv_gain": num(c.cv_gain),
+            "explained_mm": num(c.explained.mm),
+            "explained_lsb": num(c.explained.lsb),
             "z_after": num(c.z_after),
             "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
         })).collect::<Vec<_>>(),
@@ -195,16 +197,17 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     }
     let _ = writeln!(
         s,
-        "{:<24} {:>9} {:>8} {:>10} {:>12}  4-phase cancels",
-        "candidate", "explained", "cv_gain", "z_after", "ΔBIC"
+        "{:<24} {:>9} {:>8} {:>12} {:>10} {:>12}  4-phase cancels",
+        "candidate", "explained", "cv_gain", "removes [mm]", "z_after", "ΔBIC"
     );
     for c in &d.candidates {
         let _ = writeln!(
             s,
-            "{:<24} {:>8.1}% {:>7.1}% {:>10.1} {:>12.1}  {}",
+            "{:<24} {:>9} {:>8} {:>12.3} {:>10.1} {:>12.1}  {}",
             c.effect,
-            100.0 * c.explained_excess,
-            100.0 * c.cv_gain,
+            percent(c.explained_excess),
+            percent(c.cv_gain),
+            c.explained.mm,
             c.z_after,
             c.delta_bic,
             if cancels_in_4phase(&c.effect) {
@@ -293,6 +296,24 @@ fn esc(s: &str) -> String {
 const NO_DATA: &str = "no capture in the recording gives this value";
 
 /// A table cell: the value with `decimals`, or "n/a" with the reason as tooltip.
+/// A share in percent, or "—" when there is none (no excess to share).
+fn percent(v: f64) -> String {
+    if v.is_finite() {
+        format!("{:.1}%", 100.0 * v)
+    } else {
+        "—".into()
+    }
+}
+
+/// A share as a table cell in percent, or "—" with the reason as tooltip.
+fn percent_cell(v: f64, why_not: &str) -> String {
+    if v.is_finite() {
+        format!("<td>{:.1}%</td>", 100.0 * v)
+    } else {
+        format!("<td class=\"na\" title=\"{}\">—</td>", esc(why_not))
+    }
+}
+
 fn cell(v: Option<f64>, decimals: usize, why_not: &str) -> String {
     match v {
         Some(v) if v.is_finite() => format!("<td>{v:.decimals$}</td>"),
@@ -364,8 +385,8 @@ pub fn explain_html(
             i + 1,
             d.verdict.as_str(),
             esc(st.added.as_deref().unwrap_or("—")),
-            best.map_or("".into(), |c| format!("{:.0}%", 100.0 * c.explained_excess)),
-            best.map_or("".into(), |c| format!("{:.0}%", 100.0 * c.cv_gain)),
+            best.map_or("".into(), |c| percent(c.explained_excess)),
+            best.map_or("".into(), |c| percent(c.cv_gain)),
             d.fit.chi2_per_dof,
             d.fit.z,
             d.size.mm,
@@ -524,19 +545,21 @@ fn html_sections(
     if let Some(d) = diag {
         h.push_str(
             "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
-             <th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
+             <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
         );
+        const NO_EXCESS: &str =
+            "no share: the residual has no significant excess over the noise (see explained [mm])";
         const NOT_REFITTED: &str =
             "not refitted: only the leading candidates are refitted with the whole model";
         for c in &d.candidates {
             let after = c.rms_after;
             let _ = write!(
                 h,
-                "<tr><th>{}</th>{}{}{}{}{}{}<td>{}</td></tr>",
+                "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
                 esc(&c.effect),
-                cell(Some(100.0 * c.explained_excess), 1, "no screening fit")
-                    .replace("</td>", "%</td>"),
-                cell(Some(100.0 * c.cv_gain), 1, "no cross-validation").replace("</td>", "%</td>"),
+                percent_cell(c.explained_excess, NO_EXCESS),
+                percent_cell(c.cv_gain, NO_EXCESS),
+                cell(Some(c.explained.mm), 3, "no screening fit"),
                 cell(Some(c.z_after), 1, NOT_REFITTED),
                 cell(Some(c.delta_bic), 0, NOT_REFITTED),
                 cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),

@@ -34,6 +34,54 @@ pub trait Signature: Send + Sync {
     }
     /// Basis values b_j at one sample.
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
+    /// The part of the basis that is the same for every pixel of raw image
+    /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
+    /// the basis has none. [`ImageMemo`] computes it once per raw image where
+    /// samples come in capture, raw-image order.
+    fn image_term(&self, _nl: &[f64], _k: u16, _cap: &CapInfo) -> Option<f64> {
+        None
+    }
+    /// [`Signature::basis`] given `image_term(nl, r.k, cap)` (only called
+    /// when that is `Some`).
+    fn basis_image(&self, nl: &[f64], r: &Rec, cap: &CapInfo, _image: f64, out: &mut [f64]) {
+        self.basis(nl, r, cap, out);
+    }
+}
+
+/// Evaluates a signature's basis sample by sample, computing its per-raw-image
+/// term ([`Signature::image_term`]) once per (capture, raw image, `nl`): the
+/// residual tables run in capture, raw image, pixel order, so the
+/// transcendentals of a per-image law cost one evaluation per image instead
+/// of one per pixel. The same values as [`Signature::basis`].
+#[derive(Debug, Default, Clone)]
+pub struct ImageMemo {
+    key: Option<(u32, u16)>,
+    nl: Vec<f64>,
+    term: Option<f64>,
+}
+
+impl ImageMemo {
+    /// Basis values b_j of `sig` at sample `r`.
+    #[inline]
+    pub fn basis(
+        &mut self,
+        sig: &dyn Signature,
+        nl: &[f64],
+        r: &Rec,
+        cap: &CapInfo,
+        out: &mut [f64],
+    ) {
+        if self.key != Some((r.cap, r.k)) || self.nl != nl {
+            self.term = sig.image_term(nl, r.k, cap);
+            self.key = Some((r.cap, r.k));
+            self.nl.clear();
+            self.nl.extend_from_slice(nl);
+        }
+        match self.term {
+            Some(t) => sig.basis_image(nl, r, cap, t, out),
+            None => sig.basis(nl, r, cap, out),
+        }
+    }
 }
 
 /// Every effect id the lab has a signature for, in catalogue order.
@@ -313,17 +361,25 @@ impl Signature for Droop {
         g
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let t = self.image_term(nl, r.k, cap).unwrap_or(0.0);
+        self.basis_image(nl, r, cap, t, out);
+    }
+    /// τ·L_k: the same for every pixel of raw image k.
+    fn image_term(&self, nl: &[f64], k: u16, cap: &CapInfo) -> Option<f64> {
         let tau = nl[0].clamp(-5.0, 9.0).exp();
         let beta = nl[1].clamp(0.0, 2.0);
         let k0 = nl.get(2).copied().unwrap_or(0.0).clamp(0.0, 8.0);
         let loss = tofprox_model::effects::optical::droop_loss(
-            f64::from(r.k),
+            f64::from(k),
             cap.exposure_us,
             1000.0 * tau,
             beta,
             k0,
         );
-        out[0] = -r.a * r.c * tau * loss;
+        Some(tau * loss)
+    }
+    fn basis_image(&self, _: &[f64], r: &Rec, _: &CapInfo, image: f64, out: &mut [f64]) {
+        out[0] = -r.a * r.c * image;
     }
 }
 

@@ -292,6 +292,61 @@ fn control_says_nothing_missing_through_the_recording_format() {
     );
     assert_eq!(d.verdict, Verdict::NothingMissing, "{}", d.reason);
     assert!(d.effect.is_none());
+    no_share_of_a_vanishing_excess(&d);
+}
+
+/// Without a significant excess the candidates have no share of it (a ratio
+/// of noise over noise, 10⁹ % when the excess vanishes) but a size in mm, and
+/// the table shows "—" instead of a share.
+fn no_share_of_a_vanishing_excess(d: &tofprox_lab::diagnose::Diagnosis) {
+    let text = tofprox_lab::report::diagnosis_text(d);
+    eprintln!("{text}");
+    assert!(!d.candidates.is_empty());
+    for c in &d.candidates {
+        assert!(
+            c.explained.mm.is_finite() && c.explained.mm >= 0.0 && c.explained.lsb >= 0.0,
+            "{}: size {:?}",
+            c.effect,
+            c.explained
+        );
+        if d.fit.z <= tofprox_lab::diagnose::Z_NULL {
+            assert!(
+                c.explained_excess.is_nan() && c.cv_gain.is_nan(),
+                "{}: shares {} / {} of no excess",
+                c.effect,
+                c.explained_excess,
+                c.cv_gain
+            );
+            // what a candidate removes from noise is far below the tolerance
+            assert!(
+                c.explained.mm < d.tolerance_mm,
+                "{}: {:?}",
+                c.effect,
+                c.explained
+            );
+        } else {
+            assert!(c.explained_excess.abs() < 10.0 && c.cv_gain.abs() < 10.0);
+        }
+    }
+    let json = tofprox_lab::report::diagnosis_json(d);
+    for c in json["candidates"].as_array().unwrap() {
+        assert!(c["explained_mm"].is_number(), "{c}");
+    }
+    if d.fit.z <= tofprox_lab::diagnose::Z_NULL {
+        assert!(text.contains('—'), "{text}");
+        for c in json["candidates"].as_array().unwrap() {
+            assert!(
+                c["explained_excess"].is_null() && c["cv_gain"].is_null(),
+                "{c}"
+            );
+        }
+    }
+    // no share in the table is beyond ±1000 %
+    for tok in text.split_whitespace().filter(|t| t.ends_with('%')) {
+        if let Ok(v) = tok.trim_end_matches('%').parse::<f64>() {
+            assert!(v.abs() < 1000.0, "share {tok} in\n{text}");
+        }
+    }
 }
 
 #[test]

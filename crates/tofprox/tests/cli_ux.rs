@@ -199,3 +199,42 @@ fn lab_add_prints_what_it_wrote_with_units() {
         assert!(line.contains(p.unit), "{line}: unit {}", p.unit);
     }
 }
+
+/// Issue 13 item 8: `soak` prints a readable summary (not a `Debug` dump) and summarises the
+/// injected faults by kind instead of one warning line per failed cycle, with or without
+/// `--json`; `-v` shows the warnings.
+#[test]
+fn soak_summarises_its_faults_instead_of_flooding_stderr() {
+    let args = ["soak", "--cycles", "600", "--fault-rate", "0.2", "--seed", "3"];
+    let o = run(&args);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let out = text(&o.stdout);
+    let err = text(&o.stderr);
+    assert!(!out.contains("SoakReport"), "a Debug dump: {out}");
+    let failed_by = out
+        .lines()
+        .find(|l| l.starts_with("failed by:"))
+        .unwrap_or_else(|| panic!("no summary by kind: {out}"));
+    assert!(failed_by.contains("disconnected"), "{failed_by}");
+    assert!(!err.contains("WARN"), "warnings flood stderr: {err}");
+    let mut json_args = args.to_vec();
+    json_args.push("--json");
+    let o = run(&json_args);
+    assert_eq!(o.status.code(), Some(0));
+    assert!(!text(&o.stderr).contains("WARN"), "{}", text(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let sum: u64 = v["failures_by_kind"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|n| n.as_u64().unwrap())
+        .sum();
+    assert!(sum > 20, "{v}");
+    assert_eq!(sum, v["failed_cycles"].as_u64().unwrap(), "{v}");
+    // asked for: every warning
+    let mut verbose_args = args.to_vec();
+    verbose_args.insert(0, "-v");
+    let o = run(&verbose_args);
+    let warns = text(&o.stderr).matches("WARN").count() as u64;
+    assert!(warns >= 1, "{}", text(&o.stderr));
+}

@@ -74,6 +74,9 @@ pub struct SoakReport {
     pub near_transitions: u64,
     /// Failure episodes still open at the end.
     pub unrecovered: u64,
+    /// Failed cycles by the loop's error kind (`disconnected`, `timeout`, …): the summary of
+    /// what the daemon would have logged one warning each for.
+    pub failures_by_kind: std::collections::BTreeMap<String, u64>,
 }
 
 /// Resident set size of this process (kB), 0 if unknown.
@@ -94,8 +97,8 @@ pub fn rss_kb() -> u64 {
 #[error("soak setup: {0}")]
 pub struct SoakError(String);
 
-/// Run the soak.
-pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
+/// Run the soak; `on_cycle(done)` is called after every cycle (progress display).
+pub fn run(sc: &SoakConfig, mut on_cycle: impl FnMut(u64)) -> Result<SoakReport, SoakError> {
     if !(sc.fault_rate.is_finite() && (0.0..=1.0).contains(&sc.fault_rate)) {
         return Err(SoakError(format!(
             "fault rate {} must be within 0..=1",
@@ -152,6 +155,7 @@ pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
         let out = catch_unwind(AssertUnwindSafe(|| ctl.step(false)));
         let t_after = clock.now().as_secs_f64();
         rep.cycles += 1;
+        on_cycle(rep.cycles);
         let faults_now = ctl.source().driver().transport().stats().faults_injected;
         let injected = faults_now.saturating_sub(faults_before);
         faults_before = faults_now;
@@ -195,8 +199,11 @@ pub fn run(sc: &SoakConfig) -> Result<SoakReport, SoakError> {
         if injected > 0 {
             since_last_fault = 0;
         }
-        if out.error.is_some() {
+        if let Some(e) = &out.error {
             rep.failed_cycles += 1;
+            *rep.failures_by_kind
+                .entry(e.kind().as_str().to_string())
+                .or_default() += 1;
             if !in_episode {
                 in_episode = true;
             }

@@ -6,12 +6,15 @@ use std::process::Command;
 
 #[test]
 fn soak_with_faults_never_publishes_false_near_and_recovers() {
-    let rep = tofproxd::soak::run(&tofproxd::soak::SoakConfig {
-        cycles: 3000,
-        fault_rate: 0.05,
-        seed: 7,
-        period_s: 8.0,
-    })
+    let rep = tofproxd::soak::run(
+        &tofproxd::soak::SoakConfig {
+            cycles: 3000,
+            fault_rate: 0.05,
+            seed: 7,
+            period_s: 8.0,
+        },
+        |_| {},
+    )
     .expect("soak runs");
     assert_eq!(rep.cycles, 3000);
     assert!(rep.faults_injected > 50, "{rep:?}");
@@ -22,6 +25,12 @@ fn soak_with_faults_never_publishes_false_near_and_recovers() {
     assert_eq!(rep.unrecovered, 0, "{rep:?}");
     assert!(rep.near_transitions >= 4, "the hand is seen: {rep:?}");
     assert!(rep.rss_kb_end < rep.rss_kb_start + 1024, "{rep:?}");
+    assert_eq!(
+        rep.failures_by_kind.values().sum::<u64>(),
+        rep.failed_cycles,
+        "every failed cycle is summarised by its kind: {rep:?}"
+    );
+    assert!(rep.failures_by_kind.contains_key("disconnected"), "{rep:?}");
 }
 
 /// At a high fault rate Near may be held across failures, but only for the documented bound
@@ -30,12 +39,15 @@ fn soak_with_faults_never_publishes_false_near_and_recovers() {
 #[test]
 fn held_near_over_failures_is_bounded_and_counted_apart() {
     for fault_rate in [0.1, 0.3, 0.6] {
-        let rep = tofproxd::soak::run(&tofproxd::soak::SoakConfig {
-            cycles: 2000,
-            fault_rate,
-            seed: 11,
-            period_s: 8.0,
-        })
+        let rep = tofproxd::soak::run(
+            &tofproxd::soak::SoakConfig {
+                cycles: 2000,
+                fault_rate,
+                seed: 11,
+                period_s: 8.0,
+            },
+            |_| {},
+        )
         .expect("soak runs");
         assert_eq!(rep.false_near, 0, "fault rate {fault_rate}: {rep:?}");
         assert_eq!(rep.panics, 0, "{rep:?}");
@@ -50,10 +62,13 @@ fn held_near_over_failures_is_bounded_and_counted_apart() {
 
 #[test]
 fn soak_rejects_a_bad_fault_rate() {
-    let err = tofproxd::soak::run(&tofproxd::soak::SoakConfig {
-        fault_rate: 1.5,
-        ..Default::default()
-    })
+    let err = tofproxd::soak::run(
+        &tofproxd::soak::SoakConfig {
+            fault_rate: 1.5,
+            ..Default::default()
+        },
+        |_| {},
+    )
     .unwrap_err();
     assert!(err.to_string().contains("fault rate"), "{err}");
 }

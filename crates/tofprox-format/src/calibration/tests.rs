@@ -233,6 +233,47 @@ fn amplitude_part_is_checksummed_and_must_be_non_negative() {
 }
 
 #[test]
+fn absurd_amplitude_scales_are_refused_when_set_and_when_loaded() {
+    // issue 12 item 7: K = 1e30 LSB·m²/µs is finite but no sensor's
+    let absurd = Array2::from_shape_fn((3, 4), |(r, c)| if (r, c) == (1, 2) { 1e30 } else { 0.09 });
+    let e = full_set()
+        .set_amplitude(
+            AmplitudeScale {
+                lsb_m2_per_us: absurd.clone(),
+            },
+            src("corr"),
+        )
+        .unwrap_err();
+    assert_eq!(e.key_name(), Some("amplitude"), "{e}");
+    assert!(e.to_string().contains("physical range"), "{e}");
+    // on disk, with a checksum that matches: refused by the range, not the checksum
+    let t = tempfile::tempdir().unwrap();
+    full_set().save(t.path()).unwrap();
+    let bytes = crate::npy::encode_f32(&absurd.into_dyn());
+    fs::write(t.path().join("amplitude.npy"), &bytes).unwrap();
+    let toml = t.path().join("calibration.toml");
+    let text = fs::read_to_string(&toml).unwrap();
+    let old_sum = sha256_hex(&full_set().part_bytes(CalibPart::Amplitude).unwrap());
+    assert!(text.contains(&old_sum));
+    fs::write(&toml, text.replace(&old_sum, &sha256_hex(&bytes))).unwrap();
+    let e = CalibrationSet::load(t.path()).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Invalid, "{e}");
+    assert_eq!(e.key_name(), Some("amplitude"), "{e}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("amplitude.npy") && msg.contains("element 6"),
+        "{msg}"
+    );
+    // the shipped sets stay inside the range
+    for set in ["calib/emulated", "calib/phone"] {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(set);
+        CalibrationSet::load(&dir).unwrap_or_else(|e| panic!("{set}: {e}"));
+    }
+}
+
+#[test]
 fn stale_dependency_in_file_is_refused() {
     let t = tempfile::tempdir().unwrap();
     full_set().save(t.path()).unwrap();

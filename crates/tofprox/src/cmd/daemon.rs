@@ -538,18 +538,46 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
 }
 
 pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
-    let rep = tofproxd::soak::run(&tofproxd::soak::SoakConfig {
-        cycles: a.cycles,
-        fault_rate: a.fault_rate,
-        seed: a.seed,
-        ..tofproxd::soak::SoakConfig::default()
-    })?;
+    // drawn only when stderr is a terminal
+    let pb = indicatif::ProgressBar::with_draw_target(
+        Some(a.cycles),
+        indicatif::ProgressDrawTarget::stderr(),
+    );
+    if let Ok(st) =
+        indicatif::ProgressStyle::with_template("soak [{bar:30}] {pos}/{len} cycles {elapsed}")
+    {
+        pb.set_style(st.progress_chars("=> "));
+    }
+    let rep = tofproxd::soak::run(
+        &tofproxd::soak::SoakConfig {
+            cycles: a.cycles,
+            fault_rate: a.fault_rate,
+            seed: a.seed,
+            ..tofproxd::soak::SoakConfig::default()
+        },
+        |done| {
+            if done % 64 == 0 {
+                pb.set_position(done);
+            }
+        },
+    )?;
+    pb.finish_and_clear();
     let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
     if a.json {
         println!("{}", serde_json::to_string(&rep)?);
     } else {
+        let by_kind = if rep.failures_by_kind.is_empty() {
+            "none".to_string()
+        } else {
+            rep.failures_by_kind
+                .iter()
+                .map(|(k, n)| format!("{k} {n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
         println!(
             "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
+             failed by:    {by_kind} (each logged with -v)\n\
              false near:   {}\n\
              panics:       {}\n\
              recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
