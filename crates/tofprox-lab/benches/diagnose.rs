@@ -1,4 +1,5 @@
-//! `diagnose` on a 900-capture 16×16 recording (issue: ≤ 5 s on 2 cores).
+//! `compare` + `diagnose` on a 901-capture 16×16 recording (issue 11: ≤ 2 s on
+//! 2 cores; figures, machine and load in the README's performance table).
 use tofprox_lab::diagnose::{compare, diagnose};
 use tofprox_lab::fit::{LabSpec, Prepared};
 use tofprox_lab::synth::{SynthSpec, generate};

@@ -291,6 +291,16 @@ pub fn write_effect(
                 set(m, &format!("h{h}_phase_deg"), gm[1].atan2(gm[0]).to_degrees());
             }
         }
+        "sbi_asymmetry" => {
+            // the shape of the law is unit-free; threshold and mismatch are
+            // fitted in measurement units (tap charges in lab units)
+            if let Some(v) = g("clamp_share") {
+                set(m, "clamp_share", v.clamp(0.0, 1.0));
+            }
+            notes.push(format!(
+                "{effect}: clamp_share written; threshold and mismatch are in measurement units (see --json params), the model file keeps its threshold_e and mismatch_rel"
+            ));
+        }
         _ => notes.push(format!(
             "{effect}: the lab's parameters are in measurement units (see --json params); the model file keeps its typical values"
         )),

@@ -81,6 +81,11 @@ fn accumulate(
                 j[nsig..nlin].copy_from_slice(&nu);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
                 for i in 0..nnl {
+                    if sig.nl_discrete(i) {
+                        // held at its grid value: no derivative, no step
+                        j[nlin + i] = 0.0;
+                        continue;
+                    }
                     let h = 1e-4 * nl[i].abs().max(1e-2);
                     nlh[i] = nl[i] + h;
                     memo_h[i].basis(sig, &nlh, r, cap, &mut b2);

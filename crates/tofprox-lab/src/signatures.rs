@@ -28,6 +28,11 @@ pub trait Signature: Send + Sync {
     fn nl_start(&self) -> Vec<f64> {
         Vec::new()
     }
+    /// Non-linear parameters chosen from the grid only, not refined (a
+    /// choice between discrete forms of the law).
+    fn nl_discrete(&self, _i: usize) -> bool {
+        false
+    }
     /// Starting points for the non-linear parameters (variable projection).
     fn nl_grid(&self, _recs: &[Sample], _prep: &Prepared) -> Vec<Vec<f64>> {
         vec![self.nl_start()]
@@ -201,7 +206,10 @@ fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
 /// C over the contrast 0.8); once the fuller tap passes the threshold q0 the SBI injects the
 /// smaller current into both with mismatch, leaving m·N_min·(1 − q0/N_max) in
 /// the differential code — nearly the same in every raw image, so 4-phase
-/// cancels it and 2-phase does not. lin = [m], nl = [ln q0, ln κ] (both
+/// cancels it and 2-phase does not. The injected charge is the model's family
+/// (`tofprox_model::effects::pixel::sbi_injected_e`): clamp share s = 0
+/// injects the smaller tap current (subtracts), s = 1 the larger one (clamps
+/// the fuller tap at q0). lin = [m], nl = [ln q0, (ln κ), s] (q0 and κ
 /// scale-free: their units depend on the sensor over many decades).
 struct Sbi {
     ambient_varies: bool,
@@ -209,6 +217,10 @@ struct Sbi {
     g: f64,
 }
 impl Sbi {
+    /// Index of the clamp share in `nl`.
+    fn clamp_index(&self) -> usize {
+        if self.ambient_varies { 2 } else { 1 }
+    }
     fn taps(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> (f64, f64) {
         let kappa = if self.ambient_varies {
             nl.get(1).copied().unwrap_or(0.0).clamp(-20.0, 20.0).exp()
@@ -233,17 +245,27 @@ impl Signature for Sbi {
     }
     fn nl_names(&self) -> Vec<String> {
         if self.ambient_varies {
-            vec!["ln_threshold".into(), "ln_signal_weight".into()]
+            vec![
+                "ln_threshold".into(),
+                "ln_signal_weight".into(),
+                "clamp_share".into(),
+            ]
         } else {
-            vec!["ln_threshold".into()]
+            vec!["ln_threshold".into(), "clamp_share".into()]
         }
     }
     fn nl_start(&self) -> Vec<f64> {
         if self.ambient_varies {
-            vec![0.0, 0.0]
+            vec![0.0, 0.0, 0.0]
         } else {
-            vec![0.0]
+            vec![0.0, 0.0]
         }
+    }
+    /// The clamp share is chosen between the two ends of the family (the
+    /// circuit subtracts or clamps); refined freely it absorbs the
+    /// approximations of the lab's tap model.
+    fn nl_discrete(&self, i: usize) -> bool {
+        i == self.clamp_index()
     }
     fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let kappas: Vec<f64> = if self.ambient_varies {
@@ -273,22 +295,22 @@ impl Signature for Sbi {
                 })
                 .collect();
             for q0 in quantiles(qs, &[0.0, 0.2, 0.4, 0.6, 0.75, 0.85, 0.93]) {
-                let mut v = nl0.clone();
-                v[0] = (q0 * 0.999).max(1e-12).ln();
-                out.push(v);
+                // subtracting and clamping ends of the family
+                for share in [0.0, 1.0] {
+                    let mut v = nl0.clone();
+                    v[0] = (q0 * 0.999).max(1e-12).ln();
+                    v.push(share);
+                    out.push(v);
+                }
             }
         }
         out
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
         let (na, nb) = self.taps(nl, r, cap);
-        let hi = na.max(nb);
         let q0 = nl.first().copied().unwrap_or(0.0).clamp(-60.0, 60.0).exp();
-        out[0] = if hi > q0 && hi > 0.0 {
-            na.min(nb).max(0.0) * (1.0 - q0 / hi)
-        } else {
-            0.0
-        };
+        let share = nl.get(self.clamp_index()).copied().unwrap_or(0.0);
+        out[0] = tofprox_model::effects::pixel::sbi_injected_e(na, nb, q0, share);
     }
 }
 

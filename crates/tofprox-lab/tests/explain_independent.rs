@@ -46,6 +46,11 @@ enum Hidden {
     SaturatingPhase { phi_s: f64, s_sat_e: f64 },
     /// Phase a1·ΔT + a2·ΔT² and gain 1 + g1·ΔT + g2·ΔT², ΔT = T − 25 °C.
     TempSecondOrder { a1: f64, a2: f64, g1: f64, g2: f64 },
+    /// An SBI that clamps: once the fuller tap passes q_e, its excess over
+    /// q_e is removed from both taps (a common current; from tap B with
+    /// mismatch m: 1 + m) — never more than a tap holds: the common removal
+    /// stops when the emptier tap is empty.
+    SbiClamp { q_e: f64, m: f64 },
     /// A drift that bends exponentially (neither linear nor a polynomial):
     /// phase a·τ·(e^{ΔT/τ} − 1), gain e^{g·ΔT}, ΔT = T − 25 °C.
     TempExponential { a: f64, tau_k: f64, g: f64 },
@@ -125,7 +130,9 @@ fn capture(
                     s_e *= (g * dt).exp();
                 }
                 Hidden::SupplyPhase { rad_per_v } => phi += rad_per_v * (c.supply_v - 3.3),
-                Hidden::DroopFirstImage { .. } | Hidden::TapGain { .. } => {}
+                Hidden::DroopFirstImage { .. }
+                | Hidden::TapGain { .. }
+                | Hidden::SbiClamp { .. } => {}
             }
         }
         for (k, th) in phases.iter().enumerate() {
@@ -137,8 +144,15 @@ fn capture(
             }
             let s = s_e * power;
             let corr = CONTRAST * correlation(phi - th.to_radians());
-            let na = 0.5 * s * (1.0 + corr) + amb_e;
-            let nb = 0.5 * s * (1.0 - corr) + amb_e;
+            let mut na = 0.5 * s * (1.0 + corr) + amb_e;
+            let mut nb = 0.5 * s * (1.0 - corr) + amb_e;
+            for h in hidden {
+                if let Hidden::SbiClamp { q_e, m } = *h {
+                    let removed = (na.max(nb) - q_e).max(0.0).min(na).min(nb / (1.0 + m));
+                    na -= removed;
+                    nb -= (1.0 + m) * removed;
+                }
+            }
             let var_lsb2 = (LSB_PER_E * LSB_PER_E * (na + nb) + 2.5) / f64::from(averaged);
             let noise: f64 = rng.sample(StandardNormal);
             let gain_b = hidden.iter().fold(1.0, |g, h| match *h {
@@ -176,6 +190,8 @@ enum Vary {
     /// Five temperatures from 0 to 55 °C.
     Temperatures5,
     Supply,
+    /// Ambient light 0, 10 and 25 klux.
+    Ambient,
 }
 
 /// Darks, a 24-phase correlation capture, a 4-phase distance sweep at two
@@ -209,17 +225,19 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
         ..base
     };
     caps.push(capture(&px, hidden, &corr, c, 8, &mut rng));
-    let levels: Vec<(f64, f64)> = match vary {
-        Vary::Nothing => vec![(25.0, 3.3)],
-        Vary::Temperature => vec![(10.0, 3.3), (25.0, 3.3), (45.0, 3.3)],
+    // (temperature, supply voltage, ambient klux)
+    let levels: Vec<(f64, f64, f64)> = match vary {
+        Vary::Nothing => vec![(25.0, 3.3, 0.0)],
+        Vary::Temperature => vec![(10.0, 3.3, 0.0), (25.0, 3.3, 0.0), (45.0, 3.3, 0.0)],
         Vary::Temperatures5 => [0.0, 15.0, 25.0, 40.0, 55.0]
             .iter()
-            .map(|t| (*t, 3.3))
+            .map(|t| (*t, 3.3, 0.0))
             .collect(),
-        Vary::Supply => vec![(25.0, 3.0), (25.0, 3.3), (25.0, 3.6)],
+        Vary::Supply => vec![(25.0, 3.0, 0.0), (25.0, 3.3, 0.0), (25.0, 3.6, 0.0)],
+        Vary::Ambient => vec![(25.0, 3.3, 0.0), (25.0, 3.3, 10.0), (25.0, 3.3, 25.0)],
     };
     let n_d = if matches!(vary, Vary::Nothing) { 16 } else { 8 };
-    for (temp, v) in levels {
+    for (temp, v, ambient_klux) in levels {
         for &t in &exposures {
             for i in 0..n_d {
                 let d = 0.2 + 1.4 * i as f64 / (n_d - 1) as f64;
@@ -229,7 +247,7 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
                         exposure_us: t,
                         temperature_c: temp,
                         supply_v: v,
-                        ..base
+                        ambient_klux,
                     };
                     caps.push(capture(&px, hidden, &four, c, 8, &mut rng));
                 }
@@ -403,6 +421,60 @@ fn bending_temperature_drift() {
         37,
         &["temperature_drift"],
     );
+}
+
+/// An SBI that clamps the fuller tap at its threshold (the test's own
+/// formulation: the fuller tap's excess removed from both taps, mismatch on
+/// tap B) rather than subtracting the smaller tap current, under ambient light
+/// (0, 10, 25 klux; the clamp acts from ≈ 1.2 m at 25 klux and 1 ms, and
+/// empties the other tap nearer than ≈ 0.45 m): named `sbi_asymmetry` with the
+/// clamping end of the family (clamp_share 1), the loop closes at
+/// `nothing_missing` with the depth error at the level of the recording
+/// without it, and that control says nothing missing.
+#[test]
+fn clamping_sbi() {
+    let hidden = [Hidden::SbiClamp {
+        q_e: 12_000.0,
+        m: 0.03,
+    }];
+    let ds = record(&hidden, Vary::Ambient, 38);
+    let prep = Prepared::new(&ds).unwrap();
+    let ex = explain(&prep, &spec(), &DiagnoseOptions::default(), &|_, _| {}).unwrap();
+    for st in &ex.steps {
+        let d = &st.diagnosis;
+        eprintln!(
+            "{:?} {:?} ({}) remaining {:.3} mm tol {:.3} mm; rms {:?}",
+            d.verdict, d.effect, d.reason, d.size.mm, d.tolerance_mm, d.rms
+        );
+        for c in d.candidates.iter().take(3) {
+            eprintln!(
+                "   {:24} expl {:6.3} cv {:6.3} z_after {:8.1} {:?}",
+                c.effect, c.explained_excess, c.cv_gain, c.z_after, c.params
+            );
+        }
+    }
+    assert_eq!(ex.added, vec!["sbi_asymmetry".to_string()]);
+    assert_eq!(ex.verdict(), Verdict::NothingMissing);
+    let sbi = ex.steps[0]
+        .diagnosis
+        .candidates
+        .iter()
+        .find(|c| c.effect == "sbi_asymmetry")
+        .unwrap();
+    let share = sbi.params["clamp_share"];
+    assert!(
+        share > 0.5,
+        "clamp share {share}: the clamping end of the family"
+    );
+    let control = record(&[], Vary::Ambient, 38);
+    let cprep = Prepared::new(&control).unwrap();
+    let c = compare(&cprep, &spec(), &|_, _| {}).unwrap();
+    let last = &ex.steps.last().unwrap().comparison;
+    eprintln!("after {:?}\ncontrol {:?}", last.rms, c.rms);
+    assert!(last.rms.depth_2phase_mm <= 1.3 * c.rms.depth_2phase_mm);
+    assert!(last.rms.depth_4phase_mm <= 1.3 * c.rms.depth_4phase_mm);
+    let dc = diagnose(&cprep, &c, &|_, _| {}).unwrap();
+    assert_eq!(dc.verdict, Verdict::NothingMissing, "{}", dc.reason);
 }
 
 #[test]

@@ -564,7 +564,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
     EffectInfo {
         id: "sbi_asymmetry",
         title: "SBI circuit with mismatch",
-        explanation: "The suppression-of-background-illumination circuit (fig. 2.7) monitors both taps; once the fuller tap passes the threshold Q_th (at t_on = Q_th / r_max) it injects the smaller photo-current into both taps. Mismatch m between the two injection transistors leaves a differential error ΔN = −m · r_min · (t_exp − t_on). The error depends on |C(φ−θ)| and is identical in the 0°/180° (90°/270°) images, so 4-phase cancels it and 2-phase does not (fig. 5.6-5.8).",
+        explanation: "The suppression-of-background-illumination circuit (fig. 2.7) monitors both taps; once the fuller tap passes the threshold Q_th (at t_on = Q_th / r_max) it injects a common current into both taps: the smaller photo-current (clamp_share s = 0, the thesis' circuit: it subtracts the common part) or, towards s = 1, the larger one (a clamp that holds the fuller tap at Q_th); r_inj = (1 − s)·r_min + s·r_max, never removing more charge than the emptier tap holds (N_inj ≤ N_min). Mismatch m between the two injection transistors leaves a differential error ΔN = −m · r_inj · (t_exp − t_on). The error depends on |C(φ−θ)| and is identical in the 0°/180° (90°/270°) images, so 4-phase cancels it and 2-phase does not (fig. 5.6-5.8).",
         thesis_ref: "2.2.2.1, 5.1.2.3 (fig. 5.6-5.8)",
         signature: "2-phase-only depth error rising with ambient_klux and exposure above a threshold; 4-phase unaffected",
         params: &[
@@ -583,6 +583,14 @@ pub static CATALOGUE: &[EffectInfo] = &[
                 -0.3,
                 0.3,
                 "relative mismatch m of the injected currents between tap A and B",
+            ),
+            p(
+                "clamp_share",
+                "",
+                0.0,
+                0.0,
+                1.0,
+                "s: 0 injects the smaller tap current (subtracts), 1 the larger (clamps the fuller tap at Q_th)",
             ),
         ],
         in_baseline: false,

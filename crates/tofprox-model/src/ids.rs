@@ -152,7 +152,7 @@ effect_ids! {
     /// Dark current and its shot noise.
     dark_current { E_PER_US = "e_per_us", DOUBLING_C = "doubling_c" }
     /// SBI circuit with mismatch.
-    sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel" }
+    sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel", CLAMP_SHARE = "clamp_share" }
     /// Tap gain mismatch (A/B).
     tap_gain_mismatch { MISMATCH_REL = "mismatch_rel" }
     /// Fixed-pattern offset (FPN) of the read-out.

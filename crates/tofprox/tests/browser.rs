@@ -174,44 +174,16 @@ fn lab_reports_render_correctly_in_a_browser() {
     let tmp = tempfile::tempdir().unwrap();
     let mut truth = tofprox_model::ModelConfig::baseline();
     truth.set_enabled("vcsel_droop", true).unwrap();
-    let truth_p = tmp.path().join("truth.toml");
-    std::fs::write(&truth_p, truth.to_toml_string()).unwrap();
-    let base_p = tmp.path().join("base.toml");
-    std::fs::write(
-        &base_p,
-        tofprox_model::ModelConfig::baseline().to_toml_string(),
-    )
-    .unwrap();
-    let rec = tmp.path().join("rec");
+    let sweep = common::lab_sweep(tmp.path(), &truth, 7);
+    let (rec, base_p) = (Path::new(&sweep.rec), Path::new(&sweep.base));
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let o = run(&[
-        "sim",
-        "sweep",
-        "--model",
-        &s(&truth_p),
-        "--distances",
-        "0.15:1.80:0.15",
-        "--exposures",
-        "250,1000",
-        "--repeats",
-        "2",
-        "--averaged",
-        "16",
-        "--window",
-        "78,104,16,16",
-        "--seed",
-        "7",
-        "--out",
-        &s(&rec),
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
     let diag = tmp.path().join("diag.html");
     let o = run(&[
         "lab",
         "diagnose",
-        &s(&rec),
+        &s(rec),
         "--model",
-        &s(&base_p),
+        &s(base_p),
         "--report",
         &s(&diag),
     ]);
@@ -225,7 +197,7 @@ fn lab_reports_render_correctly_in_a_browser() {
     assert!(v["legends"].as_u64().unwrap() >= 3, "{v}");
     // each bar shows the score of the condition it is labelled with (compare --json
     // computes the same fit)
-    let o = run(&["lab", "compare", &s(&rec), "--model", &s(&base_p), "--json"]);
+    let o = run(&["lab", "compare", &s(rec), "--model", &s(base_p), "--json"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let cmp: Value = serde_json::from_slice(&o.stdout).unwrap();
     let shown = &v["barValues"];
@@ -256,9 +228,9 @@ fn lab_reports_render_correctly_in_a_browser() {
         "add",
         "vcsel_droop",
         "--model",
-        &s(&base_p),
+        &s(base_p),
         "--data",
-        &s(&rec),
+        &s(rec),
         "--out",
         &s(&tmp.path().join("m2.toml")),
         "--report",

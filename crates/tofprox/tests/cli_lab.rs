@@ -13,37 +13,8 @@ fn simulate(dir: &Path) -> (String, String, String) {
     let mut truth = ModelConfig::baseline();
     truth.set_enabled("vcsel_droop", true).unwrap();
     truth.set_param("vcsel_droop", "droop_rel", 0.06).unwrap();
-    let truth_p = dir.join("truth.toml");
-    std::fs::write(&truth_p, truth.to_toml_string()).unwrap();
-    let base_p = dir.join("base.toml");
-    std::fs::write(&base_p, ModelConfig::baseline().to_toml_string()).unwrap();
-    let rec = dir.join("rec");
-    let o = run(&[
-        "sim",
-        "sweep",
-        "--model",
-        truth_p.to_str().unwrap(),
-        "--distances",
-        "0.15:1.80:0.15",
-        "--exposures",
-        "250,1000",
-        "--repeats",
-        "2",
-        "--averaged",
-        "16",
-        "--window",
-        "78,104,16,16",
-        "--seed",
-        "21",
-        "--out",
-        rec.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    (
-        rec.to_string_lossy().into(),
-        base_p.to_string_lossy().into(),
-        truth_p.to_string_lossy().into(),
-    )
+    let sweep = common::lab_sweep(dir, &truth, 21);
+    (sweep.rec, sweep.base, sweep.truth)
 }
 
 #[test]

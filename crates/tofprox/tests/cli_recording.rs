@@ -9,6 +9,9 @@ use std::process::{Command, Output};
 use ndarray::Array3;
 use tofprox_format::{CalibPart, Recording, npy};
 
+mod common;
+use common::copy_dir;
+
 fn bin() -> &'static str {
     env!("CARGO_BIN_EXE_tofprox")
 }
@@ -86,19 +89,6 @@ fn assert_bad(o: &Output, needles: &[&str]) {
     assert!(err.contains("error: "), "{err}");
     for n in needles {
         assert!(err.contains(n), "stderr lacks {n:?}:\n{err}");
-    }
-}
-
-fn copy_dir(src: &Path, dst: &Path) {
-    fs::create_dir_all(dst).unwrap();
-    for e in fs::read_dir(src).unwrap() {
-        let e = e.unwrap();
-        let to = dst.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &to);
-        } else {
-            fs::copy(e.path(), to).unwrap();
-        }
     }
 }
 

@@ -109,21 +109,19 @@ fn errors_name_each_cause_once_and_stderr_has_no_colour_codes() {
     let os = "(os error 2)";
     assert!(e.matches(os).count() <= 1, "{e}");
     // the daemon's error and log output, redirected: no ANSI colour
-    let d = Path::new(env!("CARGO_BIN_EXE_tofprox")).with_file_name("tofproxd");
-    if d.is_file() {
-        let o = Command::new(&d)
-            .args(["--config", "/nonexistent/tofproxd.toml"])
-            .output()
-            .unwrap();
-        let e = text(&o.stderr);
-        assert!(!e.contains('\x1b'), "{e:?}");
-        assert!(e.matches(os).count() <= 1, "{e}");
-        // no arguments: point at --demo / --config
-        let o = Command::new(&d).output().unwrap();
-        let e = text(&o.stderr);
-        if !Path::new("/etc/tofprox/tofproxd.toml").exists() {
-            assert!(e.contains("--demo") && e.contains("--config"), "{e}");
-        }
+    let d = common::bin_dir().join("tofproxd");
+    let o = Command::new(&d)
+        .args(["--config", "/nonexistent/tofproxd.toml"])
+        .output()
+        .unwrap();
+    let e = text(&o.stderr);
+    assert!(!e.contains('\x1b'), "{e:?}");
+    assert!(e.matches(os).count() <= 1, "{e}");
+    // no arguments: point at --demo / --config
+    let o = Command::new(&d).output().unwrap();
+    let e = text(&o.stderr);
+    if !Path::new("/etc/tofprox/tofproxd.toml").exists() {
+        assert!(e.contains("--demo") && e.contains("--config"), "{e}");
     }
 }
 
@@ -132,31 +130,9 @@ fn lab_add_prints_what_it_wrote_with_units() {
     let tmp = tempfile::tempdir().unwrap();
     let mut truth = tofprox_model::ModelConfig::baseline();
     truth.set_enabled("vcsel_droop", true).unwrap();
-    let truth_p = tmp.path().join("truth.toml");
-    std::fs::write(&truth_p, truth.to_toml_string()).unwrap();
-    let rec = tmp.path().join("rec");
+    let sweep = common::lab_sweep(tmp.path(), &truth, 3);
+    let rec = Path::new(&sweep.rec);
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let o = run(&[
-        "sim",
-        "sweep",
-        "--model",
-        &s(&truth_p),
-        "--distances",
-        "0.15:1.80:0.15",
-        "--exposures",
-        "250,1000",
-        "--repeats",
-        "2",
-        "--averaged",
-        "16",
-        "--window",
-        "78,104,16,16",
-        "--seed",
-        "3",
-        "--out",
-        &s(&rec),
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
     let m2 = tmp.path().join("m2.toml");
     let o = run(&[
         "lab",
@@ -165,7 +141,7 @@ fn lab_add_prints_what_it_wrote_with_units() {
         "--model",
         &repo("config/model/baseline.toml"),
         "--data",
-        &s(&rec),
+        &s(rec),
         "--out",
         &s(&m2),
     ]);
@@ -205,7 +181,15 @@ fn lab_add_prints_what_it_wrote_with_units() {
 /// `--json`; `-v` shows the warnings.
 #[test]
 fn soak_summarises_its_faults_instead_of_flooding_stderr() {
-    let args = ["soak", "--cycles", "600", "--fault-rate", "0.2", "--seed", "3"];
+    let args = [
+        "soak",
+        "--cycles",
+        "600",
+        "--fault-rate",
+        "0.2",
+        "--seed",
+        "3",
+    ];
     let o = run(&args);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
     let out = text(&o.stdout);

@@ -46,26 +46,13 @@ fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
     let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
         return;
     };
-    let bin = Path::new(env!("CARGO_BIN_EXE_tofprox"))
-        .parent()
-        .unwrap()
-        .to_path_buf();
-    assert!(
-        bin.join("tofproxd").is_file(),
-        "{} missing (cargo test --workspace builds it; or cargo build -p tofproxd)",
-        bin.join("tofproxd").display()
-    );
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let dir = tempfile::tempdir().unwrap();
     let t = Tmux {
         socket: dir.path().join("tmux.sock"),
         _dir: dir,
     };
-    let path = format!(
-        "{}:{}",
-        bin.display(),
-        std::env::var("PATH").unwrap_or_default()
-    );
+    let path = common::path_with_bins();
     let o = t.cmd(&[
         "new-session",
         "-d",

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::text;
+use common::{copy_dir, text};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -151,41 +151,18 @@ fn script(b: &Block, sandbox: &Path) -> String {
     s
 }
 
-fn copy_dir(from: &Path, to: &Path) {
-    let st = Command::new("cp")
-        .arg("-a")
-        .arg(from)
-        .arg(to)
-        .status()
-        .unwrap();
-    assert!(st.success(), "cp -a {} {}", from.display(), to.display());
-}
-
 #[test]
 fn readme_tour_and_docs_worked_examples_run_as_written_twice() {
     let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
         return;
     };
-    let bin = Path::new(env!("CARGO_BIN_EXE_tofprox"))
-        .parent()
-        .unwrap()
-        .to_path_buf();
-    assert!(
-        bin.join("tofproxd").is_file(),
-        "{} missing: the tour uses the daemon binary (cargo test --workspace builds it; or cargo build -p tofproxd)",
-        bin.join("tofproxd").display()
-    );
     let sandbox = tempfile::tempdir().unwrap();
     let root = sandbox.path();
     for d in ["examples", "config", "calib"] {
         copy_dir(&repo().join(d), &root.join(d));
     }
     std::fs::create_dir_all(root.join("tmp")).unwrap();
-    let path = format!(
-        "{}:{}",
-        bin.display(),
-        std::env::var("PATH").unwrap_or_default()
-    );
+    let path = common::path_with_bins();
     let blocks: Vec<Block> = readme_tour().into_iter().chain(docs_examples()).collect();
     assert!(
         blocks.len() >= 6,

@@ -21,6 +21,30 @@ pub fn amplitude_phase_shape(x: f64, n: f64) -> f64 {
     1.0 - x / (1.0 + x.powf(n)).powf(1.0 / n)
 }
 
+/// Charge the SBI circuit injects into each tap (2.2.2.1, fig. 2.7, 5.1.2.3),
+/// for tap charges `n_a`, `n_b` collected at constant rates: the fuller tap
+/// reaches the threshold Q_th at t_on = Q_th/r_max; from then on the circuit
+/// injects r_inj = (1 − s)·r_min + s·r_max into both taps, so
+/// N_inj = [(1 − s)·N_min + s·N_max]·(1 − Q_th/N_max) (0 below the
+/// threshold). `clamp_share` s = 0 subtracts the common (smaller) current,
+/// the thesis' circuit; s = 1 clamps the fuller tap at Q_th
+/// (N_inj = N_max − Q_th); between, a mixture. The injection is common to
+/// both taps and cannot remove more charge than the emptier tap holds:
+/// N_inj ≤ N_min (a clamp whose fuller tap runs Q_th + N_min above the
+/// threshold empties the other tap and stops there). Mismatch m of the
+/// injection leaves −m·N_inj in the differential charge.
+#[inline]
+pub fn sbi_injected_e(n_a: f64, n_b: f64, threshold_e: f64, clamp_share: f64) -> f64 {
+    let hi = n_a.max(n_b);
+    let lo = n_a.min(n_b).max(0.0);
+    if hi > threshold_e && hi > 0.0 {
+        let s = clamp_share.clamp(0.0, 1.0);
+        (((1.0 - s) * lo + s * hi) * (1.0 - threshold_e / hi)).min(lo)
+    } else {
+        0.0
+    }
+}
+
 /// The powers of ΔT = T − T_ref the temperature drift is a polynomial in:
 /// [ΔT, ΔT²] (catalogue `temperature_drift`).
 pub fn temperature_drift_terms(dt: f64) -> [f64; 2] {
@@ -42,8 +66,8 @@ pub fn temperature_drift(dt: f64, phase_rad_per_k: [f64; 2], gain_per_k: [f64; 2
 /// Per-capture constants of the pixel effects.
 #[derive(Debug, Clone, Copy)]
 pub struct PixelParams {
-    /// SBI on: threshold in electrons and mismatch.
-    pub sbi: Option<(f64, f64)>,
+    /// SBI on: threshold in electrons, mismatch and clamp share.
+    pub sbi: Option<(f64, f64, f64)>,
     /// Amplitude-phase error: (max_rad, reference_e, shape n).
     pub amp_phase: Option<(f64, f64, f64)>,
     /// Phase drift in rad for this temperature.
@@ -70,6 +94,7 @@ impl PixelParams {
             (
                 model.get(ids::sbi_asymmetry::THRESHOLD_E),
                 model.get(ids::sbi_asymmetry::MISMATCH_REL),
+                model.get(ids::sbi_asymmetry::CLAMP_SHARE),
             )
         });
         let amp_phase = on(ids::amplitude_phase_error::ID).then(|| {
@@ -148,20 +173,12 @@ impl PixelParams {
         }
     }
 
-    /// SBI differential error in electrons for tap charges `n_a`, `n_b` (2.2.2.1, 5.1.2.3):
-    /// the fuller tap reaches Q_th at t_on = Q_th/r_max; from then on the smaller
-    /// current is injected into both taps with mismatch m: ΔN = −m · N_min · (1 − Q_th/N_max).
+    /// SBI differential error in electrons for tap charges `n_a`, `n_b`
+    /// (2.2.2.1, 5.1.2.3): −m · [`sbi_injected_e`].
     #[inline]
     pub fn sbi_error_e(&self, n_a: f64, n_b: f64) -> f64 {
         match self.sbi {
-            Some((q_th, m)) => {
-                let hi = n_a.max(n_b);
-                if hi > q_th {
-                    -m * n_a.min(n_b) * (1.0 - q_th / hi)
-                } else {
-                    0.0
-                }
-            }
+            Some((q_th, m, s)) => -m * sbi_injected_e(n_a, n_b, q_th, s),
             None => 0.0,
         }
     }
@@ -174,5 +191,35 @@ impl PixelParams {
             v += 2.0 * self.dark_e;
         }
         v
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sbi_family_subtracts_clamps_and_never_empties_a_tap_below_zero() {
+        // below the threshold nothing is injected, whatever the circuit
+        assert_eq!(sbi_injected_e(900.0, 500.0, 1000.0, 0.0), 0.0);
+        assert_eq!(sbi_injected_e(900.0, 500.0, 1000.0, 1.0), 0.0);
+        // s = 0: the thesis' circuit, N_min·(1 − Q_th/N_max)
+        let sub = sbi_injected_e(2000.0, 1500.0, 1000.0, 0.0);
+        assert!((sub - 1500.0 * 0.5).abs() < 1e-9, "{sub}");
+        // s = 1: the fuller tap is held at Q_th: N_max − Q_th
+        let clamp = sbi_injected_e(1500.0, 2000.0, 1000.0, 1.0);
+        assert!((clamp - 1000.0).abs() < 1e-9, "{clamp}");
+        // between: the mixture, monotone in s
+        let mid = sbi_injected_e(2000.0, 1500.0, 1000.0, 0.5);
+        assert!(sub < mid && mid < clamp, "{sub} {mid} {clamp}");
+        // a clamp far above the threshold cannot remove more than the emptier tap holds
+        let deep = sbi_injected_e(9000.0, 300.0, 1000.0, 1.0);
+        assert!((deep - 300.0).abs() < 1e-9, "{deep}");
+        for s in [0.0, 0.3, 1.0] {
+            for (a, b) in [(5000.0, 10.0), (1200.0, 1100.0), (4e4, 2e4)] {
+                let inj = sbi_injected_e(a, b, 1000.0, s);
+                assert!((0.0..=b).contains(&inj), "s {s}: {inj} from taps {a}, {b}");
+            }
+        }
     }
 }
