@@ -10,7 +10,7 @@
 //! delay only, not the lens geometry.
 
 use crate::camera::{Plane, RayGrid};
-use crate::phasor::{self, wrap_phase, wrap_to_pi};
+use crate::phasor::{self, Quadrature, wrap_phase, wrap_to_pi};
 use crate::sensor::{adc_max_code, adc_mid_code, validate_adc_bits, validate_modulation_hz};
 use crate::{Algorithm, CoreError};
 use ndarray::{Array1, Array2, ArrayView3, Axis};
@@ -183,6 +183,38 @@ pub fn extract_wiggling_through_lens(
     algorithm: Algorithm,
     lut_size: usize,
 ) -> Result<WigglingLut, CoreError> {
+    extract_wiggling_for(
+        correlation,
+        phases_deg,
+        offset,
+        distance_m,
+        rays,
+        modulation_hz,
+        adc_bits,
+        algorithm,
+        Quadrature::STANDARD,
+        lut_size,
+    )
+}
+
+/// [`extract_wiggling_through_lens`] for a sensor whose 2-phase pair has the canonical shifts
+/// of `quadrature` (e.g. `[0°, 270°]` for one that shifts its illumination,
+/// [`crate::phasor::PhaseConvention`]): with harmonics in the correlation, `g(φ − 270°) ≠
+/// −g(φ − 90°)`, so the 2-phase wiggling depends on which pair the sensor takes (eq. 2.2 with the
+/// signs of [`Quadrature`]). 4-phase is the same for every quadrature (eq. 2.3 uses all four).
+#[allow(clippy::too_many_arguments)]
+pub fn extract_wiggling_for(
+    correlation: ArrayView3<f64>,
+    phases_deg: &[f64],
+    offset: Option<&OffsetCalibration>,
+    distance_m: f64,
+    rays: Option<&RayGrid>,
+    modulation_hz: f64,
+    adc_bits: u8,
+    algorithm: Algorithm,
+    quadrature: Quadrature,
+    lut_size: usize,
+) -> Result<WigglingLut, CoreError> {
     let (n, rows, cols) = correlation.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
     let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
@@ -279,9 +311,20 @@ pub fn extract_wiggling_through_lens(
     let q = upsampled / 4;
     let at = |j: usize| grid[j % upsampled];
     // Measured phase of a target at total phase Φ0 − s_j: its raw values are g(s_j + θ_k).
+    // the 2-phase pair's canonical shifts: in-phase at 0° or 180°, quadrature at 90° or 270°
+    let (ja, sx) = if quadrature.x_sign < 0 {
+        (2 * q, -1.0)
+    } else {
+        (0, 1.0)
+    };
+    let (jb, sy) = if quadrature.y_sign < 0 {
+        (3 * q, -1.0)
+    } else {
+        (q, 1.0)
+    };
     let measured: Vec<f64> = (0..upsampled)
         .map(|j| match algorithm {
-            Algorithm::TwoPhase => phasor::phase_2phase(at(j), at(j + q)), // eq. 2.2
+            Algorithm::TwoPhase => phasor::phase_2phase(sx * at(j + ja), sy * at(j + jb)), // eq. 2.2
             Algorithm::FourPhase => {
                 phasor::phase_4phase(at(j), at(j + q), at(j + 2 * q), at(j + 3 * q))
             } // eq. 2.3
@@ -387,6 +430,35 @@ pub fn extract_fppn_through_lens(
     adc_bits: u8,
     algorithm: Algorithm,
 ) -> Result<FppnMap, CoreError> {
+    extract_fppn_for(
+        capture,
+        phases_deg,
+        offset,
+        wiggling,
+        distance_m,
+        rays,
+        modulation_hz,
+        adc_bits,
+        algorithm,
+        Quadrature::STANDARD,
+    )
+}
+
+/// [`extract_fppn_through_lens`] evaluating 2-phase with the pair of `quadrature` (the sensor's
+/// own 2-phase pair, as [`extract_wiggling_for`]); the capture must hold those shifts.
+#[allow(clippy::too_many_arguments)]
+pub fn extract_fppn_for(
+    capture: ArrayView3<f64>,
+    phases_deg: &[f64],
+    offset: Option<&OffsetCalibration>,
+    wiggling: Option<&WigglingLut>,
+    distance_m: f64,
+    rays: Option<&RayGrid>,
+    modulation_hz: f64,
+    adc_bits: u8,
+    algorithm: Algorithm,
+    quadrature: Quadrature,
+) -> Result<FppnMap, CoreError> {
     let (k, rows, cols) = capture.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
     let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
@@ -407,8 +479,9 @@ pub fn extract_fppn_through_lens(
         }
         w.validate()?;
     }
-    let idx = algorithm_indices(phases_deg, algorithm)?;
+    let idx = quadrature_indices(phases_deg, algorithm, quadrature)?;
     let used = algorithm.raw_images();
+    let (sx, sy) = (f64::from(quadrature.x_sign), f64::from(quadrature.y_sign));
     let mid = f64::from(adc_mid_code(adc_bits));
     let max_code = f64::from(adc_max_code(adc_bits));
     let phi_true = wrap_phase(phasor::distance_to_phase_rad(distance_m, modulation_hz));
@@ -428,11 +501,11 @@ pub fn extract_fppn_through_lens(
             }
             let (measured, amplitude) = match algorithm {
                 Algorithm::TwoPhase => (
-                    phasor::phase_2phase(u[0], u[1]),
+                    phasor::phase_2phase(sx * u[0], sy * u[1]),
                     phasor::amplitude_2phase(u[0], u[1]),
                 ),
                 Algorithm::FourPhase => (
-                    phasor::phase_4phase(u[0], u[1], u[2], u[3]),
+                    phasor::phase_4phase(sx * u[0], sy * u[1], sx * u[2], sy * u[3]),
                     phasor::amplitude_4phase(u[0], u[1], u[2], u[3]),
                 ),
             };
@@ -518,20 +591,30 @@ pub(crate) fn check_offset(
     Ok(())
 }
 
-/// Indices of the images at 0°, 90° (, 180°, 270°) within `phases_deg` (first match, ±1e-6°,
-/// modulo 360°). For 2-phase the last two slots are 0 and unused.
+/// Indices of the images at 0°, 90° (, 180°, 270°) within `phases_deg` (first match, within
+/// [`crate::phasor::SHIFT_TOLERANCE_DEG`] modulo 360°). For 2-phase the last two slots are 0 and unused.
 pub fn algorithm_indices(
     phases_deg: &[f64],
     algorithm: Algorithm,
 ) -> Result<[usize; 4], CoreError> {
+    quadrature_indices(phases_deg, algorithm, Quadrature::STANDARD)
+}
+
+/// [`algorithm_indices`] for the images of `quadrature`: in-phase at 0° (180° when
+/// `x_sign < 0`), quadrature at 90° (270°), then the two opposite ones (4-phase).
+pub fn quadrature_indices(
+    phases_deg: &[f64],
+    algorithm: Algorithm,
+    quadrature: Quadrature,
+) -> Result<[usize; 4], CoreError> {
+    let a = if quadrature.x_sign < 0 { 180.0 } else { 0.0 };
+    let b = if quadrature.y_sign < 0 { 270.0 } else { 90.0 };
+    let wanted = [a, b, (a + 180.0) % 360.0, (b + 180.0) % 360.0];
     let mut out = [0usize; 4];
-    for (slot, want) in out.iter_mut().zip(algorithm.phases_deg()) {
+    for (slot, want) in out.iter_mut().zip(&wanted[..algorithm.raw_images()]) {
         *slot = phases_deg
             .iter()
-            .position(|p| {
-                let d = (p - want).rem_euclid(360.0);
-                p.is_finite() && d.min(360.0 - d) < 1e-6
-            })
+            .position(|p| crate::phasor::same_shift_deg(*p, *want))
             .ok_or_else(|| CoreError::InvalidPhases {
                 phases_deg: phases_deg.to_vec(),
                 reason: format!("{algorithm} needs an image at {want}°"),

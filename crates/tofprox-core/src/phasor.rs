@@ -322,3 +322,165 @@ mod tests {
         assert!(wrap_phase(f64::NAN).is_nan());
     }
 }
+
+/// The signal a raw image's phase shift `θ_k` is applied to (a recording's
+/// `[sensor] phase_shift_applies_to`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum ShiftedSignal {
+    /// The demodulation (pixel gate) signal is delayed by `θ_k`: `u_k ∝ cos(φ − θ_k)` (2.2.1,
+    /// the thesis's and tofprox's own convention).
+    #[default]
+    Demodulation,
+    /// The illumination is delayed by `θ_k`; the return then arrives `φ + θ_k` after the gate:
+    /// `u_k ∝ cos(φ + θ_k)`.
+    Illumination,
+}
+
+/// How a raw image's recorded phase shift relates to the measured phase: the shifted signal and
+/// the sign of the differential code (`+1`: `u = N_A − N_B` rises with the correlation, eq. 2.1;
+/// `−1`: the read-out reports `N_B − N_A`). tofprox's canonical form is
+/// `u_k = A·cos(φ − θ_k)` (demodulation, `+1`): every other convention is a relabelling of the
+/// shifts, [`PhaseConvention::canonical_deg`] — the data are never changed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PhaseConvention {
+    /// Which signal `θ_k` delays.
+    pub shifted: ShiftedSignal,
+    /// `+1` or `−1`: sign of the differential code relative to the correlation.
+    pub sign: i8,
+}
+
+impl Default for PhaseConvention {
+    fn default() -> Self {
+        PhaseConvention::CANONICAL
+    }
+}
+
+impl PhaseConvention {
+    /// tofprox's convention: demodulation shifted, `u = N_A − N_B`.
+    pub const CANONICAL: PhaseConvention = PhaseConvention {
+        shifted: ShiftedSignal::Demodulation,
+        sign: 1,
+    };
+
+    /// Checks `sign ∈ {+1, −1}`.
+    pub fn validate(&self) -> Result<(), crate::CoreError> {
+        if self.sign == 1 || self.sign == -1 {
+            Ok(())
+        } else {
+            Err(crate::CoreError::param(
+                "phase_sign",
+                format!("must be 1 or -1, got {}", self.sign),
+            ))
+        }
+    }
+
+    /// Whether this is the canonical convention.
+    pub fn is_canonical(&self) -> bool {
+        *self == PhaseConvention::CANONICAL
+    }
+
+    /// The canonical shift (degrees, in `[0, 360)`) of a raw image recorded with shift
+    /// `label_deg` in this convention: the `θ_c` with `u = A·cos(φ − θ_c)`.
+    /// Illumination: `cos(φ + θ) = cos(φ − (−θ))`, so `θ_c = −θ`; sign `−1`:
+    /// `−cos(φ − θ) = cos(φ − (θ + 180°))`, so `θ_c = θ + 180°`.
+    pub fn canonical_deg(&self, label_deg: f64) -> f64 {
+        let t = match self.shifted {
+            ShiftedSignal::Demodulation => label_deg,
+            ShiftedSignal::Illumination => -label_deg,
+        };
+        let t = if self.sign < 0 { t + 180.0 } else { t };
+        // (+ 0.0: a −0° label is written as 0°)
+        t.rem_euclid(360.0) + 0.0
+    }
+
+    /// The quadrature of this sensor's own 2-phase pair (the images it labels `[0°, 90°]`);
+    /// what its 2-phase wiggling table is extracted for ([`crate::calib::extract_wiggling_for`]).
+    pub fn two_phase_quadrature(&self) -> Quadrature {
+        let pair = [self.canonical_deg(0.0), self.canonical_deg(90.0)];
+        Quadrature::of_canonical(&pair, crate::Algorithm::TwoPhase).unwrap_or_default()
+    }
+
+    /// The label (degrees, in `[0, 360)`) a raw image of canonical shift `canonical_deg` carries
+    /// in this convention (the inverse of [`PhaseConvention::canonical_deg`]).
+    pub fn label_deg(&self, canonical_deg: f64) -> f64 {
+        let t = if self.sign < 0 {
+            canonical_deg - 180.0
+        } else {
+            canonical_deg
+        };
+        let t = match self.shifted {
+            ShiftedSignal::Demodulation => t,
+            ShiftedSignal::Illumination => -t,
+        };
+        // (+ 0.0: a −0° label is written as 0°)
+        t.rem_euclid(360.0) + 0.0
+    }
+}
+
+/// How far (degrees, modulo 360°) a recorded phase shift may lie from a nominal one and still
+/// be that shift: `1e-3°`. Shifts reach tofprox through text, f32 radians and register LSB
+/// products (a `π/2` stored as f32 radians is `90.0000025°`); `1e-3°` is `0.07 mm` at 60 MHz,
+/// far below any depth the sensor resolves, and far below the smallest register step
+/// (`360°/4096 ≈ 0.088°`) a deliberately different shift would have.
+pub const SHIFT_TOLERANCE_DEG: f64 = 1e-3;
+
+/// Whether shifts `a_deg` and `b_deg` are the same modulo 360° within
+/// [`SHIFT_TOLERANCE_DEG`] (false for non-finite shifts).
+pub fn same_shift_deg(a_deg: f64, b_deg: f64) -> bool {
+    let d = (a_deg - b_deg).rem_euclid(360.0);
+    d.min(360.0 - d) < SHIFT_TOLERANCE_DEG
+}
+
+/// Signs of the in-phase and quadrature parts of eqs. 2.2/2.3 for raw images whose canonical
+/// shifts are `[a, b]` (2-phase) or `[a, b, a + 180°, b + 180°]` (4-phase) with `a ∈ {0°, 180°}`
+/// and `b ∈ {90°, 270°}`: `x = s_x·u_a` (or `s_x·(u_a − u_{a+180})`), `y = s_y·u_b` (…), then
+/// `φ = atan2(y, x)`. `u_180 = −u_0` and `u_270 = −u_90` for `u = A·cos(φ − θ)`, so a pair such as
+/// `[0°, 270°]` (a `[0°, 90°]` capture of a sensor shifting its illumination) is eq. 2.2 with
+/// `s_y = −1`. `[0°, 90°]` is `s_x = s_y = +1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Quadrature {
+    /// `+1` when the in-phase image is at 0°, `−1` at 180°.
+    pub x_sign: i8,
+    /// `+1` when the quadrature image is at 90°, `−1` at 270°.
+    pub y_sign: i8,
+}
+
+impl Default for Quadrature {
+    fn default() -> Self {
+        Quadrature::STANDARD
+    }
+}
+
+impl Quadrature {
+    /// Images at `[0°, 90°(, 180°, 270°)]`.
+    pub const STANDARD: Quadrature = Quadrature {
+        x_sign: 1,
+        y_sign: 1,
+    };
+
+    /// The quadrature of raw images with canonical shifts `canonical_deg` for `algorithm`
+    /// (its first 2 or 4 shifts are used), or `None` when they are not such a set.
+    pub fn of_canonical(canonical_deg: &[f64], algorithm: crate::Algorithm) -> Option<Quadrature> {
+        let n = algorithm.raw_images();
+        let p = canonical_deg.get(..n)?;
+        let near = same_shift_deg;
+        let x_sign = if near(p[0], 0.0) {
+            1
+        } else if near(p[0], 180.0) {
+            -1
+        } else {
+            return None;
+        };
+        let y_sign = if near(p[1], 90.0) {
+            1
+        } else if near(p[1], 270.0) {
+            -1
+        } else {
+            return None;
+        };
+        if n == 4 && !(near(p[2], p[0] + 180.0) && near(p[3], p[1] + 180.0)) {
+            return None;
+        }
+        Some(Quadrature { x_sign, y_sign })
+    }
+}

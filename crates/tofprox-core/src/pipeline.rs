@@ -35,7 +35,7 @@
 use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
 use crate::crosstalk::CrosstalkCalibration;
 use crate::fastmath::atan2_lanes;
-use crate::phasor::{self, wrap_to_pi};
+use crate::phasor::{self, Quadrature, wrap_to_pi};
 pub use crate::simd::SimdLevel;
 use crate::simd::generic::Arr;
 use crate::simd::{self, LANES, LUT_BINS, Lanes, Lut};
@@ -261,6 +261,9 @@ struct KernelParams {
     min_amp: f32,
     lut_scale: f32,
     rad_to_m: f32,
+    /// Signs of the in-phase and quadrature parts ([`Quadrature`]), ±1.
+    x_sign: f32,
+    y_sign: f32,
 }
 
 /// The processing pipeline: owns its calibration tables and output buffers; `process` is
@@ -324,6 +327,8 @@ impl Pipeline {
             lut_scale: LUT_BINS as f32 / TAU,
             rad_to_m: (phasor::unambiguous_range_m(config.modulation_hz) / std::f64::consts::TAU)
                 as f32,
+            x_sign: 1.0,
+            y_sign: 1.0,
         };
         let mut p = Pipeline {
             rows,
@@ -625,6 +630,25 @@ impl Pipeline {
         Ok(())
     }
 
+    /// The canonical phase shifts of the raw images given to [`Pipeline::process`] (default
+    /// [`Quadrature::STANDARD`], images at 0°, 90°(, 180°, 270°)): a recording made with another
+    /// [`crate::phasor::PhaseConvention`] has its shifts relabelled to canonical ones, and e.g. a
+    /// `[0°, 270°]` pair is evaluated by eq. 2.2 with the quadrature part negated.
+    pub fn set_quadrature(&mut self, quadrature: Quadrature) {
+        let sign = |s: i8| if s < 0 { -1.0 } else { 1.0 };
+        self.params.x_sign = sign(quadrature.x_sign);
+        self.params.y_sign = sign(quadrature.y_sign);
+    }
+
+    /// The quadrature set with [`Pipeline::set_quadrature`].
+    pub fn quadrature(&self) -> Quadrature {
+        let sign = |v: f32| if v < 0.0 { -1 } else { 1 };
+        Quadrature {
+            x_sign: sign(self.params.x_sign),
+            y_sign: sign(self.params.y_sign),
+        }
+    }
+
     /// The instruction set the per-pixel kernel runs with (the best this CPU supports, detected
     /// at construction, unless [`Pipeline::set_simd_level`] chose another).
     pub fn simd_level(&self) -> SimdLevel {
@@ -920,7 +944,9 @@ fn front<L: Lanes, T: RawSample, const FOUR: bool>(
         L::select(finite, amp, L::splat(0.0)).store(amp_out);
     }
     L::store_int(status, status_out);
-    let m = atan2_lanes(y, x); // eq. 2.2 / 2.3, [0, 2π)
+    // eq. 2.2 / 2.3, [0, 2π); the signs place the images' canonical shifts (`Quadrature`):
+    // multiplying by ±1 is exact, so every level still agrees to the bit.
+    let m = atan2_lanes(y.mul(L::splat(p.y_sign)), x.mul(L::splat(p.x_sign)));
     m.store(m_out);
     // Wiggling-table position. `xf − 0.5` rounded is floor(xf) (a tie gives idx − 1 with fr = 1:
     // the same interpolated value); a NaN phase gives an index the lookup masks into range.
@@ -989,6 +1015,107 @@ mod tests {
         Array3::from_shape_fn((phases.len(), rows, cols), |(k, _, _)| {
             2048.0 + amp * (phi - phases[k].to_radians()).cos()
         })
+    }
+
+    /// Every phase convention: a capture recorded as `[0°, 90°(, 180°, 270°)]` by a sensor with
+    /// that convention has other canonical shifts; relabelled and evaluated with their
+    /// quadrature it gives the canonical depth — on every SIMD level.
+    #[test]
+    fn every_phase_convention_gives_the_same_depth() {
+        use crate::phasor::{PhaseConvention, ShiftedSignal};
+        for algo in Algorithm::ALL {
+            for shifted in [ShiftedSignal::Demodulation, ShiftedSignal::Illumination] {
+                for sign in [1, -1] {
+                    let conv = PhaseConvention { shifted, sign };
+                    let canonical: Vec<f64> = algo
+                        .phases_deg()
+                        .iter()
+                        .map(|&l| conv.canonical_deg(l))
+                        .collect();
+                    let q = Quadrature::of_canonical(&canonical, algo).unwrap();
+                    assert_eq!(
+                        q == Quadrature::STANDARD,
+                        conv.is_canonical(),
+                        "{conv:?} -> {q:?}"
+                    );
+                    let cfg = PipelineConfig {
+                        algorithm: algo,
+                        ..Default::default()
+                    };
+                    let mut p = Pipeline::new(2, 9, cfg, Calibration::default()).unwrap();
+                    p.set_quadrature(q);
+                    for d in [0.07, 0.5, 0.93, 1.5, 1.8] {
+                        let phi = phasor::distance_to_phase_rad(d, 80e6);
+                        // the sensor's images: u_k = A·cos(φ − θ_c(label_k))
+                        let raw = synth(phi, 800.0, 2, 9, &canonical);
+                        for level in SimdLevel::ALL.iter().filter(|l| l.is_supported()) {
+                            p.set_simd_level(*level).unwrap();
+                            let f = p.process(raw.view()).unwrap();
+                            for &dm in f.depth_m.iter() {
+                                assert!(
+                                    (dm as f64 - d).abs() < 2e-4,
+                                    "{algo} {conv:?}: {dm} vs {d}"
+                                );
+                            }
+                        }
+                        // without the quadrature the depth is wrong (the test can fail)
+                        if !conv.is_canonical() && (d == 0.5 || d == 1.5) {
+                            let mut plain =
+                                Pipeline::new(2, 9, cfg, Calibration::default()).unwrap();
+                            let f = plain.process(raw.view()).unwrap();
+                            assert!((f.depth_m[(0, 0)] as f64 - d).abs() > 0.05, "{conv:?}");
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn phase_convention_labels_round_trip() {
+        use crate::phasor::{PhaseConvention, ShiftedSignal};
+        for shifted in [ShiftedSignal::Demodulation, ShiftedSignal::Illumination] {
+            for sign in [1, -1] {
+                let c = PhaseConvention { shifted, sign };
+                for l in [0.0, 15.0, 90.0, 180.0, 270.0, 345.0] {
+                    let back = c.label_deg(c.canonical_deg(l));
+                    assert!((back - l).abs() < 1e-9, "{c:?} {l} {back}");
+                }
+            }
+        }
+        let ill = PhaseConvention {
+            shifted: ShiftedSignal::Illumination,
+            sign: 1,
+        };
+        assert_eq!(ill.canonical_deg(90.0), 270.0);
+        assert!(
+            PhaseConvention {
+                shifted: ShiftedSignal::Demodulation,
+                sign: 0
+            }
+            .validate()
+            .is_err()
+        );
+        assert_eq!(
+            Quadrature::of_canonical(&[0.0, 45.0], Algorithm::TwoPhase),
+            None
+        );
+        assert_eq!(
+            Quadrature::of_canonical(&[0.0, 90.0, 270.0, 180.0], Algorithm::FourPhase),
+            None
+        );
+        // real-world float shifts: π/2 stored as f32 radians is 90.0000025°, a −0° is 359.99…°
+        let f32_quarter_deg = f64::from(std::f32::consts::FRAC_PI_2).to_degrees();
+        assert!((f32_quarter_deg - 90.0).abs() > 1e-6);
+        assert_eq!(
+            Quadrature::of_canonical(&[360.0 - 1e-9, f32_quarter_deg], Algorithm::TwoPhase),
+            Some(Quadrature::STANDARD)
+        );
+        // one register step (360°/4096) off is another shift, not the nominal one
+        assert_eq!(
+            Quadrature::of_canonical(&[0.0, 90.0 + 360.0 / 4096.0], Algorithm::TwoPhase),
+            None
+        );
     }
 
     #[test]

@@ -450,3 +450,78 @@ fn fppn_after_lens_correction_is_the_electrical_delay_only() {
         "wiggling through the lens {max} rad"
     );
 }
+
+/// A sensor whose 2-phase pair has the canonical shifts `[0°, 270°]` (it shifts its illumination,
+/// `PhaseConvention`): with an even harmonic in the correlation, `−g(φ − 270°) ≠ g(φ − 90°)`, so
+/// its 2-phase wiggling differs from the `[0°, 90°]` pair's. The table extracted for its own pair
+/// corrects it; the standard table does not (the test can fail).
+#[test]
+fn wiggling_is_extracted_for_the_sensors_own_two_phase_pair() {
+    use tofprox_core::phasor::Quadrature;
+    let delay = 0.4;
+    let d0 = 0.6;
+    let phi0 = distance_to_phase_rad(d0, F);
+    let g = |x: f64| 600.0 * (x.cos() + 0.06 * (2.0 * x).cos() + 0.05 * (3.0 * x).cos());
+    let corr = Array3::from_shape_fn((24, 3, 3), |(k, _, _)| {
+        2048.0 + g(phi0 + delay - phases24()[k].to_radians())
+    });
+    for q in [
+        Quadrature {
+            x_sign: 1,
+            y_sign: -1,
+        },
+        Quadrature {
+            x_sign: -1,
+            y_sign: -1,
+        },
+        Quadrature {
+            x_sign: -1,
+            y_sign: 1,
+        },
+    ] {
+        let own = extract_wiggling_for(
+            corr.view(),
+            &phases24(),
+            None,
+            d0,
+            None,
+            F,
+            12,
+            Algorithm::TwoPhase,
+            q,
+            256,
+        )
+        .unwrap();
+        let standard = extract_wiggling(
+            corr.view(),
+            &phases24(),
+            None,
+            d0,
+            F,
+            12,
+            Algorithm::TwoPhase,
+            256,
+        )
+        .unwrap();
+        let (a, b) = (
+            if q.x_sign < 0 { PI } else { 0.0 },
+            if q.y_sign < 0 { 1.5 * PI } else { 0.5 * PI },
+        );
+        let (mut worst_own, mut worst_std) = (0.0f64, 0.0f64);
+        for i in 0..97 {
+            let tof = TAU * i as f64 / 97.0;
+            let (ua, ub) = (g(tof + delay - a), g(tof + delay - b));
+            let m = tofprox_core::phasor::phase_2phase(
+                f64::from(q.x_sign) * ua,
+                f64::from(q.y_sign) * ub,
+            );
+            worst_own = worst_own.max(wrap_to_pi(own.correct(m) - tof).abs());
+            worst_std = worst_std.max(wrap_to_pi(standard.correct(m) - tof).abs());
+        }
+        assert!(worst_own < 2e-4, "{q:?}: own table leaves {worst_own} rad");
+        assert!(
+            worst_std > 1e-2,
+            "{q:?}: the standard table leaves only {worst_std} rad"
+        );
+    }
+}

@@ -10,7 +10,8 @@ use std::path::{Component, Path, PathBuf};
 use ndarray::{Array3, ArrayBase, Data, Ix3};
 use serde::{Deserialize, Serialize};
 
-use tofprox_core::SensorGeometry;
+use tofprox_core::phasor::{PhaseConvention, Quadrature, ShiftedSignal, same_shift_deg};
+use tofprox_core::{Algorithm, SensorGeometry};
 
 use crate::error::{
     ErrorKind, FormatError, check_format_header, geometry_invalid, invalid, parse_toml,
@@ -182,29 +183,36 @@ impl CaptureMeta {
     pub fn distance_m(&self) -> Option<f64> {
         self.conditions.get("distance_m").copied()
     }
-    /// True when the phases are `[0, 90, 180, 270]` (a 4-phase capture).
+    /// True for a 4-phase capture: four images whose (canonical) shifts are
+    /// `[a, b, a + 180, b + 180]`, `a ∈ {0, 180}`, `b ∈ {90, 270}` — `[0, 90,
+    /// 180, 270]`, or what a sensor with another phase convention records as such.
     pub fn is_four_phase(&self) -> bool {
-        phases_match(&self.phases_deg, &[0.0, 90.0, 180.0, 270.0])
+        self.phases_deg.len() == 4 && self.quadrature(Algorithm::FourPhase).is_some()
     }
-    /// True when the phases start with `[0, 90]` (processable as 2-phase).
+    /// True when the first two images are a 2-phase pair (`[0, 90]`, or what a
+    /// sensor with another phase convention records as such).
     pub fn starts_two_phase(&self) -> bool {
-        self.phases_deg.len() >= 2 && phases_match(&self.phases_deg[..2], &[0.0, 90.0])
+        self.quadrature(Algorithm::TwoPhase).is_some()
     }
-    /// True when the phases are `n >= 8` equally spaced steps starting at 0
-    /// (a correlation capture; the standard one is 24 × 15°).
+    /// How `algorithm` evaluates the first 2 or 4 images
+    /// ([`tofprox_core::pipeline::Pipeline::set_quadrature`]), or `None` when they are
+    /// not such a set.
+    pub fn quadrature(&self, algorithm: Algorithm) -> Option<Quadrature> {
+        Quadrature::of_canonical(&self.phases_deg, algorithm)
+    }
+    /// True when the phases are `n >= 8` equally spaced steps covering the
+    /// circle, in any order (a correlation capture; the standard one is 24 × 15°
+    /// from 0°; a sensor shifting its illumination records them descending).
     pub fn is_correlation(&self) -> bool {
         let n = self.phases_deg.len();
+        let mut sorted = self.phases_deg.clone();
+        sorted.sort_by(f64::total_cmp);
         n >= 8
-            && self
-                .phases_deg
+            && sorted
                 .iter()
                 .enumerate()
-                .all(|(i, p)| (p - 360.0 * i as f64 / n as f64).abs() < 1e-6)
+                .all(|(i, p)| same_shift_deg(*p, 360.0 * i as f64 / n as f64))
     }
-}
-
-fn phases_match(a: &[f64], b: &[f64]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-6)
 }
 
 /// The raw images of one capture, shape `(K, rows, cols)`.
@@ -373,6 +381,100 @@ struct RecordingToml {
     sensor: SensorGeometry,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     capture: Vec<CaptureMeta>,
+}
+
+/// Keys of the phase convention in `[sensor]` (version 2; docs/recording-format.md).
+const PHASE_SHIFT_KEY: &str = "phase_shift_applies_to";
+const PHASE_SIGN_KEY: &str = "phase_sign";
+
+/// Read the phase convention keys of `[sensor]` and blank their lines (line numbers kept), so
+/// the geometry's own strict reading (unknown keys refused, key paths of errors) sees the rest.
+/// Only `key = value` lines are recognised; anywhere else the keys are unknown keys.
+fn take_phase_convention<'t>(
+    path: &Path,
+    text: &'t str,
+) -> Result<(PhaseConvention, std::borrow::Cow<'t, str>), FormatError> {
+    let mut table = String::new();
+    let mut convention = PhaseConvention::CANONICAL;
+    let mut out = String::with_capacity(text.len());
+    let mut changed = false;
+    for (n, line) in text.split_inclusive('\n').enumerate() {
+        let l = line.trim();
+        if l.starts_with('[') {
+            table = l
+                .trim_start_matches('[')
+                .split(']')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_string();
+        }
+        let key = l.split('=').next().unwrap_or("").trim();
+        if table == "sensor" && (key == PHASE_SHIFT_KEY || key == PHASE_SIGN_KEY) {
+            let at = |msg: String| {
+                invalid(format!("line {}: {msg}", n + 1))
+                    .at(path)
+                    .key(format!("sensor.{key}"))
+            };
+            let value: toml::Table =
+                toml::from_str(l).map_err(|e| at(e.message().trim().to_string()))?;
+            match (key, value.get(key)) {
+                (PHASE_SHIFT_KEY, Some(toml::Value::String(v))) if v == "demodulation" => {
+                    convention.shifted = ShiftedSignal::Demodulation
+                }
+                (PHASE_SHIFT_KEY, Some(toml::Value::String(v))) if v == "illumination" => {
+                    convention.shifted = ShiftedSignal::Illumination
+                }
+                (PHASE_SIGN_KEY, Some(toml::Value::Integer(v))) if *v == 1 || *v == -1 => {
+                    convention.sign = if *v < 0 { -1 } else { 1 }
+                }
+                (PHASE_SHIFT_KEY, _) => {
+                    return Err(at("must be \"demodulation\" or \"illumination\"".into()));
+                }
+                _ => return Err(at("must be 1 or -1".into())),
+            }
+            out.push_str(if line.ends_with('\n') { "\n" } else { "" });
+            changed = true;
+        } else {
+            out.push_str(line);
+        }
+    }
+    Ok((
+        convention,
+        if changed {
+            std::borrow::Cow::Owned(out)
+        } else {
+            std::borrow::Cow::Borrowed(text)
+        },
+    ))
+}
+
+/// `text` (a rendered `recording.toml`) with the phase convention's keys at the end of
+/// `[sensor]` when it is not the canonical one.
+fn with_phase_convention(text: String, convention: PhaseConvention) -> String {
+    if convention.is_canonical() {
+        return text;
+    }
+    let mut keys = String::new();
+    if convention.shifted == ShiftedSignal::Illumination {
+        keys.push_str(&format!("{PHASE_SHIFT_KEY} = \"illumination\"\n"));
+    }
+    if convention.sign < 0 {
+        keys.push_str(&format!("{PHASE_SIGN_KEY} = -1\n"));
+    }
+    let Some(start) = text.find("[sensor]\n") else {
+        return text;
+    };
+    // the table ends at the next blank line or header
+    let body = start + "[sensor]\n".len();
+    let end = text[body..]
+        .find("\n\n")
+        .map(|e| body + e + 1)
+        .or_else(|| text[body..].find("\n[").map(|e| body + e + 1))
+        .unwrap_or(text.len());
+    let mut out = text;
+    out.insert_str(end, &keys);
+    out
 }
 
 /// Check a capture's metadata (not its file); errors carry the key below `capture[i]`.
@@ -593,6 +695,7 @@ pub(crate) fn check_window_limits(
 pub struct Recording {
     dir: PathBuf,
     sensor: SensorGeometry,
+    convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     dtypes: Vec<Dtype>,
@@ -612,7 +715,7 @@ impl Recording {
             .at(dir));
         }
         let text = limits::read_text_bounded(&toml_path, limits::MAX_TOML_BYTES)?;
-        let (sensor, description, captures) = parse_recording_toml(&toml_path, &text)?;
+        let (sensor, convention, description, captures) = parse_recording_toml(&toml_path, &text)?;
         let mut dtypes = Vec::with_capacity(captures.len());
         let mut files = FramesFiles::new(dir);
         for (i, c) in captures.iter().enumerate() {
@@ -626,6 +729,7 @@ impl Recording {
         Ok(Recording {
             dir: dir.to_path_buf(),
             sensor,
+            convention,
             description,
             captures,
             dtypes,
@@ -639,6 +743,12 @@ impl Recording {
     /// The `[sensor]` table.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
+    }
+    /// The phase convention the file's shifts were written in (`[sensor]
+    /// phase_shift_applies_to`, `phase_sign`). Every `phases_deg` this crate
+    /// returns is already canonical (`u = A·cos(φ − θ)`).
+    pub fn phase_convention(&self) -> PhaseConvention {
+        self.convention
     }
     /// The free-text description.
     pub fn description(&self) -> Option<&str> {
@@ -714,7 +824,12 @@ fn to_raw_frames(a: NpyArray) -> Result<RawFrames, FormatError> {
     })
 }
 
-type Parsed = (SensorGeometry, Option<String>, Vec<CaptureMeta>);
+type Parsed = (
+    SensorGeometry,
+    PhaseConvention,
+    Option<String>,
+    Vec<CaptureMeta>,
+);
 
 /// Parse and validate the text of a `recording.toml`.
 fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
@@ -724,7 +839,8 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
     if kind != RecordingKind::Raw {
         return Err(wrong_kind(path, kind));
     }
-    let raw: RecordingToml = parse_toml(path, text)?;
+    let (convention, text) = take_phase_convention(path, text)?;
+    let raw: RecordingToml = parse_toml(path, &text)?;
     let sensor = raw.sensor;
     // the documented limits first, then the geometry's own rules
     check_sensor_limits(&sensor, "sensor").map_err(|e| e.at(path))?;
@@ -742,25 +858,43 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
             let k = e.key_name().unwrap_or("").to_string();
             e.at(path).key(format!("{prefix}.{k}"))
         })?;
+        // in memory every shift is canonical: u = A·cos(φ − θ) (docs/recording-format.md)
+        let mut meta = meta;
+        if !convention.is_canonical() {
+            for p in &mut meta.phases_deg {
+                *p = convention.canonical_deg(*p);
+            }
+        }
         captures.push(meta);
     }
-    Ok((sensor, raw.description, captures))
+    Ok((sensor, convention, raw.description, captures))
 }
 
 fn render_recording_toml(
     sensor: &SensorGeometry,
+    convention: PhaseConvention,
     description: Option<&str>,
     captures: &[CaptureMeta],
 ) -> Result<String, FormatError> {
+    let mut captures = captures.to_vec();
+    if !convention.is_canonical() {
+        for c in &mut captures {
+            for p in &mut c.phases_deg {
+                *p = convention.label_deg(*p);
+            }
+        }
+    }
     let t = RecordingToml {
         format: RECORDING_FORMAT.to_string(),
         version: RECORDING_VERSION,
         kind: Some(RecordingKind::Raw),
         description: description.map(str::to_string),
         sensor: *sensor,
-        capture: captures.to_vec(),
+        capture: captures,
     };
-    toml::to_string(&t).map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
+    toml::to_string(&t)
+        .map(|text| with_phase_convention(text, convention))
+        .map_err(|e| invalid(format!("cannot serialise recording.toml: {e}")))
 }
 
 // ---------------------------------------------------------------- writer
@@ -774,6 +908,7 @@ fn render_recording_toml(
 pub struct RecordingWriter {
     dir: PathBuf,
     sensor: SensorGeometry,
+    convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
     next_file: usize,
@@ -814,6 +949,7 @@ impl RecordingWriter {
         let w = RecordingWriter {
             dir: dir.to_path_buf(),
             sensor,
+            convention: PhaseConvention::CANONICAL,
             description,
             captures: Vec::new(),
             next_file: 0,
@@ -856,6 +992,7 @@ impl RecordingWriter {
         Ok(RecordingWriter {
             dir: dir.to_path_buf(),
             sensor: rec.sensor,
+            convention: rec.convention,
             description: rec.description,
             captures: rec.captures,
             next_file,
@@ -865,6 +1002,23 @@ impl RecordingWriter {
     /// The sensor this recording is for.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
+    }
+
+    /// Write the file's shifts in `convention` (before the first capture; the
+    /// default is the canonical one). Shifts given to [`RecordingWriter::append`]
+    /// stay canonical (`u = A·cos(φ − θ)`); the file carries them relabelled.
+    pub fn set_phase_convention(&mut self, convention: PhaseConvention) -> Result<(), FormatError> {
+        convention
+            .validate()
+            .map_err(|e| invalid(e.to_string()).key(format!("sensor.{PHASE_SIGN_KEY}")))?;
+        if !self.captures.is_empty() {
+            return Err(invalid(
+                "the phase convention is set before the first capture is appended",
+            )
+            .key(format!("sensor.{PHASE_SHIFT_KEY}")));
+        }
+        self.convention = convention;
+        self.write_toml()
     }
 
     /// Number of complete captures.
@@ -921,8 +1075,13 @@ impl RecordingWriter {
 
     fn write_toml(&self) -> Result<(), FormatError> {
         let path = self.dir.join(RECORDING_TOML);
-        let text = render_recording_toml(&self.sensor, self.description.as_deref(), &self.captures)
-            .map_err(|e| e.at(&path))?;
+        let text = render_recording_toml(
+            &self.sensor,
+            self.convention,
+            self.description.as_deref(),
+            &self.captures,
+        )
+        .map_err(|e| e.at(&path))?;
         fsutil::write_atomic(&path, text.as_bytes())
     }
 }

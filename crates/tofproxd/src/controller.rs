@@ -16,7 +16,7 @@ use tofprox_core::SensorGeometry;
 use tofprox_core::crosstalk::{
     CrosstalkMonitor, CrosstalkStatus, phasor_points_at_window, residual_ratio,
 };
-use tofprox_core::phasor::distance_to_phase_rad;
+use tofprox_core::phasor::{Quadrature, distance_to_phase_rad};
 use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
     RawSample,
@@ -463,7 +463,7 @@ impl<S: FrameSource> Controller<S> {
                     g,
                     cycle.exposure_us,
                 )?;
-                let f = process_images(p, frames, 2)?;
+                let f = process_images(p, frames, &cycle.phases_deg, 2)?;
                 roi_median_mm(f, roi)
             };
             let p4 = pipeline_slot(
@@ -474,7 +474,7 @@ impl<S: FrameSource> Controller<S> {
                 g,
                 cycle.exposure_us,
             )?;
-            let f4 = process_images(p4, frames, 4)?;
+            let f4 = process_images(p4, frames, &cycle.phases_deg, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
                 discrepancy_mm = Some((a - b).abs());
             }
@@ -500,7 +500,7 @@ impl<S: FrameSource> Controller<S> {
         };
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
             let k = frames.dim().0;
-            process_images(pipe, frames, k)?;
+            process_images(pipe, frames, &cycle.phases_deg, k)?;
         }
         // No near from a wrapped phase: a near depth needs the amplitude of a real target
         // (thesis 2.2.1, 1/d²).
@@ -707,16 +707,12 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
             g.rows, g.cols
         ));
     }
-    let close = |a: f64, b: f64| (a - b).abs() < 0.5;
-    let mode = if k >= 4
-        && close(c.phases_deg[0], 0.0)
-        && close(c.phases_deg[1], 90.0)
-        && close(c.phases_deg[2], 180.0)
-        && close(c.phases_deg[3], 270.0)
-        && k == 4
+    // [0, 90(, 180, 270)], or the same images of a sensor with another phase convention
+    // (canonical shifts such as [0, 270]: evaluated with their quadrature)
+    let mode = if k == 4 && Quadrature::of_canonical(&c.phases_deg, Algorithm::FourPhase).is_some()
     {
         Mode::FourPhase
-    } else if k == 2 && close(c.phases_deg[0], 0.0) && close(c.phases_deg[1], 90.0) {
+    } else if k == 2 && Quadrature::of_canonical(&c.phases_deg, Algorithm::TwoPhase).is_some() {
         Mode::TwoPhase
     } else {
         return bad(format!("unsupported phases {:?}", c.phases_deg));
@@ -772,8 +768,17 @@ fn rails_only(c: &RawCycle) -> bool {
 fn process_images<'p>(
     p: &'p mut Pipeline,
     frames: &RawImages,
+    phases_deg: &[f64],
     k: usize,
 ) -> Result<&'p DepthFrame, SourceError> {
+    // the images' canonical shifts (a replayed recording of a sensor with another phase
+    // convention: docs/recording-format.md); check_cycle accepted them
+    let algorithm = if k == 4 {
+        Algorithm::FourPhase
+    } else {
+        Algorithm::TwoPhase
+    };
+    p.set_quadrature(Quadrature::of_canonical(phases_deg, algorithm).unwrap_or_default());
     let r = match frames {
         RawImages::U16(a) => p.process(a.slice(s![0..k, .., ..])),
         RawImages::F32(a) => p.process(a.slice(s![0..k, .., ..])),
@@ -949,6 +954,32 @@ mod tests {
             ModeCalibrations::default(),
         )
         .unwrap()
+    }
+
+    #[test]
+    fn cycles_with_real_world_float_shifts_are_accepted_other_shifts_refused() {
+        let mut src = ScriptedSource::new(24, 32, vec![Step::target(800.0)]);
+        let req = CycleRequest {
+            mode: Mode::FourPhase,
+            exposure_us: 100.0,
+            row_window: None,
+        };
+        let mut c = src.cycle(&req).unwrap();
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // shifts as f32 radians (π/2 → 90.0000025°) and a −0° wrapped to 359.99…°
+        c.phases_deg = [0.0f32, 90.0, 180.0, 270.0]
+            .iter()
+            .map(|d| f64::from(d.to_radians()).to_degrees())
+            .collect();
+        c.phases_deg[0] = 360.0 - 1e-9;
+        assert!(c.phases_deg.iter().any(|p| (p - p.round()).abs() > 1e-6));
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // a sensor shifting its illumination: [0, 270, 180, 90] canonical
+        c.phases_deg = vec![0.0, 270.0, 180.0, 90.0];
+        assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
+        // a 1° offset is another shift (a wrong depth, not a float rounding)
+        c.phases_deg = vec![0.0, 91.0, 180.0, 270.0];
+        assert!(check_cycle(&c).is_err());
     }
 
     #[test]

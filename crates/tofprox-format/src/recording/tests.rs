@@ -527,3 +527,27 @@ fn roi_origin_has_exactly_two_elements() {
         assert!(key.starts_with("sensor.roi_origin"), "{bad}: {e}");
     }
 }
+
+/// The phase convention's keys in `[sensor]`: a value other than the documented ones is
+/// refused naming the key; elsewhere the keys are unknown keys.
+#[test]
+fn phase_convention_keys_are_checked() {
+    for (bad, key) in [
+        ("phase_sign = 2", "sensor.phase_sign"),
+        ("phase_sign = \"-1\"", "sensor.phase_sign"),
+        (
+            "phase_shift_applies_to = \"light\"",
+            "sensor.phase_shift_applies_to",
+        ),
+    ] {
+        let e = open_err_after(|t| {
+            t.replace(
+                "roi_origin = [10, 20]",
+                &format!("roi_origin = [10, 20]\n{bad}"),
+            )
+        });
+        assert_eq!(e.key_name(), Some(key), "{bad}: {e}");
+    }
+    let e = open_err_after(|t| format!("phase_sign = -1\n{t}"));
+    assert_eq!(e.kind(), ErrorKind::UnknownKey, "{e}");
+}

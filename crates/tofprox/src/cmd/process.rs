@@ -95,12 +95,9 @@ fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
         return Some("dark capture".into());
     }
     let need = alg.phases_deg();
-    let ok = c.phases_deg.len() >= need.len()
-        && c.phases_deg
-            .iter()
-            .zip(need)
-            .all(|(a, b)| (a - b).abs() < 1e-6);
-    if ok {
+    // [0, 90(, 180, 270)], or what a sensor with another phase convention records as such
+    // (shifts are canonical once read: docs/recording-format.md)
+    if c.quadrature(alg).is_some() {
         None
     } else {
         let need: Vec<String> = need.iter().map(|p| fmt_num(*p)).collect();
@@ -188,9 +185,11 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
             "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
         );
     }
+    // (cloned once: the frame borrows the pipeline while the residual is computed)
+    let crosstalk = pipeline.calibration().crosstalk.clone();
     for &i in &todo {
         let raw = rec.load(i)?;
-        let crosstalk = pipeline.calibration().crosstalk.clone();
+        pipeline.set_quadrature(caps[i].quadrature(a.algo).unwrap_or_default());
         if crosstalk.is_some() {
             pipeline
                 .set_exposure_us(caps[i].exposure_us)
