@@ -445,15 +445,7 @@ pub fn status(a: StatusArgs) -> anyhow::Result<ExitCode> {
             println!("{}", serde_json::Value::Object(obj));
         } else {
             for (k, v) in obj {
-                // floats to 3 decimals (a 500 µs exposure is not 499.9999999999999)
-                let shown = match v.as_f64() {
-                    Some(x) if v.is_f64() => {
-                        let s = format!("{x:.3}");
-                        s.trim_end_matches('0').trim_end_matches('.').to_string()
-                    }
-                    _ => v.to_string(),
-                };
-                println!("{k:<16} {shown}");
+                println!("{k:<16} {}", shown_value(&v));
             }
         }
         Ok(ExitCode::SUCCESS)
@@ -535,6 +527,21 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
         );
         Ok(ExitCode::SUCCESS)
     })
+}
+
+/// A status value as a person reads it: floats to 3 decimals without trailing zeros (a 500 µs
+/// exposure is not `499.9999999999999`), text without quotes, everything else as JSON text.
+fn shown_value(v: &serde_json::Value) -> String {
+    if let serde_json::Value::String(s) = v {
+        return s.clone();
+    }
+    match v.as_f64() {
+        Some(x) if v.is_f64() => {
+            let s = format!("{x:.3}");
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        }
+        _ => v.to_string(),
+    }
 }
 
 pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
@@ -663,4 +670,20 @@ pub fn scenes(a: ScenesArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::from(1)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::shown_value;
+    use serde_json::json;
+
+    #[test]
+    fn status_floats_are_rounded_for_people() {
+        assert_eq!(shown_value(&json!(499.9999999999999)), "500");
+        assert_eq!(shown_value(&json!(0.1 + 0.2)), "0.3");
+        assert_eq!(shown_value(&json!(-1.25)), "-1.25");
+        assert_eq!(shown_value(&json!(12)), "12");
+        assert_eq!(shown_value(&json!("running")), "running");
+        assert_eq!(shown_value(&json!([1, 2])), "[1,2]");
+    }
 }
