@@ -20,15 +20,15 @@ const A11: f32 = -0.011_721_2;
 /// Fast `atan2(y, x)` mapped to `[0, 2π)` (eq. 2.2 needs the full-circle angle).
 ///
 /// Absolute error at most [`FAST_ATAN2_MAX_ERROR_RAD`]. `atan2(0, 0)` returns 0. Non-finite
-/// inputs give an unspecified (possibly NaN) result; the pipeline flags such pixels invalid before
-/// using the phase. The same arithmetic as the pipeline's vectorised kernel (`atan2_lanes`), so
-/// the two agree to the bit.
+/// inputs give an unspecified (possibly NaN) result. (The pipeline does not use it: its kernel
+/// reads the phase, with the wiggling correction, from a table over the octant and
+/// `min/max(|x|, |y|)`; see [`crate::pipeline`].)
 #[inline]
 pub fn fast_atan2_f32(y: f32, x: f32) -> f32 {
     atan2_lanes(Arr::splat(y), Arr::splat(x)).0[0]
 }
 
-/// [`fast_atan2_f32`] on eight lanes: branch-free (compares and selects only), one division,
+/// [`fast_atan2_f32`] on eight lanes (any [`Lanes`] implementation): branch-free (compares and selects only), one division,
 /// a degree-11 odd polynomial, no fused multiply-add (so every instruction set rounds alike).
 ///
 /// Written for a short dependency chain (the kernel is latency-bound otherwise): the polynomial

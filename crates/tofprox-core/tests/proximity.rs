@@ -1,5 +1,6 @@
 //! Near/far state machine: thresholds, hysteresis, far debounce, saturation → near, nothing → far.
 
+use ndarray::ShapeBuilder;
 use tofprox_core::pipeline::{DepthFrame, FLAG_INVALID, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
 
@@ -234,4 +235,65 @@ fn nothing_in_range_is_a_far_reading_broken_data_is_none() {
     );
     let r = d.update(&wall(1000));
     assert!(!r.no_target && r.distance_mm == Some(1000));
+}
+
+#[test]
+fn memory_order_and_roi_position_do_not_change_the_reading() {
+    // A 20×30 frame with a depth gradient, saturated, low-amplitude and invalid pixels; the same
+    // frame in column-major order (read through ndarray's iterators, not the row slices) must
+    // give the same readings, for the auto ROI and for an off-centre one clipped by the frame.
+    let (rows, cols) = (20, 30);
+    let mut f = DepthFrame::zeros(rows, cols);
+    for r in 0..rows {
+        for c in 0..cols {
+            f.depth_mm[(r, c)] = (100 + 13 * r + 7 * c) as u16;
+            match (r * cols + c) % 11 {
+                0 => f.flags[(r, c)] = FLAG_SATURATED | FLAG_INVALID,
+                1 => f.flags[(r, c)] = FLAG_LOW_AMPLITUDE | FLAG_INVALID,
+                _ => {}
+            }
+        }
+    }
+    let mut g = DepthFrame::zeros(rows, cols);
+    g.depth_mm = ndarray::Array2::zeros((rows, cols).f());
+    g.depth_mm.assign(&f.depth_mm);
+    g.flags = ndarray::Array2::zeros((rows, cols).f());
+    g.flags.assign(&f.flags);
+    assert!(g.flags.as_slice().is_none());
+    for roi in [
+        Roi::default(),
+        Roi {
+            row0: 13,
+            col0: 21,
+            rows: 50,
+            cols: 50,
+        },
+    ] {
+        for percentile in [0.0, 0.1, 0.5, 1.0] {
+            let cfg = NearFarConfig {
+                near_mm: 200,
+                far_mm: 300,
+                roi,
+                far_debounce: 1,
+                min_valid_fraction: 0.2,
+            };
+            let mut a = NearFarDetector::new(cfg)
+                .unwrap()
+                .with_percentile(percentile)
+                .unwrap();
+            let mut b = a.clone();
+            let (ra, rb) = (a.update(&f), b.update(&g));
+            assert_eq!(ra, rb, "{roi:?} {percentile}");
+            // The nearest-rank percentile of the valid depths inside the ROI, by a sort.
+            let roi = roi.resolve(rows, cols);
+            let mut valid: Vec<u16> = (roi.row0..roi.row0 + roi.rows)
+                .flat_map(|r| (roi.col0..roi.col0 + roi.cols).map(move |c| (r, c)))
+                .filter(|&p| f.flags[p] == 0)
+                .map(|p| f.depth_mm[p])
+                .collect();
+            valid.sort_unstable();
+            let rank = ((percentile * valid.len() as f32).ceil() as usize).clamp(1, valid.len());
+            assert_eq!(ra.distance_mm, Some(u32::from(valid[rank - 1])));
+        }
+    }
 }

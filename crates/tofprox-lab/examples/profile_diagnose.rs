@@ -47,12 +47,22 @@ fn main() {
     };
     eprintln!("{:>8.2} s  compare done", t0.elapsed().as_secs_f64());
     match diagnose(&prep, &cmp, &cb) {
-        Ok(d) => eprintln!(
-            "{:>8.2} s  diagnose done: {:?} {:?}",
-            t0.elapsed().as_secs_f64(),
-            d.verdict,
-            d.effect
-        ),
+        Ok(d) => {
+            eprintln!(
+                "{:>8.2} s  diagnose done: {:?} {:?}",
+                t0.elapsed().as_secs_f64(),
+                d.verdict,
+                d.effect
+            );
+            let refitted: Vec<&str> = d
+                .candidates
+                .iter()
+                .filter(|c| c.rms_after.is_some())
+                .map(|c| c.effect.as_str())
+                .collect();
+            eprintln!("refitted with the whole model: {refitted:?}");
+            eprint!("{}", tofprox_lab::report::diagnosis_text(&d));
+        }
         Err(e) => eprintln!("error: {e}"),
     }
 }

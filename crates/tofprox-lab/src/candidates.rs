@@ -165,13 +165,26 @@ pub fn fit_signature(
     let has_nl = p.len() > nlin;
     if has_nl {
         // LM on a subsample (the non-linear parameters are few and smooth) …
+        // over the parameters it refines: a discrete one stays at its grid
+        // value (its zero Jacobian column would make JᵀJ singular)
+        let free: Vec<usize> = (0..p.len())
+            .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+            .collect();
+        let full = |q: &[f64]| {
+            let mut v = p.clone();
+            for (&i, x) in free.iter().zip(q) {
+                v[i] = *x;
+            }
+            v
+        };
+        let q0: Vec<f64> = free.iter().map(|&i| p[i]).collect();
         let r = levenberg_marquardt(
-            |q| total(&accumulate(sig, recs, prep, q, true, stride)),
-            &p,
+            |q| total(&accumulate(sig, recs, prep, &full(q), true, stride)).select(&free),
+            &q0,
             30,
             LM_TOL_CHI2,
         )?;
-        p = r.params;
+        p = full(&r.params);
     }
     // … then the linear parameters exactly on all data at those values, and
     // the block cross-validation, from one pass: the normal equations of the

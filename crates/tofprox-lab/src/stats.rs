@@ -68,6 +68,20 @@ impl Normal {
         self.chi2 += o.chi2;
         self.count += o.count;
     }
+    /// The normal equations of the parameters `idx` only (the others held).
+    pub fn select(&self, idx: &[usize]) -> Normal {
+        let n = idx.len();
+        let mut m = Normal::zeros(n);
+        for (a, &i) in idx.iter().enumerate() {
+            m.jtr[a] = self.jtr[i];
+            for (b, &j) in idx.iter().enumerate() {
+                m.jtj[a * n + b] = self.jtj[i * self.n + j];
+            }
+        }
+        m.chi2 = self.chi2;
+        m.count = self.count;
+        m
+    }
     /// These normal equations without the samples of `o` (a subset of them):
     /// the training part of a cross-validation fold.
     pub fn minus(&self, o: &Normal) -> Normal {
@@ -266,6 +280,18 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn select_keeps_the_chosen_parameters_normal_equations() {
+        let mut n = Normal::zeros(3);
+        n.add(&[1.0, 2.0, 0.0], 0.5, 2.0);
+        n.add(&[0.0, 1.0, 3.0], -1.0, 1.0);
+        n.symmetrize();
+        let s = n.select(&[0, 2]);
+        assert_eq!(s.jtj, vec![n.jtj[0], n.jtj[2], n.jtj[6], n.jtj[8]]);
+        assert_eq!(s.jtr, vec![n.jtr[0], n.jtr[2]]);
+        assert_eq!((s.chi2, s.count), (n.chi2, n.count));
+    }
 
     #[test]
     fn cholesky_solves_a_known_system() {

@@ -22,10 +22,15 @@ pub(crate) mod neon;
 /// Lanes per vector step of the kernel (one `__m256` on AVX2, two `float32x4_t` on NEON).
 pub(crate) const LANES: usize = 8;
 
-/// Bins of the pipeline's wiggling table (power of two so the index is a mask).
-pub(crate) const LUT_BINS: usize = 4096;
+/// Bins per octant of the pipeline's phase table, over `t = min(|x|, |y|) / max(|x|, |y|)` in
+/// `[0, 1]` (power of two: `t · LUT_T_BINS` is exact).
+pub(crate) const LUT_T_BINS: usize = 512;
 
-/// The wiggling table as the kernel reads it: per bin `value | slope << 32` (f32 bits), so one
+/// Bins of the pipeline's phase table: eight octants of [`LUT_T_BINS`] (power of two so the
+/// index is a mask; 32 kB, the L1 data cache of the CPUs it targets).
+pub(crate) const LUT_BINS: usize = 8 * LUT_T_BINS;
+
+/// The phase table as the kernel reads it: per bin `value | slope << 32` (f32 bits), so one
 /// 64-bit load fetches both.
 pub(crate) type Lut = [u64; LUT_BINS];
 
@@ -191,7 +196,7 @@ pub trait Lanes: Copy {
     fn load_int(a: &[u32; LANES]) -> Self::Int;
     fn store_int(i: Self::Int, out: &mut [u32; LANES]);
 
-    /// Value and slope of the wiggling table at `idx & (LUT_BINS − 1)` (the indices are read
+    /// Value and slope of the phase table at `idx & (LUT_BINS − 1)` (the indices are read
     /// from memory: the kernel stored them in pass 1, and every level loads them as scalars).
     fn lut(lut: &Lut, idx: &[u32; LANES]) -> (Self, Self);
     /// `out = valid ? max(mm, 1) as u16 : 0` (mm < 2^22).
