@@ -250,8 +250,9 @@ impl Proximity {
         self.hub.status().last_error
     }
 
-    /// A depth frame: radial depth (mm along each pixel's ray, eq. 2.6 — not Z) and amplitude
-    /// (only while a depth claim is held; rate-limited).
+    // Radial depth (mm along each pixel's ray, eq. 2.6 — not Z) and amplitude. (A plain
+    // comment: doc comments go into the introspection data, which systemd/*.xml ships.)
+    /// A depth frame (only while a depth claim is held; rate-limited).
     #[zbus(signal)]
     pub async fn depth_frame(
         emitter: &SignalEmitter<'_>,
