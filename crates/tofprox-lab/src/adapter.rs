@@ -140,6 +140,19 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                 ))
             }
             "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
+            // the inverse of write_effect's mapping (SbiUnits); nl = [ln q0,
+            // (ln κ when the ambient light varies), clamp share]
+            "sbi_asymmetry" => SbiUnits::from_model(m, prep).map(|u| {
+                let mut nl = vec![(g(&id, "threshold_e") / u.e_per_unit).max(1e-300).ln()];
+                if prep.ambient_varies {
+                    nl.push(u.kappa().ln());
+                }
+                nl.push(g(&id, "clamp_share"));
+                (
+                    vec![-g(&id, "mismatch_rel") * u.e_per_unit * u.lsb_per_e],
+                    nl,
+                )
+            }),
             "tap_gain_mismatch" => {
                 // s = ε·peak/(2·contrast) (see write_effect); the lab's C has
                 // fundamental 1, the model's peak 1: peak_lab = 1/|a₁|
@@ -199,6 +212,8 @@ pub fn write_effect(
         )
     })?;
     let mut notes = Vec::new();
+    // the ambient responsivity the SBI fit measured (written after the match)
+    let mut ambient = None;
     let mut set = |m: &mut ModelConfig, name: &str, v: f64| {
         if let Err(e) = m.set_param(effect, name, v) {
             notes.push(format!(
@@ -292,25 +307,130 @@ pub fn write_effect(
             }
         }
         "sbi_asymmetry" => {
-            // the shape of the law is unit-free; threshold and mismatch are
-            // fitted in measurement units (tap charges in lab units)
-            if let Some(v) = g("clamp_share") {
-                set(m, "clamp_share", v.clamp(0.0, 1.0));
+            // the lab's tap charges are in its own unit (see `SbiUnits`); in
+            // electrons: threshold_e = q0·u, and the differential error
+            // m_lab·N_inj[unit] = −m·N_inj[e]·lsb_per_e gives m = −m_lab/(u·lsb_per_e)
+            let kappa = g("ln_signal_weight").map(f64::exp);
+            match SbiUnits::from_fit(m, prep, kappa) {
+                Some(units) => {
+                    if let Some(lq0) = g("ln_threshold") {
+                        set(m, "threshold_e", lq0.exp() * units.e_per_unit);
+                    }
+                    if let Some(ml) = g("mismatch_lsb_per_unit") {
+                        set(
+                            m,
+                            "mismatch_rel",
+                            -ml / (units.e_per_unit * units.lsb_per_e),
+                        );
+                    }
+                    if let Some(v) = g("clamp_share") {
+                        set(m, "clamp_share", v.clamp(0.0, 1.0));
+                    }
+                    if let Some(e_per_us_per_klux) = units.ambient_e_per_us_per_klux {
+                        ambient = Some(e_per_us_per_klux);
+                    }
+                }
+                None => notes.push(format!(
+                    "{effect}: the model file has no conversion gain (sensor.lsb_per_ke) or no fitted signal weight; the model file keeps its typical values"
+                )),
             }
-            notes.push(format!(
-                "{effect}: clamp_share written; threshold and mismatch are in measurement units (see --json params), the model file keeps its threshold_e and mismatch_rel"
-            ));
         }
         _ => notes.push(format!(
             "{effect}: the lab's parameters are in measurement units (see --json params); the model file keeps its typical values"
         )),
     }
+    if let Some(v) = ambient {
+        // the SBI fit measured how many electrons a klux·ms of background
+        // adds per signal electron: that is the model's ambient responsivity
+        let p = tofprox_model::ids::ambient_light::E_PER_US_PER_KLUX;
+        if let Err(e) = m
+            .set_enabled(p.section(), true)
+            .and_then(|()| m.set_param(p.section(), p.name(), v))
+        {
+            notes.push(format!(
+                "{p} = {v:.6} not written ({e}); kept {:?}",
+                m.param(p.section(), p.name())
+            ));
+        } else {
+            notes.push(format!(
+                "{p} = {v:.6} e-/us/klux written too: the SBI fit measures the background charge per signal charge"
+            ));
+        }
+    }
     Ok(notes)
 }
 
+/// The unit of the lab's SBI tap charges in the model's electrons (the
+/// `sbi_asymmetry` signature: N = B + κ·A(g ± C)/100 with B in klux·ms and A
+/// the fundamental amplitude in LSB; the model: signal electrons per tap
+/// A/lsb_per_e·(g ± C)/2 for the lab's contrast 0.8, background
+/// e_per_us_per_klux·klux·µs). With ambient light varying, one unit is a
+/// klux·ms of background, u = 1000·e_per_us_per_klux electrons, and κ ties it to
+/// the signal: κ/100 = 1/(lsb_per_e·u). Without, κ = 1 and u = 100/lsb_per_e.
+#[derive(Debug, Clone, Copy)]
+struct SbiUnits {
+    /// Electrons per lab unit of tap charge.
+    e_per_unit: f64,
+    /// LSB per electron of differential charge (`sensor.lsb_per_ke` / 1000).
+    lsb_per_e: f64,
+    /// The model's ambient responsivity these units imply (ambient varying).
+    ambient_e_per_us_per_klux: Option<f64>,
+}
+
+impl SbiUnits {
+    fn lsb_per_e(m: &ModelConfig) -> Option<f64> {
+        let v = m.param("sensor", "lsb_per_ke")? * 1e-3;
+        (v.is_finite() && v > 0.0).then_some(v)
+    }
+    /// From a fit: κ (`ln_signal_weight`) when the ambient light varies.
+    fn from_fit(m: &ModelConfig, prep: &Prepared, kappa: Option<f64>) -> Option<Self> {
+        let lsb_per_e = Self::lsb_per_e(m)?;
+        if prep.ambient_varies {
+            let k = kappa.filter(|k| k.is_finite() && *k > 0.0)?;
+            let u = 100.0 / (k * lsb_per_e);
+            Some(Self {
+                e_per_unit: u,
+                lsb_per_e,
+                ambient_e_per_us_per_klux: Some(u / 1000.0),
+            })
+        } else {
+            Some(Self {
+                e_per_unit: 100.0 / lsb_per_e,
+                lsb_per_e,
+                ambient_e_per_us_per_klux: None,
+            })
+        }
+    }
+    /// From the model file: its ambient responsivity when the ambient light
+    /// varies (ambient_light must be enabled for the background to reach the
+    /// taps).
+    fn from_model(m: &ModelConfig, prep: &Prepared) -> Option<Self> {
+        let lsb_per_e = Self::lsb_per_e(m)?;
+        let u = if prep.ambient_varies {
+            if !m.is_enabled(tofprox_model::ids::ambient_light::ID) {
+                return None;
+            }
+            1000.0 * m.get(tofprox_model::ids::ambient_light::E_PER_US_PER_KLUX)
+        } else {
+            100.0 / lsb_per_e
+        };
+        (u.is_finite() && u > 0.0).then_some(Self {
+            e_per_unit: u,
+            lsb_per_e,
+            ambient_e_per_us_per_klux: None,
+        })
+    }
+    /// κ of the lab's law for these units (1 without varying ambient light).
+    fn kappa(&self) -> f64 {
+        100.0 / (self.lsb_per_e * self.e_per_unit)
+    }
+}
+
 /// The model file's text with the `enabled` flag and the parameters of the
-/// effects `ids` set to `m`'s values; everything else — comments, order,
-/// other tables — is kept as the user wrote it.
+/// effects `ids` set to `m`'s values, and of every other effect whose values
+/// in `m` differ from the file's (an effect's fit may measure a neighbour's
+/// parameter: the SBI fit the ambient responsivity); everything else —
+/// comments, order, other tables — is kept as the user wrote it.
 pub fn update_model_text(
     original: &str,
     m: &ModelConfig,
@@ -318,6 +438,23 @@ pub fn update_model_text(
 ) -> Result<String, LabError> {
     use toml_edit::{DocumentMut, Item, Value};
     let bad = |why: String| LabError::new(ErrorKind::InvalidModel, why);
+    let before = ModelConfig::from_toml_str(original).ok();
+    let differs = |id: &str| {
+        before.as_ref().is_some_and(|b| {
+            b.effect(id).map(|e| e.enabled) != m.effect(id).map(|e| e.enabled)
+                || tofprox_model::catalogue::effect(id).is_some_and(|info| {
+                    info.params
+                        .iter()
+                        .any(|p| b.param(id, p.name) != m.param(id, p.name))
+                })
+        })
+    };
+    let mut ids: Vec<&str> = ids.iter().map(String::as_str).collect();
+    for info in tofprox_model::catalogue() {
+        if !ids.contains(&info.id) && differs(info.id) {
+            ids.push(info.id);
+        }
+    }
     let mut doc: DocumentMut = original
         .parse()
         .map_err(|e| bad(format!("model file is not valid TOML: {e}")))?;
