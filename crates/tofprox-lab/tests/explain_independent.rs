@@ -319,7 +319,12 @@ fn check_explain(hidden: &[Hidden], vary: Vary, seed: u64, expected: &[&str]) {
     assert_eq!(added, want, "effects added");
     assert_eq!(ex.verdict(), Verdict::NothingMissing);
     written_model_reproduces(&ex, &prep);
-    // the error after the loop is at the level of the recording without them
+    reaches_the_control(&ex, vary, seed);
+}
+
+/// The depth error after the loop is at the level of the same recording
+/// without the hidden effects, and that control says nothing missing.
+fn reaches_the_control(ex: &tofprox_lab::diagnose::Explanation, vary: Vary, seed: u64) {
     let control = record(&[], vary, seed);
     let cprep = Prepared::new(&control).unwrap();
     let c = compare(&cprep, &spec(), &|_, _| {}).unwrap();
@@ -327,7 +332,6 @@ fn check_explain(hidden: &[Hidden], vary: Vary, seed: u64, expected: &[&str]) {
     eprintln!("after {:?}\ncontrol {:?}", last.rms, c.rms);
     assert!(last.rms.depth_2phase_mm <= 1.3 * c.rms.depth_2phase_mm);
     assert!(last.rms.depth_4phase_mm <= 1.3 * c.rms.depth_4phase_mm);
-    // and the control says nothing missing
     let dc = diagnose(&cprep, &c, &|_, _| {}).unwrap();
     assert_eq!(dc.verdict, Verdict::NothingMissing, "{}", dc.reason);
 }
@@ -472,15 +476,7 @@ fn clamping_sbi() {
         "clamp share {share}: the clamping end of the family"
     );
     written_model_reproduces(&ex, &prep);
-    let control = record(&[], Vary::Ambient, 38);
-    let cprep = Prepared::new(&control).unwrap();
-    let c = compare(&cprep, &spec(), &|_, _| {}).unwrap();
-    let last = &ex.steps.last().unwrap().comparison;
-    eprintln!("after {:?}\ncontrol {:?}", last.rms, c.rms);
-    assert!(last.rms.depth_2phase_mm <= 1.3 * c.rms.depth_2phase_mm);
-    assert!(last.rms.depth_4phase_mm <= 1.3 * c.rms.depth_4phase_mm);
-    let dc = diagnose(&cprep, &c, &|_, _| {}).unwrap();
-    assert_eq!(dc.verdict, Verdict::NothingMissing, "{}", dc.reason);
+    reaches_the_control(&ex, Vary::Ambient, 38);
 }
 
 #[test]

@@ -6,7 +6,7 @@ use std::process::Output;
 use tofprox_format::{RawFrames, Recording};
 
 mod common;
-use common::{run, text};
+use common::{repo_file, run, text};
 
 /// `tofprox device capture <args…> --out <out>`.
 fn capture(out: &std::path::Path, args: &[&str]) -> Output {
@@ -204,14 +204,6 @@ fn flash_status_and_write_on_a_persisted_emulated_flash() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-fn repo(rel: &str) -> String {
-    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(rel)
-        .display()
-        .to_string()
-}
-
 /// The phone's factory calibration with the cover window, end to end through the CLI:
 /// captures with nothing in range → `calibrate crosstalk` → the set holds it keyed and
 /// checksummed → `process` compensates it and reports what is left (a smudge: ≈ +1);
@@ -219,7 +211,7 @@ fn repo(rel: &str) -> String {
 #[test]
 fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
     let dir = tempfile_dir();
-    let empty = repo("calib/phone/empty.toml");
+    let empty = repo_file("calib/phone/empty.toml");
     let window = |name: &str, args: &[&str]| {
         let mut all = vec!["--rows", "80,8", "--exposure-us", "500"];
         all.extend_from_slice(args);
@@ -244,7 +236,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
         ],
     );
     // the wiggling table holds the global delay: with it the window's return lands at ≈ 0 mm
-    let wall = repo("calib/phone/wall-1m.toml");
+    let wall = repo_file("calib/phone/wall-1m.toml");
     let corr = dir.join("corr");
     emulated_capture(
         &corr,
@@ -280,7 +272,7 @@ fn crosstalk_calibration_compensates_the_window_and_reports_a_smudge() {
         std::fs::read_to_string(&empty)
             .unwrap()
             .replace("smudge_rel = 0.0", "smudge_rel = 1.0")
-            .replace("\"../../config/", &format!("\"{}/", repo("config"))),
+            .replace("\"../../config/", &format!("\"{}/", repo_file("config"))),
     )
     .unwrap();
     let smudged = window(

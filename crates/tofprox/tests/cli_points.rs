@@ -13,17 +13,9 @@ mod common;
 
 use std::path::Path;
 
-use common::{run, text};
+use common::{repo_file, run, text};
 use tofprox_core::camera::Plane;
 use tofprox_format::npy::{self, NpyArray};
-
-fn repo(p: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(p)
-        .to_string_lossy()
-        .into_owned()
-}
 
 fn ok(args: &[&str]) -> String {
     let o = run(args);
@@ -97,7 +89,7 @@ fn z_depth_and_point_cloud_of_a_flat_wall_through_a_wide_distorting_lens() {
         t.path().join("flat"),
         t.path().join("calib"),
     );
-    let model = repo("config/model/lens.toml");
+    let model = repo_file("config/model/lens.toml");
     // lens sweep: 24 equally spaced phases cancel the uncalibrated wiggling (docs/calibration.md)
     ok(&[
         "sim",
@@ -239,7 +231,7 @@ fn z_depth_and_points_without_a_lens_are_refused() {
         "sim",
         "sweep",
         "--model",
-        &repo("config/model/ideal.toml"),
+        &repo_file("config/model/ideal.toml"),
         "--distances",
         "0.5",
         "--window",

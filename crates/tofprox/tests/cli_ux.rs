@@ -7,15 +7,7 @@ use std::path::Path;
 use std::process::Command;
 
 mod common;
-use common::{run, text};
-
-fn repo(p: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../..")
-        .join(p)
-        .to_string_lossy()
-        .into_owned()
-}
+use common::{repo_file, run, text};
 
 #[test]
 fn a_recording_step_can_be_run_again_with_force() {
@@ -72,9 +64,9 @@ fn process_json_has_distance_and_error() {
     let tmp = tempfile::tempdir().unwrap();
     let o = run(&[
         "process",
-        &repo("examples/recording"),
+        &repo_file("examples/recording"),
         "--calib",
-        &repo("calib/example"),
+        &repo_file("calib/example"),
         "--algo",
         "2phase",
         "--out",
@@ -139,7 +131,7 @@ fn lab_add_prints_what_it_wrote_with_units() {
         "add",
         "vcsel_droop",
         "--model",
-        &repo("config/model/baseline.toml"),
+        &repo_file("config/model/baseline.toml"),
         "--data",
         &s(rec),
         "--out",

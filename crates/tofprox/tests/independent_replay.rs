@@ -8,6 +8,7 @@
 //! Scored against the truth the simulation wrote per capture (`conditions.truth_near`).
 
 mod common;
+use common::repo;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,10 +17,6 @@ use tofprox_format::Recording;
 use tofproxd::backends::ReplaySource;
 use tofproxd::config::{Backend, Config};
 use tofproxd::controller::Controller;
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
 
 /// What one replayed scene gave.
 #[derive(Debug)]

@@ -13,6 +13,16 @@ pub fn run(args: &[&str]) -> Output {
         .expect("run tofprox")
 }
 
+/// The repository's root (the workspace above `crates/tofprox`).
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A path below the repository's root, as a command-line argument.
+pub fn repo_file(rel: &str) -> String {
+    repo().join(rel).to_string_lossy().into_owned()
+}
+
 /// Lossy UTF-8 text of captured output.
 pub fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
