@@ -353,7 +353,7 @@ pub fn write_effect(
             ));
         } else {
             notes.push(format!(
-                "{p} = {v:.6} e-/us/klux written too: the SBI fit measures the background charge per signal charge"
+                "{p} = {v:.6} e-/us/klux written too: the SBI fit's background charge per signal charge, which the written threshold and mismatch are scaled with; it is determined only where background light is a sizeable part of the tap charges at the threshold (with little background the fit trades it against the threshold): check it against an independent measurement before simulating noise with it"
             ));
         }
     }

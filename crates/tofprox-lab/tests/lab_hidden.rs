@@ -6,7 +6,7 @@
 use ndarray::Array3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use tofprox_lab::adapter::{dataset_from_recording, spec_from_model};
+use tofprox_lab::adapter::{dataset_from_recording, spec_from_model, write_effect};
 mod common;
 
 use tofprox_lab::diagnose::{Verdict, add_effect, compare, diagnose};
@@ -109,13 +109,20 @@ fn saturated_share(ds: &Dataset) -> f64 {
     sat as f64 / n.max(1) as f64
 }
 
-fn check_hidden(effect: &str, truth: ModelConfig, seed: u64, vary: Vary) {
+fn check_hidden(effect: &str, truth: ModelConfig, seed: u64, vary: Vary) -> ModelConfig {
     check_hidden_vs(effect, truth, model_under_test(), seed, vary)
 }
 
 /// `control`: the truth without the hidden effect (the model under test, or
 /// one with other sensor constants that the lab's model does not name).
-fn check_hidden_vs(effect: &str, truth: ModelConfig, control: ModelConfig, seed: u64, vary: Vary) {
+/// Returns the model under test as `add` writes it (`write_effect`).
+fn check_hidden_vs(
+    effect: &str,
+    truth: ModelConfig,
+    control: ModelConfig,
+    seed: u64,
+    vary: Vary,
+) -> ModelConfig {
     let spec = spec_from_model(&model_under_test());
     let ds = record(&truth, seed, vary, None);
     let prep = Prepared::new(&ds).unwrap();
@@ -142,6 +149,22 @@ fn check_hidden_vs(effect: &str, truth: ModelConfig, control: ModelConfig, seed:
     let cprep = Prepared::new(&ctl).unwrap();
     let c = compare(&cprep, &spec, &|_, _| {}).unwrap();
     common::assert_add_reaches_control(&out, &c.rms);
+    let mut written = model_under_test();
+    let notes = write_effect(&mut written, effect, &out.params, &out.after.model, &prep).unwrap();
+    eprintln!("written: {notes:?}");
+    written
+}
+
+/// `add` wrote the truth's parameters (model file units) within `rel`.
+fn assert_written(written: &ModelConfig, truth: &[(&str, &str, f64)], rel: f64) {
+    for (effect, name, want) in truth {
+        let got = written.param(effect, name).unwrap();
+        eprintln!("{effect}.{name}: written {got:.6}, truth {want}");
+        assert!(
+            (got - want).abs() <= rel * want.abs(),
+            "{effect}.{name}: written {got}, truth {want}"
+        );
+    }
 }
 
 fn with(effect: &str, params: &[(&str, f64)]) -> ModelConfig {
@@ -155,7 +178,7 @@ fn with(effect: &str, params: &[(&str, f64)]) -> ModelConfig {
 
 #[test]
 fn hidden_sbi_asymmetry() {
-    check_hidden(
+    let written = check_hidden(
         "sbi_asymmetry",
         with(
             "sbi_asymmetry",
@@ -163,6 +186,16 @@ fn hidden_sbi_asymmetry() {
         ),
         101,
         Vary::Ambient,
+    );
+    // in the model file's electrons (through its conversion gain)
+    assert_written(
+        &written,
+        &[
+            ("sbi_asymmetry", "threshold_e", 45000.0),
+            ("sbi_asymmetry", "mismatch_rel", 0.05),
+            ("sbi_asymmetry", "clamp_share", 0.0),
+        ],
+        0.1,
     );
 }
 
@@ -176,7 +209,7 @@ fn hidden_sbi_asymmetry_weak_ambient_high_threshold() {
             .unwrap();
         m
     };
-    check_hidden_vs(
+    let written = check_hidden_vs(
         "sbi_asymmetry",
         weak(with(
             "sbi_asymmetry",
@@ -185,6 +218,14 @@ fn hidden_sbi_asymmetry_weak_ambient_high_threshold() {
         weak(model_under_test()),
         204,
         Vary::Ambient,
+    );
+    assert_written(
+        &written,
+        &[
+            ("sbi_asymmetry", "threshold_e", 80000.0),
+            ("sbi_asymmetry", "mismatch_rel", 0.08),
+        ],
+        0.1,
     );
 }
 
