@@ -655,6 +655,22 @@ mod tests {
     use super::*;
     use crate::pipeline::FLAG_INVALID;
 
+    /// A one-row ROI over all of `flags` and `depth` (the same length).
+    fn one_row<'a>(flags: &'a [u8], depth: &'a [u16]) -> RoiRows<'a> {
+        RoiRows {
+            flags,
+            flags_stride: flags.len(),
+            depth,
+            depth_stride: depth.len(),
+            roi: Roi {
+                row0: 0,
+                col0: 0,
+                rows: 1,
+                cols: depth.len(),
+            },
+        }
+    }
+
     #[test]
     fn roi_pass_and_nearest_rank_match_a_sort() {
         // Flags of every kind, valid depths 0 (not valid), 1 and 65535 (both ends of the range),
@@ -685,18 +701,7 @@ mod tests {
                     _ => (next() % 3000) as u16 + (i % 2) as u16 * 40_000,
                 })
                 .collect();
-            let rows = RoiRows {
-                flags: &flags,
-                flags_stride: len,
-                depth: &depth,
-                depth_stride: len,
-                roi: Roi {
-                    row0: 0,
-                    col0: 0,
-                    rows: 1,
-                    cols: len,
-                },
-            };
+            let rows = one_row(&flags, &depth);
             let mut keys = vec![0i16; len];
             let t = KeyKernel::Portable.tally(&rows, &mut keys);
             let mut valid: Vec<u16> = flags
@@ -838,18 +843,7 @@ mod tests {
         ];
         for depth in cases {
             let flags = vec![0u8; len];
-            let rows = RoiRows {
-                flags: &flags,
-                flags_stride: len,
-                depth: &depth,
-                depth_stride: len,
-                roi: Roi {
-                    row0: 0,
-                    col0: 0,
-                    rows: 1,
-                    cols: len,
-                },
-            };
+            let rows = one_row(&flags, &depth);
             let mut sorted = depth.clone();
             sorted.sort_unstable();
             for kernel in [KeyKernel::Portable, KeyKernel::detect()] {
