@@ -103,7 +103,8 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
     let mut spec = spec_from_model(m);
     let mut notes = Vec::new();
     let g = |id: &str, name: &str| m.param(id, name).unwrap_or(0.0);
-    let lsb_per_e = g("sensor", "lsb_per_ke") * 1e-3;
+    // 0 when the file has no conversion gain (NaN.max(0) is 0)
+    let lsb_per_e = code_per_e(m).max(0.0);
     for id in spec.effects.clone() {
         let fit = match id.as_str() {
             "vcsel_droop" => {
@@ -267,9 +268,9 @@ pub fn write_effect(
             if let Some(v) = g("ln_shape") {
                 set(m, "shape", v.exp());
             }
-            // the lab's amplitude is in LSB; the model's in electrons of the
-            // differential amplitude: A[LSB] = A[e]·lsb_per_e (sensor.lsb_per_ke)
-            let lsb_per_e = m.param("sensor", "lsb_per_ke").unwrap_or(0.0) * 1e-3;
+            // the lab's amplitude is in codes; the model's in electrons of the
+            // differential amplitude: A[codes] = A[e]·code_per_e
+            let lsb_per_e = code_per_e(m);
             if let Some(v) = g("ln_reference_lsb")
                 && lsb_per_e > 0.0
             {
@@ -326,9 +327,7 @@ pub fn write_effect(
                     if let Some(v) = g("clamp_share") {
                         set(m, "clamp_share", v.clamp(0.0, 1.0));
                     }
-                    if let Some(e_per_us_per_klux) = units.ambient_e_per_us_per_klux {
-                        ambient = Some(e_per_us_per_klux);
-                    }
+                    ambient = units.ambient_e_per_us_per_klux();
                 }
                 None => notes.push(format!(
                     "{effect}: the model file has no conversion gain (sensor.lsb_per_ke) or no fitted signal weight; the model file keeps its typical values"
@@ -360,6 +359,16 @@ pub fn write_effect(
     Ok(notes)
 }
 
+/// Output codes per electron of differential charge — the unit the lab's
+/// "LSB" are in: the conversion gain (`sensor.lsb_per_ke` / 1000) times the
+/// converter's slope (eq. 3.2, [`tofprox_model::effects::adc::gain_factor`]).
+/// NaN when the file has no conversion gain.
+fn code_per_e(m: &ModelConfig) -> f64 {
+    m.get(tofprox_model::ids::sensor::LSB_PER_KE)
+        * 1e-3
+        * tofprox_model::effects::adc::gain_factor(m)
+}
+
 /// The unit of the lab's SBI tap charges in the model's electrons (the
 /// `sbi_asymmetry` signature: N = B + κ·A(g ± C)/100 with B in klux·ms and A
 /// the fundamental amplitude in LSB; the model: signal electrons per tap
@@ -371,16 +380,16 @@ pub fn write_effect(
 struct SbiUnits {
     /// Electrons per lab unit of tap charge.
     e_per_unit: f64,
-    /// LSB per electron of differential charge (`sensor.lsb_per_ke` / 1000).
+    /// Codes per electron of differential charge ([`code_per_e`]).
     lsb_per_e: f64,
-    /// The model's ambient responsivity these units imply (ambient varying).
-    ambient_e_per_us_per_klux: Option<f64>,
+    /// One unit is a klux·ms of background (the ambient light varies).
+    ambient: bool,
 }
 
 impl SbiUnits {
+    /// [`code_per_e`], if finite and positive.
     fn lsb_per_e(m: &ModelConfig) -> Option<f64> {
-        let v = m.param("sensor", "lsb_per_ke")? * 1e-3;
-        (v.is_finite() && v > 0.0).then_some(v)
+        Some(code_per_e(m)).filter(|v| v.is_finite() && *v > 0.0)
     }
     /// From a fit: κ (`ln_signal_weight`) when the ambient light varies.
     fn from_fit(m: &ModelConfig, prep: &Prepared, kappa: Option<f64>) -> Option<Self> {
@@ -391,13 +400,13 @@ impl SbiUnits {
             Some(Self {
                 e_per_unit: u,
                 lsb_per_e,
-                ambient_e_per_us_per_klux: Some(u / 1000.0),
+                ambient: true,
             })
         } else {
             Some(Self {
                 e_per_unit: 100.0 / lsb_per_e,
                 lsb_per_e,
-                ambient_e_per_us_per_klux: None,
+                ambient: false,
             })
         }
     }
@@ -417,8 +426,13 @@ impl SbiUnits {
         (u.is_finite() && u > 0.0).then_some(Self {
             e_per_unit: u,
             lsb_per_e,
-            ambient_e_per_us_per_klux: None,
+            ambient: prep.ambient_varies,
         })
+    }
+    /// The model's ambient responsivity these units imply (ambient light
+    /// varying): one unit is a klux·ms, u = 1000·e_per_us_per_klux.
+    fn ambient_e_per_us_per_klux(&self) -> Option<f64> {
+        self.ambient.then_some(self.e_per_unit / 1000.0)
     }
     /// κ of the lab's law for these units (1 without varying ambient light).
     fn kappa(&self) -> f64 {

@@ -141,7 +141,12 @@ pub fn fit_signature(
     if grid.is_empty() {
         grid.push(sig.nl_start());
     }
-    let mut best: Option<(f64, Vec<f64>)> = None;
+    // The best grid point of each setting of the discrete parameters: those
+    // are chosen after the continuous ones are refined, since at a coarse grid
+    // point the wrong end of a family can fit better than the right one.
+    let n_nl = sig.nl_start().len();
+    let discrete: Vec<usize> = (0..n_nl).filter(|&i| sig.nl_discrete(i)).collect();
+    let mut best: Vec<(Vec<f64>, f64, Vec<f64>)> = Vec::new();
     for nl in &grid {
         let mut p = vec![0.0; nlin];
         p.extend_from_slice(nl);
@@ -150,41 +155,56 @@ pub fn fit_signature(
             continue;
         };
         let chi = t.chi2_after(&lin);
-        if best.as_ref().is_none_or(|b| chi < b.0) {
-            let mut full = lin;
-            full.extend_from_slice(nl);
-            best = Some((chi, full));
+        let mut full = lin;
+        full.extend_from_slice(nl);
+        let key: Vec<f64> = discrete
+            .iter()
+            .filter_map(|&i| nl.get(i).copied())
+            .collect();
+        match best.iter_mut().find(|b| b.0 == key) {
+            Some(b) if chi < b.1 => (b.1, b.2) = (chi, full),
+            Some(_) => {}
+            None => best.push((key, chi, full)),
         }
     }
-    let Some((_, mut p)) = best else {
+    if best.is_empty() {
         return Err(LabError::numerical(format!(
             "{}: no grid point gave a solvable fit",
             sig.id()
         )));
-    };
-    let has_nl = p.len() > nlin;
-    if has_nl {
-        // LM on a subsample (the non-linear parameters are few and smooth) …
+    }
+    let mut p = best[0].2.clone();
+    if n_nl > 0 {
+        // LM on a subsample (the non-linear parameters are few and smooth)
         // over the parameters it refines: a discrete one stays at its grid
-        // value (its zero Jacobian column would make JᵀJ singular)
-        let free: Vec<usize> = (0..p.len())
+        // value (its zero Jacobian column would make JᵀJ singular) …
+        let free: Vec<usize> = (0..nlin + n_nl)
             .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
             .collect();
-        let full = |q: &[f64]| {
-            let mut v = p.clone();
-            for (&i, x) in free.iter().zip(q) {
-                v[i] = *x;
+        let mut refined: Option<(f64, Vec<f64>)> = None;
+        for (_, _, start) in &best {
+            let full = |q: &[f64]| {
+                let mut v = start.clone();
+                for (&i, x) in free.iter().zip(q) {
+                    v[i] = *x;
+                }
+                v
+            };
+            let q0: Vec<f64> = free.iter().map(|&i| start[i]).collect();
+            let r = levenberg_marquardt(
+                |q| total(&accumulate(sig, recs, prep, &full(q), true, stride)).select(&free),
+                &q0,
+                30,
+                LM_TOL_CHI2,
+            )?;
+            // … from the best grid point of each discrete setting, keeping the lowest χ²
+            if refined.as_ref().is_none_or(|b| r.chi2 < b.0) {
+                refined = Some((r.chi2, full(&r.params)));
             }
-            v
-        };
-        let q0: Vec<f64> = free.iter().map(|&i| p[i]).collect();
-        let r = levenberg_marquardt(
-            |q| total(&accumulate(sig, recs, prep, &full(q), true, stride)).select(&free),
-            &q0,
-            30,
-            LM_TOL_CHI2,
-        )?;
-        p = full(&r.params);
+        }
+        if let Some((_, v)) = refined {
+            p = v;
+        }
     }
     // … then the linear parameters exactly on all data at those values, and
     // the block cross-validation, from one pass: the normal equations of the

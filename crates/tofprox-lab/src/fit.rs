@@ -1055,6 +1055,16 @@ fn fit_gain_only(prep: &Prepared, model: &mut LabModel) {
         .into_iter()
         .map(|g| if g > 0.0 { g } else { med })
         .collect();
+    update_gain_median(model);
+}
+
+/// [`LabModel::gain_median`] from the current gains (positive ones; 1 if
+/// none): the reference of every `gain_rel`, so that the effects'
+/// background terms (ambient light through the pixel's relative response)
+/// are in klux·ms, not scaled by the absolute gain in LSB per unit law.
+fn update_gain_median(model: &mut LabModel) {
+    let positive: Vec<f64> = model.gain.iter().copied().filter(|g| *g > 0.0).collect();
+    model.gain_median = median(&positive).unwrap_or(1.0);
 }
 
 /// e^{−iθ_k} of every raw image of every capture.
@@ -1128,6 +1138,7 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
     if !model.spec.per_pixel_phase {
         pool(&mut model.phase, 2);
     }
+    update_gain_median(model);
 }
 
 /// Gauss–Newton step of the global harmonics γ_2..γ_H on all data.

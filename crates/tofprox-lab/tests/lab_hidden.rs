@@ -6,7 +6,9 @@
 use ndarray::Array3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use tofprox_lab::adapter::{dataset_from_recording, spec_from_model, write_effect};
+use tofprox_lab::adapter::{
+    dataset_from_recording, spec_from_model, spec_holding_model, write_effect,
+};
 mod common;
 
 use tofprox_lab::diagnose::{Verdict, add_effect, compare, diagnose};
@@ -195,7 +197,13 @@ fn hidden_sbi_asymmetry() {
             ("sbi_asymmetry", "mismatch_rel", 0.05),
             ("sbi_asymmetry", "clamp_share", 0.0),
         ],
-        0.1,
+        0.06,
+    );
+    // the background per signal charge the fit measured (ambient light 0–100 klux)
+    assert_written(
+        &written,
+        &[("ambient_light", "e_per_us_per_klux", 3.0)],
+        0.06,
     );
 }
 
@@ -225,7 +233,12 @@ fn hidden_sbi_asymmetry_weak_ambient_high_threshold() {
             ("sbi_asymmetry", "threshold_e", 80000.0),
             ("sbi_asymmetry", "mismatch_rel", 0.08),
         ],
-        0.1,
+        0.06,
+    );
+    assert_written(
+        &written,
+        &[("ambient_light", "e_per_us_per_klux", 1.0)],
+        0.06,
     );
 }
 
@@ -413,4 +426,31 @@ fn out_of_catalogue_effect_is_unexplained_and_names_its_condition() {
     assert_eq!(d.verdict, Verdict::Unexplained, "{}", d.reason);
     assert!(d.effect.is_none());
     assert_eq!(d.strongest_condition.as_deref(), Some("exposure_us"));
+}
+
+/// `--hold-effects` with the truth's own model file: tap-gain mismatch under
+/// ambient light 0–100 klux, held at the file's values (its background term
+/// in LSB per klux·ms, through the pixels' gain relative to the median),
+/// fits as well as the model refitted with the effect free.
+#[test]
+fn held_tap_gain_mismatch_reproduces_its_recording() {
+    let truth = with("tap_gain_mismatch", &[("mismatch_rel", 0.02)]);
+    let ds = record(&truth, 105, Vary::Ambient, None);
+    let prep = Prepared::new(&ds).unwrap();
+    let free = add_effect(
+        &prep,
+        &spec_from_model(&model_under_test()),
+        "tap_gain_mismatch",
+        &|_, _| {},
+    )
+    .unwrap();
+    let (held, notes) = spec_holding_model(&truth, &prep);
+    eprintln!("notes {notes:?}; held {:?}", held.held);
+    assert!(held.held.iter().any(|h| h.id == "tap_gain_mismatch"));
+    let h = compare(&prep, &held, &|_, _| {}).unwrap();
+    eprintln!(
+        "held χ²/dof {:.4}, free {:.4}",
+        h.fit.chi2_per_dof, free.after.fit.chi2_per_dof
+    );
+    assert!(h.fit.chi2_per_dof <= 1.05 * free.after.fit.chi2_per_dof);
 }

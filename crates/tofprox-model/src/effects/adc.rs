@@ -14,6 +14,17 @@ const PAD: usize = 3;
 /// INL table spacing in LSB.
 const INL_STEP: usize = 4;
 
+/// The converter's slope factor k = 1/(1 + e_gain) (eq. 3.2, `adc_gain`; 1
+/// when the effect is off): output codes per LSB of input, so a charge of N
+/// electrons reads as N·lsb_per_e·k codes.
+pub fn gain_factor(model: &ModelConfig) -> f64 {
+    if model.is_enabled(ids::adc_gain::ID) {
+        1.0 / (1.0 + model.get(ids::adc_gain::GAIN_ERROR_PCT_FSR) / 100.0)
+    } else {
+        1.0
+    }
+}
+
 /// A differential N-bit converter with mid code 2^(N−1) for zero input.
 #[derive(Debug, Clone)]
 pub struct Adc {
@@ -44,11 +55,7 @@ impl Adc {
     pub fn new(model: &ModelConfig, bits: u8, seed: u64) -> Self {
         let full = f64::from(1u32 << bits);
         let mid = full / 2.0;
-        let k_gain = if model.is_enabled(ids::adc_gain::ID) {
-            1.0 / (1.0 + model.get(ids::adc_gain::GAIN_ERROR_PCT_FSR) / 100.0)
-        } else {
-            1.0
-        };
+        let k_gain = gain_factor(model);
         let offset_lsb = if model.is_enabled(ids::adc_offset::ID) {
             model.get(ids::adc_offset::OFFSET_LSB)
         } else {
