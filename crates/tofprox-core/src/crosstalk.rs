@@ -274,24 +274,11 @@ pub fn residual_ratio(
     if calibration.lsb_per_us.dim() != (4, rows, cols) || !(exposure_us.is_finite()) {
         return None;
     }
-    let r = roi.resolve(rows, cols);
     let (mut proj, mut reference) = (0.0f64, 0.0f64);
-    for row in r.row0..r.row0 + r.rows {
-        for col in r.col0..r.col0 + r.cols {
-            let flags = frame
-                .flags
-                .get((row, col))
-                .copied()
-                .unwrap_or(FLAG_NON_FINITE);
-            if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
-                continue;
-            }
-            let a = frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0);
-            let ph = frame.phase_rad.get((row, col)).copied().unwrap_or(0.0);
-            let (x, y) = calibration.phasor_per_us(algorithm, row, col);
-            proj += f64::from(a) * f64::from(ph).cos();
-            reference += f64::from(x.hypot(y)) * exposure_us;
-        }
+    for (row, col, a, ph) in usable_phasors(frame, roi) {
+        let (x, y) = calibration.phasor_per_us(algorithm, row, col);
+        proj += a * ph.cos();
+        reference += f64::from(x.hypot(y)) * exposure_us;
     }
     (reference > 0.0).then(|| (proj / reference) as f32)
 }
@@ -307,26 +294,33 @@ pub fn residual_ratio(
 /// unambiguous range is indistinguishable from it with one frequency (a documented limit).
 /// `false` when the ROI has no usable pixel.
 pub fn phasor_points_at_window(frame: &DepthFrame, roi: Roi, tolerance_rad: f64) -> bool {
+    let (mut re, mut im) = (0.0f64, 0.0f64);
+    for (_, _, a, ph) in usable_phasors(frame, roi) {
+        re += a * ph.cos();
+        im += a * ph.sin();
+    }
+    re > 0.0 && im.atan2(re).abs() <= tolerance_rad
+}
+
+/// `(row, col, A, φ)` of the ROI's pixels that are neither saturated nor non-finite: amplitude
+/// (LSB) and corrected phase (rad) as the frame holds them, row by row.
+fn usable_phasors(frame: &DepthFrame, roi: Roi) -> impl Iterator<Item = (usize, usize, f64, f64)> {
     let (rows, cols) = frame.dim();
     let r = roi.resolve(rows, cols);
-    let (mut re, mut im) = (0.0f64, 0.0f64);
-    for row in r.row0..r.row0 + r.rows {
-        for col in r.col0..r.col0 + r.cols {
+    (r.row0..r.row0 + r.rows)
+        .flat_map(move |row| (r.col0..r.col0 + r.cols).map(move |col| (row, col)))
+        .filter_map(move |(row, col)| {
             let flags = frame
                 .flags
                 .get((row, col))
                 .copied()
                 .unwrap_or(FLAG_NON_FINITE);
-            if flags & (FLAG_SATURATED | FLAG_NON_FINITE) != 0 {
-                continue;
-            }
-            let a = f64::from(frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0));
-            let ph = f64::from(frame.phase_rad.get((row, col)).copied().unwrap_or(0.0));
-            re += a * ph.cos();
-            im += a * ph.sin();
-        }
-    }
-    re > 0.0 && im.atan2(re).abs() <= tolerance_rad
+            (flags & (FLAG_SATURATED | FLAG_NON_FINITE) == 0).then(|| {
+                let a = frame.amplitude_lsb.get((row, col)).copied().unwrap_or(0.0);
+                let ph = frame.phase_rad.get((row, col)).copied().unwrap_or(0.0);
+                (row, col, f64::from(a), f64::from(ph))
+            })
+        })
 }
 
 /// What [`CrosstalkMonitor`] concludes about the cover window.
