@@ -20,7 +20,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tofprox_core::SensorGeometry;
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model, update_model_text, write_effect};
-use tofprox_lab::diagnose::{DiagnoseOptions, Verdict, compare, diagnose, effect_params, explain};
+use tofprox_lab::diagnose::{
+    DiagnoseOptions, Verdict, add_effect, compare, diagnose, effect_params, explain,
+};
 use tofprox_lab::fit::{LabSpec, Prepared};
 use tofprox_lab::{Capture, Dataset};
 use tofprox_model::ModelConfig;
@@ -281,6 +283,25 @@ fn model_under_test() -> ModelConfig {
     m
 }
 
+/// `m` with this file's sensor constants: conversion gain, contrast, no ADC
+/// gain error.
+fn with_this_sensor(mut m: ModelConfig) -> ModelConfig {
+    m.set_param("sensor", "lsb_per_ke", LSB_PER_E * 1000.0)
+        .unwrap();
+    m.set_enabled("adc_gain", false).unwrap();
+    m.set_param("demodulation_contrast", "contrast", CONTRAST)
+        .unwrap();
+    m
+}
+
+/// This file's ambient responsivity in the model's terms: background reaches
+/// the median pixel (the lab's unit is relative to it) with that pixel's gain.
+fn ambient_e_per_us_per_klux(seed: u64) -> f64 {
+    let mut gain = pixels(seed).gain;
+    gain.sort_by(f64::total_cmp);
+    AMBIENT_E_PER_US_KLUX * gain[gain.len() / 2]
+}
+
 fn spec() -> LabSpec {
     let s = spec_from_model(&model_under_test());
     assert_eq!(
@@ -397,6 +418,39 @@ fn tap_gain_mismatch() {
     );
 }
 
+/// `--hold-effects` on this file's tap gain (tap B converts with 1 − ε: a
+/// leak ε·N_B, not the model's ε/2·(N_A + N_B)) under ambient light 0–25 klux:
+/// a model file with this sensor's constants and ε, held at its values
+/// (background term through the file's ambient responsivity), fits as well as
+/// the effect fitted freely.
+#[test]
+fn held_tap_gain_under_ambient_light_reproduces_its_recording() {
+    let eps = 0.01;
+    let ds = record(&[Hidden::TapGain { eps }], Vary::Ambient, 39);
+    let prep = Prepared::new(&ds).unwrap();
+    let free = add_effect(&prep, &spec(), "tap_gain_mismatch", &|_, _| {}).unwrap();
+    let mut truth = with_this_sensor(model_under_test());
+    truth
+        .set_param(
+            "ambient_light",
+            "e_per_us_per_klux",
+            ambient_e_per_us_per_klux(39),
+        )
+        .unwrap();
+    truth.set_enabled("tap_gain_mismatch", true).unwrap();
+    truth
+        .set_param("tap_gain_mismatch", "mismatch_rel", eps)
+        .unwrap();
+    let (held, notes) = spec_holding_model(&truth, &prep);
+    assert!(notes.is_empty(), "{notes:?}");
+    let h = compare(&prep, &held, &|_, _| {}).unwrap();
+    eprintln!(
+        "free {:?}; held {:?}: χ²/dof {:.4}, free {:.4}",
+        free.params, held.held, h.fit.chi2_per_dof, free.after.fit.chi2_per_dof
+    );
+    assert!(h.fit.chi2_per_dof <= 1.05 * free.after.fit.chi2_per_dof);
+}
+
 #[test]
 fn two_effects_droop_and_second_order_temperature() {
     check_explain(
@@ -468,9 +522,8 @@ fn clamping_sbi() {
     // the first step is made on residuals the per-pixel parameters partly
     // absorbed; with background light filling the taps the two ends of the
     // family differ there by a few per cent of χ² only.
-    let sbi = ex
-        .final_model()
-        .unwrap()
+    let fin = ex.final_model().unwrap();
+    let sbi = fin
         .effects
         .iter()
         .find(|e| e.id == "sbi_asymmetry")
@@ -487,25 +540,16 @@ fn clamping_sbi() {
     // the model's units: its injection N_inj with m = 0.03 leaves +m·N_inj in
     // the differential charge, the model's −mismatch_rel·N_inj; background
     // reaches the median pixel with its gain (the lab's unit is relative to it).
-    let fin = ex.final_model().unwrap();
-    let mut m = model_under_test();
-    m.set_param("sensor", "lsb_per_ke", LSB_PER_E * 1000.0)
-        .unwrap();
-    m.set_enabled("adc_gain", false).unwrap();
-    m.set_param("demodulation_contrast", "contrast", CONTRAST)
-        .unwrap();
+    let mut m = with_this_sensor(model_under_test());
     let (_, params) = effect_params(&prep, fin, "sbi_asymmetry").unwrap();
     write_effect(&mut m, "sbi_asymmetry", &params, fin, &prep).unwrap();
-    let mut gain = pixels(38).gain;
-    gain.sort_by(f64::total_cmp);
-    let median_gain = gain[gain.len() / 2];
     for (effect, name, truth) in [
         ("sbi_asymmetry", "threshold_e", 12_000.0),
         ("sbi_asymmetry", "mismatch_rel", -0.03),
         (
             "ambient_light",
             "e_per_us_per_klux",
-            AMBIENT_E_PER_US_KLUX * median_gain,
+            ambient_e_per_us_per_klux(38),
         ),
     ] {
         let got = m.param(effect, name).unwrap();
