@@ -79,23 +79,14 @@ fn controller_cycle_2phase_full_frame(b: Bencher) {
 #[divan::bench]
 fn emulated_stack_cycle_2phase_full_frame(b: Bencher) {
     use tofprox_bridge::emulated::FrameSource as Synth;
-    use tofprox_bridge::{
-        Clock, DriverConfig, EmulatedConfig, EmulatedDevice, SensorDriver, VirtualClock,
-    };
+    use tofprox_bridge::{Clock, EmulatedConfig, VirtualClock};
     let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
     let dev_cfg = EmulatedConfig {
         frame_source: Synth::Ideal,
         ..EmulatedConfig::default()
     };
-    let map = dev_cfg.sensor_map().expect("map");
-    let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), 1).expect("device");
-    let dcfg = DriverConfig {
-        protocol: dev_cfg.protocol.clone(),
-        map,
-        ..DriverConfig::emulated_default()
-    };
-    let driver = SensorDriver::new(dev, dcfg, clock.clone()).expect("driver");
-    let src = tofproxd::backends::BridgeSource::new(driver, clock, "bench");
+    let src =
+        tofproxd::backends::emulated::bridge_source(dev_cfg, clock, 1, "bench").expect("stack");
     let mut ctl =
         Controller::new(full_frame_config(), src, ModeCalibrations::default()).expect("controller");
     ctl.step(false);
@@ -141,7 +132,7 @@ fn frame_to_properties_changed(b: Bencher) {
             .request_name("org.tofprox.Proximity1")
             .await
             .expect("name");
-        let (tx, erx) = tokio::sync::mpsc::unbounded_channel();
+        let (tx, erx) = tokio::sync::mpsc::channel(tofproxd::hub::EVENT_CAPACITY);
         tokio::spawn(tofproxd::publisher::run_publisher(
             server.clone(),
             hub.clone(),
@@ -171,6 +162,7 @@ fn frame_to_properties_changed(b: Bencher) {
                 valid_reading: true,
                 ..StatusUpdate::default()
             }))
+            .await
             .expect("send");
             next_item(&mut rx).await.expect("signal");
         })

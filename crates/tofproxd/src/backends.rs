@@ -1,28 +1,20 @@
-//! Concrete frame sources: the bridge's [`SensorDriver`] over USB or over the
-//! emulated device, and replay of a version 1 recording.
+//! Concrete frame sources: the bridge's [`SensorDriver`] over USB (or over the emulated
+//! device: [`emulated`], feature `emulated`), and replay of a version 1 recording.
 
-use serde::{Deserialize, Serialize};
+#[cfg(feature = "emulated")]
+pub mod emulated;
+
 use std::path::Path;
 use std::sync::Arc;
 use tofprox_bridge::{
-    BridgeError, Clock, DriverConfig, DriverConfigFile, EmulatedConfig as BridgeEmulatedConfig,
-    EmulatedDevice, ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
+    BridgeError, Clock, DriverConfig, DriverConfigFile, ErrorKind, SensorDriver, SensorMode,
+    SystemClock, UsbTransport,
 };
 use tofprox_format::{RawFrames, Recording};
 
 use crate::config::{Backend, Config};
 use crate::energy::CycleTimings;
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
-
-/// The emulated device: a path to a bridge config file, or the table inline.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum DeviceSpec {
-    /// `device = "emulated/hand.toml"`.
-    Path(std::path::PathBuf),
-    /// `[emulated.device]` table (tofprox-bridge `EmulatedConfig` keys).
-    Inline(toml::Table),
-}
 
 impl FrameSource for Box<dyn FrameSource> {
     fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
@@ -270,49 +262,6 @@ impl FrameSource for ReplaySource {
     }
 }
 
-/// Load the emulated device configuration of a daemon config. A `device = "FILE"` path is
-/// used as it stands in `cfg` ([`Config::load`] already made it relative to the config
-/// file's directory — joining `base` again would resolve it twice); paths inside an inline
-/// `[emulated.device]` table are resolved against `base` (the config file's directory).
-/// Errors keep the bridge's reason (an unknown key is named).
-pub fn emulated_device_config(
-    cfg: &Config,
-    base: &Path,
-) -> Result<BridgeEmulatedConfig, SourceError> {
-    let err = |what: &str, e: BridgeError| {
-        SourceError::new(
-            SourceErrorKind::Unsupported,
-            format!("{what}: {}", chain(&e)),
-        )
-        .with_source(e)
-    };
-    match &cfg.emulated.device {
-        None => Ok(BridgeEmulatedConfig::default()),
-        Some(DeviceSpec::Path(p)) => {
-            BridgeEmulatedConfig::load(p).map_err(|e| err("emulated.device", e))
-        }
-        Some(DeviceSpec::Inline(t)) => {
-            let text = toml::to_string(t).map_err(|e| {
-                SourceError::new(
-                    SourceErrorKind::Unsupported,
-                    format!("[emulated.device]: {e}"),
-                )
-            })?;
-            BridgeEmulatedConfig::from_toml_str(&text, base)
-                .map_err(|e| err("[emulated.device]", e))
-        }
-    }
-}
-
-/// Clock for the emulated backend.
-pub fn clock_for(cfg: &Config) -> Arc<dyn Clock> {
-    if cfg.emulated.virtual_time {
-        Arc::new(VirtualClock::new())
-    } else {
-        Arc::new(SystemClock::new())
-    }
-}
-
 /// Build the configured frame source. `base` resolves relative paths (the config's directory).
 pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, SourceError> {
     let berr = |what: &str, e: BridgeError| {
@@ -325,25 +274,7 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
             })?;
             Ok(Box::new(ReplaySource::open(dir, cfg.replay.repeat)?))
         }
-        Backend::Emulated => {
-            let dev_cfg = emulated_device_config(cfg, base)?;
-            let clock = clock_for(cfg);
-            let map = dev_cfg.sensor_map().map_err(|e| berr("sensor map", e))?;
-            let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), cfg.emulated.seed)
-                .map_err(|e| berr("emulated device", e))?;
-            let dcfg = DriverConfig {
-                protocol: dev_cfg.protocol.clone(),
-                map,
-                ..DriverConfig::emulated_default()
-            };
-            let driver =
-                SensorDriver::new(dev, dcfg, clock.clone()).map_err(|e| berr("driver", e))?;
-            Ok(Box::new(BridgeSource::new(
-                driver,
-                clock,
-                "emulated CX3 + IRS1645",
-            )))
-        }
+        Backend::Emulated => emulated_backend(cfg, base),
         Backend::Usb => {
             let dcfg = match &cfg.usb.driver_config {
                 Some(p) => DriverConfigFile::load(p).map_err(|e| {
@@ -362,6 +293,23 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
             }))
         }
     }
+}
+
+/// The emulated backend ([`emulated`]).
+#[cfg(feature = "emulated")]
+fn emulated_backend(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, SourceError> {
+    Ok(Box::new(emulated::source(cfg, base)?))
+}
+
+/// A production build (without the feature `emulated`) has no emulated device: refused,
+/// naming the feature.
+#[cfg(not(feature = "emulated"))]
+fn emulated_backend(_cfg: &Config, _base: &Path) -> Result<Box<dyn FrameSource>, SourceError> {
+    Err(SourceError::new(
+        SourceErrorKind::Unsupported,
+        "backend = \"emulated\": this tofproxd is a production build without the emulated \
+         device (build it with the default feature `emulated`)",
+    ))
 }
 
 /// USB backend that opens the device lazily (the daemon starts without the
@@ -463,6 +411,20 @@ mod tests {
         let msg = build_err(&usb_config(&zero_poll)).to_string();
         assert!(msg.contains("usb.driver_config"), "{msg}");
         assert!(msg.contains("poll_interval_us"), "{msg}");
+    }
+
+    #[cfg(not(feature = "emulated"))]
+    #[test]
+    fn production_build_refuses_the_emulated_backend_naming_the_feature() {
+        let cfg = Config {
+            backend: Backend::Emulated,
+            ..Config::default()
+        };
+        let e = build_err(&cfg);
+        assert_eq!(e.kind(), SourceErrorKind::Unsupported);
+        let msg = e.to_string();
+        assert!(msg.contains("backend = \"emulated\""), "{msg}");
+        assert!(msg.contains("feature `emulated`"), "{msg}");
     }
 
     #[test]

@@ -392,12 +392,22 @@ pub struct UsbConfig {
     pub device: tofprox_bridge::UsbSelector,
 }
 
+/// The emulated device: a path to a bridge config file, or the table inline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum DeviceSpec {
+    /// `device = "emulated/hand.toml"`.
+    Path(PathBuf),
+    /// `[emulated.device]` table (tofprox-bridge `EmulatedConfig` keys).
+    Inline(toml::Table),
+}
+
 /// `[emulated]`
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct EmulatedConfig {
     /// Emulated device: a tofprox-bridge config file path, or the `[emulated.device]` table inline.
-    pub device: Option<crate::backends::DeviceSpec>,
+    pub device: Option<DeviceSpec>,
     /// Random seed of the emulated frames.
     pub seed: u64,
     /// Run the emulated device on virtual time (no real sleeps; tests).
@@ -504,7 +514,7 @@ impl Config {
         };
         fix(&mut self.processing.calibration);
         fix(&mut self.usb.driver_config);
-        if let Some(crate::backends::DeviceSpec::Path(p)) = &mut self.emulated.device
+        if let Some(DeviceSpec::Path(p)) = &mut self.emulated.device
             && p.is_relative()
         {
             *p = base.join(&*p);

@@ -404,8 +404,64 @@ pub struct StatusUpdate {
     pub error: bool,
 }
 
-/// Sender side for the loop.
-pub type EventSender = mpsc::UnboundedSender<Event>;
+/// Capacity of the loop → publisher channel (events: about two per cycle).
+pub const EVENT_CAPACITY: usize = 32;
+
+/// The loop → publisher channel, bounded at [`EVENT_CAPACITY`]; the loop's end is the
+/// [`EventSender`], the publisher's the receiver.
+pub fn event_channel() -> (EventSender, mpsc::Receiver<Event>) {
+    let (tx, rx) = mpsc::channel(EVENT_CAPACITY);
+    (
+        EventSender {
+            tx,
+            dropped_depth: 0,
+        },
+        rx,
+    )
+}
+
+/// The loop's end of the bounded event channel. When the publisher falls behind (a slow
+/// or stalled bus):
+/// - a status update is never dropped or merged (it carries Near transitions and the
+///   counters): the loop waits for room — backpressure, the loop runs no faster than its
+///   readings can be published, and memory stays bounded;
+/// - a depth frame is dropped once half the channel is taken, so frames for a slow
+///   reader never fill the room status updates need and never make the loop wait (the
+///   publisher rate-limits them to `dbus.depth_max_hz` anyway).
+///
+/// Called from the loop thread only (blocking; never from inside the tokio runtime).
+#[derive(Debug)]
+pub struct EventSender {
+    tx: mpsc::Sender<Event>,
+    dropped_depth: u64,
+}
+
+impl EventSender {
+    /// Send a status update, waiting for room if the channel is full. A closed channel
+    /// (the publisher has ended: shutting down) drops it.
+    pub fn status(&self, update: StatusUpdate) {
+        let _ = self.tx.blocking_send(Event::Status(update));
+    }
+
+    /// Send a depth frame unless half the channel is taken; returns whether it was sent.
+    pub fn depth(&mut self, frame: DepthMessage) -> bool {
+        let sent = self.tx.capacity() > EVENT_CAPACITY / 2
+            && self.tx.try_send(Event::Depth(frame)).is_ok();
+        if !sent {
+            self.dropped_depth += 1;
+            tracing::debug!(
+                "publisher behind: depth frame dropped ({} so far)",
+                self.dropped_depth
+            );
+        }
+        sent
+    }
+
+    /// Depth frames dropped so far because the publisher was behind.
+    pub fn dropped_depth(&self) -> u64 {
+        self.dropped_depth
+    }
+}
 
 #[cfg(test)]
 mod tests {
@@ -413,6 +469,49 @@ mod tests {
 
     fn hub() -> Arc<Hub> {
         Hub::new(&Config::default(), "test".into()).0
+    }
+
+    fn depth(timestamp_ns: u64) -> DepthMessage {
+        DepthMessage {
+            timestamp_ns,
+            width: 1,
+            height: 1,
+            depth_le: vec![0, 0],
+            amplitude_le: vec![0, 0],
+        }
+    }
+
+    #[test]
+    fn depth_frames_take_at_most_half_the_channel_and_status_still_gets_through() {
+        let (mut tx, mut rx) = event_channel();
+        let sent = (0..EVENT_CAPACITY as u64)
+            .filter(|&t| tx.depth(depth(t)))
+            .count();
+        assert_eq!(sent, EVENT_CAPACITY / 2);
+        assert_eq!(tx.dropped_depth(), (EVENT_CAPACITY / 2) as u64);
+        // The other half is room for status updates, none of them dropped.
+        for n in 0..EVENT_CAPACITY / 2 {
+            tx.status(StatusUpdate {
+                rate_hz: Some(n as f64),
+                ..StatusUpdate::default()
+            });
+        }
+        let mut depth_ts = Vec::new();
+        let mut rates = Vec::new();
+        while let Ok(ev) = rx.try_recv() {
+            match ev {
+                Event::Depth(d) => depth_ts.push(d.timestamp_ns),
+                Event::Status(u) => rates.extend(u.rate_hz),
+            }
+        }
+        assert_eq!(
+            depth_ts,
+            (0..(EVENT_CAPACITY / 2) as u64).collect::<Vec<_>>()
+        );
+        let expected: Vec<f64> = (0..EVENT_CAPACITY / 2).map(|n| n as f64).collect();
+        assert_eq!(rates, expected, "every status update, in order");
+        // Drained: depth frames are accepted again.
+        assert!(tx.depth(depth(99)));
     }
 
     #[test]

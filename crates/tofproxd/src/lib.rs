@@ -1,6 +1,12 @@
 //! tofproxd: the low-power ToF proximity daemon on D-Bus (thesis 3.5.3, fig. 3.23,
 //! listing 4.11): restart → load config from flash → set exposure → capture →
 //! process → stop (reset low) → sleep, publishing near/far over D-Bus.
+//!
+//! The test machinery — the emulated backend (`backends::emulated`), the scene bench (`scenes`)
+//! and the soak (`soak`) — is behind the cargo feature `emulated` (on by default, for
+//! `tofproxd --demo` and the `tofprox` CLI). The production daemon is built without it,
+//! `cargo build -p tofproxd --no-default-features`, and links neither the emulated device
+//! nor the physical model (`tofprox-model`).
 
 pub mod backends;
 pub mod calibration;
@@ -13,7 +19,9 @@ pub mod logging;
 pub mod policy;
 pub mod publisher;
 pub mod run;
+#[cfg(feature = "emulated")]
 pub mod scenes;
 pub mod service;
+#[cfg(feature = "emulated")]
 pub mod soak;
 pub mod source;

@@ -12,7 +12,7 @@ use zbus::object_server::SignalEmitter;
 use zbus::{Connection, Variant, fdo};
 
 use crate::hub::{DepthMessage, Event, Hub};
-use crate::service::{COMPAT_BUS_NAME, COMPAT_PATH, INTERFACE, OBJECT_PATH, Proximity};
+use crate::service::{COMPAT_BUS_NAME, COMPAT_PATH, INTERFACE, OBJECT_PATH, Proximity, property};
 
 /// Emit PropertiesChanged for `iface` with the given changes (one signal).
 async fn emit_changes(
@@ -74,11 +74,12 @@ async fn send_depth(conn: &Connection, hub: &Hub, d: &DepthMessage) {
 }
 
 /// The publisher: applies loop events to the hub and emits signals. Runs until the
-/// event channel closes.
+/// event channel closes. The channel is bounded ([`crate::hub::event_channel`]): while
+/// this task is behind, the loop waits to send status updates and drops depth frames.
 pub async fn run_publisher(
     conn: Connection,
     hub: Arc<Hub>,
-    mut events: mpsc::UnboundedReceiver<Event>,
+    mut events: mpsc::Receiver<Event>,
     compat: bool,
     depth_max_hz: f64,
 ) {
@@ -107,22 +108,25 @@ pub async fn run_publisher(
                 let (before, after) = hub.apply(&u);
                 let mut ch: HashMap<&str, Variant<'_>> = HashMap::new();
                 if before.has_sensor != after.has_sensor {
-                    ch.insert("HasSensor", Variant::from(after.has_sensor));
+                    ch.insert(property::HAS_SENSOR, Variant::from(after.has_sensor));
                 }
                 if before.state != after.state {
-                    ch.insert("State", Variant::from(after.state.as_str()));
+                    ch.insert(property::STATE, Variant::from(after.state.as_str()));
                 }
                 if before.near != after.near {
-                    ch.insert("Near", Variant::from(after.near));
+                    ch.insert(property::NEAR, Variant::from(after.near));
                 }
                 if before.mode != after.mode {
-                    ch.insert("Mode", Variant::from(after.mode.as_str()));
+                    ch.insert(property::MODE, Variant::from(after.mode.as_str()));
                 }
                 if before.rate_hz != after.rate_hz {
-                    ch.insert("RateHz", Variant::from(after.rate_hz));
+                    ch.insert(property::RATE_HZ, Variant::from(after.rate_hz));
                 }
                 if before.last_error != after.last_error {
-                    ch.insert("LastError", Variant::from(after.last_error.as_str()));
+                    ch.insert(
+                        property::LAST_ERROR,
+                        Variant::from(after.last_error.as_str()),
+                    );
                 }
                 if let Some(p) = power
                     && p != after.power_mw
@@ -132,7 +136,7 @@ pub async fn run_publisher(
                         .is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1))
                     {
                         hub.update(|s| s.power_mw = p);
-                        ch.insert("PowerEstimateMw", Variant::from(p));
+                        ch.insert(property::POWER_ESTIMATE_MW, Variant::from(p));
                         last_power_emit = Some(now);
                     }
                 }
@@ -144,10 +148,13 @@ pub async fn run_publisher(
                 if compat && (compat_near || compat_has) {
                     let mut c: HashMap<&str, Variant<'_>> = HashMap::new();
                     if compat_near {
-                        c.insert("ProximityNear", Variant::from(after.near));
+                        c.insert(property::COMPAT_PROXIMITY_NEAR, Variant::from(after.near));
                     }
                     if compat_has {
-                        c.insert("HasProximity", Variant::from(after.has_sensor));
+                        c.insert(
+                            property::COMPAT_HAS_PROXIMITY,
+                            Variant::from(after.has_sensor),
+                        );
                     }
                     if let Err(e) = emit_changes(&conn, COMPAT_PATH, COMPAT_BUS_NAME, c).await {
                         tracing::warn!("compat PropertiesChanged emit failed: {e}");

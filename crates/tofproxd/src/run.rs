@@ -6,13 +6,13 @@ use std::sync::Arc;
 use std::sync::mpsc as stdmpsc;
 use std::time::Duration;
 
-use tokio::sync::{mpsc, watch};
+use tokio::sync::watch;
 use zbus::Connection;
 use zbus::fdo::{RequestNameFlags, RequestNameReply};
 
 use crate::config::Config;
 use crate::controller::Controller;
-use crate::hub::{Demand, Event, Hub, State, StatusUpdate};
+use crate::hub::{Demand, EventSender, Hub, State, StatusUpdate, event_channel};
 use crate::service::{
     self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
     ReadOnlyProperties, SensorProxyCompass, SensorProxyCompat,
@@ -149,19 +149,16 @@ pub fn loop_thread<S: FrameSource>(
     mut ctl: Controller<S>,
     always_on: bool,
     cmds: stdmpsc::Receiver<LoopCmd>,
-    events: mpsc::UnboundedSender<Event>,
+    mut events: EventSender,
     health: Arc<LoopHealth>,
 ) {
     let mut demand = Demand::default();
     let mut active = false;
-    let send = |ev: Event| {
-        let _ = events.send(ev);
-    };
     loop {
         let want = always_on || demand.any();
         if !want {
             if active {
-                send(Event::Status(ctl.stop()));
+                events.status(ctl.stop());
                 active = false;
             }
             // Idle: block without any timer until a client claims.
@@ -173,21 +170,21 @@ pub fn loop_thread<S: FrameSource>(
         }
         if !active {
             active = true;
-            send(Event::Status(StatusUpdate {
+            events.status(StatusUpdate {
                 state: Some(State::Starting),
                 ..StatusUpdate::default()
-            }));
+            });
         }
         health.enter();
         let out = ctl.step(demand.depth);
         health.leave();
         if let Some(d) = out.depth {
-            send(Event::Depth(d));
+            events.depth(d);
         }
-        send(Event::Status(out.update));
+        events.status(out.update);
         if out.end_of_data {
             tracing::info!("source has no more data: loop stopped");
-            send(Event::Status(ctl.stop()));
+            events.status(ctl.stop());
             // Wait for shutdown only.
             loop {
                 match cmds.recv() {
@@ -213,14 +210,14 @@ pub fn loop_thread<S: FrameSource>(
                     }
                 }
                 Ok(LoopCmd::Shutdown) | Err(stdmpsc::RecvTimeoutError::Disconnected) => {
-                    send(Event::Status(ctl.stop()));
+                    events.status(ctl.stop());
                     return;
                 }
                 Err(stdmpsc::RecvTimeoutError::Timeout) => break,
             }
         }
     }
-    send(Event::Status(ctl.stop()));
+    events.status(ctl.stop());
 }
 
 /// Progress of the loop thread (for the watchdog).
@@ -308,7 +305,7 @@ impl Daemon {
                 return Err(e);
             }
         }
-        let (ev_tx, ev_rx) = mpsc::unbounded_channel();
+        let (ev_tx, ev_rx) = event_channel();
         tasks.push(tokio::spawn(crate::publisher::run_publisher(
             conn.clone(),
             hub.clone(),

@@ -19,14 +19,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde::Serialize;
-use tofprox_bridge::{
-    Clock, DriverConfig, EmulatedConfig, EmulatedDevice, SensorDriver, VirtualClock,
-    emulated::FrameSource as SynthSource,
-};
+use tofprox_bridge::{Clock, EmulatedConfig, VirtualClock, emulated::FrameSource as SynthSource};
 use tofprox_core::crosstalk::CrosstalkStatus;
 use tofprox_model::{Expect, PhoneScene};
 
-use crate::backends::{BridgeSource, chain};
+use crate::backends::chain;
 use crate::config::Config;
 use crate::controller::{Controller, ModeCalibrations, full_roi};
 
@@ -99,20 +96,15 @@ pub fn run_scene(bench: &Bench, scene: &PhoneScene, seed: u64) -> Result<SceneRe
     };
     let vclock = Arc::new(VirtualClock::new());
     let clock: Arc<dyn Clock> = vclock.clone();
-    let map = dev_cfg.sensor_map().map_err(|e| err(chain(&e)))?;
-    let (full_rows, full_cols) = (
-        map.sensor.geometry().full_rows,
-        map.sensor.geometry().full_cols,
-    );
-    let dev =
-        EmulatedDevice::new(dev_cfg.clone(), clock.clone(), seed).map_err(|e| err(chain(&e)))?;
-    let dcfg = DriverConfig {
-        protocol: dev_cfg.protocol.clone(),
-        map,
-        ..DriverConfig::emulated_default()
-    };
-    let driver = SensorDriver::new(dev, dcfg, clock.clone()).map_err(|e| err(chain(&e)))?;
-    let source = BridgeSource::new(driver, clock.clone(), "emulated (scene bench)");
+    let source = crate::backends::emulated::bridge_source(
+        dev_cfg,
+        clock.clone(),
+        seed,
+        "emulated (scene bench)",
+    )
+    .map_err(|e| err(chain(&e)))?;
+    let geometry = source.driver().config().map.sensor.geometry();
+    let (full_rows, full_cols) = (geometry.full_rows, geometry.full_cols);
     let calib: ModeCalibrations =
         crate::calibration::load_for(cfg, &source).map_err(|e| err(e.to_string()))?;
     let mut ctl = Controller::new(cfg.clone(), source, calib).map_err(|e| err(e.to_string()))?;

@@ -30,6 +30,49 @@ pub const COMPAT_PATH: &str = "/net/hadess/SensorProxy";
 /// iio-sensor-proxy compass object path.
 pub const COMPAT_COMPASS_PATH: &str = "/net/hadess/SensorProxy/Compass";
 
+/// The D-Bus property names, spelled once: the publisher's `PropertiesChanged` and
+/// `GetStatus` use these; zbus derives the served names from the getters below
+/// (`fn near_threshold_mm` → `NearThresholdMm`), and a test holds the two together.
+pub mod property {
+    /// `org.tofprox.Proximity1.HasSensor`.
+    pub const HAS_SENSOR: &str = "HasSensor";
+    /// `org.tofprox.Proximity1.State`.
+    pub const STATE: &str = "State";
+    /// `org.tofprox.Proximity1.Near`.
+    pub const NEAR: &str = "Near";
+    /// `org.tofprox.Proximity1.DistanceMm`.
+    pub const DISTANCE_MM: &str = "DistanceMm";
+    /// `org.tofprox.Proximity1.NearThresholdMm`.
+    pub const NEAR_THRESHOLD_MM: &str = "NearThresholdMm";
+    /// `org.tofprox.Proximity1.FarThresholdMm`.
+    pub const FAR_THRESHOLD_MM: &str = "FarThresholdMm";
+    /// `org.tofprox.Proximity1.Mode`.
+    pub const MODE: &str = "Mode";
+    /// `org.tofprox.Proximity1.RateHz`.
+    pub const RATE_HZ: &str = "RateHz";
+    /// `org.tofprox.Proximity1.PowerEstimateMw`.
+    pub const POWER_ESTIMATE_MW: &str = "PowerEstimateMw";
+    /// `org.tofprox.Proximity1.LastError`.
+    pub const LAST_ERROR: &str = "LastError";
+    /// Every property of `org.tofprox.Proximity1`.
+    pub const ALL: [&str; 10] = [
+        HAS_SENSOR,
+        STATE,
+        NEAR,
+        DISTANCE_MM,
+        NEAR_THRESHOLD_MM,
+        FAR_THRESHOLD_MM,
+        MODE,
+        RATE_HZ,
+        POWER_ESTIMATE_MW,
+        LAST_ERROR,
+    ];
+    /// `net.hadess.SensorProxy.HasProximity` (iio-sensor-proxy compatible).
+    pub const COMPAT_HAS_PROXIMITY: &str = "HasProximity";
+    /// `net.hadess.SensorProxy.ProximityNear` (iio-sensor-proxy compatible).
+    pub const COMPAT_PROXIMITY_NEAR: &str = "ProximityNear";
+}
+
 /// Methods without arguments refuse a call that carries a body.
 fn no_args(hdr: &Header<'_>) -> fdo::Result<()> {
     let sig = hdr.signature().to_string();
@@ -146,22 +189,31 @@ impl Proximity {
         let s = self.hub.status();
         let c = self.hub.claim_counts();
         let mut m = HashMap::new();
-        m.insert("HasSensor".into(), OwnedVariant::from(s.has_sensor));
-        m.insert("State".into(), variant_str(s.state.as_str()));
-        m.insert("Near".into(), OwnedVariant::from(s.near));
-        m.insert("DistanceMm".into(), OwnedVariant::from(s.distance_mm));
         m.insert(
-            "NearThresholdMm".into(),
+            property::HAS_SENSOR.into(),
+            OwnedVariant::from(s.has_sensor),
+        );
+        m.insert(property::STATE.into(), variant_str(s.state.as_str()));
+        m.insert(property::NEAR.into(), OwnedVariant::from(s.near));
+        m.insert(
+            property::DISTANCE_MM.into(),
+            OwnedVariant::from(s.distance_mm),
+        );
+        m.insert(
+            property::NEAR_THRESHOLD_MM.into(),
             OwnedVariant::from(s.near_threshold_mm),
         );
         m.insert(
-            "FarThresholdMm".into(),
+            property::FAR_THRESHOLD_MM.into(),
             OwnedVariant::from(s.far_threshold_mm),
         );
-        m.insert("Mode".into(), variant_str(s.mode.as_str()));
-        m.insert("RateHz".into(), OwnedVariant::from(s.rate_hz));
-        m.insert("PowerEstimateMw".into(), OwnedVariant::from(s.power_mw));
-        m.insert("LastError".into(), variant_str(&s.last_error));
+        m.insert(property::MODE.into(), variant_str(s.mode.as_str()));
+        m.insert(property::RATE_HZ.into(), OwnedVariant::from(s.rate_hz));
+        m.insert(
+            property::POWER_ESTIMATE_MW.into(),
+            OwnedVariant::from(s.power_mw),
+        );
+        m.insert(property::LAST_ERROR.into(), variant_str(&s.last_error));
         m.insert("ExposureUs".into(), OwnedVariant::from(s.exposure_us));
         m.insert("Cycles".into(), OwnedVariant::from(s.cycles));
         m.insert("ValidReadings".into(), OwnedVariant::from(s.valid_readings));
@@ -500,6 +552,38 @@ pub async fn watch_clients(mut stream: fdo::NameOwnerChangedStream, hub: Arc<Hub
         let name = args.name().to_string();
         if name.starts_with(':') && args.new_owner().is_none() && hub.client_gone(&name) {
             tracing::info!("client {name} left the bus: its claims are released");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The property names zbus serves (from the introspection data of `iface`).
+    fn served_properties(iface: &impl Interface) -> Vec<String> {
+        let mut xml = String::new();
+        iface.introspect_to_writer(&mut xml, 0);
+        xml.split("<property name=\"")
+            .skip(1)
+            .filter_map(|rest| rest.split('"').next().map(str::to_string))
+            .collect()
+    }
+
+    #[test]
+    fn property_names_are_the_ones_zbus_serves() {
+        let hub = Hub::new(&crate::config::Config::default(), "test".into()).0;
+        let mut served = served_properties(&Proximity::new(hub.clone()));
+        served.sort();
+        let mut named: Vec<String> = property::ALL.iter().map(|s| s.to_string()).collect();
+        named.sort();
+        assert_eq!(served, named);
+        let compat = served_properties(&SensorProxyCompat::new(hub));
+        for name in [
+            property::COMPAT_HAS_PROXIMITY,
+            property::COMPAT_PROXIMITY_NEAR,
+        ] {
+            assert!(compat.iter().any(|p| p == name), "{name} in {compat:?}");
         }
     }
 }

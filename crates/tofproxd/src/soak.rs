@@ -8,13 +8,10 @@ use std::time::Duration;
 
 use serde::Serialize;
 use tofprox_bridge::emulated::FrameSource as SynthSource;
-use tofprox_bridge::{
-    Clock, DriverConfig, EmulatedConfig, EmulatedDevice, SensorDriver, VirtualClock,
-    emulated::FaultConfig,
-};
+use tofprox_bridge::{Clock, EmulatedConfig, VirtualClock, emulated::FaultConfig};
 use tofprox_model::SceneScript;
 
-use crate::backends::{BridgeSource, chain};
+use crate::backends::chain;
 use crate::config::Config;
 use crate::controller::{Controller, ModeCalibrations};
 
@@ -117,16 +114,13 @@ pub fn run(sc: &SoakConfig, mut on_cycle: impl FnMut(u64)) -> Result<SoakReport,
     };
     let vclock = Arc::new(VirtualClock::new());
     let clock: Arc<dyn Clock> = vclock.clone();
-    let map = dev_cfg.sensor_map().map_err(|e| SoakError(chain(&e)))?;
-    let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), sc.seed)
-        .map_err(|e| SoakError(chain(&e)))?;
-    let dcfg = DriverConfig {
-        protocol: dev_cfg.protocol.clone(),
-        map,
-        ..DriverConfig::emulated_default()
-    };
-    let driver = SensorDriver::new(dev, dcfg, clock.clone()).map_err(|e| SoakError(chain(&e)))?;
-    let source = BridgeSource::new(driver, clock.clone(), "emulated (soak)");
+    let source = crate::backends::emulated::bridge_source(
+        dev_cfg,
+        clock.clone(),
+        sc.seed,
+        "emulated (soak)",
+    )
+    .map_err(|e| SoakError(chain(&e)))?;
     let mut cfg = Config::default();
     // A small ROI (and row window around it) keeps each cycle cheap.
     cfg.proximity.roi = Some([78, 92, 16, 40]);

@@ -17,7 +17,7 @@ use tofprox_core::Algorithm;
 use tofprox_core::pipeline::{Pipeline, PipelineConfig};
 use tofprox_format::CalibrationSet;
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
-use tofproxd::backends::emulated_device_config;
+use tofproxd::backends::emulated::device_config;
 use tofproxd::config::Config;
 
 const REGENERATE: &str = "calib/emulated/ no longer matches the emulated sensor of \
@@ -42,7 +42,7 @@ fn daemon_sensor() -> (ModelConfig, SensorGeometry, u64) {
     let path = repo().join("config/tofproxd-emulated.toml");
     let cfg = Config::load(&path).expect("config/tofproxd-emulated.toml");
     let base = path.parent().expect("config dir");
-    let dev = emulated_device_config(&cfg, base).expect("emulated device config");
+    let dev = device_config(&cfg, base).expect("emulated device config");
     let s = dev.sensor_map().expect("sensor map").sensor;
     (model_of(&dev), s.geometry(), cfg.emulated.seed)
 }

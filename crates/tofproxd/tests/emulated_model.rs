@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use tofprox_bridge::{Clock, DriverConfig, EmulatedDevice, SensorDriver, VirtualClock};
-use tofproxd::backends::{BridgeSource, emulated_device_config};
+use tofprox_bridge::{Clock, VirtualClock};
+use tofproxd::backends::emulated::{bridge_source, device_config};
 use tofproxd::calibration::load_for;
 use tofproxd::config::{Config, Mode};
 use tofproxd::controller::Controller;
@@ -50,7 +50,7 @@ fn table(readings: &[Reading], scene: &tofprox_model::SceneScript) -> String {
 fn demo_model_frames_with_shipped_calibration() {
     let (cfg, base) = demo_config();
     assert_eq!(cfg.processing.mode, Mode::TwoPhase);
-    let dev_cfg = emulated_device_config(&cfg, &base).expect("emulated device config");
+    let dev_cfg = device_config(&cfg, &base).expect("emulated device config");
     assert_eq!(
         dev_cfg.frame_source,
         tofprox_bridge::emulated::FrameSource::Model,
@@ -63,16 +63,13 @@ fn demo_model_frames_with_shipped_calibration() {
     let scene = dev_cfg.scene.clone();
     let wall_mm = 1e3 * scene.wall_distance_m;
     let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
-    let map = dev_cfg.sensor_map().expect("sensor map");
-    let dev = EmulatedDevice::new(dev_cfg.clone(), clock.clone(), cfg.emulated.seed)
-        .expect("emulated device");
-    let dcfg = DriverConfig {
-        protocol: dev_cfg.protocol.clone(),
-        map,
-        ..DriverConfig::emulated_default()
-    };
-    let driver = SensorDriver::new(dev, dcfg, clock.clone()).expect("driver");
-    let source = BridgeSource::new(driver, clock.clone(), "emulated (model)");
+    let source = bridge_source(
+        dev_cfg,
+        clock.clone(),
+        cfg.emulated.seed,
+        "emulated (model)",
+    )
+    .expect("emulated stack");
     let calib = load_for(&cfg, &source).expect("calib/emulated loads for the demo");
     assert!(
         calib.two_phase.offset.is_some() && calib.two_phase.wiggling.is_some(),

@@ -22,6 +22,7 @@ pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource,
 use synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 
 use crate::clock::Clock;
+use crate::driver::SensorDriver;
 use crate::error::{BridgeError, ErrorKind};
 use crate::flash;
 use crate::frame::{StatusLine, encode_frame};
@@ -116,6 +117,23 @@ impl std::fmt::Debug for EmulatedDevice {
 
 fn disconnected() -> BridgeError {
     BridgeError::new(ErrorKind::Disconnected, "emulated device unplugged")
+}
+
+/// The emulated driver stack, assembled in this one place (the daemon's emulated backend,
+/// its scene bench and soak, `tofprox device --emulated`): the device of `cfg` on `clock`
+/// behind a [`SensorDriver`] configured with the device's own register map and protocol
+/// ([`EmulatedConfig::driver_config`]). `seed` drives the device's noise and fault draws.
+impl SensorDriver<EmulatedDevice> {
+    /// Build the stack; errors keep the bridge's reason (the config key, the file).
+    pub fn emulated(
+        cfg: EmulatedConfig,
+        clock: Arc<dyn Clock>,
+        seed: u64,
+    ) -> Result<Self, BridgeError> {
+        let dev = EmulatedDevice::new(cfg, clock.clone(), seed)?;
+        let dcfg = dev.config().driver_config()?;
+        SensorDriver::new(dev, dcfg, clock)
+    }
 }
 
 impl EmulatedDevice {

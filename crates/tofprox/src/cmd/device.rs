@@ -242,19 +242,25 @@ pub fn run(c: DeviceCommand) -> anyhow::Result<ExitCode> {
 
 fn flash_cmd(a: FlashArgs) -> anyhow::Result<ExitCode> {
     let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
-    let (dev, drv): (Box<dyn UsbTransport>, DriverConfig) = if a.emulated {
+    if a.emulated {
         let cfg = match &a.select.config {
             Some(p) => EmulatedConfig::load(p)?,
             None => EmulatedConfig::default(),
         };
-        let drv = cfg.driver_config()?;
-        (Box::new(EmulatedDevice::new(cfg, clock.clone(), 1)?), drv)
+        flash_with(&a, SensorDriver::emulated(cfg, clock.clone(), 1)?, clock)
     } else {
         let (sel, drv) = selector(&a.select)?;
         let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
-        (Box::new(RusbTransport::open(sel)?), drv)
-    };
-    let mut driver = SensorDriver::new(dev, drv, clock.clone())?;
+        let driver = SensorDriver::new(RusbTransport::open(sel)?, drv, clock.clone())?;
+        flash_with(&a, driver, clock)
+    }
+}
+
+fn flash_with<T: UsbTransport>(
+    a: &FlashArgs,
+    mut driver: SensorDriver<T>,
+    clock: Arc<dyn Clock>,
+) -> anyhow::Result<ExitCode> {
     driver.bring_up()?;
     let t0 = clock.now();
     let r = if a.action == "write" {
@@ -425,7 +431,6 @@ fn capture(a: CaptureArgs) -> anyhow::Result<ExitCode> {
             Some(p) => EmulatedConfig::load(p)?,
             None => EmulatedConfig::default(),
         };
-        let drv = cfg.driver_config()?;
         conditions
             .entry("ambient_klux".into())
             .or_insert(cfg.ambient_klux);
@@ -440,25 +445,24 @@ fn capture(a: CaptureArgs) -> anyhow::Result<ExitCode> {
                 .entry("reflectivity".into())
                 .or_insert(cfg.scene.wall_reflectivity);
         }
-        let dev = EmulatedDevice::new(cfg, clock.clone(), a.seed)?;
-        run_capture(&a, dev, drv, clock, conditions)
+        let driver = SensorDriver::emulated(cfg, clock.clone(), a.seed)?;
+        run_capture(&a, driver, clock, conditions)
     } else {
         let (sel, drv) = selector(&a.select)?;
         let dev = RusbTransport::open(sel)?;
         let drv = drv.unwrap_or_else(DriverConfig::emulated_default);
-        run_capture(&a, dev, drv, clock, conditions)
+        let driver = SensorDriver::new(dev, drv, clock.clone())?;
+        run_capture(&a, driver, clock, conditions)
     }
 }
 
 fn run_capture<T: UsbTransport>(
     a: &CaptureArgs,
-    dev: T,
-    drv: DriverConfig,
+    mut driver: SensorDriver<T>,
     clock: Arc<dyn Clock>,
     conditions: BTreeMap<String, f64>,
 ) -> anyhow::Result<ExitCode> {
-    let desc = dev.describe();
-    let mut driver = SensorDriver::new(dev, drv, clock.clone())?;
+    let desc = driver.transport().describe();
     let req = CycleRequest {
         mode: a.mode,
         exposure_us: a.exposure_us,
