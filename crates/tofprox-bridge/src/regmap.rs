@@ -74,13 +74,17 @@ impl SensorSection {
 pub struct Sequences {
     /// Minimum start-up configuration (clocks, PLL, interface) written over
     /// I2C after every reset, before loading from flash (thesis 3.5.3).
+    #[serde(deserialize_with = "tofprox_core::serde_exact::vec_of_arrays")]
     pub minimum: Vec<RegWrite>,
     /// The full configuration image stored in flash (written when the
     /// flash is empty or corrupt, loaded by the load command every cycle).
+    #[serde(deserialize_with = "tofprox_core::serde_exact::vec_of_arrays")]
     pub flash_image: Vec<RegWrite>,
     /// Start the measurement (sequencer on).
+    #[serde(deserialize_with = "tofprox_core::serde_exact::vec_of_arrays")]
     pub start_measurement: Vec<RegWrite>,
     /// Stop the measurement.
+    #[serde(deserialize_with = "tofprox_core::serde_exact::vec_of_arrays")]
     pub stop_measurement: Vec<RegWrite>,
 }
 
@@ -175,7 +179,7 @@ pub struct UseCase {
     #[serde(default)]
     pub illumination: Option<Vec<bool>>,
     /// Extra registers of the use case (written after the flash load).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "tofprox_core::serde_exact::vec_of_arrays")]
     pub registers: Vec<RegWrite>,
 }
 
@@ -223,13 +227,8 @@ impl SensorMap {
 
     /// Load a map file.
     pub fn load(path: &Path) -> Result<Self, BridgeError> {
-        let s = std::fs::read_to_string(path).map_err(|e| {
-            BridgeError::with_source(
-                ErrorKind::Config,
-                format!("cannot read sensor map {}", path.display()),
-                e,
-            )
-        })?;
+        let s = crate::error::read_config_text(path)
+            .map_err(|e| e.context_prefix("sensor map"))?;
         Self::from_toml_str(&s, &path.display().to_string())
     }
 

@@ -17,12 +17,65 @@ where
         .map_err(|_| D::Error::invalid_length(n, &format!("exactly {N} elements").as_str()))
 }
 
+/// [`array`] for an optional field: use with `#[serde(default, deserialize_with = …)]`
+/// (absent: `None`; present: exactly `N` elements).
+pub fn option_array<'de, D, T, const N: usize>(d: D) -> Result<Option<[T; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    array(d).map(Some)
+}
+
+/// A list of fixed-length arrays, each of exactly `N` elements (`[[1, 2], [3, 4]]`).
+pub fn vec_of_arrays<'de, D, T, const N: usize>(d: D) -> Result<Vec<[T; N]>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    struct Exact<T, const N: usize>([T; N]);
+    impl<'de, T: Deserialize<'de>, const N: usize> Deserialize<'de> for Exact<T, N> {
+        fn deserialize<D2: Deserializer<'de>>(d: D2) -> Result<Self, D2::Error> {
+            array(d).map(Exact)
+        }
+    }
+    let v: Vec<Exact<T, N>> = Vec::deserialize(d)?;
+    Ok(v.into_iter().map(|e| e.0).collect())
+}
+
 #[cfg(test)]
 mod tests {
     #[derive(serde::Deserialize, Debug)]
     struct Pair {
         #[serde(deserialize_with = "super::array")]
         p: [usize; 2],
+    }
+
+    #[derive(serde::Deserialize, Debug)]
+    struct Optional {
+        #[serde(default, deserialize_with = "super::option_array")]
+        roi: Option<[usize; 4]>,
+        #[serde(default, deserialize_with = "super::vec_of_arrays")]
+        writes: Vec<[u16; 2]>,
+    }
+
+    #[test]
+    fn optional_and_listed_arrays_have_exactly_n_elements() {
+        let none: Optional = toml::from_str("").unwrap();
+        assert_eq!((none.roi, none.writes.len()), (None, 0));
+        let ok: Optional = toml::from_str("roi = [1, 2, 3, 4]\nwrites = [[1, 2], [3, 4]]").unwrap();
+        assert_eq!(ok.roi, Some([1, 2, 3, 4]));
+        assert_eq!(ok.writes, vec![[1, 2], [3, 4]]);
+        for bad in [
+            "roi = [10, 10, 20, 20, \"junk\", {x = 1}]",
+            "roi = [10, 10, 20, 20, 30]",
+            "roi = [10, 10, 20]",
+            "writes = [[1, 2, 3]]",
+            "writes = [[1, 2], [3]]",
+        ] {
+            let e = toml::from_str::<Optional>(bad).unwrap_err();
+            assert!(e.message().contains("exactly"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -30,6 +30,7 @@ pub use calibration::{
 };
 pub use depth::{DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter};
 pub use error::{ErrorKind, FormatError};
+pub use fsutil::{create_new, write_atomic};
 pub use extract::{
     Extract, ExtractError, ExtractOptions, Extraction, NO_TARGET_CONDITION, extract,
     load_lens_datasheet,

@@ -4,7 +4,8 @@
 //! Every file is opened through [`open_regular`]: only regular files (no FIFO,
 //! device, socket or directory — opened non-blocking so that none can hang the
 //! caller), of at most a given size, and — for frames and calibration arrays —
-//! resolving (symlinks followed, canonicalised) inside the recording or set.
+//! inside the recording or set (symlinks followed; checked on the opened file,
+//! so a path swapped between a check and the open cannot lead outside).
 
 use std::fs::{File, Metadata, OpenOptions};
 use std::io::Read;
@@ -35,21 +36,21 @@ fn limit(path: &Path, message: String) -> FormatError {
 }
 
 /// Open `path` for reading if it is a regular file of at most `max_bytes`,
-/// resolving inside `inside` (canonicalised) when given. The open does not
-/// block on a FIFO; the type and size are checked on the opened file.
+/// lying inside `inside` (canonicalised) when given. The open does not block on
+/// a FIFO; type, size and containment are checked on the opened file.
 pub fn open_regular(
     path: &Path,
     max_bytes: u64,
     inside: Option<&Path>,
 ) -> Result<(File, Metadata), FormatError> {
-    if let Some(root) = inside {
-        check_inside(path, root)?;
-    }
     let file = OpenOptions::new()
         .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY | libc::O_CLOEXEC)
         .open(path)
         .map_err(|e| FormatError::io(path, "cannot open", e))?;
+    if let Some(root) = inside {
+        check_open_inside(&file, path, root)?;
+    }
     let meta = file
         .metadata()
         .map_err(|e| FormatError::io(path, "cannot stat", e))?;
@@ -107,14 +108,29 @@ pub fn read_text_bounded(path: &Path, max_bytes: u64) -> Result<String, FormatEr
     })
 }
 
-/// `path`, symlinks resolved, lies inside `root` (also resolved).
+/// `path`, symlinks resolved, lies inside `root` (also resolved). A check of a name only:
+/// what is read is checked again on the opened file ([`open_regular`]).
 pub fn check_inside(path: &Path, root: &Path) -> Result<PathBuf, FormatError> {
-    let root_c = root
-        .canonicalize()
-        .map_err(|e| FormatError::io(root, "cannot resolve", e))?;
     let real = path
         .canonicalize()
         .map_err(|e| FormatError::io(path, "cannot open", e))?;
+    real_inside(real, path, root)
+}
+
+/// The opened `file` (opened as `path`) lies inside `root`: its real path is the one the
+/// kernel holds for the descriptor (`/proc/self/fd/N`), not a name resolved again.
+pub fn check_open_inside(file: &File, path: &Path, root: &Path) -> Result<PathBuf, FormatError> {
+    use std::os::fd::AsRawFd;
+    let fd_link = PathBuf::from(format!("/proc/self/fd/{}", file.as_raw_fd()));
+    let real = std::fs::read_link(&fd_link)
+        .map_err(|e| FormatError::io(path, "cannot find the opened file's real path", e))?;
+    real_inside(real, path, root)
+}
+
+fn real_inside(real: PathBuf, path: &Path, root: &Path) -> Result<PathBuf, FormatError> {
+    let root_c = root
+        .canonicalize()
+        .map_err(|e| FormatError::io(root, "cannot resolve", e))?;
     if !real.starts_with(&root_c) {
         return Err(limit(
             path,
@@ -182,6 +198,33 @@ mod tests {
         assert_eq!(e.kind(), ErrorKind::Limit);
         assert!(e.to_string().contains("101 bytes"), "{e}");
         assert_eq!(read_bounded(&p, 101, None).unwrap().len(), 101);
+    }
+
+    /// The containment check is made on the descriptor that is read: a name swapped from an
+    /// outside to an inside target after the open does not make the outside file pass.
+    #[test]
+    fn containment_is_checked_on_the_opened_file_not_the_name() {
+        let t = tempfile::tempdir().unwrap();
+        let root = t.path().join("rec");
+        std::fs::create_dir(&root).unwrap();
+        let outside = t.path().join("secret");
+        std::fs::write(&outside, b"x").unwrap();
+        std::fs::write(root.join("inside.npy"), b"y").unwrap();
+        let name = root.join("000000.npy");
+        std::os::unix::fs::symlink(&outside, &name).unwrap();
+        let opened = File::open(&name).unwrap();
+        // the attacker flips the name to an inside target after the open
+        std::fs::remove_file(&name).unwrap();
+        std::os::unix::fs::symlink("inside.npy", &name).unwrap();
+        assert!(check_inside(&name, &root).is_ok(), "the name now looks fine");
+        let e = check_open_inside(&opened, &name, &root).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Limit);
+        assert!(e.to_string().contains("outside"), "{e}");
+        let opened = File::open(&name).unwrap();
+        assert_eq!(
+            check_open_inside(&opened, &name, &root).unwrap(),
+            root.canonicalize().unwrap().join("inside.npy")
+        );
     }
 
     #[test]

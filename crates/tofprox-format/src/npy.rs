@@ -7,8 +7,7 @@
 //! allocates more than the file's real size, so random bytes cannot make it
 //! panic or exhaust memory.
 
-use std::fs::File;
-use std::io::{Read, Write};
+use std::io::Read;
 use std::path::Path;
 
 use ndarray::{ArrayD, IxDyn};
@@ -382,13 +381,6 @@ where
     D: ndarray::Dimension,
 {
     encode_le(a)
-}
-
-/// Write bytes to `path` (not crash safe; see `crate::fsutil::write_atomic`).
-pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
-    let mut f = File::create(path).map_err(|e| FormatError::io(path, "cannot create", e))?;
-    f.write_all(bytes)
-        .map_err(|e| FormatError::io(path, "cannot write", e))
 }
 
 // ---- a tiny parser for the Python dict literal of the header ----

@@ -590,10 +590,11 @@ impl FramesNames {
 }
 
 /// The frames files of an opened recording: each resolving (symlinks followed) inside the
-/// recording directory, and two names of one file (through a symlink inside it) refused.
+/// recording directory, and two names of one file (through a symlink inside it, or a hard
+/// link: the same device and inode) refused.
 pub(crate) struct FramesFiles<'d> {
     dir: &'d Path,
-    real: BTreeMap<PathBuf, String>,
+    real: BTreeMap<(u64, u64), String>,
 }
 
 impl<'d> FramesFiles<'d> {
@@ -608,7 +609,12 @@ impl<'d> FramesFiles<'d> {
     pub(crate) fn add(&mut self, key: &str, name: &str) -> Result<PathBuf, FormatError> {
         let file = self.dir.join(name);
         let real = limits::check_inside(&file, self.dir).map_err(|e| e.key(key))?;
-        if let Some(other) = self.real.insert(real, key.to_string()) {
+        let id = {
+            use std::os::unix::fs::MetadataExt;
+            let m = fs::metadata(&real).map_err(|e| FormatError::io(&file, "cannot stat", e))?;
+            (m.dev(), m.ino())
+        };
+        if let Some(other) = self.real.insert(id, key.to_string()) {
             return Err(invalid(format!("\"{name}\" is the same file as {other}"))
                 .at(&self.dir.join(RECORDING_TOML))
                 .key(key));

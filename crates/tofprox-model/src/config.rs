@@ -130,9 +130,10 @@ impl ModelConfig {
 
     /// Load and validate a model file; waveform files are resolved relative to it.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|e| {
-            ModelError::new(ErrorKind::Io, format!("cannot read model file: {e}")).with_path(path)
-        })?;
+        let text = tofprox_format::limits::read_text_bounded(
+            path,
+            tofprox_format::limits::MAX_TOML_BYTES,
+        )?;
         let base = path.parent().map(Path::to_path_buf);
         Self::parse(&text, base.as_deref()).map_err(|e| e.with_path(path))
     }

@@ -30,6 +30,14 @@ pub struct ModelError {
     source: Option<Box<dyn std::error::Error + Send + Sync + 'static>>,
 }
 
+/// A model or waveform file the bounded reader refused (missing, not a regular file, above
+/// its size limit; `tofprox_format::limits`), kept as the source.
+impl From<tofprox_format::FormatError> for ModelError {
+    fn from(e: tofprox_format::FormatError) -> Self {
+        Self::new(ErrorKind::Io, format!("cannot read {e}")).with_source(e)
+    }
+}
+
 /// An invalid sensor geometry (`tofprox-core`'s validation), kept as the source.
 impl From<tofprox_core::CoreError> for ModelError {
     fn from(e: tofprox_core::CoreError) -> Self {

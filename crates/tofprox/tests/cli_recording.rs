@@ -844,6 +844,53 @@ fn symlinks_out_of_the_recording_or_set_are_refused() {
     );
 }
 
+/// A frames file that is a hard link of another capture's (same device and inode) is
+/// refused like a symlinked duplicate.
+#[test]
+fn a_hard_linked_duplicate_capture_is_refused() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = rec_copy(&t);
+    fs::remove_file(rec.join("frames/000003.npy")).unwrap();
+    fs::hard_link(rec.join("frames/000002.npy"), rec.join("frames/000003.npy")).unwrap();
+    assert_bad(
+        &run_bounded(&["info", p(&rec)]),
+        &["capture[3].frames", "is the same file as capture[2].frames"],
+    );
+}
+
+/// Outputs never follow a planted link: `process --out DIR` into a directory holding
+/// `000000_depth_mm.npy -> ../victim`, and `calibrate fpn --out SET` with a planted
+/// `SET/offset.npy.tmp -> victim`, leave the victim as it was; the link is replaced by the
+/// output and the set loads.
+#[test]
+fn writers_replace_planted_links_without_following_them() {
+    let t = tempfile::tempdir().unwrap();
+    let victim = t.path().join("victim");
+    fs::write(&victim, b"precious").unwrap();
+    let out = t.path().join("out");
+    fs::create_dir(&out).unwrap();
+    // a link at every capture's output names (capture 0, a dark one, is not processed)
+    let planted: Vec<String> = (0..8)
+        .flat_map(|i| [format!("{i:06}_depth_mm.npy"), format!("{i:06}_depth.png")])
+        .collect();
+    for name in &planted {
+        std::os::unix::fs::symlink("../victim", out.join(name)).unwrap();
+    }
+    let calib = t.path().join("cal");
+    assert_ok(&calibrate("fpn", &calib, &[]));
+    std::os::unix::fs::symlink(&victim, calib.join("offset.npy.tmp")).unwrap();
+    assert_ok(&calibrate("fpn", &calib, &[]));
+    assert_eq!(fs::read(&victim).unwrap(), b"precious", "calibrate wrote through the link");
+    info_text_has(&calib, &["offset"]);
+    assert_ok(&process("examples/recording", p(&calib), "4phase", p(&out), &[]));
+    assert_eq!(fs::read(&victim).unwrap(), b"precious", "process wrote through the link");
+    let replaced = planted
+        .iter()
+        .filter(|name| fs::symlink_metadata(out.join(name)).unwrap().is_file())
+        .count();
+    assert!(replaced >= 2, "the outputs replaced the planted links ({replaced})");
+}
+
 #[test]
 fn duplicate_captures_are_found_through_dot_and_double_slash() {
     let t = tempfile::tempdir().unwrap();

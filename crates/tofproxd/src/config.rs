@@ -10,13 +10,13 @@ use serde::{Deserialize, Serialize};
 /// names the file and/or the key.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    /// The file could not be read.
-    #[error("cannot read config {path}: {source}")]
+    /// The file could not be read (missing, not a regular file, above the size limit).
+    #[error("cannot read config {source}")]
     Read {
         /// The file.
         path: PathBuf,
-        /// The I/O error.
-        source: std::io::Error,
+        /// The bounded reader's error (names the file).
+        source: tofprox_format::FormatError,
     },
     /// The TOML is malformed or has unknown keys / wrong types.
     #[error("invalid config {path}: {message}")]
@@ -187,6 +187,7 @@ pub struct ProximityConfig {
     /// Minimum share of valid ROI pixels for a reading to count.
     pub min_valid_fraction: f32,
     /// Region of interest `[row0, col0, rows, cols]`; empty: the central quarter.
+    #[serde(deserialize_with = "tofprox_core::serde_exact::option_array")]
     pub roi: Option<[usize; 4]>,
     /// Darkest target reflectivity a reading below `far_mm` must be plausible for (thesis
     /// 2.2.1, `A = K·ρ·t/d²`; `tofprox_core::radiometry`): a dimmer return is a wrapped far
@@ -484,7 +485,11 @@ fn non_neg(key: &str, v: f64) -> Result<(), ConfigError> {
 impl Config {
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = tofprox_format::limits::read_text_bounded(
+            path,
+            tofprox_format::limits::MAX_TOML_BYTES,
+        )
+        .map_err(|source| ConfigError::Read {
             path: path.to_path_buf(),
             source,
         })?;

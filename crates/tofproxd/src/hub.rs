@@ -133,6 +133,46 @@ struct HubInner {
     claims: BTreeMap<String, ClientClaims>,
     /// A valid reading exists since the loop last started.
     have_reading: bool,
+    /// Claims parked waiting for a first reading, per client (bounded: [`MAX_WAITING_PER_CLIENT`]).
+    waiting: BTreeMap<String, usize>,
+    /// Their sum (bounded: [`MAX_WAITING`]).
+    waiting_total: usize,
+}
+
+/// Most claim calls of one client parked at once waiting for a first reading; further ones
+/// are answered at once (claim held, no wait).
+pub const MAX_WAITING_PER_CLIENT: usize = 4;
+/// Most claim calls of all clients parked at once waiting for a first reading.
+pub const MAX_WAITING: usize = 64;
+
+/// How a claim call's wait for the first reading ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FirstReading {
+    /// A valid reading exists (at once or after waiting).
+    Ready,
+    /// None within `loop.first_reading_timeout_ms`.
+    TimedOut,
+    /// Not waited for: the caller's or everyone's waiting claims are at their bound.
+    NotWaited,
+}
+
+/// A parked claim call; the slot is given back when dropped.
+struct WaitSlot<'a> {
+    hub: &'a Hub,
+    client: &'a str,
+}
+
+impl Drop for WaitSlot<'_> {
+    fn drop(&mut self) {
+        let mut g = self.hub.lock();
+        g.waiting_total -= 1;
+        if let Some(n) = g.waiting.get_mut(self.client) {
+            *n -= 1;
+            if *n == 0 {
+                g.waiting.remove(self.client);
+            }
+        }
+    }
 }
 
 /// Shared between the D-Bus interfaces, the publisher and the loop.
@@ -187,6 +227,8 @@ impl Hub {
                 status,
                 claims: BTreeMap::new(),
                 have_reading: false,
+                waiting: BTreeMap::new(),
+                waiting_total: 0,
             }),
             demand_tx,
             reading_tx,
@@ -240,15 +282,17 @@ impl Hub {
     }
 
     /// Set (`held = true`) or clear one claim of `client`; a client without any claim left is
-    /// forgotten. The demand is recomputed.
-    pub fn set_claim(&self, client: &str, claim: Claim, held: bool) {
+    /// forgotten. The demand is recomputed. Returns whether `client` held no claim before.
+    pub fn set_claim(&self, client: &str, claim: Claim, held: bool) -> bool {
         let mut g = self.lock();
+        let new = !g.claims.contains_key(client);
         let entry = g.claims.entry(client.to_string()).or_default();
         *entry.slot(claim) = held;
         if !entry.any() {
             g.claims.remove(client);
         }
         self.recompute_demand(&g);
+        new
     }
 
     /// Drop every claim of a client (it left the bus).
@@ -276,15 +320,41 @@ impl Hub {
             .collect()
     }
 
-    /// Wait (bounded) until a valid reading exists since the loop started.
-    pub async fn wait_first_reading(&self) {
+    /// Wait (bounded by `loop.first_reading_timeout_ms`) until a valid reading exists since
+    /// the loop started. At most [`MAX_WAITING_PER_CLIENT`] calls of one `client` and
+    /// [`MAX_WAITING`] of all clients wait at once; any further call returns at once
+    /// ([`FirstReading::NotWaited`]), so a flood of claims parks a bounded number of tasks.
+    pub async fn wait_first_reading(&self, client: &str) -> FirstReading {
         let mut rx = self.reading_tx.subscribe();
+        let Some(_slot) = self.wait_slot(client) else {
+            return FirstReading::NotWaited;
+        };
         if self.lock().have_reading {
-            return;
+            return FirstReading::Ready;
         }
         let start = *rx.borrow_and_update();
-        let _ =
-            tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await;
+        match tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await
+        {
+            Ok(_) => FirstReading::Ready,
+            Err(_) => FirstReading::TimedOut,
+        }
+    }
+
+    /// Take one of the bounded waiting slots for `client`, if one is free.
+    fn wait_slot<'a>(&'a self, client: &'a str) -> Option<WaitSlot<'a>> {
+        let mut g = self.lock();
+        let mine = g.waiting.get(client).copied().unwrap_or(0);
+        if g.waiting_total >= MAX_WAITING || mine >= MAX_WAITING_PER_CLIENT {
+            return None;
+        }
+        g.waiting_total += 1;
+        *g.waiting.entry(client.to_string()).or_default() += 1;
+        Some(WaitSlot { hub: self, client })
+    }
+
+    /// Claim calls parked waiting for a first reading (all clients).
+    pub fn waiting_claims(&self) -> usize {
+        self.lock().waiting_total
     }
 
     /// Apply a change to the status; returns the status before and after it.
@@ -553,6 +623,76 @@ mod tests {
         let c = h.claim_counts();
         assert_eq!((c.clients, c.proximity_clients, c.depth), (2, 1, 1));
         assert_eq!(h.depth_claimers(), vec![":1.8".to_string()]);
+    }
+
+    /// A flood of claim calls parks at most the per-client and the global bound; the rest
+    /// return at once, and every slot is given back when its call ends.
+    #[tokio::test]
+    async fn waiting_claims_are_bounded_per_client_and_in_total() {
+        let h = hub();
+        let mut parked = Vec::new();
+        let mut not_waited = 0;
+        // 25 clients × 8 calls: the first 16 park 4 each (per-client bound), then the
+        // global bound of 64 is reached.
+        for i in 0..200 {
+            let client = format!(":1.{}", i / 8);
+            let h2 = h.clone();
+            let mut call = Box::pin(async move { h2.wait_first_reading(&client).await });
+            // Poll once: a call that waits stays pending, one over a bound is answered.
+            match futures_poll_once(&mut call).await {
+                Some(r) => {
+                    assert_eq!(r, FirstReading::NotWaited);
+                    not_waited += 1;
+                }
+                None => parked.push(call),
+            }
+        }
+        assert_eq!(parked.len(), MAX_WAITING, "global bound");
+        assert_eq!(h.waiting_claims(), MAX_WAITING);
+        assert_eq!(not_waited, 200 - MAX_WAITING);
+        assert_eq!(h.lock().waiting.len(), MAX_WAITING / MAX_WAITING_PER_CLIENT);
+        h.note_valid_reading();
+        for call in parked {
+            assert_eq!(call.await, FirstReading::Ready);
+        }
+        assert_eq!(h.waiting_claims(), 0, "slots given back");
+        assert_eq!(h.wait_first_reading(":1.99").await, FirstReading::Ready);
+    }
+
+    #[tokio::test]
+    async fn a_waiting_claim_times_out_and_frees_its_slot() {
+        let mut cfg = Config::default();
+        cfg.loop_.first_reading_timeout_ms = 20;
+        let h = Hub::new(&cfg, "test".into()).0;
+        let calls: Vec<_> = (0..MAX_WAITING_PER_CLIENT)
+            .map(|_| {
+                let h2 = h.clone();
+                tokio::spawn(async move { h2.wait_first_reading(":1.5").await })
+            })
+            .collect();
+        tokio::task::yield_now().await;
+        assert_eq!(h.waiting_claims(), MAX_WAITING_PER_CLIENT);
+        assert_eq!(
+            h.wait_first_reading(":1.5").await,
+            FirstReading::NotWaited,
+            "per-client bound"
+        );
+        assert_eq!(h.wait_first_reading(":1.6").await, FirstReading::TimedOut);
+        for c in calls {
+            assert_eq!(c.await.unwrap(), FirstReading::TimedOut);
+        }
+        assert_eq!(h.waiting_claims(), 0);
+    }
+
+    /// Poll a future once: `Some(output)` if it finished.
+    async fn futures_poll_once<F: std::future::Future + Unpin>(f: &mut F) -> Option<F::Output> {
+        std::future::poll_fn(|cx| {
+            std::task::Poll::Ready(match std::pin::Pin::new(&mut *f).poll(cx) {
+                std::task::Poll::Ready(v) => Some(v),
+                std::task::Poll::Pending => None,
+            })
+        })
+        .await
     }
 
     #[test]

@@ -124,8 +124,7 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
         cfg.dbus.iio_sensor_proxy_compat
     );
     notify::ready("idle: sensor in reset, waiting for a claim");
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
-        .context("SIGTERM handler")?;
+    let mut stop = StopSignals::new()?;
     let watchdog = notify::watchdog_interval().map(|d| d / 2);
     let mut last_state = String::new();
     loop {
@@ -136,8 +135,10 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
             }
         };
         tokio::select! {
-            _ = term.recv() => break,
-            r = tokio::signal::ctrl_c() => { r.context("SIGINT handler")?; break; }
+            name = stop.recv() => {
+                tracing::info!("{name} received");
+                break;
+            }
             _ = tick => {
                 // Feed the watchdog only while the loop thread is not stuck in one cycle.
                 if daemon.loop_healthy(watchdog.unwrap_or(Duration::from_secs(15))) {
@@ -158,6 +159,47 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
     notify::stopping();
     daemon.shutdown().await;
     Ok(())
+}
+
+/// Every signal whose default action would end the daemon without the clean stop (sensor to
+/// reset, names released) and that systemd or an administrator may send: SIGTERM (the unit's
+/// `KillSignal`), SIGINT, SIGHUP (also sent by systemd with `SendSIGHUP=`; no reload: the
+/// daemon stops cleanly and systemd restarts it with the new configuration), SIGQUIT,
+/// SIGUSR1, SIGUSR2, SIGALRM. SIGKILL cannot be caught; the watchdog's SIGABRT is left to
+/// dump the hung process.
+struct StopSignals(Vec<(&'static str, tokio::signal::unix::Signal)>);
+
+impl StopSignals {
+    fn new() -> anyhow::Result<Self> {
+        use tokio::signal::unix::{SignalKind, signal};
+        let kinds = [
+            ("SIGTERM", SignalKind::terminate()),
+            ("SIGINT", SignalKind::interrupt()),
+            ("SIGHUP", SignalKind::hangup()),
+            ("SIGQUIT", SignalKind::quit()),
+            ("SIGUSR1", SignalKind::user_defined1()),
+            ("SIGUSR2", SignalKind::user_defined2()),
+            ("SIGALRM", SignalKind::alarm()),
+        ];
+        let mut v = Vec::new();
+        for (name, kind) in kinds {
+            v.push((name, signal(kind).with_context(|| format!("{name} handler"))?));
+        }
+        Ok(Self(v))
+    }
+
+    /// The name of the next stop signal received.
+    async fn recv(&mut self) -> &'static str {
+        std::future::poll_fn(|cx| {
+            for (name, s) in &mut self.0 {
+                if s.poll_recv(cx).is_ready() {
+                    return std::task::Poll::Ready(*name);
+                }
+            }
+            std::task::Poll::Pending
+        })
+        .await
+    }
 }
 
 /// A private dbus-daemon for the demo, listening in a directory of its own;

@@ -1,6 +1,7 @@
 //! Running the daemon: bus connection and names, the loop thread (blocking
 //! bridge calls never run on the tokio runtime), the publisher, client
-//! tracking, sd-notify (READY/STATUS/WATCHDOG) and SIGTERM handling.
+//! tracking, sd-notify (READY/STATUS/WATCHDOG) and the clean stop (the binary calls
+//! [`Daemon::shutdown`] on every terminating signal).
 
 use std::sync::Arc;
 use std::sync::mpsc as stdmpsc;
@@ -265,6 +266,9 @@ pub struct Daemon {
     cmd_tx: stdmpsc::Sender<LoopCmd>,
     thread: Option<std::thread::JoinHandle<()>>,
     health: Arc<LoopHealth>,
+    /// The publisher: ends once the loop thread (the only event sender) has ended and every
+    /// event it sent is published.
+    publisher: Option<tokio::task::JoinHandle<()>>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
     compat: bool,
 }
@@ -306,7 +310,7 @@ impl Daemon {
             }
         }
         let (ev_tx, ev_rx) = event_channel();
-        tasks.push(tokio::spawn(crate::publisher::run_publisher(
+        let publisher = Some(tokio::spawn(crate::publisher::run_publisher(
             conn.clone(),
             hub.clone(),
             ev_rx,
@@ -330,6 +334,7 @@ impl Daemon {
             cmd_tx,
             thread: Some(thread),
             health,
+            publisher,
             tasks,
             compat,
         })
@@ -357,8 +362,15 @@ impl Daemon {
         if let Some(t) = self.thread.take() {
             let _ = tokio::task::spawn_blocking(move || t.join()).await;
         }
-        // Let the publisher flush the final Off state.
-        tokio::time::sleep(Duration::from_millis(20)).await;
+        // The loop thread held the only event sender: the publisher ends once it has
+        // published the final Off state (bounded, should it be stuck on the bus).
+        if let Some(mut p) = self.publisher.take()
+            && tokio::time::timeout(Duration::from_secs(2), &mut p)
+                .await
+                .is_err()
+        {
+            p.abort();
+        }
         if self.conn.is_bus() {
             let _ = self.conn.release_name(service::BUS_NAME).await;
             if self.compat {

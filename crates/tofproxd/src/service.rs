@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::pin::Pin;
 use std::sync::Arc;
 
-use zbus::message::Message;
+use zbus::message::{Flags, Message};
 use zbus::names::{InterfaceName, MemberName};
 use zbus::object_server::{DispatchResult, Interface, SignalEmitter};
 use zbus::{
@@ -15,7 +15,7 @@ use zbus::{
     message::Header,
 };
 
-use crate::hub::{Claim, Hub};
+use crate::hub::{Claim, FirstReading, Hub};
 
 /// Bus name of the native interface.
 pub const BUS_NAME: &str = "org.tofprox.Proximity1";
@@ -111,16 +111,37 @@ async fn drop_if_gone(conn: &Connection, hub: &Hub, client: &str) {
 }
 
 /// Set one of the calling client's claims (dropped again at once if the caller has
-/// already left the bus).
+/// already left the bus: checked once per client, when its first claim arrives, so a flood
+/// of claims from one connection costs no bus round trips). Returns the client's name.
 async fn claim_for_caller(
     hub: &Hub,
     hdr: &Header<'_>,
     conn: &Connection,
     claim: Claim,
-) -> fdo::Result<()> {
+) -> fdo::Result<String> {
     let client = caller(hdr)?;
-    hub.set_claim(&client, claim, true);
-    drop_if_gone(conn, hub, &client).await;
+    if hub.set_claim(&client, claim, true) {
+        drop_if_gone(conn, hub, &client).await;
+    }
+    Ok(client)
+}
+
+/// A proximity claim (native or compat): held at once; the reply waits for the first valid
+/// reading only if the caller wants a reply and a waiting slot is free (the hub bounds them
+/// per client and in total) — a flood of claims never parks more than that.
+async fn claim_proximity_for_caller(
+    hub: &Hub,
+    hdr: &Header<'_>,
+    conn: &Connection,
+    claim: Claim,
+) -> fdo::Result<()> {
+    let client = claim_for_caller(hub, hdr, conn, claim).await?;
+    if hdr.primary().flags().contains(Flags::NO_REPLY_EXPECTED) {
+        return Ok(());
+    }
+    if hub.wait_first_reading(&client).await == FirstReading::NotWaited {
+        tracing::debug!("{client}: claim held, answered without waiting (waiting claims at their bound)");
+    }
     Ok(())
 }
 
@@ -149,15 +170,14 @@ fn variant_str(s: &str) -> OwnedVariant {
 #[interface(name = "org.tofprox.Proximity1")]
 impl Proximity {
     /// Claim proximity readings: starts the loop; returns once the first valid reading
-    /// exists (bounded wait, `loop.first_reading_timeout_ms`).
+    /// exists (bounded wait, `loop.first_reading_timeout_ms`; at once when too many claims
+    /// already wait — the claim is held all the same).
     async fn claim_proximity(
         &self,
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, Claim::Proximity).await?;
-        self.hub.wait_first_reading().await;
-        Ok(())
+        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::Proximity).await
     }
 
     /// Release the caller's proximity claim (no-op without one).
@@ -171,7 +191,9 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, Claim::Depth).await
+        claim_for_caller(&self.hub, &hdr, conn, Claim::Depth)
+            .await
+            .map(drop)
     }
 
     /// Release the caller's depth claim.
@@ -393,9 +415,7 @@ impl SensorProxyCompat {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, Claim::CompatProximity).await?;
-        self.hub.wait_first_reading().await;
-        Ok(())
+        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::CompatProximity).await
     }
     /// Releases it.
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {

@@ -23,6 +23,8 @@ fn repo() -> PathBuf {
 struct Bus {
     child: Child,
     address: String,
+    /// The socket's directory (system-policy buses).
+    _dir: Option<tempfile::TempDir>,
 }
 
 impl Drop for Bus {
@@ -52,7 +54,91 @@ fn start_bus() -> Option<Bus> {
         .expect("bus address");
     let address = line.trim().to_string();
     assert!(!address.is_empty(), "dbus-daemon printed no address");
-    Some(Bus { child, address })
+    Some(Bus {
+        child,
+        address,
+        _dir: None,
+    })
+}
+
+/// A private bus enforcing the shipped system-bus policy (`systemd/org.tofprox.Proximity1.conf`)
+/// with a system-bus style default (method calls denied unless a rule allows them, the
+/// system bus's compiled-in limits), and `setpriv` to run clients as `nobody` (outside the
+/// depth group). `None` (a loud skip; a failure in CI) without the tools or without root.
+fn start_system_policy_bus(test: &str) -> Option<(Bus, PathBuf)> {
+    let dbus_daemon = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon")?;
+    let setpriv = tofprox_e2e::require_program("setpriv", "util-linux")?;
+    if !Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+    {
+        eprintln!("SKIPPED {test}: needs root to run a client as nobody");
+        return None;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    let socket = dir.path().join("bus");
+    let conf = dir.path().join("bus.conf");
+    let policy = repo().join("systemd/org.tofprox.Proximity1.conf");
+    std::fs::write(
+        &conf,
+        format!(
+            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-BUS Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>system</type>
+  <listen>unix:path={socket}</listen>
+  <auth>EXTERNAL</auth>
+  <policy context="default">
+    <allow user="*"/>
+    <deny own="*"/>
+    <deny send_type="method_call"/>
+    <allow send_type="signal"/>
+    <allow send_requested_reply="true" send_type="method_return"/>
+    <allow send_requested_reply="true" send_type="error"/>
+    <allow receive_type="method_call"/>
+    <allow receive_type="method_return"/>
+    <allow receive_type="error"/>
+    <allow receive_type="signal"/>
+    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus"/>
+    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus.Introspectable"/>
+  </policy>
+  <include>{policy}</include>
+  <!-- the test runs the daemon as root instead of the tofprox user -->
+  <policy user="root">
+    <allow own="org.tofprox.Proximity1"/>
+    <allow own="net.hadess.SensorProxy"/>
+  </policy>
+</busconfig>
+"#,
+            socket = socket.display(),
+            policy = policy.display()
+        ),
+    )
+    .expect("write bus config");
+    let mut child = Command::new(dbus_daemon)
+        .arg(format!("--config-file={}", conf.display()))
+        .args(["--nofork", "--print-address"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("spawn dbus-daemon");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("bus address");
+    let address = line.trim().to_string();
+    assert!(!address.is_empty(), "dbus-daemon printed no address");
+    Some((
+        Bus {
+            child,
+            address,
+            _dir: Some(dir),
+        },
+        setpriv,
+    ))
 }
 
 fn python() -> Option<PathBuf> {
@@ -94,9 +180,16 @@ impl Daemon {
         }
     }
     fn rss_kb(&self) -> u64 {
+        self.proc_status_kb("VmRSS:")
+    }
+    /// Peak resident memory (kB).
+    fn hwm_kb(&self) -> u64 {
+        self.proc_status_kb("VmHWM:")
+    }
+    fn proc_status_kb(&self, key: &str) -> u64 {
         let s = std::fs::read_to_string(format!("/proc/{}/status", self.pid())).unwrap_or_default();
         s.lines()
-            .find(|l| l.starts_with("VmRSS:"))
+            .find(|l| l.starts_with(key))
             .and_then(|l| l.split_whitespace().nth(1))
             .and_then(|v| v.parse().ok())
             .unwrap_or(0)
@@ -129,6 +222,11 @@ wall_reflectivity = 0.6
 "#;
 
 fn spawn_daemon(bus: &Bus, config: &str) -> Daemon {
+    spawn_daemon_env(bus, config, &[])
+}
+
+/// The daemon with extra environment (the unit's `Environment=`, see [`unit_env`]).
+fn spawn_daemon_env(bus: &Bus, config: &str, env: &[(String, String)]) -> Daemon {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = dir.path().join("tofproxd.toml");
     std::fs::write(&cfg, config).expect("write config");
@@ -138,6 +236,7 @@ fn spawn_daemon(bus: &Bus, config: &str) -> Daemon {
         .arg(&cfg)
         .args(["--bus", &bus.address])
         .env("RUST_LOG", "info")
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .stdout(Stdio::null())
         .stderr(std::fs::File::create(&stderr).expect("stderr file"))
         .spawn()
@@ -166,8 +265,34 @@ fn name_has_owner(bus: &Bus, name: &str) -> bool {
     String::from_utf8_lossy(&out.stdout).trim() == "b true"
 }
 
+/// The unit's `Environment=` pairs (the allocator's settings) and its `MemoryMax` in kB
+/// (systemd/tofproxd.service).
+fn unit_env() -> (Vec<(String, String)>, u64) {
+    let unit = std::fs::read_to_string(repo().join("systemd/tofproxd.service")).expect("unit");
+    let env: Vec<(String, String)> = unit
+        .lines()
+        .filter_map(|l| l.strip_prefix("Environment="))
+        .flat_map(|l| l.split_whitespace())
+        .filter_map(|kv| kv.split_once('='))
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    assert!(!env.is_empty(), "the unit sets the allocator's environment");
+    let memory_max_kb: u64 = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("MemoryMax="))
+        .and_then(|v| v.strip_suffix('M'))
+        .and_then(|v| v.parse::<u64>().ok())
+        .expect("MemoryMax=<n>M in the unit")
+        * 1024;
+    (env, memory_max_kb)
+}
+
 fn start_daemon(bus: &Bus, config: &str) -> Daemon {
-    let mut d = spawn_daemon(bus, config);
+    start_daemon_env(bus, config, &[])
+}
+
+fn start_daemon_env(bus: &Bus, config: &str, env: &[(String, String)]) -> Daemon {
+    let mut d = spawn_daemon_env(bus, config, env);
     let t0 = Instant::now();
     while !name_has_owner(bus, "org.tofprox.Proximity1") {
         if let Ok(Some(st)) = d.child.try_wait() {
@@ -707,6 +832,20 @@ fn hundred_clients_claim_and_release_concurrently_without_leaks() {
 
 #[test]
 fn sigterm_stops_releases_the_name_and_exits_zero() {
+    stops_cleanly_on("TERM");
+}
+
+/// Every other signal that would end the daemon by default (systemd's `SendSIGHUP=`, an
+/// administrator's `kill -HUP`/`-USR1`…) takes the same clean stop: sensor to reset, the
+/// final `off` published, the name released, exit 0.
+#[test]
+fn every_terminating_signal_takes_the_clean_stop() {
+    for sig in ["HUP", "USR1", "USR2", "QUIT", "INT", "ALRM"] {
+        stops_cleanly_on(sig);
+    }
+}
+
+fn stops_cleanly_on(sig: &str) {
     let Some(bus) = start_bus() else { return };
     let mut daemon = start_daemon(&bus, HAND);
     let mut c = Client::start(&bus, &["native", "--timeout", "30"]);
@@ -714,12 +853,20 @@ fn sigterm_stops_releases_the_name_and_exits_zero() {
         v["event"] == "claimed"
     });
     let st = Command::new("kill")
-        .args(["-TERM", &daemon.pid().to_string()])
+        .args([&format!("-{sig}"), &daemon.pid().to_string()])
         .status()
         .expect("kill");
     assert!(st.success());
-    let st = daemon.wait_exit(Duration::from_secs(10), "tofproxd did not exit on SIGTERM");
-    assert!(st.success(), "exit status {st}\n{}", daemon.log());
+    let st = daemon.wait_exit(Duration::from_secs(10), "tofproxd did not exit on the signal");
+    assert!(st.success(), "SIG{sig}: exit status {st}\n{}", daemon.log());
+    assert!(
+        daemon
+            .log()
+            .contains(&format!("SIG{sig} received")),
+        "{}",
+        daemon.log()
+    );
+    assert!(daemon.log().contains("stopping: sensor to reset"), "{}", daemon.log());
     assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
     // The last state published before leaving was "off" (sensor in reset).
     c.collect(Duration::from_millis(300));
@@ -966,84 +1113,14 @@ fn writing_a_read_only_property_is_refused_as_read_only() {
 /// `nobody` (skips loudly otherwise).
 #[test]
 fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
-    let Some(dbus_daemon) = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon") else {
-        return;
-    };
     let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
         return;
     };
-    let Some(setpriv) = tofprox_e2e::require_program("setpriv", "util-linux") else {
+    let Some((bus, setpriv)) =
+        start_system_policy_bus("system_policy_in_compat_mode_keeps_native_and_depth_closed")
+    else {
         return;
     };
-    if !Command::new("id")
-        .arg("-u")
-        .output()
-        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
-    {
-        eprintln!(
-            "SKIPPED system_policy_in_compat_mode_keeps_native_and_depth_closed: needs root to run a client as nobody"
-        );
-        return;
-    }
-    let dir = tempfile::tempdir().expect("tempdir");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).expect("chmod");
-    let socket = dir.path().join("bus");
-    let conf = dir.path().join("bus.conf");
-    let policy = repo().join("systemd/org.tofprox.Proximity1.conf");
-    std::fs::write(
-        &conf,
-        format!(
-            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-BUS Bus Configuration 1.0//EN"
- "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
-<busconfig>
-  <type>system</type>
-  <listen>unix:path={socket}</listen>
-  <auth>EXTERNAL</auth>
-  <policy context="default">
-    <allow user="*"/>
-    <deny own="*"/>
-    <deny send_type="method_call"/>
-    <allow send_type="signal"/>
-    <allow send_requested_reply="true" send_type="method_return"/>
-    <allow send_requested_reply="true" send_type="error"/>
-    <allow receive_type="method_call"/>
-    <allow receive_type="method_return"/>
-    <allow receive_type="error"/>
-    <allow receive_type="signal"/>
-    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus"/>
-    <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus.Introspectable"/>
-  </policy>
-  <include>{policy}</include>
-  <!-- the test runs the daemon as root instead of the tofprox user -->
-  <policy user="root">
-    <allow own="org.tofprox.Proximity1"/>
-    <allow own="net.hadess.SensorProxy"/>
-  </policy>
-</busconfig>
-"#,
-            socket = socket.display(),
-            policy = policy.display()
-        ),
-    )
-    .expect("write bus config");
-    let child = Command::new(dbus_daemon)
-        .arg(format!("--config-file={}", conf.display()))
-        .args(["--nofork", "--print-address"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn dbus-daemon");
-    let mut bus = Bus {
-        child,
-        address: String::new(),
-    };
-    let mut line = String::new();
-    BufReader::new(bus.child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("bus address");
-    bus.address = line.trim().to_string();
-    assert!(!bus.address.is_empty(), "dbus-daemon printed no address");
     let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
     let _daemon = start_daemon(&bus, &cfg);
     // (ok, stdout + stderr) of a call by `nobody`
@@ -1112,45 +1189,8 @@ fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
 #[test]
 fn large_calls_stay_below_memory_max_and_are_released() {
     let Some(bus) = start_bus() else { return };
-    let unit = std::fs::read_to_string(repo().join("systemd/tofproxd.service")).expect("unit");
-    let env: Vec<(String, String)> = unit
-        .lines()
-        .filter_map(|l| l.strip_prefix("Environment="))
-        .flat_map(|l| l.split_whitespace())
-        .filter_map(|kv| kv.split_once('='))
-        .map(|(k, v)| (k.to_string(), v.to_string()))
-        .collect();
-    assert!(!env.is_empty(), "the unit sets the allocator's environment");
-    let memory_max_kb: u64 = unit
-        .lines()
-        .find_map(|l| l.strip_prefix("MemoryMax="))
-        .and_then(|v| v.strip_suffix('M'))
-        .and_then(|v| v.parse::<u64>().ok())
-        .expect("MemoryMax=<n>M in the unit")
-        * 1024;
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cfg = dir.path().join("tofproxd.toml");
-    std::fs::write(&cfg, HAND).expect("write config");
-    let stderr = dir.path().join("stderr.log");
-    let child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
-        .arg("--config")
-        .arg(&cfg)
-        .args(["--bus", &bus.address])
-        .envs(env)
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&stderr).expect("stderr file"))
-        .spawn()
-        .expect("spawn tofproxd");
-    let mut daemon = Daemon {
-        child,
-        stderr,
-        _dir: dir,
-    };
-    let t0 = Instant::now();
-    while !name_has_owner(&bus, "org.tofprox.Proximity1") {
-        assert!(t0.elapsed() < Duration::from_secs(20), "{}", daemon.log());
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let (env, memory_max_kb) = unit_env();
+    let mut daemon = start_daemon_env(&bus, HAND, &env);
     let mut warm = Client::start(&bus, &["native", "--timeout", "30"]);
     warm.wait_for(Duration::from_secs(10), "claim", |v| {
         v["event"] == "claimed"
@@ -1191,13 +1231,8 @@ for _ in range(3):
             "{text}"
         );
     }
-    let status_text = std::fs::read_to_string(format!("/proc/{}/status", daemon.pid())).unwrap();
-    let hwm_kb: u64 = status_text
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse().ok())
-        .expect("VmHWM");
+    let hwm_kb = daemon.hwm_kb();
+    assert!(hwm_kb > 0, "VmHWM");
     let rss1 = daemon.rss_kb();
     assert!(
         hwm_kb < memory_max_kb,
@@ -1213,6 +1248,114 @@ for _ in range(3):
         daemon.log()
     );
 }
+
+/// A flood of `ClaimProximity` calls, native and compat, with and without
+/// `NO_REPLY_EXPECTED`, from 32 connections of `nobody` on a bus with the shipped system
+/// policy, while no reading can ever come (the USB backend without a device: every claim
+/// would wait `first_reading_timeout_ms`). The daemon, started with the unit's
+/// `Environment=`, parks only a bounded number of waiting claims: its peak memory (VmHWM)
+/// stays below 64 MiB (the unit's `MemoryMax` is 128 MiB), `GetStatus` keeps answering
+/// (latency printed; a generous 1 s liveness bound) and every claim is dropped when its
+/// client leaves. The flood is bounded: 4 senders × 8 connections, 3 s, ≤ 20 000 calls each.
+#[test]
+fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
+    let test = "claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers";
+    let Some((bus, setpriv)) = start_system_policy_bus(test) else {
+        return;
+    };
+    let Some(py) = python() else { return };
+    let (env, memory_max_kb) = unit_env();
+    let cfg = "backend = \"usb\"\n[loop]\nretry_ms = 50\n[dbus]\niio_sensor_proxy_compat = true\n";
+    let daemon = start_daemon_env(&bus, cfg, &env);
+    let hwm0_kb = daemon.hwm_kb();
+    let as_nobody = |script: &str, args: &[&str]| {
+        Command::new(&setpriv)
+            .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
+            .arg(&py)
+            .args(["-c", script, &bus.address])
+            .args(args)
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("setpriv python3")
+    };
+    let probe = as_nobody(GET_STATUS_PROBE, &["6"]);
+    let floods: Vec<_> = (0..4).map(|_| as_nobody(CLAIM_FLOOD, &["8", "3"])).collect();
+    let mut sent = (0u64, 0u64);
+    for f in floods {
+        let out = f.wait_with_output().expect("flood");
+        let text = String::from_utf8_lossy(&out.stdout);
+        let n: Vec<u64> = text.split_whitespace().filter_map(|w| w.parse().ok()).collect();
+        assert!(out.status.success() && n.len() == 2, "flood: {text}");
+        sent = (sent.0 + n[0], sent.1 + n[1]);
+    }
+    let out = probe.wait_with_output().expect("probe");
+    let probe: Value = serde_json::from_slice(&out.stdout).expect("probe json");
+    let hwm_kb = daemon.hwm_kb();
+    eprintln!(
+        "claim flood: {} no-reply + {} ordinary calls; VmHWM {hwm0_kb} kB before, {hwm_kb} kB after; \
+         GetStatus {} answers, median {:.1} ms, max {:.1} ms",
+        sent.0, sent.1, probe["n"], probe["median_ms"], probe["max_ms"]
+    );
+    assert!(sent.0 > 10_000 && sent.1 > 1000, "the flood ran: {sent:?}");
+    assert!(
+        hwm_kb < 64 * 1024 && hwm_kb < memory_max_kb,
+        "peak {hwm_kb} kB under the flood (MemoryMax {memory_max_kb} kB)"
+    );
+    assert!(probe["n"].as_u64().unwrap_or(0) >= 5, "GetStatus answered: {probe}");
+    assert!(
+        probe["max_ms"].as_f64().unwrap_or(f64::INFINITY) < 1000.0,
+        "GetStatus answered within 1 s during the flood: {probe}"
+    );
+    // The senders left: none of their claims stays.
+    wait_status(&bus, Duration::from_secs(10), "claims dropped", |s| {
+        s["ProximityClaims"] == 0 && s["Clients"] == 0
+    });
+}
+
+/// `nobody`'s flood: `ClaimProximity` on the native and the compat object alternately,
+/// every 16th call per connection an ordinary one (≤ 128 pending per connection, the bus's
+/// limit), the others `NO_REPLY_EXPECTED`; prints the counts. argv: address, connections, s.
+const CLAIM_FLOOD: &str = r#"
+import sys, time, dbus, dbus.lowlevel
+addr, nconn, secs = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
+conns = [dbus.bus.BusConnection(addr) for _ in range(nconn)]
+targets = [("org.tofprox.Proximity1", "/org/tofprox/Proximity1", "org.tofprox.Proximity1"),
+           ("net.hadess.SensorProxy", "/net/hadess/SensorProxy", "net.hadess.SensorProxy")]
+noreply = ordinary = 0
+end = time.monotonic() + secs
+i = 0
+while time.monotonic() < end and noreply < 20000:
+    for c in conns:
+        dest, path, iface = targets[i % 2]
+        m = dbus.lowlevel.MethodCallMessage(dest, path, iface, "ClaimProximity")
+        if i % 16 == 0 and i // 16 < 128:
+            ordinary += 1
+        else:
+            m.set_no_reply(True)
+            noreply += 1
+        c.send_message(m)
+    i += 1
+for c in conns:
+    c.flush()
+time.sleep(max(0.0, end - time.monotonic()))
+print(noreply, ordinary)
+"#;
+
+/// `GetStatus` every 50 ms for argv[2] seconds; prints the latencies as JSON.
+const GET_STATUS_PROBE: &str = r#"
+import sys, time, json, dbus
+bus = dbus.bus.BusConnection(sys.argv[1])
+obj = bus.get_object("org.tofprox.Proximity1", "/org/tofprox/Proximity1", introspect=False)
+end = time.monotonic() + float(sys.argv[2])
+lat = []
+while time.monotonic() < end:
+    t = time.monotonic()
+    obj.GetStatus(dbus_interface="org.tofprox.Proximity1", timeout=30)
+    lat.append(time.monotonic() - t)
+    time.sleep(0.05)
+lat.sort()
+print(json.dumps({"n": len(lat), "max_ms": lat[-1] * 1e3, "median_ms": lat[len(lat) // 2] * 1e3}))
+"#;
 
 /// The unmodified iio-sensor-proxy client: Debian's `monitor-sensor` (package
 /// iio-sensor-proxy) talks to the system bus, which we point at the private

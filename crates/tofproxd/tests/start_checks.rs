@@ -116,3 +116,66 @@ fn roi_outside_the_sensor_is_refused_naming_the_key() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+#[test]
+fn roi_with_extra_elements_is_refused() {
+    let cfg = format!(
+        "{EMULATED}[proximity]\nroi = [10, 10, 20, 20, \"junk\", {{x = 1}}]\n[emulated.device]\nframe_source = \"ideal\"\n"
+    );
+    let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "roi", "exactly 4 elements"]);
+}
+
+/// Run `tofproxd --check-config` on `config` (a path that may be a special file), bounded in
+/// time: a read that blocked on a FIFO would hang the check.
+fn check_path(config: &Path) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
+        .arg("--config")
+        .arg(config)
+        .arg("--check-config")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run tofproxd");
+    let t0 = std::time::Instant::now();
+    while child.try_wait().expect("wait").is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(20) {
+            let _ = child.kill();
+            panic!("tofproxd --check-config {} hung", config.display());
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.wait_with_output().expect("output")
+}
+
+fn mkfifo(path: &Path) {
+    let st = Command::new("mkfifo").arg(path).status().expect("mkfifo");
+    assert!(st.success());
+}
+
+/// A config, or the `[emulated] device` file it names, that is a FIFO, `/dev/zero` behind
+/// a symlink or larger than the limit is refused at once, naming the file.
+#[test]
+fn special_or_huge_config_files_are_refused_without_reading_them() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fifo = dir.path().join("fifo.toml");
+    mkfifo(&fifo);
+    let zero = dir.path().join("zero.toml");
+    std::os::unix::fs::symlink("/dev/zero", &zero).expect("symlink");
+    let huge = dir.path().join("huge.toml");
+    let f = std::fs::File::create(&huge).expect("create");
+    f.set_len(tofprox_format::limits::MAX_TOML_BYTES + 1)
+        .expect("sparse file");
+    for (path, needle) in [
+        (&fifo, "a FIFO"),
+        (&zero, "character device"),
+        (&huge, "more than the limit"),
+    ] {
+        refused(&check_path(path), &[&path.display().to_string(), needle]);
+        // the same file as the emulated device file
+        let cfg = dir.path().join("x.toml");
+        std::fs::write(&cfg, format!("{EMULATED}device = \"{}\"\n", path.display()))
+            .expect("write config");
+        refused(&check_path(&cfg), &[&path.display().to_string(), needle]);
+    }
+}

@@ -165,13 +165,7 @@ impl DriverConfigFile {
 
 /// Read and parse a TOML config file (`what` names it in the error).
 fn read_toml<T: serde::de::DeserializeOwned>(path: &Path, what: &str) -> Result<T, BridgeError> {
-    let s = std::fs::read_to_string(path).map_err(|e| {
-        BridgeError::with_source(
-            ErrorKind::Config,
-            format!("cannot read {}", path.display()),
-            e,
-        )
-    })?;
+    let s = crate::error::read_config_text(path)?;
     toml::from_str(&s).map_err(|e| {
         BridgeError::with_source(ErrorKind::Config, format!("{what} {}", path.display()), e)
     })

@@ -322,13 +322,7 @@ impl EmulatedConfig {
 
     /// Load a config file.
     pub fn load(path: &Path) -> Result<Self, BridgeError> {
-        let s = std::fs::read_to_string(path).map_err(|e| {
-            BridgeError::with_source(
-                ErrorKind::Config,
-                format!("cannot read {}", path.display()),
-                e,
-            )
-        })?;
+        let s = crate::error::read_config_text(path)?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_toml_str(&s, base).map_err(|e| e.context_prefix(path.display()))
     }

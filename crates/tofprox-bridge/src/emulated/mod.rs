@@ -187,13 +187,10 @@ impl EmulatedDevice {
         let size = cfg.flash_size_bytes as usize;
         let flash = match &cfg.flash_file {
             Some(p) if p.exists() => {
-                let data = std::fs::read(p).map_err(|e| {
-                    BridgeError::with_source(
-                        ErrorKind::Io,
-                        format!("read flash file {}", p.display()),
-                        e,
-                    )
-                })?;
+                // bounded: one byte more than the flash is already the wrong size
+                let data = tofprox_format::limits::read_bounded(p, size as u64, None).map_err(
+                    |e| BridgeError::with_source(ErrorKind::Io, format!("read flash file {e}"), e),
+                )?;
                 if data.len() != size {
                     return Err(BridgeError::config(format!(
                         "flash file {} has {} bytes, flash_size_bytes is {size}",
@@ -284,16 +281,9 @@ impl EmulatedDevice {
 
     fn persist_flash(&self) -> Result<(), BridgeError> {
         if let Some(p) = &self.flash_path {
-            let tmp = p.with_extension("tmp");
-            std::fs::write(&tmp, &self.flash)
-                .and_then(|()| std::fs::rename(&tmp, p))
-                .map_err(|e| {
-                    BridgeError::with_source(
-                        ErrorKind::Io,
-                        format!("write flash file {}", p.display()),
-                        e,
-                    )
-                })?;
+            tofprox_format::write_atomic(p, &self.flash).map_err(|e| {
+                BridgeError::with_source(ErrorKind::Io, format!("write flash file {e}"), e)
+            })?;
         }
         Ok(())
     }

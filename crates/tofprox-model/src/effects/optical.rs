@@ -253,24 +253,14 @@ pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
     let is_npy = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    use tofprox_format::limits::{MAX_NPY_BYTES, MAX_TOML_BYTES, read_bounded, read_text_bounded};
     if is_npy {
-        let file = std::fs::File::open(path).map_err(|e| {
-            ModelError::new(
-                ErrorKind::Io,
-                format!("cannot open {}: {e}", path.display()),
-            )
-        })?;
+        let bytes = read_bounded(path, MAX_NPY_BYTES, None)?;
         use ndarray_npy::ReadNpyExt;
-        if let Ok(a) = ndarray::Array1::<f64>::read_npy(&file) {
+        if let Ok(a) = ndarray::Array1::<f64>::read_npy(bytes.as_slice()) {
             return Ok(a.to_vec());
         }
-        let file = std::fs::File::open(path).map_err(|e| {
-            ModelError::new(
-                ErrorKind::Io,
-                format!("cannot open {}: {e}", path.display()),
-            )
-        })?;
-        return ndarray::Array1::<f32>::read_npy(file)
+        return ndarray::Array1::<f32>::read_npy(bytes.as_slice())
             .map(|a| a.iter().map(|&v| f64::from(v)).collect())
             .map_err(|e| {
                 ModelError::new(
@@ -282,12 +272,7 @@ pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
                 )
             });
     }
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        ModelError::new(
-            ErrorKind::Io,
-            format!("cannot read {}: {e}", path.display()),
-        )
-    })?;
+    let text = read_text_bounded(path, MAX_TOML_BYTES)?;
     let mut out = Vec::new();
     for (lineno, line) in text.lines().enumerate() {
         let line = line.trim();

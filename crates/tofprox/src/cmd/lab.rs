@@ -188,7 +188,8 @@ fn fit(prep: &Prepared, m: &ModelConfig, pb: &ProgressBar) -> anyhow::Result<Com
 }
 
 fn write_report(path: &Path, html: &str) -> anyhow::Result<()> {
-    std::fs::write(path, html).with_context(|| format!("writing report {}", path.display()))?;
+    tofprox_format::write_atomic(path, html.as_bytes())
+        .with_context(|| format!("writing report {}", path.display()))?;
     eprintln!("report written to {}", path.display());
     Ok(())
 }
@@ -316,11 +317,12 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
 /// Write `m` to `out` as the user's model file `from` with the `changed`
 /// effects updated (comments and layout of `from` kept).
 fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
-    let text = std::fs::read_to_string(from)
+    let text = tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
         .with_context(|| format!("reading model {}", from.display()))?;
     let updated = update_model_text(&text, m, changed)
         .with_context(|| format!("model file {}", from.display()))?;
-    std::fs::write(out, updated).with_context(|| format!("writing model {}", out.display()))
+    tofprox_format::write_atomic(out, updated.as_bytes())
+        .with_context(|| format!("writing model {}", out.display()))
 }
 
 fn options(tolerance_mm: Option<f64>) -> anyhow::Result<DiagnoseOptions> {

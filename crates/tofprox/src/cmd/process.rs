@@ -106,12 +106,8 @@ fn write_depth_png(
         range: (0.0, max_m),
         unit: "m",
     });
-    let f = fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
-    let mut enc = png::Encoder::new(
-        std::io::BufWriter::new(f),
-        img.width as u32,
-        img.height as u32,
-    );
+    let mut bytes = Vec::new();
+    let mut enc = png::Encoder::new(&mut bytes, img.width as u32, img.height as u32);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
     let mut wr = enc
@@ -121,7 +117,7 @@ fn write_depth_png(
         .with_context(|| format!("cannot write {}", path.display()))?;
     wr.finish()
         .with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    Ok(tofprox_format::write_atomic(path, &bytes)?)
 }
 
 /// Why a capture cannot be processed with `alg`, if it cannot.
@@ -205,7 +201,7 @@ impl PointsOutput {
         let valid = frame.flags.mapv(|f| f & FLAG_INVALID == 0);
         let bytes = encode_points(pts.view(), valid.view(), self.format)?;
         let p = self.path(index);
-        fs::write(&p, bytes).with_context(|| format!("cannot write {}", p.display()))
+        Ok(tofprox_format::write_atomic(&p, &bytes)?)
     }
 }
 
@@ -336,11 +332,9 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
             out.write(i, frame, rays)?;
         }
         let p = a.out.join(format!("{stem}_depth_mm.npy"));
-        fs::write(&p, npy::encode_u16(&depth_mm))
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        tofprox_format::write_atomic(&p, &npy::encode_u16(&depth_mm))?;
         let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
-        fs::write(&p, npy::encode_f32(&amplitude))
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        tofprox_format::write_atomic(&p, &npy::encode_f32(&amplitude))?;
         write_depth_png(
             &a.out.join(format!("{stem}_depth.png")),
             &depth_mm,

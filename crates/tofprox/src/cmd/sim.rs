@@ -520,8 +520,10 @@ fn scene(a: SceneArgs) -> anyhow::Result<ExitCode> {
     let model = load_model(&a.model)?;
     let script = match &a.script_file {
         Some(p) => {
-            let text = std::fs::read_to_string(p)
-                .with_context(|| format!("cannot read {}", p.display()))?;
+            let text = tofprox_format::limits::read_text_bounded(
+                p,
+                tofprox_format::limits::MAX_TOML_BYTES,
+            )?;
             toml::from_str::<SceneScript>(&text)
                 .with_context(|| format!("{}: invalid scene script", p.display()))?
         }
@@ -632,7 +634,8 @@ pub fn render_svg(f: &Figure, path: &Path) -> anyhow::Result<()> {
             .collect(),
         notes: Vec::new(),
     });
-    std::fs::write(path, svg).with_context(|| format!("cannot write {}", path.display()))?;
+    tofprox_format::write_atomic(path, svg.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
 }
 
