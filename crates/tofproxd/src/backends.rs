@@ -8,6 +8,7 @@ use tofprox_bridge::{
     BridgeError, Clock, DriverConfig, DriverConfigFile, EmulatedConfig as BridgeEmulatedConfig,
     EmulatedDevice, ErrorKind, SensorDriver, SensorMode, SystemClock, UsbTransport, VirtualClock,
 };
+use tofprox_core::SensorGeometry;
 use tofprox_format::{RawFrames, Recording};
 
 use crate::config::{Backend, Config};
@@ -40,8 +41,11 @@ impl FrameSource for Box<dyn FrameSource> {
     fn supports_mode_switch(&self) -> bool {
         (**self).supports_mode_switch()
     }
-    fn full_size(&self) -> (usize, usize) {
-        (**self).full_size()
+    fn sensor(&self) -> SensorGeometry {
+        (**self).sensor()
+    }
+    fn now(&self) -> Option<std::time::Duration> {
+        (**self).now()
     }
     fn describe(&self) -> String {
         (**self).describe()
@@ -83,7 +87,6 @@ pub fn map_bridge_error(e: BridgeError) -> SourceError {
 /// The sensor through the bridge's driver stack.
 pub struct BridgeSource<T: UsbTransport> {
     driver: SensorDriver<T>,
-    full: (usize, usize),
     clock: Arc<dyn Clock>,
     name: String,
 }
@@ -91,11 +94,8 @@ pub struct BridgeSource<T: UsbTransport> {
 impl<T: UsbTransport> BridgeSource<T> {
     /// Wrap a driver.
     pub fn new(driver: SensorDriver<T>, clock: Arc<dyn Clock>, name: impl Into<String>) -> Self {
-        let s = &driver.config().map.sensor;
-        let full = (usize::from(s.rows), usize::from(s.cols));
         Self {
             driver,
-            full,
             clock,
             name: name.into(),
         }
@@ -141,8 +141,12 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
             .map_or(1, |w| w.align.max(1))
     }
 
-    fn full_size(&self) -> (usize, usize) {
-        self.full
+    fn sensor(&self) -> SensorGeometry {
+        self.driver.config().map.sensor.geometry()
+    }
+
+    fn now(&self) -> Option<std::time::Duration> {
+        Some(self.clock.now())
     }
 
     fn describe(&self) -> String {
@@ -260,9 +264,8 @@ impl FrameSource for ReplaySource {
         false
     }
 
-    fn full_size(&self) -> (usize, usize) {
-        let s = self.rec.sensor();
-        (s.full_rows, s.full_cols)
+    fn sensor(&self) -> SensorGeometry {
+        self.rec.sensor().full_array()
     }
 
     fn describe(&self) -> String {
@@ -358,6 +361,7 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
             Ok(Box::new(UsbSource {
                 sel: cfg.usb.device.clone(),
                 dcfg,
+                clock: Arc::new(SystemClock::new()),
                 inner: None,
             }))
         }
@@ -369,6 +373,8 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
 pub struct UsbSource {
     sel: tofprox_bridge::UsbSelector,
     dcfg: DriverConfig,
+    /// One clock for the daemon's life, also while the device is absent.
+    clock: Arc<dyn Clock>,
     inner: Option<BridgeSource<tofprox_bridge::RusbTransport>>,
 }
 
@@ -377,7 +383,7 @@ impl UsbSource {
         if self.inner.is_none() {
             let transport =
                 tofprox_bridge::RusbTransport::open(self.sel.clone()).map_err(map_bridge_error)?;
-            let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+            let clock = self.clock.clone();
             let driver =
                 SensorDriver::new(transport, self.dcfg.clone(), clock.clone()).map_err(|e| {
                     SourceError::new(SourceErrorKind::Unsupported, format!("driver: {e}"))
@@ -410,9 +416,11 @@ impl FrameSource for UsbSource {
             .as_ref()
             .map_or(1, |w| w.align.max(1))
     }
-    fn full_size(&self) -> (usize, usize) {
-        let s = &self.dcfg.map.sensor;
-        (usize::from(s.rows), usize::from(s.cols))
+    fn sensor(&self) -> SensorGeometry {
+        self.dcfg.map.sensor.geometry()
+    }
+    fn now(&self) -> Option<std::time::Duration> {
+        Some(self.clock.now())
     }
     fn describe(&self) -> String {
         format!(
