@@ -1327,6 +1327,55 @@ mod tests {
         assert!(rails.update.power_mw.is_some_and(|p| p > 0.0));
     }
 
+    /// Saturation is evidence (issue 21): a cheek on the window saturating every code at the
+    /// shortest exposure is near for as long as it lasts — far beyond `loop.near_hold_ms` —
+    /// after one 4-phase confirmation at `exposure.min_us`; an all-zero frame is no data and a
+    /// held Near is released within the bound.
+    #[test]
+    fn a_saturating_cheek_is_near_while_it_lasts_zeros_are_no_data() {
+        let cheek = Step::Target {
+            distance_mm: 10.0,
+            amplitude_lsb: 1e6,
+            background_lsb: 0.0,
+        };
+        let mut steps = vec![Step::target(800.0)];
+        steps.extend(std::iter::repeat_n(cheek, 40));
+        steps.extend(std::iter::repeat_n(Step::Garbage, 30));
+        let mut c = ctl(steps);
+        assert!(!c.step(false).near);
+        let first = c.step(false);
+        assert!(!first.valid && !first.near, "confirm first: {first:?}");
+        let confirmed = c.step(false);
+        let req = c.source().requests[2];
+        assert_eq!(req.mode, Mode::FourPhase, "the confirmation is 4-phase");
+        assert_eq!(req.exposure_us, c.cfg.exposure.min_us, "at the shortest exposure");
+        assert!(confirmed.valid && confirmed.near, "{confirmed:?}");
+        let hold = Duration::from_millis(c.cfg.loop_.near_hold_ms);
+        let mut held = Duration::ZERO;
+        for _ in 0..38 {
+            let o = c.step(false);
+            assert!(o.valid && o.near, "{o:?}");
+            assert_eq!(o.update.distance_mm, Some(0), "near from saturation: unknown");
+            held += o.sleep;
+        }
+        assert!(held > 2 * hold, "near for {held:?}, beyond the hold bound");
+        assert_eq!(c.exposure_us(), c.cfg.exposure.min_us);
+        // all-zero frames: no data; Near held at most near_hold_ms since the last reading
+        let mut since = Duration::ZERO;
+        let mut released = false;
+        for _ in 0..30 {
+            let o = c.step(false);
+            assert!(!o.valid, "{o:?}");
+            since += o.sleep;
+            if !o.near {
+                released = true;
+                break;
+            }
+            assert!(since < hold + o.sleep, "held {since:?}");
+        }
+        assert!(released, "Near released after the hold bound");
+    }
+
     #[test]
     fn depth_message_only_when_wanted() {
         let mut c = ctl(vec![Step::target(800.0)]);

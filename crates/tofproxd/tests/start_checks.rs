@@ -127,7 +127,7 @@ fn roi_outside_the_sensor_is_refused_naming_the_key() {
 fn calibration_for_another_modulation_frequency_is_refused() {
     let (full_rows, full_cols) = (172, 224);
     let set = format!(
-        "format = \"tofprox-calibration\"\nversion = 1\n\n[valid_for]\nrows = {full_rows}\ncols = {full_cols}\nroi_origin = [0, 0]\nfull_rows = {full_rows}\nfull_cols = {full_cols}\nadc_bits = 12\nmodulation_hz = 60000000.0\n"
+        "format = \"tofprox-calibration\"\nversion = 1\nupdated = \"2026-11-25T00:00:00Z\"\n\n[valid_for]\nrows = {full_rows}\ncols = {full_cols}\nroi_origin = [0, 0]\nfull_rows = {full_rows}\nfull_cols = {full_cols}\nadc_bits = 12\nmodulation_hz = 60000000.0\n"
     );
     let cfg = format!(
         "{EMULATED}[processing]\ncalibration = \"calib60\"\n[emulated.device]\nframe_source = \"ideal\"\n"
