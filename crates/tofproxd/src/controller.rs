@@ -1348,14 +1348,21 @@ mod tests {
         let confirmed = c.step(false);
         let req = c.source().requests[2];
         assert_eq!(req.mode, Mode::FourPhase, "the confirmation is 4-phase");
-        assert_eq!(req.exposure_us, c.cfg.exposure.min_us, "at the shortest exposure");
+        assert_eq!(
+            req.exposure_us, c.cfg.exposure.min_us,
+            "at the shortest exposure"
+        );
         assert!(confirmed.valid && confirmed.near, "{confirmed:?}");
         let hold = Duration::from_millis(c.cfg.loop_.near_hold_ms);
         let mut held = Duration::ZERO;
         for _ in 0..38 {
             let o = c.step(false);
             assert!(o.valid && o.near, "{o:?}");
-            assert_eq!(o.update.distance_mm, Some(0), "near from saturation: unknown");
+            assert_eq!(
+                o.update.distance_mm,
+                Some(0),
+                "near from saturation: unknown"
+            );
             held += o.sleep;
         }
         assert!(held > 2 * hold, "near for {held:?}, beyond the hold bound");
