@@ -101,6 +101,9 @@ pub enum ScriptKind {
     Face,
     /// A flat card (20 × 25 cm, e.g. an 18 % grey or a black card); by default approaching like the hand.
     Card,
+    /// A finger (1.6 cm wide, 10 cm long, upright across the optical axis); by default
+    /// approaching like the hand.
+    Finger,
     /// A surface filling the whole field of view (pocket fabric, a table the phone lies
     /// face down on); by default approaching like the hand.
     Plane,
@@ -191,6 +194,8 @@ const HAND_RADIUS_M: f64 = 0.045;
 const FACE_HALF_AXES_M: (f64, f64) = (0.075, 0.11);
 /// Half axes of a card (20 × 25 cm test card).
 const CARD_HALF_AXES_M: (f64, f64) = (0.10, 0.125);
+/// Half axes of a finger (1.6 cm wide, 10 cm long).
+const FINGER_HALF_AXES_M: (f64, f64) = (0.008, 0.05);
 
 /// Where the scripted object is at one instant.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -280,7 +285,9 @@ impl SceneScript {
         self.motion.unwrap_or(match self.kind {
             ScriptKind::Wall | ScriptKind::TableEdge => Motion::Static,
             ScriptKind::Face => Motion::Sway,
-            ScriptKind::Hand | ScriptKind::Card | ScriptKind::Plane => Motion::Approach,
+            ScriptKind::Hand | ScriptKind::Card | ScriptKind::Finger | ScriptKind::Plane => {
+                Motion::Approach
+            }
         })
     }
 
@@ -297,6 +304,7 @@ impl SceneScript {
         match self.kind {
             ScriptKind::Face => Some(FACE_HALF_AXES_M),
             ScriptKind::Card => Some(CARD_HALF_AXES_M),
+            ScriptKind::Finger => Some(FINGER_HALF_AXES_M),
             ScriptKind::Hand => Some((HAND_RADIUS_M, HAND_RADIUS_M)),
             ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge => None,
         }
@@ -826,6 +834,22 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             "black_card_05cm",
             "a black card (5 %) approaching to 5 cm",
             object(ScriptKind::Card, BLACK_CARD, 0.05),
+            0.0,
+            clean,
+            approach_s,
+        ),
+        scene(
+            "cheek_pressed_10s",
+            "a cheek pressed on the window for 10 s (a call): every code saturates even at the shortest exposure",
+            object(ScriptKind::Plane, SKIN, MIN_DISTANCE_M).with_motion(Motion::Static),
+            0.0,
+            clean,
+            10.0,
+        ),
+        scene(
+            "finger_third_of_field_04cm",
+            "a finger approaching to 4 cm upright across the axis: it covers a third of the field's width (two thirds of the ROI)",
+            object(ScriptKind::Finger, SKIN, 0.04),
             0.0,
             clean,
             approach_s,

@@ -40,8 +40,8 @@ impl FrameSource for FixedSource {
     fn supports_row_window(&self) -> bool {
         false
     }
-    fn full_size(&self) -> (usize, usize) {
-        (ROWS, COLS)
+    fn sensor(&self) -> tofprox_core::SensorGeometry {
+        self.cycle.geometry.full_array()
     }
     fn describe(&self) -> String {
         "fixed".into()

@@ -10,6 +10,7 @@ use tofprox_bridge::{
     BridgeError, Clock, DriverConfig, DriverConfigFile, ErrorKind, SensorDriver, SensorMode,
     SystemClock, UsbTransport,
 };
+use tofprox_core::SensorGeometry;
 use tofprox_format::{RawFrames, Recording};
 
 use crate::config::{Backend, Config};
@@ -32,8 +33,11 @@ impl FrameSource for Box<dyn FrameSource> {
     fn supports_mode_switch(&self) -> bool {
         (**self).supports_mode_switch()
     }
-    fn full_size(&self) -> (usize, usize) {
-        (**self).full_size()
+    fn sensor(&self) -> SensorGeometry {
+        (**self).sensor()
+    }
+    fn now(&self) -> Option<std::time::Duration> {
+        (**self).now()
     }
     fn describe(&self) -> String {
         (**self).describe()
@@ -75,7 +79,6 @@ pub fn map_bridge_error(e: BridgeError) -> SourceError {
 /// The sensor through the bridge's driver stack.
 pub struct BridgeSource<T: UsbTransport> {
     driver: SensorDriver<T>,
-    full: (usize, usize),
     clock: Arc<dyn Clock>,
     name: String,
 }
@@ -83,11 +86,8 @@ pub struct BridgeSource<T: UsbTransport> {
 impl<T: UsbTransport> BridgeSource<T> {
     /// Wrap a driver.
     pub fn new(driver: SensorDriver<T>, clock: Arc<dyn Clock>, name: impl Into<String>) -> Self {
-        let s = &driver.config().map.sensor;
-        let full = (usize::from(s.rows), usize::from(s.cols));
         Self {
             driver,
-            full,
             clock,
             name: name.into(),
         }
@@ -133,8 +133,12 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
             .map_or(1, |w| w.align.max(1))
     }
 
-    fn full_size(&self) -> (usize, usize) {
-        self.full
+    fn sensor(&self) -> SensorGeometry {
+        self.driver.config().map.sensor.geometry()
+    }
+
+    fn now(&self) -> Option<std::time::Duration> {
+        Some(self.clock.now())
     }
 
     fn describe(&self) -> String {
@@ -252,9 +256,8 @@ impl FrameSource for ReplaySource {
         false
     }
 
-    fn full_size(&self) -> (usize, usize) {
-        let s = self.rec.sensor();
-        (s.full_rows, s.full_cols)
+    fn sensor(&self) -> SensorGeometry {
+        self.rec.sensor().full_array()
     }
 
     fn describe(&self) -> String {
@@ -289,6 +292,7 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
             Ok(Box::new(UsbSource {
                 sel: cfg.usb.device.clone(),
                 dcfg,
+                clock: Arc::new(SystemClock::new()),
                 inner: None,
             }))
         }
@@ -317,6 +321,8 @@ fn emulated_backend(_cfg: &Config, _base: &Path) -> Result<Box<dyn FrameSource>,
 pub struct UsbSource {
     sel: tofprox_bridge::UsbSelector,
     dcfg: DriverConfig,
+    /// One clock for the daemon's life, also while the device is absent.
+    clock: Arc<dyn Clock>,
     inner: Option<BridgeSource<tofprox_bridge::RusbTransport>>,
 }
 
@@ -325,7 +331,7 @@ impl UsbSource {
         if self.inner.is_none() {
             let transport =
                 tofprox_bridge::RusbTransport::open(self.sel.clone()).map_err(map_bridge_error)?;
-            let clock: Arc<dyn Clock> = Arc::new(SystemClock::new());
+            let clock = self.clock.clone();
             let driver =
                 SensorDriver::new(transport, self.dcfg.clone(), clock.clone()).map_err(|e| {
                     SourceError::new(SourceErrorKind::Unsupported, format!("driver: {e}"))
@@ -358,9 +364,11 @@ impl FrameSource for UsbSource {
             .as_ref()
             .map_or(1, |w| w.align.max(1))
     }
-    fn full_size(&self) -> (usize, usize) {
-        let s = &self.dcfg.map.sensor;
-        (usize::from(s.rows), usize::from(s.cols))
+    fn sensor(&self) -> SensorGeometry {
+        self.dcfg.map.sensor.geometry()
+    }
+    fn now(&self) -> Option<std::time::Duration> {
+        Some(self.clock.now())
     }
     fn describe(&self) -> String {
         format!(

@@ -1,6 +1,7 @@
 //! Calibration for the loop: a `tofprox-format` calibration set, keyed to the
 //! processing mode (2-phase and 4-phase wiggling LUTs are separate; a LUT of the
-//! other mode is refused) and checked against the sensor's full array.
+//! other mode is refused) and checked against the source's sensor by the one validity check
+//! of a calibration set (`CalibrationSet::check_compatible`, as `tofprox process` does).
 
 use tofprox_core::Algorithm;
 use tofprox_format::CalibrationSet;
@@ -38,15 +39,13 @@ pub fn load_for(
         dir: dir.display().to_string(),
         message,
     };
-    let v = &set.validity;
-    let (full_rows, full_cols) = source.full_size();
-    if (v.full_rows, v.full_cols) != (full_rows, full_cols)
-        || (v.rows, v.cols) != (full_rows, full_cols)
-    {
-        return Err(mismatch(format!(
-            "is for a {}x{} window of a {}x{} array; the daemon needs a full-array calibration of {}x{}",
-            v.rows, v.cols, v.full_rows, v.full_cols, full_rows, full_cols
-        )));
+    // The one validity check `tofprox process` applies too: modulation frequency, ADC bits,
+    // window and full array of the set against the source's sensor (the daemon reads the full
+    // array and crops the set to its read-out window).
+    set.check_compatible(&source.sensor())
+        .map_err(|e| mismatch(format!("refused for {}: {e}", source.describe())))?;
+    if let Some(Err(e)) = set.rays() {
+        return Err(mismatch(format!("its lens does not fit its array: {e}")));
     }
     let needed = match cfg.processing.mode {
         Algorithm::TwoPhase => set.wiggling_2phase.is_some(),

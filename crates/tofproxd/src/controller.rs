@@ -29,7 +29,8 @@ use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
 use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CycleObservation, EnergyAccount,
-    ExposureObservation, Pacing, RateObservation, ReadoutObservation, ReadoutWindow,
+    ExposureObservation, Pacing, RailsDecision, RailsObservation, RateObservation,
+    ReadoutObservation, ReadoutWindow, SaturationCheck, rails_point_at_zero_distance,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -53,6 +54,37 @@ pub const DISTANCE_BEYOND_RANGE_MM: u32 = u32::MAX;
 /// weak residual; a real target this close to a multiple of the unambiguous range is the
 /// documented limit of one frequency).
 const WINDOW_TOLERANCE_M: f64 = 0.05;
+
+/// The time since the last valid reading (the bound on holding Near, `loop.near_hold_ms`): on
+/// the source's clock when it has one, so every cycle counts with its whole duration — a
+/// failing one too (a transfer timeout, a reset that hangs) —, else the sleeps plus the
+/// cycles' measured state durations since that reading.
+#[derive(Debug, Default)]
+struct SinceValid {
+    /// The source's clock at the last valid reading.
+    reading_at: Option<Duration>,
+    /// Sleeps and cycle durations counted since (sources without a clock).
+    counted: Duration,
+}
+
+impl SinceValid {
+    /// A valid reading now.
+    fn reading(&mut self, now: Option<Duration>) {
+        self.reading_at = now;
+        self.counted = Duration::ZERO;
+    }
+    /// Time passed (a sleep, a cycle's state durations), for sources without a clock.
+    fn count(&mut self, d: Duration) {
+        self.counted += d;
+    }
+    /// Time since the last valid reading.
+    fn elapsed(&self, now: Option<Duration>) -> Duration {
+        match (now, self.reading_at) {
+            (Some(now), Some(at)) => now.saturating_sub(at),
+            _ => self.counted,
+        }
+    }
+}
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -123,10 +155,12 @@ pub struct Controller<S: FrameSource> {
     rate: AdaptiveRate,
     readout: ReadoutWindow,
     energy: EnergyAccount,
+    /// Saturation is evidence: all-rails frames that are the sensor's own return read near.
+    saturation: SaturationCheck,
     consecutive_failures: u32,
-    /// Time since the last valid reading (sum of the sleeps and cycles since), for the bound
-    /// on holding Near across failures.
-    since_valid: Duration,
+    /// Time since the last valid reading, for the bound on holding Near across cycles
+    /// without one.
+    since_valid: SinceValid,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
     near: bool,
@@ -152,6 +186,18 @@ pub fn full_roi(cfg: &Config, full_rows: usize, full_cols: usize) -> Roi {
         .resolve(full_rows, full_cols),
         None => Roi::centered(full_rows, full_cols, 0.5),
     }
+}
+
+/// The configured ROI in the coordinates of a frame of window `g` (clipped to it).
+fn frame_roi(cfg: &Config, g: SensorGeometry) -> Roi {
+    let roi_full = full_roi(cfg, g.full_rows, g.full_cols);
+    Roi {
+        row0: roi_full.row0.saturating_sub(g.roi_origin[0]),
+        col0: roi_full.col0.saturating_sub(g.roi_origin[1]),
+        rows: roi_full.rows,
+        cols: roi_full.cols,
+    }
+    .resolve(g.rows, g.cols)
 }
 
 impl<S: FrameSource> Controller<S> {
@@ -203,6 +249,7 @@ impl<S: FrameSource> Controller<S> {
             rate: AdaptiveRate::new(cfg.loop_.clone()),
             readout: ReadoutWindow::new(cfg.readout.clone()),
             energy: EnergyAccount::new(cfg.energy.clone(), Pacing::of(&cfg)),
+            saturation: SaturationCheck::default(),
             cfg,
             source,
             calib,
@@ -211,7 +258,7 @@ impl<S: FrameSource> Controller<S> {
             detector: None,
             amp_scale: None,
             consecutive_failures: 0,
-            since_valid: Duration::ZERO,
+            since_valid: SinceValid::default(),
             last_sleep: Duration::ZERO,
             near: false,
             running: false,
@@ -337,8 +384,8 @@ impl<S: FrameSource> Controller<S> {
                 self.consecutive_failures
             );
         }
-        let near_update = self.no_reading();
         let sleep = Duration::from_millis(self.cfg.loop_.retry_ms);
+        let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;
         StepOutcome {
             update: StatusUpdate {
@@ -358,15 +405,19 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    /// A cycle without a reading (failed, or nothing usable in it) carries no information:
-    /// Near is held, but only for `loop.near_hold_ms` since the last valid reading — then it is
-    /// released (never held for ever). Returns the new Near when it changed.
-    fn no_reading(&mut self) -> Option<bool> {
-        self.since_valid += self.last_sleep;
-        if self.near && self.since_valid >= Duration::from_millis(self.cfg.loop_.near_hold_ms) {
+    /// A cycle without a reading (failed, or no data in it) carries no information: Near is
+    /// held, but only while the whole time since the last valid reading — failing cycles,
+    /// their retries and the sleep before the next attempt included — stays below
+    /// `loop.near_hold_ms`; a Near the next reading could only confirm after that bound is
+    /// released now (never held for ever). Returns the new Near when it changed.
+    fn no_reading(&mut self, next_sleep: Duration) -> Option<bool> {
+        let since = self.since_valid.elapsed(self.source.now());
+        let bound = Duration::from_millis(self.cfg.loop_.near_hold_ms);
+        if self.near && since + next_sleep >= bound {
             tracing::info!(
-                "no valid reading for {} ms: Near released",
-                self.since_valid.as_millis()
+                "no valid reading for {} ms (next attempt after {} ms more): Near released",
+                since.as_millis(),
+                next_sleep.as_millis()
             );
             self.near = false;
             if let Some((_, d)) = &mut self.detector {
@@ -384,9 +435,18 @@ impl<S: FrameSource> Controller<S> {
             self.state = State::Starting;
         }
         let probe = self.ambient.probe_due();
-        let req = self.request(probe);
+        let confirm = self.saturation.confirm_due();
+        let mut req = self.request(probe || confirm);
+        if confirm {
+            // the confirmation of a saturated 2-phase frame: 4-phase at the shortest exposure
+            req.exposure_us = self.cfg.exposure.min_us;
+        }
+        self.since_valid.count(self.last_sleep);
         let cycle = match self.source.cycle(&req) {
-            Ok(c) => c,
+            Ok(c) => {
+                self.since_valid.count(c.timings().active());
+                c
+            }
             Err(e) => {
                 if e.kind() == SourceErrorKind::Unsupported && req.row_window.is_some() {
                     tracing::warn!(
@@ -401,9 +461,12 @@ impl<S: FrameSource> Controller<S> {
             Ok(m) => m,
             Err(e) => return self.fail(e),
         };
-        if rails_only(&cycle) {
+        if !rails_only(&cycle) {
+            self.saturation.measurable();
+        } else if self.rails_decision(&cycle, captured) != RailsDecision::NearReturn {
             return self.rails_cycle(&cycle);
         }
+        // (a near return on the rails is processed: every pixel saturated reads near)
         self.ambient.note_capture(probe, captured);
         match self.process(&cycle, captured, want_depth) {
             Ok(out) => out,
@@ -419,16 +482,8 @@ impl<S: FrameSource> Controller<S> {
     ) -> Result<StepOutcome, SourceError> {
         // Pipelines and the detector are rebuilt when this changes.
         let g = cycle.geometry;
-        let (rows, cols) = (g.rows, g.cols);
         // ROI in this frame's coordinates.
-        let roi_full = full_roi(&self.cfg, g.full_rows, g.full_cols);
-        let roi = Roi {
-            row0: roi_full.row0.saturating_sub(g.roi_origin[0]),
-            col0: roi_full.col0.saturating_sub(g.roi_origin[1]),
-            rows: roi_full.rows,
-            cols: roi_full.cols,
-        }
-        .resolve(rows, cols);
+        let roi = frame_roi(&self.cfg, g);
         if roi.rows == 0 || roi.cols == 0 {
             return Err(SourceError::new(
                 SourceErrorKind::Unsupported,
@@ -594,7 +649,7 @@ impl<S: FrameSource> Controller<S> {
         self.consecutive_failures = 0;
         self.last_sleep = sleep;
         if valid {
-            self.since_valid = Duration::ZERO;
+            self.since_valid.reading(self.source.now());
         }
         // LastError after a good cycle: "" — or the changed cover window, while it lasts.
         let note = match self.crosstalk.status() {
@@ -638,17 +693,45 @@ impl<S: FrameSource> Controller<S> {
         })
     }
 
-    /// Every code of every raw image on a rail: either a dead/garbage frame or a target so
-    /// close/bright that nothing is left. Such a frame carries no depth: it never reaches the
-    /// detector (it would read as saturated = near), Near is left alone, and the exposure is
+    /// Saturation is evidence ([`SaturationCheck`]): whether an all-rails frame is the sensor's
+    /// own return from something too close to measure (near), to be confirmed first, or no data.
+    fn rails_decision(&mut self, cycle: &RawCycle, captured: Mode) -> RailsDecision {
+        let g = cycle.geometry;
+        let roi = frame_roi(&self.cfg, g);
+        let lut = match captured {
+            Mode::TwoPhase => self.calib.two_phase.wiggling.as_ref(),
+            Mode::FourPhase => self.calib.four_phase.wiggling.as_ref(),
+        };
+        let max = g.max_code() as f32;
+        let ph = &cycle.phases_deg;
+        let return_pattern = match &cycle.frames {
+            RawImages::U16(a) => rails_point_at_zero_distance(a.view(), ph, roi, max, lut),
+            RawImages::F32(a) => rails_point_at_zero_distance(a.view(), ph, roi, max, lut),
+        };
+        let decision = self.saturation.next(RailsObservation {
+            captured,
+            return_pattern,
+            source_can_confirm: self.source.supports_mode_switch(),
+            bright_background: self
+                .ambient_lsb
+                .is_some_and(|a| a > self.cfg.ambient.high_lsb),
+        });
+        tracing::debug!("every code on a rail: {decision:?}");
+        decision
+    }
+
+    /// Every code of every raw image on a rail and not a near return: a dead/garbage frame,
+    /// light without modulation, or a saturated 2-phase frame awaiting its confirmation.
+    /// Such a frame carries no data: it never reaches the detector (it would read as saturated
+    /// = near), Near is only held (bounded by `loop.near_hold_ms`), and the exposure is
     /// shortened so a real target becomes measurable in the next cycle.
     fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
         self.exposure.next(ExposureObservation::Rails);
-        let near_update = self.no_reading();
         let energy = self
             .energy
             .next(CycleObservation::of(cycle, self.rate.rate_hz()));
         let sleep = energy.sleep;
+        let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;
         tracing::debug!("frame without usable codes (all on the rails): no reading");
         StepOutcome {
@@ -1242,6 +1325,62 @@ mod tests {
             rails.sleep
         );
         assert!(rails.update.power_mw.is_some_and(|p| p > 0.0));
+    }
+
+    /// Saturation is evidence (issue 21): a cheek on the window saturating every code at the
+    /// shortest exposure is near for as long as it lasts — far beyond `loop.near_hold_ms` —
+    /// after one 4-phase confirmation at `exposure.min_us`; an all-zero frame is no data and a
+    /// held Near is released within the bound.
+    #[test]
+    fn a_saturating_cheek_is_near_while_it_lasts_zeros_are_no_data() {
+        let cheek = Step::Target {
+            distance_mm: 10.0,
+            amplitude_lsb: 1e6,
+            background_lsb: 0.0,
+        };
+        let mut steps = vec![Step::target(800.0)];
+        steps.extend(std::iter::repeat_n(cheek, 40));
+        steps.extend(std::iter::repeat_n(Step::Garbage, 30));
+        let mut c = ctl(steps);
+        assert!(!c.step(false).near);
+        let first = c.step(false);
+        assert!(!first.valid && !first.near, "confirm first: {first:?}");
+        let confirmed = c.step(false);
+        let req = c.source().requests[2];
+        assert_eq!(req.mode, Mode::FourPhase, "the confirmation is 4-phase");
+        assert_eq!(
+            req.exposure_us, c.cfg.exposure.min_us,
+            "at the shortest exposure"
+        );
+        assert!(confirmed.valid && confirmed.near, "{confirmed:?}");
+        let hold = Duration::from_millis(c.cfg.loop_.near_hold_ms);
+        let mut held = Duration::ZERO;
+        for _ in 0..38 {
+            let o = c.step(false);
+            assert!(o.valid && o.near, "{o:?}");
+            assert_eq!(
+                o.update.distance_mm,
+                Some(0),
+                "near from saturation: unknown"
+            );
+            held += o.sleep;
+        }
+        assert!(held > 2 * hold, "near for {held:?}, beyond the hold bound");
+        assert_eq!(c.exposure_us(), c.cfg.exposure.min_us);
+        // all-zero frames: no data; Near held at most near_hold_ms since the last reading
+        let mut since = Duration::ZERO;
+        let mut released = false;
+        for _ in 0..30 {
+            let o = c.step(false);
+            assert!(!o.valid, "{o:?}");
+            since += o.sleep;
+            if !o.near {
+                released = true;
+                break;
+            }
+            assert!(since < hold + o.sleep, "held {since:?}");
+        }
+        assert!(released, "Near released after the hold bound");
     }
 
     #[test]

@@ -164,8 +164,20 @@ pub trait FrameSource: Send {
     fn supports_mode_switch(&self) -> bool {
         true
     }
+    /// The sensor the source delivers, as its full array (`SensorGeometry::full_array`: ADC
+    /// bits, modulation frequency, full array): what a calibration set's validity is checked
+    /// against at start, before any cycle.
+    fn sensor(&self) -> SensorGeometry;
     /// Full array size `(rows, cols)`.
-    fn full_size(&self) -> (usize, usize);
+    fn full_size(&self) -> (usize, usize) {
+        let g = self.sensor();
+        (g.full_rows, g.full_cols)
+    }
+    /// The source's clock (monotonic, the same one the cycles' time stamps and sleeps run on),
+    /// `None` when it has none: the loop then counts its sleeps and the cycles' state durations.
+    fn now(&self) -> Option<Duration> {
+        None
+    }
     /// Short description for logs/status.
     fn describe(&self) -> String;
 }
@@ -354,8 +366,8 @@ impl FrameSource for ScriptedSource {
         self.window_support
     }
 
-    fn full_size(&self) -> (usize, usize) {
-        (self.rows, self.cols)
+    fn sensor(&self) -> SensorGeometry {
+        SensorGeometry::full(self.rows, self.cols, SYNTH_ADC_BITS, self.modulation_hz)
     }
 
     fn describe(&self) -> String {

@@ -103,3 +103,20 @@ fn catalogue_has_no_false_and_no_missed_near() {
     }
     assert!(bad.is_empty(), "{}", bad.join("\n"));
 }
+
+/// Issue 21: a cheek pressed on the window saturates every code even at the shortest exposure;
+/// saturation under the sensor's own illumination is the return, so Near holds for the whole
+/// 10 s (it used to be released after `loop.near_hold_ms`), and every cycle after the one
+/// 4-phase confirmation is a valid reading.
+#[test]
+fn a_cheek_pressed_on_the_window_is_near_for_all_of_its_10_s() {
+    let b = shipped();
+    let s = scene(&b, "cheek_pressed_10s");
+    let r = run_scene(&b, &s, 1).expect("runs");
+    eprintln!("{r:?}");
+    assert_eq!(r.missed_near, 0, "{r:?}");
+    assert_eq!(r.false_near, 0, "{r:?}");
+    assert_eq!(r.near_transitions, 1, "near once, never released: {r:?}");
+    assert!(r.cycles >= 80, "10 s at the fast rate: {r:?}");
+    assert!(r.readings + 2 >= r.cycles, "only the confirmation is no reading: {r:?}");
+}

@@ -33,15 +33,18 @@ fn soak_with_faults_never_publishes_false_near_and_recovers() {
     assert!(rep.failures_by_kind.contains_key("disconnected"), "{rep:?}");
 }
 
-/// At a high fault rate Near may be held across failures, but only for the documented bound
-/// (`loop.near_hold_ms` = 1 s, plus the one retry that notices it), and it is counted apart:
-/// a near published on a wrong reading stays 0 at every fault rate.
+/// At every fault rate Near may be held across failures, but only for `loop.near_hold_ms`
+/// (1 s) counted over the whole time since the last valid reading — failing cycles, their
+/// retries and the sleeps between included — and it is counted apart: a near published on a
+/// wrong reading stays 0 (issue 21: 1281 ms at 0.9 and 1384 ms at 1.0 before).
 #[test]
 fn held_near_over_failures_is_bounded_and_counted_apart() {
-    for fault_rate in [0.1, 0.3, 0.6] {
+    let bound_ms = tofproxd::config::LoopConfig::default().near_hold_ms;
+    let mut held_somewhere = false;
+    for fault_rate in [0.3, 0.6, 0.9, 1.0] {
         let rep = tofproxd::soak::run(
             &tofproxd::soak::SoakConfig {
-                cycles: 2000,
+                cycles: 800,
                 fault_rate,
                 seed: 11,
                 period_s: 8.0,
@@ -51,13 +54,14 @@ fn held_near_over_failures_is_bounded_and_counted_apart() {
         .expect("soak runs");
         assert_eq!(rep.false_near, 0, "fault rate {fault_rate}: {rep:?}");
         assert_eq!(rep.panics, 0, "{rep:?}");
-        let bound_ms = tofproxd::config::LoopConfig::default().near_hold_ms + 400;
         assert!(
             rep.max_hold_ms <= bound_ms,
             "fault rate {fault_rate}: held {} ms > {bound_ms}: {rep:?}",
             rep.max_hold_ms
         );
+        held_somewhere |= rep.max_hold_ms > 0;
     }
+    assert!(held_somewhere, "some near was held across failures");
 }
 
 #[test]

@@ -24,7 +24,11 @@ fn check(text: &str, extra: &[(&str, &str)]) -> (tempfile::TempDir, Output) {
     std::fs::create_dir_all(dir.path().join("cfg/emulated")).expect("mkdir");
     std::fs::write(dir.path().join("cfg/x.toml"), text).expect("write config");
     for (name, body) in extra {
-        std::fs::write(dir.path().join("cfg").join(name), body).expect("write file");
+        let path = dir.path().join("cfg").join(name);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent).expect("mkdir");
+        }
+        std::fs::write(path, body).expect("write file");
     }
     let out = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
         .args(["--config", "cfg/x.toml", "--check-config"])
@@ -96,7 +100,7 @@ fn calibration_for_another_window_is_refused() {
         example.display()
     );
     let (_d, out) = check(&cfg, &[]);
-    refused(&out, &["cfg/x.toml", "calibration", "16x16"]);
+    refused(&out, &["cfg/x.toml", "calibration", "16×16", "valid_for"]);
 }
 
 #[test]
@@ -178,4 +182,30 @@ fn special_or_huge_config_files_are_refused_without_reading_them() {
             .expect("write config");
         refused(&check_path(&cfg), &[&path.display().to_string(), needle]);
     }
+}
+
+/// The daemon applies the one validity check `tofprox process` applies: a set made at 60 MHz
+/// is refused on the 80 MHz sensor, naming both frequencies (issue 21).
+#[test]
+fn calibration_for_another_modulation_frequency_is_refused() {
+    let (full_rows, full_cols) = (172, 224);
+    let set = format!(
+        "format = \"tofprox-calibration\"\nversion = 1\nupdated = \"2026-11-25T00:00:00Z\"\n\n[valid_for]\nrows = {full_rows}\ncols = {full_cols}\nroi_origin = [0, 0]\nfull_rows = {full_rows}\nfull_cols = {full_cols}\nadc_bits = 12\nmodulation_hz = 60000000.0\n"
+    );
+    let cfg = format!(
+        "{EMULATED}[processing]\ncalibration = \"calib60\"\n[emulated.device]\nframe_source = \"ideal\"\n"
+    );
+    let (_d, out) = check(&cfg, &[("calib60/calibration.toml", &set)]);
+    refused(
+        &out,
+        &["calib60", "modulation_hz", "60000000 Hz", "80000000 Hz"],
+    );
+    // the same set at 80 MHz passes every check
+    let ok = set.replace("60000000.0", "80000000.0");
+    let (_d, out) = check(&cfg, &[("calib60/calibration.toml", &ok)]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

@@ -10,15 +10,20 @@
 //! | [`AdaptiveRate`] | reading rate | near, approach speed, stillness | 3.5.3 |
 //! | [`ReadoutWindow`] | rows read out | ROI, margin, source alignment | 3.1.2 (read-out ∝ rows) |
 //! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
+//! | [`SaturationCheck`] | an all-rails frame: near return, confirm (4-phase, `min_us`), or no data | the rails' phasor vs zero distance | 2.2.1, eq. 2.2/2.3 |
 
 mod ambient;
 mod energy_account;
 mod exposure;
 mod rate;
 mod readout;
+mod saturation;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
 pub use exposure::{AutoExposure, ExposureObservation};
 pub use rate::{AdaptiveRate, RateObservation};
 pub use readout::{ReadoutObservation, ReadoutWindow};
+pub use saturation::{
+    RailsDecision, RailsObservation, SaturationCheck, rails_point_at_zero_distance,
+};
