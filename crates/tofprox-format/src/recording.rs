@@ -127,6 +127,23 @@ pub const RECORDING_TOML: &str = "recording.toml";
 /// Sub-directory the writer puts frame files in.
 pub const FRAMES_DIR: &str = "frames";
 
+/// `[capture.conditions]` keys that are bookkeeping, not physics: which repeat,
+/// which capture of a series, when. They are kept in the file but are never a
+/// condition of the measurement (captures differing only in them are repeats).
+pub const BOOKKEEPING_CONDITIONS: &[&str] = &[
+    "repeat",
+    "repeat_index",
+    "capture_index",
+    "sequence",
+    "run_index",
+];
+
+/// True for a bookkeeping key of `[capture.conditions]`: one of
+/// [`BOOKKEEPING_CONDITIONS`] or any key starting with `timestamp`.
+pub fn is_bookkeeping_condition(key: &str) -> bool {
+    BOOKKEEPING_CONDITIONS.contains(&key) || key.starts_with("timestamp")
+}
+
 /// What one capture is (everything of a `[[capture]]` table except `frames`).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CaptureSpec {
@@ -178,6 +195,14 @@ impl CaptureMeta {
             timestamp_ns: self.timestamp_ns,
             conditions: self.conditions.clone(),
         }
+    }
+    /// The physical conditions: `conditions` without its bookkeeping keys
+    /// ([`is_bookkeeping_condition`]).
+    pub fn physical_conditions(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.conditions
+            .iter()
+            .filter(|(k, _)| !is_bookkeeping_condition(k))
+            .map(|(k, v)| (k.as_str(), *v))
     }
     /// Ground-truth distance, if recorded.
     pub fn distance_m(&self) -> Option<f64> {

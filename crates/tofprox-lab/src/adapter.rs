@@ -13,7 +13,8 @@ use crate::fit::{EffectFit, LabModel, LabSpec, Prepared};
 use crate::signatures::{MAX_HARMONIC, SIGNATURE_IDS};
 
 /// The conditions the lab model uses by meaning; every other numeric key of
-/// `[capture.conditions]` is kept by name in [`Capture::extra`].
+/// `[capture.conditions]` except the bookkeeping ones
+/// (`tofprox_format::is_bookkeeping_condition`) is kept by name in [`Capture::extra`].
 pub const KNOWN_CONDITIONS: &[&str] = &[
     "distance_m",
     "reflectivity",
@@ -47,11 +48,12 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
             reflectivity: cond("reflectivity").unwrap_or(1.0),
             ambient_klux: cond("ambient_klux").unwrap_or(0.0),
             temperature_c: cond("temperature_c"),
+            // bookkeeping keys (`repeat`, `timestamp_*` …) are not conditions:
+            // captures differing only in them are repeats (docs/recording-format.md)
             extra: meta
-                .conditions
-                .iter()
-                .filter(|(k, _)| !KNOWN_CONDITIONS.contains(&k.as_str()))
-                .map(|(k, v)| (k.clone(), *v))
+                .physical_conditions()
+                .filter(|(k, _)| !KNOWN_CONDITIONS.contains(k))
+                .map(|(k, v)| (k.to_string(), v))
                 .collect(),
             frames,
         });

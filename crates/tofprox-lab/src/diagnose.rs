@@ -7,6 +7,7 @@ use serde::Serialize;
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
+use crate::noise::NoiseSource;
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
@@ -378,6 +379,9 @@ pub struct CandidateScore {
     pub z_after: f64,
     /// Fitted parameters by name.
     pub params: BTreeMap<String, f64>,
+    /// Why a reported value was clamped (a share above 100 %, a negative
+    /// z after): the raw figure and what it means.
+    pub flags: Vec<String>,
     /// The fitted signature (None when the fit failed).
     #[serde(skip)]
     pub fit: Option<EffectFit>,
@@ -433,8 +437,12 @@ pub enum Verdict {
     NothingMissing,
     /// Two effects explain it about equally; vary the named condition.
     Ambiguous,
-    /// Something is missing that no catalogue effect explains.
+    /// Something is missing that no catalogue effect explains — or the
+    /// recording shows no signal the model can follow (the reason says which).
     Unexplained,
+    /// The residual looks like noise, but the noise was not measured (no
+    /// repeated captures or raw images), so it cannot be called noise.
+    NoiseNotMeasured,
 }
 
 impl Verdict {
@@ -445,6 +453,7 @@ impl Verdict {
             Verdict::NothingMissing => "nothing_missing",
             Verdict::Ambiguous => "ambiguous",
             Verdict::Unexplained => "unexplained",
+            Verdict::NoiseNotMeasured => "noise_not_measured",
         }
     }
 }
@@ -482,6 +491,8 @@ pub struct Diagnosis {
     pub tolerance_mm: f64,
     /// Detectable (structure z > 6) but below the tolerance.
     pub small: Vec<SmallStructure>,
+    /// Where the noise the verdict is measured against came from.
+    pub noise: NoiseSource,
 }
 
 /// Rank the catalogue effects the model lacks and give a verdict (default tolerance).
@@ -500,9 +511,15 @@ pub fn diagnose_with(
     opts: &DiagnoseOptions,
     progress: Progress<'_>,
 ) -> Result<Diagnosis, LabError> {
+    let tolerance_mm = opts
+        .tolerance_mm
+        .unwrap_or_else(|| cmp.default_tolerance_mm());
+    if let Some(why) = no_signal(prep, cmp) {
+        return Ok(refused(cmp, why, tolerance_mm));
+    }
     let spec = &cmp.model.spec;
     let mut excess = (cmp.chi2 - cmp.dof).max(1e-9);
-    let noise_known = cmp.model.noise.from_repeats;
+    let noise_known = cmp.model.noise.source.measured();
     // Shares of the excess are scores only while there is an excess: at
     // z ≤ Z_NULL it is noise, and a share of it is noise over noise (values of
     // 10⁹ % when it vanishes). Then each candidate is given by its size only.
@@ -549,6 +566,7 @@ pub fn diagnose_with(
                 explained: cmp.size_of(dchi, prep),
                 z_after: chi2_z(chi_after, dof_after),
                 params,
+                flags: Vec::new(),
                 fit: Some(EffectFit {
                     id: id.to_string(),
                     lin: f.lin,
@@ -646,7 +664,8 @@ pub fn diagnose_with(
         remaining.push(c2.structure);
         c.refit = Some(Box::new(c2.model));
     }
-    // re-rank with the refitted evidence
+    // re-rank with the refitted evidence (as reported: clamped, see `clamp_reported`)
+    cands.iter_mut().for_each(clamp_reported);
     cands.sort_by(rank);
     progress("candidates", 1.0);
     let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
@@ -674,9 +693,6 @@ pub fn diagnose_with(
     // Detectable is not the same as relevant: with 10⁶ samples any small
     // departure of the true law from the model's is significant. What remains
     // is compared, in depth-equivalent mm, with a tolerance tied to the noise.
-    let tolerance_mm = opts
-        .tolerance_mm
-        .unwrap_or_else(|| cmp.default_tolerance_mm());
     // without repeats the global excess is not known: the structure's size counts
     let top_structure = cmp
         .structure
@@ -731,7 +747,14 @@ pub fn diagnose_with(
             };
         }
     }
+    (d.verdict, d.reason) = honest_verdict(cmp, d.verdict, d.reason);
+    if d.verdict != Verdict::MissingEffect && d.verdict != Verdict::Ambiguous {
+        d.effect = None;
+        d.runner_up = None;
+        d.separate_by = None;
+    }
     Ok(Diagnosis {
+        noise: cmp.model.noise.source,
         size: Size {
             lsb: cmp.size.lsb,
             mm: remaining_mm,
@@ -751,6 +774,116 @@ pub fn diagnose_with(
         structure_remaining: remaining_structure,
         reason: d.reason,
     })
+}
+
+/// The median signal-to-noise ratio of the model's amplitude over the
+/// illuminated samples below which a recording shows no signal the model can
+/// follow (random codes, constant frames, the wrong distances).
+pub const MIN_SIGNAL_SNR: f64 = 3.0;
+
+/// Why the recording cannot be diagnosed at all: its illuminated codes carry
+/// no signal above the noise (the model's fitted amplitude A against σ, with
+/// the quantisation floor 1/12 LSB² per acquisition, thesis 2.3.2.6).
+fn no_signal(prep: &Prepared, cmp: &Comparison) -> Option<String> {
+    let snr: Vec<f64> = cmp
+        .recs
+        .iter()
+        .filter(|r| prep.caps[r.cap as usize].illum)
+        .map(|r| {
+            let cap = &prep.caps[r.cap as usize];
+            let var = 1.0 / f64::from(r.w).max(1e-300) + 1.0 / (12.0 * f64::from(cap.averaged));
+            f64::from(r.a).abs() / var.sqrt()
+        })
+        .collect();
+    let Some(median_snr) = crate::fit::median(&snr) else {
+        return Some("no valid illuminated sample (all saturated or dark)".into());
+    };
+    (median_snr < MIN_SIGNAL_SNR).then(|| {
+        format!(
+            "no signal: the model's amplitude is {median_snr:.2}× the noise at the median \
+             (needs ≥ {MIN_SIGNAL_SNR}); the codes do not follow the illumination at the \
+             recorded distances (random or constant frames?)"
+        )
+    })
+}
+
+/// The diagnosis of a recording that cannot be diagnosed (`unexplained`, no candidates).
+fn refused(cmp: &Comparison, reason: String, tolerance_mm: f64) -> Diagnosis {
+    Diagnosis {
+        verdict: Verdict::Unexplained,
+        effect: None,
+        runner_up: None,
+        separate_by: None,
+        candidates: Vec::new(),
+        skipped: Vec::new(),
+        fit: cmp.fit,
+        strongest_condition: None,
+        rms: cmp.rms,
+        structure_remaining: cmp.structure.clone(),
+        reason,
+        size: cmp.size,
+        noise_single: cmp.noise_single,
+        tolerance_mm,
+        small: Vec::new(),
+        noise: cmp.model.noise.source,
+    }
+}
+
+/// Below this χ²/dof the residual is smaller than the measured noise by more
+/// than any fit could make it: the noise estimate does not describe the data.
+pub const MIN_CHI2_PER_DOF: f64 = 0.8;
+
+/// `nothing_missing` only where the noise was measured and describes the
+/// residual: otherwise `noise_not_measured`, or `unexplained` with the reason.
+fn honest_verdict(cmp: &Comparison, verdict: Verdict, reason: String) -> (Verdict, String) {
+    if verdict != Verdict::NothingMissing {
+        return (verdict, reason);
+    }
+    if !cmp.model.noise.source.measured() {
+        return (
+            Verdict::NoiseNotMeasured,
+            format!(
+                "the residual looks like noise ({reason}), but the noise is {}: record repeated captures to tell noise from a missing effect",
+                cmp.model.noise.source.describe()
+            ),
+        );
+    }
+    if cmp.fit.chi2_per_dof < MIN_CHI2_PER_DOF {
+        return (
+            Verdict::Unexplained,
+            format!(
+                "the residual is far below the measured noise (χ²/dof = {:.3} < {MIN_CHI2_PER_DOF}): the repeats' noise does not describe this recording",
+                cmp.fit.chi2_per_dof
+            ),
+        );
+    }
+    (verdict, reason)
+}
+
+/// No share above 100 % and no negative z after reaches a report: the value
+/// is clamped and the raw figure kept in `flags` with its meaning.
+fn clamp_reported(c: &mut CandidateScore) {
+    for (name, v) in [
+        ("explains", &mut c.explained_excess),
+        ("explains on held-out blocks", &mut c.cv_gain),
+    ] {
+        if *v > 1.0 {
+            c.flags.push(format!(
+                "{name} {:.0}% of the excess: more than there is (what remains is below the noise expectation); shown as 100%",
+                100.0 * *v
+            ));
+            *v = 1.0;
+        }
+    }
+    if c.z_after < 0.0 {
+        if c.z_after < -Z_NULL {
+            c.flags.push(format!(
+                "z after {:.1}: χ² after is far below its noise expectation (the noise is overestimated or the effect fits noise); shown as 0",
+                c.z_after
+            ));
+        }
+        c.z_after = 0.0;
+    }
 }
 
 /// Candidate order: by held-out share, then share, then (when there is no
@@ -1122,6 +1255,9 @@ pub struct Explanation {
     pub steps: Vec<ExplainStep>,
     /// Effects added, in order.
     pub added: Vec<String>,
+    /// Why `explain` could not explain the recording (None: it ends at
+    /// `nothing_missing`).
+    pub stopped: Option<String>,
 }
 
 impl Explanation {
@@ -1188,13 +1324,35 @@ pub fn explain(
             added: improved.then(|| effect.clone()),
         });
         if !improved {
-            tracing::warn!("adding {effect} did not lower χ²/dof; explain stops");
-            break;
+            let why = format!(
+                "adding {effect} did not lower χ²/dof ({chi_before:.3} → {:.3})",
+                out.after.fit.chi2_per_dof
+            );
+            return Ok(Explanation {
+                steps,
+                added,
+                stopped: Some(why),
+            });
         }
         added.push(effect);
         cmp = out.after;
     }
-    Ok(Explanation { steps, added })
+    let stopped = steps.last().and_then(|s| {
+        let d = &s.diagnosis;
+        (d.verdict != Verdict::NothingMissing).then(|| match d.verdict {
+            Verdict::MissingEffect => format!(
+                "still {} after {MAX_EXPLAIN_STEPS} effects: {}",
+                d.verdict.as_str(),
+                d.reason
+            ),
+            v => format!("{}: {}", v.as_str(), d.reason),
+        })
+    });
+    Ok(Explanation {
+        steps,
+        added,
+        stopped,
+    })
 }
 
 #[cfg(test)]
@@ -1210,6 +1368,7 @@ mod tests {
             explained: Size::default(),
             z_after,
             params: BTreeMap::new(),
+            flags: Vec::new(),
             fit: None,
             nuisance: [0.0; 3],
             structure_after: Some(2.0),

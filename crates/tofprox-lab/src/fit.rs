@@ -12,7 +12,6 @@
 //!
 //! Saturated capture-pixels (codes near the ADC rails, measured or modelled)
 //! are excluded from every fit and statistic.
-use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -20,7 +19,7 @@ use tofprox_core::phasor::distance_to_phase_rad;
 
 use crate::data::Dataset;
 use crate::error::LabError;
-use crate::noise::NoiseModel;
+use crate::noise::{NoiseModel, fit_noise};
 use crate::signatures::{ImageMemo, Signature, make_signature};
 use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
@@ -135,7 +134,8 @@ pub struct Prepared {
     pub extra_keys: Vec<String>,
 }
 
-fn key_f(v: f64) -> i64 {
+/// A condition's value as an exact key (µ-units) for grouping equal conditions.
+pub(crate) fn key_f(v: f64) -> i64 {
     (v * 1e6).round() as i64
 }
 
@@ -1245,73 +1245,4 @@ fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Res
         model.phase.iter_mut().for_each(|p| *p += nu[2]);
     }
     Ok(())
-}
-
-/// Pooled noise model from repeated captures (same conditions, consecutive),
-/// falling back to the model residuals when there are no repeats.
-pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabError> {
-    let npix = prep.npix;
-    let mut groups: BTreeMap<Vec<i64>, Vec<usize>> = BTreeMap::new();
-    for (c, cap) in prep.caps.iter().enumerate() {
-        if !cap.used {
-            continue;
-        }
-        let mut key: Vec<i64> = cap.phases_deg.iter().map(|p| key_f(*p)).collect();
-        key.extend([
-            key_f(cap.exposure_us),
-            i64::from(cap.illum),
-            key_f(cap.distance_m.unwrap_or(-1.0)),
-            key_f(cap.ambient_klux),
-            key_f(cap.temperature_c.unwrap_or(-999.0)),
-            key_f(cap.law),
-            i64::from(cap.averaged),
-        ]);
-        key.extend(
-            cap.extra
-                .iter()
-                .map(|v| key_f(if v.is_nan() { -1e9 } else { *v })),
-        );
-        groups.entry(key).or_default().push(c);
-    }
-    let mut obs = Vec::new();
-    for cs in groups.values() {
-        for pair in cs.chunks_exact(2) {
-            let (c1, c2) = (pair[0], pair[1]);
-            let cap = &prep.caps[c1];
-            for p in 0..npix {
-                if model.sat[c1 * npix + p] || model.sat[c2 * npix + p] {
-                    continue;
-                }
-                let a = model.gain[p] * cap.law;
-                let f = NoiseModel::features(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
-                for k in 0..cap.theta_rad.len() {
-                    let d = prep.meas[prep.idx(c1, k, p)] - prep.meas[prep.idx(c2, k, p)];
-                    obs.push((f, d * d / 2.0));
-                }
-            }
-        }
-    }
-    if obs.len() >= 200 {
-        return NoiseModel::fit(&obs, true);
-    }
-    tracing::warn!(
-        "no repeated captures: noise estimated from model residuals (structure inflates it)"
-    );
-    let recs = model.records(prep)?;
-    let obs: Vec<_> = recs
-        .iter()
-        .map(|r| {
-            let cap = &prep.caps[r.cap as usize];
-            (
-                NoiseModel::features(
-                    f64::from(r.a),
-                    cap.ambient_klux,
-                    cap.exposure_us,
-                    cap.averaged,
-                ),
-                f64::from(r.r).powi(2),
-            )
-        })
-        .collect();
-    NoiseModel::fit(&obs, false)
 }

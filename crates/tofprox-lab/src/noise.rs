@@ -4,11 +4,62 @@
 //! is proportional to it), ambient·exposure the background charge (its shot
 //! noise), exposure the dark-current charge and `a` the read/kTC/quantisation
 //! floor. Fitted once over all conditions, from the differences of repeated
-//! captures where the recording has them (never each condition's own variance).
+//! captures where the recording has them (never each condition's own variance),
+//! else from raw images of one capture taken at the same phase shift; without
+//! either the noise is not measured ([`NoiseSource::NotMeasured`]).
+use std::collections::BTreeMap;
+
 use serde::Serialize;
 
 use crate::error::LabError;
+use crate::fit::{LabModel, Prepared, key_f};
 use crate::stats::solve_sym;
+
+/// At least this many squared differences make a measured noise model.
+const MIN_NOISE_DIFFERENCES: usize = 200;
+
+/// Where a noise model's variances come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum NoiseSource {
+    /// Differences of repeated captures: `groups` sets of captures whose
+    /// physical conditions are equal (bookkeeping keys such as `repeat` ignored).
+    Repeats {
+        /// Sets of two or more captures with equal conditions.
+        groups: usize,
+    },
+    /// Differences of raw images of one capture taken at the same phase shift.
+    RawImages {
+        /// Captures with repeated phase shifts.
+        captures: usize,
+    },
+    /// Not measured: the variances are the model's residuals, which contain
+    /// whatever the model lacks; a noise-like residual then proves nothing.
+    NotMeasured,
+}
+
+impl NoiseSource {
+    /// True when the noise was measured (repeats or repeated raw images).
+    pub fn measured(&self) -> bool {
+        !matches!(self, NoiseSource::NotMeasured)
+    }
+
+    /// One phrase for reports: "measured from 70 repeat groups", ….
+    pub fn describe(&self) -> String {
+        match self {
+            NoiseSource::Repeats { groups } => {
+                format!("measured from {groups} groups of repeated captures")
+            }
+            NoiseSource::RawImages { captures } => {
+                format!("measured from repeated raw images of {captures} captures")
+            }
+            NoiseSource::NotMeasured => {
+                "not measured (no repeated captures or raw images): estimated from the model residuals"
+                    .to_string()
+            }
+        }
+    }
+}
 
 /// Number of features in the photon-transfer regression.
 pub const NOISE_TERMS: usize = 4;
@@ -25,7 +76,7 @@ pub struct NoiseModel {
     /// Dark-current shot-noise slope, LSB² per µs.
     pub e: f64,
     /// Where the estimate came from.
-    pub from_repeats: bool,
+    pub source: NoiseSource,
     /// Number of squared differences (or residuals) it rests on.
     pub samples: usize,
 }
@@ -37,7 +88,7 @@ impl Default for NoiseModel {
             b: 0.0,
             c: 0.0,
             e: 0.0,
-            from_repeats: false,
+            source: NoiseSource::NotMeasured,
             samples: 0,
         }
     }
@@ -82,7 +133,7 @@ impl NoiseModel {
     /// reweighted least squares with weights 1/v̂² (var(y) = 2v² for a χ²₁
     /// variable), non-negative slopes, then the scale calibrated so that the
     /// mean of y/v̂ is one.
-    pub fn fit(obs: &[([f64; NOISE_TERMS], f64)], from_repeats: bool) -> Result<Self, LabError> {
+    pub fn fit(obs: &[([f64; NOISE_TERMS], f64)], source: NoiseSource) -> Result<Self, LabError> {
         if obs.len() < 8 {
             return Err(LabError::data(format!(
                 "only {} noise observations; need at least 8",
@@ -148,7 +199,7 @@ impl NoiseModel {
             b: beta[1],
             c: beta[2],
             e: beta[3],
-            from_repeats,
+            source,
             samples: obs.len(),
         };
         // Calibrate the overall scale: mean(y / v̂) = 1.
@@ -172,6 +223,109 @@ impl NoiseModel {
     }
 }
 
+/// The pooled noise model of a recording under `model`: from repeated
+/// captures (equal physical conditions), else from raw images of one capture
+/// taken at the same phase shift, else — not measured — from the residuals.
+pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabError> {
+    let (obs, groups) = repeat_differences(prep, model);
+    if obs.len() >= MIN_NOISE_DIFFERENCES {
+        return NoiseModel::fit(&obs, NoiseSource::Repeats { groups });
+    }
+    let recs = model.records(prep)?;
+    let features = |c: u32, a: f32| {
+        let cap = &prep.caps[c as usize];
+        NoiseModel::features(f64::from(a), cap.ambient_klux, cap.exposure_us, cap.averaged)
+    };
+    // raw images of one capture at the same shift: residual differences
+    // (the model's prediction, droop included, differs between them)
+    let repeats_shift = |c: &crate::fit::CapInfo| {
+        let mut keys: Vec<i64> = c.phases_deg.iter().map(|p| key_f(*p)).collect();
+        keys.sort_unstable();
+        keys.windows(2).any(|w| w[0] == w[1])
+    };
+    let with_repeats: Vec<bool> = prep.caps.iter().map(repeats_shift).collect();
+    let mut by_image: BTreeMap<(u32, i64, u32), Vec<(f32, f32)>> = BTreeMap::new();
+    for r in recs.iter().filter(|r| with_repeats[r.cap as usize]) {
+        let theta = prep.caps[r.cap as usize].phases_deg[usize::from(r.k)];
+        by_image
+            .entry((r.cap, key_f(theta), r.pix))
+            .or_default()
+            .push((r.r, r.a));
+    }
+    let mut obs = Vec::new();
+    let mut captures = std::collections::BTreeSet::new();
+    for ((cap, _, _), same) in &by_image {
+        for pair in same.chunks_exact(2) {
+            captures.insert(*cap);
+            let d = f64::from(pair[0].0 - pair[1].0);
+            obs.push((features(*cap, pair[0].1), d * d / 2.0));
+        }
+    }
+    if obs.len() >= MIN_NOISE_DIFFERENCES {
+        let captures = captures.len();
+        return NoiseModel::fit(&obs, NoiseSource::RawImages { captures });
+    }
+    tracing::warn!(
+        "noise not measured (no repeated captures or raw images): estimated from the model residuals, which contain any missing effect"
+    );
+    let obs: Vec<_> = recs
+        .iter()
+        .map(|r| (features(r.cap, r.a), f64::from(r.r).powi(2)))
+        .collect();
+    NoiseModel::fit(&obs, NoiseSource::NotMeasured)
+}
+
+/// Squared differences (halved) of captures repeated under equal physical
+/// conditions, paired in acquisition order, and the number of such groups.
+fn repeat_differences(
+    prep: &Prepared,
+    model: &LabModel,
+) -> (Vec<([f64; NOISE_TERMS], f64)>, usize) {
+    let npix = prep.npix;
+    let mut groups: BTreeMap<Vec<i64>, Vec<usize>> = BTreeMap::new();
+    for (c, cap) in prep.caps.iter().enumerate() {
+        if !cap.used {
+            continue;
+        }
+        let mut key: Vec<i64> = cap.phases_deg.iter().map(|p| key_f(*p)).collect();
+        key.extend([
+            key_f(cap.exposure_us),
+            i64::from(cap.illum),
+            key_f(cap.distance_m.unwrap_or(-1.0)),
+            key_f(cap.ambient_klux),
+            key_f(cap.temperature_c.unwrap_or(-999.0)),
+            key_f(cap.law),
+            i64::from(cap.averaged),
+        ]);
+        key.extend(
+            cap.extra
+                .iter()
+                .map(|v| key_f(if v.is_nan() { -1e9 } else { *v })),
+        );
+        groups.entry(key).or_default().push(c);
+    }
+    let mut obs = Vec::new();
+    for cs in groups.values() {
+        for pair in cs.chunks_exact(2) {
+            let (c1, c2) = (pair[0], pair[1]);
+            let cap = &prep.caps[c1];
+            for p in 0..npix {
+                if model.sat[c1 * npix + p] || model.sat[c2 * npix + p] {
+                    continue;
+                }
+                let a = model.gain[p] * cap.law;
+                let f = NoiseModel::features(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
+                for k in 0..cap.theta_rad.len() {
+                    let d = prep.meas[prep.idx(c1, k, p)] - prep.meas[prep.idx(c2, k, p)];
+                    obs.push((f, d * d / 2.0));
+                }
+            }
+        }
+    }
+    let repeated = groups.values().filter(|cs| cs.len() >= 2).count();
+    (obs, repeated)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,7 +340,7 @@ mod tests {
             b: 0.35,
             c: 0.002,
             e: 0.0,
-            from_repeats: true,
+            source: NoiseSource::Repeats { groups: 1 },
             samples: 0,
         };
         let mut obs = Vec::new();
@@ -199,7 +353,7 @@ mod tests {
             let d: f64 = g.sample(&mut rng);
             obs.push((NoiseModel::features(amp, amb, t, 16), d * d / 2.0));
         }
-        let m = NoiseModel::fit(&obs, true).unwrap();
+        let m = NoiseModel::fit(&obs, NoiseSource::Repeats { groups: 1 }).unwrap();
         assert!((m.a - 4.0).abs() < 0.6, "{m:?}");
         assert!((m.b - 0.35).abs() < 0.03, "{m:?}");
         assert!((m.c - 0.002).abs() < 0.0006, "{m:?}");
@@ -207,6 +361,6 @@ mod tests {
 
     #[test]
     fn too_few_observations_is_an_error() {
-        assert!(NoiseModel::fit(&[([1.0, 0.0, 0.0, 0.0], 1.0)], true).is_err());
+        assert!(NoiseModel::fit(&[([1.0, 0.0, 0.0, 0.0], 1.0)], NoiseSource::NotMeasured).is_err());
     }
 }

@@ -32,7 +32,10 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "explained_lsb": num(c.explained.lsb),
             "z_after": num(c.z_after),
             "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "flags": c.flags,
         })).collect::<Vec<_>>(),
+        "reason": d.reason,
+        "noise": {"source": d.noise, "description": d.noise.describe()},
         "fit": {"chi2_per_dof": num(d.fit.chi2_per_dof), "z": num(d.fit.z)},
         "strongest_condition": d.strongest_condition,
         "rms": {
@@ -69,6 +72,7 @@ pub fn explanation_json(ex: &Explanation) -> Value {
     json!({
         "verdict": ex.verdict().as_str(),
         "added": ex.added,
+        "stopped": ex.stopped,
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
             "diagnosis": diagnosis_json(&s.diagnosis),
@@ -124,11 +128,7 @@ pub fn comparison_text(c: &Comparison) -> String {
         c.fit.z,
         c.n,
         c.model.n_params,
-        if c.model.noise.from_repeats {
-            "from repeated captures"
-        } else {
-            "from residuals (no repeats)"
-        }
+        c.model.noise.source.describe()
     );
     let _ = writeln!(
         s,
@@ -171,6 +171,7 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
             d.separate_by.as_deref().unwrap_or("?")
         ),
         (_, "nothing_missing") => "NOTHING MISSING".to_string(),
+        (_, "noise_not_measured") => "NOISE NOT MEASURED: no verdict".to_string(),
         _ => format!(
             "UNEXPLAINED structure, strongest against {}",
             d.strongest_condition.as_deref().unwrap_or("?")
@@ -183,6 +184,7 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
         d.fit.chi2_per_dof, d.fit.z, d.rms.raw_lsb, d.rms.depth_2phase_mm, d.rms.depth_4phase_mm
     );
+    let _ = writeln!(s, "noise: {}", d.noise.describe());
     let _ = writeln!(
         s,
         "remaining: {:.2} mm depth-equivalent ({:.3} LSB) — tolerance {:.2} mm (single-acquisition noise {:.2} mm)",
@@ -219,6 +221,11 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     }
     for (id, why) in &d.skipped {
         let _ = writeln!(s, "{id:<24} not testable: {why}");
+    }
+    for c in &d.candidates {
+        for f in &c.flags {
+            let _ = writeln!(s, "note: {}: {f}", c.effect);
+        }
     }
     s
 }
@@ -473,11 +480,7 @@ fn html_sections(
         cell(Some(cmp.rms.depth_2phase_mm), 2, NO_DATA),
         cell(Some(cmp.rms.depth_4phase_mm), 2, NO_DATA),
         cmp.n,
-        if cmp.model.noise.from_repeats {
-            "from repeated captures"
-        } else {
-            "from residuals"
-        },
+        esc(&cmp.model.noise.source.describe()),
         cmp.model.noise.a,
         cmp.model.noise.b,
         cmp.model.noise.c,
@@ -580,6 +583,11 @@ fn html_sections(
         }
         for (id, why) in &d.skipped {
             let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
+        }
+        for c in &d.candidates {
+            for f in &c.flags {
+                let _ = write!(h, "<p class=\"note\">{}: {}</p>", esc(&c.effect), esc(f));
+            }
         }
     }
     if let Some((effect, before, after)) = add {

@@ -157,7 +157,7 @@ fn without_repeats_and_darks_the_lab_still_gives_a_verdict() {
     ds.captures.retain(|c| c.illumination);
     let prep = Prepared::new(&ds).unwrap();
     let cmp = compare(&prep, &spec(), &|_, _| {}).unwrap();
-    assert!(!cmp.model.noise.from_repeats);
+    assert!(!cmp.model.noise.source.measured());
     let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
     assert_eq!(
         d.effect.as_deref(),

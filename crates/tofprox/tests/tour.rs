@@ -222,3 +222,169 @@ fn extraction_finds_commands_and_documented_status() {
     let docs = docs_examples();
     assert!(docs.iter().any(|b| b.origin.starts_with("docs/lab.md")));
 }
+
+/// The README's lab block ("**3. The model lab**") and docs/lab.md's worked
+/// example: (origin, commands, each command's documented output lines).
+fn lab_examples() -> Vec<(String, Vec<(String, Vec<String>)>)> {
+    let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
+    let at = readme.find("**3. The model lab**").expect("README's lab step");
+    let (line, _, lines) = fences(&readme[at..]).into_iter().next().unwrap();
+    let first = readme[..at].lines().count();
+    let readme_cmds = join_continuations(&lines)
+        .into_iter()
+        .filter(|c| !c.trim_start().starts_with('#'))
+        .map(|c| (c, Vec::new()))
+        .collect();
+    let md = std::fs::read_to_string(repo().join("docs/lab.md")).unwrap();
+    let at = md.find("## Worked example").expect("docs/lab.md's worked example");
+    let (dline, _, dlines) = fences(&md[at..]).into_iter().next().unwrap();
+    let mut doc: Vec<(String, Vec<String>)> = Vec::new();
+    let mut open = false;
+    for l in dlines {
+        if let Some(c) = l.strip_prefix("$ ") {
+            doc.push((c.to_string(), Vec::new()));
+            open = c.trim_end().ends_with('\\');
+        } else if let Some((cmd, out)) = doc.last_mut() {
+            if open {
+                *cmd = format!("{} {}", cmd.trim_end().trim_end_matches('\\'), l.trim());
+                open = l.trim_end().ends_with('\\');
+            } else {
+                out.push(l.to_string());
+            }
+        }
+    }
+    let dfirst = md[..at].lines().count();
+    vec![
+        (format!("README.md:{}", first + line), readme_cmds),
+        (format!("docs/lab.md:{}", dfirst + dline), doc),
+    ]
+}
+
+/// Run `cmd` with bash in `root` (`/tmp/` → the sandbox's); `tofprox lab …`
+/// with `--json`, its output parsed.
+fn run_json(cmd: &str, root: &Path, path: &str) -> Option<serde_json::Value> {
+    let cmd = cmd.split(" #").next().unwrap().trim();
+    let lab = cmd.starts_with("tofprox lab ");
+    let run = cmd.replace("/tmp/", &format!("{}/tmp/", root.display()));
+    let run = if lab { format!("{run} --json") } else { run };
+    let o = Command::new("bash")
+        .args(["-c", &run])
+        .current_dir(root)
+        .env("PATH", path)
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{run}: {}", text(&o.stderr));
+    lab.then(|| serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{run}: {e}")))
+}
+
+/// The value after `--flag` in a command, as a path in the sandbox.
+fn arg_path(cmd: &str, flag: &str, root: &Path) -> PathBuf {
+    let mut it = cmd.split_whitespace();
+    it.find(|w| *w == flag).unwrap();
+    let v = it.next().unwrap();
+    match v.strip_prefix("/tmp/") {
+        Some(rel) => root.join("tmp").join(rel),
+        None => root.join(v),
+    }
+}
+
+/// The number after `key` in a documented output line.
+fn number_after(line: &str, key: &str) -> Option<f64> {
+    let rest = line.split(key).nth(1)?;
+    rest.split(|c: char| c == ',' || c.is_whitespace() || c == ')')
+        .find(|s| !s.is_empty())?
+        .parse()
+        .ok()
+}
+
+/// What a documented output shows of a command's `--json` result must hold
+/// (χ²/dof to its printed digits, the verdict).
+fn assert_transcript(origin: &str, cmd: &str, shown: &[String], v: &serde_json::Value) {
+    let close = |doc: f64, got: f64, what: &str| {
+        assert!(
+            (doc - got).abs() <= 0.0015 * doc.max(1.0),
+            "{origin}: `{cmd}` shows {what} {doc}, it gives {got}: refresh the transcript"
+        );
+    };
+    for l in shown {
+        if let Some(x) = number_after(l, "χ²/dof = ") {
+            close(x, v["fit"]["chi2_per_dof"].as_f64().unwrap(), "χ²/dof");
+        }
+        for row in ["before", "after"] {
+            if let Some(x) = l.strip_prefix(row).and_then(|r| r.split_whitespace().last()) {
+                let got = v[row]["chi2_per_dof"].as_f64().unwrap();
+                close(x.parse().unwrap(), got, &format!("χ²/dof {row}"));
+            }
+        }
+        if let Some(verdict) = l.strip_prefix("verdict: ") {
+            let want = verdict.split(':').next().unwrap().to_lowercase().replace(' ', "_");
+            assert_eq!(want, v["verdict"].as_str().unwrap(), "{origin}: `{cmd}`");
+        }
+    }
+}
+
+/// diagnose names the effect the truth has and the model lacks, `add` writes
+/// it near the truth and brings χ²/dof to the noise, diagnose then finds nothing.
+fn assert_lab_story(origin: &str, runs: &[(String, Option<serde_json::Value>)], root: &Path) {
+    let find = |sub: &str| runs.iter().filter(move |(c, _)| c.starts_with(sub));
+    let sweep = &find("tofprox sim sweep").next().unwrap().0;
+    let truth = tofprox_model::ModelConfig::load(&arg_path(sweep, "--model", root)).unwrap();
+    let (add_cmd, add) = find("tofprox lab add").next().unwrap();
+    let add = add.as_ref().unwrap();
+    let effect = add["effect"].as_str().unwrap();
+    let diags: Vec<&serde_json::Value> = find("tofprox lab diagnose")
+        .map(|(_, v)| v.as_ref().unwrap())
+        .collect();
+    let (first, last) = (diags[0], diags[diags.len() - 1]);
+    assert_eq!(first["verdict"], "missing_effect", "{origin}: {}", first["reason"]);
+    assert_eq!(first["effect"], effect, "{origin}");
+    assert_eq!(first["noise"]["source"]["kind"], "repeats", "{origin}");
+    let top = &first["candidates"][0];
+    let share = top["explained_excess"].as_f64().unwrap();
+    assert!((0.9..=1.0).contains(&share), "{origin}: explains {share}");
+    assert!(top["z_after"].as_f64().unwrap() >= 0.0, "{origin}");
+    let chi_before = first["fit"]["chi2_per_dof"].as_f64().unwrap();
+    assert!(chi_before > 2.0, "{origin}: χ²/dof before {chi_before}");
+    let chi_added = add["after"]["chi2_per_dof"].as_f64().unwrap();
+    assert!((0.97..=1.03).contains(&chi_added), "{origin}: after add {chi_added}");
+    assert_eq!(last["verdict"], "nothing_missing", "{origin}: {}", last["reason"]);
+    let chi_last = last["fit"]["chi2_per_dof"].as_f64().unwrap();
+    assert!((0.97..=1.03).contains(&chi_last), "{origin}: {chi_last}");
+    let written = tofprox_model::ModelConfig::load(&arg_path(add_cmd, "--out", root)).unwrap();
+    let info = tofprox_model::catalogue().iter().find(|e| e.id == effect).unwrap();
+    for p in info.params {
+        let (w, t) = (written.param(effect, p.name).unwrap(), truth.param(effect, p.name).unwrap());
+        assert!(
+            (w - t).abs() <= 0.15 * t.abs() + 0.1,
+            "{origin}: {effect}.{} written {w}, truth {t}",
+            p.name
+        );
+    }
+    eprintln!(
+        "{origin}: {effect} explains {:.1}%, χ²/dof {chi_before:.3} → add {chi_added:.3} → {chi_last:.3}",
+        100.0 * share
+    );
+}
+
+#[test]
+fn readme_and_lab_examples_assert_their_numbers() {
+    let sandbox = tempfile::tempdir().unwrap();
+    let root = sandbox.path();
+    copy_dir(&repo().join("config"), &root.join("config"));
+    std::fs::create_dir_all(root.join("tmp")).unwrap();
+    let path = common::path_with_bins();
+    for (origin, cmds) in lab_examples() {
+        let runs: Vec<(String, Option<serde_json::Value>)> = cmds
+            .iter()
+            .map(|(c, shown)| {
+                let v = run_json(c, root, &path);
+                if let Some(v) = &v {
+                    assert_transcript(&origin, c, shown, v);
+                }
+                (c.clone(), v)
+            })
+            .collect();
+        assert_lab_story(&origin, &runs, root);
+    }
+}

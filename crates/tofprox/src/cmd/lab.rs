@@ -76,9 +76,13 @@ pub struct ExplainArgs {
     /// Model file (TOML) to start from.
     #[arg(long)]
     pub model: PathBuf,
-    /// Where to write the model with every added effect.
+    /// Where to write the model with every added effect (nothing is written
+    /// when nothing was added).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Replace `--out` when it exists (also when it is the `--model` itself).
+    #[arg(long)]
+    pub force: bool,
     /// One self-contained HTML report with every step.
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -104,6 +108,9 @@ pub struct AddArgs {
     /// Where to write the model with the effect enabled and fitted.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Replace `--out` when it exists (also when it is the `--model` itself).
+    #[arg(long)]
+    pub force: bool,
     /// Print before/after and the fitted parameters as JSON (docs/lab.md).
     #[arg(long)]
     pub json: bool,
@@ -258,6 +265,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
             SIGNATURE_IDS.join(", ")
         );
     }
+    check_out(a.out.as_deref(), a.force)?;
     let (prep, mut m) = load(&a.data, &a.model)?;
     let pb = progress_bar();
     let cb = on_progress(&pb);
@@ -314,6 +322,17 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// A model file is never overwritten (the `--model` read included) without `--force`.
+fn check_out(out: Option<&Path>, force: bool) -> anyhow::Result<()> {
+    match out {
+        Some(p) if p.exists() && !force => anyhow::bail!(
+            "{} exists: pass --force to replace it, or choose another --out",
+            p.display()
+        ),
+        _ => Ok(()),
+    }
+}
+
 /// Write `m` to `out` as the user's model file `from` with the `changed`
 /// effects updated (comments and layout of `from` kept).
 fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
@@ -336,6 +355,7 @@ fn options(tolerance_mm: Option<f64>) -> anyhow::Result<DiagnoseOptions> {
 
 fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     let opts = options(a.tolerance_mm)?;
+    check_out(a.out.as_deref(), a.force)?;
     let (prep, mut m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
     let cb = on_progress(&pb);
@@ -348,17 +368,15 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             notes.extend(write_effect(&mut m, e, &params, fin, &prep)?);
         }
     }
-    if let Some(p) = &a.out {
-        write_model(&a.model, &m, &ex.added, p)?;
-        eprintln!(
-            "model with {} written to {}",
-            if ex.added.is_empty() {
-                "nothing added".to_string()
-            } else {
-                ex.added.join(", ")
-            },
-            p.display()
-        );
+    match &a.out {
+        Some(p) if ex.added.is_empty() => {
+            eprintln!("nothing added: {} not written", p.display());
+        }
+        Some(p) => {
+            write_model(&a.model, &m, &ex.added, p)?;
+            eprintln!("model with {} written to {}", ex.added.join(", "), p.display());
+        }
+        None => {}
     }
     for n in &notes {
         eprintln!("note: {n}");
@@ -377,6 +395,9 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             ex.verdict().as_str(),
             ex.added.join(", ")
         ));
+        if let Some(why) = &ex.stopped {
+            t.push_str(&format!("explain stopped: {why}\n"));
+        }
         Ok(t)
     })?;
     if let Some(p) = &a.report {
@@ -390,7 +411,14 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             &report::explain_html(&title, prep.rows, prep.cols, prep.roi_origin, &ex),
         )?;
     }
-    Ok(ExitCode::SUCCESS)
+    // could not explain: the reason is printed above, the exit status says so
+    Ok(match &ex.stopped {
+        Some(why) => {
+            eprintln!("error: could not explain the recording: {why}");
+            ExitCode::from(1)
+        }
+        None => ExitCode::SUCCESS,
+    })
 }
 
 fn run_effects() -> anyhow::Result<ExitCode> {

@@ -1,0 +1,232 @@
+//! Honest noise (issue 20, docs/lab.md "Noise"): repeats are found by the
+//! physical conditions only — bookkeeping keys such as `repeat` or
+//! `timestamp_s` (docs/recording-format.md) never split them —, and a
+//! recording without signal (random codes, constant frames) is never
+//! `nothing_missing`.
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use ndarray::Array3;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter};
+use tofprox_lab::adapter::{load_recording, spec_from_model};
+use tofprox_lab::diagnose::{Verdict, compare, diagnose};
+use tofprox_lab::fit::{LabSpec, Prepared};
+use tofprox_lab::noise::NoiseSource;
+use tofprox_lab::synth::{Hidden, SynthSpec, generate};
+use tofprox_lab::{Comparison, Dataset, Diagnosis, LabError};
+use tofprox_model::ModelConfig;
+
+fn lab_spec() -> LabSpec {
+    LabSpec {
+        harmonic_order: 3,
+        ..LabSpec::default()
+    }
+}
+
+/// Write `ds` as a recording; `extra(i, repeat)` adds keys to capture i's conditions.
+fn write(ds: &Dataset, dir: &Path, extra: impl Fn(usize, usize) -> Vec<(&'static str, f64)>) {
+    let mut w = RecordingWriter::create(dir, ds.sensor, None).unwrap();
+    let mut repeat = 0;
+    for (i, c) in ds.captures.iter().enumerate() {
+        let mut conditions = BTreeMap::new();
+        if let Some(d) = c.distance_m {
+            conditions.insert("distance_m".to_string(), d);
+        }
+        conditions.insert("ambient_klux".to_string(), c.ambient_klux);
+        conditions.insert("temperature_c".to_string(), c.temperature_c.unwrap_or(25.0));
+        // the synthetic generator writes repeats one after the other
+        let same = i > 0 && {
+            let p = &ds.captures[i - 1];
+            p.distance_m == c.distance_m
+                && p.exposure_us == c.exposure_us
+                && p.illumination == c.illumination
+        };
+        repeat = if same { repeat + 1 } else { 0 };
+        for (k, v) in extra(i, repeat) {
+            conditions.insert(k.to_string(), v);
+        }
+        let spec = CaptureSpec {
+            phases_deg: c.phases_deg.clone(),
+            exposure_us: c.exposure_us,
+            illumination: c.illumination,
+            averaged: c.averaged,
+            timestamp_ns: None,
+            conditions,
+        };
+        w.append(spec, &RawFrames::F64(c.frames.clone())).unwrap();
+    }
+}
+
+fn compared(dir: &Path, spec: &LabSpec) -> (Prepared, Comparison) {
+    let ds = load_recording(dir).unwrap();
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, spec, &|_, _| {}).unwrap();
+    (prep, cmp)
+}
+
+#[test]
+fn bookkeeping_keys_never_split_repeats() {
+    let ds = generate(&SynthSpec {
+        seed: 31,
+        hidden: vec![Hidden::Droop { eps: 0.006 }],
+        ..SynthSpec::default()
+    });
+    let tmp = tempfile::tempdir().unwrap();
+    let (plain, kept, physical) = (
+        tmp.path().join("plain"),
+        tmp.path().join("bookkeeping"),
+        tmp.path().join("physical"),
+    );
+    write(&ds, &plain, |_, _| Vec::new());
+    // what `tofprox sim sweep --repeats 2` writes, and more bookkeeping
+    write(&ds, &kept, |i, rep| {
+        vec![
+            ("repeat", rep as f64),
+            ("capture_index", i as f64),
+            ("timestamp_s", 0.25 * i as f64),
+        ]
+    });
+    // a physical condition that differs between the repeats: no repeats left
+    write(&ds, &physical, |i, _| vec![("supply_voltage_v", 3.3 + 1e-3 * i as f64)]);
+    let (_, c_plain) = compared(&plain, &lab_spec());
+    let (prep, c_kept) = compared(&kept, &lab_spec());
+    let (_, c_phys) = compared(&physical, &lab_spec());
+    // 2 exposures × 24 distances swept twice, and the darks per exposure
+    let NoiseSource::Repeats { groups } = c_kept.model.noise.source else {
+        panic!("bookkeeping keys split the repeats: {:?}", c_kept.model.noise);
+    };
+    assert!(groups >= 48, "{groups} groups of repeats");
+    assert_eq!(c_plain.model.noise.source, c_kept.model.noise.source);
+    assert!(
+        (c_plain.fit.chi2_per_dof - c_kept.fit.chi2_per_dof).abs() < 1e-9,
+        "{} vs {}",
+        c_plain.fit.chi2_per_dof,
+        c_kept.fit.chi2_per_dof
+    );
+    assert!(prep.extra_keys.is_empty(), "{:?}", prep.extra_keys);
+    assert_eq!(c_phys.model.noise.source, NoiseSource::NotMeasured);
+    // with the noise measured the droop is not absorbed into it
+    assert!(c_kept.fit.chi2_per_dof > 1.5, "{}", c_kept.fit.chi2_per_dof);
+    let d = diagnose(&prep, &c_kept, &|_, _| {}).unwrap();
+    assert_eq!(d.verdict, Verdict::MissingEffect, "{}", d.reason);
+    assert_eq!(d.effect.as_deref(), Some("vcsel_droop"));
+    reported_values_are_honest(&d);
+}
+
+/// No share above 100 % and no negative z after reaches a report.
+fn reported_values_are_honest(d: &Diagnosis) {
+    for c in &d.candidates {
+        assert!(
+            !(c.explained_excess > 1.0 || c.cv_gain > 1.0 || c.z_after < 0.0),
+            "{}: explained {} cv {} z after {}",
+            c.effect,
+            c.explained_excess,
+            c.cv_gain,
+            c.z_after
+        );
+    }
+}
+
+/// A copy of `examples/recording` (each capture `copies` times) with its
+/// frames replaced by `frames(capture, shape)`.
+fn example_copy(
+    dir: &Path,
+    copies: usize,
+    mut frames: impl FnMut((usize, usize, usize)) -> Array3<f64>,
+) {
+    let ex = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/recording");
+    let rec = Recording::open(&ex).unwrap();
+    let mut w = RecordingWriter::create(dir, *rec.sensor(), None).unwrap();
+    for (i, meta) in rec.captures().iter().enumerate() {
+        let shape = rec.load(i).unwrap().to_f64().dim();
+        for _ in 0..copies {
+            w.append(meta.spec(), &RawFrames::F64(frames(shape))).unwrap();
+        }
+    }
+}
+
+fn diagnosed(dir: &Path) -> Result<Diagnosis, LabError> {
+    let ds = load_recording(dir)?;
+    let prep = Prepared::new(&ds)?;
+    let cmp = compare(&prep, &spec_from_model(&ModelConfig::baseline()), &|_, _| {})?;
+    diagnose(&prep, &cmp, &|_, _| {})
+}
+
+/// Without signal: `unexplained` with the reason, never `nothing_missing`.
+fn assert_no_signal(what: &str, d: Result<Diagnosis, LabError>) {
+    let d = d.unwrap_or_else(|e| panic!("{what}: {e}"));
+    eprintln!("{what}: {:?}: {}", d.verdict, d.reason);
+    assert_eq!(d.verdict, Verdict::Unexplained, "{what}: {}", d.reason);
+    assert!(d.reason.contains("no signal"), "{what}: {}", d.reason);
+    assert!(d.effect.is_none() && d.candidates.is_empty());
+}
+
+#[test]
+fn random_and_constant_frames_are_never_nothing_missing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(20);
+    for copies in [1, 2] {
+        // uniform random 12-bit codes, every repeat drawn anew
+        let random = tmp.path().join(format!("random{copies}"));
+        example_copy(&random, copies, |s| {
+            Array3::from_shape_simple_fn(s, || f64::from(rng.random_range(0u16..4096)))
+        });
+        assert_no_signal(&format!("random codes ×{copies}"), diagnosed(&random));
+        // every code the same
+        let constant = tmp.path().join(format!("constant{copies}"));
+        example_copy(&constant, copies, |s| Array3::from_elem(s, 1800.0));
+        assert_no_signal(&format!("constant frames ×{copies}"), diagnosed(&constant));
+    }
+}
+
+#[test]
+fn without_measured_noise_a_noise_like_residual_is_not_nothing_missing() {
+    // the control of the synthetic generator (nothing hidden), one capture per
+    // condition: the residual looks like noise, but nothing measured the noise
+    let ds = generate(&SynthSpec {
+        seed: 11,
+        repeats: 1,
+        ..SynthSpec::default()
+    });
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, &lab_spec(), &|_, _| {}).unwrap();
+    assert_eq!(cmp.model.noise.source, NoiseSource::NotMeasured);
+    let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
+    assert_eq!(d.verdict, Verdict::NoiseNotMeasured, "{}", d.reason);
+    assert!(d.reason.contains("not measured"), "{}", d.reason);
+    reported_values_are_honest(&d);
+}
+
+#[test]
+fn repeated_raw_images_measure_the_noise() {
+    // the control with each pair of repeats as one capture of 8 raw images
+    // (0°, 90°, 180°, 270° twice): the noise comes from the repeated shifts
+    let mut ds = generate(&SynthSpec {
+        seed: 12,
+        ..SynthSpec::default()
+    });
+    let mut merged = Vec::new();
+    let mut caps = std::mem::take(&mut ds.captures).into_iter();
+    while let Some(mut a) = caps.next() {
+        if a.phases_deg.len() == 4 {
+            let b = caps.next().unwrap();
+            assert_eq!((a.distance_m, a.exposure_us), (b.distance_m, b.exposure_us));
+            a.phases_deg.extend(b.phases_deg);
+            a.frames = ndarray::concatenate(ndarray::Axis(0), &[a.frames.view(), b.frames.view()])
+                .unwrap();
+        }
+        merged.push(a);
+    }
+    ds.captures = merged;
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, &lab_spec(), &|_, _| {}).unwrap();
+    let NoiseSource::RawImages { captures } = cmp.model.noise.source else {
+        panic!("{:?}", cmp.model.noise);
+    };
+    // 48 sweep captures, a few saturated everywhere at the near end
+    assert!(captures >= 40, "{captures}");
+    let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
+    assert_eq!(d.verdict, Verdict::NothingMissing, "{}", d.reason);
+}
