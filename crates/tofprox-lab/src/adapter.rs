@@ -127,7 +127,10 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
             )),
             // about the lab's reference T_l instead of the file's T_r
             // (δ = T_l − T_r): k(u + δ) + k2(u + δ)² = const + (k + 2k2δ)u + k2u²;
-            // the constants shift the per-pixel phase and gain (refitted)
+            // the constant phase shifts the per-pixel phase (refitted), the
+            // constant gain c0 the per-pixel gain: 1 + G(u + δ) =
+            // (1 + c0)·(1 + G′(u)) with G′'s coefficients divided by 1 + c0.
+            // The lab's law is the full one: nl = phase, lin = gain.
             "temperature_drift" => {
                 let d = prep.temp_ref - g(&id, "reference_c");
                 let (k, k2) = (
@@ -135,9 +138,10 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                     g(&id, "phase_mrad_per_k2") * 1e-3,
                 );
                 let (kg, kg2) = (g(&id, "gain_rel_per_k"), g(&id, "gain_rel_per_k2"));
+                let c0 = (1.0 + kg * d + kg2 * d * d).max(1e-9);
                 Some((
-                    vec![k + 2.0 * k2 * d, kg + 2.0 * kg2 * d, k2, kg2],
-                    Vec::new(),
+                    vec![(kg + 2.0 * kg2 * d) / c0, kg2 / c0],
+                    vec![k + 2.0 * k2 * d, k2],
                 ))
             }
             "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
