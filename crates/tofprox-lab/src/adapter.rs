@@ -119,8 +119,9 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                 ))
             }
             "amplitude_phase_error" if lsb_per_e > 0.0 => Some((
-                vec![g(&id, "max_rad")],
+                Vec::new(),
                 vec![
+                    g(&id, "max_rad"),
                     (g(&id, "reference_e") * lsb_per_e).max(1e-12).ln(),
                     g(&id, "shape").max(1e-6).ln(),
                 ],

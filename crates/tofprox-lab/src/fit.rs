@@ -468,7 +468,7 @@ impl LabModel {
     /// capture `cap` under this model (effects excluded).
     #[inline]
     fn amp_phase_var(&self, cap: &CapInfo, p: usize) -> (f64, f64, f64) {
-        let (f, dphi) = self.phasor_shift(cap);
+        let (f, dphi) = self.phasor_shift(cap, p);
         let a = self.gain[p] * cap.law * f;
         let phi = cap.phi_tof + self.phase[p] + dphi;
         let var = self
@@ -477,12 +477,12 @@ impl LabModel {
         (a, phi, var)
     }
 
-    /// The signal gain factor and phase shift (rad) of capture `cap` from the
-    /// fitted effects that act on the phasor
+    /// The signal gain factor and phase shift (rad) of pixel `p` in capture
+    /// `cap` from the fitted effects that act on the phasor
     /// ([`crate::signatures::phasor_shift`]).
     #[inline]
-    pub fn phasor_shift(&self, cap: &CapInfo) -> (f64, f64) {
-        crate::signatures::phasor_shift(&self.effects, cap)
+    pub fn phasor_shift(&self, cap: &CapInfo, p: usize) -> (f64, f64) {
+        crate::signatures::phasor_shift(&self.effects, cap, self.gain[p] * cap.law)
     }
 
     /// Build the context of sample (c, k, p) under this model (code effects
@@ -490,7 +490,7 @@ impl LabModel {
     #[inline]
     pub fn rec(&self, prep: &Prepared, c: usize, k: usize, p: usize) -> Rec {
         let cap = &prep.caps[c];
-        let x = cap.phi_tof + self.phasor_shift(cap).1 + self.phase[p] - cap.theta_rad[k];
+        let x = cap.phi_tof + self.phasor_shift(cap, p).1 + self.phase[p] - cap.theta_rad[k];
         let (s, co) = x.sin_cos();
         self.rec_at(prep, c, k, p, (co, s))
     }
@@ -687,12 +687,12 @@ pub fn theta_rotation(cap: &CapInfo) -> Vec<Phasor> {
 /// model's phase in that capture. `rotate` of the two gives e^{i(φ−θ_k)}.
 pub fn rotation(model: &LabModel, cap: &CapInfo) -> (Vec<Phasor>, Vec<Phasor>) {
     let th = theta_rotation(cap);
-    let dphi = model.phasor_shift(cap).1;
     let ph = model
         .phase
         .iter()
-        .map(|d| {
-            let (s, c) = (cap.phi_tof + dphi + d).sin_cos();
+        .enumerate()
+        .map(|(p, d)| {
+            let (s, c) = (cap.phi_tof + model.phasor_shift(cap, p).1 + d).sin_cos();
             (c, s)
         })
         .collect();
@@ -1113,7 +1113,7 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 }
                 let (a, phi, var) = m.amp_phase_var(cap, p);
                 // ∂A/∂g_p: the signal law times the effects' gain on the phasor
-                let law = cap.law * m.phasor_shift(cap).0;
+                let law = cap.law * m.phasor_shift(cap, p).0;
                 let w = 1.0 / var;
                 let (s, co) = phi.sin_cos();
                 for (k, et) in rot[c].iter().enumerate() {
@@ -1238,7 +1238,7 @@ fn update_saturation(prep: &Prepared, model: &mut LabModel) {
                 model.sat[c * npix + p] = true;
                 continue;
             }
-            let a = model.gain[p] * cap.law * model.phasor_shift(cap).0;
+            let a = model.gain[p] * cap.law * model.phasor_shift(cap, p).0;
             let o = prep.mid + model.offset[p];
             model.sat[c * npix + p] = o + a >= prep.max_code - margin || o - a <= margin;
         }
@@ -1310,7 +1310,7 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
                 if model.sat[c1 * npix + p] || model.sat[c2 * npix + p] {
                     continue;
                 }
-                let a = model.gain[p] * cap.law * model.phasor_shift(cap).0;
+                let a = model.gain[p] * cap.law * model.phasor_shift(cap, p).0;
                 let f = NoiseModel::features(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
                 for k in 0..cap.theta_rad.len() {
                     let d = prep.meas[prep.idx(c1, k, p)] - prep.meas[prep.idx(c2, k, p)];

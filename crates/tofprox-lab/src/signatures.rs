@@ -169,7 +169,9 @@ pub fn make_signature(
             ambient_varies: prep.ambient_varies,
         }),
         "vcsel_droop" => Box::new(Droop),
-        "amplitude_phase_error" => Box::new(AmpPhase),
+        "amplitude_phase_error" => Box::new(AmpPhase {
+            waveform: waveform.clone(),
+        }),
         "temperature_drift" => Box::new(TempDrift {
             // a held model keeps its own law; a fit takes the ΔT² terms only
             // where ≥ 3 temperatures tell them from the linear ones
@@ -412,20 +414,47 @@ impl Signature for Droop {
 }
 
 /// Amplitude-dependent phase error (2.3.1.2) with the model's own saturating
-/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`):
-/// Δφ = φ0·s(A/A_ref; n), s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x);
-/// large A_ref: linear in A). lin = [φ0], nl = [ln A_ref, ln n].
-struct AmpPhase;
+/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`), applied
+/// exactly (the phasor rotated): Δφ = φ0·(s(A/A_ref; n) − 1),
+/// s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x); large A_ref: linear in
+/// A, −φ0·A/A_ref). The model's law is φ0·s; the constant −φ0 is a phase
+/// common to every sample, which the per-pixel phases take whichever way the
+/// law is written, and without it a linear law (φ0 → ∞, φ0/A_ref finite)
+/// stays a small rotation. Δ = A·[C(x + Δφ) − C(x)], x = φ − θ.
+/// nl = [φ0, ln A_ref, ln n]: the grid over (A_ref, n) takes φ0 from the
+/// first-order law A·C′·Δφ (the fast screening, linear in φ0), then
+/// Levenberg–Marquardt refines all three with the full law.
+struct AmpPhase {
+    /// The fitted correlation waveform C.
+    waveform: Waveform,
+}
 impl AmpPhase {
+    /// s(A/A_ref; n) − 1 for nl = [φ0, ln A_ref, ln n].
     fn shape(nl: &[f64], a: f64) -> f64 {
-        let aref = nl[0].clamp(-5.0, 18.0).exp();
+        let aref = nl[1].clamp(-5.0, 18.0).exp();
         let n = nl
-            .get(1)
+            .get(2)
             .copied()
             .unwrap_or(0.0)
             .clamp(0.25f64.ln(), 10f64.ln())
             .exp();
-        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n)
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n) - 1.0
+    }
+    /// Δφ at amplitude `a` (LSB).
+    fn phase_rad(nl: &[f64], a: f64) -> f64 {
+        nl[0] * Self::shape(nl, a)
+    }
+    /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
+    /// with the global nuisance shifts on a subsample.
+    fn screen(nl: &[f64], recs: &[Sample], prep: &Prepared) -> Option<f64> {
+        let mut acc = crate::stats::Normal::zeros(4);
+        for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
+            let r = s.rec(prep);
+            let j = [r.a * r.cd * Self::shape(nl, r.a), 1.0, r.a * r.c, r.a * r.cd];
+            acc.add(&j, r.r, r.w);
+        }
+        acc.symmetrize();
+        crate::stats::solve_sym(&acc.jtj, &acc.jtr).map(|v| v[0])
     }
 }
 impl Signature for AmpPhase {
@@ -433,18 +462,22 @@ impl Signature for AmpPhase {
         "amplitude_phase_error"
     }
     fn n_lin(&self) -> usize {
-        1
+        0
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase0_rad".into()]
+        Vec::new()
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["ln_reference_lsb".into(), "ln_shape".into()]
+        vec![
+            "phase0_rad".into(),
+            "ln_reference_lsb".into(),
+            "ln_shape".into(),
+        ]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![5.0, 0.0]
+        vec![0.0, 5.0, 0.0]
     }
-    fn nl_grid(&self, recs: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
             .iter()
             .step_by((recs.len() / 4000).max(1))
@@ -459,13 +492,19 @@ impl Signature for AmpPhase {
         let mut g = Vec::new();
         for q in refs {
             for ln_n in [0.0, 2f64.ln(), 4f64.ln()] {
-                g.push(vec![q.max(1.0).ln(), ln_n]);
+                let mut nl = vec![0.0, q.max(1.0).ln(), ln_n];
+                if let Some(phi0) = Self::screen(&nl, recs, prep) {
+                    nl[0] = phi0;
+                    g.push(nl);
+                }
             }
         }
         g
     }
-    fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        out[0] = r.a * r.cd * Self::shape(nl, r.a);
+    fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
+    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        let dphi = Self::phase_rad(nl, r.a);
+        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
     }
 }
 
@@ -571,27 +610,34 @@ impl Signature for TempDrift {
 /// does not add its Δcode again. Its signature is the Δcode it makes relative
 /// to a model without it (what the candidate fit sees).
 pub fn acts_on_phasor(id: &str) -> bool {
-    id == "temperature_drift"
+    matches!(id, "temperature_drift" | "amplitude_phase_error")
 }
 
-/// The signal gain factor 1 + G and the phase shift Δφ (rad) of capture `cap`
-/// from the fitted effects that act on the phasor: the temperature drift by
-/// the model's law (`tofprox_model::effects::pixel::temperature_drift`, gain
-/// factor floored at 0 as the simulator does), lin = gain, nl = phase
-/// coefficients ([`TempDrift`]).
-pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo) -> (f64, f64) {
+/// The signal gain factor 1 + G and the phase shift Δφ (rad) of a pixel of
+/// capture `cap` whose amplitude without them is `a_lsb`, from the fitted
+/// effects that act on the phasor: the temperature drift by the model's law
+/// (`tofprox_model::effects::pixel::temperature_drift`, gain factor floored
+/// at 0 as the simulator does; lin = gain, nl = phase coefficients,
+/// [`TempDrift`]), then the amplitude-phase error at the drifted amplitude
+/// ([`AmpPhase`]).
+pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
-    effects
-        .iter()
-        .filter(|e| acts_on_phasor(&e.id))
-        .fold((1.0, 0.0), |(f, ph), e| {
-            let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
-                cap.temp_rel,
-                [at(&e.nl, 0), at(&e.nl, 1)],
-                [at(&e.lin, 0), at(&e.lin, 1)],
-            );
-            (f * (1.0 + g).max(0.0), ph + dphi)
-        })
+    let (mut f, mut ph) = (1.0, 0.0);
+    for e in effects.iter().filter(|e| e.id == "temperature_drift") {
+        let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
+            cap.temp_rel,
+            [at(&e.nl, 0), at(&e.nl, 1)],
+            [at(&e.lin, 0), at(&e.lin, 1)],
+        );
+        f *= (1.0 + g).max(0.0);
+        ph += dphi;
+    }
+    for e in effects.iter().filter(|e| e.id == "amplitude_phase_error") {
+        if cap.illum && e.nl.len() == 3 {
+            ph += AmpPhase::phase_rad(&e.nl, a_lsb * f);
+        }
+    }
+    (f, ph)
 }
 
 /// Distinct temperatures of the illuminated captures the fit uses.
