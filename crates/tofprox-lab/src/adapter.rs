@@ -267,11 +267,18 @@ pub fn write_effect(
             }
         }
         "amplitude_phase_error" => {
+            // the lab's law holds φ0 and n in the file's ranges (clamped
+            // there, so written clamped: exp(ln 10) is 10 + 2 ulp)
+            let in_range = |name: &str, v: f64| {
+                tofprox_model::catalogue::effect(effect)
+                    .and_then(|e| e.param(name))
+                    .map_or(v, |p| v.clamp(p.min, p.max))
+            };
             if let Some(v) = g("phase0_rad") {
-                set(m, "max_rad", v);
+                set(m, "max_rad", in_range("max_rad", v));
             }
             if let Some(v) = g("ln_shape") {
-                set(m, "shape", v.exp());
+                set(m, "shape", in_range("shape", v.exp()));
             }
             // the lab's amplitude is in codes; the model's in electrons of the
             // differential amplitude: A[codes] = A[e]·code_per_e

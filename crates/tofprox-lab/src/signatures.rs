@@ -440,9 +440,17 @@ impl AmpPhase {
             .exp();
         tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n) - 1.0
     }
-    /// Δφ at amplitude `a` (LSB).
+    /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
+    fn phase0_range() -> (f64, f64) {
+        tofprox_model::catalogue::effect("amplitude_phase_error")
+            .and_then(|e| e.param("max_rad"))
+            .map_or((-0.5, 0.5), |p| (p.min, p.max))
+    }
+    /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
+    /// `add` can write).
     fn phase_rad(nl: &[f64], a: f64) -> f64 {
-        nl[0] * Self::shape(nl, a)
+        let (lo, hi) = Self::phase0_range();
+        nl[0].clamp(lo, hi) * Self::shape(nl, a)
     }
     /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
     /// with the global nuisance shifts on a subsample.
@@ -450,7 +458,12 @@ impl AmpPhase {
         let mut acc = crate::stats::Normal::zeros(4);
         for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
             let r = s.rec(prep);
-            let j = [r.a * r.cd * Self::shape(nl, r.a), 1.0, r.a * r.c, r.a * r.cd];
+            let j = [
+                r.a * r.cd * Self::shape(nl, r.a),
+                1.0,
+                r.a * r.c,
+                r.a * r.cd,
+            ];
             acc.add(&j, r.r, r.w);
         }
         acc.symmetrize();
@@ -495,6 +508,13 @@ impl Signature for AmpPhase {
                 let mut nl = vec![0.0, q.max(1.0).ln(), ln_n];
                 if let Some(phi0) = Self::screen(&nl, recs, prep) {
                     nl[0] = phi0;
+                    // beyond the file's range: in the linear regime only
+                    // φ0/A_ref counts, so the same law at the range's end
+                    let (lo, hi) = Self::phase0_range();
+                    let end = phi0.clamp(lo, hi);
+                    if end != phi0 && end != 0.0 {
+                        g.push(vec![end, nl[1] + (end / phi0).ln(), 10f64.ln()]);
+                    }
                     g.push(nl);
                 }
             }
