@@ -121,15 +121,19 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                 ))
             }
             "amplitude_phase_error" if lsb_per_e > 0.0 => Some((
-                vec![g(&id, "max_rad")],
+                Vec::new(),
                 vec![
+                    g(&id, "max_rad"),
                     (g(&id, "reference_e") * lsb_per_e).max(1e-12).ln(),
                     g(&id, "shape").max(1e-6).ln(),
                 ],
             )),
             // about the lab's reference T_l instead of the file's T_r
             // (δ = T_l − T_r): k(u + δ) + k2(u + δ)² = const + (k + 2k2δ)u + k2u²;
-            // the constants shift the per-pixel phase and gain (refitted)
+            // the constant phase shifts the per-pixel phase (refitted), the
+            // constant gain c0 the per-pixel gain: 1 + G(u + δ) =
+            // (1 + c0)·(1 + G′(u)) with G′'s coefficients divided by 1 + c0.
+            // The lab's law is the full one: nl = phase, lin = gain.
             "temperature_drift" => {
                 let d = prep.temp_ref - g(&id, "reference_c");
                 let (k, k2) = (
@@ -137,9 +141,10 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
                     g(&id, "phase_mrad_per_k2") * 1e-3,
                 );
                 let (kg, kg2) = (g(&id, "gain_rel_per_k"), g(&id, "gain_rel_per_k2"));
+                let c0 = (1.0 + kg * d + kg2 * d * d).max(1e-9);
                 Some((
-                    vec![k + 2.0 * k2 * d, kg + 2.0 * kg2 * d, k2, kg2],
-                    Vec::new(),
+                    vec![(kg + 2.0 * kg2 * d) / c0, kg2 / c0],
+                    vec![k + 2.0 * k2 * d, k2],
                 ))
             }
             "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
@@ -264,11 +269,18 @@ pub fn write_effect(
             }
         }
         "amplitude_phase_error" => {
+            // the lab's law holds φ0 and n in the file's ranges (clamped
+            // there, so written clamped: exp(ln 10) is 10 + 2 ulp)
+            let in_range = |name: &str, v: f64| {
+                tofprox_model::catalogue::effect(effect)
+                    .and_then(|e| e.param(name))
+                    .map_or(v, |p| v.clamp(p.min, p.max))
+            };
             if let Some(v) = g("phase0_rad") {
-                set(m, "max_rad", v);
+                set(m, "max_rad", in_range("max_rad", v));
             }
             if let Some(v) = g("ln_shape") {
-                set(m, "shape", v.exp());
+                set(m, "shape", in_range("shape", v.exp()));
             }
             // the lab's amplitude is in codes; the model's in electrons of the
             // differential amplitude: A[codes] = A[e]·code_per_e

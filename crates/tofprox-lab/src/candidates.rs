@@ -75,7 +75,8 @@ fn accumulate(
                 let cap = &prep.caps[r.cap as usize];
                 memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
-                let d: f64 = b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
+                let d: f64 = sig.fixed(nl, r, cap)
+                    + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
                     + nu.iter().zip(nui).map(|(x, y)| x * y).sum::<f64>();
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);
@@ -89,8 +90,10 @@ fn accumulate(
                     let h = 1e-4 * nl[i].abs().max(1e-2);
                     nlh[i] = nl[i] + h;
                     memo_h[i].basis(sig, &nlh, r, cap, &mut b2);
+                    let d2: f64 = sig.fixed(&nlh, r, cap)
+                        + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
+                        + dn;
                     nlh[i] = nl[i];
-                    let d2: f64 = b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
                 }
                 acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);
@@ -132,8 +135,11 @@ pub fn fit_signature(
     // Variable projection over the grid (on a subsample when large).
     let stride = (recs.len() / 60_000).max(1);
     // A previous fit (from an earlier round) is refined without a new grid search.
-    let warm =
-        start.filter(|s| s.nl.len() == sig.nl_start().len() && s.lin.iter().any(|v| *v != 0.0));
+    // (a fitted effect, not the placeholder fit_model starts an enabled one from)
+    let warm = start.filter(|s| {
+        s.nl.len() == sig.nl_start().len()
+            && (s.lin.iter().any(|v| *v != 0.0) || s.nl != sig.nl_start())
+    });
     let mut grid = match warm {
         Some(s) => vec![s.nl.clone()],
         None => sig.nl_grid(recs, prep),

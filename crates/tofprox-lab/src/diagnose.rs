@@ -643,16 +643,15 @@ pub fn diagnose_with(
         // Cross-validate again on the refitted model (the per-pixel parameters
         // no longer absorb the effect): the effect's contribution is put back
         // into the residual and refitted on training blocks only.
-        if let Some(e) = c2.model.effects.iter().find(|e| e.id == c.effect) {
+        // (the residual of the refitted model without the effect: for an
+        // effect on the phasor its A and φ change too, not only the codes)
+        if let Some(i) = c2.model.effects.iter().position(|e| e.id == c.effect) {
             let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
-            let mut recs = std::mem::take(&mut c2.recs);
-            let sigs = [sig];
-            let mut eval = crate::fit::DeltaEval::new(&sigs, std::slice::from_ref(e));
-            for s in &mut recs {
-                let d = eval.one(0, &s.rec(prep), prep);
-                s.r = (f64::from(s.r) + d) as f32;
-            }
-            let f = fit_signature(sigs[0].as_ref(), &recs, prep, Some(e))?;
+            c2.recs = Vec::new();
+            let mut without = c2.model.clone();
+            let e = without.effects.remove(i);
+            let recs = without.records(prep)?;
+            let f = fit_signature(sig.as_ref(), &recs, prep, Some(&e))?;
             let ex = f.chi2_before - c2.dof;
             if ex > 0.0 {
                 // never credited beyond what the refit explains of the baseline excess

@@ -468,19 +468,29 @@ impl LabModel {
     /// capture `cap` under this model (effects excluded).
     #[inline]
     fn amp_phase_var(&self, cap: &CapInfo, p: usize) -> (f64, f64, f64) {
-        let a = self.gain[p] * cap.law;
-        let phi = cap.phi_tof + self.phase[p];
+        let (f, dphi) = self.phasor_shift(cap, p);
+        let a = self.gain[p] * cap.law * f;
+        let phi = cap.phi_tof + self.phase[p] + dphi;
         let var = self
             .noise
             .var(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
         (a, phi, var)
     }
 
-    /// Build the context of sample (c, k, p) under this model (effects excluded).
+    /// The signal gain factor and phase shift (rad) of pixel `p` in capture
+    /// `cap` from the fitted effects that act on the phasor
+    /// ([`crate::signatures::phasor_shift`]).
+    #[inline]
+    pub fn phasor_shift(&self, cap: &CapInfo, p: usize) -> (f64, f64) {
+        crate::signatures::phasor_shift(&self.effects, cap, self.gain[p] * cap.law)
+    }
+
+    /// Build the context of sample (c, k, p) under this model (code effects
+    /// excluded; effects on the phasor included in A and φ).
     #[inline]
     pub fn rec(&self, prep: &Prepared, c: usize, k: usize, p: usize) -> Rec {
         let cap = &prep.caps[c];
-        let x = cap.phi_tof + self.phase[p] - cap.theta_rad[k];
+        let x = cap.phi_tof + self.phasor_shift(cap, p).1 + self.phase[p] - cap.theta_rad[k];
         let (s, co) = x.sin_cos();
         self.rec_at(prep, c, k, p, (co, s))
     }
@@ -680,8 +690,9 @@ pub fn rotation(model: &LabModel, cap: &CapInfo) -> (Vec<Phasor>, Vec<Phasor>) {
     let ph = model
         .phase
         .iter()
-        .map(|d| {
-            let (s, c) = (cap.phi_tof + d).sin_cos();
+        .enumerate()
+        .map(|(p, d)| {
+            let (s, c) = (cap.phi_tof + model.phasor_shift(cap, p).1 + d).sin_cos();
             (c, s)
         })
         .collect();
@@ -693,6 +704,8 @@ pub fn rotation(model: &LabModel, cap: &CapInfo) -> (Vec<Phasor>, Vec<Phasor>) {
 /// in capture, raw-image order.
 pub struct DeltaEval<'a> {
     sigs: &'a [Box<dyn Signature>],
+    /// Effects on the phasor: already in A and φ, no Δcode added.
+    on_phasor: Vec<bool>,
     effects: &'a [EffectFit],
     memos: Vec<ImageMemo>,
     buf: Vec<f64>,
@@ -703,6 +716,10 @@ impl<'a> DeltaEval<'a> {
     pub fn new(sigs: &'a [Box<dyn Signature>], effects: &'a [EffectFit]) -> Self {
         Self {
             sigs,
+            on_phasor: sigs
+                .iter()
+                .map(|s| crate::signatures::acts_on_phasor(s.id()))
+                .collect(),
             effects,
             memos: vec![ImageMemo::default(); sigs.len()],
             buf: vec![0.0; 64],
@@ -713,6 +730,9 @@ impl<'a> DeltaEval<'a> {
     #[inline]
     pub fn one(&mut self, i: usize, r: &Rec, prep: &Prepared) -> f64 {
         let (sig, e) = (self.sigs[i].as_ref(), &self.effects[i]);
+        if self.on_phasor[i] {
+            return 0.0;
+        }
         let n = sig.n_lin();
         if self.buf.len() < n {
             self.buf.resize(n, 0.0);
@@ -724,7 +744,13 @@ impl<'a> DeltaEval<'a> {
             &prep.caps[r.cap as usize],
             &mut self.buf[..n],
         );
-        self.buf[..n].iter().zip(&e.lin).map(|(b, l)| b * l).sum()
+        let fixed = sig.fixed(&e.nl, r, &prep.caps[r.cap as usize]);
+        fixed
+            + self.buf[..n]
+                .iter()
+                .zip(&e.lin)
+                .map(|(b, l)| b * l)
+                .sum::<f64>()
     }
 
     /// Σ of every effect's Δcode at a sample.
@@ -1086,6 +1112,8 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                     continue;
                 }
                 let (a, phi, var) = m.amp_phase_var(cap, p);
+                // ∂A/∂g_p: the signal law times the effects' gain on the phasor
+                let law = cap.law * m.phasor_shift(cap, p).0;
                 let w = 1.0 / var;
                 let (s, co) = phi.sin_cos();
                 for (k, et) in rot[c].iter().enumerate() {
@@ -1097,7 +1125,7 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                         (0.0, 0.0)
                     };
                     let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
-                    nrm.add(&[1.0, cap.law * cv, a * cd], r, w);
+                    nrm.add(&[1.0, law * cv, a * cd], r, w);
                 }
             }
             nrm.symmetrize();
@@ -1210,7 +1238,7 @@ fn update_saturation(prep: &Prepared, model: &mut LabModel) {
                 model.sat[c * npix + p] = true;
                 continue;
             }
-            let a = model.gain[p] * cap.law;
+            let a = model.gain[p] * cap.law * model.phasor_shift(cap, p).0;
             let o = prep.mid + model.offset[p];
             model.sat[c * npix + p] = o + a >= prep.max_code - margin || o - a <= margin;
         }

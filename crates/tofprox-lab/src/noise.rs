@@ -313,7 +313,7 @@ fn repeat_differences(
                 if model.sat[c1 * npix + p] || model.sat[c2 * npix + p] {
                     continue;
                 }
-                let a = model.gain[p] * cap.law;
+                let a = model.gain[p] * cap.law * model.phasor_shift(cap, p).0;
                 let f = NoiseModel::features(a, cap.ambient_klux, cap.exposure_us, cap.averaged);
                 for k in 0..cap.theta_rad.len() {
                     let d = prep.meas[prep.idx(c1, k, p)] - prep.meas[prep.idx(c2, k, p)];

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
+use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (the measured VCSEL/pulse correlation has harmonics up to the 9th, docs/model.md).
@@ -39,6 +39,11 @@ pub trait Signature: Send + Sync {
     }
     /// Basis values b_j at one sample.
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
+    /// The part of Δcode no linear coefficient scales: a full law whose size
+    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j; 0 by default).
+    fn fixed(&self, _nl: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
+        0.0
+    }
     /// The part of the basis that is the same for every pixel of raw image
     /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
     /// the basis has none. [`ImageMemo`] computes it once per raw image where
@@ -164,11 +169,14 @@ pub fn make_signature(
             ambient_varies: prep.ambient_varies,
         }),
         "vcsel_droop" => Box::new(Droop),
-        "amplitude_phase_error" => Box::new(AmpPhase),
+        "amplitude_phase_error" => Box::new(AmpPhase {
+            waveform: waveform.clone(),
+        }),
         "temperature_drift" => Box::new(TempDrift {
             // a held model keeps its own law; a fit takes the ΔT² terms only
             // where ≥ 3 temperatures tell them from the linear ones
             second_order: spec.held.iter().any(|h| h.id == id) || distinct_temperatures(prep) >= 3,
+            waveform: waveform.clone(),
         }),
         "waveform_harmonics" => Box::new(Harmonics {
             from: spec.harmonic_order.max(1) + 1,
@@ -406,20 +414,60 @@ impl Signature for Droop {
 }
 
 /// Amplitude-dependent phase error (2.3.1.2) with the model's own saturating
-/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`):
-/// Δφ = φ0·s(A/A_ref; n), s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x);
-/// large A_ref: linear in A). lin = [φ0], nl = [ln A_ref, ln n].
-struct AmpPhase;
+/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`), applied
+/// exactly (the phasor rotated): Δφ = φ0·(s(A/A_ref; n) − 1),
+/// s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x); large A_ref: linear in
+/// A, −φ0·A/A_ref). The model's law is φ0·s; the constant −φ0 is a phase
+/// common to every sample, which the per-pixel phases take whichever way the
+/// law is written, and without it a linear law (φ0 → ∞, φ0/A_ref finite)
+/// stays a small rotation. Δ = A·[C(x + Δφ) − C(x)], x = φ − θ.
+/// nl = [φ0, ln A_ref, ln n]: the grid over (A_ref, n) takes φ0 from the
+/// first-order law A·C′·Δφ (the fast screening, linear in φ0), then
+/// Levenberg–Marquardt refines all three with the full law.
+struct AmpPhase {
+    /// The fitted correlation waveform C.
+    waveform: Waveform,
+}
 impl AmpPhase {
+    /// s(A/A_ref; n) − 1 for nl = [φ0, ln A_ref, ln n].
     fn shape(nl: &[f64], a: f64) -> f64 {
-        let aref = nl[0].clamp(-5.0, 18.0).exp();
+        let aref = nl[1].clamp(-5.0, 18.0).exp();
         let n = nl
-            .get(1)
+            .get(2)
             .copied()
             .unwrap_or(0.0)
             .clamp(0.25f64.ln(), 10f64.ln())
             .exp();
-        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n)
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n) - 1.0
+    }
+    /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
+    fn phase0_range() -> (f64, f64) {
+        tofprox_model::catalogue::effect("amplitude_phase_error")
+            .and_then(|e| e.param("max_rad"))
+            .map_or((-0.5, 0.5), |p| (p.min, p.max))
+    }
+    /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
+    /// `add` can write).
+    fn phase_rad(nl: &[f64], a: f64) -> f64 {
+        let (lo, hi) = Self::phase0_range();
+        nl[0].clamp(lo, hi) * Self::shape(nl, a)
+    }
+    /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
+    /// with the global nuisance shifts on a subsample.
+    fn screen(nl: &[f64], recs: &[Sample], prep: &Prepared) -> Option<f64> {
+        let mut acc = crate::stats::Normal::zeros(4);
+        for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
+            let r = s.rec(prep);
+            let j = [
+                r.a * r.cd * Self::shape(nl, r.a),
+                1.0,
+                r.a * r.c,
+                r.a * r.cd,
+            ];
+            acc.add(&j, r.r, r.w);
+        }
+        acc.symmetrize();
+        crate::stats::solve_sym(&acc.jtj, &acc.jtr).map(|v| v[0])
     }
 }
 impl Signature for AmpPhase {
@@ -427,18 +475,22 @@ impl Signature for AmpPhase {
         "amplitude_phase_error"
     }
     fn n_lin(&self) -> usize {
-        1
+        0
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["phase0_rad".into()]
+        Vec::new()
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["ln_reference_lsb".into(), "ln_shape".into()]
+        vec![
+            "phase0_rad".into(),
+            "ln_reference_lsb".into(),
+            "ln_shape".into(),
+        ]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![5.0, 0.0]
+        vec![0.0, 5.0, 0.0]
     }
-    fn nl_grid(&self, recs: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
             .iter()
             .step_by((recs.len() / 4000).max(1))
@@ -453,43 +505,159 @@ impl Signature for AmpPhase {
         let mut g = Vec::new();
         for q in refs {
             for ln_n in [0.0, 2f64.ln(), 4f64.ln()] {
-                g.push(vec![q.max(1.0).ln(), ln_n]);
+                let mut nl = vec![0.0, q.max(1.0).ln(), ln_n];
+                if let Some(phi0) = Self::screen(&nl, recs, prep) {
+                    nl[0] = phi0;
+                    // beyond the file's range: in the linear regime only
+                    // φ0/A_ref counts, so the same law at the range's end
+                    let (lo, hi) = Self::phase0_range();
+                    let end = phi0.clamp(lo, hi);
+                    if end != phi0 && end != 0.0 {
+                        g.push(vec![end, nl[1] + (end / phi0).ln(), 10f64.ln()]);
+                    }
+                    g.push(nl);
+                }
             }
         }
         g
     }
-    fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        out[0] = r.a * r.cd * Self::shape(nl, r.a);
+    fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
+    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        let dphi = Self::phase_rad(nl, r.a);
+        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
     }
 }
 
-/// Temperature drift: phase and gain linear in T − T_ref.
+/// Temperature drift (thesis 3.1) with the model's full law
+/// (`tofprox_model::effects::pixel::temperature_drift`): the phase shifted by
+/// Δφ(ΔT) = k_φ·ΔT (+ k_φ2·ΔT²) and the signal scaled by 1 + G(ΔT),
+/// G = k_g·ΔT (+ k_g2·ΔT²), applied exactly — the phasor rotated, not its
+/// first-order term A·C′·Δφ (a drift of 0.5 rad leaves A·(1 − cos 0.5) ≈ 0.12·A
+/// in that term's residual): Δ = A·(1 + G)·C(x + Δφ) − A·C(x), x = φ − θ.
+/// nl = the phase coefficients (refined by Levenberg–Marquardt from the
+/// first-order screening, [`TempDrift::screen`]), lin = the gain coefficients.
 struct TempDrift {
     /// With the ΔT² terms (identifiable from ≥ 3 distinct temperatures).
     second_order: bool,
+    /// The fitted correlation waveform C.
+    waveform: Waveform,
+}
+impl TempDrift {
+    fn n_terms(&self) -> usize {
+        if self.second_order { 2 } else { 1 }
+    }
+    /// Δφ(ΔT) and the powers of ΔT, by the model's law.
+    fn phase_and_terms(&self, nl: &[f64], cap: &CapInfo) -> (f64, [f64; 2]) {
+        let k = [nl[0], nl.get(1).copied().unwrap_or(0.0)];
+        let (dphi, _) = tofprox_model::effects::pixel::temperature_drift(cap.temp_rel, k, [0.0; 2]);
+        let t = tofprox_model::effects::pixel::temperature_drift_terms(cap.temp_rel);
+        (dphi, t)
+    }
+    /// The fast screening: the first-order law A·C′·Δφ + A·C·G (linear in
+    /// every coefficient, with the global nuisance shifts) solved by least
+    /// squares on a subsample; its phase coefficients start the full law.
+    fn screen(&self, recs: &[Sample], prep: &Prepared) -> Option<Vec<f64>> {
+        let n = self.n_terms();
+        let mut acc = crate::stats::Normal::zeros(2 * n + 3);
+        let mut j = vec![0.0; 2 * n + 3];
+        for s in recs.iter().step_by((recs.len() / 60_000).max(1)) {
+            let r = s.rec(prep);
+            let t = tofprox_model::effects::pixel::temperature_drift_terms(
+                prep.caps[r.cap as usize].temp_rel,
+            );
+            for i in 0..n {
+                j[i] = r.a * r.cd * t[i];
+                j[n + i] = r.a * r.c * t[i];
+            }
+            j[2 * n..].copy_from_slice(&[1.0, r.a * r.c, r.a * r.cd]);
+            acc.add(&j, r.r, r.w);
+        }
+        acc.symmetrize();
+        let sol = crate::stats::solve_sym(&acc.jtj, &acc.jtr)?;
+        Some(sol[..n].to_vec())
+    }
 }
 impl Signature for TempDrift {
     fn id(&self) -> &'static str {
         "temperature_drift"
     }
     fn n_lin(&self) -> usize {
-        if self.second_order { 4 } else { 2 }
+        self.n_terms()
     }
     fn lin_names(&self) -> Vec<String> {
-        let mut v = vec!["phase_rad_per_k".into(), "gain_per_k".into()];
+        let mut v = vec!["gain_per_k".to_string()];
         if self.second_order {
-            v.extend(["phase_rad_per_k2".into(), "gain_per_k2".into()]);
+            v.push("gain_per_k2".into());
         }
         v
     }
-    fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        // the model's law: Δφ and the relative gain are polynomials in ΔT
-        let t = tofprox_model::effects::pixel::temperature_drift_terms(cap.temp_rel);
-        for (i, ti) in t.iter().take(self.n_lin() / 2).enumerate() {
-            out[2 * i] = r.a * r.cd * ti;
-            out[2 * i + 1] = r.a * r.c * ti;
+    fn nl_names(&self) -> Vec<String> {
+        let mut v = vec!["phase_rad_per_k".to_string()];
+        if self.second_order {
+            v.push("phase_rad_per_k2".into());
+        }
+        v
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![0.0; self.n_terms()]
+    }
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
+        let mut g = vec![self.nl_start()];
+        if let Some(k) = self.screen(recs, prep) {
+            // the first-order fit underestimates a strong drift (sin Δφ < Δφ)
+            for f in [1.0, 1.25] {
+                g.push(k.iter().map(|v| f * v).collect());
+            }
+        }
+        g
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let (dphi, t) = self.phase_and_terms(nl, cap);
+        let c = r.a * self.waveform.eval(r.phi - r.theta + dphi).0;
+        for (o, ti) in out.iter_mut().zip(t) {
+            *o = c * ti;
         }
     }
+    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        let (dphi, _) = self.phase_and_terms(nl, cap);
+        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    }
+}
+
+/// Whether effect `id` acts on the signal phasor (its gain and phase) rather
+/// than adding codes: the lab model applies it to A and φ
+/// ([`phasor_shift`]), so the per-pixel fit sees its true derivatives, and
+/// does not add its Δcode again. Its signature is the Δcode it makes relative
+/// to a model without it (what the candidate fit sees).
+pub fn acts_on_phasor(id: &str) -> bool {
+    matches!(id, "temperature_drift" | "amplitude_phase_error")
+}
+
+/// The signal gain factor 1 + G and the phase shift Δφ (rad) of a pixel of
+/// capture `cap` whose amplitude without them is `a_lsb`, from the fitted
+/// effects that act on the phasor: the temperature drift by the model's law
+/// (`tofprox_model::effects::pixel::temperature_drift`, gain factor floored
+/// at 0 as the simulator does; lin = gain, nl = phase coefficients,
+/// [`TempDrift`]), then the amplitude-phase error at the drifted amplitude
+/// ([`AmpPhase`]).
+pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
+    let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
+    let (mut f, mut ph) = (1.0, 0.0);
+    for e in effects.iter().filter(|e| e.id == "temperature_drift") {
+        let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
+            cap.temp_rel,
+            [at(&e.nl, 0), at(&e.nl, 1)],
+            [at(&e.lin, 0), at(&e.lin, 1)],
+        );
+        f *= (1.0 + g).max(0.0);
+        ph += dphi;
+    }
+    for e in effects.iter().filter(|e| e.id == "amplitude_phase_error") {
+        if cap.illum && e.nl.len() == 3 {
+            ph += AmpPhase::phase_rad(&e.nl, a_lsb * f);
+        }
+    }
+    (f, ph)
 }
 
 /// Distinct temperatures of the illuminated captures the fit uses.
