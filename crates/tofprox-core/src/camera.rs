@@ -563,7 +563,14 @@ pub struct SweepCapture<'a> {
     pub phases_deg: &'a [f64],
 }
 
-/// The lens calibration from raw captures (`tofprox calibrate intrinsics`): per capture the
+/// Fewest equally spaced phases whose N-phase DFT keeps the correlation's 3rd and 5th harmonics
+/// out of the first: harmonic `k` aliases onto the first when `k ≡ ±1 (mod N)` (thesis 3.2.2,
+/// 3.3.6), so 4 phases fold the 3rd and 5th in (the wiggling) and 8 or more leave the
+/// first-harmonic phase shaped by the geometry alone.
+pub const MIN_HARMONIC_FREE_PHASES: usize = 8;
+
+/// The lens calibration from raw captures (`tofprox calibrate intrinsics`): per capture (each
+/// with ≥ [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases, refused otherwise) the
 /// N-phase phase ([`crate::phasor::nphase_frame`], offsets cancel) with pixels that touch a rail
 /// (`≤ 0` or `≥ 2^adc_bits − 1`) or whose amplitude is below `min_amplitude_lsb` left out, then
 /// [`ray_factors_from_sweep`] and [`fit_intrinsics`] for the window at full-array `(row0, col0)`.
@@ -584,6 +591,16 @@ pub fn calibrate_intrinsics(
     let max_code = ((1u32 << adc_bits) - 1) as f64;
     let mut phases = Vec::with_capacity(sweep.len());
     for cap in sweep {
+        if cap.phases_deg.len() < MIN_HARMONIC_FREE_PHASES {
+            return Err(CoreError::InvalidData(format!(
+                "lens calibration: the capture at {} m has {} phases; only captures with ≥ \
+                 {MIN_HARMONIC_FREE_PHASES} equally spaced phases (a correlation capture) give a \
+                 first-harmonic phase free of the wiggling (3rd/5th harmonics, thesis 3.3.6), \
+                 which the lens would otherwise absorb",
+                cap.distance_m,
+                cap.phases_deg.len()
+            )));
+        }
         let (mut phase, amplitude) = crate::phasor::nphase_frame(cap.raw, cap.phases_deg)?;
         for ((r, c), p) in phase.indexed_iter_mut() {
             let clipped = cap
@@ -609,6 +626,10 @@ pub struct IntrinsicsFit {
     pub intrinsics: Intrinsics,
     /// RMS of the ray-factor residual over the pixels used (dimensionless; `× d` is metres).
     pub rms_ray_factor: f64,
+    /// Standard error of each fitted value, in the same fields (`k3` is held at 0: its error is
+    /// 0): `σ_j = √(s² (JᵀJ)⁻¹_jj)` with `J` the Jacobian of the ray-factor residuals at the
+    /// fit and `s²` the residual variance per degree of freedom.
+    pub standard_errors: Intrinsics,
     /// Pixels used.
     pub pixels: usize,
     /// Levenberg–Marquardt iterations taken.
@@ -759,8 +780,11 @@ pub fn fit_intrinsics(
     })?;
     let intrinsics = to_intrinsics(&p);
     intrinsics.validate()?;
+    let dof = obs.len().saturating_sub(8).max(1) as f64;
+    let sigma = standard_errors(&p, &step, cost / dof, inverse)?;
     Ok(IntrinsicsFit {
         intrinsics,
+        standard_errors: to_intrinsics(&sigma),
         rms_ray_factor: (cost / obs.len() as f64).sqrt(),
         pixels: obs.len(),
         iterations: it1 + it2,
@@ -791,36 +815,7 @@ fn levenberg_marquardt<const P: usize>(
     let mut jac = vec![[0.0f64; P]; r.len()];
     for it in 0..200 {
         iterations = it + 1;
-        for j in 0..P {
-            let (mut pp, mut pm) = (p, p);
-            pp[j] += step[j];
-            pm[j] -= step[j];
-            // Central difference; one-sided where a trial lies outside the model's domain.
-            let (hi, lo, width) = match (residuals(&pp, &mut rp), residuals(&pm, &mut rm)) {
-                (true, true) => (&rp, &rm, 2.0 * step[j]),
-                (true, false) => (&rp, &r, step[j]),
-                (false, true) => (&r, &rm, step[j]),
-                (false, false) => {
-                    return Err(CoreError::InvalidData(
-                        "lens calibration: the distortion cannot be inverted near the current fit"
-                            .into(),
-                    ));
-                }
-            };
-            for (i, row) in jac.iter_mut().enumerate() {
-                row[j] = (hi[i] - lo[i]) / width;
-            }
-        }
-        let mut jtj = [[0.0; P]; P];
-        let mut jtr = [0.0; P];
-        for (row, &ri) in jac.iter().zip(&r) {
-            for a in 0..P {
-                jtr[a] += row[a] * ri;
-                for b in 0..P {
-                    jtj[a][b] += row[a] * row[b];
-                }
-            }
-        }
+        let (jtj, jtr) = normal_equations(&p, step, &r, &residuals, &mut jac, [&mut rp, &mut rm])?;
         let mut improved = false;
         while lambda < 1e12 {
             let mut m = jtj;
@@ -851,6 +846,101 @@ fn levenberg_marquardt<const P: usize>(
         }
     }
     Ok((p, c0, iterations))
+}
+
+/// The Gauss–Newton normal equations `(JᵀJ, Jᵀr)` at `p` (residuals `r`), with `J` by central
+/// differences of the given steps (one-sided where a trial lies outside the model's domain),
+/// written into `jac`; `scratch` holds the trial residuals.
+fn normal_equations<const P: usize>(
+    p: &[f64; P],
+    step: &[f64; P],
+    r: &[f64],
+    residuals: &impl Fn(&[f64; P], &mut Vec<f64>) -> bool,
+    jac: &mut [[f64; P]],
+    scratch: [&mut Vec<f64>; 2],
+) -> Result<([[f64; P]; P], [f64; P]), CoreError> {
+    let [rp, rm] = scratch;
+    for j in 0..P {
+        let (mut pp, mut pm) = (*p, *p);
+        pp[j] += step[j];
+        pm[j] -= step[j];
+        let (hi, lo, width) = match (residuals(&pp, rp), residuals(&pm, rm)) {
+            (true, true) => (&rp[..], &rm[..], 2.0 * step[j]),
+            (true, false) => (&rp[..], r, step[j]),
+            (false, true) => (r, &rm[..], step[j]),
+            (false, false) => {
+                return Err(CoreError::InvalidData(
+                    "lens calibration: the distortion cannot be inverted near the current fit"
+                        .into(),
+                ));
+            }
+        };
+        for (i, row) in jac.iter_mut().enumerate() {
+            row[j] = (hi[i] - lo[i]) / width;
+        }
+    }
+    let mut jtj = [[0.0; P]; P];
+    let mut jtr = [0.0; P];
+    for (row, &ri) in jac.iter().zip(r) {
+        for a in 0..P {
+            jtr[a] += row[a] * ri;
+            for b in 0..P {
+                jtj[a][b] += row[a] * row[b];
+            }
+        }
+    }
+    Ok((jtj, jtr))
+}
+
+/// Names of the lens fit's parameters, in the order of its parameter vector.
+const LENS_PARAMETERS: [&str; 8] = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"];
+
+/// Standard errors `σ_j = √(s² (JᵀJ)⁻¹_jj)` of a least-squares fit at `p` (residual variance
+/// `s²` per degree of freedom). Refuses a design that cannot pin every parameter: `JᵀJ` scaled to
+/// unit diagonal that is singular, or whose inverse has a diagonal entry (variance inflation
+/// factor) above 1e10, means some combination of parameters leaves the residuals unchanged (rank
+/// deficient: e.g. a window too small to see the distortion).
+fn standard_errors<const P: usize>(
+    p: &[f64; P],
+    step: &[f64; P],
+    variance: f64,
+    residuals: impl Fn(&[f64; P], &mut Vec<f64>) -> bool,
+) -> Result<[f64; P], CoreError> {
+    let mut r = Vec::new();
+    if !residuals(p, &mut r) {
+        return Err(CoreError::InvalidData(
+            "lens calibration: the fit is not a usable lens".into(),
+        ));
+    }
+    let (mut rp, mut rm) = (Vec::new(), Vec::new());
+    let mut jac = vec![[0.0f64; P]; r.len()];
+    let (jtj, _) = normal_equations(p, step, &r, &residuals, &mut jac, [&mut rp, &mut rm])?;
+    let scale: [f64; P] = std::array::from_fn(|j| jtj[j][j].sqrt());
+    let unpinned = |j: usize| {
+        CoreError::InvalidData(format!(
+            "lens calibration: the data cannot pin {} (rank-deficient design: the ray factors do \
+             not change with it independently of the other parameters); record the flat target \
+             over the whole array at ≥ 3 distinct distances",
+            LENS_PARAMETERS.get(j).copied().unwrap_or("a parameter")
+        ))
+    };
+    if let Some(j) = (0..P).find(|&j| !(scale[j] > 0.0 && scale[j].is_finite())) {
+        return Err(unpinned(j));
+    }
+    let corr: [[f64; P]; P] =
+        std::array::from_fn(|a| std::array::from_fn(|b| jtj[a][b] / (scale[a] * scale[b])));
+    let mut sigma = [0.0; P];
+    for j in 0..P {
+        let mut e = [0.0; P];
+        e[j] = 1.0;
+        let col = solve(corr, e).ok_or_else(|| unpinned(j))?;
+        // (JᵀJ)⁻¹_jj = C⁻¹_jj / scale_j²; a tiny or negative value means a near-null direction
+        if !(col[j] > 0.0 && col[j] < 1e10) {
+            return Err(unpinned(j));
+        }
+        sigma[j] = (variance * col[j]).sqrt() / scale[j];
+    }
+    Ok(sigma)
 }
 
 /// Solves the `N × N` system `m x = b` by Gaussian elimination with partial pivoting; `None` when

@@ -32,6 +32,9 @@ use crate::error::{
     ErrorKind, FormatError, check_format_header, geometry_invalid, invalid, parse_toml,
 };
 use crate::fsutil;
+
+mod chain;
+pub use chain::{ChainEntry, Dropped, PartState};
 use crate::limits;
 use crate::npy::{self, NpyArray, shape_str};
 
@@ -177,6 +180,9 @@ pub struct CalibrationSet {
     /// The directory it was loaded from, if any.
     pub dir: Option<PathBuf>,
     deps: BTreeMap<CalibPart, Deps>,
+    /// Parts dropped because a part they depend on changed, not extracted again yet
+    /// (`[dropped.<part>]`, [`chain`]).
+    dropped: BTreeMap<CalibPart, Dropped>,
 }
 
 /// Checksums of the parts a part was extracted with ("none" when absent).
@@ -216,6 +222,9 @@ struct CalibToml {
     fppn_2phase: Option<PartToml>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     amplitude: Option<PartToml>,
+    /// Parts dropped as stale and not extracted again yet ([`chain`]).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    dropped: BTreeMap<String, chain::DroppedToml>,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -292,6 +301,7 @@ impl CalibrationSet {
             description: None,
             dir: None,
             deps: BTreeMap::new(),
+            dropped: BTreeMap::new(),
         }
     }
 
@@ -593,7 +603,10 @@ impl CalibrationSet {
     fn record_part(&mut self, part: CalibPart, source: PartSource, deps: Deps) -> Vec<CalibPart> {
         self.sources.insert(part, source);
         self.deps.insert(part, deps);
-        self.drop_stale()
+        let before = self.sources.clone();
+        let dropped = self.drop_stale();
+        self.remember_dropped(part, &dropped, &before);
+        dropped
     }
 
     /// A per-pixel map must fit the window and be finite everywhere; `what`
@@ -709,6 +722,7 @@ impl CalibrationSet {
             fppn: None,
             fppn_2phase: None,
             amplitude: None,
+            dropped: self.dropped_toml(),
         };
         for part in CalibPart::ALL {
             let Some(bytes) = self.part_bytes(part) else {
@@ -817,6 +831,7 @@ impl CalibrationSet {
         let mut set = CalibrationSet::new(&sensor);
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
+        set.dropped = chain::dropped_from_toml(&t.dropped).map_err(|e| e.at(&path))?;
         let parts = [
             (CalibPart::Intrinsics, &t.intrinsics),
             (CalibPart::Offset, &t.offset),

@@ -16,7 +16,9 @@ use ndarray::{Array3, Axis};
 use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
-use tofprox_core::camera::{Intrinsics, SweepCapture, calibrate_intrinsics};
+use tofprox_core::camera::{
+    Intrinsics, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+};
 use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::PipelineConfig;
@@ -583,12 +585,16 @@ impl<'a> Extractor<'a> {
         Ok(set.set_crosstalk(x, self.source(idx, None))?)
     }
 
-    /// Fits the lens to every illuminated capture of a flat target with `distance_m` and N ≥ 4
-    /// equally spaced phases ([`calibrate_intrinsics`], thesis 5.1.3).
+    /// Fits the lens to every illuminated capture of a flat target with `distance_m` and N ≥
+    /// [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases ([`calibrate_intrinsics`], thesis
+    /// 5.1.3): their first-harmonic phase is shaped by the lens alone. Wall captures with fewer
+    /// phases (4-phase) are left out with a note: their wiggling is not corrected yet when the
+    /// lens comes first, and the lens would absorb it.
     fn fit_lens(&mut self) -> Result<(Intrinsics, Vec<usize>, String), ExtractError> {
         let sensor = *self.rec.sensor();
         let mut idx = Vec::new();
         let mut data = Vec::new();
+        let mut left_out = Vec::new();
         let rec: &'a Recording = self.rec;
         for (i, c) in rec.captures().iter().enumerate() {
             let Some(d) = c.distance_m().filter(|d| *d > 0.0) else {
@@ -601,8 +607,17 @@ impl<'a> Extractor<'a> {
             {
                 continue;
             }
+            if c.phases_deg.len() < MIN_HARMONIC_FREE_PHASES {
+                left_out.push(i);
+                continue;
+            }
             idx.push(i);
             data.push((d, self.rec.load(i)?.to_f64(), c.phases_deg.clone()));
+        }
+        if !left_out.is_empty() {
+            self.note(&format!(
+                "left out captures {left_out:?} of the lens fit: with fewer than {MIN_HARMONIC_FREE_PHASES} phases their phase holds the uncorrected wiggling (3rd/5th harmonics, thesis 3.3.6), which the lens would absorb; the fit uses the correlation captures (≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases)"
+            ));
         }
         let sweep: Vec<SweepCapture<'_>> = data
             .iter()
@@ -627,32 +642,52 @@ impl<'a> Extractor<'a> {
             sensor.roi_origin[1],
         )
         .map_err(core(format!(
-            "{}: lens calibration needs illuminated captures of a flat target (perpendicular to the optical axis) at ≥ 3 distances with conditions.distance_m and N ≥ 4 equally spaced phases; {} such captures",
+            "{}: lens calibration needs illuminated captures of a flat target (perpendicular to the optical axis) at ≥ 3 distinct distances with conditions.distance_m and N ≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases (correlation captures); {} such captures (at {} m)",
             self.rec.dir().display(),
-            idx.len()
+            idx.len(),
+            data.iter()
+                .map(|(d, _, _)| fmt_num(*d))
+                .collect::<Vec<_>>()
+                .join(", ")
         )))?;
-        let k = fit.intrinsics;
-        let dist = &k.distortion;
         let line = format!(
-            "intrinsics: fitted to {} captures at {} m over {} pixels: fx {:.2} px, fy {:.2} px, principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
+            "intrinsics: fitted to {} captures at {} m over {} pixels: {}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
             idx.len(),
             data.iter()
                 .map(|(d, _, _)| fmt_num(*d))
                 .collect::<Vec<_>>()
                 .join(", "),
             fit.pixels,
-            k.fx_px,
-            k.fy_px,
-            k.cx_px,
-            k.cy_px,
-            dist.k1,
-            dist.k2,
-            dist.k3,
-            dist.p1,
-            dist.p2,
+            lens_with_errors(&fit.intrinsics, &fit.standard_errors),
             fit.rms_ray_factor,
             1000.0 * fit.rms_ray_factor
         );
-        Ok((k, idx, line))
+        Ok((fit.intrinsics, idx, line))
     }
+}
+
+/// A fitted lens with the standard error of each value (`fx 172.50 ± 0.02 px, …`; `k3` is held
+/// at 0 by the fit and printed without one).
+fn lens_with_errors(k: &Intrinsics, se: &Intrinsics) -> String {
+    let (d, e) = (&k.distortion, &se.distortion);
+    format!(
+        "fx {:.2} ± {:.2} px, fy {:.2} ± {:.2} px, principal point ({:.2} ± {:.2}, {:.2} ± {:.2}) px, k1 {:.4} ± {:.4}, k2 {:.4} ± {:.4}, k3 {:.4} (held), p1 {:.5} ± {:.5}, p2 {:.5} ± {:.5}",
+        k.fx_px,
+        se.fx_px,
+        k.fy_px,
+        se.fy_px,
+        k.cx_px,
+        se.cx_px,
+        k.cy_px,
+        se.cy_px,
+        d.k1,
+        e.k1,
+        d.k2,
+        e.k2,
+        d.k3,
+        d.p1,
+        e.p1,
+        d.p2,
+        e.p2
+    )
 }

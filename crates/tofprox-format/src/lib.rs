@@ -26,7 +26,7 @@ mod text;
 
 pub use calibration::{
     CALIBRATION_FORMAT, CALIBRATION_TOML, CALIBRATION_VERSION, CalibPart, CalibrationSet,
-    PartSource, now_rfc3339, rfc3339_from_unix,
+    ChainEntry, Dropped, PartSource, PartState, now_rfc3339, rfc3339_from_unix,
 };
 pub use depth::{DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter};
 pub use error::{ErrorKind, FormatError};

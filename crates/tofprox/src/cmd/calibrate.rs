@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use tofprox_format::{
-    CalibPart, CalibrationSet, Extract, ExtractError, ExtractOptions, Recording,
+    CalibrationSet, Extract, ExtractError, ExtractOptions, Recording,
     load_lens_datasheet,
 };
 
@@ -100,16 +100,12 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| cli_error(e, &a))?;
     for p in &done.dropped {
+        let because = set
+            .dropped()
+            .get(p)
+            .map_or("a part it depends on".to_string(), |d| d.because.to_string());
         eprintln!(
-            "note: dropped {p} from the set: it was extracted with the part just replaced; re-run `tofprox calibrate {}`",
-            match p {
-                CalibPart::Intrinsics => "intrinsics",
-                CalibPart::Offset => "fpn",
-                CalibPart::Crosstalk => "crosstalk",
-                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => "wiggling",
-                CalibPart::Fppn | CalibPart::Fppn2Phase => "fppn",
-                CalibPart::Amplitude => "wiggling",
-            }
+            "warning: dropped {p} from the set: it was extracted with another {because} (or before the set had one), so it would mis-correct; extract it again (the steps below)"
         );
     }
     if set.description.is_none() {
@@ -122,6 +118,15 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     }
     let parts: Vec<&str> = set.parts().iter().map(|p| p.name()).collect();
     println!("  set now holds: {}", parts.join(", "));
+    let steps = set.next_steps(&a.out.display().to_string());
+    if steps.is_empty() {
+        println!("  the set is complete");
+    } else {
+        eprintln!("note: the set is not complete yet; run, in order:");
+        for s in steps {
+            eprintln!("  {s}");
+        }
+    }
     Ok(ExitCode::SUCCESS)
 }
 

@@ -7,7 +7,9 @@ use std::process::ExitCode;
 
 use serde_json::json;
 use tofprox_core::phasor::unambiguous_range_m;
-use tofprox_format::{CalibPart, CalibrationSet, DepthRecording, Recording, RecordingKind};
+use tofprox_format::{
+    CalibPart, CalibrationSet, DepthRecording, PartState, Recording, RecordingKind,
+};
 
 use super::common::{fmt_num, mode_label, progress};
 
@@ -318,6 +320,13 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
                 "full_cols": v.full_cols,
             },
             "parts": ps,
+            "chain": set.chain().iter().map(|e| json!({
+                "part": e.part.name(),
+                "after": e.after.iter().map(|p| p.name()).collect::<Vec<_>>(),
+                "state": chain_state(&e.state),
+            })).collect::<Vec<_>>(),
+            "complete": set.is_complete(),
+            "next_steps": set.next_steps(&a.recording.display().to_string()),
         });
         println!("{out}");
         return Ok(ExitCode::SUCCESS);
@@ -376,7 +385,54 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
     if parts.is_empty() {
         println!("(no parts)");
     }
+    print_chain(&set, &a.recording.display().to_string());
     Ok(ExitCode::SUCCESS)
+}
+
+/// The chain of a set: each part, what it is extracted after, where it stands; then whether the
+/// set is complete and, if not, the commands that complete it (`docs/calibration.md`).
+fn print_chain(set: &CalibrationSet, dir: &str) {
+    println!("chain            part extracted after → state");
+    for e in set.chain() {
+        let after: Vec<&str> = e.after.iter().map(|p| p.name()).collect();
+        let after = if after.is_empty() {
+            "—".to_string()
+        } else {
+            after.join(", ")
+        };
+        println!(
+            "  {:<16} {:<50} {}",
+            e.part.name(),
+            after,
+            chain_state(&e.state)
+        );
+    }
+    let steps = set.next_steps(dir);
+    if steps.is_empty() {
+        println!("complete         yes");
+    } else {
+        println!("complete         no; to complete it run, in order:");
+        for s in steps {
+            println!("  {s}");
+        }
+    }
+}
+
+/// A chain state in words.
+fn chain_state(s: &PartState) -> String {
+    match s {
+        PartState::Current => "current".into(),
+        PartState::Optional => "absent (optional)".into(),
+        PartState::Missing => "MISSING".into(),
+        PartState::Provisional { without } => format!(
+            "provisional: extracted without {}",
+            without.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")
+        ),
+        PartState::Stale(d) => format!(
+            "STALE: dropped when {} changed (was from {} captures {:?})",
+            d.because, d.recording, d.captures
+        ),
+    }
 }
 
 /// `tofprox info REC` of a depth recording (`kind = "depth"`, as `tofprox record` writes it):
