@@ -234,7 +234,12 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
     let recs = model.records(prep)?;
     let features = |c: u32, a: f32| {
         let cap = &prep.caps[c as usize];
-        NoiseModel::features(f64::from(a), cap.ambient_klux, cap.exposure_us, cap.averaged)
+        NoiseModel::features(
+            f64::from(a),
+            cap.ambient_klux,
+            cap.exposure_us,
+            cap.averaged,
+        )
     };
     // raw images of one capture at the same shift: residual differences
     // (the model's prediction, droop included, differs between them)

@@ -89,13 +89,18 @@ fn bookkeeping_keys_never_split_repeats() {
         ]
     });
     // a physical condition that differs between the repeats: no repeats left
-    write(&ds, &physical, |i, _| vec![("supply_voltage_v", 3.3 + 1e-3 * i as f64)]);
+    write(&ds, &physical, |i, _| {
+        vec![("supply_voltage_v", 3.3 + 1e-3 * i as f64)]
+    });
     let (_, c_plain) = compared(&plain, &lab_spec());
     let (prep, c_kept) = compared(&kept, &lab_spec());
     let (_, c_phys) = compared(&physical, &lab_spec());
     // 2 exposures × 24 distances swept twice, and the darks per exposure
     let NoiseSource::Repeats { groups } = c_kept.model.noise.source else {
-        panic!("bookkeeping keys split the repeats: {:?}", c_kept.model.noise);
+        panic!(
+            "bookkeeping keys split the repeats: {:?}",
+            c_kept.model.noise
+        );
     };
     assert!(groups >= 48, "{groups} groups of repeats");
     assert_eq!(c_plain.model.noise.source, c_kept.model.noise.source);
@@ -142,7 +147,8 @@ fn example_copy(
     for (i, meta) in rec.captures().iter().enumerate() {
         let shape = rec.load(i).unwrap().to_f64().dim();
         for _ in 0..copies {
-            w.append(meta.spec(), &RawFrames::F64(frames(shape))).unwrap();
+            w.append(meta.spec(), &RawFrames::F64(frames(shape)))
+                .unwrap();
         }
     }
 }
@@ -150,7 +156,11 @@ fn example_copy(
 fn diagnosed(dir: &Path) -> Result<Diagnosis, LabError> {
     let ds = load_recording(dir)?;
     let prep = Prepared::new(&ds)?;
-    let cmp = compare(&prep, &spec_from_model(&ModelConfig::baseline()), &|_, _| {})?;
+    let cmp = compare(
+        &prep,
+        &spec_from_model(&ModelConfig::baseline()),
+        &|_, _| {},
+    )?;
     diagnose(&prep, &cmp, &|_, _| {})
 }
 

@@ -7,7 +7,7 @@ use std::path::Path;
 use tofprox_model::ModelConfig;
 
 mod common;
-use common::{run, text};
+use common::{repo_file, run, text};
 
 fn simulate(dir: &Path) -> (String, String, String) {
     let mut truth = ModelConfig::baseline();
@@ -247,4 +247,73 @@ fn sim_sweep_like_simulates_the_recordings_conditions() {
     // sweep options conflict with --like
     let o = like(&["--exposures", "100"], &tmp.path().join("x"));
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+}
+
+#[test]
+fn explain_that_cannot_explain_exits_1_with_its_reason() {
+    // examples/recording has one capture per condition: the noise is not
+    // measured, so explain can never end at nothing_missing
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("m.toml");
+    let o = run(&[
+        "lab",
+        "explain",
+        &repo_file("examples/recording"),
+        "--model",
+        &repo_file("config/model/baseline.toml"),
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["verdict"], "noise_not_measured");
+    let why = v["stopped"].as_str().unwrap();
+    assert!(why.contains("not measured"), "{why}");
+    assert!(text(&o.stderr).contains("could not explain the recording"));
+    assert!(!out.exists(), "nothing added, nothing written");
+}
+
+#[test]
+fn add_onto_an_existing_file_needs_force() {
+    let tmp = tempfile::tempdir().unwrap();
+    let model = tmp.path().join("m.toml");
+    let before = std::fs::read_to_string(repo_file("config/model/baseline.toml")).unwrap();
+    std::fs::write(&model, &before).unwrap();
+    let m = model.to_str().unwrap();
+    let rec = repo_file("examples/recording");
+    // its own input as --out
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_droop",
+        "--model",
+        m,
+        "--data",
+        &rec,
+        "--out",
+        m,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("pass --force"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert_eq!(std::fs::read_to_string(&model).unwrap(), before);
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_droop",
+        "--model",
+        m,
+        "--data",
+        &rec,
+        "--out",
+        m,
+        "--force",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let written = tofprox_model::ModelConfig::load(&model).unwrap();
+    assert!(written.effect("vcsel_droop").is_some_and(|e| e.enabled));
 }

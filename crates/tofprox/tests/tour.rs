@@ -221,13 +221,29 @@ fn extraction_finds_commands_and_documented_status() {
     );
     let docs = docs_examples();
     assert!(docs.iter().any(|b| b.origin.starts_with("docs/lab.md")));
+    assert_eq!(
+        number_after("fit: χ²/dof = 7.786, z = 1811.8", "χ²/dof = "),
+        Some(7.786)
+    );
+    // the lab examples' numbers are checked against a transcript that has them
+    let lab = lab_examples();
+    let shown = lab[1].1.iter().flat_map(|(_, out)| out);
+    assert!(shown.filter(|l| l.contains("χ²/dof = ")).count() >= 3);
+    assert!(
+        lab[0]
+            .1
+            .iter()
+            .any(|(c, _)| c.starts_with("tofprox lab add"))
+    );
 }
 
 /// The README's lab block ("**3. The model lab**") and docs/lab.md's worked
 /// example: (origin, commands, each command's documented output lines).
 fn lab_examples() -> Vec<(String, Vec<(String, Vec<String>)>)> {
     let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
-    let at = readme.find("**3. The model lab**").expect("README's lab step");
+    let at = readme
+        .find("**3. The model lab**")
+        .expect("README's lab step");
     let (line, _, lines) = fences(&readme[at..]).into_iter().next().unwrap();
     let first = readme[..at].lines().count();
     let readme_cmds = join_continuations(&lines)
@@ -236,7 +252,9 @@ fn lab_examples() -> Vec<(String, Vec<(String, Vec<String>)>)> {
         .map(|c| (c, Vec::new()))
         .collect();
     let md = std::fs::read_to_string(repo().join("docs/lab.md")).unwrap();
-    let at = md.find("## Worked example").expect("docs/lab.md's worked example");
+    let at = md
+        .find("## Worked example")
+        .expect("docs/lab.md's worked example");
     let (dline, _, dlines) = fences(&md[at..]).into_iter().next().unwrap();
     let mut doc: Vec<(String, Vec<String>)> = Vec::new();
     let mut open = false;
@@ -312,13 +330,21 @@ fn assert_transcript(origin: &str, cmd: &str, shown: &[String], v: &serde_json::
             close(x, v["fit"]["chi2_per_dof"].as_f64().unwrap(), "χ²/dof");
         }
         for row in ["before", "after"] {
-            if let Some(x) = l.strip_prefix(row).and_then(|r| r.split_whitespace().last()) {
+            if let Some(x) = l
+                .strip_prefix(row)
+                .and_then(|r| r.split_whitespace().last())
+            {
                 let got = v[row]["chi2_per_dof"].as_f64().unwrap();
                 close(x.parse().unwrap(), got, &format!("χ²/dof {row}"));
             }
         }
         if let Some(verdict) = l.strip_prefix("verdict: ") {
-            let want = verdict.split(':').next().unwrap().to_lowercase().replace(' ', "_");
+            let want = verdict
+                .split(':')
+                .next()
+                .unwrap()
+                .to_lowercase()
+                .replace(' ', "_");
             assert_eq!(want, v["verdict"].as_str().unwrap(), "{origin}: `{cmd}`");
         }
     }
@@ -327,7 +353,7 @@ fn assert_transcript(origin: &str, cmd: &str, shown: &[String], v: &serde_json::
 /// diagnose names the effect the truth has and the model lacks, `add` writes
 /// it near the truth and brings χ²/dof to the noise, diagnose then finds nothing.
 fn assert_lab_story(origin: &str, runs: &[(String, Option<serde_json::Value>)], root: &Path) {
-    let find = |sub: &str| runs.iter().filter(move |(c, _)| c.starts_with(sub));
+    let find = |sub: &'static str| runs.iter().filter(move |(c, _)| c.starts_with(sub));
     let sweep = &find("tofprox sim sweep").next().unwrap().0;
     let truth = tofprox_model::ModelConfig::load(&arg_path(sweep, "--model", root)).unwrap();
     let (add_cmd, add) = find("tofprox lab add").next().unwrap();
@@ -337,7 +363,11 @@ fn assert_lab_story(origin: &str, runs: &[(String, Option<serde_json::Value>)], 
         .map(|(_, v)| v.as_ref().unwrap())
         .collect();
     let (first, last) = (diags[0], diags[diags.len() - 1]);
-    assert_eq!(first["verdict"], "missing_effect", "{origin}: {}", first["reason"]);
+    assert_eq!(
+        first["verdict"], "missing_effect",
+        "{origin}: {}",
+        first["reason"]
+    );
     assert_eq!(first["effect"], effect, "{origin}");
     assert_eq!(first["noise"]["source"]["kind"], "repeats", "{origin}");
     let top = &first["candidates"][0];
@@ -347,14 +377,27 @@ fn assert_lab_story(origin: &str, runs: &[(String, Option<serde_json::Value>)], 
     let chi_before = first["fit"]["chi2_per_dof"].as_f64().unwrap();
     assert!(chi_before > 2.0, "{origin}: χ²/dof before {chi_before}");
     let chi_added = add["after"]["chi2_per_dof"].as_f64().unwrap();
-    assert!((0.97..=1.03).contains(&chi_added), "{origin}: after add {chi_added}");
-    assert_eq!(last["verdict"], "nothing_missing", "{origin}: {}", last["reason"]);
+    assert!(
+        (0.97..=1.03).contains(&chi_added),
+        "{origin}: after add {chi_added}"
+    );
+    assert_eq!(
+        last["verdict"], "nothing_missing",
+        "{origin}: {}",
+        last["reason"]
+    );
     let chi_last = last["fit"]["chi2_per_dof"].as_f64().unwrap();
     assert!((0.97..=1.03).contains(&chi_last), "{origin}: {chi_last}");
     let written = tofprox_model::ModelConfig::load(&arg_path(add_cmd, "--out", root)).unwrap();
-    let info = tofprox_model::catalogue().iter().find(|e| e.id == effect).unwrap();
+    let info = tofprox_model::catalogue()
+        .iter()
+        .find(|e| e.id == effect)
+        .unwrap();
     for p in info.params {
-        let (w, t) = (written.param(effect, p.name).unwrap(), truth.param(effect, p.name).unwrap());
+        let (w, t) = (
+            written.param(effect, p.name).unwrap(),
+            truth.param(effect, p.name).unwrap(),
+        );
         assert!(
             (w - t).abs() <= 0.15 * t.abs() + 0.1,
             "{origin}: {effect}.{} written {w}, truth {t}",

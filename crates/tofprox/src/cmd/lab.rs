@@ -374,7 +374,11 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
         }
         Some(p) => {
             write_model(&a.model, &m, &ex.added, p)?;
-            eprintln!("model with {} written to {}", ex.added.join(", "), p.display());
+            eprintln!(
+                "model with {} written to {}",
+                ex.added.join(", "),
+                p.display()
+            );
         }
         None => {}
     }
