@@ -3,59 +3,27 @@
 //! `timestamp_s` (docs/recording-format.md) never split them —, and a
 //! recording without signal (random codes, constant frames) is never
 //! `nothing_missing`.
-use std::collections::BTreeMap;
 use std::path::Path;
 
 use ndarray::Array3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter};
+use tofprox_format::{RawFrames, Recording, RecordingWriter};
+
+mod common;
+use common::write_recording as write;
 use tofprox_lab::adapter::{load_recording, spec_from_model};
 use tofprox_lab::diagnose::{Verdict, compare, diagnose};
 use tofprox_lab::fit::{LabSpec, Prepared};
 use tofprox_lab::noise::NoiseSource;
 use tofprox_lab::synth::{Hidden, SynthSpec, generate};
-use tofprox_lab::{Comparison, Dataset, Diagnosis, LabError};
+use tofprox_lab::{Comparison, Diagnosis, LabError};
 use tofprox_model::ModelConfig;
 
 fn lab_spec() -> LabSpec {
     LabSpec {
         harmonic_order: 3,
         ..LabSpec::default()
-    }
-}
-
-/// Write `ds` as a recording; `extra(i, repeat)` adds keys to capture i's conditions.
-fn write(ds: &Dataset, dir: &Path, extra: impl Fn(usize, usize) -> Vec<(&'static str, f64)>) {
-    let mut w = RecordingWriter::create(dir, ds.sensor, None).unwrap();
-    let mut repeat = 0;
-    for (i, c) in ds.captures.iter().enumerate() {
-        let mut conditions = BTreeMap::new();
-        if let Some(d) = c.distance_m {
-            conditions.insert("distance_m".to_string(), d);
-        }
-        conditions.insert("ambient_klux".to_string(), c.ambient_klux);
-        conditions.insert("temperature_c".to_string(), c.temperature_c.unwrap_or(25.0));
-        // the synthetic generator writes repeats one after the other
-        let same = i > 0 && {
-            let p = &ds.captures[i - 1];
-            p.distance_m == c.distance_m
-                && p.exposure_us == c.exposure_us
-                && p.illumination == c.illumination
-        };
-        repeat = if same { repeat + 1 } else { 0 };
-        for (k, v) in extra(i, repeat) {
-            conditions.insert(k.to_string(), v);
-        }
-        let spec = CaptureSpec {
-            phases_deg: c.phases_deg.clone(),
-            exposure_us: c.exposure_us,
-            illumination: c.illumination,
-            averaged: c.averaged,
-            timestamp_ns: None,
-            conditions,
-        };
-        w.append(spec, &RawFrames::F64(c.frames.clone())).unwrap();
     }
 }
 

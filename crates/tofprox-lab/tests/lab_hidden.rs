@@ -337,29 +337,7 @@ fn control_says_nothing_missing_through_the_recording_format() {
     let ds = record(&under, 107, Vary::None, None);
     // round trip through the version-1 recording format
     let dir = tempfile::tempdir().unwrap();
-    let sensor = ds.sensor;
-    let mut w =
-        tofprox_format::RecordingWriter::create(dir.path(), sensor, Some("lab control".into()))
-            .unwrap();
-    for c in &ds.captures {
-        let mut conditions = std::collections::BTreeMap::new();
-        if let Some(d) = c.distance_m {
-            conditions.insert("distance_m".to_string(), d);
-        }
-        conditions.insert("ambient_klux".to_string(), c.ambient_klux);
-        conditions.insert("temperature_c".to_string(), c.temperature_c.unwrap_or(25.0));
-        let spec = tofprox_format::CaptureSpec {
-            phases_deg: c.phases_deg.clone(),
-            exposure_us: c.exposure_us,
-            illumination: c.illumination,
-            averaged: c.averaged,
-            timestamp_ns: None,
-            conditions,
-        };
-        w.append(spec, &tofprox_format::RawFrames::F64(c.frames.clone()))
-            .unwrap();
-    }
-    drop(w);
+    common::write_recording(&ds, dir.path(), |_, _| Vec::new());
     let rec = tofprox_format::Recording::open(dir.path()).unwrap();
     let ds2 = dataset_from_recording(&rec).unwrap();
     assert_eq!(ds2.captures.len(), ds.captures.len());

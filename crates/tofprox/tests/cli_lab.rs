@@ -283,17 +283,21 @@ fn add_onto_an_existing_file_needs_force() {
     let m = model.to_str().unwrap();
     let rec = repo_file("examples/recording");
     // its own input as --out
-    let o = run(&[
-        "lab",
-        "add",
-        "vcsel_droop",
-        "--model",
-        m,
-        "--data",
-        &rec,
-        "--out",
-        m,
-    ]);
+    let add = |force: &[&str]| {
+        let args = [
+            "lab",
+            "add",
+            "vcsel_droop",
+            "--model",
+            m,
+            "--data",
+            &rec,
+            "--out",
+            m,
+        ];
+        run(&[&args[..], force].concat())
+    };
+    let o = add(&[]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
     assert!(
         text(&o.stderr).contains("pass --force"),
@@ -301,18 +305,7 @@ fn add_onto_an_existing_file_needs_force() {
         text(&o.stderr)
     );
     assert_eq!(std::fs::read_to_string(&model).unwrap(), before);
-    let o = run(&[
-        "lab",
-        "add",
-        "vcsel_droop",
-        "--model",
-        m,
-        "--data",
-        &rec,
-        "--out",
-        m,
-        "--force",
-    ]);
+    let o = add(&["--force"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let written = tofprox_model::ModelConfig::load(&model).unwrap();
     assert!(written.effect("vcsel_droop").is_some_and(|e| e.enabled));

@@ -237,9 +237,12 @@ fn extraction_finds_commands_and_documented_status() {
     );
 }
 
+/// A command and the output lines documented after it.
+type Shown = (String, Vec<String>);
+
 /// The README's lab block ("**3. The model lab**") and docs/lab.md's worked
 /// example: (origin, commands, each command's documented output lines).
-fn lab_examples() -> Vec<(String, Vec<(String, Vec<String>)>)> {
+fn lab_examples() -> Vec<(String, Vec<Shown>)> {
     let readme = std::fs::read_to_string(repo().join("README.md")).unwrap();
     let at = readme
         .find("**3. The model lab**")
@@ -256,7 +259,7 @@ fn lab_examples() -> Vec<(String, Vec<(String, Vec<String>)>)> {
         .find("## Worked example")
         .expect("docs/lab.md's worked example");
     let (dline, _, dlines) = fences(&md[at..]).into_iter().next().unwrap();
-    let mut doc: Vec<(String, Vec<String>)> = Vec::new();
+    let mut doc: Vec<Shown> = Vec::new();
     let mut open = false;
     for l in dlines {
         if let Some(c) = l.strip_prefix("$ ") {

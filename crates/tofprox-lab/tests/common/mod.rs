@@ -1,4 +1,5 @@
 //! Checks shared by the lab's integration tests.
+#![allow(dead_code)] // each test binary uses a subset of the helpers
 use tofprox_lab::diagnose::{AddOutcome, Rms};
 
 /// The lab's promise (docs/lab.md): after `add`, the depth error falls to within 1.3× of the same
@@ -12,4 +13,43 @@ pub fn assert_add_reaches_control(out: &AddOutcome, control: &Rms) {
     assert!(out.after.rms.depth_2phase_mm <= 1.3 * control.depth_2phase_mm);
     assert!(out.after.rms.depth_4phase_mm <= 1.3 * control.depth_4phase_mm);
     assert!(out.after.fit.chi2_per_dof < out.before.fit.chi2_per_dof);
+}
+
+/// Write `ds` as a recording; `extra(i, repeat)` adds keys to capture i's conditions.
+pub fn write_recording(
+    ds: &tofprox_lab::Dataset,
+    dir: &std::path::Path,
+    extra: impl Fn(usize, usize) -> Vec<(&'static str, f64)>,
+) {
+    let mut w = tofprox_format::RecordingWriter::create(dir, ds.sensor, None).unwrap();
+    let mut repeat = 0;
+    for (i, c) in ds.captures.iter().enumerate() {
+        let mut conditions = std::collections::BTreeMap::new();
+        if let Some(d) = c.distance_m {
+            conditions.insert("distance_m".to_string(), d);
+        }
+        conditions.insert("ambient_klux".to_string(), c.ambient_klux);
+        conditions.insert("temperature_c".to_string(), c.temperature_c.unwrap_or(25.0));
+        // repeats follow one another
+        let same = i > 0 && {
+            let p = &ds.captures[i - 1];
+            p.distance_m == c.distance_m
+                && p.exposure_us == c.exposure_us
+                && p.illumination == c.illumination
+        };
+        repeat = if same { repeat + 1 } else { 0 };
+        for (k, v) in extra(i, repeat) {
+            conditions.insert(k.to_string(), v);
+        }
+        let spec = tofprox_format::CaptureSpec {
+            phases_deg: c.phases_deg.clone(),
+            exposure_us: c.exposure_us,
+            illumination: c.illumination,
+            averaged: c.averaged,
+            timestamp_ns: None,
+            conditions,
+        };
+        w.append(spec, &tofprox_format::RawFrames::F64(c.frames.clone()))
+            .unwrap();
+    }
 }
