@@ -307,7 +307,7 @@ impl CrosstalkCalibration {
 /// are steps of it); `None` otherwise.
 fn correlation_order(phases_deg: &[f64]) -> Option<Vec<usize>> {
     let n = phases_deg.len();
-    if n < 8 || n % 4 != 0 {
+    if n < 8 || !n.is_multiple_of(4) {
         return None;
     }
     let mut order = vec![usize::MAX; n];
