@@ -570,6 +570,9 @@ pub struct PhoneScene {
     pub ambient_klux: f64,
     /// The cover window in front of the sensor (clean unless the scene says smudged).
     pub cover_window: CoverWindow,
+    /// The window the sensor's crosstalk was calibrated behind (clean): the typical one
+    /// unless the scene says `strong`.
+    pub calibrated_window: CoverWindow,
     /// How long to run the scene (one period of its motion).
     pub duration_s: f64,
 }
@@ -672,8 +675,19 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             script,
             ambient_klux,
             cover_window,
+            calibrated_window: CoverWindow::default(),
             duration_s,
         }
+    };
+    // a strong window: 13× the typical one (≈ the return of a white target at 0.39 m),
+    // calibrated behind it clean
+    let strong = CoverWindow {
+        e_per_us: 13.0 * clean.e_per_us,
+        ..clean
+    };
+    let behind_strong = |s: PhoneScene| PhoneScene {
+        calibrated_window: strong,
+        ..s
     };
     let approach_s = base.period_s;
     let static_s = 4.0;
@@ -963,6 +977,25 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             CoverWindow::smudged(1.0),
             approach_s,
         ),
+        behind_strong(scene(
+            "window_strong_hand_approach_05cm",
+            "a strong cover window (13× typical) calibrated behind it, a hand approaching to 5 cm",
+            object(ScriptKind::Hand, SKIN, 0.05),
+            0.0,
+            strong,
+            approach_s,
+        )),
+        behind_strong(scene(
+            "window_strong_smudged_dark_hair_05cm",
+            "the strong window (13× typical, calibrated clean) smudged ×2, a head with dark hair (6 %) approaching to 5 cm and leaving",
+            object(ScriptKind::Face, DARK_HAIR, 0.05).with_motion(Motion::Approach),
+            0.0,
+            CoverWindow {
+                smudge_rel: 1.0,
+                ..strong
+            },
+            approach_s,
+        )),
         scene(
             "window_smudged_black_card_05cm",
             "smudged cover window, a black card approaching to 5 cm",

@@ -333,8 +333,7 @@ impl Hub {
             return FirstReading::Ready;
         }
         let start = *rx.borrow_and_update();
-        match tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await
-        {
+        match tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await {
             Ok(_) => FirstReading::Ready,
             Err(_) => FirstReading::TimedOut,
         }

@@ -19,9 +19,11 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use serde::Serialize;
-use tofprox_bridge::{Clock, EmulatedConfig, VirtualClock, emulated::FrameSource as SynthSource};
+use tofprox_bridge::{
+    Clock, EmulatedConfig, SensorDriver, VirtualClock, emulated::FrameSource as SynthSource,
+};
 use tofprox_core::crosstalk::CrosstalkStatus;
-use tofprox_model::{Expect, PhoneScene};
+use tofprox_model::{CoverWindow, Expect, PhoneScene, SceneScript};
 
 use crate::backends::chain;
 use crate::config::Config;
@@ -105,8 +107,11 @@ pub fn run_scene(bench: &Bench, scene: &PhoneScene, seed: u64) -> Result<SceneRe
     .map_err(|e| err(chain(&e)))?;
     let geometry = source.driver().config().map.sensor.geometry();
     let (full_rows, full_cols) = (geometry.full_rows, geometry.full_cols);
-    let calib: ModeCalibrations =
+    let mut calib: ModeCalibrations =
         crate::calibration::load_for(cfg, &source).map_err(|e| err(e.to_string()))?;
+    if scene.calibrated_window != CoverWindow::default() {
+        calibrate_crosstalk_behind(bench, scene, seed, &mut calib).map_err(err)?;
+    }
     let mut ctl = Controller::new(cfg.clone(), source, calib).map_err(|e| err(e.to_string()))?;
 
     let near_m = f64::from(cfg.proximity.near_mm) / 1e3;
@@ -202,6 +207,56 @@ pub fn run_scene(bench: &Bench, scene: &PhoneScene, seed: u64) -> Result<SceneRe
     r.cover_window = window.message();
     r.cover_window_changed = matches!(window, CrosstalkStatus::Changed { .. });
     Ok(r)
+}
+
+/// Exposure (µs) and count of the nothing-in-range captures the crosstalk is measured from,
+/// as `calib/phone/make.sh` takes them (the daemon's longest exposure).
+const CROSSTALK_CAPTURE: (f64, usize) = (500.0, 8);
+
+/// The crosstalk part for a sensor built behind `scene.calibrated_window`, measured as the
+/// phone line does (`docs/calibration.md`: illuminated 4-phase captures with nothing in range,
+/// `extract_crosstalk` against the set's offset) and put in place of the set's.
+fn calibrate_crosstalk_behind(
+    bench: &Bench,
+    scene: &PhoneScene,
+    seed: u64,
+    calib: &mut ModeCalibrations,
+) -> Result<(), String> {
+    use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
+    let dev_cfg = EmulatedConfig {
+        frame_source: SynthSource::Model,
+        model: Some(bench.model.clone()),
+        scene: SceneScript::wall(30.0),
+        cover_window: Some(scene.calibrated_window),
+        ..EmulatedConfig::default()
+    };
+    let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
+    let mut driver = SensorDriver::emulated(dev_cfg, clock, seed).map_err(|e| chain(&e))?;
+    let (exposure_us, count) = CROSSTALK_CAPTURE;
+    let req = tofprox_bridge::CycleRequest {
+        mode: tofprox_bridge::SensorMode::Depth(tofprox_core::Algorithm::FourPhase),
+        exposure_us,
+        row_window: None,
+    };
+    let mut outs = Vec::with_capacity(count);
+    for _ in 0..count {
+        let o = driver.cycle(&req).map_err(|e| chain(&e))?;
+        outs.push((o.frames.mapv(f64::from), o.phases_deg, o.exposure_us));
+    }
+    let captures: Vec<CrosstalkCapture<'_>> = outs
+        .iter()
+        .map(|(codes, phases_deg, exposure_us)| CrosstalkCapture {
+            codes: codes.view(),
+            phases_deg,
+            exposure_us: *exposure_us,
+        })
+        .collect();
+    let adc_bits = driver.config().map.sensor.adc_bits;
+    let offset = calib.four_phase.offset.as_ref();
+    let x = extract_crosstalk(&captures, offset, adc_bits).map_err(|e| e.to_string())?;
+    calib.two_phase.crosstalk = Some(x.clone());
+    calib.four_phase.crosstalk = Some(x);
+    Ok(())
 }
 
 /// The catalogue for `cfg`'s thresholds (`tofprox_model::phone_scenes`).

@@ -857,16 +857,21 @@ fn stops_cleanly_on(sig: &str) {
         .status()
         .expect("kill");
     assert!(st.success());
-    let st = daemon.wait_exit(Duration::from_secs(10), "tofproxd did not exit on the signal");
+    let st = daemon.wait_exit(
+        Duration::from_secs(10),
+        "tofproxd did not exit on the signal",
+    );
     assert!(st.success(), "SIG{sig}: exit status {st}\n{}", daemon.log());
     assert!(
-        daemon
-            .log()
-            .contains(&format!("SIG{sig} received")),
+        daemon.log().contains(&format!("SIG{sig} received")),
         "{}",
         daemon.log()
     );
-    assert!(daemon.log().contains("stopping: sensor to reset"), "{}", daemon.log());
+    assert!(
+        daemon.log().contains("stopping: sensor to reset"),
+        "{}",
+        daemon.log()
+    );
     assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
     // The last state published before leaving was "off" (sensor in reset).
     c.collect(Duration::from_millis(300));
@@ -1279,12 +1284,17 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
             .expect("setpriv python3")
     };
     let probe = as_nobody(GET_STATUS_PROBE, &["6"]);
-    let floods: Vec<_> = (0..4).map(|_| as_nobody(CLAIM_FLOOD, &["8", "3"])).collect();
+    let floods: Vec<_> = (0..4)
+        .map(|_| as_nobody(CLAIM_FLOOD, &["8", "3"]))
+        .collect();
     let mut sent = (0u64, 0u64);
     for f in floods {
         let out = f.wait_with_output().expect("flood");
         let text = String::from_utf8_lossy(&out.stdout);
-        let n: Vec<u64> = text.split_whitespace().filter_map(|w| w.parse().ok()).collect();
+        let n: Vec<u64> = text
+            .split_whitespace()
+            .filter_map(|w| w.parse().ok())
+            .collect();
         assert!(out.status.success() && n.len() == 2, "flood: {text}");
         sent = (sent.0 + n[0], sent.1 + n[1]);
     }
@@ -1301,7 +1311,10 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
         hwm_kb < 64 * 1024 && hwm_kb < memory_max_kb,
         "peak {hwm_kb} kB under the flood (MemoryMax {memory_max_kb} kB)"
     );
-    assert!(probe["n"].as_u64().unwrap_or(0) >= 5, "GetStatus answered: {probe}");
+    assert!(
+        probe["n"].as_u64().unwrap_or(0) >= 5,
+        "GetStatus answered: {probe}"
+    );
     assert!(
         probe["max_ms"].as_f64().unwrap_or(f64::INFINITY) < 1000.0,
         "GetStatus answered within 1 s during the flood: {probe}"

@@ -8,8 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use tofprox_format::{
-    CalibrationSet, Extract, ExtractError, ExtractOptions, Recording,
-    load_lens_datasheet,
+    CalibrationSet, Extract, ExtractError, ExtractOptions, Recording, load_lens_datasheet,
 };
 
 use super::common::TOOL;
@@ -103,7 +102,9 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
         let because = set
             .dropped()
             .get(p)
-            .map_or("a part it depends on".to_string(), |d| d.because.to_string());
+            .map_or("a part it depends on".to_string(), |d| {
+                d.because.to_string()
+            });
         eprintln!(
             "warning: dropped {p} from the set: it was extracted with another {because} (or before the set had one), so it would mis-correct; extract it again (the steps below)"
         );

@@ -166,55 +166,24 @@ mod tests {
     #[test]
     fn a_saturated_return_at_zero_distance_is_told_from_zeros_and_common_mode_light() {
         let roi = Roi::centered(4, 4, 1.0);
+        let is_return = |f: &Array3<u16>, phases: &[f64]| {
+            rails_point_at_zero_distance(f.view(), phases, roi, 4095.0, None)
+        };
         let two = [0.0, 90.0];
         let four = [0.0, 90.0, 180.0, 270.0];
         // a cheek at 1 cm behind a 0.8 rad global delay (80 MHz), 100× full scale
         for phases in [&two[..], &four[..]] {
-            let f = clipped(0.8 + 0.005, phases, 2e5);
-            assert!(rails_point_at_zero_distance(
-                f.view(),
-                phases,
-                roi,
-                4095.0,
-                None
-            ));
+            assert!(is_return(&clipped(0.8 + 0.005, phases, 2e5), phases));
         }
         // an all-zero transfer
-        let zeros = Array3::<u16>::zeros((2, 4, 4));
-        assert!(!rails_point_at_zero_distance(
-            zeros.view(),
-            &two,
-            roi,
-            4095.0,
-            None
-        ));
+        assert!(!is_return(&Array3::zeros((2, 4, 4)), &two));
         // common-mode light on every image: 4-phase has no phasor
-        let high = Array3::<u16>::from_elem((4, 4, 4), 4095);
-        assert!(!rails_point_at_zero_distance(
-            high.view(),
-            &four,
-            roi,
-            4095.0,
-            None
-        ));
+        assert!(!is_return(&Array3::from_elem((4, 4, 4), 4095), &four));
         // a return at half the unambiguous range (φ = π) is not at zero distance
         let f = clipped(std::f64::consts::PI + 0.1, &four, 2e5);
-        assert!(!rails_point_at_zero_distance(
-            f.view(),
-            &four,
-            roi,
-            4095.0,
-            None
-        ));
+        assert!(!is_return(&f, &four));
         // a measurable frame is no rail pattern at all
-        let f = clipped(0.8, &four, 500.0);
-        assert!(!rails_point_at_zero_distance(
-            f.view(),
-            &four,
-            roi,
-            4095.0,
-            None
-        ));
+        assert!(!is_return(&clipped(0.8, &four, 500.0), &four));
     }
 
     #[test]
