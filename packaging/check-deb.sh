@@ -47,8 +47,9 @@ root="$(mktemp -d)"
 trap 'rm -rf "$root"' EXIT
 mkdir -p "$root/var/lib/dpkg/info" "$root/var/lib/dpkg/updates" "$root/etc"
 touch "$root/var/lib/dpkg/status" "$root/etc/passwd" "$root/etc/group"
+# (the scratch root has no libc6, dbus, systemd packages: --force-depends)
 dpkg --root="$root" --log=/dev/null --force-script-chrootless --force-depends \
-  --force-not-root -i "$deb" >/dev/null
+  --force-not-root -i "$deb" >"$root/dpkg.log" 2>&1 || fail "dpkg -i: $(cat "$root/dpkg.log")"
 [ "$(dpkg --root="$root" -s tofprox | sed -n 's/^Status: //p')" = "install ok installed" ] ||
   fail "tofprox not installed in the scratch root"
 grep -q '^tofprox:' "$root/etc/passwd" || fail "postinst made no user tofprox"
@@ -64,7 +65,7 @@ if grep -q 'tofproxd.service:' <<<"$verify"; then fail "systemd-analyze verify: 
 echo "check-deb: systemd-analyze verify of the installed unit: clean"
 
 # 4. installed binaries, run elsewhere, find the installed data
-cd "$(mktemp -d)"
+mkdir "$root/elsewhere" && cd "$root/elsewhere"
 demo="$("$root/usr/bin/tofproxd" --demo --check-config 2>&1)" || fail "tofproxd --demo --check-config: $demo"
 [ "$demo" = "$root/usr/share/tofprox/config/tofproxd-emulated.toml: ok" ] ||
   fail "demo configuration not from the install prefix: $demo"
