@@ -670,9 +670,26 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
     )?;
     pb.finish_and_clear();
     let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
+    // RSS is sampled after the warm-up; a shorter run (or no /proc) has no figure: none shown
+    let rss_measured = rep.rss_kb_start > 0 && rep.rss_kb_end > 0;
     if a.json {
-        println!("{}", serde_json::to_string(&rep)?);
+        let mut v = serde_json::to_value(&rep)?;
+        if !rss_measured {
+            v["rss_kb_start"] = serde_json::Value::Null;
+            v["rss_kb_end"] = serde_json::Value::Null;
+        }
+        println!("{v}");
     } else {
+        let memory = if rss_measured {
+            format!(
+                "{} kB after warm-up, {} kB at the end ({:+} kB)",
+                rep.rss_kb_start,
+                rep.rss_kb_end,
+                rep.rss_kb_end as i64 - rep.rss_kb_start as i64
+            )
+        } else {
+            "not measured (the run ended within the warm-up)".to_string()
+        };
         let by_kind = if rep.failures_by_kind.is_empty() {
             "none".to_string()
         } else {
@@ -689,7 +706,7 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
              panics:       {}\n\
              recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
              near events:  {}\n\
-             memory (RSS): {} kB after warm-up, {} kB at the end ({:+} kB)\n\
+             memory (RSS): {memory}\n\
              verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
             rep.cycles,
             rep.faults_injected,
@@ -700,9 +717,6 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
             rep.max_recovery_cycles,
             rep.unrecovered,
             rep.near_transitions,
-            rep.rss_kb_start,
-            rep.rss_kb_end,
-            rep.rss_kb_end as i64 - rep.rss_kb_start as i64,
             if ok { "PASS" } else { "FAIL" }
         );
     }
