@@ -244,3 +244,26 @@ fn soak_summarises_its_faults_instead_of_flooding_stderr() {
     let warns = text(&o.stderr).matches("WARN").count() as u64;
     assert!(warns >= 1, "{}", text(&o.stderr));
 }
+
+/// Issue 24 item 4: a misspelled effect or parameter in a model file gets a "did you mean".
+#[test]
+fn misspelled_effect_and_parameter_get_a_suggestion() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("typo.toml");
+    let show = |toml: &str| {
+        std::fs::write(&model, toml).unwrap();
+        let o = run(&["model", "show", model.to_str().unwrap()]);
+        assert_eq!(o.status.code(), Some(2), "{}", text(&o.stdout));
+        text(&o.stderr)
+    };
+    let err = show("[effects.vcsel_drop]\nenabled = true\n");
+    assert!(
+        err.contains("unknown effect `effects.vcsel_drop`: did you mean `vcsel_droop`?"),
+        "{err}"
+    );
+    let err = show("[effects.banana]\nenabled = true\n");
+    assert!(
+        err.contains("unknown effect `effects.banana` (known:") && !err.contains("did you mean"),
+        "{err}"
+    );
+}
