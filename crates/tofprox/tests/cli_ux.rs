@@ -261,6 +261,11 @@ fn misspelled_effect_and_parameter_get_a_suggestion() {
         err.contains("unknown effect `effects.vcsel_drop`: did you mean `vcsel_droop`?"),
         "{err}"
     );
+    let err = show("[effects.vcsel_droop]\nenabled = true\ndroop_rell = 0.01\n");
+    assert!(
+        err.contains("unknown parameter `effects.vcsel_droop.droop_rell`: did you mean `droop_rel`?"),
+        "{err}"
+    );
     let err = show("[effects.banana]\nenabled = true\n");
     assert!(
         err.contains("unknown effect `effects.banana` (known:") && !err.contains("did you mean"),
