@@ -71,6 +71,9 @@ demo="$("$root/usr/bin/tofproxd" --demo --check-config 2>&1)" || fail "tofproxd 
   fail "demo configuration not from the install prefix: $demo"
 "$root/usr/bin/tofproxd" --check-config --config "$root/etc/tofprox/tofproxd.toml" >/dev/null ||
   fail "the installed /etc/tofprox/tofproxd.toml does not pass --check-config"
+# tofprox finds the phone model and calibration there too (no scene selected: only the set-up)
+scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || fail "tofprox scenes: $scenes"
+[ "$scenes" = "[]" ] || fail "tofprox scenes: $scenes"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
 zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"

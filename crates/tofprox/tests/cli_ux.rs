@@ -209,7 +209,10 @@ fn soak_summarises_its_faults_instead_of_flooding_stderr() {
         .nth(2)
         .and_then(|x| x.parse().ok())
         .unwrap_or_else(|| panic!("{memory}"));
-    assert!(start_kb > 1000 && memory.contains("kB after warm-up"), "{memory}");
+    assert!(
+        start_kb > 1000 && memory.contains("kB after warm-up"),
+        "{memory}"
+    );
     // a run shorter than the warm-up has no memory figure, and says so instead of "0 kB"
     let short = ["soak", "--cycles", "10", "--fault-rate", "0.5"];
     let o = run(&short);
@@ -221,7 +224,10 @@ fn soak_summarises_its_faults_instead_of_flooding_stderr() {
     let mut short_json = short.to_vec();
     short_json.push("--json");
     let v: serde_json::Value = serde_json::from_slice(&run(&short_json).stdout).unwrap();
-    assert!(v["rss_kb_start"].is_null() && v["rss_kb_end"].is_null(), "{v}");
+    assert!(
+        v["rss_kb_start"].is_null() && v["rss_kb_end"].is_null(),
+        "{v}"
+    );
     assert_eq!(v["cycles"], 10, "{v}");
     let mut json_args = args.to_vec();
     json_args.push("--json");
@@ -263,7 +269,9 @@ fn misspelled_effect_and_parameter_get_a_suggestion() {
     );
     let err = show("[effects.vcsel_droop]\nenabled = true\ndroop_rell = 0.01\n");
     assert!(
-        err.contains("unknown parameter `effects.vcsel_droop.droop_rell`: did you mean `droop_rel`?"),
+        err.contains(
+            "unknown parameter `effects.vcsel_droop.droop_rell`: did you mean `droop_rel`?"
+        ),
         "{err}"
     );
     let err = show("[effects.banana]\nenabled = true\n");

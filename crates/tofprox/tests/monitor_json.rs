@@ -35,10 +35,7 @@ fn monitor_json_lines_parse_and_follow_the_hand() {
         .output()
         .expect("dbus-run-session");
     let (stdout, stderr) = (text(&out.stdout), text(&out.stderr));
-    assert!(
-        stderr.contains("waiting for the first reading"),
-        "{stderr}"
-    );
+    assert!(stderr.contains("waiting for the first reading"), "{stderr}");
     let events: Vec<serde_json::Value> = stdout
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l:?}\n{stderr}")))
@@ -47,7 +44,9 @@ fn monitor_json_lines_parse_and_follow_the_hand() {
     let first = &events[0];
     assert_eq!(first["event"], "first_reading", "{stdout}");
     assert_eq!(first["near"], false);
-    let wall_mm = first["distance_mm"].as_u64().expect("the wall is a distance");
+    let wall_mm = first["distance_mm"]
+        .as_u64()
+        .expect("the wall is a distance");
     assert!((950..=1020).contains(&wall_mm), "wall at 1 m: {wall_mm}");
     assert_eq!(first["distance"], format!("distance {wall_mm} mm"));
     // demo thresholds: near ≤ 150 mm, far ≥ 200 mm
@@ -56,7 +55,10 @@ fn monitor_json_lines_parse_and_follow_the_hand() {
         .find(|e| e["near"] == true)
         .unwrap_or_else(|| panic!("no near: {stdout}"));
     assert_eq!(near["event"], "near_changed");
-    assert!(near["distance_mm"].as_u64().is_some_and(|d| d <= 150), "{near}");
+    assert!(
+        near["distance_mm"].as_u64().is_some_and(|d| d <= 150),
+        "{near}"
+    );
     let t_near = near["t_s"].as_f64().unwrap();
     let far = events
         .iter()

@@ -259,13 +259,13 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
     eprintln!(
         "demo: {} processing, calibration {}",
         cfg.processing.mode.as_str(),
-        cfg.processing
-            .calibration
-            .as_deref()
-            .map_or_else(|| "none".to_string(), |p| std::fs::canonicalize(p)
+        cfg.processing.calibration.as_deref().map_or_else(
+            || "none".to_string(),
+            |p| std::fs::canonicalize(p)
                 .unwrap_or_else(|_| p.to_path_buf())
                 .display()
-                .to_string())
+                .to_string()
+        )
     );
     proxy.claim_proximity().await?;
     println!(

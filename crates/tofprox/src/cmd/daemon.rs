@@ -105,12 +105,14 @@ pub struct ScenesArgs {
     /// Daemon configuration (default: the shipped defaults with the emulated backend).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Calibration set of the emulated sensor (default: calib/phone when it exists).
+    /// Calibration set of the emulated sensor (default: calib/phone of the installed data,
+    /// /usr/share/tofprox, or of the source tree, when it exists).
     #[arg(long)]
     calib: Option<PathBuf>,
-    /// Model file of the emulated sensor (the phone sensor behind its cover window).
-    #[arg(long, default_value = "config/model/phone.toml")]
-    model: PathBuf,
+    /// Model file of the emulated sensor, the phone sensor behind its cover window (default:
+    /// config/model/phone.toml of the installed data or of the source tree).
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Only scenes whose name contains this.
     #[arg(long)]
     only: Option<String>,
@@ -392,7 +394,10 @@ impl Monitor {
         self.last_frame = Some((w, h, d));
         if let MonitorOut::Live(s) = &mut self.out {
             if !self.waiting {
-                let (d, near) = (p.distance_mm().await.unwrap_or(0), p.near().await.unwrap_or(false));
+                let (d, near) = (
+                    p.distance_mm().await.unwrap_or(0),
+                    p.near().await.unwrap_or(false),
+                );
                 s.view.set_distance(live::distance_words(d, near));
             }
             s.draw(frame_ref(&self.last_frame));
@@ -402,7 +407,9 @@ impl Monitor {
 
 /// `ValidReadings` of the daemon (0 when it cannot be read).
 async fn valid_readings(p: &ProximityProxy<'_>) -> u64 {
-    let Ok(s) = p.get_status().await else { return 0 };
+    let Ok(s) = p.get_status().await else {
+        return 0;
+    };
     s.get("ValidReadings")
         .and_then(|v| u64::try_from(v).ok())
         .unwrap_or(0)
@@ -439,34 +446,44 @@ fn depth_of(f: &tofproxd::client::DepthFrame) -> Option<(usize, usize, Vec<u16>)
     (w > 0 && h > 0).then(|| (w, h, d.into_raw_vec_and_offset().0))
 }
 
+/// The monitor's claims (depth first, when asked, then proximity) and its state; the
+/// depth frames' stream with `--depth`.
+async fn start_monitor(
+    a: &MonitorArgs,
+    p: &ProximityProxy<'static>,
+) -> anyhow::Result<(Monitor, Option<tofproxd::client::DepthFrameStream>)> {
+    let depth = if a.depth {
+        p.claim_depth()
+            .await
+            .context("ClaimDepth (are you in the tofprox-depth group?)")?;
+        Some(p.receive_depth_frame().await?)
+    } else {
+        None
+    };
+    let (near_mm, far_mm) = (
+        p.near_threshold_mm().await.unwrap_or(0),
+        p.far_threshold_mm().await.unwrap_or(0),
+    );
+    let mut m = Monitor {
+        readings_before: valid_readings(p).await,
+        out: monitor_out(a, near_mm, far_mm),
+        t0: Instant::now(),
+        waiting: true,
+        last_near: None,
+        last_frame: None,
+    };
+    p.claim_proximity()
+        .await
+        .context("ClaimProximity (is tofproxd running?)")?;
+    m.poll_first_reading(p).await;
+    Ok((m, depth))
+}
+
 pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
     rt()?.block_on(async {
         let (_conn, p) = proxy(&a.bus).await?;
         let mut near_changes = p.receive_near_changed().await;
-        let mut depth = if a.depth {
-            p.claim_depth()
-                .await
-                .context("ClaimDepth (are you in the tofprox-depth group?)")?;
-            Some(p.receive_depth_frame().await?)
-        } else {
-            None
-        };
-        let (near_mm, far_mm) = (
-            p.near_threshold_mm().await.unwrap_or(0),
-            p.far_threshold_mm().await.unwrap_or(0),
-        );
-        let mut m = Monitor {
-            readings_before: valid_readings(&p).await,
-            out: monitor_out(&a, near_mm, far_mm),
-            t0: Instant::now(),
-            waiting: true,
-            last_near: None,
-            last_frame: None,
-        };
-        p.claim_proximity()
-            .await
-            .context("ClaimProximity (is tofproxd running?)")?;
-        m.poll_first_reading(&p).await;
+        let (mut m, mut depth) = start_monitor(&a, &p).await?;
         let deadline = a
             .seconds
             .map(|s| tokio::time::Instant::now() + Duration::from_secs(s));
@@ -644,6 +661,64 @@ fn shown_value(v: &serde_json::Value) -> String {
     }
 }
 
+/// RSS is sampled after the warm-up; a shorter run (or no /proc) has no figure.
+fn soak_rss_measured(rep: &tofproxd::soak::SoakReport) -> bool {
+    rep.rss_kb_start > 0 && rep.rss_kb_end > 0
+}
+
+/// The soak report as JSON, the memory figures null when not measured.
+fn soak_json(rep: &tofproxd::soak::SoakReport) -> anyhow::Result<serde_json::Value> {
+    let mut v = serde_json::to_value(rep)?;
+    if !soak_rss_measured(rep) {
+        v["rss_kb_start"] = serde_json::Value::Null;
+        v["rss_kb_end"] = serde_json::Value::Null;
+    }
+    Ok(v)
+}
+
+/// The soak report for people.
+fn print_soak(rep: &tofproxd::soak::SoakReport, ok: bool) {
+    let memory = if soak_rss_measured(rep) {
+        format!(
+            "{} kB after warm-up, {} kB at the end ({:+} kB)",
+            rep.rss_kb_start,
+            rep.rss_kb_end,
+            rep.rss_kb_end as i64 - rep.rss_kb_start as i64
+        )
+    } else {
+        "not measured (the run ended within the warm-up)".to_string()
+    };
+    let by_kind = if rep.failures_by_kind.is_empty() {
+        "none".to_string()
+    } else {
+        rep.failures_by_kind
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    println!(
+        "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
+         failed by:    {by_kind} (each logged with -v)\n\
+         false near:   {}\n\
+         panics:       {}\n\
+         recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
+         near events:  {}\n\
+         memory (RSS): {memory}\n\
+         verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
+        rep.cycles,
+        rep.faults_injected,
+        rep.failed_cycles,
+        rep.false_near,
+        rep.panics,
+        rep.recovered,
+        rep.max_recovery_cycles,
+        rep.unrecovered,
+        rep.near_transitions,
+        if ok { "PASS" } else { "FAIL" }
+    );
+}
+
 pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
     // drawn only when stderr is a terminal
     let pb = indicatif::ProgressBar::with_draw_target(
@@ -670,55 +745,10 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
     )?;
     pb.finish_and_clear();
     let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
-    // RSS is sampled after the warm-up; a shorter run (or no /proc) has no figure: none shown
-    let rss_measured = rep.rss_kb_start > 0 && rep.rss_kb_end > 0;
     if a.json {
-        let mut v = serde_json::to_value(&rep)?;
-        if !rss_measured {
-            v["rss_kb_start"] = serde_json::Value::Null;
-            v["rss_kb_end"] = serde_json::Value::Null;
-        }
-        println!("{v}");
+        println!("{}", soak_json(&rep)?);
     } else {
-        let memory = if rss_measured {
-            format!(
-                "{} kB after warm-up, {} kB at the end ({:+} kB)",
-                rep.rss_kb_start,
-                rep.rss_kb_end,
-                rep.rss_kb_end as i64 - rep.rss_kb_start as i64
-            )
-        } else {
-            "not measured (the run ended within the warm-up)".to_string()
-        };
-        let by_kind = if rep.failures_by_kind.is_empty() {
-            "none".to_string()
-        } else {
-            rep.failures_by_kind
-                .iter()
-                .map(|(k, n)| format!("{k} {n}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        println!(
-            "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
-             failed by:    {by_kind} (each logged with -v)\n\
-             false near:   {}\n\
-             panics:       {}\n\
-             recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
-             near events:  {}\n\
-             memory (RSS): {memory}\n\
-             verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
-            rep.cycles,
-            rep.faults_injected,
-            rep.failed_cycles,
-            rep.false_near,
-            rep.panics,
-            rep.recovered,
-            rep.max_recovery_cycles,
-            rep.unrecovered,
-            rep.near_transitions,
-            if ok { "PASS" } else { "FAIL" }
-        );
+        print_soak(&rep, ok);
     }
     // (held_over_failure is the bounded, safe-side hold across failed cycles: reported, not a failure)
     Ok(if ok {
@@ -730,10 +760,15 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
 
 pub fn scenes(a: ScenesArgs) -> anyhow::Result<ExitCode> {
     let calib = a.calib.clone().or_else(|| {
-        let d = PathBuf::from("calib/phone");
-        d.join("calibration.toml").exists().then_some(d)
+        let set = tofproxd::data::find("calib/phone/calibration.toml").ok()?;
+        set.parent().map(PathBuf::from)
     });
-    let mut bench = tofproxd::scenes::bench(&a.model, calib.as_deref());
+    let model = match &a.model {
+        Some(m) => m.clone(),
+        None => tofproxd::data::find("config/model/phone.toml")
+            .context("the phone model: pass --model FILE")?,
+    };
+    let mut bench = tofproxd::scenes::bench(&model, calib.as_deref());
     if let Some(p) = &a.config {
         let mut c = Config::load(p)?;
         if a.calib.is_some() || c.processing.calibration.is_none() {
