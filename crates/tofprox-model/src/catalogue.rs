@@ -793,3 +793,28 @@ pub fn effect(id: &str) -> Option<&'static EffectInfo> {
 pub fn catalogue() -> &'static [EffectInfo] {
     CATALOGUE
 }
+
+/// The candidate a misspelled name most likely meant ("did you mean"): the closest by
+/// Jaro–Winkler similarity, if it is close enough (≥ 0.8; `vcsel_drop` → `vcsel_droop`).
+pub fn closest<'a>(given: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
+    candidates
+        .into_iter()
+        .map(|c| (strsim::jaro_winkler(given, c), c))
+        .filter(|(score, _)| *score >= 0.8)
+        .max_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, c)| c)
+}
+
+#[cfg(test)]
+mod closest_tests {
+    use super::*;
+
+    #[test]
+    fn misspelled_effects_find_their_id_and_strangers_find_none() {
+        let ids = || CATALOGUE.iter().map(|e| e.id);
+        assert_eq!(closest("vcsel_drop", ids()), Some("vcsel_droop"));
+        assert_eq!(closest("adcinl", ids()), Some("adc_inl"));
+        assert_eq!(closest("quantisation", ids()), Some("quantization"));
+        assert_eq!(closest("banana", ids()), None);
+    }
+}

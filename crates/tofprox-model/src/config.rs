@@ -72,6 +72,12 @@ fn check_range(section: &str, info: &ParamInfo, v: f64) -> Result<(), ModelError
     Ok(())
 }
 
+/// `: did you mean `x`?` for a misspelled parameter name, or nothing.
+fn did_you_mean(name: &str, params: &[ParamInfo]) -> String {
+    catalogue::closest(name, params.iter().map(|p| p.name))
+        .map_or_else(String::new, |p| format!(": did you mean `{p}`?"))
+}
+
 fn allowed_names(params: &[ParamInfo]) -> String {
     params.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
 }
@@ -172,7 +178,8 @@ impl ModelConfig {
                                     ModelError::new(
                                         ErrorKind::UnknownParam,
                                         format!(
-                                            "unknown parameter `sensor.{name}` (allowed: {})",
+                                            "unknown parameter `sensor.{name}`{} (allowed: {})",
+                                            did_you_mean(name, SENSOR_PARAMS),
                                             allowed_names(SENSOR_PARAMS)
                                         ),
                                     )
@@ -291,7 +298,8 @@ impl ModelConfig {
                 ModelError::new(
                     ErrorKind::UnknownParam,
                     format!(
-                        "unknown parameter `{section}.{name}` (allowed: enabled, {}{extra})",
+                        "unknown parameter `{section}.{name}`{} (allowed: enabled, {}{extra})",
+                        did_you_mean(name, info.params),
                         allowed_names(info.params)
                     ),
                 )
@@ -448,7 +456,8 @@ impl ModelConfig {
             ModelError::new(
                 ErrorKind::UnknownParam,
                 format!(
-                    "unknown parameter `{section}.{name}` (allowed: {})",
+                    "unknown parameter `{section}.{name}`{} (allowed: {})",
+                    did_you_mean(name, params),
                     allowed_names(params)
                 ),
             )
@@ -540,9 +549,15 @@ fn unknown_effect(id: &str) -> ModelError {
     let known: Vec<&str> = CATALOGUE.iter().map(|e| e.id).collect();
     ModelError::new(
         ErrorKind::UnknownEffect,
-        format!(
-            "unknown effect `effects.{id}` (known: {})",
-            known.join(", ")
-        ),
+        match catalogue::closest(id, known.iter().copied()) {
+            Some(near) => format!(
+                "unknown effect `effects.{id}`: did you mean `{near}`? (known: {})",
+                known.join(", ")
+            ),
+            None => format!(
+                "unknown effect `effects.{id}` (known: {})",
+                known.join(", ")
+            ),
+        },
     )
 }

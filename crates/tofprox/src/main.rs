@@ -50,6 +50,14 @@ enum Command {
     Soak(cmd::daemon::SoakArgs),
     /// Run the scene catalogue through the emulated device and the daemon loop (virtual time).
     Scenes(cmd::daemon::ScenesArgs),
+    /// Write the manual pages (tofprox.1, tofprox-<command>.1, …) into --out and exit
+    /// (packaging/build-deb.sh).
+    #[command(hide = true)]
+    Man {
+        /// Directory for the pages.
+        #[arg(long, value_name = "DIR")]
+        out: std::path::PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -79,6 +87,7 @@ fn main() -> ExitCode {
         Command::Record(a) => cmd::daemon::record(a),
         Command::Soak(a) => cmd::daemon::soak(a),
         Command::Scenes(a) => cmd::daemon::scenes(a),
+        Command::Man { out } => write_man_pages(&out),
     };
     match result {
         Ok(code) => code,
@@ -89,6 +98,16 @@ fn main() -> ExitCode {
             ExitCode::from(2)
         }
     }
+}
+
+/// The manual pages of every (visible) command, from the clap definitions.
+fn write_man_pages(out: &std::path::Path) -> anyhow::Result<ExitCode> {
+    use anyhow::Context as _;
+    use clap::CommandFactory as _;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    clap_mangen::generate_to(Cli::command(), out)
+        .with_context(|| format!("writing the manual pages into {}", out.display()))?;
+    Ok(ExitCode::SUCCESS)
 }
 
 /// `tofprox … | head` must end quietly when the reader goes away, as other

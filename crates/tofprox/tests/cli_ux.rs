@@ -74,11 +74,17 @@ fn process_json_has_distance_and_error() {
         "--json",
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
+    // JSON Lines, and the help says so (for `process` and `monitor`)
     let lines: Vec<serde_json::Value> = text(&o.stdout)
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    assert!(!lines.is_empty());
+    assert!(lines.len() >= 2, "one object per capture");
+    assert!(serde_json::from_slice::<serde_json::Value>(&o.stdout).is_err());
+    for cmd in ["process", "monitor"] {
+        let help = text(&run(&[cmd, "--help"]).stdout);
+        assert!(help.contains("JSON Lines"), "{cmd} --help: {help}");
+    }
     let with_truth: Vec<&serde_json::Value> = lines
         .iter()
         .filter(|l| l["distance_m"].is_number())
@@ -193,6 +199,36 @@ fn soak_summarises_its_faults_instead_of_flooding_stderr() {
         .unwrap_or_else(|| panic!("no summary by kind: {out}"));
     assert!(failed_by.contains("disconnected"), "{failed_by}");
     assert!(!err.contains("WARN"), "warnings flood stderr: {err}");
+    // memory: measured after the warm-up, a real resident size (the test binary itself is MBs)
+    let memory = out
+        .lines()
+        .find(|l| l.starts_with("memory (RSS):"))
+        .unwrap_or_else(|| panic!("{out}"));
+    let start_kb: u64 = memory
+        .split_whitespace()
+        .nth(2)
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{memory}"));
+    assert!(
+        start_kb > 1000 && memory.contains("kB after warm-up"),
+        "{memory}"
+    );
+    // a run shorter than the warm-up has no memory figure, and says so instead of "0 kB"
+    let short = ["soak", "--cycles", "10", "--fault-rate", "0.5"];
+    let o = run(&short);
+    let out_short = text(&o.stdout);
+    assert!(
+        out_short.contains("memory (RSS): not measured") && !out_short.contains(" 0 kB"),
+        "{out_short}"
+    );
+    let mut short_json = short.to_vec();
+    short_json.push("--json");
+    let v: serde_json::Value = serde_json::from_slice(&run(&short_json).stdout).unwrap();
+    assert!(
+        v["rss_kb_start"].is_null() && v["rss_kb_end"].is_null(),
+        "{v}"
+    );
+    assert_eq!(v["cycles"], 10, "{v}");
     let mut json_args = args.to_vec();
     json_args.push("--json");
     let o = run(&json_args);
@@ -213,4 +249,34 @@ fn soak_summarises_its_faults_instead_of_flooding_stderr() {
     let o = run(&verbose_args);
     let warns = text(&o.stderr).matches("WARN").count() as u64;
     assert!(warns >= 1, "{}", text(&o.stderr));
+}
+
+/// Issue 24 item 4: a misspelled effect or parameter in a model file gets a "did you mean".
+#[test]
+fn misspelled_effect_and_parameter_get_a_suggestion() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = dir.path().join("typo.toml");
+    let show = |toml: &str| {
+        std::fs::write(&model, toml).unwrap();
+        let o = run(&["model", "show", model.to_str().unwrap()]);
+        assert_eq!(o.status.code(), Some(2), "{}", text(&o.stdout));
+        text(&o.stderr)
+    };
+    let err = show("[effects.vcsel_drop]\nenabled = true\n");
+    assert!(
+        err.contains("unknown effect `effects.vcsel_drop`: did you mean `vcsel_droop`?"),
+        "{err}"
+    );
+    let err = show("[effects.vcsel_droop]\nenabled = true\ndroop_rell = 0.01\n");
+    assert!(
+        err.contains(
+            "unknown parameter `effects.vcsel_droop.droop_rell`: did you mean `droop_rel`?"
+        ),
+        "{err}"
+    );
+    let err = show("[effects.banana]\nenabled = true\n");
+    assert!(
+        err.contains("unknown effect `effects.banana` (known:") && !err.contains("did you mean"),
+        "{err}"
+    );
 }

@@ -95,6 +95,17 @@ fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
                 "header gone while frames arrive:\n{p}"
             );
             assert!(p.contains("latest events:"), "events region gone:\n{p}");
+            // the current reading in words: a distance, what 0 or u32::MAX means, or waiting
+            let now = p.lines().find(|l| l.starts_with("now: ")).unwrap_or("");
+            assert!(
+                now.ends_with(" mm")
+                    || now.contains("nothing in range")
+                    || now.contains("distance saturated")
+                    || now.contains("distance unknown")
+                    || now.contains("waiting for the first reading"),
+                "no distance line:\n{p}"
+            );
+            assert!(!p.contains("4294967295"), "a raw special value:\n{p}");
             assert!(
                 p.contains("black: invalid") && p.contains("0 m"),
                 "legend gone:\n{p}"

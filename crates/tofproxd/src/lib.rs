@@ -13,6 +13,7 @@ pub mod calibration;
 pub mod client;
 pub mod config;
 pub mod controller;
+pub mod data;
 pub mod energy;
 pub mod hub;
 pub mod logging;

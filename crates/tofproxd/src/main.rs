@@ -24,7 +24,8 @@ struct Args {
     #[arg(long, default_value = "system")]
     bus: String,
     /// Demo: run on the emulated device with the scripted hand
-    /// (config/tofproxd-emulated.toml unless --config is given), on the session bus or a
+    /// (config/tofproxd-emulated.toml of the installed data, /usr/share/tofprox, or of the
+    /// source tree, unless --config is given), on the session bus or a
     /// private dbus-daemon when none runs, and print near/far events.
     #[arg(long)]
     demo: bool,
@@ -38,10 +39,16 @@ struct Args {
     /// More log output (repeat for more).
     #[arg(short, long, action = clap::ArgAction::Count)]
     verbose: u8,
+    /// Write the manual page tofproxd.8 into DIR and exit (packaging/build-deb.sh).
+    #[arg(long, value_name = "DIR", hide = true)]
+    man: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    if let Some(dir) = &args.man {
+        return write_man_page(dir);
+    }
     let filter = match args.verbose {
         0 => "info",
         1 => "debug",
@@ -69,6 +76,22 @@ fn main() -> ExitCode {
     }
 }
 
+/// The manual page (section 8: a system daemon) from the clap definitions.
+fn write_man_page(dir: &Path) -> ExitCode {
+    use clap::CommandFactory as _;
+    let page = clap_mangen::Man::new(Args::command()).section("8");
+    match std::fs::create_dir_all(dir).and_then(|()| page.generate_to(dir)) {
+        Ok(path) => {
+            println!("{}", path.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: writing the manual page into {}: {e}", dir.display());
+            ExitCode::from(2)
+        }
+    }
+}
+
 async fn run(mut args: Args) -> anyhow::Result<()> {
     if args.demo && args.config == Path::new("/etc/tofprox/tofproxd.toml") {
         args.config = demo_config_path()?;
@@ -77,7 +100,8 @@ async fn run(mut args: Args) -> anyhow::Result<()> {
     {
         bail!(
             "no configuration at /etc/tofprox/tofproxd.toml: pass --config FILE \
-             (config/tofproxd-emulated.toml runs the emulated sensor), or try `tofproxd --demo`"
+             (tofproxd-emulated.toml in /usr/share/tofprox/config or the source tree's config/ \
+             runs the emulated sensor), or try `tofproxd --demo`"
         );
     }
     let cfg = Config::load(&args.config)?;
@@ -96,17 +120,10 @@ async fn run(mut args: Args) -> anyhow::Result<()> {
     serve(cfg, &base, bus).await
 }
 
+/// The demo configuration from the installed data or the source tree (`tofproxd::data`).
 fn demo_config_path() -> anyhow::Result<PathBuf> {
-    for c in [
-        PathBuf::from("config/tofproxd-emulated.toml"),
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tofproxd-emulated.toml"),
-        PathBuf::from("/usr/share/tofprox/tofproxd-emulated.toml"),
-    ] {
-        if c.exists() {
-            return Ok(c);
-        }
-    }
-    bail!("config/tofproxd-emulated.toml not found: pass --config")
+    tofproxd::data::find("config/tofproxd-emulated.toml")
+        .context("the demo configuration: pass --config FILE")
 }
 
 async fn build_daemon(cfg: &Config, base: &Path, conn: zbus::Connection) -> anyhow::Result<Daemon> {
@@ -287,10 +304,13 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
     eprintln!(
         "demo: {} processing, calibration {}",
         cfg.processing.mode.as_str(),
-        cfg.processing
-            .calibration
-            .as_deref()
-            .map_or_else(|| "none".to_string(), |p| p.display().to_string())
+        cfg.processing.calibration.as_deref().map_or_else(
+            || "none".to_string(),
+            |p| std::fs::canonicalize(p)
+                .unwrap_or_else(|_| p.to_path_buf())
+                .display()
+                .to_string()
+        )
     );
     proxy.claim_proximity().await?;
     println!(

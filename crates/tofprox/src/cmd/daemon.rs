@@ -47,6 +47,11 @@ pub struct MonitorArgs {
     /// Stop after this many seconds (default: until Ctrl-C).
     #[arg(long)]
     seconds: Option<u64>,
+    /// JSON Lines on stdout: one object per line (not one JSON document), for the first
+    /// reading and each near/far change: {"t_s", "event": "first_reading"|"near_changed",
+    /// "near", "distance_mm" (null when not a distance), "distance" (in words), "state"}.
+    #[arg(long, conflicts_with = "depth")]
+    json: bool,
 }
 
 #[derive(clap::Args, Debug)]
@@ -100,12 +105,14 @@ pub struct ScenesArgs {
     /// Daemon configuration (default: the shipped defaults with the emulated backend).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Calibration set of the emulated sensor (default: calib/phone when it exists).
+    /// Calibration set of the emulated sensor (default: calib/phone of the installed data,
+    /// /usr/share/tofprox, or of the source tree, when it exists).
     #[arg(long)]
     calib: Option<PathBuf>,
-    /// Model file of the emulated sensor (the phone sensor behind its cover window).
-    #[arg(long, default_value = "config/model/phone.toml")]
-    model: PathBuf,
+    /// Model file of the emulated sensor, the phone sensor behind its cover window (default:
+    /// config/model/phone.toml of the installed data or of the source tree).
+    #[arg(long)]
+    model: Option<PathBuf>,
     /// Only scenes whose name contains this.
     #[arg(long)]
     only: Option<String>,
@@ -320,40 +327,163 @@ impl Drop for Screen {
     }
 }
 
+/// Where the monitor's readings go: lines of text, JSON Lines, or the live view.
+enum MonitorOut {
+    Text,
+    Json,
+    Live(Screen),
+}
+
+/// The monitor's view of the daemon: readings since the claim, the latest depth frame.
+struct Monitor {
+    out: MonitorOut,
+    t0: Instant,
+    /// `ValidReadings` before the claim: a larger count is a reading made for us.
+    readings_before: u64,
+    waiting: bool,
+    /// Near as last shown (a property stream also yields the unchanged value).
+    last_near: Option<bool>,
+    last_frame: Option<(usize, usize, Vec<u16>)>,
+}
+
+/// A kept frame as the live view draws it.
+fn frame_ref(f: &Option<(usize, usize, Vec<u16>)>) -> Option<(usize, usize, &[u16])> {
+    f.as_ref().map(|(w, h, d)| (*w, *h, d.as_slice()))
+}
+
+impl Monitor {
+    /// Show a reading (`event`: first_reading, near_changed) with the daemon's current
+    /// distance and state.
+    async fn show(&mut self, p: &ProximityProxy<'_>, event: &str, near: bool) {
+        self.waiting = false;
+        self.last_near = Some(near);
+        let d = p.distance_mm().await.unwrap_or(0);
+        let state = p.state().await.unwrap_or_default();
+        let t_s = self.t0.elapsed().as_secs_f64();
+        match &mut self.out {
+            MonitorOut::Json => println!("{}", live::event_json(t_s, event, near, d, &state)),
+            MonitorOut::Text => println!("{}", live::event_line(t_s, near, d, &state)),
+            MonitorOut::Live(s) => {
+                s.view.set_distance(live::distance_words(d, near));
+                s.view.push_event(live::event_line(t_s, near, d, &state));
+                s.draw(frame_ref(&self.last_frame));
+            }
+        }
+    }
+
+    /// A `Near` value from the property stream: shown when it changed since the last reading
+    /// shown (before the first reading: taken as the sign to look for it).
+    async fn near_value(&mut self, p: &ProximityProxy<'_>, near: bool) {
+        if self.waiting {
+            self.poll_first_reading(p).await;
+        } else if self.last_near != Some(near) {
+            self.show(p, "near_changed", near).await;
+        }
+    }
+
+    /// While waiting: has the first reading since the claim been made? Then show it.
+    async fn poll_first_reading(&mut self, p: &ProximityProxy<'_>) {
+        if valid_readings(p).await > self.readings_before {
+            let near = p.near().await.unwrap_or(false);
+            self.show(p, "first_reading", near).await;
+        }
+    }
+
+    /// A depth frame: kept for the preview, drawn with the current distance.
+    async fn depth_frame(&mut self, p: &ProximityProxy<'_>, w: usize, h: usize, d: Vec<u16>) {
+        self.last_frame = Some((w, h, d));
+        if let MonitorOut::Live(s) = &mut self.out {
+            if !self.waiting {
+                let (d, near) = (
+                    p.distance_mm().await.unwrap_or(0),
+                    p.near().await.unwrap_or(false),
+                );
+                s.view.set_distance(live::distance_words(d, near));
+            }
+            s.draw(frame_ref(&self.last_frame));
+        }
+    }
+}
+
+/// `ValidReadings` of the daemon (0 when it cannot be read).
+async fn valid_readings(p: &ProximityProxy<'_>) -> u64 {
+    let Ok(s) = p.get_status().await else {
+        return 0;
+    };
+    s.get("ValidReadings")
+        .and_then(|v| u64::try_from(v).ok())
+        .unwrap_or(0)
+}
+
+/// The monitor's output for `a`: the live view on a terminal with `--depth`, else text or
+/// JSON Lines (notes on stderr).
+fn monitor_out(a: &MonitorArgs, near_mm: u32, far_mm: u32) -> MonitorOut {
+    if a.depth && terminal_size().is_some() {
+        print!("{}", live::ENTER);
+        let s = Screen {
+            view: live::LiveView::new(near_mm, far_mm, 1500),
+        };
+        s.draw(None);
+        return MonitorOut::Live(s);
+    }
+    if a.depth {
+        eprintln!("note: stdout is not a terminal: no live preview, events only");
+    }
+    eprintln!("claiming proximity: near ≤ {near_mm} mm, far ≥ {far_mm} mm (Ctrl-C to stop)");
+    eprintln!("{} …", live::WAITING);
+    if a.json {
+        MonitorOut::Json
+    } else {
+        MonitorOut::Text
+    }
+}
+
+/// A `DepthFrame` signal as (width, height, depth mm), if well formed.
+fn depth_of(f: &tofproxd::client::DepthFrame) -> Option<(usize, usize, Vec<u16>)> {
+    let args = f.args().ok()?;
+    let (w, h) = (usize::from(*args.width()), usize::from(*args.height()));
+    let d = u16_le_image(args.depth_mm_u16_le(), h, w)?;
+    (w > 0 && h > 0).then(|| (w, h, d.into_raw_vec_and_offset().0))
+}
+
+/// The monitor's claims (depth first, when asked, then proximity) and its state; the
+/// depth frames' stream with `--depth`.
+async fn start_monitor(
+    a: &MonitorArgs,
+    p: &ProximityProxy<'static>,
+) -> anyhow::Result<(Monitor, Option<tofproxd::client::DepthFrameStream>)> {
+    let depth = if a.depth {
+        p.claim_depth()
+            .await
+            .context("ClaimDepth (are you in the tofprox-depth group?)")?;
+        Some(p.receive_depth_frame().await?)
+    } else {
+        None
+    };
+    let (near_mm, far_mm) = (
+        p.near_threshold_mm().await.unwrap_or(0),
+        p.far_threshold_mm().await.unwrap_or(0),
+    );
+    let mut m = Monitor {
+        readings_before: valid_readings(p).await,
+        out: monitor_out(a, near_mm, far_mm),
+        t0: Instant::now(),
+        waiting: true,
+        last_near: None,
+        last_frame: None,
+    };
+    p.claim_proximity()
+        .await
+        .context("ClaimProximity (is tofproxd running?)")?;
+    m.poll_first_reading(p).await;
+    Ok((m, depth))
+}
+
 pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
     rt()?.block_on(async {
         let (_conn, p) = proxy(&a.bus).await?;
         let mut near_changes = p.receive_near_changed().await;
-        let mut depth = if a.depth {
-            p.claim_depth()
-                .await
-                .context("ClaimDepth (are you in the tofprox-depth group?)")?;
-            Some(p.receive_depth_frame().await?)
-        } else {
-            None
-        };
-        let t0 = Instant::now();
-        p.claim_proximity()
-            .await
-            .context("ClaimProximity (is tofproxd running?)")?;
-        let (near_mm, far_mm) = (
-            p.near_threshold_mm().await.unwrap_or(0),
-            p.far_threshold_mm().await.unwrap_or(0),
-        );
-        let view = live::LiveView::new(near_mm, far_mm, 1500);
-        let mut screen = if a.depth && terminal_size().is_some() {
-            print!("{}", live::ENTER);
-            let s = Screen { view };
-            s.draw(None);
-            Some(s)
-        } else {
-            if a.depth {
-                eprintln!("note: stdout is not a terminal: no live preview, events only");
-            }
-            eprintln!("claimed proximity: near ≤ {near_mm} mm, far ≥ {far_mm} mm (Ctrl-C to stop)");
-            None
-        };
-        let mut last_frame: Option<(usize, usize, Vec<u16>)> = None;
+        let (mut m, mut depth) = start_monitor(&a, &p).await?;
         let deadline = a
             .seconds
             .map(|s| tokio::time::Instant::now() + Duration::from_secs(s));
@@ -370,42 +500,29 @@ pub fn monitor(a: MonitorArgs) -> anyhow::Result<ExitCode> {
                     None => std::future::pending().await,
                 }
             };
+            let poll = async {
+                match m.waiting {
+                    true => tokio::time::sleep(Duration::from_millis(200)).await,
+                    false => std::future::pending().await,
+                }
+            };
             tokio::select! {
                 _ = until => break,
                 _ = tokio::signal::ctrl_c() => break,
+                _ = poll => m.poll_first_reading(&p).await,
                 ch = next_item(&mut near_changes) => {
                     let Some(ch) = ch else { bail!("the daemon left the bus") };
                     let near = ch.get().await.unwrap_or(false);
-                    let d = p.distance_mm().await.unwrap_or(0);
-                    let state = p.state().await.unwrap_or_default();
-                    let line = live::event_line(t0.elapsed().as_secs_f64(), near, d, &state);
-                    match screen.as_mut() {
-                        Some(s) => {
-                            s.view.push_event(line);
-                            s.draw(last_frame.as_ref().map(|(w, h, d)| (*w, *h, d.as_slice())));
-                        }
-                        None => println!("{line}"),
-                    }
+                    m.near_value(&p, near).await;
                 }
                 f = next_depth => {
-                    if let Some(f) = f && let Ok(args) = f.args() {
-                        let (w, h) = (usize::from(*args.width()), usize::from(*args.height()));
-                        let d: Vec<u16> = args
-                            .depth_mm_u16_le()
-                            .chunks_exact(2)
-                            .map(|b| u16::from_le_bytes([b[0], b[1]]))
-                            .collect();
-                        if w > 0 && h > 0 && d.len() == w * h {
-                            if let Some(s) = &screen {
-                                s.draw(Some((w, h, &d)));
-                            }
-                            last_frame = Some((w, h, d));
-                        }
+                    if let Some((w, h, d)) = f.as_ref().and_then(depth_of) {
+                        m.depth_frame(&p, w, h, d).await;
                     }
                 }
             }
         }
-        drop(screen);
+        drop(m);
         let _ = p.release_proximity().await;
         if a.depth {
             let _ = p.release_depth().await;
@@ -544,6 +661,64 @@ fn shown_value(v: &serde_json::Value) -> String {
     }
 }
 
+/// RSS is sampled after the warm-up; a shorter run (or no /proc) has no figure.
+fn soak_rss_measured(rep: &tofproxd::soak::SoakReport) -> bool {
+    rep.rss_kb_start > 0 && rep.rss_kb_end > 0
+}
+
+/// The soak report as JSON, the memory figures null when not measured.
+fn soak_json(rep: &tofproxd::soak::SoakReport) -> anyhow::Result<serde_json::Value> {
+    let mut v = serde_json::to_value(rep)?;
+    if !soak_rss_measured(rep) {
+        v["rss_kb_start"] = serde_json::Value::Null;
+        v["rss_kb_end"] = serde_json::Value::Null;
+    }
+    Ok(v)
+}
+
+/// The soak report for people.
+fn print_soak(rep: &tofproxd::soak::SoakReport, ok: bool) {
+    let memory = if soak_rss_measured(rep) {
+        format!(
+            "{} kB after warm-up, {} kB at the end ({:+} kB)",
+            rep.rss_kb_start,
+            rep.rss_kb_end,
+            rep.rss_kb_end as i64 - rep.rss_kb_start as i64
+        )
+    } else {
+        "not measured (the run ended within the warm-up)".to_string()
+    };
+    let by_kind = if rep.failures_by_kind.is_empty() {
+        "none".to_string()
+    } else {
+        rep.failures_by_kind
+            .iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    println!(
+        "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
+         failed by:    {by_kind} (each logged with -v)\n\
+         false near:   {}\n\
+         panics:       {}\n\
+         recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
+         near events:  {}\n\
+         memory (RSS): {memory}\n\
+         verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
+        rep.cycles,
+        rep.faults_injected,
+        rep.failed_cycles,
+        rep.false_near,
+        rep.panics,
+        rep.recovered,
+        rep.max_recovery_cycles,
+        rep.unrecovered,
+        rep.near_transitions,
+        if ok { "PASS" } else { "FAIL" }
+    );
+}
+
 pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
     // drawn only when stderr is a terminal
     let pb = indicatif::ProgressBar::with_draw_target(
@@ -571,40 +746,9 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
     pb.finish_and_clear();
     let ok = rep.false_near == 0 && rep.panics == 0 && rep.max_recovery_cycles <= 3;
     if a.json {
-        println!("{}", serde_json::to_string(&rep)?);
+        println!("{}", soak_json(&rep)?);
     } else {
-        let by_kind = if rep.failures_by_kind.is_empty() {
-            "none".to_string()
-        } else {
-            rep.failures_by_kind
-                .iter()
-                .map(|(k, n)| format!("{k} {n}"))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        println!(
-            "soak: {} cycles on a virtual clock, {} faults injected, {} cycles failed\n\
-             failed by:    {by_kind} (each logged with -v)\n\
-             false near:   {}\n\
-             panics:       {}\n\
-             recovery:     {} episodes recovered, longest {} cycles, {} still open at the end\n\
-             near events:  {}\n\
-             memory (RSS): {} kB after warm-up, {} kB at the end ({:+} kB)\n\
-             verdict:      {} (needs 0 false near, 0 panics, recovery within 3 cycles)",
-            rep.cycles,
-            rep.faults_injected,
-            rep.failed_cycles,
-            rep.false_near,
-            rep.panics,
-            rep.recovered,
-            rep.max_recovery_cycles,
-            rep.unrecovered,
-            rep.near_transitions,
-            rep.rss_kb_start,
-            rep.rss_kb_end,
-            rep.rss_kb_end as i64 - rep.rss_kb_start as i64,
-            if ok { "PASS" } else { "FAIL" }
-        );
+        print_soak(&rep, ok);
     }
     // (held_over_failure is the bounded, safe-side hold across failed cycles: reported, not a failure)
     Ok(if ok {
@@ -616,10 +760,15 @@ pub fn soak(a: SoakArgs) -> anyhow::Result<ExitCode> {
 
 pub fn scenes(a: ScenesArgs) -> anyhow::Result<ExitCode> {
     let calib = a.calib.clone().or_else(|| {
-        let d = PathBuf::from("calib/phone");
-        d.join("calibration.toml").exists().then_some(d)
+        let set = tofproxd::data::find("calib/phone/calibration.toml").ok()?;
+        set.parent().map(PathBuf::from)
     });
-    let mut bench = tofproxd::scenes::bench(&a.model, calib.as_deref());
+    let model = match &a.model {
+        Some(m) => m.clone(),
+        None => tofproxd::data::find("config/model/phone.toml")
+            .context("the phone model: pass --model FILE")?,
+    };
+    let mut bench = tofproxd::scenes::bench(&model, calib.as_deref());
     if let Some(p) = &a.config {
         let mut c = Config::load(p)?;
         if a.calib.is_some() || c.processing.calibration.is_none() {

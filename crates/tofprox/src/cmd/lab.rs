@@ -63,10 +63,17 @@ pub struct DiagnoseArgs {
     /// Write a self-contained HTML report with SVG plots.
     #[arg(long)]
     pub report: Option<PathBuf>,
-    /// Remaining structure below this depth-equivalent RMS (mm) is not a
-    /// missing effect [default: 0.2 × the recording's single-acquisition noise].
-    #[arg(long)]
+    #[arg(long, help = tolerance_help())]
     pub tolerance_mm: Option<f64>,
+}
+
+/// `--tolerance-mm`'s help, its default from the code's constant.
+fn tolerance_help() -> String {
+    format!(
+        "Remaining structure below this depth-equivalent RMS (mm) is not a missing effect \
+         [default: {} × the recording's single-acquisition noise]",
+        tofprox_lab::diagnose::TOLERANCE_NOISE_SHARE
+    )
 }
 
 #[derive(clap::Args, Debug)]
@@ -89,9 +96,7 @@ pub struct ExplainArgs {
     /// Print the steps as JSON.
     #[arg(long)]
     pub json: bool,
-    /// Remaining structure below this depth-equivalent RMS (mm) is not a
-    /// missing effect [default: 0.2 × the recording's single-acquisition noise].
-    #[arg(long)]
+    #[arg(long, help = tolerance_help())]
     pub tolerance_mm: Option<f64>,
 }
 

@@ -11,34 +11,62 @@
 use std::fmt::Write as _;
 
 use tofprox_chart::viridis;
+use tofproxd::controller::DISTANCE_BEYOND_RANGE_MM;
 
 /// Enter: alternate screen, cursor hidden, screen cleared.
 pub const ENTER: &str = "\x1b[?1049h\x1b[?25l\x1b[2J";
 /// Leave: cursor shown, normal screen back.
 pub const LEAVE: &str = "\x1b[?25h\x1b[?1049l";
 
+/// The distance line until the first reading arrives.
+pub const WAITING: &str = "waiting for the first reading";
+
 /// Events kept in the status region.
 const EVENTS: usize = 4;
 
-/// One near/far transition as a line of text: time, NEAR/far, distance (0 is
-/// "saturated" when near — the ROI was too close or bright to measure — and
-/// "unknown" otherwise), state.
-pub fn event_line(t_s: f64, near: bool, distance_mm: u32, state: &str) -> String {
-    let d = match (distance_mm, near) {
+/// `DistanceMm` in words: a distance, or what the special values mean — 0 is
+/// "saturated" when near (the ROI was too close or bright to measure) and "unknown"
+/// otherwise; [`DISTANCE_BEYOND_RANGE_MM`] is a valid reading with nothing in range.
+pub fn distance_words(distance_mm: u32, near: bool) -> String {
+    match (distance_mm, near) {
+        (DISTANCE_BEYOND_RANGE_MM, _) => "nothing in range".to_string(),
         (0, true) => "distance saturated (too close or too bright to measure)".to_string(),
         (0, false) => "distance unknown".to_string(),
         (d, _) => format!("distance {d} mm"),
-    };
+    }
+}
+
+/// One reading or near/far transition as a line of text: time, NEAR/far, distance in
+/// words ([`distance_words`]), state.
+pub fn event_line(t_s: f64, near: bool, distance_mm: u32, state: &str) -> String {
     format!(
-        "{t_s:8.2} s  {}  {d}  state {state}",
-        if near { "NEAR" } else { "far " }
+        "{t_s:8.2} s  {}  {}  state {state}",
+        if near { "NEAR" } else { "far " },
+        distance_words(distance_mm, near)
     )
+}
+
+/// One line of `tofprox monitor --json` (JSON Lines: one object per line). `event` is
+/// `"first_reading"` or `"near_changed"`; `distance_mm` is a number only when it is a
+/// distance (null for nothing in range, saturated or unknown), `distance` says it in words.
+pub fn event_json(t_s: f64, event: &str, near: bool, distance_mm: u32, state: &str) -> String {
+    let is_distance = distance_mm != 0 && distance_mm != DISTANCE_BEYOND_RANGE_MM;
+    serde_json::json!({
+        "t_s": (t_s * 1e3).round() / 1e3,
+        "event": event,
+        "near": near,
+        "distance_mm": is_distance.then_some(distance_mm),
+        "distance": distance_words(distance_mm, near),
+        "state": state,
+    })
+    .to_string()
 }
 
 /// The state of the view.
 #[derive(Debug, Clone)]
 pub struct LiveView {
     header: String,
+    distance: String,
     events: Vec<String>,
     range_mm: u32,
 }
@@ -51,9 +79,16 @@ impl LiveView {
             header: format!(
                 "tofprox monitor: near ≤ {near_mm} mm, far ≥ {far_mm} mm (Ctrl-C to stop)"
             ),
+            distance: WAITING.to_string(),
             events: Vec::new(),
             range_mm: range_mm.max(1),
         }
+    }
+
+    /// The current reading, shown on its own line under the header: `distance_words`, or
+    /// [`WAITING`].
+    pub fn set_distance(&mut self, words: String) {
+        self.distance = words;
     }
 
     /// Add an event line.
@@ -78,6 +113,7 @@ impl LiveView {
             let _ = write!(o, "{s}\x1b[K\r\n");
         };
         line(&mut o, &self.header);
+        line(&mut o, &format!("now: {}", self.distance));
         line(&mut o, "latest events:");
         for k in 0..EVENTS {
             match self.events.get(k) {
@@ -99,7 +135,7 @@ impl LiveView {
             " {:.1} m   black: invalid\x1b[K\r\n",
             f64::from(self.range_mm) / 1000.0
         );
-        let used = 3 + EVENTS;
+        let used = 4 + EVENTS;
         let Some((w, h, depth)) = frame.filter(|(w, h, d)| *w > 0 && *h > 0 && d.len() >= w * h)
         else {
             line(&mut o, "(waiting for depth frames)");
@@ -172,19 +208,48 @@ mod tests {
         let s = v.screen(Some((w, h, &depth)), 80, 40);
         let lines: Vec<String> = visible(&s).split("\r\n").map(str::to_string).collect();
         assert!(lines[0].starts_with("tofprox monitor: near ≤ 100 mm"));
-        assert!(lines[2].contains("NEAR  distance saturated"), "{lines:?}");
-        assert!(lines[6].contains("0 m") && lines[6].contains("1.5 m"));
+        assert_eq!(lines[1], "now: waiting for the first reading");
+        assert!(lines[3].contains("NEAR  distance saturated"), "{lines:?}");
+        assert!(lines[7].contains("0 m") && lines[7].contains("1.5 m"));
         // preview rows follow; the aspect ratio holds: cols / (2 rows) ≈ w / h
         let preview: Vec<&String> = lines.iter().filter(|l| l.contains('▀')).collect();
         let cols = preview[0].chars().filter(|c| *c == '▀').count();
         let ratio = cols as f64 / (2.0 * preview.len() as f64);
         assert!((ratio - w as f64 / h as f64).abs() < 0.1, "{ratio}");
-        assert!(preview.len() + 7 < 40);
+        assert!(preview.len() + 8 < 40);
         // a short terminal shrinks the preview, never the status region
         let s = v.screen(Some((w, h, &depth)), 200, 20);
         let vis = visible(&s);
         assert!(vis.split("\r\n").count() <= 20);
         assert!(vis.contains("NEAR") && vis.contains("black: invalid"));
+        // the distance line follows the reading, in words
+        v.set_distance(distance_words(DISTANCE_BEYOND_RANGE_MM, false));
+        let vis = visible(&v.screen(None, 80, 24));
+        assert_eq!(vis.split("\r\n").nth(1), Some("now: nothing in range"));
+    }
+
+    #[test]
+    fn nothing_in_range_is_said_in_words() {
+        let l = event_line(3.5, false, u32::MAX, "running");
+        assert!(l.contains("far   nothing in range  state running"), "{l}");
+        assert!(!l.contains("4294967295"), "{l}");
+    }
+
+    #[test]
+    fn json_lines_carry_distances_only_when_they_are_distances() {
+        let parse = |s: String| serde_json::from_str::<serde_json::Value>(&s).unwrap();
+        let v = parse(event_json(1.23456, "near_changed", true, 96, "running"));
+        assert_eq!(v["t_s"], 1.235);
+        assert_eq!(v["event"], "near_changed");
+        assert_eq!(v["near"], true);
+        assert_eq!(v["distance_mm"], 96);
+        assert_eq!(v["distance"], "distance 96 mm");
+        let v = parse(event_json(0.0, "first_reading", false, u32::MAX, "running"));
+        assert!(v["distance_mm"].is_null());
+        assert_eq!(v["distance"], "nothing in range");
+        let v = parse(event_json(0.0, "first_reading", true, 0, "running"));
+        assert!(v["distance_mm"].is_null());
+        assert!(v["distance"].as_str().unwrap().contains("saturated"));
     }
 
     #[test]

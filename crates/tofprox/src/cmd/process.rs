@@ -67,7 +67,9 @@ pub struct ProcessArgs {
     /// valid pixels only).
     #[arg(long, value_name = "PATH")]
     pub points: Option<PathBuf>,
-    /// Print one JSON object per processed capture on stdout.
+    /// JSON Lines on stdout: one object per processed capture, one per line (not one JSON
+    /// document: read it line by line): index, depth_kind, distance_m, median_depth_m,
+    /// error_mm, valid_fraction, process_us [, crosstalk_residual].
     #[arg(long)]
     pub json: bool,
     /// Pixels with a lower amplitude (LSB) are invalid.

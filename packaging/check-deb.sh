@@ -1,0 +1,81 @@
+#!/usr/bin/env bash
+# Check a package built by packaging/build-deb.sh (called by .ci/run):
+#
+#   packaging/check-deb.sh target/debian/tofprox_<version>_<arch>.deb
+#
+# 1. its contents (`dpkg-deb -c`): binaries, unit, D-Bus policy and interface, udev rule,
+#    sysusers/tmpfiles, /etc/tofprox/tofproxd.toml (a conffile), shipped data, man pages;
+# 2. an install into a scratch root with dpkg itself (`dpkg --root`, maintainer scripts run
+#    with DPKG_ROOT): the postinst made the user and groups and the calibration directory;
+# 3. `systemd-analyze verify` of the installed unit against the installed binary;
+# 4. the installed binaries run from another directory and find their data under the
+#    install prefix, not in the source tree; the man pages are pages of both binaries.
+# A missing tool is an error under CI=true and a loud skip otherwise.
+set -euo pipefail
+deb="$(realpath "$1")"
+fail() { echo "check-deb: FAIL: $*" >&2; exit 1; }
+for tool in dpkg dpkg-deb systemd-analyze systemd-sysusers systemd-tmpfiles; do
+  if ! command -v "$tool" >/dev/null; then
+    [ "${CI:-}" = true ] && fail "$tool not on PATH (package dpkg / systemd)"
+    echo "SKIPPED check-deb: $tool not on PATH" >&2
+    exit 0
+  fi
+done
+
+# 1. contents
+contents="$(dpkg-deb -c "$deb" | awk '{print $6}' | sed 's|^\./|/|')"
+for f in /usr/bin/tofprox /usr/bin/tofproxd \
+  /usr/lib/systemd/system/tofproxd.service \
+  /usr/share/dbus-1/system.d/org.tofprox.Proximity1.conf \
+  /usr/share/dbus-1/interfaces/org.tofprox.Proximity1.xml \
+  /usr/lib/udev/rules.d/70-tofprox.rules \
+  /usr/lib/sysusers.d/tofprox.conf /usr/lib/tmpfiles.d/tofprox.conf \
+  /etc/tofprox/tofproxd.toml \
+  /usr/share/tofprox/config/tofproxd-emulated.toml \
+  /usr/share/tofprox/calib/emulated/calibration.toml \
+  /usr/share/man/man1/tofprox.1.gz /usr/share/man/man1/tofprox-monitor.1.gz \
+  /usr/share/man/man8/tofproxd.8.gz /usr/share/doc/tofprox/daemon.md; do
+  grep -qx "$f" <<<"$contents" || fail "$f missing from $deb"
+done
+if grep -q '/target/\|\.rs$\|make\.sh$' <<<"$contents"; then fail "build files in the package"; fi
+[ "$(dpkg-deb -f "$deb" Package)" = tofprox ] || fail "Package field"
+dpkg-deb -I "$deb" conffiles | grep -qx /etc/tofprox/tofproxd.toml || fail "tofproxd.toml is not a conffile"
+echo "check-deb: contents ok ($(wc -l <<<"$contents") entries)"
+
+# 2. install into a scratch root with dpkg
+root="$(mktemp -d)"
+trap 'rm -rf "$root"' EXIT
+mkdir -p "$root/var/lib/dpkg/info" "$root/var/lib/dpkg/updates" "$root/etc"
+touch "$root/var/lib/dpkg/status" "$root/etc/passwd" "$root/etc/group"
+# (the scratch root has no libc6, dbus, systemd packages: --force-depends)
+dpkg --root="$root" --log=/dev/null --force-script-chrootless --force-depends \
+  --force-not-root -i "$deb" >"$root/dpkg.log" 2>&1 || fail "dpkg -i: $(cat "$root/dpkg.log")"
+[ "$(dpkg --root="$root" -s tofprox | sed -n 's/^Status: //p')" = "install ok installed" ] ||
+  fail "tofprox not installed in the scratch root"
+grep -q '^tofprox:' "$root/etc/passwd" || fail "postinst made no user tofprox"
+grep -q '^tofprox-depth:' "$root/etc/group" || fail "postinst made no group tofprox-depth"
+[ -d "$root/var/lib/tofprox/calib" ] || fail "postinst made no /var/lib/tofprox/calib"
+echo "check-deb: installed into a scratch root (user, groups, /var/lib/tofprox/calib made)"
+
+# 3. the installed unit verifies against the installed binary
+unit="$root/usr/lib/systemd/system/tofproxd.service"
+sed "s|/usr/bin/tofproxd|$root/usr/bin/tofproxd|" "$unit" >"$root/tofproxd.service"
+verify="$(systemd-analyze verify "$root/tofproxd.service" 2>&1)" || fail "systemd-analyze verify: $verify"
+if grep -q 'tofproxd.service:' <<<"$verify"; then fail "systemd-analyze verify: $verify"; fi
+echo "check-deb: systemd-analyze verify of the installed unit: clean"
+
+# 4. installed binaries, run elsewhere, find the installed data
+mkdir "$root/elsewhere" && cd "$root/elsewhere"
+demo="$("$root/usr/bin/tofproxd" --demo --check-config 2>&1)" || fail "tofproxd --demo --check-config: $demo"
+[ "$demo" = "$root/usr/share/tofprox/config/tofproxd-emulated.toml: ok" ] ||
+  fail "demo configuration not from the install prefix: $demo"
+"$root/usr/bin/tofproxd" --check-config --config "$root/etc/tofprox/tofproxd.toml" >/dev/null ||
+  fail "the installed /etc/tofprox/tofproxd.toml does not pass --check-config"
+# tofprox finds the phone model and calibration there too (no scene selected: only the set-up)
+scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || fail "tofprox scenes: $scenes"
+[ "$scenes" = "[]" ] || fail "tofprox scenes: $scenes"
+zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
+zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
+zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"
+echo "check-deb: installed binaries find their data under the prefix ($demo); man pages ok"
+echo "check-deb: PASS $(basename "$deb")"
