@@ -279,4 +279,20 @@ fn misspelled_effect_and_parameter_get_a_suggestion() {
         err.contains("unknown effect `effects.banana` (known:") && !err.contains("did you mean"),
         "{err}"
     );
+    // the lab's `add` names the effect it probably meant, before reading any file
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_drop",
+        "--model",
+        "absent.toml",
+        "--data",
+        "absent",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stdout));
+    assert!(
+        text(&o.stderr).contains("cannot add `vcsel_drop` (did you mean `vcsel_droop`?)"),
+        "{}",
+        text(&o.stderr)
+    );
 }

@@ -264,8 +264,11 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
 
 fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     if !SIGNATURE_IDS.contains(&a.effect.as_str()) {
+        let hint = tofprox_model::catalogue::closest(&a.effect, SIGNATURE_IDS.iter().copied())
+            .map(|c| format!(" (did you mean `{c}`?)"))
+            .unwrap_or_default();
         anyhow::bail!(
-            "the lab cannot add `{}`; it can add: {}",
+            "the lab cannot add `{}`{hint}; it can add: {}",
             a.effect,
             SIGNATURE_IDS.join(", ")
         );
