@@ -99,6 +99,7 @@ fn req(row_window: Option<RowWindow>) -> CycleRequest {
         mode: SensorMode::Depth(Algorithm::TwoPhase),
         exposure_us: 300.0,
         row_window,
+        modulation_hz: None,
     }
 }
 

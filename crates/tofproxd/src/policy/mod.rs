@@ -9,6 +9,7 @@
 //! | [`AutoExposure`] | exposure per raw image | saturated / weak fraction of the ROI | 3.1.2, eye-safe max |
 //! | [`AdaptiveRate`] | reading rate | near, approach speed, stillness | 3.5.3 |
 //! | [`ReadoutWindow`] | rows read out | ROI, margin, source alignment | 3.1.2 (read-out ∝ rows) |
+//! | [`SecondFrequency`] | confirm dim near candidates at a second frequency | dim candidates, Near | 2.2.1, eqs. 2.7–2.9 |
 //! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
 
 mod ambient;
@@ -16,9 +17,11 @@ mod energy_account;
 mod exposure;
 mod rate;
 mod readout;
+pub mod second_frequency;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
 pub use exposure::{AutoExposure, ExposureObservation};
 pub use rate::{AdaptiveRate, RateObservation};
 pub use readout::{ReadoutObservation, ReadoutWindow};
+pub use second_frequency::{CandidateObservation, SecondFrequency};
