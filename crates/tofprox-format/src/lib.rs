@@ -37,7 +37,8 @@ pub use extract::{
 pub use points::{PointCloudFormat, encode_points};
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
-    RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind, RecordingWriter, recording_kind,
-    validate_recording_toml, validate_spec,
+    RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind, RecordingWriter,
+    SecondFrequencyFrames, SecondFrequencyMeta, recording_kind, validate_recording_toml,
+    validate_spec,
 };
 pub use text::fmt_num;

@@ -37,7 +37,7 @@ pub const MIN_DISTANCE_M: f64 = 0.005;
 /// Largest distance the model accepts.
 pub const MAX_DISTANCE_M: f64 = 1000.0;
 /// Largest reflectivity (retro-reflectors exceed 1).
-pub const MAX_REFLECTIVITY: f64 = 10.0;
+pub const MAX_REFLECTIVITY: f64 = 2000.0;
 
 fn check_value(what: &str, d: f64, r: f64) -> Result<(), ModelError> {
     if !(d.is_finite() && (MIN_DISTANCE_M..=MAX_DISTANCE_M).contains(&d)) {
@@ -107,6 +107,10 @@ pub enum ScriptKind {
     /// A table top `near_m` below the optical axis, seen at grazing incidence up to its
     /// edge at `far_m` (horizontal distance); the wall beyond. Static.
     TableEdge,
+    /// A vertical band at `near_m` over every row, covering the left third of the central
+    /// half of the field of view (a third of the daemon's default ROI): a safety vest or a
+    /// retroreflective sign seen past the phone. Static.
+    Band,
 }
 
 /// How the object of a [`SceneScript`] moves (one cycle per `period_s`).
@@ -278,7 +282,7 @@ impl SceneScript {
     /// The motion in effect (the configured one, else the kind's own).
     pub fn motion(&self) -> Motion {
         self.motion.unwrap_or(match self.kind {
-            ScriptKind::Wall | ScriptKind::TableEdge => Motion::Static,
+            ScriptKind::Wall | ScriptKind::TableEdge | ScriptKind::Band => Motion::Static,
             ScriptKind::Face => Motion::Sway,
             ScriptKind::Hand | ScriptKind::Card | ScriptKind::Plane => Motion::Approach,
         })
@@ -298,7 +302,7 @@ impl SceneScript {
             ScriptKind::Face => Some(FACE_HALF_AXES_M),
             ScriptKind::Card => Some(CARD_HALF_AXES_M),
             ScriptKind::Hand => Some((HAND_RADIUS_M, HAND_RADIUS_M)),
-            ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge => None,
+            ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge | ScriptKind::Band => None,
         }
     }
 
@@ -432,7 +436,10 @@ impl SceneScript {
             return wall;
         };
         let z = pose.distance_m;
+        // the band: x from the left edge of the central half of the view, a third of it wide
+        let half_roi = self.fov_half_tan() / 2.0;
         let inside = match self.half_axes_m() {
+            None if self.kind == ScriptKind::Band => (-half_roi..=-half_roi / 3.0).contains(&x),
             None => true,
             Some((half_w, half_h)) => {
                 let (dx, dy) = ((x * z - pose.lateral_m) / half_w, y * z / half_h);
@@ -634,6 +641,11 @@ pub mod reflectivity {
     pub const DARK_FABRIC: f64 = 0.1;
     /// Wooden table top.
     pub const TABLE: f64 = 0.3;
+    /// Retroreflective tape at a phone's observation angle (illumination beside the lens):
+    /// ~1000× a white wall.
+    pub const RETROREFLECTIVE_TAPE: f64 = 1000.0 * WHITE;
+    /// A safety vest (20–40× a white wall).
+    pub const SAFETY_VEST: f64 = 30.0 * WHITE;
 }
 
 /// The scenes a phone meets, with stable names, for near/far thresholds `near_m` /
@@ -654,6 +666,15 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
         far_m: 0.6,
         wall_distance_m: 1.5,
         wall_reflectivity: 0.5,
+        ..base.clone()
+    };
+    let band = |d: f64, r: f64| SceneScript {
+        kind: ScriptKind::Band,
+        object_reflectivity: r,
+        near_m: d,
+        far_m: d + 0.5,
+        wall_distance_m: 6.0,
+        wall_reflectivity: DARK_WALL,
         ..base.clone()
     };
     let clean = CoverWindow::default();
@@ -722,6 +743,46 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             "wall_white_400cm",
             "white wall at 4 m (wraps to ≈ 25 cm, weak)",
             wall(4.0, WHITE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "retroreflector_tape_190cm",
+            "retroreflective tape (1000× a white wall) over a third of the ROI at 1.90 m, just beyond the unambiguous range: wraps to ≈ 3 cm as bright as a hand",
+            band(1.90, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "retroreflector_tape_195cm",
+            "retroreflective tape (1000×) over a third of the ROI at 1.95 m (wraps to ≈ 8 cm)",
+            band(1.95, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "retroreflector_tape_380cm",
+            "retroreflective tape (1000×) over a third of the ROI at 3.8 m, just beyond twice the range (wraps to ≈ 5 cm)",
+            band(3.80, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "safety_vest_192cm",
+            "a safety vest (30× a white wall) over a third of the ROI at 1.92 m (wraps to ≈ 5 cm)",
+            band(1.92, SAFETY_VEST),
+            0.0,
+            clean,
+            static_s,
+        ),
+        scene(
+            "safety_vest_380cm",
+            "a safety vest (30×) over a third of the ROI at 3.8 m",
+            band(3.80, SAFETY_VEST),
             0.0,
             clean,
             static_s,

@@ -207,7 +207,8 @@ pub struct ProximityConfig {
     /// what a diffuse target of this reflectivity returns at its measured depth …
     pub confirm_reflectivity: f64,
     /// … or below what the brightest far target (gain relative to a white wall: retroreflective
-    /// tape ~1000× at a phone's observation angle) returns one unambiguous range further.
+    /// tape ~1000× at a phone's observation angle; the default 2000 leaves a factor 2 for the
+    /// amplitude scale's error) returns one unambiguous range further.
     pub brightest_far_gain: f64,
 }
 
@@ -224,7 +225,7 @@ impl Default for ProximityConfig {
             nominal_amplitude_scale: NOMINAL_AMPLITUDE_SCALE,
             second_modulation_hz: 70e6,
             confirm_reflectivity: 0.2,
-            brightest_far_gain: 1000.0,
+            brightest_far_gain: 2000.0,
         }
     }
 }

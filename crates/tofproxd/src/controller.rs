@@ -966,10 +966,11 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
 }
 
 /// The parts of a calibration that hold at another modulation frequency: the dark offset
-/// (no modulation in it) and the per-pixel phase offsets, a propagation delay whose phase
-/// scales with the frequency (`φ = 2π·f·τ`, eq. 2.6). The wiggling LUT (harmonics of this
-/// frequency's waveform) and the cover-window crosstalk (measured at this frequency) do not:
-/// left out, within the metres the dual-frequency unwrapping tolerates.
+/// (no modulation in it), the per-pixel phase offsets — a propagation delay whose phase
+/// scales with the frequency (`φ = 2π·f·τ`, eq. 2.6) — and the cover-window crosstalk (a
+/// return from millimetres: its phase `4π·f·d/c` is ≈ 0 at either frequency). The wiggling LUT
+/// (the harmonics of this frequency's waveform) is left out: centimetres, far within what the
+/// dual-frequency unwrapping tolerates (the two frequencies' aliases lie ≥ 27 cm apart).
 fn at_second_frequency(full: &Calibration, frequency_ratio: f64) -> Calibration {
     let mut fppn = full.fppn.clone();
     if let Some(f) = &mut fppn {
@@ -979,7 +980,8 @@ fn at_second_frequency(full: &Calibration, frequency_ratio: f64) -> Calibration 
     Calibration {
         offset: full.offset.clone(),
         fppn,
-        ..Calibration::default()
+        crosstalk: full.crosstalk.clone(),
+        wiggling: None,
     }
 }
 

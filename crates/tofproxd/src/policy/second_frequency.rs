@@ -17,7 +17,8 @@
 //! would return ([`DimNearRule`]). A dim candidate is confirmed by one capture at the second
 //! frequency `f2`: both phases unwrapped together ([`dual_frequency_distance`], eq. 2.8 with
 //! the fusion of eq. 2.9) must put it below `far_mm`; a pixel they put farther (an aliased far
-//! target) or that the second capture cannot measure is rejected like a wrapped phase
+//! target) is rejected like a wrapped phase; one the second capture cannot measure (too weak,
+//! saturated) carries no evidence and keeps the amplitude test's verdict
 //! ([`reject_aliased`]). Only candidates are checked, and only while Near is not published
 //! ([`SecondFrequency::next`]): one extra capture per near onset, none while far or near.
 
@@ -97,15 +98,18 @@ pub fn dim_near_candidates(
 pub struct AliasVerdict {
     /// Candidates both frequencies put below `far_m`.
     pub confirmed: usize,
-    /// Candidates rejected: farther by eqs. 2.8/2.9, or not measurable at the second frequency.
+    /// Candidates rejected: farther by eqs. 2.8/2.9.
     pub aliased: usize,
+    /// Candidates the second capture could not measure (weak, saturated): kept.
+    pub unmeasured: usize,
 }
 
 /// Check each candidate of `frame1` (modulation `f1_hz`) against `frame2`, the same pixels
 /// captured at `f2_hz`: both phases unwrapped together ([`dual_frequency_distance`], eq. 2.8,
-/// fused by eq. 2.9) must lie below `far_m`. A pixel saturated at `f2` is kept (too close to
-/// measure), one invalid or low at `f2` or unwrapped farther is rejected like a wrapped phase:
-/// [`FLAG_IMPLAUSIBLE`] | [`FLAG_INVALID`], depth 0. Frames of different shapes reject all.
+/// fused by eq. 2.9) must lie below `far_m`; one unwrapped farther is rejected like a wrapped
+/// phase: [`FLAG_IMPLAUSIBLE`] | [`FLAG_INVALID`], depth 0. A pixel `f2` cannot measure
+/// (saturated, invalid, too weak) is kept: no evidence either way. Frames of different shapes
+/// confirm nothing and reject nothing.
 pub fn reject_aliased(
     frame1: &mut DepthFrame,
     f1_hz: f64,
@@ -115,28 +119,26 @@ pub fn reject_aliased(
     far_m: f64,
 ) -> AliasVerdict {
     let mut v = AliasVerdict::default();
-    let same_shape = frame1.dim() == frame2.dim();
+    if frame1.dim() != frame2.dim() {
+        v.unmeasured = candidates.len();
+        return v;
+    }
     for &(r, c) in candidates {
         let i = [r, c];
-        let near = same_shape && {
-            let f2 = frame2.flags[i];
-            if f2 & FLAG_SATURATED != 0 {
-                true
-            } else if f2 & (FLAG_INVALID | FLAG_LOW_AMPLITUDE) != 0 {
-                false
-            } else {
-                dual_frequency_distance(
-                    f64::from(frame1.phase_rad[i]),
-                    f64::from(frame1.amplitude_lsb[i]),
-                    f1_hz,
-                    f64::from(frame2.phase_rad[i]),
-                    f64::from(frame2.amplitude_lsb[i]),
-                    f2_hz,
-                    None,
-                )
-                .is_ok_and(|d| d.distance_m < far_m)
-            }
-        };
+        if frame2.flags[i] & (FLAG_SATURATED | FLAG_INVALID | FLAG_LOW_AMPLITUDE) != 0 {
+            v.unmeasured += 1;
+            continue;
+        }
+        let near = dual_frequency_distance(
+            f64::from(frame1.phase_rad[i]),
+            f64::from(frame1.amplitude_lsb[i]),
+            f1_hz,
+            f64::from(frame2.phase_rad[i]),
+            f64::from(frame2.amplitude_lsb[i]),
+            f2_hz,
+            None,
+        )
+        .is_ok_and(|d| d.distance_m < far_m);
         if near {
             v.confirmed += 1;
         } else {
@@ -282,17 +284,17 @@ mod tests {
     }
 
     #[test]
-    fn unmeasurable_at_the_second_frequency_is_not_confirmed() {
+    fn unmeasurable_at_the_second_frequency_is_no_evidence() {
         let mut f1 = frame_of(0.06, 0.4, 80e6);
         let mut f2 = frame_of(0.06, 0.4, 70e6);
         f2.flags[[0, 0]] = FLAG_LOW_AMPLITUDE;
         f2.flags[[0, 1]] = FLAG_SATURATED;
         let v = reject_aliased(&mut f1, 80e6, &f2, 70e6, &[(0, 0), (0, 1)], 0.15);
-        assert_eq!((v.confirmed, v.aliased), (1, 1));
-        assert_eq!(f1.depth_mm[[0, 0]], 0);
+        assert_eq!((v.confirmed, v.aliased, v.unmeasured), (0, 0, 2));
+        assert_eq!(f1.depth_mm[[0, 0]], 60, "no evidence: kept");
         let other = DepthFrame::zeros(2, 2);
         let v = reject_aliased(&mut f1, 80e6, &other, 70e6, &[(1, 1)], 0.15);
-        assert_eq!(v.aliased, 1, "frames of another shape confirm nothing");
+        assert_eq!(v.unmeasured, 1, "frames of another shape say nothing");
     }
 
     #[test]
