@@ -690,6 +690,8 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
     };
     let approach_s = base.period_s;
     let static_s = 4.0;
+    // long enough for a false near to count after the far debounce at the slowest rate
+    let band_s = 12.0;
     vec![
         scene(
             "nothing_in_range",
@@ -753,7 +755,7 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             band(1.90, RETROREFLECTIVE_TAPE),
             0.0,
             clean,
-            static_s,
+            band_s,
         ),
         scene(
             "retroreflector_tape_195cm",
@@ -761,7 +763,7 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             band(1.95, RETROREFLECTIVE_TAPE),
             0.0,
             clean,
-            static_s,
+            band_s,
         ),
         scene(
             "retroreflector_tape_380cm",
@@ -769,7 +771,7 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             band(3.80, RETROREFLECTIVE_TAPE),
             0.0,
             clean,
-            static_s,
+            band_s,
         ),
         scene(
             "safety_vest_192cm",
@@ -777,7 +779,7 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             band(1.92, SAFETY_VEST),
             0.0,
             clean,
-            static_s,
+            band_s,
         ),
         scene(
             "safety_vest_380cm",
@@ -785,7 +787,7 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             band(3.80, SAFETY_VEST),
             0.0,
             clean,
-            static_s,
+            band_s,
         ),
         scene(
             "ceiling_dark_030cm",

@@ -965,12 +965,13 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
     Ok(out)
 }
 
-/// The parts of a calibration that hold at another modulation frequency: the dark offset
-/// (no modulation in it), the per-pixel phase offsets — a propagation delay whose phase
-/// scales with the frequency (`φ = 2π·f·τ`, eq. 2.6) — and the cover-window crosstalk (a
-/// return from millimetres: its phase `4π·f·d/c` is ≈ 0 at either frequency). The wiggling LUT
-/// (the harmonics of this frequency's waveform) is left out: centimetres, far within what the
-/// dual-frequency unwrapping tolerates (the two frequencies' aliases lie ≥ 27 cm apart).
+/// The calibration applied at another modulation frequency (no calibration set holds one
+/// for it): the dark offset (no modulation in it), the per-pixel phase offsets scaled as a
+/// propagation delay (`φ = 2π·f·τ`, eq. 2.6), the cover-window crosstalk (a return from
+/// millimetres: its phase `4π·f·d/c` is ≈ 0 at either frequency) and this frequency's wiggling
+/// LUT with its global phase offset — on the phone sensor the second frequency's residual is
+/// then ≈ 5 cm, within what the unwrapping tolerates (the aliases lie ≥ 27 cm apart); without
+/// the LUT it is 23 cm, and a near face unwraps to an alias.
 fn at_second_frequency(full: &Calibration, frequency_ratio: f64) -> Calibration {
     let mut fppn = full.fppn.clone();
     if let Some(f) = &mut fppn {
@@ -981,7 +982,7 @@ fn at_second_frequency(full: &Calibration, frequency_ratio: f64) -> Calibration 
         offset: full.offset.clone(),
         fppn,
         crosstalk: full.crosstalk.clone(),
-        wiggling: None,
+        wiggling: full.wiggling.clone(),
     }
 }
 
