@@ -538,6 +538,8 @@ impl<S: FrameSource> Controller<S> {
             g,
             cycle.exposure_us,
         )?;
+        // a far target the second frequency found is not "only the window returns"
+        let mut aliased_far = false;
         if let Some((c2, f2)) = &second {
             let f2_hz = c2.geometry.modulation_hz;
             let v = reject_aliased(
@@ -549,6 +551,8 @@ impl<S: FrameSource> Controller<S> {
                 plaus.check_below_m,
             );
             tracing::debug!("second frequency {f2_hz} Hz: {v:?}");
+            self.second.note(v);
+            aliased_far = v.aliased > 0;
         }
         let frame = pipe.frame();
         let stats = roi_stats(frame, roi);
@@ -580,6 +584,7 @@ impl<S: FrameSource> Controller<S> {
         let window_tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, g.modulation_hz);
         if valid
             && !reading.near
+            && !aliased_far
             && (reading.no_target || phasor_points_at_window(frame, roi, window_tolerance_rad))
             && let Some(x) = &pipe.calibration().crosstalk
             && let Some(ratio) = residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)
@@ -1403,9 +1408,11 @@ mod tests {
         let o = c.step(false);
         assert!(o.near, "a hand at 50 mm is confirmed: {o:?}");
         assert_eq!(c.source().requests.len(), 6);
-        assert!(
-            !c.step(false).near || c.source().requests.len() == 7,
-            "no confirmation while near"
+        assert!(c.step(false).near);
+        assert_eq!(
+            c.source().requests.len(),
+            7,
+            "no confirmation while a confirmed near lasts"
         );
         assert_eq!(
             c.energy().cycles(),

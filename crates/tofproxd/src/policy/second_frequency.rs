@@ -19,8 +19,10 @@
 //! the fusion of eq. 2.9) must put it below `far_mm`; a pixel they put farther (an aliased far
 //! target) is rejected like a wrapped phase; one the second capture cannot measure (too weak,
 //! saturated) carries no evidence and keeps the amplitude test's verdict
-//! ([`reject_aliased`]). Only candidates are checked, and only while Near is not published
-//! ([`SecondFrequency::next`]): one extra capture per near onset, none while far or near.
+//! ([`reject_aliased`]). Only candidates are checked: before Near is published, and while a
+//! Near the second frequency has not confirmed lasts (one published by saturation, or by the
+//! amplitude test alone) — [`SecondFrequency::next`]. A confirmed near episode takes no
+//! further capture until Near is released: one extra capture per near onset.
 
 use ndarray::ArrayView2;
 use tofprox_core::phasor::{dual_frequency_distance, unambiguous_range_m};
@@ -167,6 +169,8 @@ pub struct CandidateObservation {
 pub struct SecondFrequency {
     modulation_hz: Option<f64>,
     refusal_logged: bool,
+    /// The published near episode was confirmed at the second frequency.
+    confirmed: bool,
 }
 
 impl SecondFrequency {
@@ -175,16 +179,26 @@ impl SecondFrequency {
         Self {
             modulation_hz,
             refusal_logged: false,
+            confirmed: false,
         }
     }
 
-    /// The frequency (Hz) to capture the candidates at, or `None`: no dim candidate, Near
-    /// already published (the onset was confirmed), the feature off, or `f2` equal to the
-    /// captured frequency (no range extension, eq. 2.8).
+    /// The frequency (Hz) to capture the candidates at, or `None`: no dim candidate, a
+    /// published Near already confirmed, the feature off, or `f2` equal to the captured
+    /// frequency (no range extension, eq. 2.8).
     pub fn next(&mut self, obs: CandidateObservation) -> Option<f64> {
+        if !obs.near_published {
+            self.confirmed = false;
+        }
         let f2 = self.modulation_hz?;
-        (obs.dim_candidates > 0 && !obs.near_published && (f2 - obs.captured_hz).abs() >= 1.0)
-            .then_some(f2)
+        let due = !(obs.near_published && self.confirmed);
+        (obs.dim_candidates > 0 && due && (f2 - obs.captured_hz).abs() >= 1.0).then_some(f2)
+    }
+
+    /// What the second frequency said: a near it confirmed (no candidate aliased) needs no
+    /// further capture while it lasts.
+    pub fn note(&mut self, verdict: AliasVerdict) {
+        self.confirmed = verdict.confirmed > 0 && verdict.aliased == 0;
     }
 
     /// The source cannot capture at the second frequency (a replayed recording without
@@ -307,7 +321,17 @@ mod tests {
         };
         assert_eq!(p.next(obs(5, false, 80e6)), Some(70e6));
         assert_eq!(p.next(obs(0, false, 80e6)), None);
-        assert_eq!(p.next(obs(5, true, 80e6)), None, "near already published");
+        assert_eq!(
+            p.next(obs(5, true, 80e6)),
+            Some(70e6),
+            "a near not confirmed (saturation) is checked"
+        );
+        p.note(AliasVerdict {
+            confirmed: 5,
+            ..AliasVerdict::default()
+        });
+        assert_eq!(p.next(obs(5, true, 80e6)), None, "confirmed near lasts");
+        assert_eq!(p.next(obs(5, false, 80e6)), Some(70e6), "next onset");
         assert_eq!(p.next(obs(5, false, 70e6)), None, "same frequency");
         assert_eq!(SecondFrequency::new(None).next(obs(5, false, 80e6)), None);
     }
