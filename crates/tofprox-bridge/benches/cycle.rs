@@ -56,8 +56,8 @@ impl FrameSynth for Replay {
         &mut self,
         _t_s: f64,
         raws: &[RawParams],
-        row0: usize,
-        rows: usize,
+        (row0, rows): (usize, usize),
+        _modulation_hz: f64,
         out: &mut Vec<Vec<u16>>,
     ) -> Result<(), BridgeError> {
         out.resize_with(raws.len(), Vec::new);
@@ -74,7 +74,7 @@ fn replay_driver() -> SensorDriver<EmulatedDevice> {
     let mut frames = Vec::new();
     let raws = raws_2phase();
     IdealSynth::new(geom(), SceneScript::wall(1.0), 1)
-        .superframe(0.0, &raws, 0, 172, &mut frames)
+        .superframe(0.0, &raws, (0, 172), 80e6, &mut frames)
         .unwrap();
     let clock = Arc::new(VirtualClock::new());
     let cfg = EmulatedConfig {
@@ -99,6 +99,7 @@ fn req(row_window: Option<RowWindow>) -> CycleRequest {
         mode: SensorMode::Depth(Algorithm::TwoPhase),
         exposure_us: 300.0,
         row_window,
+        modulation_hz: None,
     }
 }
 
@@ -126,12 +127,16 @@ fn report_cpu() {
     let mut t = 0.0;
     let synth = cpu_per_call(30, || {
         t += 0.25;
-        model.superframe(t, &raws, 0, 172, &mut out).unwrap();
+        model
+            .superframe(t, &raws, (0, 172), 80e6, &mut out)
+            .unwrap();
     });
     let mut ideal = IdealSynth::new(geom(), SceneScript::hand(), 1);
     let ideal_t = cpu_per_call(100, || {
         t += 0.25;
-        ideal.superframe(t, &raws, 0, 172, &mut out).unwrap();
+        ideal
+            .superframe(t, &raws, (0, 172), 80e6, &mut out)
+            .unwrap();
     });
     let show = |o: Option<Duration>| {
         o.map_or("n/a (no /proc/thread-self/schedstat)".to_string(), |d| {
@@ -204,5 +209,9 @@ fn synth_model_2phase(bencher: divan::Bencher) {
     let raws = raws_2phase();
     let mut model = model_synth();
     let mut out = Vec::new();
-    bencher.bench_local(|| model.superframe(2.0, &raws, 0, 172, &mut out).unwrap());
+    bencher.bench_local(|| {
+        model
+            .superframe(2.0, &raws, (0, 172), 80e6, &mut out)
+            .unwrap()
+    });
 }

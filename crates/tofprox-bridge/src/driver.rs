@@ -251,6 +251,7 @@ impl<T: UsbTransport> SensorDriver<T> {
         let m = &self.cfg.map;
         m.use_case(req.mode.use_case_name())?;
         m.exposure_to_reg(req.exposure_us)?;
+        m.modulation_write(req.modulation_hz)?;
         if let Some(w) = req.row_window {
             let Some(wr) = &m.row_window else {
                 return Err(BridgeError::config(format!(
@@ -513,6 +514,10 @@ impl<T: UsbTransport> SensorDriver<T> {
         let exp_reg = map.exposure_to_reg(req.exposure_us)?;
         let exposure_us = f64::from(exp_reg) * map.raw.exposure_lsb_us;
         let mut regs: Vec<RegWrite> = uc.registers.clone();
+        // the modulation select, written every cycle (the flash image holds the default)
+        let modulation = map.modulation_write(req.modulation_hz)?;
+        let modulation_hz = modulation.map_or(map.sensor.modulation_hz, |(_, f)| f);
+        regs.extend(modulation.map(|(w, _)| w));
         let raw = map.raw.clone();
         regs.push([raw.count_register, k as u16]);
         for (i, ph) in uc.phases_deg.iter().enumerate() {
@@ -588,6 +593,7 @@ impl<T: UsbTransport> SensorDriver<T> {
             geometry: SensorGeometry {
                 rows,
                 roi_origin: [row0, 0],
+                modulation_hz,
                 ..map.sensor.geometry()
             },
             timings,

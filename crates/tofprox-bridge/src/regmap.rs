@@ -124,6 +124,19 @@ pub struct RowWindowRegs {
     pub align: u16,
 }
 
+/// Optional modulation-frequency select: the sensor's PLL offers a few frequencies; a second
+/// one disambiguates the range (thesis 2.2.1, eq. 2.8). Absent: only `sensor.modulation_hz`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModulationRegs {
+    /// Register selecting the frequency: value = frequency / `lsb_hz`.
+    pub register: u16,
+    /// Frequency step of the register (Hz).
+    pub lsb_hz: f64,
+    /// Frequencies the sensor offers (Hz); `sensor.modulation_hz` must be one of them.
+    pub frequencies_hz: Vec<f64>,
+}
+
 /// Flash load command and status.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -206,6 +219,9 @@ pub struct SensorMap {
     /// Row window (absent: the sensor reads the full array only).
     #[serde(default)]
     pub row_window: Option<RowWindowRegs>,
+    /// Modulation-frequency select (absent: one frequency only).
+    #[serde(default)]
+    pub modulation: Option<ModulationRegs>,
     /// Flash load command/status.
     pub flash: FlashRegs,
     /// SPI forwarding.
@@ -278,6 +294,7 @@ impl SensorMap {
                 max_count: 24,
             },
             row_window: None,
+            modulation: None,
             flash: FlashRegs {
                 load_register: 0xA000,
                 load_value: 1,
@@ -429,6 +446,9 @@ impl SensorMap {
         {
             return bad("row_window.align", "must divide sensor.rows".into());
         }
+        if let Some(m) = &self.modulation {
+            validate_modulation(m, s.modulation_hz).or_else(|why| bad("modulation", why))?;
+        }
         for (name, uc) in &self.use_cases {
             let k = uc.phases_deg.len();
             if k == 0 || k > usize::from(r.max_count) {
@@ -493,12 +513,61 @@ impl SensorMap {
         Ok(v.clamp(1.0, f64::from(u16::MAX)) as u16)
     }
 
+    /// The register write selecting `modulation_hz` (`None`: `sensor.modulation_hz`) and the
+    /// frequency it selects; `None` for a map without a modulation select asked for its own
+    /// frequency. A frequency the map does not offer is a configuration error.
+    pub fn modulation_write(
+        &self,
+        modulation_hz: Option<f64>,
+    ) -> Result<Option<(RegWrite, f64)>, BridgeError> {
+        let f = modulation_hz.unwrap_or(self.sensor.modulation_hz);
+        let offered = |m: &ModulationRegs| m.frequencies_hz.iter().any(|&o| (o - f).abs() < 1.0);
+        match &self.modulation {
+            Some(m) if offered(m) => {
+                let v = (f / m.lsb_hz).round().clamp(0.0, f64::from(u16::MAX)) as u16;
+                Ok(Some(([m.register, v], f64::from(v) * m.lsb_hz)))
+            }
+            None if (f - self.sensor.modulation_hz).abs() < 1.0 => Ok(None),
+            _ => Err(BridgeError::config(format!(
+                "sensor map {} offers no {f} Hz modulation ([modulation] frequencies_hz)",
+                self.sensor.name
+            ))),
+        }
+    }
+
     /// Phase register value for `phase_deg`.
     pub fn phase_to_reg(&self, phase_deg: f64) -> u16 {
         (phase_deg / self.raw.phase_lsb_deg)
             .round()
             .clamp(0.0, f64::from(u16::MAX)) as u16
     }
+}
+
+/// The checks of a `[modulation]` section: a positive step, at most 16 frequencies, each valid
+/// and a whole number of steps within 16 bits, the sensor's own among them.
+fn validate_modulation(m: &ModulationRegs, own_hz: f64) -> Result<(), String> {
+    if !(m.lsb_hz.is_finite() && m.lsb_hz > 0.0) {
+        return Err(format!("lsb_hz = {} must be > 0", m.lsb_hz));
+    }
+    if m.frequencies_hz.is_empty() || m.frequencies_hz.len() > 16 {
+        return Err("frequencies_hz: 1 to 16 frequencies".into());
+    }
+    for &f in &m.frequencies_hz {
+        tofprox_core::sensor::validate_modulation_hz(f).map_err(|e| e.to_string())?;
+        let v = f / m.lsb_hz;
+        if (v - v.round()).abs() > 1e-6 || v.round() > f64::from(u16::MAX) || v.round() < 1.0 {
+            return Err(format!(
+                "{f} Hz is not a 16-bit multiple of lsb_hz {}",
+                m.lsb_hz
+            ));
+        }
+    }
+    if !m.frequencies_hz.iter().any(|&f| (f - own_hz).abs() < 1.0) {
+        return Err(format!(
+            "frequencies_hz must include sensor.modulation_hz {own_hz}"
+        ));
+    }
+    Ok(())
 }
 
 /// Group consecutive-register writes into bursts `(first, values)`.

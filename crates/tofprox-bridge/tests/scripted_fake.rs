@@ -251,6 +251,7 @@ const TWO_PHASE_250US: CycleRequest = CycleRequest {
     mode: SensorMode::Depth(Algorithm::TwoPhase),
     exposure_us: 250.0,
     row_window: None,
+    modulation_hz: None,
 };
 
 fn driver(ops: Vec<Op>) -> (SensorDriver<Scripted>, Arc<VirtualClock>) {

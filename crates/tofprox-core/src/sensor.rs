@@ -282,7 +282,9 @@ impl RowWindow {
 
 /// What one measurement cycle should capture: the measurement mode (by default the depth
 /// [`Algorithm`]; the driver's own use cases are a mode type of the bridge), the exposure of every
-/// raw image and the partial read-out window (`None`: full array).
+/// raw image, the partial read-out window (`None`: full array) and the modulation frequency
+/// (`None`: the sensor's own; `Some(f)`: a capture at a second frequency `f` for range
+/// disambiguation, thesis 2.2.1 eq. 2.8).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CycleRequest<M = Algorithm> {
@@ -292,6 +294,9 @@ pub struct CycleRequest<M = Algorithm> {
     pub exposure_us: f64,
     /// Partial read-out (`None`: full array).
     pub row_window: Option<RowWindow>,
+    /// Modulation frequency (Hz) of this capture; `None`: the sensor's configured one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulation_hz: Option<f64>,
 }
 
 impl<M> CycleRequest<M> {
@@ -301,6 +306,7 @@ impl<M> CycleRequest<M> {
             mode: f(self.mode),
             exposure_us: self.exposure_us,
             row_window: self.row_window,
+            modulation_hz: self.modulation_hz,
         }
     }
 }

@@ -1,4 +1,4 @@
-//! Depth recordings (`kind = "depth"`, recording format version 2): depth
+//! Depth recordings (`kind = "depth"`, recording format version 2 and later): depth
 //! images in mm (and amplitudes), as `tofproxd` publishes them in its
 //! `DepthFrame` signal and `tofprox record` stores them. Same directory layout,
 //! limits, path rules and crash-safe writing as raw recordings

@@ -39,7 +39,7 @@ pub use points::{PointCloudFormat, encode_points};
 pub use recording::{
     BOOKKEEPING_CONDITIONS, CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML,
     RECORDING_VERSION, RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind,
-    RecordingWriter, is_bookkeeping_condition, recording_kind, validate_recording_toml,
-    validate_spec,
+    RecordingWriter, SecondFrequencyFrames, SecondFrequencyMeta, is_bookkeeping_condition,
+    recording_kind, validate_recording_toml, validate_spec,
 };
 pub use text::fmt_num;

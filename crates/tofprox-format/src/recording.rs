@@ -1,4 +1,4 @@
-//! Recording format (version 2; version 1 still read): `REC/recording.toml` +
+//! Recording format (version 3; versions 1 and 2 still read): `REC/recording.toml` +
 //! `REC/frames/NNNNNN.npy`. A recording is of one [`RecordingKind`]: raw phase
 //! images (this module) or depth images ([`crate::depth`]). See
 //! `docs/recording-format.md` for the specification and validation rules.
@@ -23,10 +23,14 @@ use crate::npy::{self, Dtype, NpyArray, shape_str};
 /// `format` value of a recording.
 pub const RECORDING_FORMAT: &str = "tofprox-recording";
 /// The recording format version this crate writes.
-pub const RECORDING_VERSION: i64 = 2;
+pub const RECORDING_VERSION: i64 = 3;
 /// The recording format versions this crate reads, oldest first. Version 2 added `kind`
-/// ([`RecordingKind`]); a version 1 file is a raw recording.
-pub const RECORDING_VERSIONS_READ: [i64; 2] = [1, RECORDING_VERSION];
+/// ([`RecordingKind`]); a version 1 file is a raw recording. Version 3 added a capture's
+/// `second_frequency` images ([`SecondFrequencyMeta`]).
+pub const RECORDING_VERSIONS_READ: [i64; 3] = [1, 2, RECORDING_VERSION];
+
+/// The first version with `[capture.second_frequency]`.
+const SECOND_FREQUENCY_VERSION: i64 = 3;
 
 /// What a recording holds (`kind`, format version 2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -182,6 +186,62 @@ pub struct CaptureMeta {
     /// Numeric ground truth and environment.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub conditions: BTreeMap<String, f64>,
+    /// Raw images the device took in the same cycle at a second modulation frequency
+    /// (version 3), with this capture's exposure, illumination and averaging.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub second_frequency: Option<SecondFrequencyMeta>,
+}
+
+/// A capture's `[capture.second_frequency]` table (format version 3): the same scene, exposure
+/// and window at another modulation frequency (range disambiguation, thesis eq. 2.8).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SecondFrequencyMeta {
+    /// Path of the `.npy` file relative to the recording directory.
+    pub frames: String,
+    /// The modulation frequency of these images (Hz), not the sensor's own.
+    pub modulation_hz: f64,
+    /// Phase shift of each raw image in degrees, in acquisition order.
+    pub phases_deg: Vec<f64>,
+}
+
+/// Raw images at a second modulation frequency, as [`RecordingWriter::append_with_second`]
+/// takes them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SecondFrequencyFrames {
+    /// Modulation frequency (Hz).
+    pub modulation_hz: f64,
+    /// Phase shift of each raw image (degrees).
+    pub phases_deg: Vec<f64>,
+    /// The raw images `(K, rows, cols)`.
+    pub frames: RawFrames,
+}
+
+/// Check a second-frequency table against its sensor; errors carry the key below it.
+fn validate_second_frequency(
+    s: &SecondFrequencyMeta,
+    sensor: &SensorGeometry,
+) -> Result<(), FormatError> {
+    tofprox_core::sensor::validate_modulation_hz(s.modulation_hz)
+        .map_err(|e| invalid(e.to_string()).key("modulation_hz"))?;
+    if (s.modulation_hz - sensor.modulation_hz).abs() < 1.0 {
+        return Err(invalid(format!(
+            "{} Hz is the sensor's own modulation_hz: a second frequency must differ",
+            s.modulation_hz
+        ))
+        .key("modulation_hz"));
+    }
+    let spec = CaptureSpec {
+        phases_deg: s.phases_deg.clone(),
+        exposure_us: 0.0,
+        illumination: true,
+        averaged: 1,
+        timestamp_ns: None,
+        conditions: BTreeMap::new(),
+    };
+    validate_spec(&spec)?;
+    validate_frames_path(&s.frames).map_err(|e| e.key("frames"))?;
+    Ok(())
 }
 
 impl CaptureMeta {
@@ -756,6 +816,14 @@ impl Recording {
             check_shape(&h.shape, &sensor, c.phases_deg.len())
                 .map_err(|e| e.at(&file).key(key.clone()))?;
             dtypes.push(h.dtype);
+            if let Some(s) = &c.second_frequency {
+                let key = format!("capture[{i}].second_frequency.frames");
+                let file = files.add(&key, &s.frames)?;
+                let h2 =
+                    npy::read_header(&file, Some(dir)).map_err(|e| e.key_if_none(key.clone()))?;
+                check_shape(&h2.shape, &sensor, s.phases_deg.len())
+                    .map_err(|e| e.at(&file).key(key.clone()))?;
+            }
         }
         Ok(Recording {
             dir: dir.to_path_buf(),
@@ -815,6 +883,26 @@ impl Recording {
             .validate(&self.sensor, meta.phases_deg.len())
             .map_err(|e| e.at(&file).key(key))?;
         Ok(frames)
+    }
+
+    /// Read and validate capture `index`'s second-frequency images (format version 3):
+    /// `None` when the capture has none.
+    pub fn load_second_frequency(&self, index: usize) -> Result<Option<RawFrames>, FormatError> {
+        let Some(s) = self
+            .captures
+            .get(index)
+            .and_then(|c| c.second_frequency.as_ref())
+        else {
+            return Ok(None);
+        };
+        let file = self.dir.join(&s.frames);
+        let key = format!("capture[{index}].second_frequency.frames");
+        let arr = npy::read(&file, Some(&self.dir)).map_err(|e| e.key_if_none(key.clone()))?;
+        let frames = to_raw_frames(arr).map_err(|e| e.at(&file).key(key.clone()))?;
+        frames
+            .validate(&self.sensor, s.phases_deg.len())
+            .map_err(|e| e.at(&file).key(key))?;
+        Ok(Some(frames))
     }
 }
 
@@ -889,10 +977,34 @@ fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> 
             let k = e.key_name().unwrap_or("").to_string();
             e.at(path).key(format!("{prefix}.{k}"))
         })?;
+        if let Some(s) = &meta.second_frequency {
+            let key = format!("{prefix}.second_frequency");
+            if raw.version < SECOND_FREQUENCY_VERSION {
+                return Err(FormatError::new(
+                    ErrorKind::UnknownKey,
+                    format!(
+                        "not defined in recording format version {} (it came with version {SECOND_FREQUENCY_VERSION})",
+                        raw.version
+                    ),
+                )
+                .at(path)
+                .key(key));
+            }
+            names.add(path, &format!("{key}.frames"), &s.frames)?;
+            validate_second_frequency(s, &sensor).map_err(|e| {
+                let k = e.key_name().unwrap_or("").to_string();
+                e.at(path).key(format!("{key}.{k}"))
+            })?;
+        }
         // in memory every shift is canonical: u = A·cos(φ − θ) (docs/recording-format.md)
         let mut meta = meta;
         if !convention.is_canonical() {
-            for p in &mut meta.phases_deg {
+            let second = meta.second_frequency.iter_mut();
+            for p in meta
+                .phases_deg
+                .iter_mut()
+                .chain(second.flat_map(|s| s.phases_deg.iter_mut()))
+            {
                 *p = convention.canonical_deg(*p);
             }
         }
@@ -910,7 +1022,12 @@ fn render_recording_toml(
     let mut captures = captures.to_vec();
     if !convention.is_canonical() {
         for c in &mut captures {
-            for p in &mut c.phases_deg {
+            let second = c.second_frequency.iter_mut();
+            for p in c
+                .phases_deg
+                .iter_mut()
+                .chain(second.flat_map(|s| s.phases_deg.iter_mut()))
+            {
                 *p = convention.label_deg(*p);
             }
         }
@@ -1069,6 +1186,17 @@ impl RecordingWriter {
         capture: CaptureSpec,
         frames: &RawFrames,
     ) -> Result<usize, FormatError> {
+        self.append_with_second(capture, frames, None)
+    }
+
+    /// [`RecordingWriter::append`] with the images the device took in the same cycle at a
+    /// second modulation frequency (format version 3, `[capture.second_frequency]`).
+    pub fn append_with_second(
+        &mut self,
+        capture: CaptureSpec,
+        frames: &RawFrames,
+        second: Option<&SecondFrequencyFrames>,
+    ) -> Result<usize, FormatError> {
         let index = self.captures.len();
         let key = format!("capture[{index}]");
         validate_spec(&capture).map_err(|e| {
@@ -1078,6 +1206,10 @@ impl RecordingWriter {
         frames
             .validate(&self.sensor, capture.phases_deg.len())
             .map_err(|e| e.key(format!("{key}.frames")))?;
+        let second = match second {
+            Some(s) => Some(self.write_second(index, s)?),
+            None => None,
+        };
         let name = format!("{FRAMES_DIR}/{:06}.npy", self.next_file);
         let file = self.dir.join(&name);
         let bytes = match frames {
@@ -1095,13 +1227,46 @@ impl RecordingWriter {
             averaged: capture.averaged,
             timestamp_ns: capture.timestamp_ns,
             conditions: capture.conditions,
+            second_frequency: second,
         });
         if let Err(e) = self.write_toml() {
-            self.captures.pop();
+            if let Some(s) = self.captures.pop().and_then(|c| c.second_frequency) {
+                let _ = fs::remove_file(self.dir.join(s.frames));
+            }
             let _ = fs::remove_file(&file);
             return Err(e);
         }
         Ok(index)
+    }
+
+    /// Validate and write one capture's second-frequency images; their table.
+    fn write_second(
+        &mut self,
+        index: usize,
+        s: &SecondFrequencyFrames,
+    ) -> Result<SecondFrequencyMeta, FormatError> {
+        let key = format!("capture[{index}].second_frequency");
+        let name = format!("{FRAMES_DIR}/{:06}.npy", self.next_file);
+        let meta = SecondFrequencyMeta {
+            frames: name.clone(),
+            modulation_hz: s.modulation_hz,
+            phases_deg: s.phases_deg.clone(),
+        };
+        validate_second_frequency(&meta, &self.sensor).map_err(|e| {
+            let k = e.key_name().unwrap_or("").to_string();
+            e.key(format!("{key}.{k}"))
+        })?;
+        s.frames
+            .validate(&self.sensor, s.phases_deg.len())
+            .map_err(|e| e.key(format!("{key}.frames")))?;
+        let bytes = match &s.frames {
+            RawFrames::U16(a) => npy::encode_u16(a),
+            RawFrames::F32(a) => npy::encode_f32(a),
+            RawFrames::F64(a) => npy::encode_f64(a),
+        };
+        fsutil::write_atomic(&self.dir.join(&name), &bytes)?;
+        self.next_file += 1;
+        Ok(meta)
     }
 
     fn write_toml(&self) -> Result<(), FormatError> {

@@ -37,7 +37,7 @@ pub const MIN_DISTANCE_M: f64 = 0.005;
 /// Largest distance the model accepts.
 pub const MAX_DISTANCE_M: f64 = 1000.0;
 /// Largest reflectivity (retro-reflectors exceed 1).
-pub const MAX_REFLECTIVITY: f64 = 10.0;
+pub const MAX_REFLECTIVITY: f64 = 2000.0;
 
 fn check_value(what: &str, d: f64, r: f64) -> Result<(), ModelError> {
     if !(d.is_finite() && (MIN_DISTANCE_M..=MAX_DISTANCE_M).contains(&d)) {
@@ -110,6 +110,10 @@ pub enum ScriptKind {
     /// A table top `near_m` below the optical axis, seen at grazing incidence up to its
     /// edge at `far_m` (horizontal distance); the wall beyond. Static.
     TableEdge,
+    /// A vertical band at `near_m` over every row, covering the left third of the central
+    /// half of the field of view (a third of the daemon's default ROI): a safety vest or a
+    /// retroreflective sign seen past the phone. Static.
+    Band,
 }
 
 /// How the object of a [`SceneScript`] moves (one cycle per `period_s`).
@@ -283,7 +287,7 @@ impl SceneScript {
     /// The motion in effect (the configured one, else the kind's own).
     pub fn motion(&self) -> Motion {
         self.motion.unwrap_or(match self.kind {
-            ScriptKind::Wall | ScriptKind::TableEdge => Motion::Static,
+            ScriptKind::Wall | ScriptKind::TableEdge | ScriptKind::Band => Motion::Static,
             ScriptKind::Face => Motion::Sway,
             ScriptKind::Hand | ScriptKind::Card | ScriptKind::Finger | ScriptKind::Plane => {
                 Motion::Approach
@@ -306,7 +310,7 @@ impl SceneScript {
             ScriptKind::Card => Some(CARD_HALF_AXES_M),
             ScriptKind::Finger => Some(FINGER_HALF_AXES_M),
             ScriptKind::Hand => Some((HAND_RADIUS_M, HAND_RADIUS_M)),
-            ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge => None,
+            ScriptKind::Wall | ScriptKind::Plane | ScriptKind::TableEdge | ScriptKind::Band => None,
         }
     }
 
@@ -440,7 +444,10 @@ impl SceneScript {
             return wall;
         };
         let z = pose.distance_m;
+        // the band: x from the left edge of the central half of the view, a third of it wide
+        let half_roi = self.fov_half_tan() / 2.0;
         let inside = match self.half_axes_m() {
+            None if self.kind == ScriptKind::Band => (-half_roi..=-half_roi / 3.0).contains(&x),
             None => true,
             Some((half_w, half_h)) => {
                 let (dx, dy) = ((x * z - pose.lateral_m) / half_w, y * z / half_h);
@@ -645,6 +652,8 @@ pub mod reflectivity {
     pub const DARK_FABRIC: f64 = 0.1;
     /// Wooden table top.
     pub const TABLE: f64 = 0.3;
+    /// A safety vest (20–40× a white wall).
+    pub const SAFETY_VEST: f64 = 30.0 * WHITE;
 }
 
 /// The scenes a phone meets, with stable names, for near/far thresholds `near_m` /
@@ -665,6 +674,15 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
         far_m: 0.6,
         wall_distance_m: 1.5,
         wall_reflectivity: 0.5,
+        ..base.clone()
+    };
+    let band = |d: f64, r: f64| SceneScript {
+        kind: ScriptKind::Band,
+        object_reflectivity: r,
+        near_m: d,
+        far_m: d + 0.5,
+        wall_distance_m: 6.0,
+        wall_reflectivity: DARK_WALL,
         ..base.clone()
     };
     let clean = CoverWindow::default();
@@ -691,6 +709,8 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
     };
     let approach_s = base.period_s;
     let static_s = 4.0;
+    // long enough for a false near to count after the far debounce at the slowest rate
+    let band_s = 12.0;
     vec![
         scene(
             "nothing_in_range",
@@ -747,6 +767,22 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             0.0,
             clean,
             static_s,
+        ),
+        scene(
+            "safety_vest_192cm",
+            "a safety vest (30× a white wall) over a third of the ROI at 1.92 m (wraps to ≈ 5 cm)",
+            band(1.92, SAFETY_VEST),
+            0.0,
+            clean,
+            band_s,
+        ),
+        scene(
+            "safety_vest_380cm",
+            "a safety vest (30×) over a third of the ROI at 3.8 m",
+            band(3.80, SAFETY_VEST),
+            0.0,
+            clean,
+            band_s,
         ),
         scene(
             "ceiling_dark_030cm",

@@ -146,11 +146,15 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
     }
 }
 
-/// Replay of a version 1 recording's 2-/4-phase illuminated captures, in order.
+/// Replay of a recording's 2-/4-phase illuminated captures, in order. A request at a second
+/// modulation frequency is served the second-frequency images of the capture just replayed
+/// (format version 3, `[capture.second_frequency]`), when it has them at that frequency.
 pub struct ReplaySource {
     rec: Recording,
     indices: Vec<usize>,
     pos: usize,
+    /// The capture served last (its second-frequency images answer the next such request).
+    served: Option<usize>,
     repeat: bool,
     name: String,
 }
@@ -184,6 +188,7 @@ impl ReplaySource {
             rec,
             indices,
             pos: 0,
+            served: None,
             repeat,
         })
     }
@@ -209,8 +214,56 @@ fn raw_images(frames: RawFrames) -> RawImages {
     }
 }
 
+impl ReplaySource {
+    /// The second-frequency images at `f_hz` of the capture served last.
+    fn second_frequency(&self, f_hz: f64) -> Result<RawCycle, SourceError> {
+        let unsupported = |m: String| SourceError::new(SourceErrorKind::Unsupported, m);
+        let idx = self
+            .served
+            .ok_or_else(|| unsupported("no capture replayed yet".into()))?;
+        let meta = self.rec.captures().get(idx).cloned().ok_or_else(|| {
+            SourceError::new(SourceErrorKind::Other, "capture index out of range")
+        })?;
+        let Some(s) = meta
+            .second_frequency
+            .filter(|s| (s.modulation_hz - f_hz).abs() < 1.0)
+        else {
+            return Err(unsupported(format!(
+                "capture {idx} has no second-frequency images at {f_hz} Hz"
+            )));
+        };
+        let frames = self
+            .rec
+            .load_second_frequency(idx)
+            .map_err(|e| {
+                SourceError::new(
+                    SourceErrorKind::CorruptFrame,
+                    format!("replay capture {idx}: {e}"),
+                )
+            })?
+            .ok_or_else(|| unsupported(format!("capture {idx}: no second-frequency images")))?;
+        Ok(RawCycle {
+            frames: raw_images(frames),
+            phases_deg: s.phases_deg,
+            exposure_us: meta.exposure_us,
+            geometry: SensorGeometry {
+                modulation_hz: s.modulation_hz,
+                ..*self.rec.sensor()
+            },
+            timings: None,
+            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
+        })
+    }
+}
+
 impl FrameSource for ReplaySource {
-    fn cycle(&mut self, _req: &CycleRequest) -> Result<RawCycle, SourceError> {
+    fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
+        if let Some(f_hz) = req
+            .modulation_hz
+            .filter(|f| (f - self.rec.sensor().modulation_hz).abs() >= 1.0)
+        {
+            return self.second_frequency(f_hz);
+        }
         if self.pos >= self.indices.len() {
             if self.repeat {
                 self.pos = 0;
@@ -223,6 +276,7 @@ impl FrameSource for ReplaySource {
         }
         let idx = self.indices.get(self.pos).copied().unwrap_or(0);
         self.pos += 1;
+        self.served = Some(idx);
         let sensor = *self.rec.sensor();
         let meta = self.rec.captures().get(idx).cloned().ok_or_else(|| {
             SourceError::new(SourceErrorKind::Other, "capture index out of range")

@@ -200,6 +200,17 @@ pub struct ProximityConfig {
     /// (status `AmplitudeCheck = "nominal"`). The default is the emulated IRS1645-class module
     /// (2 W VCSEL) as `tofprox calibrate wiggling` measures it.
     pub nominal_amplitude_scale: f64,
+    /// Second modulation frequency (Hz) a dim near candidate is confirmed at before Near is
+    /// published (thesis eqs. 2.8/2.9; `policy::second_frequency`); 0 = off (the amplitude
+    /// test decides alone).
+    pub second_modulation_hz: f64,
+    /// A near candidate is dim (confirmed at the second frequency) when its return is below
+    /// what a diffuse target of this reflectivity returns at its measured depth …
+    pub confirm_reflectivity: f64,
+    /// … or below what the brightest far target (gain relative to a white wall: retroreflective
+    /// tape ~1000× at a phone's observation angle; the default 2000 leaves a factor 2 for the
+    /// amplitude scale's error) returns one unambiguous range further.
+    pub brightest_far_gain: f64,
 }
 
 impl Default for ProximityConfig {
@@ -213,6 +224,9 @@ impl Default for ProximityConfig {
             reflectivity_floor: tofprox_core::radiometry::DEFAULT_REFLECTIVITY_FLOOR,
             depth_uncertainty_mm: 30,
             nominal_amplitude_scale: NOMINAL_AMPLITUDE_SCALE,
+            second_modulation_hz: 70e6,
+            confirm_reflectivity: 0.2,
+            brightest_far_gain: 2000.0,
         }
     }
 }
@@ -627,6 +641,22 @@ impl Config {
             "proximity.nominal_amplitude_scale",
             x.nominal_amplitude_scale.is_finite() && x.nominal_amplitude_scale > 0.0,
             "must be > 0",
+        )?;
+        range(
+            "proximity.second_modulation_hz",
+            x.second_modulation_hz == 0.0
+                || tofprox_core::sensor::validate_modulation_hz(x.second_modulation_hz).is_ok(),
+            "must be 0 (off) or a valid modulation frequency",
+        )?;
+        range(
+            "proximity.confirm_reflectivity",
+            x.confirm_reflectivity.is_finite() && x.confirm_reflectivity >= 0.0,
+            "must be ≥ 0",
+        )?;
+        range(
+            "proximity.brightest_far_gain",
+            x.brightest_far_gain.is_finite() && x.brightest_far_gain >= 0.0,
+            "must be ≥ 0",
         )?;
         if let Some([_, _, rows, cols]) = x.roi {
             range(

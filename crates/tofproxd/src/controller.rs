@@ -27,10 +27,12 @@ use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausibl
 use crate::config::{Config, Mode};
 use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
+use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
 use crate::policy::{
-    AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CycleObservation, EnergyAccount,
-    ExposureObservation, Pacing, RailsDecision, RailsObservation, RateObservation,
-    ReadoutObservation, ReadoutWindow, SaturationCheck, rails_point_at_zero_distance,
+    AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
+    CycleObservation, EnergyAccount, ExposureObservation, Pacing, RailsDecision, RailsObservation,
+    RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
+    rails_point_at_zero_distance,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -157,6 +159,8 @@ pub struct Controller<S: FrameSource> {
     energy: EnergyAccount,
     /// Saturation is evidence: all-rails frames that are the sensor's own return read near.
     saturation: SaturationCheck,
+    /// Confirmation of dim near candidates at a second modulation frequency.
+    second: SecondFrequency,
     consecutive_failures: u32,
     /// Time since the last valid reading, for the bound on holding Near across cycles
     /// without one.
@@ -250,6 +254,10 @@ impl<S: FrameSource> Controller<S> {
             readout: ReadoutWindow::new(cfg.readout.clone()),
             energy: EnergyAccount::new(cfg.energy.clone(), Pacing::of(&cfg)),
             saturation: SaturationCheck::default(),
+            second: SecondFrequency::new(
+                (cfg.proximity.second_modulation_hz > 0.0)
+                    .then_some(cfg.proximity.second_modulation_hz),
+            ),
             cfg,
             source,
             calib,
@@ -354,6 +362,7 @@ impl<S: FrameSource> Controller<S> {
             },
             exposure_us: self.exposure.exposure_us(),
             row_window,
+            modulation_hz: None,
         }
     }
 
@@ -468,7 +477,7 @@ impl<S: FrameSource> Controller<S> {
         }
         // (a near return on the rails is processed: every pixel saturated reads near)
         self.ambient.note_capture(probe, captured);
-        match self.process(&cycle, captured, want_depth) {
+        match self.process(&cycle, &req, captured, want_depth) {
             Ok(out) => out,
             Err(e) => self.fail(e),
         }
@@ -477,6 +486,7 @@ impl<S: FrameSource> Controller<S> {
     fn process(
         &mut self,
         cycle: &RawCycle,
+        req: &CycleRequest,
         captured: Mode,
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
@@ -535,24 +545,14 @@ impl<S: FrameSource> Controller<S> {
             }
         }
         let proc_mode = captured;
-        let pipe = match proc_mode {
-            Mode::TwoPhase => pipeline_slot(
-                &mut self.pipe2,
-                &self.calib.two_phase,
-                min_amp,
-                Mode::TwoPhase,
-                g,
-                cycle.exposure_us,
-            )?,
-            Mode::FourPhase => pipeline_slot(
-                &mut self.pipe4,
-                &self.calib.four_phase,
-                min_amp,
-                Mode::FourPhase,
-                g,
-                cycle.exposure_us,
-            )?,
-        };
+        let pipe = mode_pipeline(
+            [&mut self.pipe2, &mut self.pipe4],
+            &self.calib,
+            min_amp,
+            proc_mode,
+            g,
+            cycle.exposure_us,
+        )?;
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
             let k = frames.dim().0;
             process_images(pipe, frames, &cycle.phases_deg, k)?;
@@ -574,6 +574,40 @@ impl<S: FrameSource> Controller<S> {
             flag_implausible_near(pipe.frame_mut(), scale.view(), cycle.exposure_us, &plaus);
         if let Some(n) = implausible.filter(|&n| n > 0) {
             tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
+        }
+        // A dim near candidate is confirmed at a second frequency before Near is published.
+        let rule = DimNearRule {
+            confirm_reflectivity: self.cfg.proximity.confirm_reflectivity,
+            brightest_far_gain: self.cfg.proximity.brightest_far_gain,
+            depth_uncertainty_m: plaus.depth_uncertainty_m,
+            check_below_m: plaus.check_below_m,
+            modulation_hz: g.modulation_hz,
+        };
+        let dim = dim_near_candidates(pipe.frame(), roi, scale.view(), cycle.exposure_us, &rule);
+        let second = self.second_frequency_frame(req, cycle, captured, dim.len())?;
+        let pipe = mode_pipeline(
+            [&mut self.pipe2, &mut self.pipe4],
+            &self.calib,
+            min_amp,
+            proc_mode,
+            g,
+            cycle.exposure_us,
+        )?;
+        // a far target the second frequency found is not "only the window returns"
+        let mut aliased_far = false;
+        if let Some((c2, f2)) = &second {
+            let f2_hz = c2.geometry.modulation_hz;
+            let v = reject_aliased(
+                pipe.frame_mut(),
+                g.modulation_hz,
+                f2,
+                f2_hz,
+                &dim,
+                plaus.check_below_m,
+            );
+            tracing::debug!("second frequency {f2_hz} Hz: {v:?}");
+            self.second.note(v);
+            aliased_far = v.aliased > 0;
         }
         let frame = pipe.frame();
         let stats = roi_stats(frame, roi);
@@ -605,6 +639,7 @@ impl<S: FrameSource> Controller<S> {
         let window_tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, g.modulation_hz);
         if valid
             && !reading.near
+            && !aliased_far
             && (reading.no_target || phasor_points_at_window(frame, roi, window_tolerance_rad))
             && let Some(x) = &pipe.calibration().crosstalk
             && let Some(ratio) = residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)
@@ -641,9 +676,13 @@ impl<S: FrameSource> Controller<S> {
             near: reading.near,
             distance_mm: reading.distance_mm,
         });
-        let energy = self
-            .energy
-            .next(CycleObservation::of(cycle, self.rate.rate_hz()));
+        let rate_hz = self.rate.rate_hz();
+        let energy = self.energy.next_with(
+            CycleObservation::of(cycle, rate_hz),
+            second
+                .as_ref()
+                .map(|(c2, _)| CycleObservation::of(c2, rate_hz)),
+        );
         let sleep = energy.sleep;
 
         self.consecutive_failures = 0;
@@ -718,6 +757,66 @@ impl<S: FrameSource> Controller<S> {
         });
         tracing::debug!("every code on a rail: {decision:?}");
         decision
+    }
+
+    /// The second-frequency capture of this cycle's request when the policy asks for one (dim
+    /// near candidates, Near not published), processed: `None` when not asked or the source
+    /// cannot (then the amplitude test decides alone, `policy::second_frequency`).
+    fn second_frequency_frame(
+        &mut self,
+        req: &CycleRequest,
+        cycle: &RawCycle,
+        captured: Mode,
+        dim_candidates: usize,
+    ) -> Result<Option<(RawCycle, DepthFrame)>, SourceError> {
+        let g = cycle.geometry;
+        let Some(f2_hz) = self.second.next(CandidateObservation {
+            dim_candidates,
+            near_published: self.near,
+            captured_hz: g.modulation_hz,
+        }) else {
+            return Ok(None);
+        };
+        let req2 = CycleRequest {
+            mode: captured,
+            exposure_us: cycle.exposure_us,
+            modulation_hz: Some(f2_hz),
+            ..*req
+        };
+        let c2 = match self.source.cycle(&req2) {
+            Ok(c) => c,
+            Err(e) if e.kind() == SourceErrorKind::Unsupported => {
+                self.second.refused(&e.to_string());
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
+        let mode2 = check_cycle(&c2)?;
+        let g2 = c2.geometry;
+        let same_window = SensorGeometry {
+            modulation_hz: g.modulation_hz,
+            ..g2
+        } == g;
+        if !same_window || (g2.modulation_hz - f2_hz).abs() >= 1.0 {
+            return Err(SourceError::new(
+                SourceErrorKind::CorruptFrame,
+                format!(
+                    "second-frequency capture at {} Hz of window {:?} {}x{}: {f2_hz} Hz of this cycle's window asked",
+                    g2.modulation_hz, g2.roi_origin, g2.rows, g2.cols
+                ),
+            ));
+        }
+        let full = match mode2 {
+            Mode::TwoPhase => &self.calib.two_phase,
+            Mode::FourPhase => &self.calib.four_phase,
+        };
+        let calib = at_second_frequency(full, f2_hz / g.modulation_hz);
+        let mut slot = None;
+        let min_amp = self.cfg.processing.min_amplitude_lsb;
+        let p = pipeline_slot(&mut slot, &calib, min_amp, mode2, g2, c2.exposure_us)?;
+        let k = c2.frames.dim().0;
+        let f2 = process_images(p, &c2.frames, &c2.phases_deg, k)?.clone();
+        Ok(Some((c2, f2)))
     }
 
     /// Every code of every raw image on a rail and not a near return: a dead/garbage frame,
@@ -805,6 +904,22 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
         return bad(format!("code above the {}-bit range", g.adc_bits));
     }
     Ok(mode)
+}
+
+/// The pipeline of `mode` (slots `[2-phase, 4-phase]`) for the window of `g`, at `exposure_us`.
+fn mode_pipeline<'a>(
+    [two, four]: [&'a mut Option<(SensorGeometry, Pipeline)>; 2],
+    calib: &ModeCalibrations,
+    min_amplitude_lsb: f32,
+    mode: Mode,
+    g: SensorGeometry,
+    exposure_us: f64,
+) -> Result<&'a mut Pipeline, SourceError> {
+    let (slot, full) = match mode {
+        Mode::TwoPhase => (two, &calib.two_phase),
+        Mode::FourPhase => (four, &calib.four_phase),
+    };
+    pipeline_slot(slot, full, min_amplitude_lsb, mode, g, exposure_us)
 }
 
 fn pipeline_slot<'a>(
@@ -938,6 +1053,27 @@ fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration
     Ok(out)
 }
 
+/// The calibration applied at another modulation frequency (no calibration set holds one
+/// for it): the dark offset (no modulation in it), the per-pixel phase offsets scaled as a
+/// propagation delay (`φ = 2π·f·τ`, eq. 2.6), the cover-window crosstalk (a return from
+/// millimetres: its phase `4π·f·d/c` is ≈ 0 at either frequency) and this frequency's wiggling
+/// LUT with its global phase offset — on the phone sensor the second frequency's residual is
+/// then ≈ 5 cm, within what the unwrapping tolerates (the aliases lie ≥ 27 cm apart); without
+/// the LUT it is 23 cm, and a near face unwraps to an alias.
+fn at_second_frequency(full: &Calibration, frequency_ratio: f64) -> Calibration {
+    let mut fppn = full.fppn.clone();
+    if let Some(f) = &mut fppn {
+        f.phase_offset_rad
+            .mapv_inplace(|p| (f64::from(p) * frequency_ratio) as f32);
+    }
+    Calibration {
+        offset: full.offset.clone(),
+        fppn,
+        crosstalk: full.crosstalk.clone(),
+        wiggling: full.wiggling.clone(),
+    }
+}
+
 fn common_mode_lsb<T: RawSample>(frames: ArrayView3<'_, T>, roi: Roi, dark: f32) -> f32 {
     let mut sum = 0.0f64;
     let mut n = 0usize;
@@ -1046,6 +1182,7 @@ mod tests {
             mode: Mode::FourPhase,
             exposure_us: 100.0,
             row_window: None,
+            modulation_hz: None,
         };
         let mut c = src.cycle(&req).unwrap();
         assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
@@ -1381,6 +1518,62 @@ mod tests {
             assert!(since < hold + o.sleep, "held {since:?}");
         }
         assert!(released, "Near released after the hold bound");
+    }
+
+    /// A bright target just beyond the unambiguous range (2.498 m at the scripted 60 MHz)
+    /// wraps to 50 mm with the amplitude of a 1000× retroreflector (`K·G·t/d²`, K = 0.09
+    /// LSB·m²/µs nominal, 100 µs): the second frequency puts it at 2.55 m, Far is published;
+    /// a hand at 50 mm is confirmed and Near published. The extra capture is accounted.
+    #[test]
+    fn a_dim_near_candidate_is_confirmed_at_the_second_frequency() {
+        let du = tofprox_core::phasor::unambiguous_range_m(60e6);
+        let retro = Step::Target {
+            distance_mm: (du + 0.05) * 1e3,
+            amplitude_lsb: 0.09 * 1000.0 * 100.0 / (du + 0.05).powi(2),
+            background_lsb: 0.0,
+        };
+        let mut c = ctl(vec![retro.clone(), retro, Step::target(50.0)]);
+        for _ in 0..2 {
+            let o = c.step(false);
+            assert!(o.valid && !o.near, "aliased retroreflector is far: {o:?}");
+        }
+        let asked: Vec<_> = c
+            .source()
+            .requests
+            .iter()
+            .map(|r| r.modulation_hz)
+            .collect();
+        assert_eq!(asked, [None, Some(70e6), None, Some(70e6)]);
+        let o = c.step(false);
+        assert!(o.near, "a hand at 50 mm is confirmed: {o:?}");
+        assert_eq!(c.source().requests.len(), 6);
+        assert!(c.step(false).near);
+        assert_eq!(
+            c.source().requests.len(),
+            7,
+            "no confirmation while a confirmed near lasts"
+        );
+        assert_eq!(
+            c.energy().cycles(),
+            4,
+            "one reading per step, both captures in it"
+        );
+
+        // off: the amplitude test decides alone, the retroreflector reads near
+        let mut off = cfg();
+        off.proximity.second_modulation_hz = 0.0;
+        let retro = Step::Target {
+            distance_mm: (du + 0.05) * 1e3,
+            amplitude_lsb: 0.09 * 1000.0 * 100.0 / (du + 0.05).powi(2),
+            background_lsb: 0.0,
+        };
+        let mut c = Controller::new(
+            off,
+            ScriptedSource::new(24, 32, vec![retro]),
+            ModeCalibrations::default(),
+        )
+        .unwrap();
+        assert!(c.step(false).near, "one frequency cannot tell");
     }
 
     #[test]

@@ -237,6 +237,7 @@ fn calibrate_crosstalk_behind(
         mode: tofprox_bridge::SensorMode::Depth(tofprox_core::Algorithm::FourPhase),
         exposure_us,
         row_window: None,
+        modulation_hz: None,
     };
     let mut outs = Vec::with_capacity(count);
     for _ in 0..count {

@@ -213,13 +213,16 @@ impl Step {
     }
 }
 
-/// Scripted fake source: a queue of steps, then repeats the last step.
+/// Scripted fake source: a queue of steps, then repeats the last step. A request at another
+/// modulation frequency (`CycleRequest::modulation_hz`) renders the step just served again at
+/// that frequency (the second-frequency images of the same cycle).
 /// Synthesises ideal frames by the convention of `tofprox-core` (crate documentation)
 /// `code_k = mid + A cos(phi - theta_k) + background` of a 12-bit ADC.
 #[derive(Debug)]
 pub struct ScriptedSource {
     steps: VecDeque<Step>,
     last: Step,
+    served: Option<Step>,
     rows: usize,
     cols: usize,
     modulation_hz: f64,
@@ -242,6 +245,7 @@ impl ScriptedSource {
         Self {
             steps,
             last,
+            served: None,
             rows,
             cols,
             modulation_hz: 60e6,
@@ -301,7 +305,12 @@ pub fn synth_frames(
 impl FrameSource for ScriptedSource {
     fn cycle(&mut self, req: &CycleRequest) -> Result<RawCycle, SourceError> {
         self.requests.push(*req);
-        let step = self.steps.pop_front().unwrap_or_else(|| self.last.clone());
+        let step = match (req.modulation_hz, &self.served) {
+            (Some(_), Some(served)) => served.clone(),
+            _ => self.steps.pop_front().unwrap_or_else(|| self.last.clone()),
+        };
+        self.served = Some(step.clone());
+        let modulation_hz = req.modulation_hz.unwrap_or(self.modulation_hz);
         self.t_ns += 100_000_000;
         let (row0, rows) = match (self.window_support, req.row_window) {
             (true, Some(w)) => {
@@ -331,7 +340,7 @@ impl FrameSource for ScriptedSource {
                 distance_mm,
                 amplitude_lsb * req.exposure_us / 100.0,
                 background_lsb,
-                self.modulation_hz,
+                modulation_hz,
             ),
             Step::Garbage => {
                 let (_, ph) = synth_frames(req.mode, 1, 1, 0.0, 0.0, 0.0, self.modulation_hz);
@@ -345,7 +354,7 @@ impl FrameSource for ScriptedSource {
             full_rows: self.rows,
             full_cols: self.cols,
             adc_bits: SYNTH_ADC_BITS,
-            modulation_hz: self.modulation_hz,
+            modulation_hz,
         };
         Ok(RawCycle {
             frames: RawImages::U16(frames),

@@ -140,3 +140,27 @@ fn a_strong_window_calibrated_behind_it_smudged_or_not_never_sticks() {
         assert!(r.latency_to_far_ms.is_some(), "far after it left: {r:?}");
     }
 }
+
+/// Issue 21 item 2: safety vests (30× a white wall) over a third of the ROI just beyond one
+/// and two unambiguous ranges read far, and near hands, dark hair and black cards are still
+/// near with the second frequency on (every dim near candidate takes a second capture).
+#[test]
+fn retroreflectors_beyond_the_range_read_far_near_hands_stay_near() {
+    let b = shipped();
+    let retro = ["safety_vest_192cm", "safety_vest_380cm"];
+    let near = [
+        "hand_approach_05cm",
+        "face_dark_hair_05cm",
+        "black_card_05cm",
+    ];
+    let mut out = Vec::new();
+    for name in retro.iter().chain(&near) {
+        let r = run_scene(&b, &scene(&b, name), 1).expect("runs");
+        eprintln!("{r:?}");
+        out.push(r);
+    }
+    for r in &out {
+        assert_eq!((r.false_near, r.missed_near), (0, 0), "{r:?}");
+        assert!(r.readings >= 8, "{r:?}");
+    }
+}

@@ -66,6 +66,8 @@ struct Measurement {
     regs: Vec<(u16, u16, bool)>, // exposure reg, phase reg, illumination
     row0: usize,
     rows: usize,
+    /// Modulation frequency of this measurement (Hz).
+    modulation_hz: f64,
     next_raw: usize,
     frame_counter: u16,
     superframe: Vec<Vec<u16>>,
@@ -617,11 +619,19 @@ impl EmulatedDevice {
             });
             regs.push((e, p, il));
         }
+        let modulation_hz = self
+            .map
+            .modulation
+            .as_ref()
+            .map(|m| f64::from(self.regs[usize::from(m.register)]) * m.lsb_hz)
+            .filter(|&f| f > 0.0)
+            .unwrap_or(self.map.sensor.modulation_hz);
         self.meas = Some(Measurement {
             raws,
             regs,
             row0,
             rows,
+            modulation_hz,
             next_raw: 0,
             frame_counter: 0,
             superframe: Vec::new(),
@@ -649,8 +659,13 @@ impl EmulatedDevice {
         self.clock.sleep(Duration::from_secs_f64(wait_us * 1e-6));
         if i == 0 {
             let t_s = self.clock.now().as_secs_f64();
-            self.synth
-                .superframe(t_s, &m.raws, m.row0, m.rows, &mut m.superframe)?;
+            self.synth.superframe(
+                t_s,
+                &m.raws,
+                (m.row0, m.rows),
+                m.modulation_hz,
+                &mut m.superframe,
+            )?;
             self.last_meas_frames = Some(m.superframe.clone());
         }
         let (e, p, il) = m.regs[i];

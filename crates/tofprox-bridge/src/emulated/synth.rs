@@ -30,13 +30,14 @@ pub struct RawParams {
 /// A source of raw frames.
 pub trait FrameSynth: Send {
     /// Synthesise the raw images of one measurement at scene time `t_s`,
-    /// rows `row0 .. row0 + rows`; `out[k]` gets `rows × cols` codes.
+    /// rows `row0 .. row0 + rows`, modulated at `modulation_hz`; `out[k]` gets `rows × cols`
+    /// codes.
     fn superframe(
         &mut self,
         t_s: f64,
         raws: &[RawParams],
-        row0: usize,
-        rows: usize,
+        window: (usize, usize),
+        modulation_hz: f64,
         out: &mut Vec<Vec<u16>>,
     ) -> Result<(), BridgeError>;
 }
@@ -60,7 +61,8 @@ pub struct ModelSynth {
     seed: u64,
     ambient_klux: f64,
     temperature_c: f64,
-    sims: HashMap<(usize, usize), Simulator>,
+    /// Simulators per read-out window and modulation frequency (Hz bits).
+    sims: HashMap<(usize, usize, u64), Simulator>,
     rng: ChaCha8Rng,
 }
 
@@ -86,25 +88,34 @@ impl ModelSynth {
             sims: HashMap::new(),
             rng: ChaCha8Rng::seed_from_u64(seed ^ 0xF4A3_0001),
         };
-        s.sim(0, geom.full_rows)?;
+        s.sim(0, geom.full_rows, geom.modulation_hz)?;
         Ok(s)
     }
 
-    fn sim(&mut self, row0: usize, rows: usize) -> Result<&Simulator, BridgeError> {
-        if !self.sims.contains_key(&(row0, rows)) {
-            let g = self
-                .geom
-                .window(row0, 0, rows, self.geom.full_cols)
-                .map_err(|e| model_err(e.into()))?;
+    fn sim(
+        &mut self,
+        row0: usize,
+        rows: usize,
+        modulation_hz: f64,
+    ) -> Result<&Simulator, BridgeError> {
+        let key = (row0, rows, modulation_hz.to_bits());
+        if !self.sims.contains_key(&key) {
+            let g = SensorGeometry {
+                modulation_hz,
+                ..self
+                    .geom
+                    .window(row0, 0, rows, self.geom.full_cols)
+                    .map_err(|e| model_err(e.into()))?
+            };
             let sim = Simulator::new(&self.model, g, self.seed).map_err(model_err)?;
             // bounded: each simulator holds per-pixel patterns
             if self.sims.len() >= 4 {
                 self.sims.clear();
             }
-            self.sims.insert((row0, rows), sim);
+            self.sims.insert(key, sim);
         }
         self.sims
-            .get(&(row0, rows))
+            .get(&key)
             .ok_or_else(|| BridgeError::new(ErrorKind::Io, "simulator cache"))
     }
 }
@@ -114,14 +125,14 @@ impl FrameSynth for ModelSynth {
         &mut self,
         t_s: f64,
         raws: &[RawParams],
-        row0: usize,
-        rows: usize,
+        (row0, rows): (usize, usize),
+        modulation_hz: f64,
         out: &mut Vec<Vec<u16>>,
     ) -> Result<(), BridgeError> {
         let scene = self.script.at(t_s);
         let (amb, temp) = (self.ambient_klux, self.temperature_c);
         let mut rng = ChaCha8Rng::seed_from_u64(self.rng.random());
-        let sim = self.sim(row0, rows)?;
+        let sim = self.sim(row0, rows, modulation_hz)?;
         out.resize_with(raws.len(), Vec::new);
         // consecutive raw images with the same exposure and illumination are
         // one model capture
@@ -189,11 +200,14 @@ impl FrameSynth for IdealSynth {
         &mut self,
         t_s: f64,
         raws: &[RawParams],
-        row0: usize,
-        rows: usize,
+        (row0, rows): (usize, usize),
+        modulation_hz: f64,
         out: &mut Vec<Vec<u16>>,
     ) -> Result<(), BridgeError> {
-        let g = self.geom;
+        let g = SensorGeometry {
+            modulation_hz,
+            ..self.geom
+        };
         let cols = g.full_cols;
         let max = f64::from(g.max_code());
         let mid = f64::from(g.mid_code());
@@ -284,7 +298,8 @@ mod tests {
         let g = geometry_80mhz(8, 8);
         let mut s = IdealSynth::new(g, wall_at_half_metre(), 1);
         let mut out = Vec::new();
-        s.superframe(0.0, &four(500.0), 0, 8, &mut out).unwrap();
+        s.superframe(0.0, &four(500.0), (0, 8), 80e6, &mut out)
+            .unwrap();
         let d = centre_distance(&out, 8, 8);
         assert!((d - 0.5).abs() < 0.03, "{d}");
     }
@@ -295,7 +310,8 @@ mod tests {
         let mut s =
             ModelSynth::new(ModelConfig::ideal(), g, wall_at_half_metre(), 3, 0.0, 25.0).unwrap();
         let mut out = Vec::new();
-        s.superframe(0.0, &four(500.0), 40, 20, &mut out).unwrap();
+        s.superframe(0.0, &four(500.0), (40, 20), 80e6, &mut out)
+            .unwrap();
         assert_eq!(out.len(), 4);
         assert!(out.iter().all(|f| f.len() == 20 * 224));
     }

@@ -27,7 +27,7 @@ fn a_depth_recording_is_read_as_depth() {
     assert_eq!(recording_kind(t.path()).unwrap(), RecordingKind::Depth);
     let text = fs::read_to_string(t.path().join(RECORDING_TOML)).unwrap();
     assert!(
-        text.contains("version = 2") && text.contains("kind = \"depth\""),
+        text.contains("version = 3") && text.contains("kind = \"depth\""),
         "{text}"
     );
     let rec = DepthRecording::open(t.path()).unwrap();
@@ -85,7 +85,7 @@ fn bad_depth_headers_name_the_key() {
     assert_eq!(e.key_name(), Some("kind"));
 
     // version 1 had no kind: a depth recording cannot claim it
-    let e = open_err_after(|t| t.replace("version = 2", "version = 1"));
+    let e = open_err_after(|t| t.replace("version = 3", "version = 1"));
     assert_eq!(e.kind(), ErrorKind::UnknownKey);
     assert_eq!(e.key_name(), Some("kind"));
 

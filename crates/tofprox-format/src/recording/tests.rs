@@ -145,7 +145,7 @@ fn toml_errors_name_the_key() {
     assert!(e.to_string().contains("lens"), "{e}");
     assert_eq!(e.key_name(), Some("sensor.lens"));
 
-    let e = open_err_after(|t| t.replace("version = 2\n", "version = 2\nextra = \"x\"\n"));
+    let e = open_err_after(|t| t.replace("version = 3\n", "version = 3\nextra = \"x\"\n"));
     assert!(e.to_string().contains("extra"), "{e}");
 
     let e = open_err_after(|t| t.replace("adc_bits = 12\n", ""));
@@ -156,16 +156,16 @@ fn toml_errors_name_the_key() {
     let e = open_err_after(|t| t.replacen("exposure_us = 500.0\n", "", 1));
     assert!(e.to_string().contains("exposure_us"), "{e}");
 
-    let e = open_err_after(|t| t.replace("version = 2", "version = 3"));
+    let e = open_err_after(|t| t.replace("version = 3", "version = 4"));
     assert_eq!(e.kind(), ErrorKind::Unsupported);
     assert_eq!(e.key_name(), Some("version"));
-    assert!(e.to_string().contains("reads version 1 or 2"), "{e}");
+    assert!(e.to_string().contains("reads version 1 or 2 or 3"), "{e}");
 
     // version 2 says which kind of recording it is; version 1 did not
     let e = open_err_after(|t| t.replace("kind = \"raw\"\n", ""));
     assert_eq!(e.kind(), ErrorKind::MissingKey);
     assert_eq!(e.key_name(), Some("kind"));
-    let e = open_err_after(|t| t.replace("version = 2", "version = 1"));
+    let e = open_err_after(|t| t.replace("version = 3", "version = 1"));
     assert_eq!(e.kind(), ErrorKind::UnknownKey);
     assert_eq!(e.key_name(), Some("kind"));
 

@@ -467,6 +467,7 @@ fn run_capture<T: UsbTransport>(
         mode: a.mode,
         exposure_us: a.exposure_us,
         row_window: a.window,
+        modulation_hz: None,
     };
     driver.check_request(&req)?;
     let mut writer: Option<RecordingWriter> = None;

@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use crate::config::{Backend, Config, EnergyConfig};
-use crate::energy::{CycleTimings, EnergyMeter, cycle_energy};
+use crate::energy::{CycleEnergy, CycleTimings, EnergyMeter, cycle_energy};
 use crate::source::RawCycle;
 
 /// Whether cycles are paced at the reading rate.
@@ -105,23 +105,46 @@ impl EnergyAccount {
 
     /// Decide the sleep after `obs` and account the cycle with it.
     pub fn next(&mut self, obs: CycleObservation) -> EnergyDecision {
-        let active = obs.timings.active();
+        self.next_with(obs, None)
+    }
+
+    /// [`EnergyAccount::next`] for a reading that took a `second` capture (a second modulation
+    /// frequency): both captures' energy and active time are the reading's, the sleep is the
+    /// rest of the period after both.
+    pub fn next_with(
+        &mut self,
+        obs: CycleObservation,
+        second: Option<CycleObservation>,
+    ) -> EnergyDecision {
+        let extra = second.map(|s| (self.energy_of(&s), s.timings.active()));
+        let (extra_e, extra_active) = extra.unwrap_or_default();
+        let active = obs.timings.active() + extra_active;
         let sleep = match self.pacing {
             Pacing::AsFastAsPossible => Duration::ZERO,
             Pacing::RealTime => Duration::from_secs_f64(1.0 / obs.rate_hz).saturating_sub(active),
         };
-        let e = cycle_energy(
-            &self.cfg,
-            &obs.timings,
-            obs.raw_images,
-            obs.exposure_us,
-            obs.rows_fraction(),
-        );
+        let one = self.energy_of(&obs);
+        let e = CycleEnergy {
+            startup_mj: one.startup_mj + extra_e.startup_mj,
+            flash_mj: one.flash_mj + extra_e.flash_mj,
+            capture_mj: one.capture_mj + extra_e.capture_mj,
+            readout_mj: one.readout_mj + extra_e.readout_mj,
+        };
         self.meter.record(&e, active, sleep);
         EnergyDecision {
             sleep,
             average_mw: self.meter.average_mw(),
         }
+    }
+
+    fn energy_of(&self, obs: &CycleObservation) -> CycleEnergy {
+        cycle_energy(
+            &self.cfg,
+            &obs.timings,
+            obs.raw_images,
+            obs.exposure_us,
+            obs.rows_fraction(),
+        )
     }
 }
 
@@ -177,6 +200,27 @@ mod tests {
         assert_eq!(Pacing::of(&Config::default()), Pacing::RealTime);
         let mut a = EnergyAccount::new(EnergyConfig::default(), Pacing::AsFastAsPossible);
         assert_eq!(a.next(obs(120)).sleep, Duration::ZERO);
+    }
+
+    #[test]
+    fn a_second_frequency_capture_is_accounted_in_its_reading() {
+        let mut one = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let mut two = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let d1 = one.next(obs(120));
+        let d2 = two.next_with(obs(120), Some(obs(120)));
+        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, 2, 100.0, 1.0);
+        let off_mj = |d: &EnergyDecision| EnergyConfig::default().off_mw * d.sleep.as_secs_f64();
+        assert!(
+            (two.meter().total_mj() - (2.0 * e.total_mj() + off_mj(&d2))).abs() < 1e-9,
+            "two captures' energy in one reading"
+        );
+        assert!((one.meter().total_mj() - (e.total_mj() + off_mj(&d1))).abs() < 1e-9);
+        assert_eq!(
+            d1.sleep - d2.sleep,
+            obs(120).timings.active(),
+            "sleep after both"
+        );
+        assert_eq!(two.meter().cycles(), 1, "one reading");
     }
 
     #[test]

@@ -9,6 +9,7 @@
 //! | [`AutoExposure`] | exposure per raw image | saturated / weak fraction of the ROI | 3.1.2, eye-safe max |
 //! | [`AdaptiveRate`] | reading rate | near, approach speed, stillness | 3.5.3 |
 //! | [`ReadoutWindow`] | rows read out | ROI, margin, source alignment | 3.1.2 (read-out ∝ rows) |
+//! | [`SecondFrequency`] | confirm dim near candidates at a second frequency | dim candidates, Near | 2.2.1, eqs. 2.7–2.9 |
 //! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
 //! | [`SaturationCheck`] | an all-rails frame: near return, confirm (4-phase, `min_us`), or no data | the rails' phasor vs zero distance | 2.2.1, eq. 2.2/2.3 |
 
@@ -18,6 +19,7 @@ mod exposure;
 mod rate;
 mod readout;
 mod saturation;
+pub mod second_frequency;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
@@ -27,3 +29,4 @@ pub use readout::{ReadoutObservation, ReadoutWindow};
 pub use saturation::{
     RailsDecision, RailsObservation, SaturationCheck, rails_point_at_zero_distance,
 };
+pub use second_frequency::{CandidateObservation, SecondFrequency};
