@@ -227,8 +227,7 @@ impl SensorMap {
 
     /// Load a map file.
     pub fn load(path: &Path) -> Result<Self, BridgeError> {
-        let s = crate::error::read_config_text(path)
-            .map_err(|e| e.context_prefix("sensor map"))?;
+        let s = crate::error::read_config_text(path).map_err(|e| e.context_prefix("sensor map"))?;
         Self::from_toml_str(&s, &path.display().to_string())
     }
 

@@ -44,7 +44,13 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatError> {
         match fs::remove_file(&tmp) {
             Ok(()) => {}
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(FormatError::io(&tmp, "cannot remove the old temporary file", e)),
+            Err(e) => {
+                return Err(FormatError::io(
+                    &tmp,
+                    "cannot remove the old temporary file",
+                    e,
+                ));
+            }
         }
         let mut f = create_new(&tmp)?;
         f.write_all(bytes)

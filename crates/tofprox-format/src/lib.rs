@@ -30,11 +30,11 @@ pub use calibration::{
 };
 pub use depth::{DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter};
 pub use error::{ErrorKind, FormatError};
-pub use fsutil::{create_new, write_atomic};
 pub use extract::{
     Extract, ExtractError, ExtractOptions, Extraction, NO_TARGET_CONDITION, extract,
     load_lens_datasheet,
 };
+pub use fsutil::{create_new, write_atomic};
 pub use points::{PointCloudFormat, encode_points};
 pub use recording::{
     CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,

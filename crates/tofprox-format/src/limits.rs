@@ -216,7 +216,10 @@ mod tests {
         // the attacker flips the name to an inside target after the open
         std::fs::remove_file(&name).unwrap();
         std::os::unix::fs::symlink("inside.npy", &name).unwrap();
-        assert!(check_inside(&name, &root).is_ok(), "the name now looks fine");
+        assert!(
+            check_inside(&name, &root).is_ok(),
+            "the name now looks fine"
+        );
         let e = check_open_inside(&opened, &name, &root).unwrap_err();
         assert_eq!(e.kind(), ErrorKind::Limit);
         assert!(e.to_string().contains("outside"), "{e}");

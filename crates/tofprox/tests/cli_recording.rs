@@ -880,15 +880,32 @@ fn writers_replace_planted_links_without_following_them() {
     assert_ok(&calibrate("fpn", &calib, &[]));
     std::os::unix::fs::symlink(&victim, calib.join("offset.npy.tmp")).unwrap();
     assert_ok(&calibrate("fpn", &calib, &[]));
-    assert_eq!(fs::read(&victim).unwrap(), b"precious", "calibrate wrote through the link");
+    assert_eq!(
+        fs::read(&victim).unwrap(),
+        b"precious",
+        "calibrate wrote through the link"
+    );
     info_text_has(&calib, &["offset"]);
-    assert_ok(&process("examples/recording", p(&calib), "4phase", p(&out), &[]));
-    assert_eq!(fs::read(&victim).unwrap(), b"precious", "process wrote through the link");
+    assert_ok(&process(
+        "examples/recording",
+        p(&calib),
+        "4phase",
+        p(&out),
+        &[],
+    ));
+    assert_eq!(
+        fs::read(&victim).unwrap(),
+        b"precious",
+        "process wrote through the link"
+    );
     let replaced = planted
         .iter()
         .filter(|name| fs::symlink_metadata(out.join(name)).unwrap().is_file())
         .count();
-    assert!(replaced >= 2, "the outputs replaced the planted links ({replaced})");
+    assert!(
+        replaced >= 2,
+        "the outputs replaced the planted links ({replaced})"
+    );
 }
 
 #[test]

@@ -475,14 +475,12 @@ fn non_neg(key: &str, v: f64) -> Result<(), ConfigError> {
 impl Config {
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = tofprox_format::limits::read_text_bounded(
-            path,
-            tofprox_format::limits::MAX_TOML_BYTES,
-        )
-        .map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            tofprox_format::limits::read_text_bounded(path, tofprox_format::limits::MAX_TOML_BYTES)
+                .map_err(|source| ConfigError::Read {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
         let mut cfg = Self::parse(&text, path)?;
         cfg.resolve_paths(path.parent().unwrap_or(Path::new(".")));
         Ok(cfg)

@@ -348,8 +348,7 @@ impl Hub {
             return FirstReading::Ready;
         }
         let start = *rx.borrow_and_update();
-        match tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await
-        {
+        match tokio::time::timeout(self.first_reading_timeout, rx.wait_for(|n| *n != start)).await {
             Ok(_) => FirstReading::Ready,
             Err(_) => FirstReading::TimedOut,
         }
@@ -395,7 +394,11 @@ impl Hub {
             g.public = public;
         } else {
             let counts_after = counts(&g.status);
-            for (h, (a, b)) in g.hidden_counts.iter_mut().zip(counts_after.iter().zip(counts_before)) {
+            for (h, (a, b)) in g
+                .hidden_counts
+                .iter_mut()
+                .zip(counts_after.iter().zip(counts_before))
+            {
                 *h += a - b;
             }
             let p = &mut g.public;
@@ -660,12 +663,19 @@ mod tests {
             (after.state, after.near, after.distance_mm, after.rate_hz),
             (State::Running, true, 120, 4.0)
         );
-        assert_eq!((after.cycles, after.valid_readings), (1, 1), "own cycles only");
+        assert_eq!(
+            (after.cycles, after.valid_readings),
+            (1, 1),
+            "own cycles only"
+        );
         // the proximity claim goes, the depth claim stays: seen stopped at once
         h.set_claim(":1.2", Claim::Proximity, false);
         let (before, after) = h.update(|_| {});
         assert_eq!(before.state, State::Running);
-        assert_eq!((after.state, after.rate_hz, after.cycles), (State::Off, 0.0, 1));
+        assert_eq!(
+            (after.state, after.rate_hz, after.cycles),
+            (State::Off, 0.0, 1)
+        );
     }
 
     #[test]

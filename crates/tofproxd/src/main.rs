@@ -183,7 +183,10 @@ impl StopSignals {
         ];
         let mut v = Vec::new();
         for (name, kind) in kinds {
-            v.push((name, signal(kind).with_context(|| format!("{name} handler"))?));
+            v.push((
+                name,
+                signal(kind).with_context(|| format!("{name} handler"))?,
+            ));
         }
         Ok(Self(v))
     }

@@ -97,7 +97,9 @@ async fn claim_proximity_for_caller(
         return Ok(());
     }
     if hub.wait_first_reading(&client).await == FirstReading::NotWaited {
-        tracing::debug!("{client}: claim held, answered without waiting (waiting claims at their bound)");
+        tracing::debug!(
+            "{client}: claim held, answered without waiting (waiting claims at their bound)"
+        );
     }
     Ok(())
 }

@@ -170,9 +170,10 @@ impl EmulatedDevice {
         let flash = match &cfg.flash_file {
             Some(p) if p.exists() => {
                 // bounded: one byte more than the flash is already the wrong size
-                let data = tofprox_format::limits::read_bounded(p, size as u64, None).map_err(
-                    |e| BridgeError::with_source(ErrorKind::Io, format!("read flash file {e}"), e),
-                )?;
+                let data =
+                    tofprox_format::limits::read_bounded(p, size as u64, None).map_err(|e| {
+                        BridgeError::with_source(ErrorKind::Io, format!("read flash file {e}"), e)
+                    })?;
                 if data.len() != size {
                     return Err(BridgeError::config(format!(
                         "flash file {} has {} bytes, flash_size_bytes is {size}",

@@ -317,8 +317,9 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
 /// Write `m` to `out` as the user's model file `from` with the `changed`
 /// effects updated (comments and layout of `from` kept).
 fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
-    let text = tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
-        .with_context(|| format!("reading model {}", from.display()))?;
+    let text =
+        tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
+            .with_context(|| format!("reading model {}", from.display()))?;
     let updated = update_model_text(&text, m, changed)
         .with_context(|| format!("model file {}", from.display()))?;
     tofprox_format::write_atomic(out, updated.as_bytes())
