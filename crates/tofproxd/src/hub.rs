@@ -129,7 +129,14 @@ impl ClientClaims {
 }
 
 struct HubInner {
+    /// What the loop reports.
     status: Status,
+    /// What clients see ([`Hub::status`]): `status` while someone claims proximity or no one
+    /// claims depth; while only depth is claimed, what a client would see with no claim at
+    /// all (see [`Hub::update`]).
+    public: Status,
+    /// Cycles, valid readings and errors run for depth claims alone (left out of `public`).
+    hidden_counts: [u64; 3],
     claims: BTreeMap<String, ClientClaims>,
     /// A valid reading exists since the loop last started.
     have_reading: bool,
@@ -224,6 +231,8 @@ impl Hub {
         };
         let hub = Arc::new(Self {
             inner: Mutex::new(HubInner {
+                public: status.clone(),
+                hidden_counts: [0; 3],
                 status,
                 claims: BTreeMap::new(),
                 have_reading: false,
@@ -242,9 +251,15 @@ impl Hub {
         self.inner.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Snapshot of the status.
+    /// Snapshot of the status clients see (properties, `GetStatus`, the unit's STATUS line):
+    /// nothing in it shows a depth claim (see [`Hub::update`]).
     pub fn status(&self) -> Status {
-        self.lock().status.clone()
+        self.lock().public.clone()
+    }
+
+    /// A receiver of demand changes (the publisher re-publishes the status on each).
+    pub fn subscribe_demand(&self) -> watch::Receiver<Demand> {
+        self.demand_tx.subscribe()
     }
 
     /// Claim counts.
@@ -356,16 +371,40 @@ impl Hub {
         self.lock().waiting_total
     }
 
-    /// Apply a change to the status; returns the status before and after it.
+    /// Apply a change to the status; returns the status clients see before and after it.
+    ///
+    /// While depth is claimed and proximity is not, clients see what they would see with no
+    /// claim at all: the loop stopped (`off`, not near, distance 0, rate 0) and every other
+    /// value held as it was; the cycles run meanwhile are not counted in what they see.
     pub fn update(&self, f: impl FnOnce(&mut Status)) -> (Status, Status) {
         let mut g = self.lock();
-        let before = g.status.clone();
+        let counts = |s: &Status| [s.cycles, s.valid_readings, s.errors];
+        let counts_before = counts(&g.status);
         f(&mut g.status);
-        let after = g.status.clone();
-        if after.state == State::Off || after.state == State::Starting {
+        if g.status.state == State::Off || g.status.state == State::Starting {
             g.have_reading = false;
         }
-        (before, after)
+        let before = g.public.clone();
+        let d = self.demand();
+        if d.proximity || !d.depth {
+            let mut public = g.status.clone();
+            public.cycles -= g.hidden_counts[0];
+            public.valid_readings -= g.hidden_counts[1];
+            public.errors -= g.hidden_counts[2];
+            g.public = public;
+        } else {
+            let counts_after = counts(&g.status);
+            for (h, (a, b)) in g
+                .hidden_counts
+                .iter_mut()
+                .zip(counts_after.iter().zip(counts_before))
+            {
+                *h += a - b;
+            }
+            let p = &mut g.public;
+            (p.state, p.near, p.distance_mm, p.rate_hz) = (State::Off, false, 0, 0.0);
+        }
+        (before, g.public.clone())
     }
 
     /// Apply a status fragment from the loop (counters counted, `power_mw` left to the
@@ -692,6 +731,50 @@ mod tests {
             })
         })
         .await
+    }
+
+    /// A depth claim alone shows nothing in the public status: the loop runs, but clients see
+    /// it off, with no reading and the counters held; a proximity claim shows the loop again,
+    /// with only its own cycles counted.
+    #[test]
+    fn a_depth_claim_alone_is_not_visible_in_the_status() {
+        let h = hub();
+        let running = StatusUpdate {
+            state: Some(State::Running),
+            near: Some(true),
+            distance_mm: Some(120),
+            rate_hz: Some(4.0),
+            cycle: true,
+            valid_reading: true,
+            ..StatusUpdate::default()
+        };
+        h.set_claim(":1.1", Claim::Depth, true);
+        let (before, after) = h.apply(&running);
+        assert_eq!(before, after, "nothing changes for clients");
+        assert_eq!(
+            (after.state, after.near, after.distance_mm, after.rate_hz),
+            (State::Off, false, 0, 0.0)
+        );
+        assert_eq!((after.cycles, after.valid_readings), (0, 0));
+        h.set_claim(":1.2", Claim::Proximity, true);
+        let (_, after) = h.apply(&running);
+        assert_eq!(
+            (after.state, after.near, after.distance_mm, after.rate_hz),
+            (State::Running, true, 120, 4.0)
+        );
+        assert_eq!(
+            (after.cycles, after.valid_readings),
+            (1, 1),
+            "own cycles only"
+        );
+        // the proximity claim goes, the depth claim stays: seen stopped at once
+        h.set_claim(":1.2", Claim::Proximity, false);
+        let (before, after) = h.update(|_| {});
+        assert_eq!(before.state, State::Running);
+        assert_eq!(
+            (after.state, after.rate_hz, after.cycles),
+            (State::Off, 0.0, 1)
+        );
     }
 
     #[test]

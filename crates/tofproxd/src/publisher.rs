@@ -11,7 +11,7 @@ use zbus::names::{BusName, InterfaceName};
 use zbus::object_server::SignalEmitter;
 use zbus::{Connection, Variant, fdo};
 
-use crate::hub::{DepthMessage, Event, Hub};
+use crate::hub::{DepthMessage, Event, Hub, Status};
 use crate::service::{COMPAT_BUS_NAME, COMPAT_PATH, INTERFACE, OBJECT_PATH, Proximity, property};
 
 /// Emit PropertiesChanged for `iface` with the given changes (one signal).
@@ -88,8 +88,18 @@ pub async fn run_publisher(
     let mut last_power_emit: Option<Instant> = None;
     let mut last_depth: Option<Instant> = None;
     let depth_interval = Duration::from_secs_f64(1.0 / depth_max_hz.max(0.001));
+    let mut demand = hub.subscribe_demand();
     loop {
-        let ev = events.recv().await;
+        let ev = tokio::select! {
+            ev = events.recv() => ev,
+            // a claim came or went: what clients see may change without a cycle (a depth
+            // claim left alone shows the loop stopped, `Hub::update`)
+            Ok(()) = demand.changed() => {
+                let (before, after) = hub.update(|_| {});
+                publish_changes(&conn, compat, &before, &after).await;
+                continue;
+            }
+        };
         let Some(ev) = ev else { break };
         match ev {
             Event::Depth(d) => {
@@ -104,66 +114,73 @@ pub async fn run_publisher(
                 send_depth(&conn, &hub, &d).await;
             }
             Event::Status(u) => {
-                let power = u.power_mw;
-                let (before, after) = hub.apply(&u);
-                let mut ch: HashMap<&str, Variant<'_>> = HashMap::new();
-                if before.has_sensor != after.has_sensor {
-                    ch.insert(property::HAS_SENSOR, Variant::from(after.has_sensor));
-                }
-                if before.state != after.state {
-                    ch.insert(property::STATE, Variant::from(after.state.as_str()));
-                }
-                if before.near != after.near {
-                    ch.insert(property::NEAR, Variant::from(after.near));
-                }
-                if before.mode != after.mode {
-                    ch.insert(property::MODE, Variant::from(after.mode.as_str()));
-                }
-                if before.rate_hz != after.rate_hz {
-                    ch.insert(property::RATE_HZ, Variant::from(after.rate_hz));
-                }
-                if before.last_error != after.last_error {
-                    ch.insert(
-                        property::LAST_ERROR,
-                        Variant::from(after.last_error.as_str()),
-                    );
-                }
-                if let Some(p) = power
+                let (before, mut after) = hub.apply(&u);
+                if let Some(p) = u.power_mw
                     && p != after.power_mw
                 {
                     let now = Instant::now();
                     if last_power_emit
                         .is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1))
                     {
-                        hub.update(|s| s.power_mw = p);
-                        ch.insert(property::POWER_ESTIMATE_MW, Variant::from(p));
+                        after = hub.update(|s| s.power_mw = p).1;
                         last_power_emit = Some(now);
                     }
                 }
-                let compat_near = before.near != after.near;
-                let compat_has = before.has_sensor != after.has_sensor;
-                if let Err(e) = emit_changes(&conn, OBJECT_PATH, INTERFACE, ch).await {
-                    tracing::warn!("PropertiesChanged emit failed: {e}");
-                }
-                if compat && (compat_near || compat_has) {
-                    let mut c: HashMap<&str, Variant<'_>> = HashMap::new();
-                    if compat_near {
-                        c.insert(property::COMPAT_PROXIMITY_NEAR, Variant::from(after.near));
-                    }
-                    if compat_has {
-                        c.insert(
-                            property::COMPAT_HAS_PROXIMITY,
-                            Variant::from(after.has_sensor),
-                        );
-                    }
-                    if let Err(e) = emit_changes(&conn, COMPAT_PATH, COMPAT_BUS_NAME, c).await {
-                        tracing::warn!("compat PropertiesChanged emit failed: {e}");
-                    }
-                }
+                publish_changes(&conn, compat, &before, &after).await;
                 if u.valid_reading {
                     hub.note_valid_reading();
                 }
             }
+        }
+    }
+}
+
+/// PropertiesChanged for what changed between two public views of the status (native, and
+/// the compat object's `ProximityNear`/`HasProximity` when it is served).
+async fn publish_changes(conn: &Connection, compat: bool, before: &Status, after: &Status) {
+    let mut ch: HashMap<&str, Variant<'_>> = HashMap::new();
+    if before.has_sensor != after.has_sensor {
+        ch.insert(property::HAS_SENSOR, Variant::from(after.has_sensor));
+    }
+    if before.state != after.state {
+        ch.insert(property::STATE, Variant::from(after.state.as_str()));
+    }
+    if before.near != after.near {
+        ch.insert(property::NEAR, Variant::from(after.near));
+    }
+    if before.mode != after.mode {
+        ch.insert(property::MODE, Variant::from(after.mode.as_str()));
+    }
+    if before.rate_hz != after.rate_hz {
+        ch.insert(property::RATE_HZ, Variant::from(after.rate_hz));
+    }
+    if before.last_error != after.last_error {
+        ch.insert(
+            property::LAST_ERROR,
+            Variant::from(after.last_error.as_str()),
+        );
+    }
+    if before.power_mw != after.power_mw {
+        ch.insert(property::POWER_ESTIMATE_MW, Variant::from(after.power_mw));
+    }
+    if let Err(e) = emit_changes(conn, OBJECT_PATH, INTERFACE, ch).await {
+        tracing::warn!("PropertiesChanged emit failed: {e}");
+    }
+    let compat_near = before.near != after.near;
+    let compat_has = before.has_sensor != after.has_sensor;
+    if compat && (compat_near || compat_has) {
+        let mut c: HashMap<&str, Variant<'_>> = HashMap::new();
+        if compat_near {
+            c.insert(property::COMPAT_PROXIMITY_NEAR, Variant::from(after.near));
+        }
+        if compat_has {
+            c.insert(
+                property::COMPAT_HAS_PROXIMITY,
+                Variant::from(after.has_sensor),
+            );
+        }
+        if let Err(e) = emit_changes(conn, COMPAT_PATH, COMPAT_BUS_NAME, c).await {
+            tracing::warn!("compat PropertiesChanged emit failed: {e}");
         }
     }
 }

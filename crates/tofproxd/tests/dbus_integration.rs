@@ -106,10 +106,13 @@ fn start_system_policy_bus(test: &str) -> Option<(Bus, PathBuf)> {
     <allow send_destination="org.freedesktop.DBus" send_interface="org.freedesktop.DBus.Introspectable"/>
   </policy>
   <include>{policy}</include>
-  <!-- the test runs the daemon as root instead of the tofprox user -->
+  <!-- the test runs the daemon as root instead of the tofprox user, and root's clients
+       stand in for the depth group (which need not exist here) -->
   <policy user="root">
     <allow own="org.tofprox.Proximity1"/>
     <allow own="net.hadess.SensorProxy"/>
+    <allow send_destination="org.tofprox.Proximity1" send_interface="org.tofprox.Proximity1" send_member="ClaimDepth"/>
+    <allow receive_sender="org.tofprox.Proximity1" receive_interface="org.tofprox.Proximity1" receive_member="DepthFrame"/>
   </policy>
 </busconfig>
 "#,
@@ -1324,6 +1327,104 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
         s["ProximityClaims"] == 0 && s["Clients"] == 0
     });
 }
+
+/// Privacy of the public properties on a bus with the shipped policy: while a member of
+/// the depth group (here root) holds a depth claim alone and receives frames, `nobody` sees
+/// the loop stopped — `State` off, `RateHz` 0, `DistanceMm` 0 in the properties and in
+/// `GetStatus`, `Cycles` not moving — exactly as with no claim at all.
+#[test]
+fn a_depth_claim_alone_shows_nothing_to_an_unprivileged_client() {
+    let test = "a_depth_claim_alone_shows_nothing_to_an_unprivileged_client";
+    let Some((bus, setpriv)) = start_system_policy_bus(test) else {
+        return;
+    };
+    let Some(py) = python() else { return };
+    let _daemon = start_daemon(&bus, HAND);
+    let idle = Command::new(&setpriv)
+        .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
+        .arg(&py)
+        .args(["-c", PUBLIC_VIEW, &bus.address, "0"])
+        .output()
+        .expect("setpriv python3");
+    let idle: Value = serde_json::from_slice(&idle.stdout).expect("public view json");
+    let mut depth = Command::new(&py)
+        .args(["-c", DEPTH_ONLY, &bus.address, "4"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("depth claimer");
+    let mut first = String::new();
+    BufReader::new(depth.stdout.as_mut().expect("stdout"))
+        .read_line(&mut first)
+        .expect("claimed line");
+    assert_eq!(first.trim(), "claimed");
+    let seen = Command::new(&setpriv)
+        .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
+        .arg(&py)
+        .args(["-c", PUBLIC_VIEW, &bus.address, "1.5"])
+        .output()
+        .expect("setpriv python3");
+    let seen: Value = serde_json::from_slice(&seen.stdout).expect("public view json");
+    let out = depth.wait_with_output().expect("depth claimer");
+    let frames: u64 = String::from_utf8_lossy(&out.stdout)
+        .trim()
+        .parse()
+        .expect("frame count");
+    assert!(
+        frames >= 3,
+        "the loop ran for the depth claim: {frames} frames"
+    );
+    eprintln!("public view with no claim: {idle}\nwith a depth claim alone: {seen}");
+    for v in seen.as_array().expect("two samples") {
+        for (key, want) in [
+            ("State", Value::from("off")),
+            ("PropState", Value::from("off")),
+            ("RateHz", Value::from(0.0)),
+            ("PropRateHz", Value::from(0.0)),
+            ("DistanceMm", Value::from(0)),
+            ("PropDistanceMm", Value::from(0)),
+            ("ProximityClaims", Value::from(0)),
+            ("Cycles", idle[0]["Cycles"].clone()),
+        ] {
+            assert_eq!(v[key], want, "{key} shows the depth claim: {seen}");
+        }
+    }
+}
+
+/// `GetStatus` and the properties, twice argv[2] seconds apart, as JSON.
+const PUBLIC_VIEW: &str = r#"
+import sys, json, time, dbus
+bus = dbus.bus.BusConnection(sys.argv[1])
+o = bus.get_object("org.tofprox.Proximity1", "/org/tofprox/Proximity1", introspect=False)
+out = []
+for i in range(2):
+    if i:
+        time.sleep(float(sys.argv[2]))
+    s = o.GetStatus(dbus_interface="org.tofprox.Proximity1")
+    p = o.GetAll("org.tofprox.Proximity1", dbus_interface="org.freedesktop.DBus.Properties")
+    out.append({"State": str(s["State"]), "RateHz": float(s["RateHz"]),
+                "DistanceMm": int(s["DistanceMm"]), "Cycles": int(s["Cycles"]),
+                "ProximityClaims": int(s["ProximityClaims"]), "PropState": str(p["State"]),
+                "PropRateHz": float(p["RateHz"]), "PropDistanceMm": int(p["DistanceMm"])})
+print(json.dumps(out))
+"#;
+
+/// Claim depth alone, print "claimed", count `DepthFrame` signals for argv[2] s, print it.
+const DEPTH_ONLY: &str = r#"
+import sys, dbus, dbus.mainloop.glib
+from gi.repository import GLib
+dbus.mainloop.glib.DBusGMainLoop(set_as_default=True)
+bus = dbus.bus.BusConnection(sys.argv[1])
+n = [0]
+bus.add_signal_receiver(lambda *a: n.__setitem__(0, n[0] + 1), signal_name="DepthFrame",
+                        dbus_interface="org.tofprox.Proximity1")
+o = bus.get_object("org.tofprox.Proximity1", "/org/tofprox/Proximity1", introspect=False)
+o.ClaimDepth(dbus_interface="org.tofprox.Proximity1")
+print("claimed", flush=True)
+loop = GLib.MainLoop()
+GLib.timeout_add(int(float(sys.argv[2]) * 1000), loop.quit)
+loop.run()
+print(n[0])
+"#;
 
 /// `nobody`'s flood: `ClaimProximity` on the native and the compat object alternately,
 /// every 16th call per connection an ordinary one (≤ 128 pending per connection, the bus's

@@ -127,6 +127,11 @@ fn roi_with_extra_elements_is_refused() {
         "{EMULATED}[proximity]\nroi = [10, 10, 20, 20, \"junk\", {{x = 1}}]\n[emulated.device]\nframe_source = \"ideal\"\n"
     );
     let (_d, out) = check(&cfg, &[]);
+    refused(&out, &["cfg/x.toml", "roi"]);
+    let cfg = format!(
+        "{EMULATED}[proximity]\nroi = [10, 10, 20, 20, 30]\n[emulated.device]\nframe_source = \"ideal\"\n"
+    );
+    let (_d, out) = check(&cfg, &[]);
     refused(&out, &["cfg/x.toml", "roi", "exactly 4 elements"]);
 }
 
