@@ -115,11 +115,18 @@ struct Sensor {
 impl Sensor {
     fn new() -> Self {
         let n = ROWS * COLS;
-        let pattern = |i: usize, a: f64, b: f64| ((i as f64 * a).sin() + (i as f64 * b).cos()) / 2.0;
+        let pattern =
+            |i: usize, a: f64, b: f64| ((i as f64 * a).sin() + (i as f64 * b).cos()) / 2.0;
         Sensor {
-            ray: (0..n).map(|i| LENS.ray_factor(i / COLS, i % COLS)).collect(),
-            dark: (0..n).map(|i| 2040.0 + 35.0 * pattern(i, 0.73, 1.91)).collect(),
-            gain: (0..n).map(|i| 1.0 + 0.05 * pattern(i, 2.17, 0.37)).collect(),
+            ray: (0..n)
+                .map(|i| LENS.ray_factor(i / COLS, i % COLS))
+                .collect(),
+            dark: (0..n)
+                .map(|i| 2040.0 + 35.0 * pattern(i, 0.73, 1.91))
+                .collect(),
+            gain: (0..n)
+                .map(|i| 1.0 + 0.05 * pattern(i, 2.17, 0.37))
+                .collect(),
             delay_rad: (0..n)
                 .map(|i| 0.35 + 0.04 * pattern(i, 1.31, 2.77))
                 .collect(),
@@ -192,8 +199,11 @@ fn record_with_noise(
             timestamp_ns: None,
             conditions,
         };
-        w.append(spec, &RawFrames::F32(sensor.capture(d, phases, seed, noise_lsb)))
-            .unwrap();
+        w.append(
+            spec,
+            &RawFrames::F32(sensor.capture(d, phases, seed, noise_lsb)),
+        )
+        .unwrap();
     };
     add(None, &four);
     for &d in correlation_m {
@@ -220,7 +230,12 @@ fn run(rec: &Recording, set: &mut CalibrationSet, what: Extract) -> Vec<CalibPar
 }
 
 /// RMS radial error (m) over the valid pixels of the check wall, and the valid share.
-fn radial_rms_m(rec: &Recording, set: &CalibrationSet, sensor: &Sensor, alg: Algorithm) -> (f64, f64) {
+fn radial_rms_m(
+    rec: &Recording,
+    set: &CalibrationSet,
+    sensor: &Sensor,
+    alg: Algorithm,
+) -> (f64, f64) {
     let i = rec.captures().len() - 1;
     assert_eq!(rec.captures()[i].distance_m(), Some(CHECK_M));
     let cfg = PipelineConfig {
@@ -231,7 +246,9 @@ fn radial_rms_m(rec: &Recording, set: &CalibrationSet, sensor: &Sensor, alg: Alg
     let RawFrames::F32(raw) = rec.load(i).unwrap() else {
         panic!("float32 codes")
     };
-    let f = p.process(raw.slice(s![..alg.raw_images(), .., ..])).unwrap();
+    let f = p
+        .process(raw.slice(s![..alg.raw_images(), .., ..]))
+        .unwrap();
     let (mut sum, mut valid) = (0.0, 0usize);
     for ((idx, &depth), &flags) in f.depth_m.indexed_iter().zip(f.flags.iter()) {
         if flags & FLAG_INVALID == 0 {
@@ -240,7 +257,10 @@ fn radial_rms_m(rec: &Recording, set: &CalibrationSet, sensor: &Sensor, alg: Alg
             valid += 1;
         }
     }
-    ((sum / valid as f64).sqrt(), valid as f64 / (ROWS * COLS) as f64)
+    (
+        (sum / valid as f64).sqrt(),
+        valid as f64 / (ROWS * COLS) as f64,
+    )
 }
 
 /// The standard errors the intrinsics report line prints (`fx 53.27 ± 0.01 px, …`).
@@ -297,9 +317,18 @@ fn lens_from_correlation_captures_and_depth_across_the_array_within_5_mm() {
     let rec = record(&t.path().join("rec"), &sensor, &CORRELATION_M);
     let mut set = CalibrationSet::new(rec.sensor());
     let mut report = Vec::new();
-    for what in [Extract::Intrinsics, Extract::Offset, Extract::Wiggling, Extract::Fppn] {
+    for what in [
+        Extract::Intrinsics,
+        Extract::Offset,
+        Extract::Wiggling,
+        Extract::Fppn,
+    ] {
         let done = extract(&rec, &mut set, &what, &opts(), &mut |_| {}).unwrap();
-        assert!(done.dropped.is_empty(), "{what:?} dropped {:?}", done.dropped);
+        assert!(
+            done.dropped.is_empty(),
+            "{what:?} dropped {:?}",
+            done.dropped
+        );
         report.extend(done.report);
     }
     eprintln!("{}", report.join("\n"));
@@ -325,7 +354,10 @@ fn lens_from_correlation_captures_and_depth_across_the_array_within_5_mm() {
             (got - want).abs() / sigma
         );
         // the reported uncertainty is honest: the truth lies within 3 standard errors
-        assert!((got - want).abs() < 3.0 * sigma, "{name}: {got} ± {sigma}, truth {want}");
+        assert!(
+            (got - want).abs() < 3.0 * sigma,
+            "{name}: {got} ± {sigma}, truth {want}"
+        );
         if name.starts_with(['f', 'c']) {
             assert!(rel < 0.01, "{name}: fitted {got}, truth {want}");
         }
@@ -368,7 +400,12 @@ fn any_order_ends_complete_or_says_exactly_what_is_missing() {
     let sensor = Sensor::new();
     let rec = record(&t.path().join("rec"), &sensor, &CORRELATION_M);
     let mut documented = CalibrationSet::new(rec.sensor());
-    for what in [Extract::Intrinsics, Extract::Offset, Extract::Wiggling, Extract::Fppn] {
+    for what in [
+        Extract::Intrinsics,
+        Extract::Offset,
+        Extract::Wiggling,
+        Extract::Fppn,
+    ] {
         run(&rec, &mut documented, what);
     }
 
@@ -377,7 +414,10 @@ fn any_order_ends_complete_or_says_exactly_what_is_missing() {
     run(&rec, &mut set, Extract::Offset);
     run(&rec, &mut set, Extract::Wiggling);
     let dropped = run(&rec, &mut set, Extract::Intrinsics);
-    assert_eq!(dropped, [CalibPart::Wiggling2Phase, CalibPart::Wiggling4Phase]);
+    assert_eq!(
+        dropped,
+        [CalibPart::Wiggling2Phase, CalibPart::Wiggling4Phase]
+    );
     run(&rec, &mut set, Extract::Fppn);
     assert!(!set.is_complete());
     let chain = set.chain();
@@ -403,7 +443,9 @@ fn any_order_ends_complete_or_says_exactly_what_is_missing() {
     let rec_dir = rec.dir().display().to_string();
     assert_eq!(steps.len(), 2, "{steps:?}");
     assert!(
-        steps[0].starts_with(&format!("tofprox calibrate wiggling {rec_dir} --capture 1 --out calib")),
+        steps[0].starts_with(&format!(
+            "tofprox calibrate wiggling {rec_dir} --capture 1 --out calib"
+        )),
         "{steps:?}"
     );
     assert!(steps[1].starts_with("tofprox calibrate fppn "), "{steps:?}");
@@ -436,7 +478,10 @@ fn lens_fit_refuses_walls_at_one_distance_and_four_phase_walls() {
     let msg = format!("{err}: {}", std::error::Error::source(&err).unwrap());
     assert!(msg.contains("≥ 3 distinct distances"), "{msg}");
     assert!(msg.contains("1 such captures (at 0.55 m)"), "{msg}");
-    assert!(notes.iter().any(|n| n.contains("left out captures [2, 3]")), "{notes:?}");
+    assert!(
+        notes.iter().any(|n| n.contains("left out captures [2, 3]")),
+        "{notes:?}"
+    );
     assert!(set.intrinsics.is_none());
 }
 

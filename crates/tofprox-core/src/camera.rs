@@ -1040,7 +1040,10 @@ mod tests {
         let sx2: f64 = xs.iter().map(|x| x * x).sum();
         let se = standard_errors(&p, &[1e-6, 1e-6], s2, line).unwrap();
         assert!((se[1] / (s2 / sxx).sqrt() - 1.0).abs() < 1e-6, "{se:?}");
-        assert!((se[0] / (s2 * sx2 / (n * sxx)).sqrt() - 1.0).abs() < 1e-6, "{se:?}");
+        assert!(
+            (se[0] / (s2 * sx2 / (n * sxx)).sqrt() - 1.0).abs() < 1e-6,
+            "{se:?}"
+        );
     }
 
     #[test]

@@ -34,9 +34,9 @@ use crate::error::{
 use crate::fsutil;
 
 mod chain;
-pub use chain::{ChainEntry, Dropped, PartState};
 use crate::limits;
 use crate::npy::{self, NpyArray, shape_str};
+pub use chain::{ChainEntry, Dropped, PartState};
 
 /// `format` value of a calibration set.
 pub const CALIBRATION_FORMAT: &str = "tofprox-calibration";

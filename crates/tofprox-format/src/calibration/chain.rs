@@ -92,7 +92,9 @@ impl CalibPart {
             Crosstalk => vec![Offset],
             Wiggling2Phase | Wiggling4Phase => vec![Intrinsics, Offset, Crosstalk],
             Fppn | Fppn2Phase => {
-                let alg = self.algorithm().unwrap_or(tofprox_core::Algorithm::FourPhase);
+                let alg = self
+                    .algorithm()
+                    .unwrap_or(tofprox_core::Algorithm::FourPhase);
                 vec![Intrinsics, Offset, Crosstalk, CalibPart::wiggling(alg)]
             }
         }
@@ -126,7 +128,9 @@ impl CalibPart {
             CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase | CalibPart::Amplitude => {
                 "a correlation capture with distance_m"
             }
-            CalibPart::Fppn | CalibPart::Fppn2Phase => "a 4-phase flat-wall capture with distance_m",
+            CalibPart::Fppn | CalibPart::Fppn2Phase => {
+                "a 4-phase flat-wall capture with distance_m"
+            }
         }
     }
 }
@@ -207,7 +211,9 @@ impl CalibrationSet {
                 PartState::Missing => ("REC".to_string(), format!("REC: {}", e.part.needs())),
                 PartState::Provisional { without } => (
                     capture_args(
-                        self.sources.get(&e.part).map_or("REC", |s| s.recording.as_str()),
+                        self.sources
+                            .get(&e.part)
+                            .map_or("REC", |s| s.recording.as_str()),
                         self.sources.get(&e.part).map_or(&[][..], |s| &s.captures),
                     ),
                     format!(
@@ -221,7 +227,9 @@ impl CalibrationSet {
                 continue;
             }
             done.push(cmd);
-            steps.push(format!("tofprox calibrate {cmd} {rec} --out {out}   # {why}"));
+            steps.push(format!(
+                "tofprox calibrate {cmd} {rec} --out {out}   # {why}"
+            ));
         }
         steps
     }

@@ -8,8 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use tofprox_format::{
-    CalibrationSet, Extract, ExtractError, ExtractOptions, Recording,
-    load_lens_datasheet,
+    CalibrationSet, Extract, ExtractError, ExtractOptions, Recording, load_lens_datasheet,
 };
 
 use super::common::TOOL;
@@ -100,10 +99,12 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| cli_error(e, &a))?;
     for p in &done.dropped {
-        let why = set.dropped().get(p).map_or(
-            "a part it depends on changed".to_string(),
-            |d| format!("the {} changed and {}", d.because, d.reason()),
-        );
+        let why = set
+            .dropped()
+            .get(p)
+            .map_or("a part it depends on changed".to_string(), |d| {
+                format!("the {} changed and {}", d.because, d.reason())
+            });
         eprintln!("warning: dropped {p} from the set: {why}; extract it again (the steps below)");
     }
     if set.description.is_none() {

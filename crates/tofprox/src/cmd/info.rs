@@ -426,7 +426,11 @@ fn chain_state(s: &PartState) -> String {
         PartState::Missing => "MISSING".into(),
         PartState::Provisional { without } => format!(
             "provisional: extracted without {}",
-            without.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")
+            without
+                .iter()
+                .map(|p| p.name())
+                .collect::<Vec<_>>()
+                .join(", ")
         ),
         PartState::Stale(d) => format!(
             "STALE: dropped when {} changed (was from {} captures {:?})",
