@@ -1019,6 +1019,54 @@ mod tests {
     use super::*;
 
     #[test]
+    fn standard_errors_of_a_straight_line_match_the_textbook() {
+        // y = a + b x with a known residual pattern: σ_b = s / √Σ(x − x̄)², σ_a = s √(Σx²/(n Σ(x − x̄)²))
+        let xs: Vec<f64> = (0..20).map(|i| i as f64 * 0.5).collect();
+        let ys: Vec<f64> = xs
+            .iter()
+            .enumerate()
+            .map(|(i, x)| 1.0 + 2.0 * x + if i % 2 == 0 { 0.1 } else { -0.1 })
+            .collect();
+        let line = |p: &[f64; 2], out: &mut Vec<f64>| {
+            out.clear();
+            out.extend(xs.iter().zip(&ys).map(|(x, y)| p[0] + p[1] * x - y));
+            true
+        };
+        let (p, cost, _) = levenberg_marquardt([0.0, 0.0], &[1e-6, 1e-6], line).unwrap();
+        let n = xs.len() as f64;
+        let s2 = cost / (n - 2.0);
+        let mean = xs.iter().sum::<f64>() / n;
+        let sxx: f64 = xs.iter().map(|x| (x - mean).powi(2)).sum();
+        let sx2: f64 = xs.iter().map(|x| x * x).sum();
+        let se = standard_errors(&p, &[1e-6, 1e-6], s2, line).unwrap();
+        assert!((se[1] / (s2 / sxx).sqrt() - 1.0).abs() < 1e-6, "{se:?}");
+        assert!(
+            (se[0] / (s2 * sx2 / (n * sxx)).sqrt() - 1.0).abs() < 1e-6,
+            "{se:?}"
+        );
+    }
+
+    #[test]
+    fn standard_errors_refuse_a_parameter_the_data_cannot_pin() {
+        // the residuals depend on p0 + p1 only: the design is rank deficient
+        let sum = |p: &[f64; 2], out: &mut Vec<f64>| {
+            out.clear();
+            out.extend((0..10).map(|i| p[0] + p[1] - f64::from(i)));
+            true
+        };
+        let err = standard_errors(&[1.0, 2.0], &[1e-6, 1e-6], 1.0, sum).unwrap_err();
+        assert!(err.to_string().contains("cannot pin"), "{err}");
+        // and one that does not act at all
+        let none = |p: &[f64; 2], out: &mut Vec<f64>| {
+            out.clear();
+            out.extend((0..10).map(|i| p[0] - f64::from(i)));
+            true
+        };
+        let err = standard_errors(&[1.0, 2.0], &[1e-6, 1e-6], 1.0, none).unwrap_err();
+        assert!(err.to_string().contains("cannot pin fy"), "{err}");
+    }
+
+    #[test]
     fn eigen3_recovers_a_known_decomposition() {
         // diag(1, 2, 5) rotated: eigenvalues must come back.
         let m = [[2.0, 1.0, 0.0], [1.0, 2.0, 0.0], [0.0, 0.0, 5.0]];

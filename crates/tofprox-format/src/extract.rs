@@ -666,12 +666,12 @@ impl<'a> Extractor<'a> {
     }
 }
 
-/// A fitted lens with the standard error of each value (`fx 172.50 ± 0.02 px, …`; `k3` is held
+/// A fitted lens with the standard error of each value (`fx 172.50 ± 2.1e-2 px, …`; `k3` is held
 /// at 0 by the fit and printed without one).
 fn lens_with_errors(k: &Intrinsics, se: &Intrinsics) -> String {
     let (d, e) = (&k.distortion, &se.distortion);
     format!(
-        "fx {:.2} ± {:.2} px, fy {:.2} ± {:.2} px, principal point ({:.2} ± {:.2}, {:.2} ± {:.2}) px, k1 {:.4} ± {:.4}, k2 {:.4} ± {:.4}, k3 {:.4} (held), p1 {:.5} ± {:.5}, p2 {:.5} ± {:.5}",
+        "fx {:.2} ± {:.1e} px, fy {:.2} ± {:.1e} px, principal point ({:.2} ± {:.1e}, {:.2} ± {:.1e}) px, k1 {:.4} ± {:.1e}, k2 {:.4} ± {:.1e}, k3 {:.4} (held), p1 {:.5} ± {:.1e}, p2 {:.5} ± {:.1e}",
         k.fx_px,
         se.fx_px,
         k.fy_px,

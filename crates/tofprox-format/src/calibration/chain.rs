@@ -22,6 +22,27 @@ pub struct Dropped {
     pub captures: Vec<usize>,
 }
 
+impl Dropped {
+    /// Why a part extracted with another `because` would mis-correct (thesis 5.1).
+    pub fn reason(&self) -> &'static str {
+        match self.because {
+            CalibPart::Intrinsics => {
+                "it was extracted through the rays of another lens (or of none): every pixel's expected phase on the flat target changed"
+            }
+            CalibPart::Offset => {
+                "it was extracted with another dark frame (or the mid code) subtracted"
+            }
+            CalibPart::Crosstalk => "it was extracted with another crosstalk subtracted",
+            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+                "an FPPN map is absolute w.r.t. the wiggling table it was extracted after (or its absence)"
+            }
+            CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => {
+                "a part it depends on changed"
+            }
+        }
+    }
+}
+
 /// `[dropped.<part>]` of `calibration.toml`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -99,15 +99,13 @@ pub fn calibrate(a: CalibrateArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| cli_error(e, &a))?;
     for p in &done.dropped {
-        let because = set
+        let why = set
             .dropped()
             .get(p)
-            .map_or("a part it depends on".to_string(), |d| {
-                d.because.to_string()
+            .map_or("a part it depends on changed".to_string(), |d| {
+                format!("the {} changed and {}", d.because, d.reason())
             });
-        eprintln!(
-            "warning: dropped {p} from the set: it was extracted with another {because} (or before the set had one), so it would mis-correct; extract it again (the steps below)"
-        );
+        eprintln!("warning: dropped {p} from the set: {why}; extract it again (the steps below)");
     }
     if set.description.is_none() {
         set.description = Some(format!("calibration of {}", a.recording.display()));
