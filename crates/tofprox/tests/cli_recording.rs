@@ -483,8 +483,8 @@ fn bad_recording_toml() {
     );
     broken_toml(
         "version = 1",
-        "version = 3",
-        &["recording.toml", "version", "version 3 is not supported"],
+        "version = 4",
+        &["recording.toml", "version", "version 4 is not supported"],
     );
     broken_toml(
         "phases_deg = [0.0, 90.0]\n",

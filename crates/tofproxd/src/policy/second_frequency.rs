@@ -25,7 +25,10 @@
 //! further capture until Near is released: one extra capture per near onset.
 
 use ndarray::ArrayView2;
-use tofprox_core::phasor::{dual_frequency_distance, unambiguous_range_m};
+use tofprox_core::phasor::{
+    distance_to_phase_rad, dual_frequency_distance, extended_unambiguous_range_m,
+    unambiguous_range_m, wrap_to_pi,
+};
 use tofprox_core::pipeline::{
     DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_LOW_AMPLITUDE, FLAG_SATURATED,
 };
@@ -141,8 +144,12 @@ pub fn reject_aliased(
             None,
         )
         .is_ok_and(|d| d.distance_m < far_m);
+        let (d1_m, d2_m) = (f64::from(frame1.depth_m[i]), f64::from(frame2.depth_m[i]));
         if near {
             v.confirmed += 1;
+        } else if !alias_is_clear(d1_m, d2_m, f1_hz, f2_hz) {
+            // calibration error at f2 could explain the miss as well as an alias: keep
+            v.unmeasured += 1;
         } else {
             frame1.flags[i] |= FLAG_IMPLAUSIBLE | FLAG_INVALID;
             frame1.depth_mm[i] = 0;
@@ -151,6 +158,38 @@ pub fn reject_aliased(
         }
     }
     v
+}
+
+/// Phase error (rad) at the second frequency that the near hypothesis must show before an
+/// alias may be preferred to it. Below it, the approximate calibration at `f2` (the `f1`
+/// wiggling table, FPPN scaled by `f2/f1`, the `f1` window crosstalk) explains the miss as
+/// well as an alias does, and a lost near at the ear is as bad as a false one.
+pub const MIN_NEAR_PHASE_ERROR_RAD: f64 = 0.35;
+
+/// Aliases `d + k·d_u(f1)` considered, `k = 1..=MAX_ALIAS_ORDER`: targets bright enough to
+/// pass as near lie just beyond one, two or three unambiguous ranges (the return falls as
+/// 1/d², thesis 2.2.1). Farther orders would leave no phase unexplained: at 80/70 MHz the
+/// eight aliases of the 15 m extended range lie 45° apart at `f2`.
+pub const MAX_ALIAS_ORDER: u32 = 3;
+
+/// Whether the second frequency clearly says "alias" (the hypotheses of eq. 2.8): `d2_m`, the
+/// wrapped distance measured at `f2`, misses the near hypothesis `d1_m` by more than
+/// [`MIN_NEAR_PHASE_ERROR_RAD`] of `f2` phase, and some alias `d1_m + k·d_u(f1)` (up to
+/// [`MAX_ALIAS_ORDER`], within the extended range) fits it at least twice as well.
+pub fn alias_is_clear(d1_m: f64, d2_m: f64, f1_hz: f64, f2_hz: f64) -> bool {
+    let miss_rad = |d_m: f64| wrap_to_pi(distance_to_phase_rad(d2_m - d_m, f2_hz)).abs();
+    let near_miss = miss_rad(d1_m);
+    if !(near_miss > MIN_NEAR_PHASE_ERROR_RAD) {
+        return false;
+    }
+    let (du1_m, extended_m) = (
+        unambiguous_range_m(f1_hz),
+        extended_unambiguous_range_m(f1_hz, f2_hz),
+    );
+    (1..=MAX_ALIAS_ORDER)
+        .map(|k| d1_m + f64::from(k) * du1_m)
+        .take_while(|&d| d <= extended_m)
+        .any(|d| miss_rad(d) * 2.0 <= near_miss)
 }
 
 /// What the loop knows when it decides whether to confirm.
@@ -334,5 +373,28 @@ mod tests {
         assert_eq!(p.next(obs(5, false, 80e6)), Some(70e6), "next onset");
         assert_eq!(p.next(obs(5, false, 70e6)), None, "same frequency");
         assert_eq!(SecondFrequency::new(None).next(obs(5, false, 80e6)), None);
+    }
+
+    /// A retroreflector one and two ranges beyond a near reading is a clear alias at 70 MHz;
+    /// a near hand measured at 70 MHz with a calibration error of up to ~20° is not, nor is
+    /// a miss that no alias explains.
+    #[test]
+    fn an_alias_must_be_clear_before_it_overrides_near() {
+        let (f1, f2) = (80e6, 70e6);
+        let (du1, du2) = (unambiguous_range_m(f1), unambiguous_range_m(f2));
+        let seen_at_f2 = |true_m: f64| true_m.rem_euclid(du2);
+        for k in [1.0, 2.0] {
+            assert!(
+                alias_is_clear(0.05, seen_at_f2(0.05 + k * du1), f1, f2),
+                "k = {k}"
+            );
+        }
+        let per_rad = du2 / std::f64::consts::TAU;
+        for err_deg in [-20.0f64, -5.0, 0.0, 5.0, 20.0] {
+            let d2 = seen_at_f2(0.05 + err_deg.to_radians() * per_rad);
+            assert!(!alias_is_clear(0.05, d2, f1, f2), "{err_deg}°");
+        }
+        // 90° off the other way from the aliases of orders 1–3: no alias explains it
+        assert!(!alias_is_clear(0.05, seen_at_f2(0.05 + 0.25 * du2), f1, f2));
     }
 }
