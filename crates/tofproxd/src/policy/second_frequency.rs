@@ -179,7 +179,7 @@ pub const MAX_ALIAS_ORDER: u32 = 3;
 pub fn alias_is_clear(d1_m: f64, d2_m: f64, f1_hz: f64, f2_hz: f64) -> bool {
     let miss_rad = |d_m: f64| wrap_to_pi(distance_to_phase_rad(d2_m - d_m, f2_hz)).abs();
     let near_miss = miss_rad(d1_m);
-    if !(near_miss > MIN_NEAR_PHASE_ERROR_RAD) {
+    if near_miss.is_nan() || near_miss <= MIN_NEAR_PHASE_ERROR_RAD {
         return false;
     }
     let (du1_m, extended_m) = (
