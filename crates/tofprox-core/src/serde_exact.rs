@@ -17,7 +17,7 @@ where
         .map_err(|_| D::Error::invalid_length(n, &format!("exactly {N} elements").as_str()))
 }
 
-/// [`array`] for an optional field: use with `#[serde(default, deserialize_with = …)]`
+/// [`array()`] for an optional field: use with `#[serde(default, deserialize_with = …)]`
 /// (absent: `None`; present: exactly `N` elements).
 pub fn option_array<'de, D, T, const N: usize>(d: D) -> Result<Option<[T; N]>, D::Error>
 where

@@ -638,8 +638,8 @@ pub fn acts_on_phasor(id: &str) -> bool {
 /// effects that act on the phasor: the temperature drift by the model's law
 /// (`tofprox_model::effects::pixel::temperature_drift`, gain factor floored
 /// at 0 as the simulator does; lin = gain, nl = phase coefficients,
-/// [`TempDrift`]), then the amplitude-phase error at the drifted amplitude
-/// ([`AmpPhase`]).
+/// `TempDrift`), then the amplitude-phase error at the drifted amplitude
+/// (`AmpPhase`).
 pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
     let (mut f, mut ph) = (1.0, 0.0);

@@ -50,7 +50,7 @@ enum Command {
     Soak(cmd::daemon::SoakArgs),
     /// Run the scene catalogue through the emulated device and the daemon loop (virtual time).
     Scenes(cmd::daemon::ScenesArgs),
-    /// Write the manual pages (tofprox.1, tofprox-<command>.1, …) into --out and exit
+    /// Write the manual pages (tofprox.1, `tofprox-<command>.1`, …) into --out and exit
     /// (packaging/build-deb.sh).
     #[command(hide = true)]
     Man {
