@@ -143,6 +143,14 @@ impl<T> ResultExt<T> for Result<T, BridgeError> {
     }
 }
 
+/// Read a configuration file (driver config, register map, emulated device) through the
+/// format crate's one bounded reader: regular files only, at most
+/// `tofprox_format::limits::MAX_TOML_BYTES`, UTF-8.
+pub(crate) fn read_config_text(path: &std::path::Path) -> Result<String, BridgeError> {
+    tofprox_format::limits::read_text_bounded(path, tofprox_format::limits::MAX_TOML_BYTES)
+        .map_err(|e| BridgeError::with_source(ErrorKind::Config, format!("cannot read {e}"), e))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -156,12 +164,4 @@ mod tests {
         assert!(!ErrorKind::Config.is_transient());
         assert!(ErrorKind::Stall.is_transient());
     }
-}
-
-/// Read a configuration file (driver config, register map, emulated device) through the
-/// format crate's one bounded reader: regular files only, at most
-/// `tofprox_format::limits::MAX_TOML_BYTES`, UTF-8.
-pub(crate) fn read_config_text(path: &std::path::Path) -> Result<String, BridgeError> {
-    tofprox_format::limits::read_text_bounded(path, tofprox_format::limits::MAX_TOML_BYTES)
-        .map_err(|e| BridgeError::with_source(ErrorKind::Config, format!("cannot read {e}"), e))
 }
