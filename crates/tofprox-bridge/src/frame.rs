@@ -118,13 +118,8 @@ pub fn decode_frame(
     };
     // the map's adc_bits is validated to at most 16 bits: the rail fits in u16
     let limit = u16::try_from(tofprox_core::sensor::adc_max_code(adc_bits)).unwrap_or(u16::MAX);
-    let mut over = 0u16;
-    for (dst, b) in out.iter_mut().zip(pixels.chunks_exact(2)) {
-        let v = u16::from_le_bytes([b[0], b[1]]);
-        over |= v & !limit;
-        *dst = v;
-    }
-    if over != 0 {
+    crate::pixels::unpack_raw16_line(pixels, out);
+    if out.iter().any(|&v| v & !limit != 0) {
         return Err(ContentError::PixelRange);
     }
     Ok(status)

@@ -17,16 +17,19 @@
 //! waits sleep on an injected [`Clock`].
 
 pub mod clock;
+pub mod decode;
 pub mod driver;
 #[cfg(feature = "emulated")]
 pub mod emulated;
 pub mod error;
 pub mod flash;
 pub mod frame;
+pub mod pixels;
 pub mod protocol;
 pub mod regmap;
 pub mod transport;
 pub mod usb;
+pub mod usbcap;
 pub mod uvc;
 
 pub use clock::{Clock, SystemClock, VirtualClock};
