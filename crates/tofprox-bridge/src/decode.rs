@@ -14,7 +14,7 @@ use ndarray::{Array3, Axis, concatenate};
 use crate::frame::StatusLine;
 use crate::pixels::{BufferLayout, PixelError, decode_buffer};
 use crate::usbcap::{BulkIn, busiest_endpoint};
-use crate::uvc::{FrameSpec, Push, ReassemblyStats, Reassembler};
+use crate::uvc::{FrameSpec, Push, Reassembler, ReassemblyStats};
 
 /// How the stream was taken.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -102,7 +102,9 @@ pub fn decode_stream(transfers: &[BulkIn], spec: &StreamSpec) -> Result<Decoded,
         ));
     }
     if spec.status_line && l.packing != crate::pixels::PixelPacking::Raw16 {
-        return Err(DecodeError::Spec("the status line exists only with RAW16 frames"));
+        return Err(DecodeError::Spec(
+            "the status line exists only with RAW16 frames",
+        ));
     }
     let endpoint = match spec.endpoint {
         Some(e) => e,
@@ -139,7 +141,10 @@ pub fn decode_stream(transfers: &[BulkIn], spec: &StreamSpec) -> Result<Decoded,
     let (captures, tail_images) = group(images, spec.images_per_capture);
     if captures.is_empty() {
         let per = spec.images_per_capture;
-        return Err(DecodeError::NoCapture { frames: n_frames, per });
+        return Err(DecodeError::NoCapture {
+            frames: n_frames,
+            per,
+        });
     }
     Ok(Decoded {
         endpoint,
@@ -259,7 +264,10 @@ mod tests {
     fn stacked_raw12_buffers_become_captures() {
         let l = layout(PixelPacking::Raw12, 4);
         let truth: Vec<_> = (0..3).map(|s| codes(s, 4)).collect();
-        let frames: Vec<_> = truth.iter().map(|c| encode_buffer(c, &l).unwrap()).collect();
+        let frames: Vec<_> = truth
+            .iter()
+            .map(|c| encode_buffer(c, &l).unwrap())
+            .collect();
         let spec = StreamSpec {
             layout: l,
             status_line: false,
@@ -279,7 +287,10 @@ mod tests {
     fn single_images_group_and_a_lost_frame_is_refused() {
         let l = layout(PixelPacking::Raw16, 1);
         let truth: Vec<_> = (0..5).map(|s| codes(s, 1)).collect();
-        let frames: Vec<_> = truth.iter().map(|c| encode_buffer(c, &l).unwrap()).collect();
+        let frames: Vec<_> = truth
+            .iter()
+            .map(|c| encode_buffer(c, &l).unwrap())
+            .collect();
         let spec = StreamSpec {
             layout: l,
             status_line: false,
@@ -288,10 +299,15 @@ mod tests {
         };
         let d = decode_stream(&stream(&frames, 20), &spec).unwrap();
         assert_eq!((d.captures.len(), d.tail_images), (2, 1));
-        assert_eq!(d.captures[1].frames.index_axis(Axis(0), 1), truth[3].index_axis(Axis(0), 0));
+        assert_eq!(
+            d.captures[1].frames.index_axis(Axis(0), 1),
+            truth[3].index_axis(Axis(0), 0)
+        );
         // lose one payload in the middle of frame 2: its frame is torn, the phases after unknown
         let mut s = stream(&frames, 20);
-        let victim = s.iter().position(|t| t.data.first() == Some(&12) && t.time_ns > 8000);
+        let victim = s
+            .iter()
+            .position(|t| t.data.first() == Some(&12) && t.time_ns > 8000);
         s.remove(victim.unwrap());
         assert!(matches!(
             decode_stream(&s, &spec),
@@ -330,7 +346,13 @@ mod tests {
         };
         let d = decode_stream(&stream(&frames, 24), &spec).unwrap();
         assert_eq!(d.captures.len(), 2);
-        assert_eq!(d.captures[0].frames.index_axis(Axis(0), 0), truth[1].index_axis(Axis(0), 0));
-        assert_eq!(d.captures[1].frames.index_axis(Axis(0), 1), truth[4].index_axis(Axis(0), 0));
+        assert_eq!(
+            d.captures[0].frames.index_axis(Axis(0), 0),
+            truth[1].index_axis(Axis(0), 0)
+        );
+        assert_eq!(
+            d.captures[1].frames.index_axis(Axis(0), 1),
+            truth[4].index_axis(Axis(0), 0)
+        );
     }
 }

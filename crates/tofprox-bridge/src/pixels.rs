@@ -106,7 +106,9 @@ fn check_layout(l: &BufferLayout, got: usize) -> Result<(), PixelError> {
         return Err(PixelError::Layout("zero rows, columns or images"));
     }
     if l.packing == PixelPacking::Raw12 && l.cols % 2 != 0 {
-        return Err(PixelError::Layout("RAW12 lines hold an even number of pixels"));
+        return Err(PixelError::Layout(
+            "RAW12 lines hold an even number of pixels",
+        ));
     }
     if !(1..=16).contains(&l.adc_bits) {
         return Err(PixelError::Layout("adc_bits must be 1..=16"));
@@ -147,14 +149,19 @@ pub fn decode_buffer(buf: &[u8], layout: &BufferLayout) -> Result<Array3<u16>, P
     let codes = out
         .as_slice_mut()
         .ok_or(PixelError::Layout("non-contiguous output"))?;
-    for (r, line) in buf.chunks_exact(layout.stride()).take(rows_total).enumerate() {
+    for (r, line) in buf
+        .chunks_exact(layout.stride())
+        .take(rows_total)
+        .enumerate()
+    {
         let dst = &mut codes[r * cols..(r + 1) * cols];
         match layout.packing {
             PixelPacking::Raw12 => unpack_raw12_line(&line[..line_bytes], dst),
             PixelPacking::Raw16 => unpack_raw16_line(&line[..line_bytes], dst),
         }
     }
-    let max = u16::try_from(tofprox_core::sensor::adc_max_code(layout.adc_bits)).unwrap_or(u16::MAX);
+    let max =
+        u16::try_from(tofprox_core::sensor::adc_max_code(layout.adc_bits)).unwrap_or(u16::MAX);
     if let Some((index, &value)) = codes.iter().enumerate().find(|(_, v)| **v > max) {
         return Err(PixelError::Range {
             index,

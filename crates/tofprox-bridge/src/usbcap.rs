@@ -114,12 +114,13 @@ fn read_pcapng(bytes: &[u8]) -> Result<Vec<BulkIn>, CaptureError> {
         match b? {
             Block::InterfaceDescription(idb) => links.push(u32::from(idb.linktype)),
             Block::EnhancedPacket(epb) => {
-                let link = links.get(epb.interface_id as usize).copied().ok_or_else(|| {
-                    CaptureError::Record {
+                let link = links
+                    .get(epb.interface_id as usize)
+                    .copied()
+                    .ok_or_else(|| CaptureError::Record {
                         record,
                         reason: format!("packet of undeclared interface {}", epb.interface_id),
-                    }
-                })?;
+                    })?;
                 if let Some(t) = parse_usbmon(record, link, &epb.data)? {
                     out.push(t);
                 }
@@ -143,7 +144,10 @@ fn parse_usbmon(record: usize, link: u32, b: &[u8]) -> Result<Option<BulkIn>, Ca
         other => return Err(CaptureError::LinkType(other)),
     };
     if b.len() < head {
-        let reason = format!("{} bytes, shorter than the {head}-byte usbmon header", b.len());
+        let reason = format!(
+            "{} bytes, shorter than the {head}-byte usbmon header",
+            b.len()
+        );
         return Err(CaptureError::Record { record, reason });
     }
     let (event, xfer, ep, device) = (b[8], b[9], b[10], b[11]);
@@ -176,11 +180,14 @@ fn parse_usbmon(record: usize, link: u32, b: &[u8]) -> Result<Option<BulkIn>, Ca
 /// usbmon text (`1u` or `1t`): `tag timestamp_us event address status length [= words…]`.
 fn read_text(text: &str) -> Result<Vec<BulkIn>, CaptureError> {
     let mut out = Vec::new();
-    for (record, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-        if let Some(t) = parse_text_line(line).map_err(|reason| CaptureError::Record {
-            record,
-            reason,
-        })? {
+    for (record, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        if let Some(t) =
+            parse_text_line(line).map_err(|reason| CaptureError::Record { record, reason })?
+        {
             if t.1 < t.0.data.len() || t.0.data.len() < t.1 {
                 return Err(CaptureError::Truncated {
                     record,
@@ -212,7 +219,9 @@ fn parse_text_line(line: &str) -> Result<Option<(BulkIn, usize)>, String> {
         [_, dev, ep] => (0, num(dev)?, num(ep)?),
         _ => return Err(format!("address {:?}", w[3])),
     };
-    let length: usize = w[5].parse().map_err(|_| format!("data length {:?}", w[5]))?;
+    let length: usize = w[5]
+        .parse()
+        .map_err(|_| format!("data length {:?}", w[5]))?;
     let mut data = Vec::with_capacity(length.min(32));
     if w.get(6) == Some(&"=") {
         for word in &w[7..] {
@@ -288,11 +297,11 @@ mod tests {
     #[test]
     fn pcap_keeps_completed_bulk_in_only() {
         let f = pcap(&[
-            (b'S', 3, 0x81, -115, &[], 512),        // submission
-            (b'C', 3, 0x81, 0, &[1, 2, 3], 3),      // the one to keep
-            (b'C', 2, 0x80, 0, &[9], 1),            // control
-            (b'C', 3, 0x02, 0, &[7], 1),            // bulk OUT
-            (b'C', 3, 0x81, -71, &[], 0),           // protocol error
+            (b'S', 3, 0x81, -115, &[], 512),   // submission
+            (b'C', 3, 0x81, 0, &[1, 2, 3], 3), // the one to keep
+            (b'C', 2, 0x80, 0, &[9], 1),       // control
+            (b'C', 3, 0x02, 0, &[7], 1),       // bulk OUT
+            (b'C', 3, 0x81, -71, &[], 0),      // protocol error
         ]);
         let t = read_capture(&f).unwrap();
         assert_eq!(t.len(), 1);

@@ -29,6 +29,9 @@ pub enum DeviceCommand {
     /// Bring-up: drive the sensor's reset pin (`hold` = in reset / off,
     /// `release` = running).
     Reset(ResetArgs),
+    /// Turn a capture of a camera's USB stream (usbmon pcap/pcapng or text) into a version 1
+    /// recording, given the mode it was taken in.
+    Decode(super::device_decode::DecodeArgs),
 }
 
 #[derive(clap::Args, Debug)]
@@ -237,6 +240,7 @@ pub fn run(c: DeviceCommand) -> anyhow::Result<ExitCode> {
         DeviceCommand::Reg(a) => reg_cmd(a),
         DeviceCommand::Reset(a) => reset_cmd(a),
         DeviceCommand::Flash(a) => flash_cmd(a),
+        DeviceCommand::Decode(a) => super::device_decode::decode(a),
     }
 }
 

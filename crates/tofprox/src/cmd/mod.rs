@@ -4,6 +4,7 @@ pub mod calibrate;
 pub mod common;
 pub mod daemon;
 pub mod device;
+pub mod device_decode;
 pub mod info;
 pub mod lab;
 pub mod live;
