@@ -90,3 +90,29 @@ fn cover_window_files_are_the_phone_model_clean_and_smudged() {
     let e = EmulatedConfig::load(&p).unwrap_err();
     assert!(format!("{e:?}").contains("smudge_rel"), "{e:?}");
 }
+
+/// docs/bridge.md "Public facts and our inventions": where the public record names a register,
+/// the shipped emulated map uses it — LPFSMEN (0x9000) starts the sequence with 5 and stops it
+/// with 1, the sensor answers at the REAL3 address 0x3D — and no invented register sits on it.
+#[test]
+fn shipped_map_follows_the_public_facts() {
+    let m = EmulatedConfig::default().sensor_map().unwrap();
+    const LPFSMEN: u16 = 0x9000;
+    assert_eq!(m.sequences.start_measurement, vec![[LPFSMEN, 5]]);
+    assert_eq!(m.sequences.stop_measurement, vec![[LPFSMEN, 1]]);
+    assert_eq!(m.sensor.i2c_address, 0x3D);
+    let invented = [
+        m.raw.exposure_base,
+        m.raw.phase_base,
+        m.raw.illumination_base,
+        m.raw.count_register,
+        m.flash.load_register,
+    ];
+    for base in invented {
+        assert!(
+            !(base..base + u16::from(m.raw.max_count)).contains(&LPFSMEN),
+            "{base:#06x}"
+        );
+    }
+    assert!(m.sequences.flash_image.iter().all(|[r, _]| *r != LPFSMEN));
+}
