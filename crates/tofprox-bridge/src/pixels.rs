@@ -105,7 +105,7 @@ fn check_layout(l: &BufferLayout, got: usize) -> Result<(), PixelError> {
     if l.cols == 0 || l.rows == 0 || l.images == 0 {
         return Err(PixelError::Layout("zero rows, columns or images"));
     }
-    if l.packing == PixelPacking::Raw12 && l.cols % 2 != 0 {
+    if l.packing == PixelPacking::Raw12 && !l.cols.is_multiple_of(2) {
         return Err(PixelError::Layout(
             "RAW12 lines hold an even number of pixels",
         ));

@@ -321,6 +321,24 @@ impl SensorMap {
 
     /// Range and consistency checks; errors name the key.
     pub fn validate(&self) -> Result<(), BridgeError> {
+        self.validate_sensor()?;
+        self.validate_raw()?;
+        self.validate_spi_flash()?;
+        let s = &self.sensor;
+        let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
+        if let Some(w) = &self.row_window
+            && (w.align == 0 || !s.rows.is_multiple_of(w.align))
+        {
+            return bad("row_window.align", "must divide sensor.rows".into());
+        }
+        if let Some(m) = &self.modulation {
+            validate_modulation(m, s.modulation_hz).or_else(|why| bad("modulation", why))?;
+        }
+        self.validate_use_cases()
+    }
+
+    /// `[sensor]`: address, array size, status line, ADC and modulation, padding.
+    fn validate_sensor(&self) -> Result<(), BridgeError> {
         let s = &self.sensor;
         let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
         if s.i2c_address > 0x7F {
@@ -358,6 +376,12 @@ impl SensorMap {
         if s.pad_align == 0 || s.pad_align > 65536 {
             return bad("sensor.pad_align", "must be in 1..=65536".into());
         }
+        Ok(())
+    }
+
+    /// `[raw]`: exposure and phase steps, register blocks of the raw images.
+    fn validate_raw(&self) -> Result<(), BridgeError> {
+        let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
         let r = &self.raw;
         if !(r.exposure_lsb_us.is_finite() && r.exposure_lsb_us > 0.0) {
             return bad("raw.exposure_lsb_us", "must be > 0".into());
@@ -389,6 +413,12 @@ impl SensorMap {
                 );
             }
         }
+        Ok(())
+    }
+
+    /// `[spi]`, `[flash]` and the sequences: windows, page/sector sizes, the image's extent.
+    fn validate_spi_flash(&self) -> Result<(), BridgeError> {
+        let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
         for (k, base) in [
             ("spi.tx_base", self.spi.tx_base),
             ("spi.rx_base", self.spi.rx_base),
@@ -441,14 +471,13 @@ impl SensorMap {
                 ),
             );
         }
-        if let Some(w) = &self.row_window
-            && (w.align == 0 || !s.rows.is_multiple_of(w.align))
-        {
-            return bad("row_window.align", "must divide sensor.rows".into());
-        }
-        if let Some(m) = &self.modulation {
-            validate_modulation(m, s.modulation_hz).or_else(|why| bad("modulation", why))?;
-        }
+        Ok(())
+    }
+
+    /// `[use_cases.*]`: raw image counts, illumination lists, phases.
+    fn validate_use_cases(&self) -> Result<(), BridgeError> {
+        let r = &self.raw;
+        let bad = |k: &str, why: String| Err(BridgeError::config(format!("{k}: {why}")));
         for (name, uc) in &self.use_cases {
             let k = uc.phases_deg.len();
             if k == 0 || k > usize::from(r.max_count) {

@@ -262,11 +262,12 @@ mod tests {
 
     /// A classic pcap of link type 220 written byte by byte from the kernel's
     /// `struct usbmon_packet` layout (not through the reader under test).
-    fn pcap(records: &[(u8, u8, u8, i32, &[u8], u32)]) -> Vec<u8> {
+    /// (event, transfer type, endpoint, status, captured data, transfer length)
+    type Record<'a> = (u8, u8, u8, i32, &'a [u8], u32);
+
+    fn pcap(records: &[Record]) -> Vec<u8> {
         let mut f = Vec::new();
-        for v in [0xa1b2_c3d4u32] {
-            f.extend_from_slice(&v.to_le_bytes());
-        }
+        f.extend_from_slice(&0xa1b2_c3d4u32.to_le_bytes());
         f.extend_from_slice(&2u16.to_le_bytes());
         f.extend_from_slice(&4u16.to_le_bytes());
         f.extend_from_slice(&[0; 8]); // thiszone, sigfigs
