@@ -724,7 +724,7 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
                     p.unit
                 );
             }
-            if e.id == "waveform_harmonics" && m.waveforms().is_some() {
+            if e.id == tofprox_model::ids::waveform_harmonics::ID.as_str() && m.waveforms().is_some() {
                 println!("      (correlation from measured illumination/modulation waveforms)");
             }
         }
