@@ -386,7 +386,10 @@ fn write_sbi(w: &mut Writer<'_>, g: &dyn Fn(&str) -> Option<f64>, prep: &Prepare
     // the SBI fit measured how many electrons a klux·ms of background adds per
     // signal electron: that is the model's ambient responsivity
     let p = ids::ambient_light::E_PER_US_PER_KLUX;
-    if let Err(e) = w.m.enable(ids::ambient_light::ID, true).and_then(|()| w.m.set(p, v)) {
+    if let Err(e) =
+        w.m.enable(ids::ambient_light::ID, true)
+            .and_then(|()| w.m.set(p, v))
+    {
         w.notes.push(format!(
             "{p} = {v:.6} not written ({e}); kept {:?}",
             w.m.param(p.section(), p.name())
@@ -403,9 +406,7 @@ fn write_sbi(w: &mut Writer<'_>, g: &dyn Fn(&str) -> Option<f64>, prep: &Prepare
 /// converter's slope (eq. 3.2, [`tofprox_model::effects::adc::gain_factor`]).
 /// NaN when the file has no conversion gain.
 fn code_per_e(m: &ModelConfig) -> f64 {
-    m.get(ids::sensor::LSB_PER_KE)
-        * 1e-3
-        * tofprox_model::effects::adc::gain_factor(m)
+    m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc::gain_factor(m)
 }
 
 /// The unit of the lab's SBI tap charges in the model's electrons (the
@@ -564,7 +565,15 @@ mod tests {
         m.set(ids::vcsel_droop::DROOP_REL, 0.071).unwrap();
         m.enable(ids::adc_inl::ID, true).unwrap();
         m.set(ids::adc_inl::INL_LSB, -3.5).unwrap();
-        let out = update_model_text(text, &m, &[ids::vcsel_droop::ID.as_str().into(), ids::adc_inl::ID.as_str().into()]).unwrap();
+        let out = update_model_text(
+            text,
+            &m,
+            &[
+                ids::vcsel_droop::ID.as_str().into(),
+                ids::adc_inl::ID.as_str().into(),
+            ],
+        )
+        .unwrap();
         assert!(out.starts_with("# my sensor\n"), "{out}");
         assert!(
             out.contains("enabled = true  # off until measured"),
@@ -572,10 +581,7 @@ mod tests {
         );
         let back = ModelConfig::from_toml_str(&out).unwrap();
         assert_eq!(back.get(ids::vcsel_droop::DROOP_REL), 0.071);
-        assert!(
-            back.is_enabled(ids::vcsel_droop::ID)
-                && back.is_enabled(ids::adc_inl::ID)
-        );
+        assert!(back.is_enabled(ids::vcsel_droop::ID) && back.is_enabled(ids::adc_inl::ID));
         assert_eq!(back.get(ids::adc_inl::INL_LSB), -3.5);
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }

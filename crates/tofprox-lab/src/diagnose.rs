@@ -1380,7 +1380,12 @@ mod tests {
 
     #[test]
     fn noise_like_residual_is_nothing_missing() {
-        let d = decide(1.5, 1.001, 3.0, &[cand(ids::adc_inl::ID.as_str(), 0.9, 0.8, 0.5, -30.0)]);
+        let d = decide(
+            1.5,
+            1.001,
+            3.0,
+            &[cand(ids::adc_inl::ID.as_str(), 0.9, 0.8, 0.5, -30.0)],
+        );
         assert_eq!(d.verdict, Verdict::NothingMissing);
         assert!(d.effect.is_none());
     }
@@ -1399,7 +1404,13 @@ mod tests {
     #[test]
     fn two_close_candidates_are_ambiguous() {
         let c = [
-            cand(ids::amplitude_phase_error::ID.as_str(), 0.95, 0.93, 3.0, -9e4),
+            cand(
+                ids::amplitude_phase_error::ID.as_str(),
+                0.95,
+                0.93,
+                3.0,
+                -9e4,
+            ),
             cand(ids::multipath::ID.as_str(), 0.93, 0.90, 3.5, -8.9e4),
         ];
         let d = decide(300.0, 2.0, 900.0, &c);
@@ -1422,7 +1433,13 @@ mod tests {
 
     #[test]
     fn overfitting_candidate_fails_cross_validation() {
-        let c = [cand(ids::waveform_harmonics::ID.as_str(), 0.8, -0.3, 3.0, -1e4)];
+        let c = [cand(
+            ids::waveform_harmonics::ID.as_str(),
+            0.8,
+            -0.3,
+            3.0,
+            -1e4,
+        )];
         assert_eq!(decide(50.0, 1.3, 80.0, &c).verdict, Verdict::Unexplained);
     }
 
@@ -1436,11 +1453,19 @@ mod tests {
         let prep = Prepared::new(&ds).unwrap();
         // temperature was not varied: it separates drift from amplitude-phase error
         assert_eq!(
-            separating_condition(ids::temperature_drift::ID.as_str(), ids::amplitude_phase_error::ID.as_str(), &prep),
+            separating_condition(
+                ids::temperature_drift::ID.as_str(),
+                ids::amplitude_phase_error::ID.as_str(),
+                &prep
+            ),
             "temperature_c"
         );
         assert_eq!(
-            separating_condition(ids::sbi_asymmetry::ID.as_str(), ids::dark_current::ID.as_str(), &prep),
+            separating_condition(
+                ids::sbi_asymmetry::ID.as_str(),
+                ids::dark_current::ID.as_str(),
+                &prep
+            ),
             "ambient_klux"
         );
     }

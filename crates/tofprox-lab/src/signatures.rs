@@ -640,7 +640,10 @@ pub fn acts_on_phasor(id: &str) -> bool {
 pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
     let (mut f, mut ph) = (1.0, 0.0);
-    for e in effects.iter().filter(|e| e.id == ids::temperature_drift::ID.as_str()) {
+    for e in effects
+        .iter()
+        .filter(|e| e.id == ids::temperature_drift::ID.as_str())
+    {
         let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
             cap.temp_rel,
             [at(&e.nl, 0), at(&e.nl, 1)],
@@ -649,7 +652,10 @@ pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f
         f *= (1.0 + g).max(0.0);
         ph += dphi;
     }
-    for e in effects.iter().filter(|e| e.id == ids::amplitude_phase_error::ID.as_str()) {
+    for e in effects
+        .iter()
+        .filter(|e| e.id == ids::amplitude_phase_error::ID.as_str())
+    {
         if cap.illum && e.nl.len() == 3 {
             ph += AmpPhase::phase_rad(&e.nl, a_lsb * f);
         }

@@ -58,6 +58,22 @@ pub enum Driver {
     AdcCode,
 }
 
+impl ActsOn {
+    /// The name as in `tofprox model effects` and its JSON.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Signal => "signal",
+            Self::Correlation => "correlation",
+            Self::Phasor => "phasor",
+            Self::TapCharge => "tap_charge",
+            Self::Differential => "differential",
+            Self::Offset => "offset",
+            Self::Adc => "adc",
+            Self::Noise => "noise",
+        }
+    }
+}
+
 impl Driver {
     /// The name as a recording's condition key or the lab's quantity.
     pub const fn as_str(self) -> &'static str {
@@ -312,7 +328,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.2.1, 3.3.3 (fig. 3.7: signal loss with distance)",
         signature: "amplitude ∝ d^-n; depth residuals of offset-like effects grow with distance",
         params: &[p(
-                ids::signal_falloff::EXPONENT,
+            ids::signal_falloff::EXPONENT,
             "",
             2.0,
             1.0,
@@ -331,7 +347,13 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.2.2.2, eq. 2.10-2.11",
         signature: "amplitude scales by K at constant intensity; no phase change",
         params: &[p(
-                ids::demodulation_contrast::CONTRAST, "", 0.8, 0.05, 1.0, "demodulation contrast K")],
+            ids::demodulation_contrast::CONTRAST,
+            "",
+            0.8,
+            0.05,
+            1.0,
+            "demodulation contrast K",
+        )],
         in_baseline: true,
         acts_on: ActsOn::Signal,
         drivers: &[],
@@ -631,7 +653,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.2.2.1, 5.1.2.3",
         signature: "noise grows with ambient_klux; with SBI mismatch a 2-phase-only depth error",
         params: &[p(
-                ids::ambient_light::E_PER_US_PER_KLUX,
+            ids::ambient_light::E_PER_US_PER_KLUX,
             "e-/us/klux",
             3.0,
             0.0,
@@ -716,7 +738,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.2.2 (two-tap pixel, eq. 2.1), 3.3.3 eq. 3.4",
         signature: "common-mode code ∝ total charge (signal and ambient), equal in all raw images; 2-phase depth error, 4-phase unaffected",
         params: &[p(
-                ids::tap_gain_mismatch::MISMATCH_REL,
+            ids::tap_gain_mismatch::MISMATCH_REL,
             "1",
             0.002,
             -0.1,
@@ -788,7 +810,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "3.2.1 eq. 3.2, 3.3.2 eq. 3.3, table 3.2",
         signature: "amplitude ratio, earlier saturation; no depth effect",
         params: &[p(
-                ids::adc_gain::GAIN_ERROR_PCT_FSR,
+            ids::adc_gain::GAIN_ERROR_PCT_FSR,
             "%FSR",
             -4.713,
             -30.0,
@@ -807,7 +829,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "3.2.1, 3.3.3 eq. 3.4, fig. 3.7, table 3.2",
         signature: "constant code offset; 2-phase depth error growing with distance (45° phasor)",
         params: &[p(
-                ids::adc_offset::OFFSET_LSB,
+            ids::adc_offset::OFFSET_LSB,
             "LSB",
             -10.84,
             -500.0,
@@ -826,7 +848,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "3.2.1, 3.3.1, 3.3.4 (fig. 3.4, 3.8), table 3.2",
         signature: "raw residual odd in (code − mid) with period 2^N; depth error with period π/2 growing with amplitude",
         params: &[p(
-                ids::adc_inl::INL_LSB,
+            ids::adc_inl::INL_LSB,
             "LSB",
             -1.744,
             -500.0,
@@ -845,7 +867,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "3.2.1, 3.3.1, 3.3.5 (fig. 3.9), table 3.2",
         signature: "raw residual jumping from code to code, fixed per code; depth error well below 1 cm",
         params: &[p(
-                ids::adc_dnl::DNL_LSB,
+            ids::adc_dnl::DNL_LSB,
             "LSB",
             1.906,
             0.0,
@@ -876,7 +898,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.3.2.2 eq. 2.16, 2.3.2.6",
         signature: "variance linear in the collected electrons (photon transfer curve)",
         params: &[p(
-                ids::shot_noise::EXCESS_NOISE_FACTOR,
+            ids::shot_noise::EXCESS_NOISE_FACTOR,
             "",
             1.0,
             1.0,
@@ -895,7 +917,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.3.2.4, 2.3.2.6",
         signature: "constant noise floor in dark frames",
         params: &[p(
-                ids::read_noise::SIGMA_LSB,
+            ids::read_noise::SIGMA_LSB,
             "LSB",
             1.2,
             0.0,
@@ -914,7 +936,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
         thesis_ref: "2.3.2.1 eq. 2.14-2.15",
         signature: "constant noise floor growing slowly with temperature",
         params: &[p(
-                ids::ktc_noise::C_INT_FF,
+            ids::ktc_noise::C_INT_FF,
             "fF",
             20.0,
             0.01,
@@ -973,9 +995,15 @@ mod closest_tests {
     #[test]
     fn misspelled_effects_find_their_id_and_strangers_find_none() {
         let ids = || CATALOGUE.iter().map(|e| e.id);
-        assert_eq!(closest("vcsel_drop", ids()), Some("vcsel_droop"));
-        assert_eq!(closest("adcinl", ids()), Some("adc_inl"));
-        assert_eq!(closest("quantisation", ids()), Some("quantization"));
+        assert_eq!(
+            closest("vcsel_drop", ids()),
+            Some(ids::vcsel_droop::ID.as_str())
+        );
+        assert_eq!(closest("adcinl", ids()), Some(ids::adc_inl::ID.as_str()));
+        assert_eq!(
+            closest("quantisation", ids()),
+            Some(ids::quantization::ID.as_str())
+        );
         assert_eq!(closest("banana", ids()), None);
     }
 }

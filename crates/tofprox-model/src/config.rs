@@ -406,7 +406,10 @@ impl ModelConfig {
                 };
                 let _ = writeln!(out, "{} = {:?}{unit}", p.name, v);
             }
-            if let (true, Some(w)) = (e.id == ids::waveform_harmonics::ID.as_str(), &self.waveforms) {
+            if let (true, Some(w)) = (
+                e.id == ids::waveform_harmonics::ID.as_str(),
+                &self.waveforms,
+            ) {
                 write_wave(
                     &mut out,
                     "illumination",

@@ -277,9 +277,9 @@ mod tests {
 
     fn dnl_adc(dnl: f64, seed: u64) -> Adc {
         let mut m = ModelConfig::ideal();
-        m.set_enabled("adc_dnl", true).unwrap();
-        m.set_enabled("quantization", true).unwrap();
-        m.set_param("adc_dnl", "dnl_lsb", dnl).unwrap();
+        m.enable(ids::adc_dnl::ID, true).unwrap();
+        m.enable(ids::quantization::ID, true).unwrap();
+        m.set(ids::adc_dnl::DNL_LSB, dnl).unwrap();
         Adc::new(&m, 12, seed)
     }
 
