@@ -3,6 +3,7 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
+use tofprox_model::catalogue::Driver;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
@@ -1052,22 +1053,24 @@ pub fn decide(
 pub fn separating_condition(a: &str, b: &str, prep: &Prepared) -> String {
     let ca = effect_conditions(a);
     let cb = effect_conditions(b);
-    let mut diff: Vec<&str> = ca
+    let mut diff: Vec<Driver> = ca
         .iter()
         .filter(|c| !cb.contains(c))
         .chain(cb.iter().filter(|c| !ca.contains(c)))
         .copied()
         .collect();
-    let varied = |c: &str| match c {
-        "ambient_klux" => prep.ambient_varies,
-        "temperature_c" => prep.temperature_varies,
-        "exposure_us" => prep.exposure_varies,
+    let varied = |c: Driver| match c {
+        Driver::AmbientKlux => prep.ambient_varies,
+        Driver::TemperatureC => prep.temperature_varies,
+        Driver::ExposureUs => prep.exposure_varies,
         _ => true,
     };
-    diff.sort_by_key(|c| varied(c));
+    diff.sort_by_key(|c| varied(*c));
     diff.first()
-        .map(|s| s.to_string())
-        .unwrap_or_else(|| "exposure_us".into())
+        .copied()
+        .unwrap_or(Driver::ExposureUs)
+        .as_str()
+        .to_string()
 }
 
 /// The spec with one more effect enabled.

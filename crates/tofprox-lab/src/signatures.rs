@@ -3,7 +3,7 @@
 //! parameters: `lin` enter linearly, `nl` (thresholds, time constants, path
 //! lengths) are started from a grid and refined by Levenberg–Marquardt.
 
-use tofprox_model::catalogue::{self, ActsOn};
+use tofprox_model::catalogue::{self, ActsOn, Driver};
 use tofprox_model::ids::{self, EffectId};
 
 use crate::error::{ErrorKind, LabError};
@@ -112,8 +112,8 @@ pub const SIGNATURE_IDS: &[&str] = &[
 
 /// Conditions each effect varies with (used to advise how to separate two):
 /// the registry's drivers (`tofprox_model::catalogue::EffectInfo::drivers`).
-pub fn effect_conditions(id: &str) -> Vec<&'static str> {
-    catalogue::effect(id).map_or_else(Vec::new, |e| e.drivers.iter().map(|d| d.as_str()).collect())
+pub fn effect_conditions(id: &str) -> &'static [Driver] {
+    catalogue::effect(id).map_or(&[], |e| e.drivers)
 }
 
 /// Whether the effect's residual cancels in the 4-phase algorithm (common to
