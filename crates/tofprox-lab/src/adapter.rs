@@ -288,11 +288,8 @@ pub fn write_effect(
         Some(ids::tap_gain_mismatch::ID) => {
             // Δ = ε/2 · total charge; the lab's A is the fundamental amplitude,
             // total = A · peak(C)/contrast (C with fundamental 1)
-            let peak = (0..360)
-                .map(|i| model.waveform.eval(f64::from(i).to_radians()).0)
-                .fold(1.0f64, f64::max);
             if let Some(sh) = g("signal_share") {
-                let k = contrast(w.m);
+                let (k, peak) = (contrast(w.m), model.waveform.peak());
                 w.set(ids::tap_gain_mismatch::MISMATCH_REL, 2.0 * sh * k / peak);
             }
         }

@@ -160,12 +160,9 @@ pub fn make_signature(
         ids::sbi_asymmetry::ID => {
             // total signal charge relative to the fundamental amplitude: the
             // correlation's peak over its fundamental, over the contrast 0.8
-            let peak = (0..360)
-                .map(|i| waveform.eval(f64::from(i).to_radians()).0)
-                .fold(1.0f64, f64::max);
             Box::new(Sbi {
                 ambient_varies: prep.ambient_varies,
-                g: peak / 0.8,
+                g: waveform.peak() / 0.8,
             })
         }
         ids::tap_gain_mismatch::ID => Box::new(TapGain {
