@@ -797,3 +797,46 @@ impl Signature for Multipath {
         out[0] = r.a * self.waveform.eval(r.phi + dphi - r.theta).0;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every effect the lab fits is a registry entry with at least one driver
+    /// (the separating-condition advice needs one), and the lab's phasor
+    /// effects are exactly the registry's `phasor` entries among them.
+    #[test]
+    fn every_signature_is_a_registry_entry_with_drivers() {
+        for id in SIGNATURE_IDS {
+            let e = catalogue::effect(id).unwrap_or_else(|| panic!("{id}: not in the registry"));
+            assert!(!e.drivers.is_empty(), "{id}: no drivers");
+            assert!(!effect_conditions(id).is_empty());
+        }
+        let phasor: Vec<&str> = SIGNATURE_IDS
+            .iter()
+            .copied()
+            .filter(|id| acts_on_phasor(id))
+            .collect();
+        assert_eq!(
+            phasor,
+            [
+                ids::amplitude_phase_error::ID.as_str(),
+                ids::temperature_drift::ID.as_str()
+            ]
+        );
+        let four: Vec<&str> = SIGNATURE_IDS
+            .iter()
+            .copied()
+            .filter(|id| cancels_in_4phase(id))
+            .collect();
+        assert_eq!(
+            four,
+            [
+                ids::sbi_asymmetry::ID.as_str(),
+                ids::tap_gain_mismatch::ID.as_str(),
+                ids::dark_current::ID.as_str()
+            ]
+        );
+        assert!(effect_conditions("no_such_effect").is_empty() && !cancels_in_4phase("x"));
+    }
+}
