@@ -159,10 +159,11 @@ pub fn make_signature(
     Ok(match EffectId::parse(id).ok_or_else(unknown)? {
         ids::sbi_asymmetry::ID => {
             // total signal charge relative to the fundamental amplitude: the
-            // correlation's peak over its fundamental, over the contrast 0.8
+            // correlation's peak over its fundamental, over the registry's
+            // typical demodulation contrast (0.8)
             Box::new(Sbi {
                 ambient_varies: prep.ambient_varies,
-                g: waveform.peak() / 0.8,
+                g: waveform.peak() / catalogue::typical(ids::demodulation_contrast::CONTRAST),
             })
         }
         ids::tap_gain_mismatch::ID => Box::new(TapGain {
