@@ -813,30 +813,21 @@ mod tests {
             assert!(!e.drivers.is_empty(), "{id}: no drivers");
             assert!(!effect_conditions(id).is_empty());
         }
-        let phasor: Vec<&str> = SIGNATURE_IDS
-            .iter()
-            .copied()
-            .filter(|id| acts_on_phasor(id))
-            .collect();
+        let ids_where = |f: fn(&str) -> bool| -> Vec<&str> {
+            SIGNATURE_IDS.iter().copied().filter(|id| f(id)).collect()
+        };
         assert_eq!(
-            phasor,
-            [
-                ids::amplitude_phase_error::ID.as_str(),
-                ids::temperature_drift::ID.as_str()
-            ]
+            ids_where(acts_on_phasor),
+            [ids::amplitude_phase_error::ID, ids::temperature_drift::ID].map(EffectId::as_str)
         );
-        let four: Vec<&str> = SIGNATURE_IDS
-            .iter()
-            .copied()
-            .filter(|id| cancels_in_4phase(id))
-            .collect();
         assert_eq!(
-            four,
+            ids_where(cancels_in_4phase),
             [
-                ids::sbi_asymmetry::ID.as_str(),
-                ids::tap_gain_mismatch::ID.as_str(),
-                ids::dark_current::ID.as_str()
+                ids::sbi_asymmetry::ID,
+                ids::tap_gain_mismatch::ID,
+                ids::dark_current::ID
             ]
+            .map(EffectId::as_str)
         );
         assert!(effect_conditions("no_such_effect").is_empty() && !cancels_in_4phase("x"));
     }
