@@ -6,6 +6,7 @@ use std::path::Path;
 
 use tofprox_format::Recording;
 use tofprox_model::ModelConfig;
+use tofprox_model::ids::{self, EffectId, ParamId};
 
 use crate::data::{Capture, Dataset};
 use crate::error::{ErrorKind, LabError};
@@ -68,7 +69,7 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
 
 /// Highest harmonic the model file describes (1 when waveform_harmonics is off).
 pub fn harmonic_order(m: &ModelConfig) -> usize {
-    if !m.is_enabled(tofprox_model::ids::waveform_harmonics::ID) {
+    if !m.is_enabled(ids::waveform_harmonics::ID) {
         return 1;
     }
     if m.waveforms().is_some() {
@@ -76,7 +77,7 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
     }
     (2..=MAX_HARMONIC)
         .rev()
-        .find(|h| tofprox_model::ids::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0))
+        .find(|h| ids::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0))
         .unwrap_or(1)
 }
 
@@ -84,16 +85,17 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
 pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
     LabSpec {
         harmonic_order: harmonic_order(m),
-        per_pixel_offset: m.is_enabled(tofprox_model::ids::fpn_offset::ID)
-            || m.is_enabled(tofprox_model::ids::adc_offset::ID),
-        per_pixel_gain: m.is_enabled(tofprox_model::ids::prnu::ID),
-        per_pixel_phase: m.is_enabled(tofprox_model::ids::fppn::ID),
+        per_pixel_offset: m.is_enabled(ids::fpn_offset::ID) || m.is_enabled(ids::adc_offset::ID),
+        per_pixel_gain: m.is_enabled(ids::prnu::ID),
+        per_pixel_phase: m.is_enabled(ids::fppn::ID),
         effects: SIGNATURE_IDS
             .iter()
-            .filter(|id| **id != "waveform_harmonics" && m.effect(id).is_some_and(|e| e.enabled))
-            .map(|s| s.to_string())
+            .filter_map(|id| EffectId::parse(id))
+            .filter(|id| *id != ids::waveform_harmonics::ID && m.is_enabled(*id))
+            .map(|id| id.as_str().to_string())
             .collect(),
         held: Vec::new(),
+        dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
     }
 }
 
@@ -104,93 +106,8 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
 pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<String>) {
     let mut spec = spec_from_model(m);
     let mut notes = Vec::new();
-    let g = |id: &str, name: &str| m.param(id, name).unwrap_or(0.0);
-    // 0 when the file has no conversion gain (NaN.max(0) is 0)
-    let lsb_per_e = code_per_e(m).max(0.0);
     for id in spec.effects.clone() {
-        let fit = match id.as_str() {
-            "vcsel_droop" => {
-                let tau = g(&id, "tau_us") / 1000.0;
-                Some((
-                    vec![g(&id, "droop_rel") / tau.max(1e-12)],
-                    vec![
-                        tau.max(1e-12).ln(),
-                        g(&id, "exposure_power"),
-                        g(&id, "first_image_index"),
-                    ],
-                ))
-            }
-            "amplitude_phase_error" if lsb_per_e > 0.0 => Some((
-                Vec::new(),
-                vec![
-                    g(&id, "max_rad"),
-                    (g(&id, "reference_e") * lsb_per_e).max(1e-12).ln(),
-                    g(&id, "shape").max(1e-6).ln(),
-                ],
-            )),
-            // about the lab's reference T_l instead of the file's T_r
-            // (δ = T_l − T_r): k(u + δ) + k2(u + δ)² = const + (k + 2k2δ)u + k2u²;
-            // the constant phase shifts the per-pixel phase (refitted), the
-            // constant gain c0 the per-pixel gain: 1 + G(u + δ) =
-            // (1 + c0)·(1 + G′(u)) with G′'s coefficients divided by 1 + c0.
-            // The lab's law is the full one: nl = phase, lin = gain.
-            "temperature_drift" => {
-                let d = prep.temp_ref - g(&id, "reference_c");
-                let (k, k2) = (
-                    g(&id, "phase_mrad_per_k") * 1e-3,
-                    g(&id, "phase_mrad_per_k2") * 1e-3,
-                );
-                let (kg, kg2) = (g(&id, "gain_rel_per_k"), g(&id, "gain_rel_per_k2"));
-                let c0 = (1.0 + kg * d + kg2 * d * d).max(1e-9);
-                Some((
-                    vec![(kg + 2.0 * kg2 * d) / c0, kg2 / c0],
-                    vec![k + 2.0 * k2 * d, k2],
-                ))
-            }
-            "adc_inl" => Some((vec![g(&id, "inl_lsb")], Vec::new())),
-            // the inverse of write_effect's mapping (SbiUnits); nl = [ln q0,
-            // (ln κ when the ambient light varies), clamp share]
-            "sbi_asymmetry" => SbiUnits::from_model(m, prep).map(|u| {
-                let mut nl = vec![(g(&id, "threshold_e") / u.e_per_unit).max(1e-300).ln()];
-                if prep.ambient_varies {
-                    nl.push(u.kappa().ln());
-                }
-                nl.push(g(&id, "clamp_share"));
-                (
-                    vec![-g(&id, "mismatch_rel") * u.e_per_unit * u.lsb_per_e],
-                    nl,
-                )
-            }),
-            "tap_gain_mismatch" => {
-                // s = ε·peak/(2·contrast) (see write_effect); the lab's C has
-                // fundamental 1, the model's peak 1: peak_lab = 1/|a₁|
-                let c = tofprox_model::effects::optical::Correlation::from_model(m);
-                let a1 = c
-                    .coefficients()
-                    .get(1)
-                    .map_or(1.0, |(a, b)| a.hypot(*b))
-                    .max(1e-9);
-                let contrast = if m.is_enabled(tofprox_model::ids::demodulation_contrast::ID) {
-                    g("demodulation_contrast", "contrast")
-                } else {
-                    1.0
-                };
-                let eps = g(&id, "mismatch_rel");
-                let mut lin = vec![eps / (a1 * 2.0 * contrast.max(1e-9))];
-                if prep.ambient_varies {
-                    // ε/2 · 2·N_ambient per tap, in LSB per klux·ms
-                    let amb = if m.is_enabled(tofprox_model::ids::ambient_light::ID) {
-                        g("ambient_light", "e_per_us_per_klux")
-                    } else {
-                        0.0
-                    };
-                    lin.push(eps * amb * 1000.0 * lsb_per_e);
-                }
-                Some((lin, Vec::new()))
-            }
-            _ => None,
-        };
-        match fit {
+        match EffectId::parse(&id).and_then(|e| held_params(e, m, prep)) {
             Some((lin, nl)) => spec.held.push(EffectFit {
                 id: id.clone(),
                 lin,
@@ -202,6 +119,128 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
         }
     }
     (spec, notes)
+}
+
+/// The lab's (lin, nl) of effect `id` at the model file's values, where they
+/// map onto the lab's law.
+fn held_params(id: EffectId, m: &ModelConfig, prep: &Prepared) -> Option<(Vec<f64>, Vec<f64>)> {
+    let g = |p: ParamId| m.get(p);
+    // 0 when the file has no conversion gain (NaN.max(0) is 0)
+    let lsb_per_e = code_per_e(m).max(0.0);
+    match id {
+        ids::vcsel_droop::ID => {
+            use ids::vcsel_droop as p;
+            let tau = (g(p::TAU_US) / 1000.0).max(1e-12);
+            let nl = vec![tau.ln(), g(p::EXPOSURE_POWER), g(p::FIRST_IMAGE_INDEX)];
+            Some((vec![g(p::DROOP_REL) / tau], nl))
+        }
+        ids::amplitude_phase_error::ID if lsb_per_e > 0.0 => {
+            use ids::amplitude_phase_error as p;
+            let nl = vec![
+                g(p::MAX_RAD),
+                (g(p::REFERENCE_E) * lsb_per_e).max(1e-12).ln(),
+                g(p::SHAPE).max(1e-6).ln(),
+            ];
+            Some((Vec::new(), nl))
+        }
+        ids::temperature_drift::ID => Some(held_drift(m, prep)),
+        ids::adc_inl::ID => Some((vec![g(ids::adc_inl::INL_LSB)], Vec::new())),
+        // the signature's parameters are the model file's
+        ids::multipath::ID => Some((
+            vec![g(ids::multipath::RELATIVE_AMPLITUDE)],
+            vec![g(ids::multipath::EXTRA_PATH_M)],
+        )),
+        // the inverse of write_effect's mapping (SbiUnits); nl = [ln q0,
+        // (ln κ when the ambient light varies), clamp share]
+        ids::sbi_asymmetry::ID => SbiUnits::from_model(m, prep).map(|u| {
+            use ids::sbi_asymmetry as p;
+            let mut nl = vec![(g(p::THRESHOLD_E) / u.e_per_unit).max(1e-300).ln()];
+            if prep.ambient_varies {
+                nl.push(u.kappa().ln());
+            }
+            nl.push(g(p::CLAMP_SHARE));
+            (vec![-g(p::MISMATCH_REL) * u.e_per_unit * u.lsb_per_e], nl)
+        }),
+        ids::tap_gain_mismatch::ID => Some(held_tap_gain(m, prep, lsb_per_e)),
+        _ => None,
+    }
+}
+
+/// The temperature drift about the lab's reference T_l instead of the file's
+/// T_r (δ = T_l − T_r): k(u + δ) + k2(u + δ)² = const + (k + 2k2δ)u + k2u²;
+/// the constant phase shifts the per-pixel phase (refitted), the constant
+/// gain c0 the per-pixel gain: 1 + G(u + δ) = (1 + c0)·(1 + G′(u)) with G′'s
+/// coefficients divided by 1 + c0. The lab's law is the full one:
+/// nl = phase, lin = gain.
+fn held_drift(m: &ModelConfig, prep: &Prepared) -> (Vec<f64>, Vec<f64>) {
+    use ids::temperature_drift as p;
+    let d = prep.temp_ref - m.get(p::REFERENCE_C);
+    let (k, k2) = (
+        m.get(p::PHASE_MRAD_PER_K) * 1e-3,
+        m.get(p::PHASE_MRAD_PER_K2) * 1e-3,
+    );
+    let (kg, kg2) = (m.get(p::GAIN_REL_PER_K), m.get(p::GAIN_REL_PER_K2));
+    let c0 = (1.0 + kg * d + kg2 * d * d).max(1e-9);
+    (
+        vec![(kg + 2.0 * kg2 * d) / c0, kg2 / c0],
+        vec![k + 2.0 * k2 * d, k2],
+    )
+}
+
+/// The tap gain mismatch as the lab's lin: s = ε·peak/(2·contrast) (see
+/// [`write_effect`]); the lab's C has fundamental 1, the model's peak 1:
+/// peak_lab = 1/|a₁|. With varying ambient light also ε/2 · 2·N_ambient per
+/// tap, in LSB per klux·ms.
+fn held_tap_gain(m: &ModelConfig, prep: &Prepared, lsb_per_e: f64) -> (Vec<f64>, Vec<f64>) {
+    let c = tofprox_model::effects::optical::Correlation::from_model(m);
+    let a1 = c
+        .coefficients()
+        .get(1)
+        .map_or(1.0, |(a, b)| a.hypot(*b))
+        .max(1e-9);
+    let eps = m.get(ids::tap_gain_mismatch::MISMATCH_REL);
+    let mut lin = vec![eps / (a1 * 2.0 * contrast(m).max(1e-9))];
+    if prep.ambient_varies {
+        let amb = if m.is_enabled(ids::ambient_light::ID) {
+            m.get(ids::ambient_light::E_PER_US_PER_KLUX)
+        } else {
+            0.0
+        };
+        lin.push(eps * amb * 1000.0 * lsb_per_e);
+    }
+    (lin, Vec::new())
+}
+
+/// The demodulation contrast K of the model file (1 when the effect is off).
+fn contrast(m: &ModelConfig) -> f64 {
+    if m.is_enabled(ids::demodulation_contrast::ID) {
+        m.get(ids::demodulation_contrast::CONTRAST)
+    } else {
+        1.0
+    }
+}
+
+/// Writes fitted values into a model file, collecting a note for every value
+/// the file's range refuses.
+struct Writer<'a> {
+    m: &'a mut ModelConfig,
+    notes: Vec<String>,
+}
+
+impl Writer<'_> {
+    fn set(&mut self, p: ParamId, v: f64) {
+        if let Err(e) = self.m.set(p, v) {
+            self.notes.push(format!(
+                "{p} = {v:.6} not written ({e}); kept {:?}",
+                self.m.param(p.section(), p.name())
+            ));
+        }
+    }
+    /// `v` clamped into the parameter's range (the lab's law holds it there).
+    fn set_in_range(&mut self, p: ParamId, v: f64) {
+        let v = tofprox_model::catalogue::param_info(p).map_or(v, |i| v.clamp(i.min, i.max));
+        self.set(p, v);
+    }
 }
 
 /// Enable `effect` in `m` and write the fitted values where the lab's
@@ -219,158 +258,144 @@ pub fn write_effect(
             format!("cannot enable `{effect}`: {e}"),
         )
     })?;
-    let mut notes = Vec::new();
-    // the ambient responsivity the SBI fit measured (written after the match)
-    let mut ambient = None;
-    let mut set = |m: &mut ModelConfig, name: &str, v: f64| {
-        if let Err(e) = m.set_param(effect, name, v) {
-            notes.push(format!(
-                "{effect}.{name} = {v:.6} not written ({e}); kept {:?}",
-                m.param(effect, name)
-            ));
-        }
+    let mut w = Writer {
+        m,
+        notes: Vec::new(),
     };
     let g = |k: &str| params.get(k).copied();
-    match effect {
-        "vcsel_droop" => {
-            // the lab fits the model's law with τ in ms^β: τ_us = 1000·τ
-            if let (Some(rate), Some(lt)) = (g("droop_rate"), g("ln_tau")) {
-                let tau = lt.exp();
-                set(m, "tau_us", tau * 1000.0);
-                set(m, "droop_rel", rate * tau);
-            }
-            if let Some(beta) = g("exposure_power") {
-                set(m, "exposure_power", beta.clamp(0.0, 2.0));
-            }
-            if let Some(k0) = g("first_image_index") {
-                set(m, "first_image_index", k0.clamp(0.0, 8.0));
-            }
-        }
-        "temperature_drift" => {
+    match EffectId::parse(effect) {
+        Some(ids::vcsel_droop::ID) => write_droop(&mut w, &g),
+        Some(ids::temperature_drift::ID) => {
+            use ids::temperature_drift as p;
             if let Some(v) = g("phase_rad_per_k") {
-                set(m, "phase_mrad_per_k", v * 1000.0);
+                w.set(p::PHASE_MRAD_PER_K, v * 1000.0);
             }
             if let Some(v) = g("gain_per_k") {
-                set(m, "gain_rel_per_k", v);
+                w.set(p::GAIN_REL_PER_K, v);
             }
             // second order: fitted when the recording has ≥ 3 temperatures,
             // else the linear law (0)
-            set(
-                m,
-                "phase_mrad_per_k2",
-                g("phase_rad_per_k2").unwrap_or(0.0) * 1000.0,
-            );
-            set(m, "gain_rel_per_k2", g("gain_per_k2").unwrap_or(0.0));
-            set(m, "reference_c", prep.temp_ref);
+            w.set(p::PHASE_MRAD_PER_K2, g("phase_rad_per_k2").unwrap_or(0.0) * 1000.0);
+            w.set(p::GAIN_REL_PER_K2, g("gain_per_k2").unwrap_or(0.0));
+            w.set(p::REFERENCE_C, prep.temp_ref);
         }
-        "adc_inl" => {
+        Some(ids::adc_inl::ID) => {
             if let Some(v) = g("inl_bow_lsb") {
-                set(m, "inl_lsb", v);
+                w.set(ids::adc_inl::INL_LSB, v);
             }
         }
-        "amplitude_phase_error" => {
-            // the lab's law holds φ0 and n in the file's ranges (clamped
-            // there, so written clamped: exp(ln 10) is 10 + 2 ulp)
-            let in_range = |name: &str, v: f64| {
-                tofprox_model::catalogue::effect(effect)
-                    .and_then(|e| e.param(name))
-                    .map_or(v, |p| v.clamp(p.min, p.max))
-            };
-            if let Some(v) = g("phase0_rad") {
-                set(m, "max_rad", in_range("max_rad", v));
-            }
-            if let Some(v) = g("ln_shape") {
-                set(m, "shape", in_range("shape", v.exp()));
-            }
-            // the lab's amplitude is in codes; the model's in electrons of the
-            // differential amplitude: A[codes] = A[e]·code_per_e
-            let lsb_per_e = code_per_e(m);
-            if let Some(v) = g("ln_reference_lsb")
-                && lsb_per_e > 0.0
-            {
-                set(m, "reference_e", v.exp() / lsb_per_e);
-            }
-        }
-        "tap_gain_mismatch" => {
+        Some(ids::amplitude_phase_error::ID) => write_amp_phase(&mut w, &g),
+        Some(ids::tap_gain_mismatch::ID) => {
             // Δ = ε/2 · total charge; the lab's A is the fundamental amplitude,
             // total = A · peak(C)/contrast (C with fundamental 1)
-            let peak = (0..360)
-                .map(|i| model.waveform.eval(f64::from(i).to_radians()).0)
-                .fold(1.0f64, f64::max);
-            let contrast = if m.is_enabled(tofprox_model::ids::demodulation_contrast::ID) {
-                m.param("demodulation_contrast", "contrast").unwrap_or(1.0)
-            } else {
-                1.0
-            };
             if let Some(sh) = g("signal_share") {
-                set(m, "mismatch_rel", 2.0 * sh * contrast / peak);
+                let (k, peak) = (contrast(w.m), model.waveform.peak());
+                w.set(ids::tap_gain_mismatch::MISMATCH_REL, 2.0 * sh * k / peak);
             }
         }
-        "multipath" => {
-            if let (Some(c), Some(s)) = (g("ratio_cos"), g("ratio_sin")) {
-                set(m, "relative_amplitude", c.hypot(s));
-            }
-            if let Some(l) = g("extra_path_m") {
-                set(m, "extra_path_m", 2.0 * l.abs());
-            }
-        }
-        "waveform_harmonics" => {
-            for (i, gm) in model.waveform.gamma.iter().enumerate().skip(1) {
-                let h = i + 1;
-                set(m, &format!("h{h}_rel"), gm[0].hypot(gm[1]));
-                set(m, &format!("h{h}_phase_deg"), gm[1].atan2(gm[0]).to_degrees());
-            }
-        }
-        "sbi_asymmetry" => {
-            // the lab's tap charges are in its own unit (see `SbiUnits`); in
-            // electrons: threshold_e = q0·u, and the differential error
-            // m_lab·N_inj[unit] = −m·N_inj[e]·lsb_per_e gives m = −m_lab/(u·lsb_per_e)
-            let kappa = g("ln_signal_weight").map(f64::exp);
-            match SbiUnits::from_fit(m, prep, kappa) {
-                Some(units) => {
-                    if let Some(lq0) = g("ln_threshold") {
-                        set(m, "threshold_e", lq0.exp() * units.e_per_unit);
-                    }
-                    if let Some(ml) = g("mismatch_lsb_per_unit") {
-                        set(
-                            m,
-                            "mismatch_rel",
-                            -ml / (units.e_per_unit * units.lsb_per_e),
-                        );
-                    }
-                    if let Some(v) = g("clamp_share") {
-                        set(m, "clamp_share", v.clamp(0.0, 1.0));
-                    }
-                    ambient = units.ambient_e_per_us_per_klux();
+        Some(ids::multipath::ID) => {
+            // the signature's parameters are the model file's
+            for p in [ids::multipath::RELATIVE_AMPLITUDE, ids::multipath::EXTRA_PATH_M] {
+                if let Some(v) = g(p.name()) {
+                    w.set(p, v.abs());
                 }
-                None => notes.push(format!(
-                    "{effect}: the model file has no conversion gain (sensor.lsb_per_ke) or no fitted signal weight; the model file keeps its typical values"
-                )),
             }
         }
-        _ => notes.push(format!(
+        Some(ids::waveform_harmonics::ID) => {
+            for (i, gm) in model.waveform.gamma.iter().enumerate().skip(1) {
+                if let Some((rel, phase)) = ids::harmonic(i + 1) {
+                    w.set(rel, gm[0].hypot(gm[1]));
+                    w.set(phase, gm[1].atan2(gm[0]).to_degrees());
+                }
+            }
+        }
+        Some(ids::sbi_asymmetry::ID) => write_sbi(&mut w, &g, prep),
+        _ => w.notes.push(format!(
             "{effect}: the lab's parameters are in measurement units (see --json params); the model file keeps its typical values"
         )),
     }
-    if let Some(v) = ambient {
-        // the SBI fit measured how many electrons a klux·ms of background
-        // adds per signal electron: that is the model's ambient responsivity
-        let p = tofprox_model::ids::ambient_light::E_PER_US_PER_KLUX;
-        if let Err(e) = m
-            .set_enabled(p.section(), true)
-            .and_then(|()| m.set_param(p.section(), p.name(), v))
-        {
-            notes.push(format!(
-                "{p} = {v:.6} not written ({e}); kept {:?}",
-                m.param(p.section(), p.name())
-            ));
-        } else {
-            notes.push(format!(
-                "{p} = {v:.6} e-/us/klux written too: the SBI fit's background charge per signal charge, which the written threshold and mismatch are scaled with; it is determined only where background light is a sizeable part of the tap charges at the threshold (with little background the fit trades it against the threshold): check it against an independent measurement before simulating noise with it"
-            ));
-        }
+    Ok(w.notes)
+}
+
+/// `vcsel_droop`: the lab fits the model's law with τ in ms^β: τ_us = 1000·τ.
+fn write_droop(w: &mut Writer<'_>, g: &dyn Fn(&str) -> Option<f64>) {
+    use ids::vcsel_droop as p;
+    if let (Some(rate), Some(lt)) = (g("droop_rate"), g("ln_tau")) {
+        let tau = lt.exp();
+        w.set(p::TAU_US, tau * 1000.0);
+        w.set(p::DROOP_REL, rate * tau);
     }
-    Ok(notes)
+    if let Some(beta) = g("exposure_power") {
+        w.set(p::EXPOSURE_POWER, beta.clamp(0.0, 2.0));
+    }
+    if let Some(k0) = g("first_image_index") {
+        w.set(p::FIRST_IMAGE_INDEX, k0.clamp(0.0, 8.0));
+    }
+}
+
+/// `amplitude_phase_error`: the lab's law holds φ0 and n in the file's ranges
+/// (clamped there, so written clamped: exp(ln 10) is 10 + 2 ulp); the lab's
+/// amplitude is in codes, the model's in electrons of the differential
+/// amplitude: A[codes] = A[e]·code_per_e.
+fn write_amp_phase(w: &mut Writer<'_>, g: &dyn Fn(&str) -> Option<f64>) {
+    use ids::amplitude_phase_error as p;
+    if let Some(v) = g("phase0_rad") {
+        w.set_in_range(p::MAX_RAD, v);
+    }
+    if let Some(v) = g("ln_shape") {
+        w.set_in_range(p::SHAPE, v.exp());
+    }
+    let lsb_per_e = code_per_e(w.m);
+    if let Some(v) = g("ln_reference_lsb")
+        && lsb_per_e > 0.0
+    {
+        w.set(p::REFERENCE_E, v.exp() / lsb_per_e);
+    }
+}
+
+/// `sbi_asymmetry`: the lab's tap charges are in its own unit (see
+/// `SbiUnits`); in electrons: threshold_e = q0·u, and the differential error
+/// m_lab·N_inj[unit] = −m·N_inj[e]·lsb_per_e gives m = −m_lab/(u·lsb_per_e).
+/// With varying ambient light the fit also measured the model's ambient
+/// responsivity, written too.
+fn write_sbi(w: &mut Writer<'_>, g: &dyn Fn(&str) -> Option<f64>, prep: &Prepared) {
+    use ids::sbi_asymmetry as p;
+    let kappa = g("ln_signal_weight").map(f64::exp);
+    let Some(units) = SbiUnits::from_fit(w.m, prep, kappa) else {
+        w.notes.push(format!(
+            "{}: the model file has no conversion gain (sensor.lsb_per_ke) or no fitted signal weight; the model file keeps its typical values",
+            ids::sbi_asymmetry::ID
+        ));
+        return;
+    };
+    if let Some(lq0) = g("ln_threshold") {
+        w.set(p::THRESHOLD_E, lq0.exp() * units.e_per_unit);
+    }
+    if let Some(ml) = g("mismatch_lsb_per_unit") {
+        w.set(p::MISMATCH_REL, -ml / (units.e_per_unit * units.lsb_per_e));
+    }
+    if let Some(v) = g("clamp_share") {
+        w.set(p::CLAMP_SHARE, v.clamp(0.0, 1.0));
+    }
+    let Some(v) = units.ambient_e_per_us_per_klux() else {
+        return;
+    };
+    // the SBI fit measured how many electrons a klux·ms of background adds per
+    // signal electron: that is the model's ambient responsivity
+    let p = ids::ambient_light::E_PER_US_PER_KLUX;
+    if let Err(e) =
+        w.m.enable(ids::ambient_light::ID, true)
+            .and_then(|()| w.m.set(p, v))
+    {
+        w.notes.push(format!(
+            "{p} = {v:.6} not written ({e}); kept {:?}",
+            w.m.param(p.section(), p.name())
+        ));
+    } else {
+        w.notes.push(format!(
+            "{p} = {v:.6} e-/us/klux written too: the SBI fit's background charge per signal charge, which the written threshold and mismatch are scaled with; it is determined only where background light is a sizeable part of the tap charges at the threshold (with little background the fit trades it against the threshold): check it against an independent measurement before simulating noise with it"
+        ));
+    }
 }
 
 /// Output codes per electron of differential charge — the unit the lab's
@@ -378,9 +403,7 @@ pub fn write_effect(
 /// converter's slope (eq. 3.2, [`tofprox_model::effects::adc::gain_factor`]).
 /// NaN when the file has no conversion gain.
 fn code_per_e(m: &ModelConfig) -> f64 {
-    m.get(tofprox_model::ids::sensor::LSB_PER_KE)
-        * 1e-3
-        * tofprox_model::effects::adc::gain_factor(m)
+    m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc::gain_factor(m)
 }
 
 /// The unit of the lab's SBI tap charges in the model's electrons (the
@@ -430,10 +453,10 @@ impl SbiUnits {
     fn from_model(m: &ModelConfig, prep: &Prepared) -> Option<Self> {
         let lsb_per_e = Self::lsb_per_e(m)?;
         let u = if prep.ambient_varies {
-            if !m.is_enabled(tofprox_model::ids::ambient_light::ID) {
+            if !m.is_enabled(ids::ambient_light::ID) {
                 return None;
             }
-            1000.0 * m.get(tofprox_model::ids::ambient_light::E_PER_US_PER_KLUX)
+            1000.0 * m.get(ids::ambient_light::E_PER_US_PER_KLUX)
         } else {
             100.0 / lsb_per_e
         };
@@ -535,23 +558,28 @@ mod tests {
         let text = "# my sensor\ndescription = \"bench unit 3\"\n\n[effects.vcsel_droop]\n\
                     enabled = false  # off until measured\ndroop_rel = 0.03\n";
         let mut m = ModelConfig::from_toml_str(text).unwrap();
-        m.set_enabled("vcsel_droop", true).unwrap();
-        m.set_param("vcsel_droop", "droop_rel", 0.071).unwrap();
-        m.set_enabled("adc_inl", true).unwrap();
-        m.set_param("adc_inl", "inl_lsb", -3.5).unwrap();
-        let out = update_model_text(text, &m, &["vcsel_droop".into(), "adc_inl".into()]).unwrap();
+        m.enable(ids::vcsel_droop::ID, true).unwrap();
+        m.set(ids::vcsel_droop::DROOP_REL, 0.071).unwrap();
+        m.enable(ids::adc_inl::ID, true).unwrap();
+        m.set(ids::adc_inl::INL_LSB, -3.5).unwrap();
+        let out = update_model_text(
+            text,
+            &m,
+            &[
+                ids::vcsel_droop::ID.as_str().into(),
+                ids::adc_inl::ID.as_str().into(),
+            ],
+        )
+        .unwrap();
         assert!(out.starts_with("# my sensor\n"), "{out}");
         assert!(
             out.contains("enabled = true  # off until measured"),
             "{out}"
         );
         let back = ModelConfig::from_toml_str(&out).unwrap();
-        assert_eq!(back.param("vcsel_droop", "droop_rel"), Some(0.071));
-        assert!(
-            back.is_enabled(tofprox_model::ids::vcsel_droop::ID)
-                && back.is_enabled(tofprox_model::ids::adc_inl::ID)
-        );
-        assert_eq!(back.param("adc_inl", "inl_lsb"), Some(-3.5));
+        assert_eq!(back.get(ids::vcsel_droop::DROOP_REL), 0.071);
+        assert!(back.is_enabled(ids::vcsel_droop::ID) && back.is_enabled(ids::adc_inl::ID));
+        assert_eq!(back.get(ids::adc_inl::INL_LSB), -3.5);
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }
 }

@@ -3,6 +3,7 @@ use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
+use tofprox_model::catalogue::Driver;
 
 use crate::candidates::fit_signature;
 use crate::error::{ErrorKind, LabError};
@@ -1052,28 +1053,30 @@ pub fn decide(
 pub fn separating_condition(a: &str, b: &str, prep: &Prepared) -> String {
     let ca = effect_conditions(a);
     let cb = effect_conditions(b);
-    let mut diff: Vec<&str> = ca
+    let mut diff: Vec<Driver> = ca
         .iter()
         .filter(|c| !cb.contains(c))
         .chain(cb.iter().filter(|c| !ca.contains(c)))
         .copied()
         .collect();
-    let varied = |c: &str| match c {
-        "ambient_klux" => prep.ambient_varies,
-        "temperature_c" => prep.temperature_varies,
-        "exposure_us" => prep.exposure_varies,
+    let varied = |c: Driver| match c {
+        Driver::AmbientKlux => prep.ambient_varies,
+        Driver::TemperatureC => prep.temperature_varies,
+        Driver::ExposureUs => prep.exposure_varies,
         _ => true,
     };
-    diff.sort_by_key(|c| varied(c));
+    diff.sort_by_key(|c| varied(*c));
     diff.first()
-        .map(|s| s.to_string())
-        .unwrap_or_else(|| "exposure_us".into())
+        .copied()
+        .unwrap_or(Driver::ExposureUs)
+        .as_str()
+        .to_string()
 }
 
 /// The spec with one more effect enabled.
 pub fn spec_with(spec: &LabSpec, effect: &str) -> LabSpec {
     let mut s = spec.clone();
-    if effect == "waveform_harmonics" {
+    if effect == tofprox_model::ids::waveform_harmonics::ID.as_str() {
         s.harmonic_order = crate::signatures::MAX_HARMONIC;
     } else if !s.effects.iter().any(|e| e == effect) {
         s.effects.push(effect.to_string());
@@ -1207,7 +1210,7 @@ pub fn effect_params(
     effect: &str,
 ) -> Result<(EffectFit, BTreeMap<String, f64>), LabError> {
     let mut params = BTreeMap::new();
-    if effect == "waveform_harmonics" {
+    if effect == tofprox_model::ids::waveform_harmonics::ID.as_str() {
         for (h, g) in model.waveform.gamma.iter().enumerate().skip(1) {
             params.insert(format!("h{}_re", h + 1), g[0]);
             params.insert(format!("h{}_im", h + 1), g[1]);
@@ -1357,6 +1360,7 @@ pub fn explain(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tofprox_model::ids;
 
     fn cand(effect: &str, explained: f64, cv: f64, z_after: f64, dbic: f64) -> CandidateScore {
         CandidateScore {
@@ -1379,7 +1383,12 @@ mod tests {
 
     #[test]
     fn noise_like_residual_is_nothing_missing() {
-        let d = decide(1.5, 1.001, 3.0, &[cand("adc_inl", 0.9, 0.8, 0.5, -30.0)]);
+        let d = decide(
+            1.5,
+            1.001,
+            3.0,
+            &[cand(ids::adc_inl::ID.as_str(), 0.9, 0.8, 0.5, -30.0)],
+        );
         assert_eq!(d.verdict, Verdict::NothingMissing);
         assert!(d.effect.is_none());
     }
@@ -1387,23 +1396,29 @@ mod tests {
     #[test]
     fn clear_winner_is_named() {
         let c = [
-            cand("vcsel_droop", 0.97, 0.95, 2.0, -9e5),
-            cand("sbi_asymmetry", 0.2, 0.1, 800.0, -1e5),
+            cand(ids::vcsel_droop::ID.as_str(), 0.97, 0.95, 2.0, -9e5),
+            cand(ids::sbi_asymmetry::ID.as_str(), 0.2, 0.1, 800.0, -1e5),
         ];
         let d = decide(1000.0, 5.0, 3000.0, &c);
         assert_eq!(d.verdict, Verdict::MissingEffect);
-        assert_eq!(d.effect.as_deref(), Some("vcsel_droop"));
+        assert_eq!(d.effect.as_deref(), Some(ids::vcsel_droop::ID.as_str()));
     }
 
     #[test]
     fn two_close_candidates_are_ambiguous() {
         let c = [
-            cand("amplitude_phase_error", 0.95, 0.93, 3.0, -9e4),
-            cand("multipath", 0.93, 0.90, 3.5, -8.9e4),
+            cand(
+                ids::amplitude_phase_error::ID.as_str(),
+                0.95,
+                0.93,
+                3.0,
+                -9e4,
+            ),
+            cand(ids::multipath::ID.as_str(), 0.93, 0.90, 3.5, -8.9e4),
         ];
         let d = decide(300.0, 2.0, 900.0, &c);
         assert_eq!(d.verdict, Verdict::Ambiguous);
-        assert_eq!(d.runner_up.as_deref(), Some("multipath"));
+        assert_eq!(d.runner_up.as_deref(), Some(ids::multipath::ID.as_str()));
     }
 
     #[test]
@@ -1411,8 +1426,8 @@ mod tests {
         // every candidate has a hugely negative ΔBIC but none explains most of
         // the excess on held-out blocks: unexplained, no effect named
         let c = [
-            cand("multipath", 0.3, 0.25, 700.0, -5e5),
-            cand("adc_inl", 0.1, -0.2, 900.0, -2e5),
+            cand(ids::multipath::ID.as_str(), 0.3, 0.25, 700.0, -5e5),
+            cand(ids::adc_inl::ID.as_str(), 0.1, -0.2, 900.0, -2e5),
         ];
         let d = decide(1000.0, 4.0, 5000.0, &c);
         assert_eq!(d.verdict, Verdict::Unexplained);
@@ -1421,7 +1436,13 @@ mod tests {
 
     #[test]
     fn overfitting_candidate_fails_cross_validation() {
-        let c = [cand("waveform_harmonics", 0.8, -0.3, 3.0, -1e4)];
+        let c = [cand(
+            ids::waveform_harmonics::ID.as_str(),
+            0.8,
+            -0.3,
+            3.0,
+            -1e4,
+        )];
         assert_eq!(decide(50.0, 1.3, 80.0, &c).verdict, Verdict::Unexplained);
     }
 
@@ -1435,11 +1456,19 @@ mod tests {
         let prep = Prepared::new(&ds).unwrap();
         // temperature was not varied: it separates drift from amplitude-phase error
         assert_eq!(
-            separating_condition("temperature_drift", "amplitude_phase_error", &prep),
+            separating_condition(
+                ids::temperature_drift::ID.as_str(),
+                ids::amplitude_phase_error::ID.as_str(),
+                &prep
+            ),
             "temperature_c"
         );
         assert_eq!(
-            separating_condition("sbi_asymmetry", "dark_current", &prep),
+            separating_condition(
+                ids::sbi_asymmetry::ID.as_str(),
+                ids::dark_current::ID.as_str(),
+                &prep
+            ),
             "ambient_klux"
         );
     }

@@ -44,6 +44,9 @@ pub struct LabSpec {
     /// --hold-effects`: the model file's physics); only the per-pixel and
     /// per-unit parameters are fitted around them.
     pub held: Vec<EffectFit>,
+    /// The dark current's doubling ΔT₂ in K (`dark_current.doubling_c` of the
+    /// model file; the registry's typical value by default).
+    pub dark_doubling_k: f64,
 }
 
 impl Default for LabSpec {
@@ -55,6 +58,9 @@ impl Default for LabSpec {
             per_pixel_phase: true,
             effects: Vec::new(),
             held: Vec::new(),
+            dark_doubling_k: tofprox_model::catalogue::typical(
+                tofprox_model::ids::dark_current::DOUBLING_C,
+            ),
         }
     }
 }
@@ -994,7 +1000,7 @@ pub fn refit_with(
     rounds: usize,
 ) -> Result<LabModel, LabError> {
     let mut m = base.clone();
-    if effect.id == "waveform_harmonics" {
+    if effect.id == tofprox_model::ids::waveform_harmonics::ID.as_str() {
         let from = m.waveform.order() + 1;
         m.spec.harmonic_order = crate::signatures::MAX_HARMONIC;
         for (i, h) in (from..=crate::signatures::MAX_HARMONIC).enumerate() {

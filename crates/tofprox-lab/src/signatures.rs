@@ -2,7 +2,9 @@
 //! model. Each is Δcode = Σ_j lin_j · b_j(nl; sample) with few global
 //! parameters: `lin` enter linearly, `nl` (thresholds, time constants, path
 //! lengths) are started from a grid and refined by Levenberg–Marquardt.
-use std::f64::consts::PI;
+
+use tofprox_model::catalogue::{self, ActsOn, Driver};
+use tofprox_model::ids::{self, EffectId};
 
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
@@ -94,51 +96,43 @@ impl ImageMemo {
     }
 }
 
-/// Every effect id the lab has a signature for, in catalogue order.
+/// Every effect the lab has a signature for, in catalogue order (the ids are
+/// the model's registry's, `tofprox_model::ids`).
 pub const SIGNATURE_IDS: &[&str] = &[
-    "sbi_asymmetry",
-    "tap_gain_mismatch",
-    "vcsel_droop",
-    "amplitude_phase_error",
-    "temperature_drift",
-    "waveform_harmonics",
-    "adc_inl",
-    "dark_current",
-    "multipath",
+    ids::sbi_asymmetry::ID.as_str(),
+    ids::tap_gain_mismatch::ID.as_str(),
+    ids::vcsel_droop::ID.as_str(),
+    ids::amplitude_phase_error::ID.as_str(),
+    ids::temperature_drift::ID.as_str(),
+    ids::waveform_harmonics::ID.as_str(),
+    ids::adc_inl::ID.as_str(),
+    ids::dark_current::ID.as_str(),
+    ids::multipath::ID.as_str(),
 ];
 
-/// Conditions each effect varies with (used to advise how to separate two).
-pub fn effect_conditions(id: &str) -> &'static [&'static str] {
-    match id {
-        "sbi_asymmetry" => &["ambient_klux", "exposure_us", "amplitude"],
-        "tap_gain_mismatch" => &["amplitude", "ambient_klux"],
-        "vcsel_droop" => &["image_index"],
-        "amplitude_phase_error" => &["amplitude", "exposure_us"],
-        "temperature_drift" => &["temperature_c"],
-        "waveform_harmonics" => &["phase", "distance_m"],
-        "adc_inl" => &["adc_code", "exposure_us"],
-        "dark_current" => &["exposure_us"],
-        "multipath" => &["distance_m"],
-        _ => &[],
-    }
+/// Conditions each effect varies with (used to advise how to separate two):
+/// the registry's drivers (`tofprox_model::catalogue::EffectInfo::drivers`).
+pub fn effect_conditions(id: &str) -> &'static [Driver] {
+    catalogue::effect(id).map_or(&[], |e| e.drivers)
 }
 
 /// Whether the effect's residual cancels in the 4-phase algorithm (common to
-/// the raw images) — the 2- vs 4-phase contrast of 5.1.2.3.
+/// the raw images) — the 2- vs 4-phase contrast of 5.1.2.3; the registry's
+/// `cancels_in_four_phase`.
 pub fn cancels_in_4phase(id: &str) -> bool {
-    matches!(id, "sbi_asymmetry" | "tap_gain_mismatch" | "dark_current")
+    catalogue::effect(id).is_some_and(|e| e.cancels_in_four_phase)
 }
 
 /// Why an effect cannot be fitted on this recording, if it cannot.
 pub fn not_identifiable(id: &str, prep: &Prepared, spec: &LabSpec) -> Option<String> {
-    match id {
-        "temperature_drift" if !prep.temperature_varies => {
+    match EffectId::parse(id)? {
+        ids::temperature_drift::ID if !prep.temperature_varies => {
             Some("temperature_c does not vary in the recording".into())
         }
-        "waveform_harmonics" if spec.harmonic_order >= MAX_HARMONIC => Some(format!(
+        ids::waveform_harmonics::ID if spec.harmonic_order >= MAX_HARMONIC => Some(format!(
             "the model already fits harmonics up to {MAX_HARMONIC}"
         )),
-        "dark_current" if !prep.exposure_varies => {
+        ids::dark_current::ID if !prep.exposure_varies => {
             Some("exposure_us does not vary in the recording".into())
         }
         _ => None,
@@ -153,48 +147,50 @@ pub fn make_signature(
     spec: &LabSpec,
     waveform: &Waveform,
 ) -> Result<Box<dyn Signature>, LabError> {
-    Ok(match id {
-        "sbi_asymmetry" => {
+    let unknown = || {
+        LabError::new(
+            ErrorKind::UnknownEffect,
+            format!(
+                "the lab has no signature for effect `{id}` (known: {})",
+                SIGNATURE_IDS.join(", ")
+            ),
+        )
+    };
+    Ok(match EffectId::parse(id).ok_or_else(unknown)? {
+        ids::sbi_asymmetry::ID => {
             // total signal charge relative to the fundamental amplitude: the
-            // correlation's peak over its fundamental, over the contrast 0.8
-            let peak = (0..360)
-                .map(|i| waveform.eval(f64::from(i).to_radians()).0)
-                .fold(1.0f64, f64::max);
+            // correlation's peak over its fundamental, over the registry's
+            // typical demodulation contrast (0.8)
             Box::new(Sbi {
                 ambient_varies: prep.ambient_varies,
-                g: peak / 0.8,
+                g: waveform.peak() / catalogue::typical(ids::demodulation_contrast::CONTRAST),
             })
         }
-        "tap_gain_mismatch" => Box::new(TapGain {
+        ids::tap_gain_mismatch::ID => Box::new(TapGain {
             ambient_varies: prep.ambient_varies,
         }),
-        "vcsel_droop" => Box::new(Droop),
-        "amplitude_phase_error" => Box::new(AmpPhase {
+        ids::vcsel_droop::ID => Box::new(Droop),
+        ids::amplitude_phase_error::ID => Box::new(AmpPhase {
             waveform: waveform.clone(),
         }),
-        "temperature_drift" => Box::new(TempDrift {
+        ids::temperature_drift::ID => Box::new(TempDrift {
             // a held model keeps its own law; a fit takes the ΔT² terms only
             // where ≥ 3 temperatures tell them from the linear ones
             second_order: spec.held.iter().any(|h| h.id == id) || distinct_temperatures(prep) >= 3,
             waveform: waveform.clone(),
         }),
-        "waveform_harmonics" => Box::new(Harmonics {
+        ids::waveform_harmonics::ID => Box::new(Harmonics {
             from: spec.harmonic_order.max(1) + 1,
         }),
-        "adc_inl" => Box::new(Inl { mid: prep.mid }),
-        "dark_current" => Box::new(Dark),
-        "multipath" => Box::new(Multipath {
-            k_phase: tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz),
+        ids::adc_inl::ID => Box::new(Inl { mid: prep.mid }),
+        ids::dark_current::ID => Box::new(Dark {
+            doubling_k: spec.dark_doubling_k,
         }),
-        other => {
-            return Err(LabError::new(
-                ErrorKind::UnknownEffect,
-                format!(
-                    "the lab has no signature for effect `{other}` (known: {})",
-                    SIGNATURE_IDS.join(", ")
-                ),
-            ));
-        }
+        ids::multipath::ID => Box::new(Multipath {
+            phase_rad_per_m: tofprox_core::phasor::distance_to_phase_rad(1.0, prep.modulation_hz),
+            waveform: waveform.clone(),
+        }),
+        _ => return Err(unknown()),
     })
 }
 
@@ -243,7 +239,7 @@ impl Sbi {
 }
 impl Signature for Sbi {
     fn id(&self) -> &'static str {
-        "sbi_asymmetry"
+        ids::sbi_asymmetry::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         1
@@ -333,7 +329,7 @@ struct TapGain {
 }
 impl Signature for TapGain {
     fn id(&self) -> &'static str {
-        "tap_gain_mismatch"
+        ids::tap_gain_mismatch::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         if self.ambient_varies { 2 } else { 1 }
@@ -361,7 +357,7 @@ impl Signature for TapGain {
 struct Droop;
 impl Signature for Droop {
     fn id(&self) -> &'static str {
-        "vcsel_droop"
+        ids::vcsel_droop::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         1
@@ -442,8 +438,7 @@ impl AmpPhase {
     }
     /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
     fn phase0_range() -> (f64, f64) {
-        tofprox_model::catalogue::effect("amplitude_phase_error")
-            .and_then(|e| e.param("max_rad"))
+        catalogue::param_info(ids::amplitude_phase_error::MAX_RAD)
             .map_or((-0.5, 0.5), |p| (p.min, p.max))
     }
     /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
@@ -472,7 +467,7 @@ impl AmpPhase {
 }
 impl Signature for AmpPhase {
     fn id(&self) -> &'static str {
-        "amplitude_phase_error"
+        ids::amplitude_phase_error::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         0
@@ -579,7 +574,7 @@ impl TempDrift {
 }
 impl Signature for TempDrift {
     fn id(&self) -> &'static str {
-        "temperature_drift"
+        ids::temperature_drift::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         self.n_terms()
@@ -630,7 +625,7 @@ impl Signature for TempDrift {
 /// does not add its Δcode again. Its signature is the Δcode it makes relative
 /// to a model without it (what the candidate fit sees).
 pub fn acts_on_phasor(id: &str) -> bool {
-    matches!(id, "temperature_drift" | "amplitude_phase_error")
+    catalogue::effect(id).is_some_and(|e| e.acts_on == ActsOn::Phasor)
 }
 
 /// The signal gain factor 1 + G and the phase shift Δφ (rad) of a pixel of
@@ -643,7 +638,10 @@ pub fn acts_on_phasor(id: &str) -> bool {
 pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
     let (mut f, mut ph) = (1.0, 0.0);
-    for e in effects.iter().filter(|e| e.id == "temperature_drift") {
+    for e in effects
+        .iter()
+        .filter(|e| e.id == ids::temperature_drift::ID.as_str())
+    {
         let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
             cap.temp_rel,
             [at(&e.nl, 0), at(&e.nl, 1)],
@@ -652,7 +650,10 @@ pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f
         f *= (1.0 + g).max(0.0);
         ph += dphi;
     }
-    for e in effects.iter().filter(|e| e.id == "amplitude_phase_error") {
+    for e in effects
+        .iter()
+        .filter(|e| e.id == ids::amplitude_phase_error::ID.as_str())
+    {
         if cap.illum && e.nl.len() == 3 {
             ph += AmpPhase::phase_rad(&e.nl, a_lsb * f);
         }
@@ -680,7 +681,7 @@ struct Harmonics {
 }
 impl Signature for Harmonics {
     fn id(&self) -> &'static str {
-        "waveform_harmonics"
+        ids::waveform_harmonics::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         2 * (MAX_HARMONIC + 1).saturating_sub(self.from)
@@ -705,14 +706,15 @@ impl Signature for Harmonics {
     }
 }
 
-/// ADC integral non-linearity of a differential converter (3.2.1, fig. 3.4):
-/// zero at mid and both ends, opposite sign on the two half ranges.
+/// ADC integral non-linearity of a differential converter with the model's
+/// law (`tofprox_model::effects::adc::inl_shape`, 3.2.1, fig. 3.4): zero at
+/// mid and both ends, opposite sign on the two half ranges. lin = [I].
 struct Inl {
     mid: f64,
 }
 impl Signature for Inl {
     fn id(&self) -> &'static str {
-        "adc_inl"
+        ids::adc_inl::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         1
@@ -721,17 +723,23 @@ impl Signature for Inl {
         vec!["inl_bow_lsb".into()]
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let u = (r.x / self.mid).clamp(-1.0, 1.0);
-        out[0] = (PI * u).sin(); // fig. 3.4: extremes at half of each half range
+        let x = r.x.clamp(-self.mid, self.mid);
+        out[0] = tofprox_model::effects::adc::inl_shape(x, 2.0 * self.mid);
     }
 }
 
-/// Dark current (2.3.2): charge ∝ exposure (doubling every ~7 K) whose tap
-/// mismatch shifts the differential offset.
-struct Dark;
+/// Dark current (2.3.2, eq. 2.17) with the model's law: charge ∝ exposure,
+/// doubling every ΔT₂ kelvin (`tofprox_model::effects::pixel::
+/// dark_current_temperature_factor`, ΔT₂ the model's `doubling_c`), whose tap
+/// mismatch shifts the differential offset. lin = [LSB per ms at the lab's
+/// reference temperature].
+struct Dark {
+    /// ΔT₂ in K.
+    doubling_k: f64,
+}
 impl Signature for Dark {
     fn id(&self) -> &'static str {
-        "dark_current"
+        ids::dark_current::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         1
@@ -740,44 +748,87 @@ impl Signature for Dark {
         vec!["lsb_per_ms".into()]
     }
     fn basis(&self, _: &[f64], _: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        out[0] = cap.exposure_us * 1e-3 * (cap.temp_rel * std::f64::consts::LN_2 / 7.0).exp();
+        out[0] = cap.exposure_us
+            * 1e-3
+            * tofprox_model::effects::pixel::dark_current_temperature_factor(
+                cap.temp_rel,
+                self.doubling_k,
+            );
     }
 }
 
-/// Multipath: a second return with an extra path L and relative strength ρ.
+/// Multipath with the model's law: a second return of a·A at the phase
+/// offset of an extra round-trip path L
+/// (`tofprox_model::effects::optical::multipath_phase_offset_rad`),
+/// Δ = a·A·C(φ + Δφ₂(L) − θ) with the fitted correlation C. In the model
+/// file's units: lin = [relative_amplitude a], nl = [extra_path_m L].
 struct Multipath {
-    k_phase: f64,
+    /// 4π f / c.
+    phase_rad_per_m: f64,
+    /// The fitted correlation waveform C.
+    waveform: Waveform,
 }
 impl Signature for Multipath {
     fn id(&self) -> &'static str {
-        "multipath"
+        ids::multipath::ID.as_str()
     }
     fn n_lin(&self) -> usize {
-        2
+        1
     }
     fn lin_names(&self) -> Vec<String> {
-        vec!["ratio_cos".into(), "ratio_sin".into()]
+        vec![ids::multipath::RELATIVE_AMPLITUDE.name().into()]
     }
     fn nl_names(&self) -> Vec<String> {
-        vec!["extra_path_m".into()]
+        vec![ids::multipath::EXTRA_PATH_M.name().into()]
     }
     fn nl_start(&self) -> Vec<f64> {
-        vec![0.3]
+        vec![0.6]
     }
     fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
-        [0.05, 0.1, 0.2, 0.4, 0.8, 1.6]
+        [0.1, 0.2, 0.4, 0.8, 1.6, 3.2]
             .iter()
             .map(|v| vec![*v])
             .collect()
     }
-    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        let l = nl[0].abs();
-        let d = cap.distance_m.unwrap_or(1.0);
-        let g = (d / (d + l)).powi(2);
-        let x = r.phi + self.k_phase * l - r.theta;
-        // first harmonic of the second return (the higher ones are small)
-        let (sx, cx) = x.sin_cos();
-        out[0] = r.a * g * cx;
-        out[1] = -r.a * g * sx;
+    fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let dphi = tofprox_model::effects::optical::multipath_phase_offset_rad(
+            self.phase_rad_per_m,
+            nl[0].abs(),
+        );
+        out[0] = r.a * self.waveform.eval(r.phi + dphi - r.theta).0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every effect the lab fits is a registry entry with at least one driver
+    /// (the separating-condition advice needs one), and the lab's phasor
+    /// effects are exactly the registry's `phasor` entries among them.
+    #[test]
+    fn every_signature_is_a_registry_entry_with_drivers() {
+        for id in SIGNATURE_IDS {
+            let e = catalogue::effect(id).unwrap_or_else(|| panic!("{id}: not in the registry"));
+            assert!(!e.drivers.is_empty(), "{id}: no drivers");
+            assert!(!effect_conditions(id).is_empty());
+        }
+        let ids_where = |f: fn(&str) -> bool| -> Vec<&str> {
+            SIGNATURE_IDS.iter().copied().filter(|id| f(id)).collect()
+        };
+        assert_eq!(
+            ids_where(acts_on_phasor),
+            [ids::amplitude_phase_error::ID, ids::temperature_drift::ID].map(EffectId::as_str)
+        );
+        assert_eq!(
+            ids_where(cancels_in_4phase),
+            [
+                ids::sbi_asymmetry::ID,
+                ids::tap_gain_mismatch::ID,
+                ids::dark_current::ID
+            ]
+            .map(EffectId::as_str)
+        );
+        assert!(effect_conditions("no_such_effect").is_empty() && !cancels_in_4phase("x"));
     }
 }

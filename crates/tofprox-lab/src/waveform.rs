@@ -21,6 +21,13 @@ impl Waveform {
     pub fn order(&self) -> usize {
         self.gamma.len()
     }
+    /// The peak of C over a period relative to its fundamental (≥ 1; on a
+    /// 1° grid): the total signal charge per unit of fundamental amplitude.
+    pub fn peak(&self) -> f64 {
+        (0..360)
+            .map(|i| self.eval(f64::from(i).to_radians()).0)
+            .fold(1.0f64, f64::max)
+    }
     /// (C(x), C'(x)).
     #[inline]
     pub fn eval(&self, x: f64) -> (f64, f64) {

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::error::{ErrorKind, ModelError};
-use crate::ids::{EffectId, ParamId};
+use crate::ids::{self, EffectId, ParamId};
 use tofprox_core::camera::Intrinsics;
 
 /// The model file's lens section: intrinsics in full-array pixels and OpenCV distortion.
@@ -243,7 +243,7 @@ impl ModelConfig {
                 }
                 continue;
             }
-            if info.id == "waveform_harmonics" {
+            if info.id == ids::waveform_harmonics::ID.as_str() {
                 let key = format!("{section}.{name}");
                 match name.as_str() {
                     "illumination_file" | "modulation_file" => {
@@ -290,7 +290,7 @@ impl ModelConfig {
                 }
             }
             let pinfo = info.param(name).ok_or_else(|| {
-                let extra = if info.id == "waveform_harmonics" {
+                let extra = if info.id == ids::waveform_harmonics::ID.as_str() {
                     ", illumination_file, modulation_file, illumination, modulation"
                 } else {
                     ""
@@ -406,7 +406,10 @@ impl ModelConfig {
                 };
                 let _ = writeln!(out, "{} = {:?}{unit}", p.name, v);
             }
-            if let (true, Some(w)) = (e.id == "waveform_harmonics", &self.waveforms) {
+            if let (true, Some(w)) = (
+                e.id == ids::waveform_harmonics::ID.as_str(),
+                &self.waveforms,
+            ) {
                 write_wave(
                     &mut out,
                     "illumination",
@@ -520,6 +523,16 @@ impl ModelConfig {
     /// were it to, the value is NaN, which no simulation lets pass unnoticed.
     pub fn get(&self, p: ParamId) -> f64 {
         self.param(p.section(), p.name()).unwrap_or(f64::NAN)
+    }
+
+    /// Set a parameter by its typed id (range-checked, [`ModelConfig::set_param`]).
+    pub fn set(&mut self, p: ParamId, v: f64) -> Result<(), ModelError> {
+        self.set_param(p.section(), p.name(), v)
+    }
+
+    /// Switch an effect on or off by its typed id.
+    pub fn enable(&mut self, id: EffectId, on: bool) -> Result<(), ModelError> {
+        self.set_enabled(id.as_str(), on)
     }
 }
 

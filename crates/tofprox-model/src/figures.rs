@@ -118,9 +118,9 @@ fn codes_of(a: &ndarray::Array3<f64>) -> Vec<f64> {
 /// Ideal sensor + `signal_falloff` + `adc_offset` = 30 LSB, t_exp = 0.5 ms.
 pub fn fig_3_7() -> Result<Figure, ModelError> {
     let mut m = ModelConfig::ideal();
-    m.set_enabled("signal_falloff", true)?;
-    m.set_enabled("adc_offset", true)?;
-    m.set_param("adc_offset", "offset_lsb", 30.0)?;
+    m.enable(ids::signal_falloff::ID, true)?;
+    m.enable(ids::adc_offset::ID, true)?;
+    m.set(ids::adc_offset::OFFSET_LSB, 30.0)?;
     let sim = Simulator::new(&m, centre_geometry()?, 1)?;
     let req = CaptureRequest::four_phase(500.0);
     let (mut s2, mut s4) = (Vec::new(), Vec::new());
@@ -159,12 +159,12 @@ pub fn fig_3_8() -> Result<Figure, ModelError> {
     let mut series = Vec::new();
     for inl in [-200.0, -1.744] {
         let mut m = ModelConfig::ideal();
-        m.set_enabled("adc_inl", true)?;
-        m.set_param("adc_inl", "inl_lsb", inl)?;
+        m.enable(ids::adc_inl::ID, true)?;
+        m.set(ids::adc_inl::INL_LSB, inl)?;
         // amplitude 1024 LSB = half of the positive/negative range (3.3.4)
         let t = 1000.0;
         let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
-        m.set_param("sensor", "signal_e_per_us", 1024.0 / (t * lsb_per_e))?;
+        m.set(ids::sensor::SIGNAL_E_PER_US, 1024.0 / (t * lsb_per_e))?;
         let sim = Simulator::new(&m, centre_geometry()?, 1)?;
         let req = CaptureRequest::two_phase(t);
         let mut pts = Vec::new();
@@ -197,11 +197,11 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
     let mut series = Vec::new();
     for (name, dnl) in [("DNL 1.906 LSB", true), ("quantisation only", false)] {
         let mut m = ModelConfig::ideal();
-        m.set_enabled("quantization", true)?;
-        m.set_enabled("adc_dnl", dnl)?;
+        m.enable(ids::quantization::ID, true)?;
+        m.enable(ids::adc_dnl::ID, dnl)?;
         let t = 1000.0;
         let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
-        m.set_param("sensor", "signal_e_per_us", 300.0 / (t * lsb_per_e))?;
+        m.set(ids::sensor::SIGNAL_E_PER_US, 300.0 / (t * lsb_per_e))?;
         let sim = Simulator::new(&m, centre_geometry()?, 3)?;
         let req = CaptureRequest::four_phase(t);
         let mut rng = SmallRng::seed_from_u64(0);
@@ -230,19 +230,19 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
 pub fn fig_5_1_model() -> Result<ModelConfig, ModelError> {
     let mut m = ModelConfig::ideal();
     for id in [
-        "signal_falloff",
-        "demodulation_contrast",
-        "waveform_harmonics",
-        "adc_gain",
-        "adc_inl",
-        "adc_dnl",
-        "quantization",
-        "shot_noise",
-        "read_noise",
-        "ktc_noise",
-        "dark_current",
+        ids::signal_falloff::ID,
+        ids::demodulation_contrast::ID,
+        ids::waveform_harmonics::ID,
+        ids::adc_gain::ID,
+        ids::adc_inl::ID,
+        ids::adc_dnl::ID,
+        ids::quantization::ID,
+        ids::shot_noise::ID,
+        ids::read_noise::ID,
+        ids::ktc_noise::ID,
+        ids::dark_current::ID,
     ] {
-        m.set_enabled(id, true)?;
+        m.enable(id, true)?;
     }
     let (illum, modul) = measured_like_waveforms(MODULATION_HZ, 1000);
     m.set_waveforms(illum, modul)?;
@@ -307,12 +307,12 @@ pub const FIG_5_8_AMBIENT_KLUX: f64 = 40.0;
 pub fn fig_5_8_model() -> Result<ModelConfig, ModelError> {
     let mut m = ModelConfig::ideal();
     for id in [
-        "signal_falloff",
-        "demodulation_contrast",
-        "ambient_light",
-        "sbi_asymmetry",
+        ids::signal_falloff::ID,
+        ids::demodulation_contrast::ID,
+        ids::ambient_light::ID,
+        ids::sbi_asymmetry::ID,
     ] {
-        m.set_enabled(id, true)?;
+        m.enable(id, true)?;
     }
     Ok(m)
 }

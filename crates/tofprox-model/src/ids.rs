@@ -18,6 +18,11 @@ impl EffectId {
     pub const fn as_str(self) -> &'static str {
         self.0
     }
+    /// The effect a string from outside (a model file, the command line, a
+    /// report) names, if any.
+    pub fn parse(id: &str) -> Option<Self> {
+        ALL_EFFECTS.iter().copied().find(|e| e.0 == id)
+    }
 }
 
 impl fmt::Display for EffectId {
@@ -81,48 +86,58 @@ macro_rules! effect_ids {
 /// The always-on sensor constants (`[sensor]` in a model file).
 pub mod sensor {
     use super::ParamId;
+    /// The section's name.
+    pub const SECTION: &str = "sensor";
     /// `[sensor] signal_e_per_us`
     pub const SIGNAL_E_PER_US: ParamId = ParamId {
-        section: "sensor",
+        section: SECTION,
         name: "signal_e_per_us",
     };
     /// `[sensor] lsb_per_ke`
     pub const LSB_PER_KE: ParamId = ParamId {
-        section: "sensor",
+        section: SECTION,
         name: "lsb_per_ke",
     };
     /// Both.
     pub const ALL: &[ParamId] = &[SIGNAL_E_PER_US, LSB_PER_KE];
 }
 
+const fn harmonic_param(name: &'static str) -> ParamId {
+    ParamId {
+        section: waveform_harmonics::ID.as_str(),
+        name,
+    }
+}
+
+/// `waveform_harmonics` amplitudes relative to the fundamental, `h2_rel … h9_rel`.
+pub const HARMONIC_REL: [ParamId; 8] = [
+    harmonic_param("h2_rel"),
+    harmonic_param("h3_rel"),
+    harmonic_param("h4_rel"),
+    harmonic_param("h5_rel"),
+    harmonic_param("h6_rel"),
+    harmonic_param("h7_rel"),
+    harmonic_param("h8_rel"),
+    harmonic_param("h9_rel"),
+];
+
+/// `waveform_harmonics` phases, `h2_phase_deg … h9_phase_deg`.
+pub const HARMONIC_PHASE_DEG: [ParamId; 8] = [
+    harmonic_param("h2_phase_deg"),
+    harmonic_param("h3_phase_deg"),
+    harmonic_param("h4_phase_deg"),
+    harmonic_param("h5_phase_deg"),
+    harmonic_param("h6_phase_deg"),
+    harmonic_param("h7_phase_deg"),
+    harmonic_param("h8_phase_deg"),
+    harmonic_param("h9_phase_deg"),
+];
+
 /// Harmonic `n` (2..=9) of `waveform_harmonics`: amplitude relative to the fundamental
 /// (`h<n>_rel`) and phase (`h<n>_phase_deg`); `None` outside 2..=9.
 pub fn harmonic(n: usize) -> Option<(ParamId, ParamId)> {
-    const REL: [&str; 8] = [
-        "h2_rel", "h3_rel", "h4_rel", "h5_rel", "h6_rel", "h7_rel", "h8_rel", "h9_rel",
-    ];
-    const PHASE: [&str; 8] = [
-        "h2_phase_deg",
-        "h3_phase_deg",
-        "h4_phase_deg",
-        "h5_phase_deg",
-        "h6_phase_deg",
-        "h7_phase_deg",
-        "h8_phase_deg",
-        "h9_phase_deg",
-    ];
     let i = n.checked_sub(2)?;
-    let section = waveform_harmonics::ID.as_str();
-    Some((
-        ParamId {
-            section,
-            name: REL.get(i)?,
-        },
-        ParamId {
-            section,
-            name: PHASE.get(i)?,
-        },
-    ))
+    Some((*HARMONIC_REL.get(i)?, *HARMONIC_PHASE_DEG.get(i)?))
 }
 
 effect_ids! {
@@ -200,5 +215,7 @@ mod tests {
         let sensor_cat: Vec<&str> = SENSOR_PARAMS.iter().map(|p| p.name).collect();
         assert_eq!(sensor, sensor_cat);
         assert!(harmonic(1).is_none() && harmonic(10).is_none());
+        assert_eq!(EffectId::parse("vcsel_droop"), Some(vcsel_droop::ID));
+        assert_eq!(EffectId::parse("vcsel_drop"), None);
     }
 }

@@ -7,8 +7,8 @@ use rand_distr::StandardNormal;
 use crate::config::ModelConfig;
 use crate::effects::adc::Adc;
 use crate::effects::fixed_pattern::FixedPatterns;
-use crate::effects::optical::{Correlation, droop_factor};
-use crate::effects::pixel::PixelParams;
+use crate::effects::optical::{Correlation, droop_factor, multipath_phase_offset_rad};
+use crate::effects::pixel::{PixelParams, tap_gain_leak_e};
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::ids;
@@ -170,8 +170,10 @@ impl Simulator {
             multipath: m.is_enabled(ids::multipath::ID).then(|| {
                 (
                     m.get(ids::multipath::RELATIVE_AMPLITUDE),
-                    // an extra path L arrives like an extra distance L/2 (eq. 2.6 inverted)
-                    self.geometry.phase_rad_per_m() * m.get(ids::multipath::EXTRA_PATH_M) / 2.0,
+                    multipath_phase_offset_rad(
+                        self.geometry.phase_rad_per_m(),
+                        m.get(ids::multipath::EXTRA_PATH_M),
+                    ),
                 )
             }),
             crosstalk: (illum && m.is_enabled(ids::cover_window_crosstalk::ID)).then(|| {
@@ -390,7 +392,7 @@ impl Simulator {
                 }
                 if tap_eps != 0.0 {
                     // ε/2 · (N_A + N_B): a share of the total charge leaks into D
-                    diff += 0.5 * tap_eps * (total + 2.0 * (amb + dark));
+                    diff += tap_gain_leak_e(tap_eps, total + 2.0 * (amb + dark));
                 }
                 let mut u = diff * cc.lsb_per_e + offset;
                 if let Some(rng) = rng.as_deref_mut() {

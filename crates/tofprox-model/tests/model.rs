@@ -404,6 +404,59 @@ fn droop_breaks_4phase_symmetry_and_sbi_cancels_in_4phase() {
     );
 }
 
+/// The registry's `cancels_in_four_phase` is what the simulator does: an effect
+/// flagged so leaves the 4-phase phase unchanged under strong background light
+/// (the SBI active) at every distance, and one that acts on the differential
+/// code or its offset moves the 2-phase phase there.
+#[test]
+fn registry_four_phase_flags_hold_in_the_simulator() {
+    let g = SensorGeometry::irs1645().window(86, 112, 1, 1).unwrap();
+    let u = |c: &ndarray::Array3<f64>, k: usize| c[[k, 0, 0]];
+    let req = CaptureRequest {
+        ambient_klux: 40.0,
+        ..CaptureRequest::four_phase(1000.0)
+    };
+    let mut base = ModelConfig::ideal();
+    for id in [ids::signal_falloff::ID, ids::ambient_light::ID] {
+        base.enable(id, true).unwrap();
+    }
+    let flagged: Vec<_> = catalogue()
+        .iter()
+        .filter(|e| e.cancels_in_four_phase)
+        .collect();
+    assert!(flagged.len() >= 5, "{} flagged", flagged.len());
+    for e in flagged {
+        let mut m = base.clone();
+        m.set_enabled(e.id, true).unwrap();
+        for d in [0.3, 0.7, 1.3] {
+            let scene = Scene::wall(d, 1.0);
+            let run = |m: &ModelConfig| {
+                let sim = Simulator::new(m, g, 5).unwrap();
+                let c = sim.expected(&scene, &req).unwrap();
+                let mid = sim.adc().mid();
+                let p4 = (u(&c, 1) - u(&c, 3)).atan2(u(&c, 0) - u(&c, 2));
+                let p2 = (u(&c, 1) - mid).atan2(u(&c, 0) - mid);
+                (p4, p2)
+            };
+            let ((p4, p2), (q4, q2)) = (run(&base), run(&m));
+            assert!(
+                (p4 - q4).abs() < 1e-9,
+                "{} at {d} m: 4-phase moved by {}",
+                e.id,
+                q4 - p4
+            );
+            let acts = e.acts_on;
+            if acts == catalogue::ActsOn::Differential || acts == catalogue::ActsOn::Offset {
+                assert!(
+                    (p2 - q2).abs() > 1e-4,
+                    "{} at {d} m: 2-phase unaffected",
+                    e.id
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn capture_u16_quantises_and_saturates_at_the_rails() {
     let g = SensorGeometry::irs1645().window(86, 112, 2, 2).unwrap();

@@ -14,6 +14,16 @@ const PAD: usize = 3;
 /// INL table spacing in LSB.
 const INL_STEP: usize = 4;
 
+/// The shape of the differential converter's INL (`adc_inl`, 3.2.1, fig. 3.4):
+/// INL(x) = I · inl_shape(x), inl_shape(x) = sin(2π x / 2^N) for x the input in LSB
+/// around mid and `full_codes` = 2^N: zero at mid and at the rails, extremes at half
+/// of each half-range, opposite sign on the two halves. The simulator and the
+/// lab's fit both use this one function.
+#[inline]
+pub fn inl_shape(x_lsb: f64, full_codes: f64) -> f64 {
+    (TAU * x_lsb / full_codes).sin()
+}
+
 /// The converter's slope factor k = 1/(1 + e_gain) (eq. 3.2, `adc_gain`; 1
 /// when the effect is off): output codes per LSB of input, so a charge of N
 /// electrons reads as N·lsb_per_e·k codes.
@@ -34,7 +44,6 @@ pub struct Adc {
     k_gain: f64,
     offset_lsb: f64,
     inl_lsb: f64,
-    inl_w: f64,
     /// INL(x) sampled at every LSB of x ∈ [−2^N, 2^N] (linear interpolation between).
     inl_table: Option<Vec<f32>>,
     /// Step centres (T_k + T_{k+1})/2 of the DNL table.
@@ -86,12 +95,11 @@ impl Adc {
             } else {
                 None
             };
-        let inl_w = TAU / full;
         // one entry per INL_STEP LSB over x ∈ [−2^N, 2^N] as f32 (fits in L1);
         // linear interpolation error ≤ (2π·4/2^N)²/8 · |I| ≈ 5e-6 |I| LSB at 12 bit
         let inl_table = (inl_lsb != 0.0).then(|| {
             (0..=(2 * (1usize << bits)) / INL_STEP)
-                .map(|i| (inl_lsb * (inl_w * ((i * INL_STEP) as f64 - full)).sin()) as f32)
+                .map(|i| (inl_lsb * inl_shape((i * INL_STEP) as f64 - full, full)) as f32)
                 .collect()
         });
         let centres = thresholds
@@ -143,7 +151,6 @@ impl Adc {
             k_gain,
             offset_lsb,
             inl_lsb,
-            inl_w,
             inl_table,
             centres,
             inv_width,
@@ -186,7 +193,7 @@ impl Adc {
                 match (t.get(i), t.get(i + 1)) {
                     (Some(&a), Some(&b)) => f64::from(a) + f64::from(b - a) * w,
                     (Some(&a), None) => f64::from(a),
-                    _ => self.inl_lsb * (self.inl_w * x).sin(),
+                    _ => self.inl_lsb * inl_shape(x, 2.0 * self.mid),
                 }
             }
             None => 0.0,
@@ -270,9 +277,9 @@ mod tests {
 
     fn dnl_adc(dnl: f64, seed: u64) -> Adc {
         let mut m = ModelConfig::ideal();
-        m.set_enabled("adc_dnl", true).unwrap();
-        m.set_enabled("quantization", true).unwrap();
-        m.set_param("adc_dnl", "dnl_lsb", dnl).unwrap();
+        m.enable(ids::adc_dnl::ID, true).unwrap();
+        m.enable(ids::quantization::ID, true).unwrap();
+        m.set(ids::adc_dnl::DNL_LSB, dnl).unwrap();
         Adc::new(&m, 12, seed)
     }
 

@@ -335,6 +335,16 @@ const FALL_NS: f64 = 1.8;
 /// Modulation gate edge time constant.
 const GATE_EDGE_NS: f64 = 2.4;
 
+/// The phase offset of the multipath's second return (`multipath`): an extra
+/// round-trip path L arrives like an extra distance L/2 (eq. 2.6 inverted),
+/// Δφ₂ = (4π f / c) · L/2 with `phase_rad_per_m` = 4π f / c. The second return
+/// adds a·N electrons at φ + Δφ₂, its taps N/2·(1 ± K·C(φ + Δφ₂ − θ)) like the
+/// direct one's. The simulator and the lab's fit both use it.
+#[inline]
+pub fn multipath_phase_offset_rad(phase_rad_per_m: f64, extra_path_m: f64) -> f64 {
+    phase_rad_per_m * extra_path_m / 2.0
+}
+
 /// Relative optical power of raw image `k` (acquisition order) under `vcsel_droop`.
 pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
     if !model.is_enabled(ids::vcsel_droop::ID) {

@@ -63,6 +63,22 @@ pub fn temperature_drift(dt: f64, phase_rad_per_k: [f64; 2], gain_per_k: [f64; 2
     )
 }
 
+/// The temperature factor of the dark current (`dark_current`, eq. 2.17 with
+/// i_d(T) = i_d,ref · 2^(ΔT/ΔT₂)): 2^(ΔT/ΔT₂) for ΔT = T − T_ref kelvin and the
+/// doubling ΔT₂ (`doubling_c`). The simulator and the lab's fit both use it.
+#[inline]
+pub fn dark_current_temperature_factor(dt_k: f64, doubling_k: f64) -> f64 {
+    2f64.powf(dt_k / doubling_k.max(1e-6))
+}
+
+/// The differential charge a tap gain mismatch ε leaks from the total charge
+/// (`tap_gain_mismatch`, eq. 2.1): D = (1 + ε/2)·N_A − (1 − ε/2)·N_B adds
+/// ε/2 · (N_A + N_B). The simulator and the lab's fit both use it.
+#[inline]
+pub fn tap_gain_leak_e(mismatch_rel: f64, total_e: f64) -> f64 {
+    0.5 * mismatch_rel * total_e
+}
+
 /// Per-capture constants of the pixel effects.
 #[derive(Debug, Clone, Copy)]
 pub struct PixelParams {
@@ -125,8 +141,9 @@ impl PixelParams {
         let dark_e = if on(ids::dark_current::ID) {
             model.get(ids::dark_current::E_PER_US)
                 * exposure_us
-                * 2f64.powf(
-                    (temperature_c - 25.0) / model.get(ids::dark_current::DOUBLING_C).max(1e-6),
+                * dark_current_temperature_factor(
+                    temperature_c - 25.0,
+                    model.get(ids::dark_current::DOUBLING_C),
                 )
         } else {
             0.0

@@ -654,6 +654,21 @@ fn effects(a: EffectsArgs) -> anyhow::Result<ExitCode> {
         println!("  thesis: {}", e.thesis_ref);
         println!("  {}", e.explanation);
         println!("  signature: {}", e.signature);
+        let drivers: Vec<&str> = e.drivers.iter().map(|d| d.as_str()).collect();
+        println!(
+            "  acts on: {}; varies with: {}; {}",
+            e.acts_on.as_str(),
+            if drivers.is_empty() {
+                "—".to_string()
+            } else {
+                drivers.join(", ")
+            },
+            if e.cancels_in_four_phase {
+                "cancels in 4-phase"
+            } else {
+                "stays in 4-phase"
+            }
+        );
         for p in e.params {
             println!(
                 "    {:<24} {:>10} {:<10} range [{}, {}]  {}",
@@ -724,7 +739,9 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
                     p.unit
                 );
             }
-            if e.id == "waveform_harmonics" && m.waveforms().is_some() {
+            if e.id == tofprox_model::ids::waveform_harmonics::ID.as_str()
+                && m.waveforms().is_some()
+            {
                 println!("      (correlation from measured illumination/modulation waveforms)");
             }
         }
