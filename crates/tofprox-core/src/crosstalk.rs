@@ -920,7 +920,11 @@ mod tests {
         // against a bound of at most 1.5 · 0.5 LSB/µs · 100 µs = 75 LSB: every pixel is kept
         let mut hair = frame(1.0, Some((0.05, 0.06)));
         assert_eq!(flag(&mut hair), 0);
-        assert!(hair.depth_mm.iter().all(|&d| (30..60).contains(&d)), "{:?}", hair.depth_mm);
+        assert!(
+            hair.depth_mm.iter().all(|&d| (30..60).contains(&d)),
+            "{:?}",
+            hair.depth_mm
+        );
         // a saturated pixel is never touched
         let mut sat = frame(1.0, None);
         sat.flags[[0, 0]] = FLAG_SATURATED;

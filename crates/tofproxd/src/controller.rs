@@ -583,7 +583,15 @@ impl<S: FrameSource> Controller<S> {
         let window_explained = used.crosstalk.as_ref().map_or(0, |x| {
             let below_m = plaus.check_below_m as f32;
             let t = cycle.exposure_us;
-            flag_window_explained(frame_mut, x, proc_mode, roi, t, WINDOW_CHANGE_BOUND, below_m)
+            flag_window_explained(
+                frame_mut,
+                x,
+                proc_mode,
+                roi,
+                t,
+                WINDOW_CHANGE_BOUND,
+                below_m,
+            )
         });
         // A dim near candidate is confirmed at a second frequency before Near is published.
         let rule = DimNearRule {

@@ -97,6 +97,7 @@ fn catalogue_has_no_false_and_no_missed_near() {
     let mut bad = Vec::new();
     for s in &cat {
         let r = run_scene(&b, s, 1).expect("runs");
+        eprintln!("{r:?}");
         if r.false_near > 0 || r.missed_near > 0 {
             bad.push(format!("{r:?}"));
         }
