@@ -127,7 +127,10 @@ fn a_cheek_pressed_on_the_window_is_near_for_all_of_its_10_s() {
 
 /// Issue 21: behind a strong cover window (13× the typical one) calibrated behind it, a hand
 /// and — with the window smudged ×2 since — dark hair are near while they are near and far
-/// after they leave (near used to stick until a far target appeared: 16 false near).
+/// after they leave (near used to stick until a far target appeared: 16 false near). Near is
+/// published once and released once: the scene ends far (dark hair behind the smudged strong
+/// window is released on its way out between the thresholds, where the window rule no longer
+/// counts it — `docs/daemon.md`, "A window that changes").
 #[test]
 fn a_strong_window_calibrated_behind_it_smudged_or_not_never_sticks() {
     let b = shipped();
@@ -138,7 +141,7 @@ fn a_strong_window_calibrated_behind_it_smudged_or_not_never_sticks() {
         let r = run_scene(&b, &scene(&b, name), 1).expect("runs");
         eprintln!("{r:?}");
         assert_eq!((r.false_near, r.missed_near), (0, 0), "{r:?}");
-        assert!(r.latency_to_far_ms.is_some(), "far after it left: {r:?}");
+        assert_eq!(r.near_transitions, 2, "near once, far after it left: {r:?}");
     }
 }
 
