@@ -649,8 +649,9 @@ impl<S: FrameSource> Controller<S> {
             near: reading.near,
             near_candidates: reading.distance_mm.is_some_and(|d| d < far_mm),
             aliased_far,
-            window_only: reading.no_target
-                || phasor_points_at_window(frame, roi, window_tolerance_rad),
+            points_at_window: phasor_points_at_window(frame, roi, window_tolerance_rad),
+            no_target: reading.no_target,
+            window_explained,
             residual_ratio: (pipe.calibration().crosstalk.as_ref())
                 .and_then(|x| residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)),
         });

@@ -9,8 +9,9 @@
 //!
 //! **Learning.** A reading that sees only the window — valid, far, no near candidate (the
 //! detector's statistic counting every valid pixel lies at or beyond `far_mm`), no aliased far
-//! target found by the second frequency, and nothing in range or an ROI phasor that points at
-//! the window — measures `r = (s − ŝ)` as the residual ratio
+//! target found by the second frequency, and an ROI phasor that points at the window or
+//! nothing in range with no pixel the rule below flagged (a dim target the rule flagged is
+//! something in range, at another phase) — measures `r = (s − ŝ)` as the residual ratio
 //! ([`tofprox_core::crosstalk::residual_ratio`]); the monitor averages `ŝ − 1 + r`, the change
 //! since calibration (exponential average over 8 such readings), and `ŝ = 1 + average`,
 //! bounded to `0..=`[`MAX_WINDOW_SCALE`]. Nothing is learned while a near candidate is present,
@@ -51,8 +52,14 @@ pub struct WindowObservation {
     pub near_candidates: bool,
     /// The second frequency found an aliased far target in this cycle.
     pub aliased_far: bool,
-    /// Only the window returns light: nothing in range, or the ROI phasor points at the window.
-    pub window_only: bool,
+    /// The ROI phasor `Σ A·e^{iφ}` points at the window
+    /// ([`tofprox_core::crosstalk::phasor_points_at_window`]).
+    pub points_at_window: bool,
+    /// Nothing in range (the detector's `no_target`).
+    pub no_target: bool,
+    /// ROI pixels the window rule flagged in this reading
+    /// ([`tofprox_core::crosstalk::flag_window_explained`]).
+    pub window_explained: usize,
     /// The compensated residual relative to the calibrated crosstalk
     /// ([`tofprox_core::crosstalk::residual_ratio`]); `None` without a crosstalk calibration.
     pub residual_ratio: Option<f32>,
@@ -79,8 +86,11 @@ impl WindowTracker {
     /// Learns from a reading that saw only the window (see the module docs); returns the new
     /// status when this reading changed the verdict to `Changed`.
     pub fn next(&mut self, obs: WindowObservation) -> Option<CrosstalkStatus> {
+        // only the window returns light: its phasor, or nothing at all (a dim target the rule
+        // flagged is something in range: its phase is not the window's, it is not learned)
+        let window_only = obs.points_at_window || (obs.no_target && obs.window_explained == 0);
         let learnable =
-            obs.valid && !obs.near && !obs.near_candidates && !obs.aliased_far && obs.window_only;
+            obs.valid && !obs.near && !obs.near_candidates && !obs.aliased_far && window_only;
         let r = obs.residual_ratio.filter(|_| learnable)?;
         let was = self.monitor.status();
         // the change since calibration, within the estimate's bounds
@@ -102,7 +112,9 @@ mod tests {
             near: false,
             near_candidates: false,
             aliased_far: false,
-            window_only: true,
+            points_at_window: true,
+            no_target: false,
+            window_explained: 0,
             residual_ratio: Some(residual_ratio),
         }
     }
@@ -155,7 +167,13 @@ mod tests {
                 ..only_window(3.0)
             },
             WindowObservation {
-                window_only: false,
+                points_at_window: false,
+                ..only_window(3.0)
+            },
+            WindowObservation {
+                points_at_window: false,
+                no_target: true,
+                window_explained: 4,
                 ..only_window(3.0)
             },
             WindowObservation {
@@ -280,8 +298,17 @@ mod tests {
             };
             flag_implausible_near(&mut f, self.k.view(), T_US, &p);
             let algo = tofprox_core::Algorithm::FourPhase;
+            let mut window_explained = 0;
             if rule {
-                flag_window_explained(&mut f, &self.x, algo, roi, T_US, WINDOW_CHANGE_BOUND, 0.15);
+                window_explained = flag_window_explained(
+                    &mut f,
+                    &self.x,
+                    algo,
+                    roi,
+                    T_US,
+                    WINDOW_CHANGE_BOUND,
+                    0.15,
+                );
             }
             let reading = det.update(&f);
             let tol = tofprox_core::phasor::distance_to_phase_rad(0.05, F_HZ);
@@ -290,7 +317,9 @@ mod tests {
                 near: reading.near,
                 near_candidates: reading.distance_mm.is_some_and(|d| d < 150),
                 aliased_far: false,
-                window_only: reading.no_target || phasor_points_at_window(&f, roi, tol),
+                points_at_window: phasor_points_at_window(&f, roi, tol),
+                no_target: reading.no_target,
+                window_explained,
                 residual_ratio: residual_ratio(&f, &self.x, algo, roi, T_US),
             });
             reading.near
