@@ -33,7 +33,7 @@ use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
     CycleObservation, EnergyAccount, ExposureObservation, Pacing, RailsDecision, RailsObservation,
     RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
-    WindowObservation, WindowTracker, rails_point_at_zero_distance,
+    WindowObservation, WindowTracker, rails_point_at_zero_distance, saturating_fraction_at,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -502,6 +502,13 @@ impl<S: FrameSource> Controller<S> {
             ));
         }
 
+        // Pixels a longer exposure would saturate (auto-exposure never lengthens into them).
+        let (dark, max_code) = (self.dark_level(g, roi), g.max_code() as f32);
+        let step = self.cfg.exposure.step;
+        let saturated_when_longer = match &cycle.frames {
+            RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
+            RawImages::F32(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
+        };
         // Background-light indicator from the data: the common-mode level of the four raw
         // images above the dark level (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
         let mut ambient_high = None;
@@ -679,6 +686,7 @@ impl<S: FrameSource> Controller<S> {
         self.exposure.next(ExposureObservation::Roi {
             saturated_fraction: stats.saturated_fraction,
             low_amplitude_fraction: stats.low_amplitude_fraction + window_explained as f32 / roi_px,
+            saturated_when_longer,
         });
         self.rate.next(RateObservation {
             near: reading.near,
