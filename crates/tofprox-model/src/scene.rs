@@ -772,8 +772,16 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             static_s,
         ),
         scene(
+            "retroreflector_tape_190cm",
+            "retroreflective tape (1000× a white wall) over a third of the ROI at 1.90 m, just beyond the unambiguous range: wraps to ≈ 3 cm as bright as a hand, saturates at the second frequency at the start exposure",
+            band(1.90, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            band_s,
+        ),
+        scene(
             "retroreflector_tape_195cm",
-            "retroreflective tape (1000× a white wall) over a third of the ROI at 1.95 m, just beyond the unambiguous range: wraps to ≈ 8 cm, saturates at the longer exposures",
+            "retroreflective tape (1000×) over a third of the ROI at 1.95 m (wraps to ≈ 8 cm)",
             band(1.95, RETROREFLECTIVE_TAPE),
             0.0,
             clean,

@@ -505,10 +505,11 @@ impl<S: FrameSource> Controller<S> {
         // Pixels a longer exposure would saturate (auto-exposure never lengthens into them).
         let (dark, max_code) = (self.dark_level(g, roi), g.max_code() as f32);
         let step = self.cfg.exposure.step;
-        let saturated_when_longer = match &cycle.frames {
+        let when_longer = |c: &RawCycle| match &c.frames {
             RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
             RawImages::F32(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
         };
+        let mut saturated_when_longer = when_longer(cycle);
         // Background-light indicator from the data: the common-mode level of the four raw
         // images above the dark level (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
         let mut ambient_high = None;
@@ -683,8 +684,14 @@ impl<S: FrameSource> Controller<S> {
         }
         // the window's return is no target: its pixels count as pixels without a return
         let roi_px = (roi.rows * roi.cols).max(1) as f32;
+        // saturation at the second frequency too: the confirmation needs both measurable
+        let mut saturated_f2 = 0.0f32;
+        if let Some((c2, f2)) = &second {
+            saturated_f2 = roi_stats(f2, roi).saturated_fraction;
+            saturated_when_longer = saturated_when_longer.max(when_longer(c2));
+        }
         self.exposure.next(ExposureObservation::Roi {
-            saturated_fraction: stats.saturated_fraction,
+            saturated_fraction: stats.saturated_fraction.max(saturated_f2),
             low_amplitude_fraction: stats.low_amplitude_fraction + window_explained as f32 / roi_px,
             saturated_when_longer,
         });
