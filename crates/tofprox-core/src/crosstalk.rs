@@ -14,7 +14,9 @@
 //! turns a persistent change into a typed [`CrosstalkStatus`].
 
 use crate::calib::OffsetCalibration;
-use crate::pipeline::{DepthFrame, FLAG_NON_FINITE, FLAG_SATURATED};
+use crate::pipeline::{
+    DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_NON_FINITE, FLAG_SATURATED,
+};
 use crate::proximity::Roi;
 use crate::{Algorithm, CoreError};
 use ndarray::{Array3, ArrayView3, Axis};
@@ -461,6 +463,53 @@ pub fn phasor_points_at_window(frame: &DepthFrame, roi: Roi, tolerance_rad: f64)
     re > 0.0 && im.atan2(re).abs() <= tolerance_rad
 }
 
+/// Near pixels the cover window alone can explain (issue 21: a window that changes). The
+/// pipeline subtracts `ŝ·X·t` (the calibrated crosstalk `X` per µs, eq. 2.2/2.3 applied to the
+/// raw codes, times the current estimate `ŝ`); the window's true return is `s·X·t`, so what
+/// the window leaves in a pixel is the phasor `(s − ŝ)·X·t`, of amplitude `|s − ŝ|·|X|·t`. A
+/// valid, unsaturated pixel whose depth is below `check_below_m` and whose amplitude is at most
+/// `bound·|X|·t` carries no light the window could not give while `|s − ŝ| ≤ bound`: it is
+/// flagged [`FLAG_IMPLAUSIBLE`] | [`FLAG_INVALID`] with depth 0, like a wrapped phase
+/// ([`crate::radiometry::flag_implausible_near`]). Returns how many pixels of `roi` were
+/// flagged; a calibration of another shape flags nothing.
+pub fn flag_window_explained(
+    frame: &mut DepthFrame,
+    calibration: &CrosstalkCalibration,
+    algorithm: Algorithm,
+    roi: Roi,
+    exposure_us: f64,
+    bound: f32,
+    check_below_m: f32,
+) -> usize {
+    let (rows, cols) = frame.dim();
+    if calibration.lsb_per_us.dim() != (4, rows, cols) || !exposure_us.is_finite() {
+        return 0;
+    }
+    let r = roi.resolve(rows, cols);
+    let per_us = bound.max(0.0) * exposure_us.max(0.0) as f32;
+    let mut n = 0usize;
+    for row in 0..rows {
+        for col in 0..cols {
+            let i = [row, col];
+            if frame.flags[i] & (FLAG_INVALID | FLAG_SATURATED) != 0
+                || frame.depth_m[i] >= check_below_m
+            {
+                continue;
+            }
+            let (x, y) = calibration.phasor_per_us(algorithm, row, col);
+            if frame.amplitude_lsb[i] <= per_us * x.hypot(y) {
+                frame.flags[i] |= FLAG_IMPLAUSIBLE | FLAG_INVALID;
+                frame.depth_mm[i] = 0;
+                frame.depth_m[i] = 0.0;
+                let inside = (r.row0..r.row0 + r.rows).contains(&row)
+                    && (r.col0..r.col0 + r.cols).contains(&col);
+                n += usize::from(inside);
+            }
+        }
+    }
+    n
+}
+
 /// `(row, col, A, φ)` of the ROI's pixels that are neither saturated nor non-finite: amplitude
 /// (LSB) and corrected phase (rad) as the frame holds them, row by row.
 fn usable_phasors(frame: &DepthFrame, roi: Roi) -> impl Iterator<Item = (usize, usize, f64, f64)> {
@@ -819,5 +868,73 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.to_string().contains("90°"), "{e}");
+    }
+
+    /// The window rule on frames composed as phasor sums, written here: each pixel holds the
+    /// window's residual `δ·X·t` (phase 0: the window is millimetres away) plus, optionally, a
+    /// diffuse target at `d` (phase `4π f d / c`, amplitude `K ρ t / d²`), the sum's modulus and
+    /// argument as the pipeline would report them.
+    #[test]
+    fn the_window_explains_its_own_residual_and_no_real_near_target() {
+        const C: f64 = 299_792_458.0;
+        let (rows, cols, t_us, f_hz) = (3usize, 4usize, 100.0f64, 80e6);
+        // crosstalk 0.2..0.5 LSB/µs along the columns (stronger at the emitter side), all at 0°
+        let mut x = CrosstalkCalibration {
+            lsb_per_us: Array3::zeros((4, rows, cols)),
+        };
+        for col in 0..cols {
+            let v = 0.2 + 0.1 * col as f32;
+            x.lsb_per_us.slice_mut(ndarray::s![0, .., col]).fill(v);
+            x.lsb_per_us.slice_mut(ndarray::s![2, .., col]).fill(-v);
+        }
+        let frame = |delta: f64, target: Option<(f64, f64)>| {
+            let mut f = DepthFrame::zeros(rows, cols);
+            for ((r, c), a) in f.amplitude_lsb.indexed_iter_mut() {
+                let xw = delta * (0.2 + 0.1 * c as f64) * t_us;
+                let (mut re, mut im) = (xw, 0.0);
+                if let Some((d, rho)) = target {
+                    let ph = 4.0 * std::f64::consts::PI * f_hz * d / C;
+                    let at = 0.09 * rho * t_us / (d * d);
+                    re += at * ph.cos();
+                    im += at * ph.sin();
+                }
+                *a = re.hypot(im) as f32;
+                let ph = im.atan2(re).rem_euclid(TAU);
+                let d = ph * C / (4.0 * std::f64::consts::PI * f_hz);
+                f.phase_rad[[r, c]] = ph as f32;
+                f.depth_m[[r, c]] = d as f32;
+                f.depth_mm[[r, c]] = (d * 1e3).round() as u16;
+            }
+            f
+        };
+        let roi = Roi::centered(rows, cols, 1.0);
+        let flag = |f: &mut DepthFrame| {
+            flag_window_explained(f, &x, Algorithm::FourPhase, roi, t_us, 1.5, 0.15)
+        };
+        // the window doubled since the estimate (δ = 1): every pixel is the window's, released
+        let mut only_window = frame(1.0, None);
+        assert_eq!(flag(&mut only_window), rows * cols);
+        assert!(only_window.flags.iter().all(|&f| f & FLAG_IMPLAUSIBLE != 0));
+        assert!(only_window.depth_mm.iter().all(|&d| d == 0));
+        // dark hair (6 %) at 5 cm behind the same residual: K ρ t / d² = 216 LSB of its own
+        // against a bound of at most 1.5 · 0.5 LSB/µs · 100 µs = 75 LSB: every pixel is kept
+        let mut hair = frame(1.0, Some((0.05, 0.06)));
+        assert_eq!(flag(&mut hair), 0);
+        assert!(
+            hair.depth_mm.iter().all(|&d| (30..60).contains(&d)),
+            "{:?}",
+            hair.depth_mm
+        );
+        // a saturated pixel is never touched
+        let mut sat = frame(1.0, None);
+        sat.flags[[0, 0]] = FLAG_SATURATED;
+        assert_eq!(flag(&mut sat), rows * cols - 1);
+        assert_eq!(sat.flags[[0, 0]], FLAG_SATURATED);
+        // another shape of calibration flags nothing
+        let mut other = DepthFrame::zeros(2, 2);
+        assert_eq!(
+            flag_window_explained(&mut other, &x, Algorithm::FourPhase, roi, t_us, 1.5, 0.15),
+            0
+        );
     }
 }

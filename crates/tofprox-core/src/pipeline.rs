@@ -472,9 +472,16 @@ impl Pipeline {
                 format!("must be within 0..=100, got {scale}"),
             ));
         }
-        self.crosstalk_scale = scale;
-        self.rescale_crosstalk();
+        if self.crosstalk_scale != scale {
+            self.crosstalk_scale = scale;
+            self.rescale_crosstalk();
+        }
         Ok(())
+    }
+
+    /// The factor on the calibrated crosstalk ([`Pipeline::set_crosstalk_scale`]).
+    pub fn crosstalk_scale(&self) -> f32 {
+        self.crosstalk_scale
     }
 
     fn rescale_crosstalk(&mut self) {
@@ -511,6 +518,12 @@ impl Pipeline {
     /// (e.g. [`crate::radiometry::flag_implausible_near`]).
     pub fn frame_mut(&mut self) -> &mut DepthFrame {
         &mut self.frame
+    }
+
+    /// The last processed frame to flag pixels in, beside the calibration it was processed
+    /// with (e.g. [`crate::crosstalk::flag_window_explained`] needs the crosstalk).
+    pub fn frame_mut_and_calibration(&mut self) -> (&mut DepthFrame, &Calibration) {
+        (&mut self.frame, &self.calibration)
     }
 
     /// Processes one capture `(K, rows, cols)`: the first 2 (2-phase, phases 0°, 90°) or 4

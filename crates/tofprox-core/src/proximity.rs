@@ -197,6 +197,32 @@ impl NearFarDetector {
         self.far_count = 0;
     }
 
+    /// Whether `frame` holds pixels that make or hold a near reading: the statistic the next
+    /// [`NearFarDetector::update`] would take (the percentile's nearest rank of the ROI's valid
+    /// depths, with at least `min_valid_fraction` of them) lies below `far_mm`. Saturation is
+    /// not counted. Changes no state.
+    pub fn statistic_below_far(&self, frame: &DepthFrame) -> bool {
+        let (dr, dc) = frame.depth_mm.dim();
+        let (fr, fc) = frame.flags.dim();
+        let roi = self.cfg.roi.resolve(dr.min(fr), dc.min(fc));
+        let rows = roi.row0..roi.row0 + roi.rows;
+        let cols = roi.col0..roi.col0 + roi.cols;
+        let flags = frame.flags.slice(s![rows.clone(), cols.clone()]);
+        let depth = frame.depth_mm.slice(s![rows, cols]);
+        let (mut valid, mut below) = (0usize, 0usize);
+        for (&f, &mm) in flags.iter().zip(depth.iter()) {
+            let ok = f == 0 && mm != 0;
+            valid += usize::from(ok);
+            below += usize::from(ok && u32::from(mm) < self.cfg.far_mm);
+        }
+        let total = roi.rows * roi.cols;
+        if valid == 0 || (valid as f32) < self.cfg.min_valid_fraction * total as f32 {
+            return false;
+        }
+        let rank = ((self.percentile * valid as f32).ceil() as usize).clamp(1, valid);
+        below >= rank
+    }
+
     /// Feeds one frame. Allocation-free after the first frame of a given ROI size.
     pub fn update(&mut self, frame: &DepthFrame) -> ProximityReading {
         // Malformed frames (flags and depth of different shapes) are read on their common part.

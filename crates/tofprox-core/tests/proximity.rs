@@ -297,3 +297,31 @@ fn memory_order_and_roi_position_do_not_change_the_reading() {
         }
     }
 }
+
+/// `statistic_below_far` says, without a state change, whether the next update's statistic
+/// lies below `far_mm`: one flying pixel does not, a quarter of the ROI at 250 mm does, too few
+/// valid pixels do not.
+#[test]
+fn statistic_below_far_predicts_the_update_without_changing_state() {
+    let d = detector(1);
+    let mut f = wall(1500);
+    f.depth_mm[(3, 3)] = 50;
+    assert!(!d.statistic_below_far(&f));
+    for r in 2..4 {
+        for c in 2..4 {
+            f.depth_mm[(r, c)] = 250;
+        }
+    }
+    assert!(d.statistic_below_far(&f));
+    assert!(!d.is_near(), "no state change");
+    let mut u = d.clone();
+    assert_eq!(u.update(&f).distance_mm, Some(250));
+    // 3 of the 16 ROI pixels valid (< 20 %): no statistic
+    let mut g = invalid(FLAG_LOW_AMPLITUDE);
+    for c in 2..5 {
+        g.flags[(2, c)] = 0;
+        g.depth_mm[(2, c)] = 60;
+    }
+    assert!(!d.statistic_below_far(&g));
+    assert_eq!(u.update(&g).distance_mm, None);
+}

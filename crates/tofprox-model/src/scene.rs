@@ -654,6 +654,9 @@ pub mod reflectivity {
     pub const TABLE: f64 = 0.3;
     /// A safety vest (20–40× a white wall).
     pub const SAFETY_VEST: f64 = 30.0 * WHITE;
+    /// Retroreflective tape at a phone's observation angle (illumination beside the lens):
+    /// ~1000× a white wall.
+    pub const RETROREFLECTIVE_TAPE: f64 = 1000.0 * WHITE;
 }
 
 /// The scenes a phone meets, with stable names, for near/far thresholds `near_m` /
@@ -767,6 +770,30 @@ pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
             0.0,
             clean,
             static_s,
+        ),
+        scene(
+            "retroreflector_tape_190cm",
+            "retroreflective tape (1000× a white wall) over a third of the ROI at 1.90 m, just beyond the unambiguous range: wraps to ≈ 3 cm as bright as a hand, saturates at the second frequency at the start exposure",
+            band(1.90, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            band_s,
+        ),
+        scene(
+            "retroreflector_tape_195cm",
+            "retroreflective tape (1000×) over a third of the ROI at 1.95 m (wraps to ≈ 8 cm)",
+            band(1.95, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            band_s,
+        ),
+        scene(
+            "retroreflector_tape_380cm",
+            "retroreflective tape (1000×) over a third of the ROI at 3.8 m, just beyond twice the range (wraps to ≈ 5 cm)",
+            band(3.80, RETROREFLECTIVE_TAPE),
+            0.0,
+            clean,
+            band_s,
         ),
         scene(
             "safety_vest_192cm",

@@ -14,7 +14,7 @@ use ndarray::{ArrayView3, Axis, s};
 use tofprox_core::Algorithm;
 use tofprox_core::SensorGeometry;
 use tofprox_core::crosstalk::{
-    CrosstalkMonitor, CrosstalkStatus, phasor_points_at_window, residual_ratio,
+    CrosstalkStatus, flag_window_explained, phasor_points_at_window, residual_ratio,
 };
 use tofprox_core::phasor::{Quadrature, distance_to_phase_rad};
 use tofprox_core::pipeline::{
@@ -28,11 +28,12 @@ use crate::config::{Config, Mode};
 use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
 use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
+use crate::policy::window::WINDOW_CHANGE_BOUND;
 use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
     CycleObservation, EnergyAccount, ExposureObservation, Pacing, RailsDecision, RailsObservation,
     RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
-    rails_point_at_zero_distance,
+    WindowObservation, WindowTracker, rails_point_at_zero_distance, saturating_fraction_at,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -170,8 +171,8 @@ pub struct Controller<S: FrameSource> {
     near: bool,
     running: bool,
     last_error: String,
-    /// The cover window as the readings with nothing in range see it (smudge detection).
-    crosstalk: CrosstalkMonitor,
+    /// The cover window's crosstalk, estimated online and compensated (`policy::window`).
+    window: WindowTracker,
     state: State,
     prev_state: State,
     /// Last ambient indicator (LSB).
@@ -271,7 +272,7 @@ impl<S: FrameSource> Controller<S> {
             near: false,
             running: false,
             last_error: String::new(),
-            crosstalk: CrosstalkMonitor::default(),
+            window: WindowTracker::default(),
             state: State::Off,
             prev_state: State::Off,
             ambient_lsb: None,
@@ -310,7 +311,7 @@ impl<S: FrameSource> Controller<S> {
             .iter()
             .any(|c| c.crosstalk.is_some());
         if calibrated {
-            self.crosstalk.status()
+            self.window.status()
         } else {
             CrosstalkStatus::Uncalibrated
         }
@@ -501,6 +502,14 @@ impl<S: FrameSource> Controller<S> {
             ));
         }
 
+        // Pixels a longer exposure would saturate (auto-exposure never lengthens into them).
+        let (dark, max_code) = (self.dark_level(g, roi), g.max_code() as f32);
+        let step = self.cfg.exposure.step;
+        let when_longer = |c: &RawCycle| match &c.frames {
+            RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
+            RawImages::F32(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
+        };
+        let mut saturated_when_longer = when_longer(cycle);
         // Background-light indicator from the data: the common-mode level of the four raw
         // images above the dark level (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
         let mut ambient_high = None;
@@ -516,6 +525,7 @@ impl<S: FrameSource> Controller<S> {
 
         let frames = &cycle.frames;
         let min_amp = self.cfg.processing.min_amplitude_lsb;
+        let exposure = (cycle.exposure_us, self.window.scale());
         let mut discrepancy_mm: Option<f64> = None;
         if captured == Mode::FourPhase && self.cfg.ambient.enabled {
             // 2-vs-4-phase discrepancy over the ROI (first two images as 2-phase).
@@ -526,7 +536,7 @@ impl<S: FrameSource> Controller<S> {
                     min_amp,
                     Mode::TwoPhase,
                     g,
-                    cycle.exposure_us,
+                    exposure,
                 )?;
                 let f = process_images(p, frames, &cycle.phases_deg, 2)?;
                 roi_median_mm(f, roi)
@@ -537,7 +547,7 @@ impl<S: FrameSource> Controller<S> {
                 min_amp,
                 Mode::FourPhase,
                 g,
-                cycle.exposure_us,
+                exposure,
             )?;
             let f4 = process_images(p4, frames, &cycle.phases_deg, 4)?;
             if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
@@ -551,7 +561,7 @@ impl<S: FrameSource> Controller<S> {
             min_amp,
             proc_mode,
             g,
-            cycle.exposure_us,
+            exposure,
         )?;
         if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
             let k = frames.dim().0;
@@ -575,6 +585,22 @@ impl<S: FrameSource> Controller<S> {
         if let Some(n) = implausible.filter(|&n| n > 0) {
             tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
         }
+        // A window that changes: near pixels the window alone can explain do not count
+        // (`policy::window`, the rule in docs/daemon.md).
+        let (frame_mut, used) = pipe.frame_mut_and_calibration();
+        let window_explained = used.crosstalk.as_ref().map_or(0, |x| {
+            let below_m = plaus.check_below_m as f32;
+            let t = cycle.exposure_us;
+            flag_window_explained(
+                frame_mut,
+                x,
+                proc_mode,
+                roi,
+                t,
+                WINDOW_CHANGE_BOUND,
+                below_m,
+            )
+        });
         // A dim near candidate is confirmed at a second frequency before Near is published.
         let rule = DimNearRule {
             confirm_reflectivity: self.cfg.proximity.confirm_reflectivity,
@@ -584,14 +610,17 @@ impl<S: FrameSource> Controller<S> {
             modulation_hz: g.modulation_hz,
         };
         let dim = dim_near_candidates(pipe.frame(), roi, scale.view(), cycle.exposure_us, &rule);
-        let second = self.second_frequency_frame(req, cycle, captured, dim.len())?;
+        let det = detector_slot(&mut self.detector, &self.cfg, g, roi)?;
+        // dim candidates matter only when they can make or hold a near reading
+        let decisive = !dim.is_empty() && det.statistic_below_far(pipe.frame());
+        let second = self.second_frequency_frame(req, cycle, captured, dim.len(), decisive)?;
         let pipe = mode_pipeline(
             [&mut self.pipe2, &mut self.pipe4],
             &self.calib,
             min_amp,
             proc_mode,
             g,
-            cycle.exposure_us,
+            exposure,
         )?;
         // a far target the second frequency found is not "only the window returns"
         let mut aliased_far = false;
@@ -613,44 +642,29 @@ impl<S: FrameSource> Controller<S> {
         let stats = roi_stats(frame, roi);
         let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
 
-        // Detector (rebuilt if the geometry changed; starts far).
-        let det_ok = self.detector.as_ref().is_some_and(|(geo, _)| *geo == g);
-        if !det_ok {
-            let det = NearFarDetector::new(NearFarConfig {
-                near_mm: self.cfg.proximity.near_mm,
-                far_mm: self.cfg.proximity.far_mm,
-                roi,
-                far_debounce: self.cfg.proximity.far_debounce,
-                min_valid_fraction: self.cfg.proximity.min_valid_fraction,
-            })
-            .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
-            self.detector = Some((g, det));
-        }
-        let reading = match &mut self.detector {
-            Some((_, d)) => d.update(frame),
-            None => return Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
-        };
+        let reading = detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame);
         // Nothing in range is a reading too: far, DistanceMm "beyond range".
         let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
         // With nothing in range only the cover window returns light: what is left of it after
         // the compensation says whether the window changed since calibration (a smudge).
         // Those readings: nothing in range, or a far reading whose light points at the window
         // (a residual big enough to be a depth: ≈ 0 mm or wrapped just under the range).
+        // The estimate learns from them (`policy::window`), never with a near candidate.
         let window_tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, g.modulation_hz);
-        if valid
-            && !reading.near
-            && !aliased_far
-            && (reading.no_target || phasor_points_at_window(frame, roi, window_tolerance_rad))
-            && let Some(x) = &pipe.calibration().crosstalk
-            && let Some(ratio) = residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)
-        {
-            let was = self.crosstalk.status();
-            let now = self.crosstalk.update(ratio);
-            if matches!(now, CrosstalkStatus::Changed { .. })
-                && !matches!(was, CrosstalkStatus::Changed { .. })
-            {
-                tracing::warn!("{}", now.message());
-            }
+        let far_mm = self.cfg.proximity.far_mm;
+        let became = self.window.next(WindowObservation {
+            valid,
+            near: reading.near,
+            near_candidates: reading.distance_mm.is_some_and(|d| d < far_mm),
+            aliased_far,
+            points_at_window: phasor_points_at_window(frame, roi, window_tolerance_rad),
+            no_target: reading.no_target,
+            window_explained,
+            residual_ratio: (pipe.calibration().crosstalk.as_ref())
+                .and_then(|x| residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)),
+        });
+        if let Some(now) = became {
+            tracing::warn!("{}", now.message());
         }
         // Near from saturation (target too close/bright to measure): the statistic of the
         // remaining valid pixels is the background, not the target — publish "unknown" (0).
@@ -668,9 +682,18 @@ impl<S: FrameSource> Controller<S> {
                 discrepancy_mm,
             });
         }
+        // the window's return is no target: its pixels count as pixels without a return
+        let roi_px = (roi.rows * roi.cols).max(1) as f32;
+        // saturation at the second frequency too: the confirmation needs both measurable
+        let mut saturated_f2 = 0.0f32;
+        if let Some((c2, f2)) = &second {
+            saturated_f2 = roi_stats(f2, roi).saturated_fraction;
+            saturated_when_longer = saturated_when_longer.max(when_longer(c2));
+        }
         self.exposure.next(ExposureObservation::Roi {
-            saturated_fraction: stats.saturated_fraction,
-            low_amplitude_fraction: stats.low_amplitude_fraction,
+            saturated_fraction: stats.saturated_fraction.max(saturated_f2),
+            low_amplitude_fraction: stats.low_amplitude_fraction + window_explained as f32 / roi_px,
+            saturated_when_longer,
         });
         self.rate.next(RateObservation {
             near: reading.near,
@@ -691,7 +714,7 @@ impl<S: FrameSource> Controller<S> {
             self.since_valid.reading(self.source.now());
         }
         // LastError after a good cycle: "" — or the changed cover window, while it lasts.
-        let note = match self.crosstalk.status() {
+        let note = match self.window.status() {
             s @ CrosstalkStatus::Changed { .. } => s.message(),
             _ => String::new(),
         };
@@ -768,10 +791,12 @@ impl<S: FrameSource> Controller<S> {
         cycle: &RawCycle,
         captured: Mode,
         dim_candidates: usize,
+        decisive: bool,
     ) -> Result<Option<(RawCycle, DepthFrame)>, SourceError> {
         let g = cycle.geometry;
         let Some(f2_hz) = self.second.next(CandidateObservation {
             dim_candidates,
+            decisive,
             near_published: self.near,
             captured_hz: g.modulation_hz,
         }) else {
@@ -813,7 +838,8 @@ impl<S: FrameSource> Controller<S> {
         let calib = at_second_frequency(full, f2_hz / g.modulation_hz);
         let mut slot = None;
         let min_amp = self.cfg.processing.min_amplitude_lsb;
-        let p = pipeline_slot(&mut slot, &calib, min_amp, mode2, g2, c2.exposure_us)?;
+        let exposure = (c2.exposure_us, self.window.scale());
+        let p = pipeline_slot(&mut slot, &calib, min_amp, mode2, g2, exposure)?;
         let k = c2.frames.dim().0;
         let f2 = process_images(p, &c2.frames, &c2.phases_deg, k)?.clone();
         Ok(Some((c2, f2)))
@@ -913,13 +939,13 @@ fn mode_pipeline<'a>(
     min_amplitude_lsb: f32,
     mode: Mode,
     g: SensorGeometry,
-    exposure_us: f64,
+    exposure: (f64, f32),
 ) -> Result<&'a mut Pipeline, SourceError> {
     let (slot, full) = match mode {
         Mode::TwoPhase => (two, &calib.two_phase),
         Mode::FourPhase => (four, &calib.four_phase),
     };
-    pipeline_slot(slot, full, min_amplitude_lsb, mode, g, exposure_us)
+    pipeline_slot(slot, full, min_amplitude_lsb, mode, g, exposure)
 }
 
 fn pipeline_slot<'a>(
@@ -928,7 +954,7 @@ fn pipeline_slot<'a>(
     min_amplitude_lsb: f32,
     mode: Mode,
     g: SensorGeometry,
-    exposure_us: f64,
+    (exposure_us, crosstalk_scale): (f64, f32),
 ) -> Result<&'a mut Pipeline, SourceError> {
     if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
         let calib = crop_calibration(full, g)
@@ -947,12 +973,39 @@ fn pipeline_slot<'a>(
     match slot {
         Some((_, p)) => {
             // scales the crosstalk calibration (if any) to this cycle's exposure
-            p.set_exposure_us(exposure_us).map_err(|e| {
-                SourceError::new(SourceErrorKind::CorruptFrame, format!("pipeline: {e}"))
-            })?;
+            // and compensates the window at its current estimate (policy::window)
+            p.set_exposure_us(exposure_us)
+                .and_then(|()| p.set_crosstalk_scale(crosstalk_scale))
+                .map_err(|e| {
+                    SourceError::new(SourceErrorKind::CorruptFrame, format!("pipeline: {e}"))
+                })?;
             Ok(p)
         }
         None => Err(SourceError::new(SourceErrorKind::Other, "pipeline missing")),
+    }
+}
+
+/// The near/far detector for the window of `g` (rebuilt when it changes; starts far).
+fn detector_slot<'a>(
+    slot: &'a mut Option<(SensorGeometry, NearFarDetector)>,
+    cfg: &Config,
+    g: SensorGeometry,
+    roi: Roi,
+) -> Result<&'a mut NearFarDetector, SourceError> {
+    if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
+        let det = NearFarDetector::new(NearFarConfig {
+            near_mm: cfg.proximity.near_mm,
+            far_mm: cfg.proximity.far_mm,
+            roi,
+            far_debounce: cfg.proximity.far_debounce,
+            min_valid_fraction: cfg.proximity.min_valid_fraction,
+        })
+        .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
+        *slot = Some((g, det));
+    }
+    match slot {
+        Some((_, d)) => Ok(d),
+        None => Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
     }
 }
 

@@ -97,6 +97,7 @@ fn catalogue_has_no_false_and_no_missed_near() {
     let mut bad = Vec::new();
     for s in &cat {
         let r = run_scene(&b, s, 1).expect("runs");
+        eprintln!("{r:?}");
         if r.false_near > 0 || r.missed_near > 0 {
             bad.push(format!("{r:?}"));
         }
@@ -126,7 +127,10 @@ fn a_cheek_pressed_on_the_window_is_near_for_all_of_its_10_s() {
 
 /// Issue 21: behind a strong cover window (13× the typical one) calibrated behind it, a hand
 /// and — with the window smudged ×2 since — dark hair are near while they are near and far
-/// after they leave (near used to stick until a far target appeared: 16 false near).
+/// after they leave (near used to stick until a far target appeared: 16 false near). Near is
+/// published once and released once: the scene ends far (dark hair behind the smudged strong
+/// window is released on its way out between the thresholds, where the window rule no longer
+/// counts it — `docs/daemon.md`, "A window that changes").
 #[test]
 fn a_strong_window_calibrated_behind_it_smudged_or_not_never_sticks() {
     let b = shipped();
@@ -137,17 +141,25 @@ fn a_strong_window_calibrated_behind_it_smudged_or_not_never_sticks() {
         let r = run_scene(&b, &scene(&b, name), 1).expect("runs");
         eprintln!("{r:?}");
         assert_eq!((r.false_near, r.missed_near), (0, 0), "{r:?}");
-        assert!(r.latency_to_far_ms.is_some(), "far after it left: {r:?}");
+        assert_eq!(r.near_transitions, 2, "near once, far after it left: {r:?}");
     }
 }
 
-/// Issue 21 item 2: safety vests (30× a white wall) over a third of the ROI just beyond one
-/// and two unambiguous ranges read far, and near hands, dark hair and black cards are still
+/// Issue 21 item 2: safety vests (30× a white wall) and retroreflective tape (1000×) over a
+/// third of the ROI just beyond one and two unambiguous ranges read far (the tape: auto-exposure
+/// shortens until it is measurable at both frequencies and never lengthens back into its
+/// saturation; the second frequency rejects it), and near hands, dark hair and black cards are still
 /// near with the second frequency on (every dim near candidate takes a second capture).
 #[test]
 fn retroreflectors_beyond_the_range_read_far_near_hands_stay_near() {
     let b = shipped();
-    let retro = ["safety_vest_192cm", "safety_vest_380cm"];
+    let retro = [
+        "safety_vest_192cm",
+        "safety_vest_380cm",
+        "retroreflector_tape_190cm",
+        "retroreflector_tape_195cm",
+        "retroreflector_tape_380cm",
+    ];
     let near = [
         "hand_approach_05cm",
         "face_dark_hair_05cm",

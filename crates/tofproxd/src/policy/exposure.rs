@@ -4,6 +4,10 @@
 //! too much of it is below the amplitude floor; a frame with every code on a rail is taken
 //! as too bright.
 
+use ndarray::{ArrayView3, Axis, s};
+use tofprox_core::pipeline::RawSample;
+use tofprox_core::proximity::Roi;
+
 use crate::config::ExposureConfig;
 
 /// What the cycle showed about the exposure.
@@ -17,6 +21,9 @@ pub enum ExposureObservation {
         saturated_fraction: f32,
         /// Fraction of ROI pixels below the amplitude floor (and not saturated).
         low_amplitude_fraction: f32,
+        /// Fraction of ROI pixels that would saturate at the longer exposure
+        /// ([`saturating_fraction_at`] with `exposure.step`).
+        saturated_when_longer: f32,
     },
 }
 
@@ -52,10 +59,13 @@ impl AutoExposure {
             ExposureObservation::Roi {
                 saturated_fraction,
                 low_amplitude_fraction,
+                saturated_when_longer,
             } => {
                 if saturated_fraction > e.saturated_fraction {
                     self.exposure_us / e.step
-                } else if low_amplitude_fraction > e.low_amplitude_fraction {
+                } else if low_amplitude_fraction > e.low_amplitude_fraction
+                    && saturated_when_longer <= e.saturated_fraction
+                {
                     self.exposure_us * e.step
                 } else {
                     self.exposure_us
@@ -65,6 +75,37 @@ impl AutoExposure {
         self.exposure_us = t.clamp(e.min_us, e.max_us);
         self.exposure_us
     }
+}
+
+/// The fraction of `roi`'s pixels whose codes would reach a rail at `factor` × the exposure:
+/// a code's excursion from the dark level grows with the exposure (thesis 3.1.2, the return
+/// and the background light both ∝ exposure), so a pixel saturates when some image's
+/// `dark + factor·(code − dark)` lies at or beyond 0 or `max_code`. A bright target beside
+/// dark ones (a retroreflector over a third of the view) then keeps the exposure where it is
+/// measurable instead of lengthening it back into saturation for the dark pixels' sake.
+pub fn saturating_fraction_at<T: RawSample>(
+    frames: ArrayView3<'_, T>,
+    roi: Roi,
+    dark: f32,
+    max_code: f32,
+    factor: f64,
+) -> f32 {
+    let (_, rows, cols) = frames.dim();
+    let r = roi.resolve(rows, cols);
+    let view = frames.slice(s![.., r.row0..r.row0 + r.rows, r.col0..r.col0 + r.cols]);
+    let f = factor as f32;
+    let total = (r.rows * r.cols).max(1);
+    let saturating = view
+        .lanes(Axis(0))
+        .into_iter()
+        .filter(|px| {
+            px.iter().any(|&v| {
+                let c = dark + f * (v.to_f32() - dark);
+                c <= 0.0 || c >= max_code
+            })
+        })
+        .count();
+    saturating as f32 / total as f32
 }
 
 #[cfg(test)]
@@ -87,7 +128,32 @@ mod tests {
         ExposureObservation::Roi {
             saturated_fraction: sat,
             low_amplitude_fraction: low,
+            saturated_when_longer: 0.0,
         }
+    }
+
+    /// A third of the view bright enough to saturate at the longer exposure, the rest dark:
+    /// the exposure stays where the bright third is measurable.
+    #[test]
+    fn never_lengthens_into_saturation() {
+        // 2 images of 3×3, dark level 100, 12-bit rails; column 0 at +2100 codes, the rest +5
+        let mut codes = ndarray::Array3::from_elem((2, 3, 3), 105.0f32);
+        codes.slice_mut(s![.., .., 0]).fill(2200.0);
+        let all = Roi::centered(3, 3, 1.0);
+        let f = saturating_fraction_at(codes.view(), all, 100.0, 4095.0, 2.0);
+        assert!((f - 1.0 / 3.0).abs() < 1e-6, "{f}");
+        assert_eq!(
+            saturating_fraction_at(codes.view(), all, 100.0, 4095.0, 1.5),
+            0.0
+        );
+        let mut a = AutoExposure::new(cfg());
+        let weak_but_bright_third = ExposureObservation::Roi {
+            saturated_fraction: 0.0,
+            low_amplitude_fraction: 2.0 / 3.0,
+            saturated_when_longer: f,
+        };
+        assert_eq!(a.next(weak_but_bright_third), 100.0, "kept");
+        assert_eq!(a.next(roi(0.0, 2.0 / 3.0)), 200.0, "lengthened without");
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! | [`ReadoutWindow`] | rows read out | ROI, margin, source alignment | 3.1.2 (read-out ∝ rows) |
 //! | [`SecondFrequency`] | confirm dim near candidates at a second frequency | dim candidates, Near | 2.2.1, eqs. 2.7–2.9 |
 //! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
+//! | [`WindowTracker`] | the cover window's crosstalk estimate (compensated, bounded) and its verdict | readings that see only the window, near candidates | 3.1 (stray light), eq. 2.2/2.3 |
 //! | [`SaturationCheck`] | an all-rails frame: near return, confirm (4-phase, `min_us`), or no data | the rails' phasor vs zero distance | 2.2.1, eq. 2.2/2.3 |
 
 mod ambient;
@@ -20,13 +21,15 @@ mod rate;
 mod readout;
 mod saturation;
 pub mod second_frequency;
+pub mod window;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
-pub use exposure::{AutoExposure, ExposureObservation};
+pub use exposure::{AutoExposure, ExposureObservation, saturating_fraction_at};
 pub use rate::{AdaptiveRate, RateObservation};
 pub use readout::{ReadoutObservation, ReadoutWindow};
 pub use saturation::{
     RailsDecision, RailsObservation, SaturationCheck, rails_point_at_zero_distance,
 };
 pub use second_frequency::{CandidateObservation, SecondFrequency};
+pub use window::{WindowObservation, WindowTracker};

@@ -197,6 +197,11 @@ pub fn alias_is_clear(d1_m: f64, d2_m: f64, f1_hz: f64, f2_hz: f64) -> bool {
 pub struct CandidateObservation {
     /// Dim near candidates in this cycle's ROI ([`dim_near_candidates`]).
     pub dim_candidates: usize,
+    /// The candidates can make or hold a near reading: the detector's statistic counting
+    /// them lies below `far_mm` ([`tofprox_core::proximity::NearFarDetector::statistic_below_far`]).
+    /// A few dim pixels among far ones (noise on a dark ceiling) decide nothing and take no
+    /// capture.
+    pub decisive: bool,
     /// Near is published now.
     pub near_published: bool,
     /// The modulation frequency of this cycle's capture (Hz).
@@ -231,7 +236,8 @@ impl SecondFrequency {
         }
         let f2 = self.modulation_hz?;
         let due = !(obs.near_published && self.confirmed);
-        (obs.dim_candidates > 0 && due && (f2 - obs.captured_hz).abs() >= 1.0).then_some(f2)
+        let needed = obs.dim_candidates > 0 && obs.decisive && due;
+        (needed && (f2 - obs.captured_hz).abs() >= 1.0).then_some(f2)
     }
 
     /// What the second frequency said: a near it confirmed (no candidate aliased) needs no
@@ -355,11 +361,17 @@ mod tests {
         let mut p = SecondFrequency::new(Some(70e6));
         let obs = |n, near, f| CandidateObservation {
             dim_candidates: n,
+            decisive: n > 0,
             near_published: near,
             captured_hz: f,
         };
         assert_eq!(p.next(obs(5, false, 80e6)), Some(70e6));
         assert_eq!(p.next(obs(0, false, 80e6)), None);
+        let stray = CandidateObservation {
+            decisive: false,
+            ..obs(5, false, 80e6)
+        };
+        assert_eq!(p.next(stray), None, "dim pixels that cannot make near");
         assert_eq!(
             p.next(obs(5, true, 80e6)),
             Some(70e6),
