@@ -260,20 +260,32 @@ mod tests {
         out
     }
 
-    #[test]
-    fn stacked_raw12_buffers_become_captures() {
-        let l = layout(PixelPacking::Raw12, 4);
-        let truth: Vec<_> = (0..3).map(|s| codes(s, 4)).collect();
-        let frames: Vec<_> = truth
+    /// `n` known buffers of `images` stacked images each, encoded without a status line, and
+    /// the spec that decodes them (one capture per buffer).
+    fn unindexed(
+        packing: PixelPacking,
+        images: usize,
+        n: usize,
+        endpoint: Option<(u16, u8, u8)>,
+    ) -> (Vec<Array3<u16>>, Vec<Vec<u8>>, StreamSpec) {
+        let l = layout(packing, images);
+        let truth: Vec<_> = (0..n).map(|s| codes(s, images)).collect();
+        let frames = truth
             .iter()
             .map(|c| encode_buffer(c, &l).unwrap())
             .collect();
         let spec = StreamSpec {
             layout: l,
             status_line: false,
-            images_per_capture: 4,
-            endpoint: None,
+            images_per_capture: images,
+            endpoint,
         };
+        (truth, frames, spec)
+    }
+
+    #[test]
+    fn stacked_raw12_buffers_become_captures() {
+        let (truth, frames, spec) = unindexed(PixelPacking::Raw12, 4, 3, None);
         let d = decode_stream(&stream(&frames, 40), &spec).unwrap();
         assert_eq!(d.endpoint, (1, 4, 0x83));
         assert_eq!(d.captures.len(), 3);
@@ -285,18 +297,8 @@ mod tests {
 
     #[test]
     fn single_images_group_and_a_lost_frame_is_refused() {
-        let l = layout(PixelPacking::Raw16, 1);
-        let truth: Vec<_> = (0..5).map(|s| codes(s, 1)).collect();
-        let frames: Vec<_> = truth
-            .iter()
-            .map(|c| encode_buffer(c, &l).unwrap())
-            .collect();
-        let spec = StreamSpec {
-            layout: l,
-            status_line: false,
-            images_per_capture: 2,
-            endpoint: Some((1, 4, 0x83)),
-        };
+        let (truth, frames, mut spec) = unindexed(PixelPacking::Raw16, 1, 5, Some((1, 4, 0x83)));
+        spec.images_per_capture = 2;
         let d = decode_stream(&stream(&frames, 20), &spec).unwrap();
         assert_eq!((d.captures.len(), d.tail_images), (2, 1));
         assert_eq!(
