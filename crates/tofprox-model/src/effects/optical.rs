@@ -247,6 +247,29 @@ pub fn validate_waveforms(illumination: &[f64], modulation: &[f64]) -> Result<()
     Ok(())
 }
 
+/// The values of a 1-D float64/float32 `.npy` file, read by the workspace's one `.npy`
+/// reader (`tofprox_format::npy`); anything else is described.
+fn waveform_of_npy(bytes: &[u8]) -> Result<Vec<f64>, String> {
+    use tofprox_format::npy::{self, NpyArray};
+    let array = npy::decode(bytes).map_err(|e| e.to_string())?;
+    let shape = match &array {
+        NpyArray::F64(a) if a.ndim() == 1 => return Ok(a.iter().copied().collect()),
+        NpyArray::F32(a) if a.ndim() == 1 => return Ok(a.iter().map(|&v| f64::from(v)).collect()),
+        NpyArray::U16(a) => {
+            return Err(format!(
+                "uint16 array {}: a waveform is float64/float32",
+                npy::shape_str(a.shape())
+            ));
+        }
+        NpyArray::F32(a) => a.shape().to_vec(),
+        NpyArray::F64(a) => a.shape().to_vec(),
+    };
+    Err(format!(
+        "array of shape {}: a waveform is 1-D",
+        npy::shape_str(&shape)
+    ))
+}
+
 /// Load one period of a waveform from CSV (one value per line, or the last column
 /// of comma/whitespace separated rows; `#` comments and a header line allowed) or NPY (1-D float).
 pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
@@ -256,21 +279,9 @@ pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
     use tofprox_format::limits::{MAX_NPY_BYTES, MAX_TOML_BYTES, read_bounded, read_text_bounded};
     if is_npy {
         let bytes = read_bounded(path, MAX_NPY_BYTES, None)?;
-        use ndarray_npy::ReadNpyExt;
-        if let Ok(a) = ndarray::Array1::<f64>::read_npy(bytes.as_slice()) {
-            return Ok(a.to_vec());
-        }
-        return ndarray::Array1::<f32>::read_npy(bytes.as_slice())
-            .map(|a| a.iter().map(|&v| f64::from(v)).collect())
-            .map_err(|e| {
-                ModelError::new(
-                    ErrorKind::Parse,
-                    format!(
-                        "{}: not a 1-D float64/float32 NPY array: {e}",
-                        path.display()
-                    ),
-                )
-            });
+        return waveform_of_npy(&bytes).map_err(|msg| {
+            ModelError::new(ErrorKind::Parse, format!("{}: {msg}", path.display()))
+        });
     }
     let text = read_text_bounded(path, MAX_TOML_BYTES)?;
     let mut out = Vec::new();
@@ -432,11 +443,42 @@ mod tests {
         let e = load_waveform(&csv).unwrap_err();
         assert!(e.to_string().contains(":3:"), "{e}");
         let npy = dir.join("w.npy");
-        use ndarray_npy::WriteNpyExt;
-        ndarray::arr1(&[0.25f32, 0.5])
-            .write_npy(std::fs::File::create(&npy).unwrap())
-            .unwrap();
+        // written byte by byte as NumPy does (not by the reader's own encoder)
+        let npy_bytes = |descr: &str, shape: &str, data: &[u8]| {
+            let dict =
+                format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape}, }}");
+            let mut h = dict.into_bytes();
+            while (10 + h.len() + 1) % 64 != 0 {
+                h.push(b' ');
+            }
+            h.push(b'\n');
+            let mut b = b"\x93NUMPY\x01\x00".to_vec();
+            b.extend_from_slice(&(h.len() as u16).to_le_bytes());
+            b.extend_from_slice(&h);
+            b.extend_from_slice(data);
+            b
+        };
+        let f32s: Vec<u8> = [0.25f32, 0.5]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        std::fs::write(&npy, npy_bytes("<f4", "(2,)", &f32s)).unwrap();
         assert_eq!(load_waveform(&npy).unwrap(), vec![0.25, 0.5]);
+        let f64s: Vec<u8> = [0.1f64, 0.7, 0.2]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        std::fs::write(&npy, npy_bytes("<f8", "(3,)", &f64s)).unwrap();
+        assert_eq!(load_waveform(&npy).unwrap(), vec![0.1, 0.7, 0.2]);
+        std::fs::write(&npy, npy_bytes("<f4", "(1, 2)", &f32s)).unwrap();
+        let e = load_waveform(&npy).unwrap_err();
+        assert!(
+            e.to_string().contains("shape (1, 2): a waveform is 1-D"),
+            "{e}"
+        );
+        std::fs::write(&npy, npy_bytes("<u2", "(2,)", &[1, 0, 2, 0])).unwrap();
+        let e = load_waveform(&npy).unwrap_err();
+        assert!(e.to_string().contains("uint16 array (2,)"), "{e}");
         assert!(load_waveform(&dir.join("missing.csv")).is_err());
         let _ = std::fs::remove_dir_all(&dir);
     }
