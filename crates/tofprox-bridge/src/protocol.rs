@@ -468,15 +468,6 @@ impl Cx3 {
         self.gpio(t, self.cfg.gpio_reset, !in_reset)
     }
 
-    /// Drive the sensor's standby pin (`true`: standby).
-    pub fn set_standby<T: UsbTransport + ?Sized>(
-        &self,
-        t: &mut T,
-        standby: bool,
-    ) -> Result<(), BridgeError> {
-        self.gpio(t, self.cfg.gpio_standby, standby)
-    }
-
     /// Start or stop streaming on the bulk endpoint.
     pub fn stream<T: UsbTransport + ?Sized>(
         &self,

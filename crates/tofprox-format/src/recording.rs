@@ -786,6 +786,8 @@ pub(crate) fn check_window_limits(
 pub struct Recording {
     dir: PathBuf,
     sensor: SensorGeometry,
+    /// The convention the file's shifts are written in (every `phases_deg` in memory is
+    /// canonical); what [`RecordingWriter::open_append`] keeps writing in.
     convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
@@ -842,12 +844,6 @@ impl Recording {
     /// The `[sensor]` table.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
-    }
-    /// The phase convention the file's shifts were written in (`[sensor]
-    /// phase_shift_applies_to`, `phase_sign`). Every `phases_deg` this crate
-    /// returns is already canonical (`u = A·cos(φ − θ)`).
-    pub fn phase_convention(&self) -> PhaseConvention {
-        self.convention
     }
     /// The free-text description.
     pub fn description(&self) -> Option<&str> {

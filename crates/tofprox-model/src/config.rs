@@ -510,11 +510,6 @@ impl ModelConfig {
         Ok(())
     }
 
-    /// Go back to the harmonic parameters for the correlation.
-    pub fn clear_waveforms(&mut self) {
-        self.waveforms = None;
-    }
-
     /// A parameter's value. Every [`ParamId`] names a catalogue parameter (checked by the
     /// tests of [`crate::ids`]) and every catalogue parameter has a value, so this never misses;
     /// were it to, the value is NaN, which no simulation lets pass unnoticed.

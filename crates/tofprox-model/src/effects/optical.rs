@@ -173,11 +173,6 @@ impl Correlation {
             })
             .collect()
     }
-
-    /// Whether this is the exact cosine.
-    pub fn is_cosine(&self) -> bool {
-        self.table.is_none()
-    }
 }
 
 /// floor() without a libm call (the baseline x86-64 target has no `roundsd`);
