@@ -6,6 +6,9 @@
 //! - [`calib`]: extraction of offset (FPN, 2.3.1.3 / 3.3.7.1), wiggling LUT (3.3.6 / 3.3.7.2 /
 //!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
 //! - [`crosstalk`]: cover-window crosstalk (extraction, compensation constants, change monitor).
+//! - [`frame`]: the pipeline's output, [`frame::DepthFrame`] with its per-pixel flags, and
+//!   [`frame::Roi`], the region of it that the detector and the crosstalk monitor read (below
+//!   all of them: re-exported from [`pipeline`] and [`proximity`]).
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
@@ -30,6 +33,7 @@ pub mod calib;
 pub mod camera;
 pub mod crosstalk;
 mod error;
+pub mod frame;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;

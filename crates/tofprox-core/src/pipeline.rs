@@ -54,20 +54,13 @@ use crate::phasor::{self, Quadrature, wrap_to_pi};
 pub use crate::simd::SimdLevel;
 use crate::simd::{Isa, LANES, LUT_BINS, LUT_T_BINS, Lut, Simd};
 use crate::{Algorithm, CoreError};
-use ndarray::{Array2, ArrayView2, ArrayView3, Axis};
+use ndarray::{ArrayView3, Axis};
 use std::f32::consts::TAU;
 
-/// Flag bit: at least one used raw image of the pixel is at a rail (0 or `2^bits − 1`).
-pub const FLAG_SATURATED: u8 = 1 << 0;
-/// Flag bit: amplitude below [`PipelineConfig::min_amplitude_lsb`].
-pub const FLAG_LOW_AMPLITUDE: u8 = 1 << 1;
-/// Flag bit: depth invalid (set whenever any other flag is set, or the depth is out of range).
-pub const FLAG_INVALID: u8 = 1 << 2;
-/// Flag bit: a used raw value is NaN or infinite.
-pub const FLAG_NON_FINITE: u8 = 1 << 3;
-/// Flag bit: a near depth whose amplitude no real target there could return (a wrapped phase or
-/// stray light; set by [`crate::radiometry::flag_implausible_near`], never by the pipeline).
-pub const FLAG_IMPLAUSIBLE: u8 = 1 << 4;
+pub use crate::frame::{
+    DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_LOW_AMPLITUDE, FLAG_NON_FINITE,
+    FLAG_SATURATED, depth_m_to_mm, median_valid_m,
+};
 
 /// Largest frame a pipeline accepts (64 Mpixel; the IRS1645 has 38 528 pixels).
 pub const MAX_PIXELS: usize = 1 << 26;
@@ -190,105 +183,6 @@ pub struct Calibration {
     /// Cover-window crosstalk per raw image (subtracted scaled to the exposure set with
     /// [`Pipeline::set_exposure_us`]).
     pub crosstalk: Option<CrosstalkCalibration>,
-}
-
-/// Output of one [`Pipeline::process`] call, all arrays `(rows, cols)`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DepthFrame {
-    /// **Radial** distance in metres (eq. 2.6: the length of the pixel's ray to the surface, not
-    /// Z depth); 0 where invalid, never NaN.
-    pub depth_m: Array2<f32>,
-    /// Radial distance in millimetres ([`depth_m_to_mm`]); 0 = invalid.
-    pub depth_mm: Array2<u16>,
-    /// Amplitude in LSB (eq. 2.4 / `|z|`); 0 where the input was non-finite.
-    pub amplitude_lsb: Array2<f32>,
-    /// Corrected phase in `[0, 2π)`; 0 where the input was non-finite.
-    pub phase_rad: Array2<f32>,
-    /// Per-pixel flags: [`FLAG_SATURATED`], [`FLAG_LOW_AMPLITUDE`], [`FLAG_INVALID`], [`FLAG_NON_FINITE`], [`FLAG_IMPLAUSIBLE`].
-    pub flags: Array2<u8>,
-}
-
-impl DepthFrame {
-    /// A zeroed frame (every pixel `depth_mm = 0`, flags 0).
-    pub fn zeros(rows: usize, cols: usize) -> Self {
-        DepthFrame {
-            depth_m: Array2::zeros((rows, cols)),
-            depth_mm: Array2::zeros((rows, cols)),
-            amplitude_lsb: Array2::zeros((rows, cols)),
-            phase_rad: Array2::zeros((rows, cols)),
-            flags: Array2::zeros((rows, cols)),
-        }
-    }
-
-    /// `(rows, cols)`.
-    pub fn dim(&self) -> (usize, usize) {
-        self.depth_mm.dim()
-    }
-
-    /// Whether pixel `(row, col)` has a valid depth (`false` outside the frame).
-    pub fn is_valid(&self, row: usize, col: usize) -> bool {
-        self.flags
-            .get((row, col))
-            .is_some_and(|f| f & FLAG_INVALID == 0)
-    }
-
-    /// Fraction of pixels with valid depth (0 for an empty frame).
-    pub fn valid_fraction(&self) -> f32 {
-        let n = self.flags.len();
-        if n == 0 {
-            return 0.0;
-        }
-        self.flags
-            .iter()
-            .filter(|&&f| f & FLAG_INVALID == 0)
-            .count() as f32
-            / n as f32
-    }
-
-    /// Median of valid `depth_m` (metres, radial) over the whole frame, `None` if nothing is
-    /// valid. Allocates (not for the hot path).
-    pub fn median_valid_depth_m(&self) -> Option<f64> {
-        median_valid_m(self.depth_m.view(), self.flags.view())
-    }
-}
-
-/// Median of `depth_m` over the pixels whose `flags` have no [`FLAG_INVALID`] (any depth of a
-/// frame: radial, or Z from [`crate::camera::RayGrid::radial_to_z`]), `None` if nothing is
-/// valid or the shapes differ. Allocates (not for the hot path).
-pub fn median_valid_m(depth_m: ArrayView2<f32>, flags: ArrayView2<u8>) -> Option<f64> {
-    if depth_m.dim() != flags.dim() {
-        return None;
-    }
-    let mut v: Vec<f32> = depth_m
-        .iter()
-        .zip(flags.iter())
-        .filter(|(_, f)| **f & FLAG_INVALID == 0)
-        .map(|(d, _)| *d)
-        .collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_unstable_by(f32::total_cmp);
-    let n = v.len();
-    let m = if n % 2 == 1 {
-        v[n / 2] as f64
-    } else {
-        0.5 * (v[n / 2 - 1] as f64 + v[n / 2] as f64)
-    };
-    Some(m)
-}
-
-/// A valid depth in metres as the frame's `u16` millimetres: `d · 1000` rounded (ties to even,
-/// as the kernel), at least 1 mm;
-/// 0 (invalid) for a depth that is not finite and positive or beyond 65 535 mm. The scalar form
-/// of what the kernel stores (step 7 of the module docs), for depths derived from a frame (Z).
-pub fn depth_m_to_mm(depth_m: f32) -> u16 {
-    let mm = depth_m * 1000.0;
-    if depth_m > 0.0 && mm < 65_535.5 {
-        (mm.round_ties_even() as u16).max(1)
-    } else {
-        0
-    }
 }
 
 /// Constants of the per-pixel kernel.
@@ -1092,7 +986,7 @@ fn back<S: Simd, const FPPN: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::{Array3, ShapeBuilder};
+    use ndarray::{Array2, Array3, ShapeBuilder};
 
     fn synth(phi: f64, amp: f64, rows: usize, cols: usize, phases: &[f64]) -> Array3<f64> {
         Array3::from_shape_fn((phases.len(), rows, cols), |(k, _, _)| {

@@ -19,7 +19,8 @@
 //! (hysteresis) and reset the debounce counter. `changed` is true only on a transition.
 
 use crate::CoreError;
-use crate::pipeline::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
+pub use crate::frame::Roi;
+use crate::frame::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
 #[cfg(target_arch = "x86_64")]
 use crate::simd::avx2::Avx2;
 use ndarray::s;
@@ -29,57 +30,6 @@ pub const SATURATED_NEAR_FRACTION: f32 = 0.25;
 
 /// Default percentile (0..=1) of valid depth used as the ROI statistic.
 pub const DEFAULT_PERCENTILE: f32 = 0.10;
-
-/// Region of interest in frame pixel coordinates. `rows == 0 || cols == 0` means "auto": the
-/// central half of the frame in each dimension (this is the [`Default`]). A ROI extending past the
-/// frame is clipped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct Roi {
-    /// First row.
-    pub row0: usize,
-    /// First column.
-    pub col0: usize,
-    /// Number of rows (0 = auto).
-    pub rows: usize,
-    /// Number of columns (0 = auto).
-    pub cols: usize,
-}
-
-impl Roi {
-    /// The central part of a `frame_rows × frame_cols` frame covering `fraction` (0..=1) of each
-    /// dimension (at least one pixel).
-    pub fn centered(frame_rows: usize, frame_cols: usize, fraction: f64) -> Roi {
-        let f = if fraction.is_finite() {
-            fraction.clamp(0.0, 1.0)
-        } else {
-            0.5
-        };
-        let rows = ((frame_rows as f64 * f).round() as usize).clamp(1.min(frame_rows), frame_rows);
-        let cols = ((frame_cols as f64 * f).round() as usize).clamp(1.min(frame_cols), frame_cols);
-        Roi {
-            row0: (frame_rows - rows) / 2,
-            col0: (frame_cols - cols) / 2,
-            rows,
-            cols,
-        }
-    }
-
-    /// The concrete ROI for a frame: "auto" resolved to the central half, then clipped to the frame.
-    /// May be empty (0 rows or cols) if the ROI lies entirely outside.
-    pub fn resolve(&self, frame_rows: usize, frame_cols: usize) -> Roi {
-        if self.rows == 0 || self.cols == 0 {
-            return Roi::centered(frame_rows, frame_cols, 0.5);
-        }
-        let row0 = self.row0.min(frame_rows);
-        let col0 = self.col0.min(frame_cols);
-        Roi {
-            row0,
-            col0,
-            rows: self.rows.min(frame_rows - row0),
-            cols: self.cols.min(frame_cols - col0),
-        }
-    }
-}
 
 /// Near/far detector configuration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -452,7 +402,7 @@ mod avx2 {
     use super::{
         FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, INVALID_KEY, RoiRows, Tally,
     };
-    use crate::pipeline::FLAG_INVALID;
+    use crate::frame::FLAG_INVALID;
     use crate::simd::avx2::Avx2;
     use std::arch::x86_64::*;
 
@@ -663,7 +613,7 @@ fn nearest_rank_mm(keys: &[i16], rank: usize, t: &Tally) -> u16 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::FLAG_INVALID;
+    use crate::frame::FLAG_INVALID;
 
     /// A one-row ROI over all of `flags` and `depth` (the same length).
     fn one_row<'a>(flags: &'a [u8], depth: &'a [u16]) -> RoiRows<'a> {
