@@ -5,7 +5,9 @@
 //! `"TFCF"` magic, version u16 = 1, count u16, CRC-32 (IEEE) u32 of the
 //! pairs, then `count` × (register u16, value u16).
 
-use crate::regmap::RegWrite;
+/// One register write: `[register, value]` (the register map's sequences and the flash image
+/// are lists of them; defined here, the lower of the two, and re-exported by `regmap`).
+pub type RegWrite = [u16; 2];
 
 /// Image magic.
 pub const MAGIC: [u8; 4] = *b"TFCF";

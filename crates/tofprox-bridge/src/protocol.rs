@@ -149,8 +149,9 @@ pub struct ControlRequest {
 
 impl ControlRequest {
     /// The request as wire bytes: the 8-byte SETUP packet followed by the OUT
-    /// data stage (golden tests compare these).
-    pub fn wire_bytes(&self) -> Vec<u8> {
+    /// data stage (what the golden tests compare).
+    #[cfg(test)]
+    fn wire_bytes(&self) -> Vec<u8> {
         let len = if self.setup.is_in() {
             self.in_len
         } else {
@@ -466,15 +467,6 @@ impl Cx3 {
         in_reset: bool,
     ) -> Result<(), BridgeError> {
         self.gpio(t, self.cfg.gpio_reset, !in_reset)
-    }
-
-    /// Drive the sensor's standby pin (`true`: standby).
-    pub fn set_standby<T: UsbTransport + ?Sized>(
-        &self,
-        t: &mut T,
-        standby: bool,
-    ) -> Result<(), BridgeError> {
-        self.gpio(t, self.cfg.gpio_standby, standby)
     }
 
     /// Start or stop streaming on the bulk endpoint.

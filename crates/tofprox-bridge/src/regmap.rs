@@ -21,8 +21,7 @@ pub const EMULATED_MAP_TOML: &str = include_str!("../../../config/sensor/emulate
 /// Largest pixel array a sensor map may describe (4096 × 4096).
 pub const MAX_PIXELS: u32 = 1 << 24;
 
-/// One register write: `[register, value]`.
-pub type RegWrite = [u16; 2];
+pub use crate::flash::RegWrite;
 
 /// Sensor geometry and I2C identity.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

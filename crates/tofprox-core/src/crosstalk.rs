@@ -14,10 +14,9 @@
 //! turns a persistent change into a typed [`CrosstalkStatus`].
 
 use crate::calib::OffsetCalibration;
-use crate::pipeline::{
-    DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_NON_FINITE, FLAG_SATURATED,
+use crate::frame::{
+    DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_NON_FINITE, FLAG_SATURATED, Roi,
 };
-use crate::proximity::Roi;
 use crate::{Algorithm, CoreError};
 use ndarray::{Array3, ArrayView3, Axis};
 use num_complex::Complex64;

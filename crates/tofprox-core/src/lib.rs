@@ -6,12 +6,16 @@
 //! - [`calib`]: extraction of offset (FPN, 2.3.1.3 / 3.3.7.1), wiggling LUT (3.3.6 / 3.3.7.2 /
 //!   4.3.2.2) and fixed-pattern phase noise (2.3.1.4) from captures.
 //! - [`crosstalk`]: cover-window crosstalk (extraction, compensation constants, change monitor).
+//! - [`frame`]: the pipeline's output, [`frame::DepthFrame`] with its per-pixel flags, and
+//!   [`frame::Roi`], the region of it that the detector and the crosstalk monitor read (below
+//!   all of them: re-exported from [`pipeline`] and [`proximity`]).
 //! - [`pipeline`]: the per-frame processing (offset correction, phase, wiggling correction, FPPN,
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
 //!   radial → Z depth, point clouds (thesis 5.1.3).
-//! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]) and the
-//!   eight-lane abstraction the kernel is written against once (generic, AVX2, NEON).
+//! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]), the
+//!   zero-sized tokens that prove this CPU has one, and the eight-lane operations the kernel is
+//!   written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
 //! - [`radiometry`]: the `1/d²` law of the returned amplitude (2.2.1), its per-pixel calibration
 //!   and the plausibility test that keeps a wrapped phase from reading as near.
@@ -29,7 +33,7 @@ pub mod calib;
 pub mod camera;
 pub mod crosstalk;
 mod error;
-mod fastmath;
+pub mod frame;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
@@ -39,7 +43,6 @@ pub mod serde_exact;
 mod simd;
 
 pub use error::CoreError;
-pub use fastmath::{FAST_ATAN2_MAX_ERROR_RAD, fast_atan2_f32};
 pub use sensor::{CycleRequest, RowWindow, SPEED_OF_LIGHT_M_PER_S, SensorGeometry};
 pub use simd::SimdLevel;
 

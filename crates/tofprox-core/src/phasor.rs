@@ -393,13 +393,6 @@ impl PhaseConvention {
         t.rem_euclid(360.0) + 0.0
     }
 
-    /// The quadrature of this sensor's own 2-phase pair (the images it labels `[0°, 90°]`);
-    /// what its 2-phase wiggling table is extracted for ([`crate::calib::extract_wiggling_for`]).
-    pub fn two_phase_quadrature(&self) -> Quadrature {
-        let pair = [self.canonical_deg(0.0), self.canonical_deg(90.0)];
-        Quadrature::of_canonical(&pair, crate::Algorithm::TwoPhase).unwrap_or_default()
-    }
-
     /// The label (degrees, in `[0, 360)`) a raw image of canonical shift `canonical_deg` carries
     /// in this convention (the inverse of [`PhaseConvention::canonical_deg`]).
     pub fn label_deg(&self, canonical_deg: f64) -> f64 {

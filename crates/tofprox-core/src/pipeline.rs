@@ -36,10 +36,11 @@
 //! `lut_resampling_matches_linear_periodic_interpolation` test bounds the whole.
 //!
 //! # Speed
-//! The kernel is written once against an eight-lane abstraction (`simd::Lanes`) and compiled per
-//! instruction set: generic (plain arrays the compiler vectorises), AVX2 (`__m256`), AVX-512 (the
-//! AVX2 lanes with AVX-512 enabled), NEON (two `float32x4_t`). [`SimdLevel::detect`] picks the best
-//! at run time; [`Pipeline::set_simd_level`] forces another supported one. Every lane operation is
+//! The kernel is written once against eight-lane operations (`simd::Simd`, implemented by each
+//! instruction set's token, the proof that the CPU has it) and compiled per instruction set:
+//! generic (plain arrays the compiler vectorises), AVX2 (`__m256`), AVX-512 (the AVX2 lanes with
+//! AVX-512 enabled), NEON (two `float32x4_t`). [`SimdLevel::detect`] picks the best at run time;
+//! [`Pipeline::set_simd_level`] forces another supported one. Every lane operation is
 //! the exact IEEE-754 operation (no FMA, no estimates), so the levels agree to the bit (tested).
 //! The frame is processed in blocks of 256 pixels, two short passes per block (validity,
 //! amplitude and table position; table read, FPPN and outputs) so the core overlaps iterations;
@@ -51,23 +52,15 @@ use crate::calib::{FppnMap, OffsetCalibration, WigglingLut, check_offset};
 use crate::crosstalk::CrosstalkCalibration;
 use crate::phasor::{self, Quadrature, wrap_to_pi};
 pub use crate::simd::SimdLevel;
-use crate::simd::generic::Arr;
-use crate::simd::{self, LANES, LUT_BINS, LUT_T_BINS, Lanes, Lut};
+use crate::simd::{Isa, LANES, LUT_BINS, LUT_T_BINS, Lut, Simd};
 use crate::{Algorithm, CoreError};
-use ndarray::{Array2, ArrayView2, ArrayView3, Axis};
+use ndarray::{ArrayView3, Axis};
 use std::f32::consts::TAU;
 
-/// Flag bit: at least one used raw image of the pixel is at a rail (0 or `2^bits − 1`).
-pub const FLAG_SATURATED: u8 = 1 << 0;
-/// Flag bit: amplitude below [`PipelineConfig::min_amplitude_lsb`].
-pub const FLAG_LOW_AMPLITUDE: u8 = 1 << 1;
-/// Flag bit: depth invalid (set whenever any other flag is set, or the depth is out of range).
-pub const FLAG_INVALID: u8 = 1 << 2;
-/// Flag bit: a used raw value is NaN or infinite.
-pub const FLAG_NON_FINITE: u8 = 1 << 3;
-/// Flag bit: a near depth whose amplitude no real target there could return (a wrapped phase or
-/// stray light; set by [`crate::radiometry::flag_implausible_near`], never by the pipeline).
-pub const FLAG_IMPLAUSIBLE: u8 = 1 << 4;
+pub use crate::frame::{
+    DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_LOW_AMPLITUDE, FLAG_NON_FINITE,
+    FLAG_SATURATED, depth_m_to_mm, median_valid_m,
+};
 
 /// Largest frame a pipeline accepts (64 Mpixel; the IRS1645 has 38 528 pixels).
 pub const MAX_PIXELS: usize = 1 << 26;
@@ -81,37 +74,37 @@ pub trait RawSample: Copy + Send + Sync + 'static + sealed::LoadLanes {
 }
 
 mod sealed {
-    use crate::simd::{LANES, Lanes};
+    use crate::simd::{LANES, Simd};
 
     /// Loads eight samples into the kernel's lanes as `f32`.
     pub trait LoadLanes: Sized {
         /// Every value converts to a finite `f32` (`u16`): the kernel skips the finiteness check.
         const ALWAYS_FINITE: bool;
         /// The eight values as `f32` lanes (the conversion of [`super::RawSample::to_f32`]).
-        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L;
+        fn load_lanes<S: Simd>(s: S, a: &[Self; LANES]) -> S::F32;
     }
 
     impl LoadLanes for u16 {
         const ALWAYS_FINITE: bool = true;
         #[inline(always)]
-        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
-            L::from_u16(a)
+        fn load_lanes<S: Simd>(s: S, a: &[Self; LANES]) -> S::F32 {
+            s.load_u16(a)
         }
     }
 
     impl LoadLanes for f32 {
         const ALWAYS_FINITE: bool = false;
         #[inline(always)]
-        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
-            L::load(a)
+        fn load_lanes<S: Simd>(s: S, a: &[Self; LANES]) -> S::F32 {
+            s.load(a)
         }
     }
 
     impl LoadLanes for f64 {
         const ALWAYS_FINITE: bool = false;
         #[inline(always)]
-        fn load_lanes<L: Lanes>(a: &[Self; LANES]) -> L {
-            L::from_f64(a)
+        fn load_lanes<S: Simd>(s: S, a: &[Self; LANES]) -> S::F32 {
+            s.load_f64(a)
         }
     }
 }
@@ -192,105 +185,6 @@ pub struct Calibration {
     pub crosstalk: Option<CrosstalkCalibration>,
 }
 
-/// Output of one [`Pipeline::process`] call, all arrays `(rows, cols)`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DepthFrame {
-    /// **Radial** distance in metres (eq. 2.6: the length of the pixel's ray to the surface, not
-    /// Z depth); 0 where invalid, never NaN.
-    pub depth_m: Array2<f32>,
-    /// Radial distance in millimetres ([`depth_m_to_mm`]); 0 = invalid.
-    pub depth_mm: Array2<u16>,
-    /// Amplitude in LSB (eq. 2.4 / `|z|`); 0 where the input was non-finite.
-    pub amplitude_lsb: Array2<f32>,
-    /// Corrected phase in `[0, 2π)`; 0 where the input was non-finite.
-    pub phase_rad: Array2<f32>,
-    /// Per-pixel flags: [`FLAG_SATURATED`], [`FLAG_LOW_AMPLITUDE`], [`FLAG_INVALID`], [`FLAG_NON_FINITE`], [`FLAG_IMPLAUSIBLE`].
-    pub flags: Array2<u8>,
-}
-
-impl DepthFrame {
-    /// A zeroed frame (every pixel `depth_mm = 0`, flags 0).
-    pub fn zeros(rows: usize, cols: usize) -> Self {
-        DepthFrame {
-            depth_m: Array2::zeros((rows, cols)),
-            depth_mm: Array2::zeros((rows, cols)),
-            amplitude_lsb: Array2::zeros((rows, cols)),
-            phase_rad: Array2::zeros((rows, cols)),
-            flags: Array2::zeros((rows, cols)),
-        }
-    }
-
-    /// `(rows, cols)`.
-    pub fn dim(&self) -> (usize, usize) {
-        self.depth_mm.dim()
-    }
-
-    /// Whether pixel `(row, col)` has a valid depth (`false` outside the frame).
-    pub fn is_valid(&self, row: usize, col: usize) -> bool {
-        self.flags
-            .get((row, col))
-            .is_some_and(|f| f & FLAG_INVALID == 0)
-    }
-
-    /// Fraction of pixels with valid depth (0 for an empty frame).
-    pub fn valid_fraction(&self) -> f32 {
-        let n = self.flags.len();
-        if n == 0 {
-            return 0.0;
-        }
-        self.flags
-            .iter()
-            .filter(|&&f| f & FLAG_INVALID == 0)
-            .count() as f32
-            / n as f32
-    }
-
-    /// Median of valid `depth_m` (metres, radial) over the whole frame, `None` if nothing is
-    /// valid. Allocates (not for the hot path).
-    pub fn median_valid_depth_m(&self) -> Option<f64> {
-        median_valid_m(self.depth_m.view(), self.flags.view())
-    }
-}
-
-/// Median of `depth_m` over the pixels whose `flags` have no [`FLAG_INVALID`] (any depth of a
-/// frame: radial, or Z from [`crate::camera::RayGrid::radial_to_z`]), `None` if nothing is
-/// valid or the shapes differ. Allocates (not for the hot path).
-pub fn median_valid_m(depth_m: ArrayView2<f32>, flags: ArrayView2<u8>) -> Option<f64> {
-    if depth_m.dim() != flags.dim() {
-        return None;
-    }
-    let mut v: Vec<f32> = depth_m
-        .iter()
-        .zip(flags.iter())
-        .filter(|(_, f)| **f & FLAG_INVALID == 0)
-        .map(|(d, _)| *d)
-        .collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_unstable_by(f32::total_cmp);
-    let n = v.len();
-    let m = if n % 2 == 1 {
-        v[n / 2] as f64
-    } else {
-        0.5 * (v[n / 2 - 1] as f64 + v[n / 2] as f64)
-    };
-    Some(m)
-}
-
-/// A valid depth in metres as the frame's `u16` millimetres: `d · 1000` rounded (ties to even,
-/// as the kernel), at least 1 mm;
-/// 0 (invalid) for a depth that is not finite and positive or beyond 65 535 mm. The scalar form
-/// of what the kernel stores (step 7 of the module docs), for depths derived from a frame (Z).
-pub fn depth_m_to_mm(depth_m: f32) -> u16 {
-    let mm = depth_m * 1000.0;
-    if depth_m > 0.0 && mm < 65_535.5 {
-        (mm.round_ties_even() as u16).max(1)
-    } else {
-        0
-    }
-}
-
 /// Constants of the per-pixel kernel.
 #[derive(Debug, Clone, Copy)]
 struct KernelParams {
@@ -328,7 +222,8 @@ pub struct Pipeline {
     /// Factor on the calibrated crosstalk ([`Pipeline::set_crosstalk_scale`]).
     crosstalk_scale: f32,
     frame: DepthFrame,
-    simd: SimdLevel,
+    /// The kernel's instruction set, as the proof that this CPU has it.
+    isa: Isa,
 }
 
 impl Pipeline {
@@ -380,7 +275,7 @@ impl Pipeline {
             exposure_us: None,
             crosstalk_scale: 1.0,
             frame: DepthFrame::zeros(rows, cols),
-            simd: SimdLevel::detect(),
+            isa: Isa::detect(),
         };
         p.set_calibration(calibration)?;
         Ok(p)
@@ -631,28 +526,28 @@ impl Pipeline {
         };
         let p = self.params;
         let four = need == 4;
-        match self.simd {
+        match self.isa {
             #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx512 => {
-                // SAFETY: `Avx512` is only selected when the CPU reports these features at runtime.
+            Isa::Avx512(proof) => {
+                // SAFETY: the kernel needs AVX-512 F/BW/VL/DQ, AVX2 and FMA: `proof` is an
+                // `Avx512`, which only `Avx512::detect` makes after the CPU reported all of them.
                 #[allow(unsafe_code)]
                 unsafe {
-                    kernel_avx512(raw, four, n, &p, &tabs, out)
+                    kernel_avx512(proof, raw, four, n, &p, &tabs, out)
                 }
             }
             #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx2 => {
-                // SAFETY: `Avx2` is only selected when the CPU reports AVX2 and FMA at runtime.
+            Isa::Avx2(proof) => {
+                // SAFETY: the kernel needs AVX2 and FMA: `proof` is an `Avx2`, which only
+                // `Avx2::detect` makes after the CPU reported both.
                 #[allow(unsafe_code)]
                 unsafe {
-                    kernel_avx2(raw, four, n, &p, &tabs, out)
+                    kernel_avx2(proof, raw, four, n, &p, &tabs, out)
                 }
             }
             #[cfg(target_arch = "aarch64")]
-            SimdLevel::Neon => {
-                kernel_dispatch::<simd::neon::F32x4x2, T>(raw, four, n, &p, &tabs, out)
-            }
-            _ => kernel_dispatch::<Arr, T>(raw, four, n, &p, &tabs, out),
+            Isa::Neon(proof) => kernel_dispatch(proof, raw, four, n, &p, &tabs, out),
+            Isa::Portable(proof) => kernel_dispatch(proof, raw, four, n, &p, &tabs, out),
         }
     }
 
@@ -660,13 +555,12 @@ impl Pipeline {
     /// machine with AVX2. Only levels this CPU supports ([`SimdLevel::is_supported`]) are
     /// accepted; every level gives bit-identical results (the kernel uses exact IEEE operations only).
     pub fn set_simd_level(&mut self, level: SimdLevel) -> Result<(), CoreError> {
-        if !level.is_supported() {
-            return Err(CoreError::param(
+        self.isa = Isa::of(level).ok_or_else(|| {
+            CoreError::param(
                 "simd_level",
                 format!("{level} is not supported by this CPU"),
-            ));
-        }
-        self.simd = level;
+            )
+        })?;
         Ok(())
     }
 
@@ -692,7 +586,7 @@ impl Pipeline {
     /// The instruction set the per-pixel kernel runs with (the best this CPU supports, detected
     /// at construction, unless [`Pipeline::set_simd_level`] chose another).
     pub fn simd_level(&self) -> SimdLevel {
-        self.simd
+        self.isa.level()
     }
 }
 
@@ -762,9 +656,12 @@ fn phase_table(wiggling: Option<&WigglingLut>) -> Box<Lut> {
     lut
 }
 
+/// The kernel with AVX-512 available to the code generator (masks, 32 registers) on the AVX2
+/// lanes; `_proof` shows the CPU has the features this function is compiled for.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512dq,avx2,fma")]
 fn kernel_avx512<T: RawSample>(
+    proof: crate::simd::avx2::Avx512,
     raw: [&[T]; 4],
     four: bool,
     n: usize,
@@ -772,13 +669,15 @@ fn kernel_avx512<T: RawSample>(
     t: &Tables<'_>,
     out: Outputs<'_>,
 ) {
-    // The AVX2 lanes, with AVX-512 available to the code generator (masks, 32 registers).
-    kernel_dispatch::<simd::avx2::F32x8, T>(raw, four, n, p, t, out)
+    kernel_dispatch(proof.avx2(), raw, four, n, p, t, out)
 }
 
+/// The kernel compiled for AVX2 and FMA (no fused operation is used: see the module docs);
+/// `proof` shows the CPU has them.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn kernel_avx2<T: RawSample>(
+    proof: crate::simd::avx2::Avx2,
     raw: [&[T]; 4],
     four: bool,
     n: usize,
@@ -786,11 +685,12 @@ fn kernel_avx2<T: RawSample>(
     t: &Tables<'_>,
     out: Outputs<'_>,
 ) {
-    kernel_dispatch::<simd::avx2::F32x8, T>(raw, four, n, p, t, out)
+    kernel_dispatch(proof, raw, four, n, p, t, out)
 }
 
 #[inline(always)]
-fn kernel_dispatch<L: Lanes, T: RawSample>(
+fn kernel_dispatch<S: Simd, T: RawSample>(
+    s: S,
     raw: [&[T]; 4],
     four: bool,
     n: usize,
@@ -799,10 +699,10 @@ fn kernel_dispatch<L: Lanes, T: RawSample>(
     out: Outputs<'_>,
 ) {
     match (four, t.fppn.is_some()) {
-        (true, true) => kernel::<L, T, true, true>(raw, n, p, t, out),
-        (true, false) => kernel::<L, T, true, false>(raw, n, p, t, out),
-        (false, true) => kernel::<L, T, false, true>(raw, n, p, t, out),
-        (false, false) => kernel::<L, T, false, false>(raw, n, p, t, out),
+        (true, true) => kernel::<S, T, true, true>(s, raw, n, p, t, out),
+        (true, false) => kernel::<S, T, true, false>(s, raw, n, p, t, out),
+        (false, true) => kernel::<S, T, false, true>(s, raw, n, p, t, out),
+        (false, false) => kernel::<S, T, false, false>(s, raw, n, p, t, out),
     }
 }
 
@@ -826,7 +726,8 @@ struct Scratch {
 /// division, polynomial, gather — and runs at its latency). The last `n % LANES` pixels go
 /// through the same steps on padded copies, so every pixel is computed by the same instructions.
 #[inline(always)]
-fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
+fn kernel<S: Simd, T: RawSample, const FOUR: bool, const FPPN: bool>(
+    s: S,
     raw: [&[T]; 4],
     n: usize,
     p: &KernelParams,
@@ -891,7 +792,7 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
         let pass1 = r0.iter().zip(r1).zip(r2).zip(r3).zip(dk).zip(am);
         let scr = sc.idx.iter_mut().zip(&mut sc.fr).zip(&mut sc.status);
         for ((((((a0, a1), a2), a3), dk), am), ((idx, fr), st)) in pass1.zip(scr) {
-            front::<L, T, FOUR>([a0, a1, a2, a3], dk, p, am, idx, fr, st);
+            front::<S, T, FOUR>(s, [a0, a1, a2, a3], dk, p, am, idx, fr, st);
         }
         // Pass 2.
         let scr = sc.idx.iter().zip(&sc.fr).zip(&sc.status);
@@ -901,7 +802,8 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
             .zip(dm.iter_mut())
             .zip(mm.iter_mut());
         for (((((fp, ph), dm), mm), fl), ((idx, fr), st)) in pass2.zip(fl.iter_mut()).zip(scr) {
-            back::<L, FPPN>(
+            back::<S, FPPN>(
+                s,
                 idx,
                 fr,
                 st,
@@ -925,9 +827,10 @@ fn kernel<L: Lanes, T: RawSample, const FOUR: bool, const FPPN: bool>(
     let (mut mm, mut fl) = ([0u16; LANES], [0u8; LANES]);
     let r = [&raw_pad[0], &raw_pad[1], &raw_pad[2], &raw_pad[3]];
     let (idx, fr, st) = (&mut sc.idx[0], &mut sc.fr[0], &mut sc.status[0]);
-    front::<L, T, FOUR>(r, &dk_pad, p, &mut am, idx, fr, st);
+    front::<S, T, FOUR>(s, r, &dk_pad, p, &mut am, idx, fr, st);
     let fin = T::ALWAYS_FINITE;
-    back::<L, FPPN>(
+    back::<S, FPPN>(
+        s,
         idx,
         fr,
         st,
@@ -969,7 +872,8 @@ fn unpad<X: Copy>(d: &mut [X], s: &[X; LANES]) {
 /// `FOUR`.
 #[allow(clippy::too_many_arguments)] // the step's inputs and outputs, each one array
 #[inline(always)]
-fn front<L: Lanes, T: RawSample, const FOUR: bool>(
+fn front<S: Simd, T: RawSample, const FOUR: bool>(
+    s: S,
     raw: [&[T; LANES]; 4],
     dark: &[f32; LANES],
     p: &KernelParams,
@@ -978,67 +882,69 @@ fn front<L: Lanes, T: RawSample, const FOUR: bool>(
     fr_out: &mut [f32; LANES],
     status_out: &mut [u32; LANES],
 ) {
-    let a0: L = T::load_lanes(raw[0]);
-    let a1: L = T::load_lanes(raw[1]);
+    let a0 = T::load_lanes(s, raw[0]);
+    let a1 = T::load_lanes(s, raw[1]);
     // Saturation on the RAW codes: any used image at a rail (≤ 0 or ≥ 2^bits − 1).
-    let (mut lo, mut hi) = (a0.min(a1), a0.max(a1));
+    let (mut lo, mut hi) = (s.min(a0, a1), s.max(a0, a1));
     let (x, y, amp);
     if FOUR {
-        let a2: L = T::load_lanes(raw[2]);
-        let a3: L = T::load_lanes(raw[3]);
-        lo = lo.min(a2.min(a3));
-        hi = hi.max(a2.max(a3));
+        let a2 = T::load_lanes(s, raw[2]);
+        let a3 = T::load_lanes(s, raw[3]);
+        lo = s.min(lo, s.min(a2, a3));
+        hi = s.max(hi, s.max(a2, a3));
         // eq. 2.3: the per-pixel offset cancels in the differences.
-        x = a0.sub(a2);
-        y = a1.sub(a3);
-        amp = L::splat(0.5).mul(x.mul(x).add(y.mul(y)).sqrt()); // eq. 2.4
+        x = s.sub(a0, a2);
+        y = s.sub(a1, a3);
+        let norm = s.sqrt(s.add(s.mul(x, x), s.mul(y, y)));
+        amp = s.mul(s.splat(0.5), norm); // eq. 2.4
     } else {
         // Offset correction (4.3.3.1), then eq. 2.2.
-        let d = L::load(dark);
-        x = a0.sub(d);
-        y = a1.sub(d);
-        amp = x.mul(x).add(y.mul(y)).sqrt(); // |z|, the 2-phase form of eq. 2.4
+        let d = s.load(dark);
+        x = s.sub(a0, d);
+        y = s.sub(a1, d);
+        amp = s.sqrt(s.add(s.mul(x, x), s.mul(y, y))); // |z|, the 2-phase form of eq. 2.4
     }
-    let sat = L::or(lo.le(L::splat(0.0)), L::splat(p.rail_hi).le(hi));
-    let low = amp.lt(L::splat(p.min_amp));
-    let mut status = L::or_int(
-        L::bits(sat, FLAG_SATURATED.into()),
-        L::bits(low, FLAG_LOW_AMPLITUDE.into()),
+    let sat = s.or(s.le(lo, s.splat(0.0)), s.le(s.splat(p.rail_hi), hi));
+    let low = s.lt(amp, s.splat(p.min_amp));
+    let mut status = s.or_int(
+        s.bits(sat, FLAG_SATURATED.into()),
+        s.bits(low, FLAG_LOW_AMPLITUDE.into()),
     );
     if T::ALWAYS_FINITE {
-        amp.store(amp_out);
+        s.store(amp, amp_out);
     } else {
         // Non-finite raw values (or an offset-corrected value beyond f32) make x or y non-finite.
-        let finite = L::and(x.is_finite(), y.is_finite());
-        status = L::or_int(status, L::bits(L::not(finite), FLAG_NON_FINITE.into()));
-        L::select(finite, amp, L::splat(0.0)).store(amp_out);
+        let finite = s.and(s.is_finite(x), s.is_finite(y));
+        status = s.or_int(status, s.bits(s.not(finite), FLAG_NON_FINITE.into()));
+        s.store(s.select(finite, amp, s.splat(0.0)), amp_out);
     }
-    L::store_int(status, status_out);
+    s.store_int(status, status_out);
     // The signs place the images' canonical shifts (`Quadrature`): multiplying by ±1 is exact,
     // so every level still agrees to the bit.
-    let (x, y) = (x.mul(L::splat(p.x_sign)), y.mul(L::splat(p.y_sign)));
+    let (x, y) = (s.mul(x, s.splat(p.x_sign)), s.mul(y, s.splat(p.y_sign)));
     // Phase-table position (module docs): octant bits and t = min/max of |x|, |y| in [0, 1].
-    let (ax, ay) = (x.abs(), y.abs());
+    let (ax, ay) = (s.abs(x), s.abs(y));
     // max == 0 only at the origin; divide by a tiny positive instead (gives t = 0).
-    let t = ax.min(ay).div(ax.max(ay).max(L::splat(f32::MIN_POSITIVE)));
-    let zero = L::splat(0.0);
-    let octant = L::or_int(
-        L::or_int(
-            L::bits(ax.lt(ay), OCTANT_SWAP),
-            L::bits(x.lt(zero), OCTANT_NEG_X),
+    let t = s.div(
+        s.min(ax, ay),
+        s.max(s.max(ax, ay), s.splat(f32::MIN_POSITIVE)),
+    );
+    let zero = s.splat(0.0);
+    let octant = s.or_int(
+        s.or_int(
+            s.bits(s.lt(ax, ay), OCTANT_SWAP),
+            s.bits(s.lt(x, zero), OCTANT_NEG_X),
         ),
-        L::bits(y.lt(zero), OCTANT_NEG_Y),
+        s.bits(s.lt(y, zero), OCTANT_NEG_Y),
     );
     // Bin and fraction: `tf − 0.5` rounded is floor(tf) (a tie gives k − 1 with fr = 1: the same
     // interpolated value); tf = 512 (t = 1) is bin 511 with fr = 1. A NaN t gives an index the
     // lookup masks into range.
-    let tf = t.mul(L::splat(LUT_T_BINS as f32)); // exact: a power of two
-    let k = tf
-        .min(L::splat(LUT_T_BINS as f32 - 0.5))
-        .sub(L::splat(0.5))
-        .round_low22();
-    L::store_int(L::or_int(k, octant), idx_out);
-    tf.sub(L::int_to_f32(k)).store(fr_out);
+    let tf = s.mul(t, s.splat(LUT_T_BINS as f32)); // exact: a power of two
+    let top = s.min(tf, s.splat(LUT_T_BINS as f32 - 0.5));
+    let k = s.round_low22(s.sub(top, s.splat(0.5)));
+    s.store_int(s.or_int(k, octant), idx_out);
+    s.store(s.sub(tf, s.int_to_f32(k)), fr_out);
 }
 
 /// Pass 2 on [`LANES`] pixels: corrected phase from the phase table (linear interpolation), FPPN,
@@ -1046,7 +952,8 @@ fn front<L: Lanes, T: RawSample, const FOUR: bool>(
 /// values (`u16` input), so the non-finite selects are skipped.
 #[allow(clippy::too_many_arguments)] // the step's inputs and outputs, each one array
 #[inline(always)]
-fn back<L: Lanes, const FPPN: bool>(
+fn back<S: Simd, const FPPN: bool>(
+    s: S,
     idx: &[u32; LANES],
     fr: &[f32; LANES],
     status: &[u32; LANES],
@@ -1059,40 +966,40 @@ fn back<L: Lanes, const FPPN: bool>(
     flags_out: &mut [u8; LANES],
 ) {
     // eq. 2.2 / 2.3 with the wiggling correction (3.3.7.2 / 4.3.3.3), by the phase table.
-    let (value, slope) = L::lut(lut, idx);
-    let mut ph = value.add(slope.mul(L::load(fr)));
+    let (value, slope) = s.lut(lut, idx);
+    let mut ph = s.add(value, s.mul(slope, s.load(fr)));
     if FPPN {
-        ph = ph.sub(L::load(fppn)); // 2.3.1.4
+        ph = s.sub(ph, s.load(fppn)); // 2.3.1.4
     }
     // Wrap into [0, 2π): value in [0, 2π), |slope · fr| ≤ π, FPPN in (−π, π], so ph is in
     // [−2π, 4π): one step up, then one down (which also folds a sum that rounded up to 2π).
-    let zero = L::splat(0.0);
-    let tau = L::splat(TAU);
-    ph = L::select(ph.lt(zero), ph.add(tau), ph);
-    ph = L::select(tau.le(ph), ph.sub(tau), ph);
+    let zero = s.splat(0.0);
+    let tau = s.splat(TAU);
+    ph = s.select(s.lt(ph, zero), s.add(ph, tau), ph);
+    ph = s.select(s.le(tau, ph), s.sub(ph, tau), ph);
 
-    let d = ph.mul(L::splat(p.rad_to_m)); // eq. 2.6
-    let d_mm = d.mul(L::splat(1000.0));
-    let in_range = d_mm.lt(L::splat(65_535.5)); // false for NaN
-    let status = L::load_int(status);
-    let ok = L::and(L::int_is_zero(status), in_range);
-    let flags = L::or_int(status, L::bits(L::not(ok), FLAG_INVALID.into()));
-    L::store_flags(flags, flags_out);
+    let d = s.mul(ph, s.splat(p.rad_to_m)); // eq. 2.6
+    let d_mm = s.mul(d, s.splat(1000.0));
+    let in_range = s.lt(d_mm, s.splat(65_535.5)); // false for NaN
+    let status = s.load_int(status);
+    let ok = s.and(s.int_is_zero(status), in_range);
+    let flags = s.or_int(status, s.bits(s.not(ok), FLAG_INVALID.into()));
+    s.store_flags(flags, flags_out);
     // round(d · 1000) by the mantissa trick; ≥ 1 mm when valid.
-    L::store_mm(d_mm.round_low22(), ok, depth_mm_out);
-    L::select(ok, d, zero).store(depth_m_out);
+    s.store_mm(s.round_low22(d_mm), ok, depth_mm_out);
+    s.store(s.select(ok, d, zero), depth_m_out);
     if finite {
-        ph.store(phase_out);
+        s.store(ph, phase_out);
     } else {
-        let finite = L::not(L::has_bit(status, FLAG_NON_FINITE.into()));
-        L::select(finite, ph, zero).store(phase_out);
+        let finite = s.not(s.has_bit(status, FLAG_NON_FINITE.into()));
+        s.store(s.select(finite, ph, zero), phase_out);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use ndarray::{Array3, ShapeBuilder};
+    use ndarray::{Array2, Array3, ShapeBuilder};
 
     fn synth(phi: f64, amp: f64, rows: usize, cols: usize, phases: &[f64]) -> Array3<f64> {
         Array3::from_shape_fn((phases.len(), rows, cols), |(k, _, _)| {

@@ -19,7 +19,10 @@
 //! (hysteresis) and reset the debounce counter. `changed` is true only on a transition.
 
 use crate::CoreError;
-use crate::pipeline::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
+pub use crate::frame::Roi;
+use crate::frame::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED};
+#[cfg(target_arch = "x86_64")]
+use crate::simd::avx2::Avx2;
 use ndarray::s;
 
 /// Fraction of saturated ROI pixels that on its own means "near".
@@ -27,57 +30,6 @@ pub const SATURATED_NEAR_FRACTION: f32 = 0.25;
 
 /// Default percentile (0..=1) of valid depth used as the ROI statistic.
 pub const DEFAULT_PERCENTILE: f32 = 0.10;
-
-/// Region of interest in frame pixel coordinates. `rows == 0 || cols == 0` means "auto": the
-/// central half of the frame in each dimension (this is the [`Default`]). A ROI extending past the
-/// frame is clipped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct Roi {
-    /// First row.
-    pub row0: usize,
-    /// First column.
-    pub col0: usize,
-    /// Number of rows (0 = auto).
-    pub rows: usize,
-    /// Number of columns (0 = auto).
-    pub cols: usize,
-}
-
-impl Roi {
-    /// The central part of a `frame_rows × frame_cols` frame covering `fraction` (0..=1) of each
-    /// dimension (at least one pixel).
-    pub fn centered(frame_rows: usize, frame_cols: usize, fraction: f64) -> Roi {
-        let f = if fraction.is_finite() {
-            fraction.clamp(0.0, 1.0)
-        } else {
-            0.5
-        };
-        let rows = ((frame_rows as f64 * f).round() as usize).clamp(1.min(frame_rows), frame_rows);
-        let cols = ((frame_cols as f64 * f).round() as usize).clamp(1.min(frame_cols), frame_cols);
-        Roi {
-            row0: (frame_rows - rows) / 2,
-            col0: (frame_cols - cols) / 2,
-            rows,
-            cols,
-        }
-    }
-
-    /// The concrete ROI for a frame: "auto" resolved to the central half, then clipped to the frame.
-    /// May be empty (0 rows or cols) if the ROI lies entirely outside.
-    pub fn resolve(&self, frame_rows: usize, frame_cols: usize) -> Roi {
-        if self.rows == 0 || self.cols == 0 {
-            return Roi::centered(frame_rows, frame_cols, 0.5);
-        }
-        let row0 = self.row0.min(frame_rows);
-        let col0 = self.col0.min(frame_cols);
-        Roi {
-            row0,
-            col0,
-            rows: self.rows.min(frame_rows - row0),
-            cols: self.cols.min(frame_cols - col0),
-        }
-    }
-}
 
 /// Near/far detector configuration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -426,20 +378,21 @@ fn tally_rows(rows: &RoiRows<'_>, keys: &mut [i16]) -> Tally {
 
 /// The instruction set the ROI pass and the counting passes run with: the portable code (SSE2 on
 /// x86-64, NEON on aarch64, both baselines) or, where the CPU has it, AVX2 (16 keys per compare
-/// instead of 8): the counting passes are the portable code compiled for AVX2, the ROI pass is
-/// written with AVX2 intrinsics. Both give the same result (tested).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// instead of 8), held as its proof, the pipeline's [`Avx2`] token (`simd`'s module docs): the
+/// counting passes are the portable code compiled for AVX2, the ROI pass is written with AVX2
+/// intrinsics. Both give the same result (tested).
+#[derive(Debug, Clone, Copy)]
 enum KeyKernel {
     Portable,
     #[cfg(target_arch = "x86_64")]
-    Avx2,
+    Avx2(Avx2),
 }
 
 impl KeyKernel {
     fn detect() -> KeyKernel {
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return KeyKernel::Avx2;
+        if let Some(proof) = Avx2::detect() {
+            return KeyKernel::Avx2(proof);
         }
         KeyKernel::Portable
     }
@@ -448,9 +401,10 @@ impl KeyKernel {
         match self {
             KeyKernel::Portable => tally_rows(rows, keys),
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Avx2` is only chosen when the CPU reports AVX2 at run time.
+            // SAFETY: `avx2::tally_rows` needs AVX2: `proof` is an `Avx2`, which only
+            // `Avx2::detect` makes after the CPU reported AVX2 and FMA.
             #[allow(unsafe_code)]
-            KeyKernel::Avx2 => unsafe { avx2::tally_rows(rows, keys) },
+            KeyKernel::Avx2(proof) => unsafe { avx2::tally_rows(proof, rows, keys) },
         }
     }
 
@@ -458,20 +412,24 @@ impl KeyKernel {
         match self {
             KeyKernel::Portable => nearest_rank_mm(keys, rank, t),
             #[cfg(target_arch = "x86_64")]
-            // SAFETY: as in `tally`.
+            // SAFETY: `avx2::nearest_rank_mm` needs AVX2: `proof` is an `Avx2` (as in `tally`).
             #[allow(unsafe_code)]
-            KeyKernel::Avx2 => unsafe { avx2::nearest_rank_mm(keys, rank, t) },
+            KeyKernel::Avx2(proof) => unsafe { avx2::nearest_rank_mm(proof, keys, rank, t) },
         }
     }
 }
 
 /// The ROI pass with AVX2 intrinsics, and the portable selection compiled with AVX2 enabled.
+/// Both entry points take the [`Avx2`] token that proves the CPU has AVX2; inside these
+/// `#[target_feature]` functions the register intrinsics are safe calls, and only the loads and
+/// stores are `unsafe`, each with the bounds of its access.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::{
         FLAG_IMPLAUSIBLE, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, INVALID_KEY, RoiRows, Tally,
     };
-    use crate::pipeline::FLAG_INVALID;
+    use crate::frame::FLAG_INVALID;
+    use crate::simd::avx2::Avx2;
     use std::arch::x86_64::*;
 
     /// Pixels per block: 16 `u16` lanes of one AVX2 vector.
@@ -480,7 +438,7 @@ mod avx2 {
     /// Per-lane counts and key range, kept in registers across the ROI's rows (the portable
     /// pass reduces them per row, and runs a row's last `cols mod 16` pixels scalar: on Zen 1 that
     /// per-row work costs about as much as the vector loop for an 86-pixel row).
-    struct Lanes {
+    struct Counters {
         saturated: __m256i,
         no_return: __m256i,
         valid: __m256i,
@@ -490,10 +448,10 @@ mod avx2 {
         blocks: u16,
     }
 
-    impl Lanes {
+    impl Counters {
         #[target_feature(enable = "avx2")]
-        fn new() -> Lanes {
-            Lanes {
+        fn new() -> Counters {
+            Counters {
                 saturated: _mm256_setzero_si256(),
                 no_return: _mm256_setzero_si256(),
                 valid: _mm256_setzero_si256(),
@@ -517,7 +475,8 @@ mod avx2 {
                 self.flush(t);
             }
             self.blocks += 1;
-            // SAFETY: `f` is 16 readable bytes and `d` 32; unaligned loads.
+            // SAFETY: AVX2 is enabled here; `f` is 16 u8 = the 16 bytes `_mm_loadu_si128` reads and
+            // `d` 16 u16 = the 32 bytes `_mm256_loadu_si256` reads (both without alignment).
             #[allow(unsafe_code)]
             let (f, mm) = unsafe {
                 (
@@ -542,7 +501,7 @@ mod avx2 {
             // `key_of_mm`: flip the top bit.
             let key = _mm256_xor_si256(mm, _mm256_set1_epi16(i16::MIN));
             let stored = _mm256_blendv_epi8(_mm256_set1_epi16(INVALID_KEY), key, ok);
-            // SAFETY: `k` is 32 writable bytes; unaligned store.
+            // SAFETY: AVX2 is enabled here; `k` is 16 i16 = the 32 bytes `storeu` writes (unaligned).
             #[allow(unsafe_code)]
             unsafe {
                 _mm256_storeu_si256(k.as_mut_ptr().cast(), stored)
@@ -557,7 +516,8 @@ mod avx2 {
         fn flush(&mut self, t: &mut Tally) {
             let lanes = |v: __m256i| -> [u16; LANES] {
                 let mut a = [0u16; LANES];
-                // SAFETY: `a` is 32 writable bytes; unaligned store.
+                // SAFETY: AVX2 is enabled here; `a` is 16 u16 = the 32 bytes `storeu` writes
+                // (unaligned).
                 #[allow(unsafe_code)]
                 unsafe {
                     _mm256_storeu_si256(a.as_mut_ptr().cast(), v)
@@ -586,10 +546,10 @@ mod avx2 {
     /// [`FLAG_INVALID`] only: not valid, not saturated, no "no return" flag; only the real keys
     /// are kept). Same keys and [`Tally`] as the portable pass (tested).
     #[target_feature(enable = "avx2")]
-    pub(super) fn tally_rows(rows: &RoiRows<'_>, keys: &mut [i16]) -> Tally {
+    pub(super) fn tally_rows(_proof: Avx2, rows: &RoiRows<'_>, keys: &mut [i16]) -> Tally {
         let roi = rows.roi;
         let mut t = Tally::default();
-        let mut lanes = Lanes::new();
+        let mut lanes = Counters::new();
         for (r, keys) in (roi.row0..).zip(keys.chunks_exact_mut(roi.cols.max(1))) {
             let row = |stride: usize| r * stride + roi.col0..r * stride + roi.col0 + roi.cols;
             // In range (the ROI is resolved within both arrays); `get` keeps a bad stride harmless.
@@ -618,7 +578,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2")]
-    pub(super) fn nearest_rank_mm(keys: &[i16], rank: usize, t: &Tally) -> u16 {
+    pub(super) fn nearest_rank_mm(_proof: Avx2, keys: &[i16], rank: usize, t: &Tally) -> u16 {
         super::nearest_rank_mm(keys, rank, t)
     }
 }
@@ -679,7 +639,7 @@ fn nearest_rank_mm(keys: &[i16], rank: usize, t: &Tally) -> u16 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::FLAG_INVALID;
+    use crate::frame::FLAG_INVALID;
 
     /// A one-row ROI over all of `flags` and `depth` (the same length).
     fn one_row<'a>(flags: &'a [u8], depth: &'a [u16]) -> RoiRows<'a> {

@@ -25,7 +25,7 @@
 use ndarray::{Array2, ArrayView2, ArrayView3, Zip};
 
 use crate::CoreError;
-use crate::pipeline::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_SATURATED};
+use crate::frame::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_SATURATED};
 
 /// Darkest target reflectivity a proximity reading must still see (2 %: black velvet paper;
 /// black cards and dark hair are ≥ 5 %).

@@ -200,11 +200,6 @@ impl SensorGeometry {
         self.rows * self.cols
     }
 
-    /// Whether the window is the whole array.
-    pub fn is_full_array(&self) -> bool {
-        self.roi_origin == [0, 0] && self.rows == self.full_rows && self.cols == self.full_cols
-    }
-
     /// The whole array of this geometry (window = full array).
     pub fn full_array(&self) -> Self {
         Self {
@@ -368,7 +363,11 @@ mod tests {
             (w.roi_origin, w.full_rows, w.pixels()),
             ([78, 104], 172, 256)
         );
-        assert!(!w.is_full_array() && w.full_array().is_full_array());
+        let full = w.full_array();
+        assert_eq!(
+            (full.roi_origin, full.rows, full.cols),
+            ([0, 0], w.full_rows, w.full_cols)
+        );
         assert!(g.window(170, 0, 4, 4).is_err());
         let r = g
             .row_window(Some(RowWindow { row0: 40, rows: 20 }))

@@ -17,9 +17,22 @@ use crate::limits;
 use crate::npy::{self, Dtype, NpyArray, shape_str};
 use crate::recording::{
     FRAMES_DIR, FramesFiles, FramesNames, RECORDING_FORMAT, RECORDING_TOML, RECORDING_VERSION,
-    RecordingKind, check_header_limits, check_window_limits, prepare_new_recording, read_header,
-    sync_new_recording, wrong_kind,
+    RecordingKind, check_header_limits, check_window_limits, parse_recording_toml,
+    prepare_new_recording, read_header, sync_new_recording, wrong_kind,
 };
+
+/// Parse and validate the text of a `recording.toml` of either kind, without touching any
+/// other file (the frames files are checked by [`crate::Recording::open`] /
+/// [`DepthRecording::open`]); errors name `path` and the key. For tools that check a
+/// header on its own, and the fuzz target. (Here rather than in `recording`, which depth
+/// recordings build on: `recording` imports nothing from this module.)
+pub fn validate_recording_toml(path: &Path, text: &str) -> Result<RecordingKind, FormatError> {
+    let kind = read_header(path, text)?;
+    match kind {
+        RecordingKind::Raw => parse_recording_toml(path, text).map(|_| kind),
+        RecordingKind::Depth => parse_depth_toml(path, text).map(|_| kind),
+    }
+}
 
 /// The `[depth]` table: the size of every image of a depth recording.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

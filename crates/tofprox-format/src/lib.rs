@@ -28,7 +28,9 @@ pub use calibration::{
     CALIBRATION_FORMAT, CALIBRATION_TOML, CALIBRATION_VERSION, CalibPart, CalibrationSet,
     ChainEntry, Dropped, PartSource, PartState, now_rfc3339, rfc3339_from_unix,
 };
-pub use depth::{DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter};
+pub use depth::{
+    DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter, validate_recording_toml,
+};
 pub use error::{ErrorKind, FormatError};
 pub use extract::{
     Extract, ExtractError, ExtractOptions, Extraction, NO_TARGET_CONDITION, extract,
@@ -40,6 +42,6 @@ pub use recording::{
     BOOKKEEPING_CONDITIONS, CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML,
     RECORDING_VERSION, RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind,
     RecordingWriter, SecondFrequencyFrames, SecondFrequencyMeta, is_bookkeeping_condition,
-    recording_kind, validate_recording_toml, validate_spec,
+    recording_kind, validate_spec,
 };
 pub use text::fmt_num;

@@ -102,18 +102,6 @@ pub fn recording_kind(dir: &Path) -> Result<RecordingKind, FormatError> {
     read_header(&path, &text)
 }
 
-/// Parse and validate the text of a `recording.toml` of either kind, without touching any
-/// other file (the frames files are checked by [`Recording::open`] /
-/// [`crate::DepthRecording::open`]); errors name `path` and the key. For tools that check a
-/// header on its own, and the fuzz target.
-pub fn validate_recording_toml(path: &Path, text: &str) -> Result<RecordingKind, FormatError> {
-    let kind = read_header(path, text)?;
-    match kind {
-        RecordingKind::Raw => parse_recording_toml(path, text).map(|_| kind),
-        RecordingKind::Depth => crate::depth::parse_depth_toml(path, text).map(|_| kind),
-    }
-}
-
 /// The error for a recording of another kind than the reader's.
 pub(crate) fn wrong_kind(path: &Path, found: RecordingKind) -> FormatError {
     let message = match found {
@@ -786,6 +774,8 @@ pub(crate) fn check_window_limits(
 pub struct Recording {
     dir: PathBuf,
     sensor: SensorGeometry,
+    /// The convention the file's shifts are written in (every `phases_deg` in memory is
+    /// canonical); what [`RecordingWriter::open_append`] keeps writing in.
     convention: PhaseConvention,
     description: Option<String>,
     captures: Vec<CaptureMeta>,
@@ -842,12 +832,6 @@ impl Recording {
     /// The `[sensor]` table.
     pub fn sensor(&self) -> &SensorGeometry {
         &self.sensor
-    }
-    /// The phase convention the file's shifts were written in (`[sensor]
-    /// phase_shift_applies_to`, `phase_sign`). Every `phases_deg` this crate
-    /// returns is already canonical (`u = A·cos(φ − θ)`).
-    pub fn phase_convention(&self) -> PhaseConvention {
-        self.convention
     }
     /// The free-text description.
     pub fn description(&self) -> Option<&str> {
@@ -951,7 +935,7 @@ type Parsed = (
 );
 
 /// Parse and validate the text of a `recording.toml`.
-fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
+pub(crate) fn parse_recording_toml(path: &Path, text: &str) -> Result<Parsed, FormatError> {
     // format, version and kind first, so that another file, a newer version or
     // a depth recording is reported as such rather than as a list of unknown keys.
     let kind = read_header(path, text)?;

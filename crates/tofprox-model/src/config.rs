@@ -257,7 +257,7 @@ impl ModelConfig {
                             Some(b) if Path::new(rel).is_relative() => b.join(rel),
                             _ => PathBuf::from(rel),
                         };
-                        let samples = crate::effects::optical::load_waveform(&path)
+                        let samples = crate::waveform::load_waveform(&path)
                             .map_err(|e| ModelError::new(e.kind(), format!("`{key}`: {e}")))?;
                         let slot = if name == "illumination_file" {
                             &mut illum
@@ -313,7 +313,7 @@ impl ModelConfig {
         match (illum, modul) {
             (None, None) => {}
             (Some((i, ip)), Some((m, mp))) => {
-                crate::effects::optical::validate_waveforms(&i, &m)
+                crate::waveform::validate_waveforms(&i, &m)
                     .map_err(|e| ModelError::new(e.kind(), format!("`{section}`: {e}")))?;
                 self.waveforms = Some(MeasuredWaveforms {
                     illumination: i,
@@ -503,7 +503,7 @@ impl ModelConfig {
         illumination: Vec<f64>,
         modulation: Vec<f64>,
     ) -> Result<(), ModelError> {
-        crate::effects::optical::validate_waveforms(&illumination, &modulation)?;
+        crate::waveform::validate_waveforms(&illumination, &modulation)?;
         self.waveforms = Some(MeasuredWaveforms {
             illumination,
             modulation,
@@ -511,11 +511,6 @@ impl ModelConfig {
             modulation_file: None,
         });
         Ok(())
-    }
-
-    /// Go back to the harmonic parameters for the correlation.
-    pub fn clear_waveforms(&mut self) {
-        self.waveforms = None;
     }
 
     /// A parameter's value. Every [`ParamId`] names a catalogue parameter (checked by the

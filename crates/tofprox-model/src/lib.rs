@@ -29,6 +29,7 @@ pub mod geometry;
 pub mod ids;
 pub mod scene;
 pub mod sim;
+pub mod waveform;
 
 pub use catalogue::{EffectInfo, ParamInfo, catalogue};
 pub use config::{EffectSettings, MeasuredWaveforms, ModelConfig};

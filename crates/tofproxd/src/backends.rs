@@ -96,10 +96,6 @@ impl<T: UsbTransport> BridgeSource<T> {
     pub fn driver(&self) -> &SensorDriver<T> {
         &self.driver
     }
-    /// The driver, mutably.
-    pub fn driver_mut(&mut self) -> &mut SensorDriver<T> {
-        &mut self.driver
-    }
 }
 
 impl<T: UsbTransport> FrameSource for BridgeSource<T> {

@@ -497,6 +497,19 @@ fn non_neg(key: &str, v: f64) -> Result<(), ConfigError> {
 }
 
 impl Config {
+    /// The shipped defaults replaying `recording` as fast as the data comes, at the recording's
+    /// own exposure (no auto-exposure): a recording read back reading by reading.
+    pub fn replay_as_fast_as_possible(recording: &Path) -> Config {
+        let mut cfg = Config {
+            backend: Backend::Replay,
+            ..Config::default()
+        };
+        cfg.replay.recording = Some(recording.to_path_buf());
+        cfg.replay.realtime = false;
+        cfg.exposure.auto = false;
+        cfg
+    }
+
     /// Load and validate a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text =

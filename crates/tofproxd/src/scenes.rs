@@ -268,14 +268,6 @@ pub fn catalogue(cfg: &Config) -> Vec<PhoneScene> {
     )
 }
 
-/// Run the whole catalogue.
-pub fn run_catalogue(bench: &Bench, seed: u64) -> Result<Vec<SceneResult>, ScenesError> {
-    catalogue(&bench.config)
-        .iter()
-        .map(|s| run_scene(bench, s, seed))
-        .collect()
-}
-
 /// The bench with the shipped defaults (`Config::default()` = `config/tofproxd.toml`) on the
 /// emulated backend, the phone sensor's model (`model`) and, when given, its calibration set.
 pub fn bench(model: &Path, calibration: Option<&Path>) -> Bench {

@@ -7,7 +7,7 @@ use std::path::Path;
 use tofprox_core::SensorGeometry;
 use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter};
 use tofproxd::backends::ReplaySource;
-use tofproxd::config::{Backend, Config, Mode};
+use tofproxd::config::{Config, Mode};
 use tofproxd::controller::{Controller, ModeCalibrations};
 use tofproxd::source::synth_frames;
 
@@ -60,19 +60,8 @@ fn write_recording(dir: &Path) {
     }
 }
 
-fn replay_config(rec: &Path) -> Config {
-    let mut cfg = Config {
-        backend: Backend::Replay,
-        ..Config::default()
-    };
-    cfg.replay.recording = Some(rec.to_path_buf());
-    cfg.replay.realtime = false;
-    cfg.exposure.auto = false;
-    cfg
-}
-
 fn run_once(rec: &Path) -> Vec<(bool, Option<u32>)> {
-    let cfg = replay_config(rec);
+    let cfg = Config::replay_as_fast_as_possible(rec);
     let src = ReplaySource::open(rec, false).expect("open replay");
     let mut ctl = Controller::new(cfg, src, ModeCalibrations::default()).expect("controller");
     let mut seq = Vec::new();
@@ -249,7 +238,7 @@ fn replay_of_an_averaged_recording_keeps_the_floats() {
     )
     .expect("append");
     drop(w);
-    let cfg = replay_config(&rec);
+    let cfg = Config::replay_as_fast_as_possible(&rec);
     let pcfg = PipelineConfig {
         algorithm: Algorithm::TwoPhase,
         modulation_hz: MOD_HZ,

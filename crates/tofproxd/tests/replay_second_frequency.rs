@@ -19,7 +19,7 @@ use ndarray::Array3;
 use tofprox_core::SensorGeometry;
 use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SecondFrequencyFrames};
 use tofproxd::backends::ReplaySource;
-use tofproxd::config::{Backend, Config};
+use tofproxd::config::Config;
 use tofproxd::controller::{Controller, ModeCalibrations};
 
 const ROWS: usize = 24;
@@ -113,13 +113,7 @@ fn write(dir: &Path, scene: impl Fn(usize, usize) -> (f64, f64), second: bool, n
 
 /// Near of every reading of the replay.
 fn replay(rec: &Path) -> Vec<bool> {
-    let mut cfg = Config {
-        backend: Backend::Replay,
-        ..Config::default()
-    };
-    cfg.replay.recording = Some(rec.to_path_buf());
-    cfg.replay.realtime = false;
-    cfg.exposure.auto = false;
+    let cfg = Config::replay_as_fast_as_possible(rec);
     let src = ReplaySource::open(rec, false).expect("open replay");
     let mut ctl = Controller::new(cfg, src, ModeCalibrations::default()).expect("controller");
     let mut near = Vec::new();

@@ -267,11 +267,6 @@ impl EmulatedDevice {
         self.last_meas_frames.as_deref()
     }
 
-    /// Raw flash contents (tests, diagnostics).
-    pub fn flash_contents(&self) -> &[u8] {
-        &self.flash
-    }
-
     /// Register value (tests, diagnostics).
     pub fn register(&self, reg: u16) -> u16 {
         self.regs[usize::from(reg)]

@@ -1,23 +1,35 @@
-//! The instruction sets the per-pixel kernel runs with, and the eight-lane vector abstraction it
-//! is written against once.
+//! The instruction sets the per-pixel kernel runs with, the tokens that prove a CPU has them,
+//! and the eight-lane vector operations the kernel is written against once.
 //!
-//! [`crate::pipeline`]'s kernel is one generic function over [`Lanes`]; each instruction set
-//! implements `Lanes` ([`generic`] with plain arrays, `avx2` with `__m256`, `neon` with two
-//! `float32x4_t`). Every operation is the IEEE-754 single-precision operation of its name — no
-//! fused multiply-add, no reciprocal estimates — so all levels give **bit-identical** results on
-//! finite input (the equivalence tests assert exact equality). Where lanes hold NaN (only for
-//! pixels already flagged non-finite, whose outputs are replaced by 0) the instruction sets may
-//! differ in the intermediate NaN payload; the outputs do not.
+//! # One style: a token proves the CPU feature
+//! Each instruction set has a zero-sized token that can only be made where the CPU has it:
+//! [`Portable`] (always), `avx2::Avx2` and `avx2::Avx512` (`detect()` returns `Some` only when
+//! the CPU reports the features at run time), `neon::Neon` (`detect()`: NEON, the aarch64
+//! baseline, confirmed at run time). The token implements [`Simd`], so every vector operation is
+//! a method of the proof (`s.add(a, b)`): an `unsafe` intrinsic call inside is sound by
+//! construction, and its SAFETY comment only has to argue the memory access, if any. The
+//! `#[target_feature]` entry points of a kernel (`pipeline::kernel_avx2`, the ROI pass of
+//! `proximity`) take their token as an argument, so the one `unsafe` call into each names the
+//! proof it relies on.
+//!
+//! [`crate::pipeline`]'s kernel is one generic function over [`Simd`] ([`Portable`] with plain
+//! arrays, `Avx2` with `__m256`, `Neon` with two `float32x4_t`). Every operation is the IEEE-754
+//! single-precision operation of its name — no fused multiply-add, no reciprocal estimates — so
+//! all levels give **bit-identical** results on finite input (the equivalence tests assert exact
+//! equality). Where lanes hold NaN (only for pixels already flagged non-finite, whose outputs are
+//! replaced by 0) the instruction sets may differ in the intermediate NaN payload; the outputs do
+//! not.
 
 use crate::CoreError;
+pub(crate) use portable::Portable;
 use std::fmt;
 use std::str::FromStr;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
-pub(crate) mod generic;
 #[cfg(target_arch = "aarch64")]
 pub(crate) mod neon;
+mod portable;
 
 /// Lanes per vector step of the kernel (one `__m256` on AVX2, two `float32x4_t` on NEON).
 pub(crate) const LANES: usize = 8;
@@ -76,29 +88,9 @@ impl SimdLevel {
         }
     }
 
-    /// Whether this CPU can run the level (checked at run time).
+    /// Whether this CPU can run the level (checked at run time, by the level's token).
     pub fn is_supported(self) -> bool {
-        match self {
-            SimdLevel::Generic => true,
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx2 => {
-                std::arch::is_x86_feature_detected!("avx2")
-                    && std::arch::is_x86_feature_detected!("fma")
-            }
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx512 => {
-                use std::arch::is_x86_feature_detected as has;
-                SimdLevel::Avx2.is_supported()
-                    && has!("avx512f")
-                    && has!("avx512bw")
-                    && has!("avx512vl")
-                    && has!("avx512dq")
-            }
-            #[cfg(target_arch = "aarch64")]
-            SimdLevel::Neon => std::arch::is_aarch64_feature_detected!("neon"),
-            #[allow(unreachable_patterns)] // every level is matched on some architecture
-            _ => false,
-        }
+        Isa::of(self).is_some()
     }
 
     /// The best level this CPU supports.
@@ -137,70 +129,139 @@ impl FromStr for SimdLevel {
     }
 }
 
-/// Eight `f32` lanes and the operations the per-pixel kernel needs (see the module docs: each is
-/// the exact IEEE-754 operation, so every implementation gives the same bits).
+/// An instruction set the kernel can run with, held as the proof that this CPU has it.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Isa {
+    /// [`SimdLevel::Generic`].
+    Portable(Portable),
+    /// [`SimdLevel::Avx2`].
+    #[cfg(target_arch = "x86_64")]
+    Avx2(avx2::Avx2),
+    /// [`SimdLevel::Avx512`].
+    #[cfg(target_arch = "x86_64")]
+    Avx512(avx2::Avx512),
+    /// [`SimdLevel::Neon`].
+    #[cfg(target_arch = "aarch64")]
+    Neon(neon::Neon),
+}
+
+impl Isa {
+    /// The level's token, if this CPU has the level.
+    pub(crate) fn of(level: SimdLevel) -> Option<Isa> {
+        match level {
+            SimdLevel::Generic => Some(Isa::Portable(Portable)),
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => avx2::Avx2::detect().map(Isa::Avx2),
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => avx2::Avx512::detect().map(Isa::Avx512),
+            #[cfg(target_arch = "aarch64")]
+            SimdLevel::Neon => neon::Neon::detect().map(Isa::Neon),
+            #[allow(unreachable_patterns)] // every level is matched on some architecture
+            _ => None,
+        }
+    }
+
+    /// The best instruction set this CPU has.
+    pub(crate) fn detect() -> Isa {
+        Isa::of(SimdLevel::detect()).unwrap_or(Isa::Portable(Portable))
+    }
+
+    /// Its level.
+    pub(crate) fn level(self) -> SimdLevel {
+        match self {
+            Isa::Portable(_) => SimdLevel::Generic,
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2(_) => SimdLevel::Avx2,
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512(_) => SimdLevel::Avx512,
+            #[cfg(target_arch = "aarch64")]
+            Isa::Neon(_) => SimdLevel::Neon,
+        }
+    }
+}
+
+/// Eight `f32` lanes and the operations the per-pixel kernel needs, implemented by an
+/// instruction set's token (module docs): holding `self` proves the CPU can run them. Each is
+/// the exact IEEE-754 operation, so every implementation gives the same bits.
 ///
-/// `Mask` holds one boolean per lane; `Int` one `u32` per lane. Nominally `pub` only so the sealed
-/// `RawSample` loader can name it; the module is private.
-pub trait Lanes: Copy {
+/// `F32` holds eight `f32`, `Mask` one boolean per lane, `Int` one `u32` per lane. Nominally
+/// `pub` only so the sealed `RawSample` loader can name it; the module is private.
+pub trait Simd: Copy {
+    /// Eight `f32`.
+    type F32: Copy;
     /// Per-lane booleans.
     type Mask: Copy;
     /// Per-lane `u32`.
     type Int: Copy;
 
-    fn splat(v: f32) -> Self;
-    fn load(a: &[f32; LANES]) -> Self;
+    /// `v` in every lane.
+    fn splat(self, v: f32) -> Self::F32;
+    /// Eight `f32` from memory.
+    fn load(self, a: &[f32; LANES]) -> Self::F32;
     /// Exact conversion of `u16` codes.
-    fn from_u16(a: &[u16; LANES]) -> Self;
+    fn load_u16(self, a: &[u16; LANES]) -> Self::F32;
     /// Round-to-nearest conversion of `f64` codes (as `as f32`).
-    fn from_f64(a: &[f64; LANES]) -> Self;
-    fn store(self, out: &mut [f32; LANES]);
+    fn load_f64(self, a: &[f64; LANES]) -> Self::F32;
+    /// Eight `f32` to memory.
+    fn store(self, v: Self::F32, out: &mut [f32; LANES]);
 
-    fn add(self, b: Self) -> Self;
-    fn sub(self, b: Self) -> Self;
-    fn mul(self, b: Self) -> Self;
-    fn div(self, b: Self) -> Self;
-    fn sqrt(self) -> Self;
-    fn abs(self) -> Self;
-    /// `if self < b { self } else { b }` (equal to `f32::min` unless a lane is NaN).
-    fn min(self, b: Self) -> Self;
-    /// `if self > b { self } else { b }` (equal to `f32::max` unless a lane is NaN).
-    fn max(self, b: Self) -> Self;
+    /// `a + b`.
+    fn add(self, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `a − b`.
+    fn sub(self, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `a · b`.
+    fn mul(self, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `a / b`.
+    fn div(self, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `√a`.
+    fn sqrt(self, a: Self::F32) -> Self::F32;
+    /// `|a|`.
+    fn abs(self, a: Self::F32) -> Self::F32;
+    /// `if a < b { a } else { b }` (equal to `f32::min` unless a lane is NaN).
+    fn min(self, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `if a > b { a } else { b }` (equal to `f32::max` unless a lane is NaN).
+    fn max(self, a: Self::F32, b: Self::F32) -> Self::F32;
 
-    fn lt(self, b: Self) -> Self::Mask;
-    fn le(self, b: Self) -> Self::Mask;
-    /// `|self| < ∞` (false for NaN).
-    fn is_finite(self) -> Self::Mask;
+    /// `a < b` (false for NaN).
+    fn lt(self, a: Self::F32, b: Self::F32) -> Self::Mask;
+    /// `a ≤ b` (false for NaN).
+    fn le(self, a: Self::F32, b: Self::F32) -> Self::Mask;
+    /// `|a| < ∞` (false for NaN).
+    fn is_finite(self, a: Self::F32) -> Self::Mask {
+        let inf = self.splat(f32::INFINITY);
+        self.lt(self.abs(a), inf)
+    }
     /// `m ? a : b` per lane.
-    fn select(m: Self::Mask, a: Self, b: Self) -> Self;
-    fn or(a: Self::Mask, b: Self::Mask) -> Self::Mask;
-    fn and(a: Self::Mask, b: Self::Mask) -> Self::Mask;
-    fn not(a: Self::Mask) -> Self::Mask;
-    fn xor(a: Self::Mask, b: Self::Mask) -> Self::Mask;
-    /// `m ? −a : a` (a sign flip, exact).
-    fn neg_where(m: Self::Mask, a: Self) -> Self;
-    /// All lanes true.
-    fn all_true() -> Self::Mask;
+    fn select(self, m: Self::Mask, a: Self::F32, b: Self::F32) -> Self::F32;
+    /// `a | b` per lane.
+    fn or(self, a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// `a & b` per lane.
+    fn and(self, a: Self::Mask, b: Self::Mask) -> Self::Mask;
+    /// `!a` per lane.
+    fn not(self, a: Self::Mask) -> Self::Mask;
 
-    /// `(self + ROUND_MAGIC).to_bits() & ROUND_MASK`: `round(self)` for `0 ≤ self < 2^22`.
-    fn round_low22(self) -> Self::Int;
+    /// `(a + ROUND_MAGIC).to_bits() & ROUND_MASK`: `round(a)` for `0 ≤ a < 2^22`.
+    fn round_low22(self, a: Self::F32) -> Self::Int;
     /// `i as i32 as f32` (exact for `i < 2^22`).
-    fn int_to_f32(i: Self::Int) -> Self;
+    fn int_to_f32(self, i: Self::Int) -> Self::F32;
     /// `bit` where the mask is true, else 0.
-    fn bits(m: Self::Mask, bit: u32) -> Self::Int;
-    fn or_int(a: Self::Int, b: Self::Int) -> Self::Int;
+    fn bits(self, m: Self::Mask, bit: u32) -> Self::Int;
+    /// `a | b` per lane.
+    fn or_int(self, a: Self::Int, b: Self::Int) -> Self::Int;
     /// `i == 0` per lane.
-    fn int_is_zero(i: Self::Int) -> Self::Mask;
+    fn int_is_zero(self, i: Self::Int) -> Self::Mask;
     /// `i & bit != 0` per lane (`bit` a power of two).
-    fn has_bit(i: Self::Int, bit: u32) -> Self::Mask;
-    fn load_int(a: &[u32; LANES]) -> Self::Int;
-    fn store_int(i: Self::Int, out: &mut [u32; LANES]);
+    fn has_bit(self, i: Self::Int, bit: u32) -> Self::Mask;
+    /// Eight `u32` from memory.
+    fn load_int(self, a: &[u32; LANES]) -> Self::Int;
+    /// Eight `u32` to memory.
+    fn store_int(self, i: Self::Int, out: &mut [u32; LANES]);
 
     /// Value and slope of the phase table at `idx & (LUT_BINS − 1)` (the indices are read
     /// from memory: the kernel stored them in pass 1, and every level loads them as scalars).
-    fn lut(lut: &Lut, idx: &[u32; LANES]) -> (Self, Self);
+    fn lut(self, lut: &Lut, idx: &[u32; LANES]) -> (Self::F32, Self::F32);
     /// `out = valid ? max(mm, 1) as u16 : 0` (mm < 2^22).
-    fn store_mm(mm: Self::Int, valid: Self::Mask, out: &mut [u16; LANES]);
+    fn store_mm(self, mm: Self::Int, valid: Self::Mask, out: &mut [u16; LANES]);
     /// `out = flags as u8`.
-    fn store_flags(flags: Self::Int, out: &mut [u8; LANES]);
+    fn store_flags(self, flags: Self::Int, out: &mut [u8; LANES]);
 }

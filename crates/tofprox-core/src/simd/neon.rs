@@ -1,19 +1,43 @@
-//! [`Lanes`] on aarch64 Advanced SIMD (NEON): two `float32x4_t` per step (eight pixels, so the
+//! [`Simd`] on aarch64 Advanced SIMD (NEON): two `float32x4_t` per step (eight pixels, so the
 //! narrowing stores of `u16` depth and `u8` flags are whole registers, and the two halves give
-//! the core independent work).
+//! the core independent work), and the token [`Neon`].
 //!
 //! # Safety
-//! NEON is part of the aarch64 baseline (`aarch64-unknown-linux-gnu` enables it) and
-//! [`super::SimdLevel::Neon`] is only selected after `is_aarch64_feature_detected!("neon")`;
-//! values of these types are only created inside the kernel instantiated for that level. That is
-//! the invariant the `unsafe` blocks rely on for the feature; every load and store goes through
-//! an array reference of exactly the size it reads or writes. The wiggling table has no
-//! gather instruction on NEON: eight scalar 64-bit loads, de-interleaved into value and slope by
-//! `vld2q_f32`.
+//! A NEON intrinsic may only run where the CPU has NEON (part of the aarch64 baseline; Rust still
+//! asks for the proof). Every method here takes `self: Neon`, which only [`Neon::detect`] makes,
+//! after `is_aarch64_feature_detected!("neon")` confirmed it (the private field keeps any other
+//! code from making one): the proof each `unsafe` block below relies on for the feature.
+//! Register-only operations go through the `neon!` macro, which demands the token by type; loads
+//! and stores have their own `unsafe` block whose SAFETY comment gives the bounds of that access.
+//! The wiggling table has no gather instruction on NEON: eight scalar 64-bit loads,
+//! de-interleaved into value and slope by `vld2q_f32`.
 #![allow(unsafe_code)]
 
-use super::{LANES, LUT_BINS, Lanes, Lut, ROUND_MAGIC, ROUND_MASK};
+use super::{LANES, LUT_BINS, Lut, ROUND_MAGIC, ROUND_MASK, Simd};
 use std::arch::aarch64::*;
+
+/// Proof that this CPU has NEON (zero-sized; made only by [`Neon::detect`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Neon {
+    _detected: (),
+}
+
+impl Neon {
+    /// `Some` if the CPU has NEON (every aarch64 Linux CPU does).
+    pub(crate) fn detect() -> Option<Neon> {
+        std::arch::is_aarch64_feature_detected!("neon").then_some(Neon { _detected: () })
+    }
+}
+
+/// Evaluates `$body`, register intrinsics only (no memory access), given `$token: Neon`.
+macro_rules! neon {
+    ($token:expr, $body:expr) => {{
+        let _proof: Neon = $token;
+        // SAFETY: `_proof` is a `Neon`, which exists only after `Neon::detect` saw NEON on this
+        // CPU: the one requirement of register intrinsics (no memory is touched).
+        unsafe { $body }
+    }};
+}
 
 /// Eight `f32` in two NEON registers (lanes 0–3, 4–7).
 #[derive(Debug, Clone, Copy)]
@@ -23,286 +47,213 @@ pub(crate) struct F32x4x2(float32x4_t, float32x4_t);
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct U32x4x2(uint32x4_t, uint32x4_t);
 
-#[inline(always)]
-fn f2(a: F32x4x2, b: F32x4x2, f: impl Fn(float32x4_t, float32x4_t) -> float32x4_t) -> F32x4x2 {
-    F32x4x2(f(a.0, b.0), f(a.1, b.1))
-}
-
-#[inline(always)]
-fn m2(a: F32x4x2, b: F32x4x2, f: impl Fn(float32x4_t, float32x4_t) -> uint32x4_t) -> U32x4x2 {
-    U32x4x2(f(a.0, b.0), f(a.1, b.1))
-}
-
-#[inline(always)]
-fn u2(a: U32x4x2, b: U32x4x2, f: impl Fn(uint32x4_t, uint32x4_t) -> uint32x4_t) -> U32x4x2 {
-    U32x4x2(f(a.0, b.0), f(a.1, b.1))
-}
-
-impl Lanes for F32x4x2 {
+impl Simd for Neon {
+    type F32 = F32x4x2;
     type Mask = U32x4x2;
     type Int = U32x4x2;
 
     #[inline(always)]
-    fn splat(v: f32) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { F32x4x2(vdupq_n_f32(v), vdupq_n_f32(v)) }
+    fn splat(self, v: f32) -> F32x4x2 {
+        neon!(self, F32x4x2(vdupq_n_f32(v), vdupq_n_f32(v)))
     }
     #[inline(always)]
-    fn load(a: &[f32; LANES]) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { F32x4x2(vld1q_f32(a.as_ptr()), vld1q_f32(a.as_ptr().add(4))) }
+    fn load(self, a: &[f32; LANES]) -> F32x4x2 {
+        let (lo, hi) = a.split_at(4);
+        // SAFETY: NEON by `self`; `lo` and `hi` are 4 f32 each = the 16 bytes each `vld1q`
+        // reads (f32 alignment, which the slices have).
+        unsafe { F32x4x2(vld1q_f32(lo.as_ptr()), vld1q_f32(hi.as_ptr())) }
     }
     #[inline(always)]
-    fn from_u16(a: &[u16; LANES]) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            let v = { vld1q_u16(a.as_ptr()) };
+    fn load_u16(self, a: &[u16; LANES]) -> F32x4x2 {
+        // SAFETY: NEON by `self`; `a` is 8 u16 = the 16 bytes `vld1q_u16` reads (u16 alignment).
+        let v = unsafe { vld1q_u16(a.as_ptr()) };
+        neon!(
+            self,
             F32x4x2(
                 vcvtq_f32_u32(vmovl_u16(vget_low_u16(v))),
                 vcvtq_f32_u32(vmovl_high_u16(v)),
             )
-        }
+        )
     }
     #[inline(always)]
-    fn from_f64(a: &[f64; LANES]) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            let v = { [0, 2, 4, 6].map(|i| vld1q_f64(a.as_ptr().add(i))) };
+    fn load_f64(self, a: &[f64; LANES]) -> F32x4x2 {
+        let (lo, hi) = a.split_at(4);
+        let (q0, q1, q2, q3) = (&lo[..2], &lo[2..], &hi[..2], &hi[2..]);
+        // SAFETY: NEON by `self`; `q0`…`q3` are 2 f64 each = the 16 bytes each `vld1q_f64`
+        // reads (f64 alignment).
+        let v = unsafe { [q0, q1, q2, q3].map(|q| vld1q_f64(q.as_ptr())) };
+        neon!(
+            self,
             F32x4x2(
                 vcvt_high_f32_f64(vcvt_f32_f64(v[0]), v[1]),
                 vcvt_high_f32_f64(vcvt_f32_f64(v[2]), v[3]),
             )
-        }
+        )
     }
     #[inline(always)]
-    fn store(self, out: &mut [f32; LANES]) {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
+    fn store(self, v: F32x4x2, out: &mut [f32; LANES]) {
+        let (lo, hi) = out.split_at_mut(4);
+        // SAFETY: NEON by `self`; `lo` and `hi` are 4 f32 each = the 16 bytes each `vst1q`
+        // writes (f32 alignment).
         unsafe {
-            {
-                vst1q_f32(out.as_mut_ptr(), self.0);
-                vst1q_f32(out.as_mut_ptr().add(4), self.1);
-            }
+            vst1q_f32(lo.as_mut_ptr(), v.0);
+            vst1q_f32(hi.as_mut_ptr(), v.1);
         }
     }
     #[inline(always)]
-    fn add(self, b: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { f2(self, b, |p, q| vaddq_f32(p, q)) }
+    fn add(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vaddq_f32(a.0, b.0), vaddq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn sub(self, b: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { f2(self, b, |p, q| vsubq_f32(p, q)) }
+    fn sub(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vsubq_f32(a.0, b.0), vsubq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn mul(self, b: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { f2(self, b, |p, q| vmulq_f32(p, q)) }
+    fn mul(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vmulq_f32(a.0, b.0), vmulq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn div(self, b: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { f2(self, b, |p, q| vdivq_f32(p, q)) }
+    fn div(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vdivq_f32(a.0, b.0), vdivq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn sqrt(self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { F32x4x2(vsqrtq_f32(self.0), vsqrtq_f32(self.1)) }
+    fn sqrt(self, a: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vsqrtq_f32(a.0), vsqrtq_f32(a.1)))
     }
     #[inline(always)]
-    fn abs(self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { F32x4x2(vabsq_f32(self.0), vabsq_f32(self.1)) }
+    fn abs(self, a: F32x4x2) -> F32x4x2 {
+        neon!(self, F32x4x2(vabsq_f32(a.0), vabsq_f32(a.1)))
     }
     #[inline(always)]
-    fn min(self, b: Self) -> Self {
+    fn min(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
         // `a < b ? a : b` exactly (fmin differs for NaN and for −0 vs +0).
-        Self::select(self.lt(b), self, b)
+        self.select(self.lt(a, b), a, b)
     }
     #[inline(always)]
-    fn max(self, b: Self) -> Self {
-        Self::select(b.lt(self), self, b)
+    fn max(self, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        self.select(self.lt(b, a), a, b)
     }
     #[inline(always)]
-    fn lt(self, b: Self) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { m2(self, b, |p, q| vcltq_f32(p, q)) }
+    fn lt(self, a: F32x4x2, b: F32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vcltq_f32(a.0, b.0), vcltq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn le(self, b: Self) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { m2(self, b, |p, q| vcleq_f32(p, q)) }
+    fn le(self, a: F32x4x2, b: F32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vcleq_f32(a.0, b.0), vcleq_f32(a.1, b.1)))
     }
     #[inline(always)]
-    fn is_finite(self) -> U32x4x2 {
-        self.abs().lt(Self::splat(f32::INFINITY))
+    fn select(self, m: U32x4x2, a: F32x4x2, b: F32x4x2) -> F32x4x2 {
+        neon!(
+            self,
+            F32x4x2(vbslq_f32(m.0, a.0, b.0), vbslq_f32(m.1, a.1, b.1))
+        )
     }
     #[inline(always)]
-    fn select(m: U32x4x2, a: Self, b: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { F32x4x2(vbslq_f32(m.0, a.0, b.0), vbslq_f32(m.1, a.1, b.1)) }
+    fn or(self, a: U32x4x2, b: U32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vorrq_u32(a.0, b.0), vorrq_u32(a.1, b.1)))
     }
     #[inline(always)]
-    fn or(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { u2(a, b, |p, q| vorrq_u32(p, q)) }
+    fn and(self, a: U32x4x2, b: U32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vandq_u32(a.0, b.0), vandq_u32(a.1, b.1)))
     }
     #[inline(always)]
-    fn and(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { u2(a, b, |p, q| vandq_u32(p, q)) }
+    fn not(self, a: U32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vmvnq_u32(a.0), vmvnq_u32(a.1)))
     }
     #[inline(always)]
-    fn not(a: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { U32x4x2(vmvnq_u32(a.0), vmvnq_u32(a.1)) }
-    }
-    #[inline(always)]
-    fn xor(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { u2(a, b, |p, q| veorq_u32(p, q)) }
-    }
-    #[inline(always)]
-    fn neg_where(m: U32x4x2, a: Self) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            let sign = vdupq_n_u32(0x8000_0000);
-            let flip = |m: uint32x4_t, a: float32x4_t| {
-                vreinterpretq_f32_u32(veorq_u32(vreinterpretq_u32_f32(a), vandq_u32(m, sign)))
-            };
-            F32x4x2(flip(m.0, a.0), flip(m.1, a.1))
-        }
-    }
-    #[inline(always)]
-    fn all_true() -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { U32x4x2(vdupq_n_u32(u32::MAX), vdupq_n_u32(u32::MAX)) }
-    }
-    #[inline(always)]
-    fn round_low22(self) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
+    fn round_low22(self, a: F32x4x2) -> U32x4x2 {
+        let r = self.add(a, self.splat(ROUND_MAGIC));
+        neon!(self, {
             let m = vdupq_n_u32(ROUND_MASK);
-            let r = self.add(Self::splat(ROUND_MAGIC));
             U32x4x2(
                 vandq_u32(vreinterpretq_u32_f32(r.0), m),
                 vandq_u32(vreinterpretq_u32_f32(r.1), m),
             )
-        }
+        })
     }
     #[inline(always)]
-    fn int_to_f32(i: U32x4x2) -> Self {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
+    fn int_to_f32(self, i: U32x4x2) -> F32x4x2 {
+        neon!(
+            self,
             F32x4x2(
                 vcvtq_f32_s32(vreinterpretq_s32_u32(i.0)),
                 vcvtq_f32_s32(vreinterpretq_s32_u32(i.1)),
             )
-        }
+        )
     }
     #[inline(always)]
-    fn bits(m: U32x4x2, bit: u32) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
+    fn bits(self, m: U32x4x2, bit: u32) -> U32x4x2 {
+        neon!(self, {
             let b = vdupq_n_u32(bit);
             U32x4x2(vandq_u32(m.0, b), vandq_u32(m.1, b))
-        }
+        })
     }
     #[inline(always)]
-    fn or_int(a: U32x4x2, b: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { u2(a, b, |p, q| vorrq_u32(p, q)) }
+    fn or_int(self, a: U32x4x2, b: U32x4x2) -> U32x4x2 {
+        self.or(a, b)
     }
     #[inline(always)]
-    fn int_is_zero(i: U32x4x2) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { U32x4x2(vceqzq_u32(i.0), vceqzq_u32(i.1)) }
+    fn int_is_zero(self, i: U32x4x2) -> U32x4x2 {
+        neon!(self, U32x4x2(vceqzq_u32(i.0), vceqzq_u32(i.1)))
     }
     #[inline(always)]
-    fn has_bit(i: U32x4x2, bit: u32) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
+    fn has_bit(self, i: U32x4x2, bit: u32) -> U32x4x2 {
+        neon!(self, {
             let b = vdupq_n_u32(bit);
             U32x4x2(vtstq_u32(i.0, b), vtstq_u32(i.1, b))
+        })
+    }
+    #[inline(always)]
+    fn load_int(self, a: &[u32; LANES]) -> U32x4x2 {
+        let (lo, hi) = a.split_at(4);
+        // SAFETY: NEON by `self`; `lo` and `hi` are 4 u32 each = the 16 bytes each `vld1q`
+        // reads (u32 alignment).
+        unsafe { U32x4x2(vld1q_u32(lo.as_ptr()), vld1q_u32(hi.as_ptr())) }
+    }
+    #[inline(always)]
+    fn store_int(self, i: U32x4x2, out: &mut [u32; LANES]) {
+        let (lo, hi) = out.split_at_mut(4);
+        // SAFETY: NEON by `self`; `lo` and `hi` are 4 u32 each = the 16 bytes each `vst1q`
+        // writes (u32 alignment).
+        unsafe {
+            vst1q_u32(lo.as_mut_ptr(), i.0);
+            vst1q_u32(hi.as_mut_ptr(), i.1);
         }
     }
     #[inline(always)]
-    fn load_int(a: &[u32; LANES]) -> U32x4x2 {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe { U32x4x2(vld1q_u32(a.as_ptr()), vld1q_u32(a.as_ptr().add(4))) }
+    fn lut(self, lut: &Lut, idx: &[u32; LANES]) -> (F32x4x2, F32x4x2) {
+        // The mask keeps every index < LUT_BINS, so the indexing cannot fail.
+        let w: [u64; LANES] = idx.map(|i| lut[i as usize & (LUT_BINS - 1)]);
+        let (lo, hi) = w.split_at(4);
+        // SAFETY: NEON by `self`; `lo` and `hi` are 4 u64 = 8 f32 = the 32 bytes each `vld2q_f32`
+        // reads (u64 alignment exceeds the f32 it needs).
+        let (a, b) = unsafe {
+            (
+                vld2q_f32(lo.as_ptr().cast::<f32>()),
+                vld2q_f32(hi.as_ptr().cast::<f32>()),
+            )
+        };
+        (F32x4x2(a.0, b.0), F32x4x2(a.1, b.1))
     }
     #[inline(always)]
-    fn store_int(i: U32x4x2, out: &mut [u32; LANES]) {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            {
-                vst1q_u32(out.as_mut_ptr(), i.0);
-                vst1q_u32(out.as_mut_ptr().add(4), i.1);
-            }
-        }
-    }
-    #[inline(always)]
-    fn lut(lut: &Lut, i: &[u32; LANES]) -> (Self, Self) {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            // The mask keeps every index < LUT_BINS, so the indexing cannot fail.
-            let w: [u64; LANES] = i.map(|i| lut[i as usize & (LUT_BINS - 1)]);
-            let (a, b) = {
-                let p = w.as_ptr().cast::<f32>();
-                (vld2q_f32(p), vld2q_f32(p.add(8)))
-            };
-            (F32x4x2(a.0, b.0), F32x4x2(a.1, b.1))
-        }
-    }
-    #[inline(always)]
-    fn store_mm(mm: U32x4x2, valid: U32x4x2, out: &mut [u16; LANES]) {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
+    fn store_mm(self, mm: U32x4x2, valid: U32x4x2, out: &mut [u16; LANES]) {
+        let p = neon!(self, {
             let one = vdupq_n_u32(1);
             let lo = vandq_u32(vmaxq_u32(mm.0, one), valid.0);
             let hi = vandq_u32(vmaxq_u32(mm.1, one), valid.1);
             // mm ≤ 65535 where valid, so the narrowing is exact.
-            let p = vcombine_u16(vmovn_u32(lo), vmovn_u32(hi));
-            vst1q_u16(out.as_mut_ptr(), p)
-        }
+            vcombine_u16(vmovn_u32(lo), vmovn_u32(hi))
+        });
+        // SAFETY: NEON by `self`; `out` is 8 u16 = the 16 bytes `vst1q_u16` writes (u16 alignment).
+        unsafe { vst1q_u16(out.as_mut_ptr(), p) }
     }
     #[inline(always)]
-    fn store_flags(flags: U32x4x2, out: &mut [u8; LANES]) {
-        // SAFETY: NEON is available (module invariant); pointer accesses stay inside
-        // the array references passed in.
-        unsafe {
-            let p = vcombine_u16(vmovn_u32(flags.0), vmovn_u32(flags.1));
-            vst1_u8(out.as_mut_ptr(), vmovn_u16(p))
-        }
+    fn store_flags(self, flags: U32x4x2, out: &mut [u8; LANES]) {
+        let p = neon!(
+            self,
+            vmovn_u16(vcombine_u16(vmovn_u32(flags.0), vmovn_u32(flags.1)))
+        );
+        // SAFETY: NEON by `self`; `out` is 8 u8 = the 8 bytes `vst1_u8` writes.
+        unsafe { vst1_u8(out.as_mut_ptr(), p) }
     }
 }

@@ -169,11 +169,6 @@ impl Adc {
         self.max_code
     }
 
-    /// The saturation flag of the ADC model (3.2.1): the code sits at a rail.
-    pub fn is_saturated(&self, code: f64) -> bool {
-        code <= 0.0 || code >= self.max_code
-    }
-
     /// Whether the output is integer codes.
     pub fn quantizes(&self) -> bool {
         self.quantize
@@ -320,7 +315,6 @@ mod tests {
         assert_eq!(ideal.quantize(1234.5678), 1235.0);
         assert_eq!(ideal.quantize(5000.0), 4095.0);
         assert_eq!(ideal.quantize(-7.0), 0.0);
-        assert!(ideal.is_saturated(ideal.quantize(9999.0)) && ideal.is_saturated(0.0));
-        assert!(!ideal.is_saturated(2048.0));
+        assert_eq!(ideal.quantize(2048.0), 2048.0);
     }
 }

@@ -2,11 +2,10 @@
 //! `multipath`, `vcsel_droop`, `ambient_light`.
 
 use std::f64::consts::TAU;
-use std::path::Path;
 
 use crate::config::ModelConfig;
-use crate::error::{ErrorKind, ModelError};
 use crate::ids;
+use crate::waveform::fourier;
 
 /// Number of table entries per period of the correlation function.
 const TABLE_SIZE: usize = 8192;
@@ -173,11 +172,6 @@ impl Correlation {
             })
             .collect()
     }
-
-    /// Whether this is the exact cosine.
-    pub fn is_cosine(&self) -> bool {
-        self.table.is_none()
-    }
 }
 
 /// floor() without a libm call (the baseline x86-64 target has no `roundsd`);
@@ -187,118 +181,6 @@ pub(crate) fn fast_floor(x: f64) -> f64 {
     let t = x as i64 as f64;
     // branch-free: subtract 1 where truncation rounded up (negative non-integers)
     t - f64::from(u8::from(t > x))
-}
-
-/// Complex Fourier coefficients c_n = (1/M) Σ x_k e^{−i n 2π k/M}, n = 0..=nmax.
-fn fourier(x: &[f64], nmax: usize) -> Vec<(f64, f64)> {
-    let m = x.len().max(1) as f64;
-    (0..=nmax)
-        .map(|n| {
-            let (mut re, mut im) = (0.0, 0.0);
-            for (k, v) in x.iter().enumerate() {
-                let a = TAU * (n * k) as f64 / m;
-                re += v * a.cos();
-                im -= v * a.sin();
-            }
-            (re / m, im / m)
-        })
-        .collect()
-}
-
-/// Check a measured waveform pair.
-pub fn validate_waveforms(illumination: &[f64], modulation: &[f64]) -> Result<(), ModelError> {
-    for (name, w) in [("illumination", illumination), ("modulation", modulation)] {
-        if w.len() < 16 || w.len() > 1_000_000 {
-            return Err(ModelError::new(
-                ErrorKind::OutOfRange,
-                format!(
-                    "{name} waveform has {} samples, allowed [16, 1000000] (one period)",
-                    w.len()
-                ),
-            ));
-        }
-        if let Some(v) = w.iter().find(|v| !v.is_finite()) {
-            return Err(ModelError::new(
-                ErrorKind::OutOfRange,
-                format!("{name} waveform contains {v}"),
-            ));
-        }
-    }
-    if illumination.iter().any(|&v| v < 0.0) || illumination.iter().all(|&v| v == 0.0) {
-        return Err(ModelError::new(
-            ErrorKind::OutOfRange,
-            "illumination waveform must be optical power ≥ 0 and not all zero",
-        ));
-    }
-    if modulation.iter().any(|&v| !(0.0..=1.0).contains(&v)) {
-        return Err(ModelError::new(
-            ErrorKind::OutOfRange,
-            "modulation waveform must lie in [0, 1] (1 = charge to tap A, 0 = tap B)",
-        ));
-    }
-    let s = fourier(illumination, 1);
-    let m = fourier(modulation, 1);
-    if s[1].0.hypot(s[1].1) < 1e-9 || m[1].0.hypot(m[1].1) < 1e-9 {
-        return Err(ModelError::new(
-            ErrorKind::OutOfRange,
-            "waveform has no component at the modulation frequency",
-        ));
-    }
-    Ok(())
-}
-
-/// Load one period of a waveform from CSV (one value per line, or the last column
-/// of comma/whitespace separated rows; `#` comments and a header line allowed) or NPY (1-D float).
-pub fn load_waveform(path: &Path) -> Result<Vec<f64>, ModelError> {
-    let is_npy = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("npy"));
-    use tofprox_format::limits::{MAX_NPY_BYTES, MAX_TOML_BYTES, read_bounded, read_text_bounded};
-    if is_npy {
-        let bytes = read_bounded(path, MAX_NPY_BYTES, None)?;
-        use ndarray_npy::ReadNpyExt;
-        if let Ok(a) = ndarray::Array1::<f64>::read_npy(bytes.as_slice()) {
-            return Ok(a.to_vec());
-        }
-        return ndarray::Array1::<f32>::read_npy(bytes.as_slice())
-            .map(|a| a.iter().map(|&v| f64::from(v)).collect())
-            .map_err(|e| {
-                ModelError::new(
-                    ErrorKind::Parse,
-                    format!(
-                        "{}: not a 1-D float64/float32 NPY array: {e}",
-                        path.display()
-                    ),
-                )
-            });
-    }
-    let text = read_text_bounded(path, MAX_TOML_BYTES)?;
-    let mut out = Vec::new();
-    for (lineno, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let last = line
-            .split([',', ';', ' ', '\t'])
-            .rfind(|s| !s.is_empty())
-            .unwrap_or("");
-        match last.parse::<f64>() {
-            Ok(v) => out.push(v),
-            Err(_) if out.is_empty() => continue, // header line
-            Err(_) => {
-                return Err(ModelError::new(
-                    ErrorKind::Parse,
-                    format!(
-                        "{}:{}: `{last}` is not a number",
-                        path.display(),
-                        lineno + 1
-                    ),
-                ));
-            }
-        }
-    }
-    Ok(out)
 }
 
 /// A measured-like waveform pair (section 5.1.2.1): a VCSEL pulse train with
@@ -379,6 +261,7 @@ pub fn droop_loss(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::waveform::validate_waveforms;
 
     #[test]
     fn harmonic_series_round_trips_and_table_matches_the_series() {
@@ -429,25 +312,5 @@ mod tests {
         assert!(validate_waveforms(&ill, &m).is_ok());
         assert!(validate_waveforms(&ill, &vec![0.5; n]).is_err());
         assert!(validate_waveforms(&[1.0; 4], &m).is_err());
-    }
-
-    #[test]
-    fn waveform_files_csv_and_npy() {
-        let dir = std::env::temp_dir().join(format!("tofprox-model-wave-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let csv = dir.join("w.csv");
-        std::fs::write(&csv, "# period\nt,value\n0,1.0\n1,2.5\n2,0.5\n").unwrap();
-        assert_eq!(load_waveform(&csv).unwrap(), vec![1.0, 2.5, 0.5]);
-        std::fs::write(&csv, "t,value\n0,1.0\n1,abc\n").unwrap();
-        let e = load_waveform(&csv).unwrap_err();
-        assert!(e.to_string().contains(":3:"), "{e}");
-        let npy = dir.join("w.npy");
-        use ndarray_npy::WriteNpyExt;
-        ndarray::arr1(&[0.25f32, 0.5])
-            .write_npy(std::fs::File::create(&npy).unwrap())
-            .unwrap();
-        assert_eq!(load_waveform(&npy).unwrap(), vec![0.25, 0.5]);
-        assert!(load_waveform(&dir.join("missing.csv")).is_err());
-        let _ = std::fs::remove_dir_all(&dir);
     }
 }

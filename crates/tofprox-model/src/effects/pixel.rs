@@ -199,16 +199,6 @@ impl PixelParams {
             None => 0.0,
         }
     }
-
-    /// Variance in e² of the differential charge (both taps independent).
-    #[inline]
-    pub fn diff_var_e2(&self, photo_a: f64, photo_b: f64) -> f64 {
-        let mut v = self.shot_f * (photo_a + photo_b) + 2.0 * self.ktc_var_e2;
-        if self.dark_shot {
-            v += 2.0 * self.dark_e;
-        }
-        v
-    }
 }
 
 #[cfg(test)]
