@@ -660,7 +660,7 @@ pub mod reflectivity {
 /// `far_m` (the threshold scenes are placed relative to them; tofproxd's defaults are
 /// 0.10 / 0.15 m). Every scene has the typical clean cover window unless its name
 /// says `smudged` (crosstalk doubled); ambient light is 0 unless it says `klux`.
-/// The catalogue is the table [`PHONE_SCENES`].
+/// The catalogue is the table `PHONE_SCENES` (one row per scene).
 pub fn phone_scenes(near_m: f64, far_m: f64) -> Vec<PhoneScene> {
     PHONE_SCENES
         .iter()
