@@ -555,7 +555,7 @@ impl<S: FrameSource> Controller<S> {
         let dim = self.flag_wrapped_near(cycle, captured, roi)?;
         let second = self.second_frequency_frame(req, cycle, captured, dim.len())?;
         let aliased_far = self.apply_second_frequency(cycle, captured, &dim, second.as_ref());
-        let frame = processed(&self.pipe2, &self.pipe4, captured)?.frame();
+        let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
         let stats = roi_stats(frame, roi);
         let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
         let reading = self.detect(g, roi, captured)?;
@@ -595,7 +595,7 @@ impl<S: FrameSource> Controller<S> {
             return Ok(None);
         }
         let four = roi_median_mm(
-            processed(&self.pipe2, &self.pipe4, Mode::FourPhase)?.frame(),
+            processed(&mut self.pipe2, &mut self.pipe4, Mode::FourPhase)?.frame(),
             roi,
         );
         let p2 = pipeline_slot(
@@ -647,7 +647,7 @@ impl<S: FrameSource> Controller<S> {
             self.cfg.proximity.nominal_amplitude_scale,
             g,
         )?;
-        let frame = processed_mut(&mut self.pipe2, &mut self.pipe4, captured)?.frame_mut();
+        let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame_mut();
         let implausible = flag_implausible_near(frame, scale.view(), cycle.exposure_us, &plaus);
         if let Some(n) = implausible.filter(|&n| n > 0) {
             tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
@@ -675,7 +675,7 @@ impl<S: FrameSource> Controller<S> {
             return false;
         };
         let check_below_m = self.plausibility().check_below_m;
-        let Ok(pipe) = processed_mut(&mut self.pipe2, &mut self.pipe4, captured) else {
+        let Ok(pipe) = processed(&mut self.pipe2, &mut self.pipe4, captured) else {
             return false;
         };
         let f2_hz = c2.geometry.modulation_hz;
@@ -706,7 +706,7 @@ impl<S: FrameSource> Controller<S> {
                 .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
             self.detector = Some((g, det));
         }
-        let frame = processed(&self.pipe2, &self.pipe4, captured)?.frame();
+        let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
         match &mut self.detector {
             Some((_, d)) => Ok(d.update(frame)),
             None => Err(SourceError::new(SourceErrorKind::Other, "detector missing")),
@@ -722,7 +722,7 @@ impl<S: FrameSource> Controller<S> {
         if !m.valid || m.reading.near || m.aliased_far {
             return;
         }
-        let Ok(pipe) = processed(&self.pipe2, &self.pipe4, captured) else {
+        let Ok(pipe) = processed(&mut self.pipe2, &mut self.pipe4, captured) else {
             return;
         };
         let frame = pipe.frame();
@@ -1011,21 +1011,6 @@ fn mode_pipeline<'a>(
 
 /// The pipeline of `mode` holding this cycle's processed frame (slots `[2-phase, 4-phase]`).
 fn processed<'a>(
-    two: &'a Option<(SensorGeometry, Pipeline)>,
-    four: &'a Option<(SensorGeometry, Pipeline)>,
-    mode: Mode,
-) -> Result<&'a Pipeline, SourceError> {
-    let slot = match mode {
-        Mode::TwoPhase => two,
-        Mode::FourPhase => four,
-    };
-    slot.as_ref()
-        .map(|(_, p)| p)
-        .ok_or_else(|| SourceError::new(SourceErrorKind::Other, "pipeline missing"))
-}
-
-/// [`processed`], mutably (to flag pixels of its frame).
-fn processed_mut<'a>(
     two: &'a mut Option<(SensorGeometry, Pipeline)>,
     four: &'a mut Option<(SensorGeometry, Pipeline)>,
     mode: Mode,
