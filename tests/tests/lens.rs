@@ -27,7 +27,7 @@ const CHECK_M: [(f64, f64); 3] = [(0.35, 1000.0), (0.7, 1000.0), (1.0, 2500.0)];
 const FPPN_AT_M: f64 = 0.5;
 
 fn src() -> PartSource {
-    tofprox_e2e::part_source("lens")
+    tofprox_testkit::part_source("lens")
 }
 
 /// A 66° lens with barrel and decentring distortion, principal point off the array centre.
@@ -64,13 +64,16 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 32;
     let x = sim.capture(&wall(1.0), &dark, &mut rng).unwrap();
-    w.append(tofprox_e2e::capture_spec(&dark, None), &RawFrames::F64(x))
-        .unwrap();
+    w.append(
+        tofprox_testkit::capture_spec(&dark, None),
+        &RawFrames::F64(x),
+    )
+    .unwrap();
     let mut corr = CaptureRequest::correlation24(exposure_us);
     corr.averaged = 1024;
     let x = sim.capture(&wall(FPPN_AT_M), &corr, &mut rng).unwrap();
     w.append(
-        tofprox_e2e::capture_spec(&corr, Some(FPPN_AT_M)),
+        tofprox_testkit::capture_spec(&corr, Some(FPPN_AT_M)),
         &RawFrames::F64(x),
     )
     .unwrap();
@@ -80,7 +83,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     for d in SWEEP_M {
         let x = sim.capture(&wall(d), &eight, &mut rng).unwrap();
         w.append(
-            tofprox_e2e::capture_spec(&eight, Some(d)),
+            tofprox_testkit::capture_spec(&eight, Some(d)),
             &RawFrames::F32(x.mapv(|v| v as f32)),
         )
         .unwrap();
@@ -92,7 +95,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
         four.exposure_us = exposure_us;
         let x = sim.capture(&wall(d), &four, &mut rng).unwrap();
         w.append(
-            tofprox_e2e::capture_spec(&four, Some(d)),
+            tofprox_testkit::capture_spec(&four, Some(d)),
             &RawFrames::F32(x.mapv(|v| v as f32)),
         )
         .unwrap();

@@ -7,38 +7,19 @@
 //! Calibrated 2- and 4-phase depth must be within 1 cm of the ground truth
 //! (thesis 5.1.2.2); uncalibrated 2-phase must be far off (fig. 3.7).
 
-use std::collections::BTreeMap;
-
 use ndarray::{Axis, s};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tofprox_core::Algorithm;
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_format::{
-    CalibPart, CalibrationSet, CaptureSpec, Extract, ExtractOptions, RawFrames, Recording,
-    RecordingWriter, extract,
+    CalibPart, CalibrationSet, Extract, ExtractOptions, RawFrames, Recording, RecordingWriter,
+    extract,
 };
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
+use tofprox_testkit::capture_spec;
 
 const DISTANCES_M: [f64; 6] = [0.15, 0.3, 0.45, 0.6, 0.8, 1.0];
-
-fn spec(req: &CaptureRequest, distance_m: Option<f64>) -> CaptureSpec {
-    let mut conditions = BTreeMap::new();
-    if let Some(d) = distance_m {
-        conditions.insert("distance_m".to_string(), d);
-        conditions.insert("reflectivity".to_string(), 0.9);
-    }
-    conditions.insert("ambient_klux".to_string(), req.ambient_klux);
-    conditions.insert("temperature_c".to_string(), req.temperature_c);
-    CaptureSpec {
-        phases_deg: req.phases_deg.clone(),
-        exposure_us: req.exposure_us,
-        illumination: req.illumination,
-        averaged: req.averaged,
-        timestamp_ns: None,
-        conditions,
-    }
-}
 
 #[test]
 fn model_sweep_through_files_calibrates_below_1_cm() {
@@ -67,18 +48,22 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
     let mut dark = CaptureRequest::dark(4, exposure_us);
     dark.averaged = 32;
     let x = sim.capture(&wall(1.0), &dark, &mut rng).unwrap();
-    w.append(spec(&dark, None), &RawFrames::F64(x)).unwrap();
+    w.append(capture_spec(&dark, None), &RawFrames::F64(x))
+        .unwrap();
     let mut corr = CaptureRequest::correlation24(exposure_us);
     corr.averaged = 64;
     let x = sim.capture(&wall(0.5), &corr, &mut rng).unwrap();
-    w.append(spec(&corr, Some(0.5)), &RawFrames::F64(x))
+    w.append(capture_spec(&corr, Some(0.5)), &RawFrames::F64(x))
         .unwrap();
     let mut four = CaptureRequest::four_phase(exposure_us);
     four.averaged = 16;
     for d in DISTANCES_M {
         let x = sim.capture(&wall(d), &four, &mut rng).unwrap();
-        w.append(spec(&four, Some(d)), &RawFrames::F32(x.mapv(|v| v as f32)))
-            .unwrap();
+        w.append(
+            capture_spec(&four, Some(d)),
+            &RawFrames::F32(x.mapv(|v| v as f32)),
+        )
+        .unwrap();
     }
     drop(w);
 

@@ -215,9 +215,47 @@ pub fn extract_wiggling_for(
     quadrature: Quadrature,
     lut_size: usize,
 ) -> Result<WigglingLut, CoreError> {
-    let (n, rows, cols) = correlation.dim();
+    let (_, rows, cols) = correlation.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
     let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
+    let phases_rad = check_correlation_capture(correlation, phases_deg, lut_size)?;
+    check_offset(offset, rows, cols)?;
+    let coeffs = centre_correlation_coefficients(
+        correlation,
+        &phases_rad,
+        offset,
+        excess.as_ref(),
+        adc_bits,
+    )?;
+    // Upsampled correlation on a grid of U points (U multiple of 4 so 90° is an index offset U/4,
+    // as in the thesis' index-offset reading of the correlation).
+    let upsampled = (4 * lut_size).max(2048).div_ceil(4) * 4;
+    let measured = measured_phase_over_shift(&coeffs, upsampled, algorithm, quadrature);
+    let mu = unwrap_one_turn(&measured, algorithm)?;
+    // correction(measured) = measured − true, with true = φ0 − s (continuous along s).
+    let phi0 = phasor::distance_to_phase_rad(distance_m, modulation_hz);
+    let corr: Vec<f64> = (0..=upsampled)
+        .map(|j| mu[j] - (phi0 - TAU * j as f64 / upsampled as f64))
+        .collect();
+    let table = tabulate_over_measured_phase(&mu, &corr, lut_size);
+    // Common 2π shift so the first bin lies in (−π, π]; the table stays continuous.
+    let shift = table[0] - wrap_to_pi(table[0]);
+    let lut = WigglingLut {
+        algorithm,
+        correction_rad: Array1::from_iter(table.iter().map(|v| (v - shift) as f32)),
+    };
+    lut.validate()?;
+    Ok(lut)
+}
+
+/// A correlation capture's shape (`(N ≥ 4, rows ≥ 1, cols ≥ 1)`, N matching the phases), its
+/// phase shifts (equally spaced over the full circle, returned in radians) and the LUT size.
+fn check_correlation_capture(
+    correlation: ArrayView3<f64>,
+    phases_deg: &[f64],
+    lut_size: usize,
+) -> Result<Vec<f64>, CoreError> {
+    let (n, rows, cols) = correlation.dim();
     if n < 4 || n != phases_deg.len() {
         return Err(CoreError::shape(
             "correlation capture",
@@ -247,18 +285,30 @@ pub fn extract_wiggling_for(
             format!("must be in 8..=1048576, got {lut_size}"),
         ));
     }
-    check_offset(offset, rows, cols)?;
+    Ok(phases_rad)
+}
+
+/// The correlation's Fourier coefficients over the centre region, normalised to the
+/// fundamental and shifted back to the on-axis ray by the geometric `excess` phase: per pixel
+/// X_h = (1/N) Σ_k g_k e^{-i h θ_k}, h = 0..=H (Nyquist term dropped for even N), so that
+/// g(θ) = X_0 + Σ_h 2 Re(X_h e^{i h θ}) interpolates the captured correlation; combined by the
+/// per-coefficient median (3.3.6 used the centre pixel).
+fn centre_correlation_coefficients(
+    correlation: ArrayView3<f64>,
+    phases_rad: &[f64],
+    offset: Option<&OffsetCalibration>,
+    excess: Option<&Array2<f64>>,
+    adc_bits: u8,
+) -> Result<Vec<(f64, f64)>, CoreError> {
+    let (n, rows, cols) = correlation.dim();
     let mid = f64::from(adc_mid_code(adc_bits));
     let max_code = f64::from(adc_max_code(adc_bits));
-
-    // Fourier coefficients X_h = (1/N) Σ_k g_k e^{-i h θ_k}, h = 0..=H (Nyquist term dropped for even
-    // N), so that g(θ) = X_0 + Σ_h 2 Re(X_h e^{i h θ}) interpolates the captured correlation.
     let harmonics = (n - 1) / 2;
     let (r0, r1) = centre_range(rows);
     let (c0, c1) = centre_range(cols);
     let mut per_coeff: Vec<Vec<f64>> = vec![Vec::new(); 2 * (harmonics + 1)];
     let mut samples = vec![0.0; n];
-    let basis = dft_basis(&phases_rad, harmonics);
+    let basis = dft_basis(phases_rad, harmonics);
     for r in r0..r1 {
         for c in c0..c1 {
             let dark = offset.map_or(mid, |o| o.dark_lsb[(r, c)] as f64);
@@ -278,7 +328,7 @@ pub fn extract_wiggling_for(
                 continue;
             }
             // Shift the pixel's correlation back to the on-axis ray: X_h · e^{i h Δφ}.
-            let delta = excess.as_ref().map_or(0.0, |e| e[(r, c)]);
+            let delta = excess.map_or(0.0, |e| e[(r, c)]);
             for (h, (re, im)) in coeffs.iter().enumerate() {
                 let (s, co) = (h as f64 * delta).sin_cos();
                 per_coeff[2 * h].push((re * co - im * s) / fundamental);
@@ -292,26 +342,31 @@ pub fn extract_wiggling_for(
              (all saturated, non-finite or without signal)"
         )));
     }
-    // Robust combination: per-coefficient median over the centre region (3.3.6 used the centre pixel).
-    let coeffs: Vec<(f64, f64)> = (0..=harmonics)
+    Ok((0..=harmonics)
         .map(|h| {
             (
                 median(&mut per_coeff[2 * h]),
                 median(&mut per_coeff[2 * h + 1]),
             )
         })
-        .collect();
+        .collect())
+}
 
-    // Upsampled correlation on a grid of U points (U multiple of 4 so 90° is an index offset U/4,
-    // as in the thesis' index-offset reading of the correlation).
-    let upsampled = (4 * lut_size).max(2048).div_ceil(4) * 4;
+/// The phase `algorithm` measures for a target at total phase Φ0 − s_j, at each of the
+/// `upsampled` shifts s_j of the interpolated correlation `coeffs` (its raw values are
+/// g(s_j + θ_k); the 2-phase pair's canonical shifts from `quadrature`: in-phase at 0° or
+/// 180°, quadrature at 90° or 270°).
+fn measured_phase_over_shift(
+    coeffs: &[(f64, f64)],
+    upsampled: usize,
+    algorithm: Algorithm,
+    quadrature: Quadrature,
+) -> Vec<f64> {
     let grid: Vec<f64> = (0..upsampled)
-        .map(|j| eval_trig(&coeffs, TAU * j as f64 / upsampled as f64))
+        .map(|j| eval_trig(coeffs, TAU * j as f64 / upsampled as f64))
         .collect();
     let q = upsampled / 4;
     let at = |j: usize| grid[j % upsampled];
-    // Measured phase of a target at total phase Φ0 − s_j: its raw values are g(s_j + θ_k).
-    // the 2-phase pair's canonical shifts: in-phase at 0° or 180°, quadrature at 90° or 270°
     let (ja, sx) = if quadrature.x_sign < 0 {
         (2 * q, -1.0)
     } else {
@@ -322,15 +377,20 @@ pub fn extract_wiggling_for(
     } else {
         (q, 1.0)
     };
-    let measured: Vec<f64> = (0..upsampled)
+    (0..upsampled)
         .map(|j| match algorithm {
             Algorithm::TwoPhase => phasor::phase_2phase(sx * at(j + ja), sy * at(j + jb)), // eq. 2.2
             Algorithm::FourPhase => {
                 phasor::phase_4phase(at(j), at(j + q), at(j + 2 * q), at(j + 3 * q))
             } // eq. 2.3
         })
-        .collect();
-    // Unwrap along s: the measured phase must decrease monotonically by exactly one turn.
+        .collect()
+}
+
+/// Unwrap the measured phase along the shift: it must decrease monotonically by exactly one
+/// turn (`U + 1` values, the last one turn below the first).
+fn unwrap_one_turn(measured: &[f64], algorithm: Algorithm) -> Result<Vec<f64>, CoreError> {
+    let upsampled = measured.len();
     let mut mu = Vec::with_capacity(upsampled + 1);
     mu.push(measured[0]);
     for j in 1..=upsampled {
@@ -350,31 +410,25 @@ pub fn extract_wiggling_for(
             "measured phase does not wind exactly once over the correlation".into(),
         ));
     }
-    // correction(measured) = measured − true, with true = φ0 − s (continuous along s).
-    let phi0 = phasor::distance_to_phase_rad(distance_m, modulation_hz);
-    let corr: Vec<f64> = (0..=upsampled)
-        .map(|j| mu[j] - (phi0 - TAU * j as f64 / upsampled as f64))
-        .collect();
-    // Invert the monotone map s → m(s) by linear interpolation: tabulate over measured-phase bins.
-    let mut table = Vec::with_capacity(lut_size);
-    for i in 0..lut_size {
-        let p = TAU * i as f64 / lut_size as f64;
-        // Representative of p in (mu_U, mu_0].
-        let qv = p - TAU * ((p - mu[0]) / TAU).ceil();
-        // First index with mu[j] < qv (mu is strictly decreasing).
-        let j1 = mu.partition_point(|&m| m >= qv).clamp(1, upsampled);
-        let j0 = j1 - 1;
-        let t = (mu[j0] - qv) / (mu[j0] - mu[j1]);
-        table.push(corr[j0] + (corr[j1] - corr[j0]) * t);
-    }
-    // Common 2π shift so the first bin lies in (−π, π]; the table stays continuous.
-    let shift = table[0] - wrap_to_pi(table[0]);
-    let lut = WigglingLut {
-        algorithm,
-        correction_rad: Array1::from_iter(table.iter().map(|v| (v - shift) as f32)),
-    };
-    lut.validate()?;
-    Ok(lut)
+    Ok(mu)
+}
+
+/// Invert the monotone map s → m(s) by linear interpolation: the correction `corr` tabulated
+/// over `lut_size` bins of measured phase (`mu` strictly decreasing over one turn).
+fn tabulate_over_measured_phase(mu: &[f64], corr: &[f64], lut_size: usize) -> Vec<f64> {
+    let upsampled = mu.len() - 1;
+    (0..lut_size)
+        .map(|i| {
+            let p = TAU * i as f64 / lut_size as f64;
+            // Representative of p in (mu_U, mu_0].
+            let qv = p - TAU * ((p - mu[0]) / TAU).ceil();
+            // First index with mu[j] < qv (mu is strictly decreasing).
+            let j1 = mu.partition_point(|&m| m >= qv).clamp(1, upsampled);
+            let j0 = j1 - 1;
+            let t = (mu[j0] - qv) / (mu[j0] - mu[j1]);
+            corr[j0] + (corr[j1] - corr[j0]) * t
+        })
+        .collect()
 }
 
 /// Extracts the fixed-pattern phase noise (2.3.1.4) from a flat-target capture at known

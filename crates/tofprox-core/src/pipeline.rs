@@ -1002,9 +1002,7 @@ mod tests {
     use ndarray::{Array2, Array3, ShapeBuilder};
 
     fn synth(phi: f64, amp: f64, rows: usize, cols: usize, phases: &[f64]) -> Array3<f64> {
-        Array3::from_shape_fn((phases.len(), rows, cols), |(k, _, _)| {
-            2048.0 + amp * (phi - phases[k].to_radians()).cos()
-        })
+        tofprox_testkit::frames::ideal_codes(phi, amp, 2048.0, (rows, cols), phases)
     }
 
     /// Every phase convention: a capture recorded as `[0°, 90°(, 180°, 270°)]` by a sensor with

@@ -206,12 +206,7 @@ mod tests {
     }
 
     fn synth(amplitude: f64, phases: &[f64]) -> Array3<f64> {
-        let mut s = Array3::zeros((phases.len(), 3, 4));
-        for (k, th) in phases.iter().enumerate() {
-            s.index_axis_mut(ndarray::Axis(0), k)
-                .fill(2048.0 + amplitude * (0.7 - th.to_radians()).cos());
-        }
-        s
+        tofprox_testkit::frames::ideal_codes(0.7, amplitude, 2048.0, (3, 4), phases)
     }
 
     #[test]

@@ -120,6 +120,12 @@ impl CalibPart {
             CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
         }
     }
+
+    /// A phase correction (a wiggling table, an FPPN map): within one period, and extracted
+    /// through the lens, so it records the lens's checksum where the set holds one.
+    fn phase_correction(self) -> bool {
+        self.algorithm().is_some()
+    }
 }
 
 impl fmt::Display for CalibPart {
@@ -832,198 +838,236 @@ impl CalibrationSet {
         set.description = t.description.clone();
         set.dir = Some(dir.to_path_buf());
         set.dropped = chain::dropped_from_toml(&t.dropped).map_err(|e| e.at(&path))?;
-        let parts = [
-            (CalibPart::Intrinsics, &t.intrinsics),
-            (CalibPart::Offset, &t.offset),
-            (CalibPart::Crosstalk, &t.crosstalk),
-            (CalibPart::Wiggling2Phase, &t.wiggling_2phase),
-            (CalibPart::Wiggling4Phase, &t.wiggling_4phase),
-            (CalibPart::Fppn, &t.fppn),
-            (CalibPart::Fppn2Phase, &t.fppn_2phase),
-            (CalibPart::Amplitude, &t.amplitude),
-        ];
-        for (part, pt) in parts {
-            let Some(pt) = pt else { continue };
-            let key = part.name();
-            // the checksums of the parts this one was extracted with are
-            // required: deleting them must not switch the staleness check off
-            // (the lens's checksum where the set holds a lens: a part written before lens
-            // models existed was extracted without one)
-            let mut required: Vec<(&str, &Option<String>)> = match part {
-                CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => vec![],
-                CalibPart::Crosstalk => vec![("offset_sha256", &pt.offset_sha256)],
-                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
-                    vec![("offset_sha256", &pt.offset_sha256)]
-                }
-                CalibPart::Fppn | CalibPart::Fppn2Phase => vec![
-                    ("offset_sha256", &pt.offset_sha256),
-                    ("wiggling_sha256", &pt.wiggling_sha256),
-                ],
-            };
-            // (only the parts extracted through the lens record it: wiggling and FPPN)
-            let through_lens = matches!(
-                part,
-                CalibPart::Wiggling2Phase
-                    | CalibPart::Wiggling4Phase
-                    | CalibPart::Fppn
-                    | CalibPart::Fppn2Phase
-            );
-            if t.intrinsics.is_some() && through_lens {
-                required.push(("intrinsics_sha256", &pt.intrinsics_sha256));
-            }
-            if let Some((k, _)) = required.iter().find(|(_, v)| v.is_none()) {
-                return Err(FormatError::new(
-                    ErrorKind::MissingKey,
-                    "missing: the checksum of the part this one was extracted with (\"none\" if there was none) is required",
-                )
-                .at(&path)
-                .key(format!("{key}.{k}")));
-            }
+        for (part, pt) in t.parts() {
+            check_dependency_checksums(part, pt, t.intrinsics.is_some())
+                .map_err(|e| e.at(&path))?;
             let arr = load_part(dir, &path, part, pt, &sensor)?;
-            let k = |sub: &str| format!("{key}.{sub}");
-            match (part, arr) {
-                (CalibPart::Intrinsics, LoadedArray::Lut(a)) => {
-                    if a.len() != INTRINSICS_LEN {
-                        return Err(invalid(format!(
-                            "holds {} values, expected {INTRINSICS_LEN}: [fx, fy, cx, cy, k1, k2, p1, p2, k3]",
-                            a.len()
-                        ))
-                        .at(&dir.join(&pt.file))
-                        .key(key));
-                    }
-                    let k = intrinsics_from_array(&a);
-                    k.validate()
-                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
-                    set.rays_of(&k)
-                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
-                    set.intrinsics = Some(k);
-                }
-                (CalibPart::Offset, LoadedArray::Map(a)) => {
-                    set.offset = Some(OffsetCalibration { dark_lsb: a })
-                }
-                (CalibPart::Amplitude, LoadedArray::Map(a)) => {
-                    set.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
-                }
-                (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
-                    set.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
-                }
-                (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
-                    let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
-                    if pt.algorithm != Some(want) {
-                        return Err(invalid(format!(
-                            "must be \"{want}\" for [{key}] (the map is absolute w.r.t. the {want} wiggling table)"
-                        ))
-                        .at(&path)
-                        .key(k("algorithm")));
-                    }
-                    let map = Some(FppnMap {
-                        phase_offset_rad: a,
-                    });
-                    match want {
-                        Algorithm::TwoPhase => set.fppn_2phase = map,
-                        Algorithm::FourPhase => set.fppn = map,
-                    }
-                }
-                (CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase, LoadedArray::Lut(a)) => {
-                    let want = if part == CalibPart::Wiggling2Phase {
-                        Algorithm::TwoPhase
-                    } else {
-                        Algorithm::FourPhase
-                    };
-                    match pt.algorithm {
-                        Some(alg) if alg == want => {}
-                        Some(alg) => {
-                            return Err(invalid(format!("is \"{alg}\" but the table is [{key}]"))
-                                .at(&path)
-                                .key(k("algorithm")));
-                        }
-                        None => {
-                            return Err(FormatError::new(
-                                ErrorKind::MissingKey,
-                                "missing (\"2phase\" or \"4phase\")",
-                            )
-                            .at(&path)
-                            .key(k("algorithm")));
-                        }
-                    }
-                    match pt.lut_size {
-                        Some(n) if n == a.len() => {}
-                        Some(n) => {
-                            return Err(invalid(format!(
-                                "is {n} but {} holds {} bins",
-                                pt.file,
-                                a.len()
-                            ))
-                            .at(&path)
-                            .key(k("lut_size")));
-                        }
-                        None => {
-                            return Err(FormatError::new(ErrorKind::MissingKey, "missing")
-                                .at(&path)
-                                .key(k("lut_size")));
-                        }
-                    }
-                    let lut = WigglingLut {
-                        algorithm: want,
-                        correction_rad: a,
-                    };
-                    lut.validate()
-                        .map_err(|e| invalid(e.to_string()).at(&dir.join(&pt.file)).key(key))?;
-                    match want {
-                        Algorithm::TwoPhase => set.wiggling_2phase = Some(lut),
-                        Algorithm::FourPhase => set.wiggling_4phase = Some(lut),
-                    }
-                }
-                _ => return Err(invalid("internal: array kind mismatch").at(&path).key(key)),
-            }
-            set.sources.insert(
-                part,
-                PartSource {
-                    recording: pt.source_recording.clone(),
-                    recording_description: pt.source_description.clone(),
-                    captures: pt.source_captures.clone(),
-                    distance_m: pt.distance_m,
-                    reflectivity: pt.reflectivity,
-                    exposure_us: pt.exposure_us,
-                    created: pt.created.clone(),
-                    tool: pt.tool.clone(),
-                },
-            );
-            set.deps.insert(
-                part,
-                // hex digests compare case-insensitively
-                Deps {
-                    offset: pt.offset_sha256.as_deref().map(str::to_ascii_lowercase),
-                    wiggling: pt.wiggling_sha256.as_deref().map(str::to_ascii_lowercase),
-                    intrinsics: pt.intrinsics_sha256.as_deref().map(str::to_ascii_lowercase),
-                    crosstalk: pt.crosstalk_sha256.as_deref().map(str::to_ascii_lowercase),
-                },
-            );
+            set.install_loaded(dir, &path, part, pt, arr)?;
+            set.record_loaded(part, pt);
         }
-        if let Some(p) = set.stale_parts().first() {
+        if let Some(&p) = set.stale_parts().first() {
             return Err(invalid(format!(
                 "[{p}] was extracted with a different {} than the one in this set; re-run `tofprox calibrate` for it",
-                if set.deps.get(p).and_then(|d| d.intrinsics.as_deref()).is_some_and(|k| {
-                    k != set.checksum_or_none(CalibPart::Intrinsics)
-                }) {
-                    "lens intrinsics".to_string()
-                } else if set.deps.get(p).and_then(|d| d.offset.as_deref())
-                    != Some(set.checksum_or_none(CalibPart::Offset).as_str())
-                {
-                    "offset".to_string()
-                } else if set.deps.get(p).and_then(|d| d.crosstalk.as_deref()).is_some_and(|x| {
-                    x != NONE && x != set.checksum_or_none(CalibPart::Crosstalk)
-                }) {
-                    "crosstalk".to_string()
-                } else {
-                    format!("{} wiggling table", p.algorithm().map_or("", |a| a.as_str()))
-                }
+                set.stale_reason(p)
             ))
             .at(&path)
             .key(p.name()));
         }
         Ok(set)
     }
+
+    /// Put a loaded array into the set as `part`, checked as that part (the lens's values,
+    /// the FPPN map's and the wiggling table's algorithm, the table's size).
+    fn install_loaded(
+        &mut self,
+        dir: &Path,
+        toml_path: &Path,
+        part: CalibPart,
+        pt: &PartToml,
+        arr: LoadedArray,
+    ) -> Result<(), FormatError> {
+        let key = part.name();
+        let file = dir.join(&pt.file);
+        let at_file = |e: String| invalid(e).at(&file).key(key);
+        match (part, arr) {
+            (CalibPart::Intrinsics, LoadedArray::Lut(a)) => {
+                if a.len() != INTRINSICS_LEN {
+                    return Err(at_file(format!(
+                        "holds {} values, expected {INTRINSICS_LEN}: [fx, fy, cx, cy, k1, k2, p1, p2, k3]",
+                        a.len()
+                    )));
+                }
+                let k = intrinsics_from_array(&a);
+                k.validate().map_err(|e| at_file(e.to_string()))?;
+                self.rays_of(&k).map_err(|e| at_file(e.to_string()))?;
+                self.intrinsics = Some(k);
+            }
+            (CalibPart::Offset, LoadedArray::Map(a)) => {
+                self.offset = Some(OffsetCalibration { dark_lsb: a })
+            }
+            (CalibPart::Amplitude, LoadedArray::Map(a)) => {
+                self.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
+            }
+            (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
+                self.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
+            }
+            (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
+                let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
+                if pt.algorithm != Some(want) {
+                    return Err(invalid(format!(
+                        "must be \"{want}\" for [{key}] (the map is absolute w.r.t. the {want} wiggling table)"
+                    ))
+                    .at(toml_path)
+                    .key(format!("{key}.algorithm")));
+                }
+                let map = Some(FppnMap {
+                    phase_offset_rad: a,
+                });
+                match want {
+                    Algorithm::TwoPhase => self.fppn_2phase = map,
+                    Algorithm::FourPhase => self.fppn = map,
+                }
+            }
+            (CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase, LoadedArray::Lut(a)) => {
+                let lut = wiggling_from_loaded(toml_path, part, pt, a)?;
+                lut.validate().map_err(|e| at_file(e.to_string()))?;
+                match lut.algorithm {
+                    Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
+                    Algorithm::FourPhase => self.wiggling_4phase = Some(lut),
+                }
+            }
+            _ => {
+                return Err(invalid("internal: array kind mismatch")
+                    .at(toml_path)
+                    .key(key));
+            }
+        }
+        Ok(())
+    }
+
+    /// Record a loaded part's provenance and the checksums it was extracted with.
+    fn record_loaded(&mut self, part: CalibPart, pt: &PartToml) {
+        self.sources.insert(
+            part,
+            PartSource {
+                recording: pt.source_recording.clone(),
+                recording_description: pt.source_description.clone(),
+                captures: pt.source_captures.clone(),
+                distance_m: pt.distance_m,
+                reflectivity: pt.reflectivity,
+                exposure_us: pt.exposure_us,
+                created: pt.created.clone(),
+                tool: pt.tool.clone(),
+            },
+        );
+        // hex digests compare case-insensitively
+        let lower = |s: &Option<String>| s.as_deref().map(str::to_ascii_lowercase);
+        self.deps.insert(
+            part,
+            Deps {
+                offset: lower(&pt.offset_sha256),
+                wiggling: lower(&pt.wiggling_sha256),
+                intrinsics: lower(&pt.intrinsics_sha256),
+                crosstalk: lower(&pt.crosstalk_sha256),
+            },
+        );
+    }
+
+    /// Which of the parts a stale part `p` was extracted with is no longer the set's.
+    fn stale_reason(&self, p: CalibPart) -> String {
+        let deps = self.deps.get(&p);
+        if deps
+            .and_then(|d| d.intrinsics.as_deref())
+            .is_some_and(|k| k != self.checksum_or_none(CalibPart::Intrinsics))
+        {
+            "lens intrinsics".to_string()
+        } else if deps.and_then(|d| d.offset.as_deref())
+            != Some(self.checksum_or_none(CalibPart::Offset).as_str())
+        {
+            "offset".to_string()
+        } else if deps
+            .and_then(|d| d.crosstalk.as_deref())
+            .is_some_and(|x| x != NONE && x != self.checksum_or_none(CalibPart::Crosstalk))
+        {
+            "crosstalk".to_string()
+        } else {
+            format!(
+                "{} wiggling table",
+                p.algorithm().map_or("", |a| a.as_str())
+            )
+        }
+    }
+}
+
+impl CalibToml {
+    /// The parts the file holds, in load order.
+    fn parts(&self) -> impl Iterator<Item = (CalibPart, &PartToml)> {
+        [
+            (CalibPart::Intrinsics, &self.intrinsics),
+            (CalibPart::Offset, &self.offset),
+            (CalibPart::Crosstalk, &self.crosstalk),
+            (CalibPart::Wiggling2Phase, &self.wiggling_2phase),
+            (CalibPart::Wiggling4Phase, &self.wiggling_4phase),
+            (CalibPart::Fppn, &self.fppn),
+            (CalibPart::Fppn2Phase, &self.fppn_2phase),
+            (CalibPart::Amplitude, &self.amplitude),
+        ]
+        .into_iter()
+        .filter_map(|(part, pt)| pt.as_ref().map(|pt| (part, pt)))
+    }
+}
+
+/// The checksums of the parts `part` was extracted with are required: deleting them must not
+/// switch the staleness check off (the lens's checksum where the set holds a lens — only the
+/// parts extracted through the lens record it, wiggling and FPPN: a part written before lens
+/// models existed was extracted without one).
+fn check_dependency_checksums(
+    part: CalibPart,
+    pt: &PartToml,
+    set_has_lens: bool,
+) -> Result<(), FormatError> {
+    let mut required: Vec<(&str, &Option<String>)> = match part {
+        CalibPart::Intrinsics | CalibPart::Offset | CalibPart::Amplitude => vec![],
+        CalibPart::Crosstalk | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
+            vec![("offset_sha256", &pt.offset_sha256)]
+        }
+        CalibPart::Fppn | CalibPart::Fppn2Phase => vec![
+            ("offset_sha256", &pt.offset_sha256),
+            ("wiggling_sha256", &pt.wiggling_sha256),
+        ],
+    };
+    if set_has_lens && part.phase_correction() {
+        required.push(("intrinsics_sha256", &pt.intrinsics_sha256));
+    }
+    match required.iter().find(|(_, v)| v.is_none()) {
+        Some((k, _)) => Err(FormatError::new(
+            ErrorKind::MissingKey,
+            "missing: the checksum of the part this one was extracted with (\"none\" if there was none) is required",
+        )
+        .key(format!("{}.{k}", part.name()))),
+        None => Ok(()),
+    }
+}
+
+/// A wiggling part's table with the algorithm and size its TOML entry must state.
+fn wiggling_from_loaded(
+    toml_path: &Path,
+    part: CalibPart,
+    pt: &PartToml,
+    a: Array1<f32>,
+) -> Result<WigglingLut, FormatError> {
+    let key = part.name();
+    let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
+    let missing = |what: &str, sub: &str| {
+        FormatError::new(ErrorKind::MissingKey, what)
+            .at(toml_path)
+            .key(format!("{key}.{sub}"))
+    };
+    let wrong = |m: String, sub: &str| invalid(m).at(toml_path).key(format!("{key}.{sub}"));
+    match pt.algorithm {
+        Some(alg) if alg == want => {}
+        Some(alg) => {
+            return Err(wrong(
+                format!("is \"{alg}\" but the table is [{key}]"),
+                "algorithm",
+            ));
+        }
+        None => return Err(missing("missing (\"2phase\" or \"4phase\")", "algorithm")),
+    }
+    match pt.lut_size {
+        Some(n) if n == a.len() => {}
+        Some(n) => {
+            return Err(wrong(
+                format!("is {n} but {} holds {} bins", pt.file, a.len()),
+                "lut_size",
+            ));
+        }
+        None => return Err(missing("missing", "lut_size")),
+    }
+    Ok(WigglingLut {
+        algorithm: want,
+        correction_rad: a,
+    })
 }
 
 enum LoadedArray {
@@ -1064,6 +1108,8 @@ fn amplitude_scale_problem(a: &Array2<f32>, sensor: &SensorGeometry) -> Option<S
     })
 }
 
+/// Read one part's array and check it as the file: its name, SHA-256, dtype, recorded
+/// shape, finite values, physical range, then its dimensions against the window.
 fn load_part(
     dir: &Path,
     toml_path: &Path,
@@ -1080,28 +1126,7 @@ fn load_part(
         );
     }
     let file = dir.join(&pt.file);
-    let bytes =
-        limits::read_bounded(&file, limits::MAX_NPY_BYTES, Some(dir)).map_err(|e| e.key(key))?;
-    let sum = sha256_hex(&bytes);
-    if !sum.eq_ignore_ascii_case(pt.sha256.trim()) {
-        return Err(FormatError::new(
-            ErrorKind::Checksum,
-            format!(
-                "SHA-256 mismatch: the file's is {sum}, {CALIBRATION_TOML} records {} — the array was modified or damaged; re-create the calibration",
-                pt.sha256
-            ),
-        )
-        .at(&file)
-        .key(format!("{key}.sha256")));
-    }
-    let arr = npy::decode(&bytes).map_err(|e| e.at(&file).key(key))?;
-    let NpyArray::F32(a) = arr else {
-        return Err(
-            FormatError::new(ErrorKind::Npy, "calibration arrays must be float32 ('<f4')")
-                .at(&file)
-                .key(key),
-        );
-    };
+    let a = read_checked_f32(dir, &file, part, pt)?;
     if a.shape() != pt.shape.as_slice() {
         return Err(invalid(format!(
             "{} records shape {} but the file holds {}",
@@ -1117,111 +1142,130 @@ fn load_part(
             .at(&file)
             .key(key));
     }
-    // each array within its physical range (issue 12 item 7): phase corrections within one
-    // period; the crosstalk (LSB per µs of exposure, per raw image) within one full-scale code
-    // per µs, as no exposure is shorter than 1 µs; the dark level within the ADC range (below);
-    // the lens by `Intrinsics::validate` when the set is assembled.
-    if part == CalibPart::Crosstalk {
-        let max = sensor.max_code() as f32;
-        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
-            return Err(invalid(format!(
-                "element {i} is {v} LSB/µs, beyond one full-scale code per µs (|crosstalk| ≤ {max})"
-            ))
-            .at(&file)
-            .key(key));
-        }
-    }
-    if matches!(
-        part,
-        CalibPart::Wiggling2Phase
-            | CalibPart::Wiggling4Phase
-            | CalibPart::Fppn
-            | CalibPart::Fppn2Phase
-    ) {
-        let max = limits::MAX_PHASE_CORRECTION_RAD;
-        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
-            return Err(invalid(format!(
-                "element {i} is {v} rad, beyond one period (|correction| ≤ 2π = {max} rad)"
-            ))
-            .at(&file)
-            .key(key));
-        }
-    }
+    check_physical_range(part, &a, sensor).map_err(|m| invalid(m).at(&file).key(key))?;
+    let (rows, cols) = (sensor.rows, sensor.cols);
+    let shape = shape_str(&pt.shape);
     match part {
         CalibPart::Offset | CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => {
             let a = a.into_dimensionality::<Ix2>().map_err(|_| {
-                invalid(format!(
-                    "expected a (rows, cols) = ({}, {}) map, found shape {}",
-                    sensor.rows,
-                    sensor.cols,
-                    shape_str(&pt.shape)
-                ))
-                .at(&file)
-                .key(key)
-            })?;
-            if a.dim() != (sensor.rows, sensor.cols) {
-                return Err(invalid(format!(
-                    "map is {}×{} but valid_for says the window is {}×{}",
-                    a.nrows(),
-                    a.ncols(),
-                    sensor.rows,
-                    sensor.cols
-                ))
-                .at(&file)
-                .key(key));
-            }
-            if part == CalibPart::Amplitude
-                && let Some(problem) = amplitude_scale_problem(&a, sensor)
-            {
-                return Err(invalid(problem).at(&file).key(key));
-            }
-            if part == CalibPart::Offset {
-                let max = sensor.max_code() as f32;
-                if let Some(v) = a.iter().find(|v| !(0.0..=max).contains(*v)) {
-                    return Err(invalid(format!(
-                        "dark level {v} is outside the ADC range 0..={max}"
-                    ))
-                    .at(&file)
-                    .key(key));
-                }
-            }
-            Ok(LoadedArray::Map(a))
+                format!("expected a (rows, cols) = ({rows}, {cols}) map, found shape {shape}")
+            });
+            a.and_then(|a| check_loaded_map(part, a, sensor))
+                .map(LoadedArray::Map)
         }
         CalibPart::Crosstalk => {
             let a = a.into_dimensionality::<Ix3>().map_err(|_| {
-                invalid(format!(
-                    "expected a (4, rows, cols) = (4, {}, {}) array, found shape {}",
-                    sensor.rows,
-                    sensor.cols,
-                    shape_str(&pt.shape)
-                ))
-                .at(&file)
-                .key(key)
-            })?;
-            if a.dim() != (4, sensor.rows, sensor.cols) {
-                return Err(invalid(format!(
-                    "crosstalk is {:?} but valid_for says the window is {}×{} (expected 4 raw images × window)",
-                    a.dim(),
-                    sensor.rows,
-                    sensor.cols
-                ))
-                .at(&file)
-                .key(key));
-            }
-            Ok(LoadedArray::Cube(a))
+                format!("expected a (4, rows, cols) = (4, {rows}, {cols}) array, found shape {shape}")
+            });
+            a.and_then(|a| {
+                if a.dim() == (4, rows, cols) {
+                    Ok(LoadedArray::Cube(a))
+                } else {
+                    Err(format!(
+                        "crosstalk is {:?} but valid_for says the window is {rows}×{cols} (expected 4 raw images × window)",
+                        a.dim()
+                    ))
+                }
+            })
         }
-        CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
-            let a = a.into_dimensionality::<Ix1>().map_err(|_| {
-                invalid(format!(
-                    "expected a 1-dimensional table, found shape {}",
-                    shape_str(&pt.shape)
-                ))
-                .at(&file)
-                .key(key)
-            })?;
-            Ok(LoadedArray::Lut(a))
+        CalibPart::Intrinsics | CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => a
+            .into_dimensionality::<Ix1>()
+            .map(LoadedArray::Lut)
+            .map_err(|_| format!("expected a 1-dimensional table, found shape {shape}")),
+    }
+    .map_err(|m| invalid(m).at(&file).key(key))
+}
+
+/// A part's file, bounded in size, with the SHA-256 its TOML entry records, decoded as the
+/// float32 array every calibration part is.
+fn read_checked_f32(
+    dir: &Path,
+    file: &Path,
+    part: CalibPart,
+    pt: &PartToml,
+) -> Result<ndarray::ArrayD<f32>, FormatError> {
+    let key = part.name();
+    let bytes =
+        limits::read_bounded(file, limits::MAX_NPY_BYTES, Some(dir)).map_err(|e| e.key(key))?;
+    let sum = sha256_hex(&bytes);
+    if !sum.eq_ignore_ascii_case(pt.sha256.trim()) {
+        return Err(FormatError::new(
+            ErrorKind::Checksum,
+            format!(
+                "SHA-256 mismatch: the file's is {sum}, {CALIBRATION_TOML} records {} — the array was modified or damaged; re-create the calibration",
+                pt.sha256
+            ),
+        )
+        .at(file)
+        .key(format!("{key}.sha256")));
+    }
+    match npy::decode(&bytes).map_err(|e| e.at(file).key(key))? {
+        NpyArray::F32(a) => Ok(a),
+        _ => Err(
+            FormatError::new(ErrorKind::Npy, "calibration arrays must be float32 ('<f4')")
+                .at(file)
+                .key(key),
+        ),
+    }
+}
+
+/// Each array within its physical range (issue 12 item 7): phase corrections within one
+/// period; the crosstalk (LSB per µs of exposure, per raw image) within one full-scale code
+/// per µs, as no exposure is shorter than 1 µs; the dark level within the ADC range and the
+/// amplitude scale ([`check_loaded_map`]); the lens by `Intrinsics::validate` when the set is
+/// assembled.
+fn check_physical_range(
+    part: CalibPart,
+    a: &ndarray::ArrayD<f32>,
+    sensor: &SensorGeometry,
+) -> Result<(), String> {
+    if part == CalibPart::Crosstalk {
+        let max = sensor.max_code() as f32;
+        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
+            return Err(format!(
+                "element {i} is {v} LSB/µs, beyond one full-scale code per µs (|crosstalk| ≤ {max})"
+            ));
         }
     }
+    if part.phase_correction() {
+        let max = limits::MAX_PHASE_CORRECTION_RAD;
+        if let Some((i, v)) = a.iter().enumerate().find(|(_, v)| v.abs() > max) {
+            return Err(format!(
+                "element {i} is {v} rad, beyond one period (|correction| ≤ 2π = {max} rad)"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A per-pixel map part (offset, FPPN, amplitude) fits the window; the amplitude scale and
+/// the dark level lie within their physical ranges.
+fn check_loaded_map(
+    part: CalibPart,
+    a: Array2<f32>,
+    sensor: &SensorGeometry,
+) -> Result<Array2<f32>, String> {
+    if a.dim() != (sensor.rows, sensor.cols) {
+        return Err(format!(
+            "map is {}×{} but valid_for says the window is {}×{}",
+            a.nrows(),
+            a.ncols(),
+            sensor.rows,
+            sensor.cols
+        ));
+    }
+    if part == CalibPart::Amplitude
+        && let Some(problem) = amplitude_scale_problem(&a, sensor)
+    {
+        return Err(problem);
+    }
+    if part == CalibPart::Offset {
+        let max = sensor.max_code() as f32;
+        if let Some(v) = a.iter().find(|v| !(0.0..=max).contains(*v)) {
+            return Err(format!("dark level {v} is outside the ADC range 0..={max}"));
+        }
+    }
+    Ok(a)
 }
 
 /// Number of values of the intrinsics array.

@@ -168,7 +168,7 @@ fn render(chromium: &Path, name: &str, html: &str) -> Value {
 
 #[test]
 fn lab_reports_render_correctly_in_a_browser() {
-    let Some(chromium) = tofprox_e2e::require_program("chromium", "chromium") else {
+    let Some(chromium) = tofprox_testkit::require_program("chromium", "chromium") else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
@@ -247,7 +247,7 @@ fn lab_reports_render_correctly_in_a_browser() {
 
 #[test]
 fn thesis_figures_render_correctly_in_a_browser() {
-    let Some(chromium) = tofprox_e2e::require_program("chromium", "chromium") else {
+    let Some(chromium) = tofprox_testkit::require_program("chromium", "chromium") else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();

@@ -41,8 +41,11 @@ fn record(dir: &Path, conv: PhaseConvention) {
         req.averaged = 16;
         for d in DISTANCES_M {
             let x = sim.capture(&Scene::wall(d, 0.9), &req, &mut rng).unwrap();
-            w.append(tofprox_e2e::capture_spec(&req, Some(d)), &RawFrames::F64(x))
-                .unwrap();
+            w.append(
+                tofprox_testkit::capture_spec(&req, Some(d)),
+                &RawFrames::F64(x),
+            )
+            .unwrap();
         }
     }
 }

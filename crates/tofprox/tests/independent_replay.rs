@@ -80,7 +80,7 @@ fn replay(dir: &Path, calib: &Path) -> Replayed {
 
 #[test]
 fn independent_phone_simulation_replays_without_false_or_missed_near() {
-    let Some(python) = tofprox_e2e::require_python("import numpy", "python3-numpy") else {
+    let Some(python) = tofprox_testkit::require_python("import numpy", "python3-numpy") else {
         return;
     };
     let tmp = tempfile::tempdir().expect("tempdir");

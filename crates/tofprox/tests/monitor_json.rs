@@ -9,7 +9,7 @@ use common::text;
 
 #[test]
 fn monitor_json_lines_parse_and_follow_the_hand() {
-    let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
+    let Some(_) = tofprox_testkit::require_program("dbus-run-session", "dbus-daemon") else {
         return;
     };
     // the demo's configuration with a faster hand (approach and leave every 4 s, not 12 s)

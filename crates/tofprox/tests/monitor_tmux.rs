@@ -40,10 +40,10 @@ impl Drop for Tmux {
 
 #[test]
 fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
-    let Some(_) = tofprox_e2e::require_program("tmux", "tmux") else {
+    let Some(_) = tofprox_testkit::require_program("tmux", "tmux") else {
         return;
     };
-    let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
+    let Some(_) = tofprox_testkit::require_program("dbus-run-session", "dbus-daemon") else {
         return;
     };
     let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");

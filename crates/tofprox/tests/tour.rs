@@ -149,7 +149,7 @@ fn script(b: &Block, sandbox: &Path) -> String {
 
 #[test]
 fn readme_tour_and_docs_worked_examples_run_as_written_twice() {
-    let Some(_) = tofprox_e2e::require_program("dbus-run-session", "dbus-daemon") else {
+    let Some(_) = tofprox_testkit::require_program("dbus-run-session", "dbus-daemon") else {
         return;
     };
     let sandbox = tempfile::tempdir().unwrap();

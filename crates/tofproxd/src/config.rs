@@ -554,197 +554,13 @@ impl Config {
 
     /// Range-check every value; the error names the key.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        let l = &self.loop_;
-        finite_pos("loop.rate_hz", l.rate_hz)?;
-        finite_pos("loop.fast_rate_hz", l.fast_rate_hz)?;
-        finite_pos("loop.slow_rate_hz", l.slow_rate_hz)?;
-        range("loop.rate_hz", l.rate_hz <= 100.0, "must be at most 100 Hz")?;
-        range(
-            "loop.fast_rate_hz",
-            l.fast_rate_hz <= 100.0,
-            "must be at most 100 Hz",
-        )?;
-        range(
-            "loop.fast_rate_hz",
-            l.fast_rate_hz >= l.rate_hz,
-            "must be >= loop.rate_hz",
-        )?;
-        range(
-            "loop.slow_rate_hz",
-            l.slow_rate_hz <= l.rate_hz,
-            "must be <= loop.rate_hz",
-        )?;
-        range(
-            "loop.slow_rate_hz",
-            l.slow_rate_hz >= 0.01,
-            "must be at least 0.01 Hz",
-        )?;
-        range(
-            "loop.still_readings",
-            l.still_readings >= 1,
-            "must be at least 1",
-        )?;
-        non_neg("loop.approach_mm_per_s", l.approach_mm_per_s)?;
-        range(
-            "loop.retry_ms",
-            (1..=60_000).contains(&l.retry_ms),
-            "must be within 1..=60000",
-        )?;
-        range(
-            "loop.near_hold_ms",
-            l.near_hold_ms <= 60_000,
-            "must be at most 60000",
-        )?;
-        range(
-            "loop.unavailable_after",
-            l.unavailable_after >= 1,
-            "must be at least 1",
-        )?;
-        range(
-            "loop.first_reading_timeout_ms",
-            (1..=60_000).contains(&l.first_reading_timeout_ms),
-            "must be within 1..=60000",
-        )?;
-        let p = &self.processing;
-        range(
-            "processing.min_amplitude_lsb",
-            p.min_amplitude_lsb.is_finite() && p.min_amplitude_lsb >= 0.0,
-            "must be >= 0",
-        )?;
-        range(
-            "processing.require_calibration",
-            !p.require_calibration || p.calibration.is_some(),
-            "is true but processing.calibration is not set",
-        )?;
-        let x = &self.proximity;
-        range(
-            "proximity.near_mm",
-            (1..=65_000).contains(&x.near_mm),
-            "must be within 1..=65000",
-        )?;
-        range(
-            "proximity.far_mm",
-            x.far_mm > x.near_mm,
-            "must be greater than proximity.near_mm",
-        )?;
-        range(
-            "proximity.far_mm",
-            x.far_mm <= 65_000,
-            "must be at most 65000",
-        )?;
-        range(
-            "proximity.far_debounce",
-            (1..=1000).contains(&x.far_debounce),
-            "must be within 1..=1000",
-        )?;
-        fraction("proximity.min_valid_fraction", x.min_valid_fraction)?;
-        range(
-            "proximity.reflectivity_floor",
-            x.reflectivity_floor.is_finite()
-                && x.reflectivity_floor > 0.0
-                && x.reflectivity_floor < 1.0,
-            "must be within (0, 1)",
-        )?;
-        range(
-            "proximity.depth_uncertainty_mm",
-            x.depth_uncertainty_mm <= 1000,
-            "must be at most 1000",
-        )?;
-        range(
-            "proximity.nominal_amplitude_scale",
-            x.nominal_amplitude_scale.is_finite() && x.nominal_amplitude_scale > 0.0,
-            "must be > 0",
-        )?;
-        range(
-            "proximity.second_modulation_hz",
-            x.second_modulation_hz == 0.0
-                || tofprox_core::sensor::validate_modulation_hz(x.second_modulation_hz).is_ok(),
-            "must be 0 (off) or a valid modulation frequency",
-        )?;
-        range(
-            "proximity.confirm_reflectivity",
-            x.confirm_reflectivity.is_finite() && x.confirm_reflectivity >= 0.0,
-            "must be ≥ 0",
-        )?;
-        range(
-            "proximity.brightest_far_gain",
-            x.brightest_far_gain.is_finite() && x.brightest_far_gain >= 0.0,
-            "must be ≥ 0",
-        )?;
-        if let Some([_, _, rows, cols]) = x.roi {
-            range(
-                "proximity.roi",
-                rows > 0 && cols > 0,
-                "rows and cols must be > 0",
-            )?;
-        }
-        let a = &self.ambient;
-        range(
-            "ambient.probe_every",
-            a.probe_every >= 1,
-            "must be at least 1",
-        )?;
-        range(
-            "ambient.high_lsb",
-            a.high_lsb.is_finite() && a.high_lsb > 0.0,
-            "must be > 0",
-        )?;
-        range(
-            "ambient.low_lsb",
-            a.low_lsb.is_finite() && a.low_lsb >= 0.0 && a.low_lsb < a.high_lsb,
-            "must be >= 0 and below ambient.high_lsb",
-        )?;
-        range(
-            "ambient.low_readings",
-            a.low_readings >= 1,
-            "must be at least 1",
-        )?;
-        let e = &self.exposure;
-        finite_pos("exposure.min_us", e.min_us)?;
-        finite_pos("exposure.max_us", e.max_us)?;
-        range(
-            "exposure.max_us",
-            e.max_us <= 10_000.0,
-            "must be at most 10000 µs (eye safety)",
-        )?;
-        range(
-            "exposure.max_us",
-            e.max_us >= e.min_us,
-            "must be >= exposure.min_us",
-        )?;
-        range(
-            "exposure.initial_us",
-            e.initial_us.is_finite() && e.initial_us >= e.min_us && e.initial_us <= e.max_us,
-            "must be within exposure.min_us..=exposure.max_us",
-        )?;
-        fraction("exposure.saturated_fraction", e.saturated_fraction)?;
-        fraction("exposure.low_amplitude_fraction", e.low_amplitude_fraction)?;
-        range(
-            "exposure.step",
-            e.step.is_finite() && e.step > 1.0 && e.step <= 10.0,
-            "must be within (1, 10]",
-        )?;
-        let en = &self.energy;
-        non_neg("energy.capture_mw_mode2", en.capture_mw_mode2)?;
-        non_neg("energy.capture_mw_mode5", en.capture_mw_mode5)?;
-        non_neg("energy.capture_mw_mode9", en.capture_mw_mode9)?;
-        non_neg("energy.readout_mj_per_image", en.readout_mj_per_image)?;
-        non_neg("energy.idle_mw", en.idle_mw)?;
-        non_neg("energy.off_mw", en.off_mw)?;
-        non_neg("energy.startup_mw", en.startup_mw)?;
-        non_neg("energy.flash_load_mw", en.flash_load_mw)?;
-        non_neg("energy.flash_write_mw", en.flash_write_mw)?;
-        range(
-            "energy.average_cycles",
-            (1..=10_000).contains(&en.average_cycles),
-            "must be within 1..=10000",
-        )?;
-        finite_pos("dbus.depth_max_hz", self.dbus.depth_max_hz)?;
-        range(
-            "dbus.depth_max_hz",
-            self.dbus.depth_max_hz <= 60.0,
-            "must be at most 60 Hz",
-        )?;
+        self.loop_.validate()?;
+        self.processing.validate()?;
+        self.proximity.validate()?;
+        self.ambient.validate()?;
+        self.exposure.validate()?;
+        self.energy.validate()?;
+        self.dbus.validate()?;
         if self.backend == Backend::Replay {
             range(
                 "replay.recording",
@@ -752,6 +568,249 @@ impl Config {
                 "must be set for backend = \"replay\"",
             )?;
         }
+        Ok(())
+    }
+}
+
+impl LoopConfig {
+    /// Range-check the `[loop]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        finite_pos("loop.rate_hz", self.rate_hz)?;
+        finite_pos("loop.fast_rate_hz", self.fast_rate_hz)?;
+        finite_pos("loop.slow_rate_hz", self.slow_rate_hz)?;
+        range(
+            "loop.rate_hz",
+            self.rate_hz <= 100.0,
+            "must be at most 100 Hz",
+        )?;
+        range(
+            "loop.fast_rate_hz",
+            self.fast_rate_hz <= 100.0,
+            "must be at most 100 Hz",
+        )?;
+        range(
+            "loop.fast_rate_hz",
+            self.fast_rate_hz >= self.rate_hz,
+            "must be >= loop.rate_hz",
+        )?;
+        range(
+            "loop.slow_rate_hz",
+            self.slow_rate_hz <= self.rate_hz,
+            "must be <= loop.rate_hz",
+        )?;
+        range(
+            "loop.slow_rate_hz",
+            self.slow_rate_hz >= 0.01,
+            "must be at least 0.01 Hz",
+        )?;
+        range(
+            "loop.still_readings",
+            self.still_readings >= 1,
+            "must be at least 1",
+        )?;
+        non_neg("loop.approach_mm_per_s", self.approach_mm_per_s)?;
+        range(
+            "loop.retry_ms",
+            (1..=60_000).contains(&self.retry_ms),
+            "must be within 1..=60000",
+        )?;
+        range(
+            "loop.near_hold_ms",
+            self.near_hold_ms <= 60_000,
+            "must be at most 60000",
+        )?;
+        range(
+            "loop.unavailable_after",
+            self.unavailable_after >= 1,
+            "must be at least 1",
+        )?;
+        range(
+            "loop.first_reading_timeout_ms",
+            (1..=60_000).contains(&self.first_reading_timeout_ms),
+            "must be within 1..=60000",
+        )?;
+        Ok(())
+    }
+}
+
+impl ProcessingConfig {
+    /// Range-check the `[processing]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "processing.min_amplitude_lsb",
+            self.min_amplitude_lsb.is_finite() && self.min_amplitude_lsb >= 0.0,
+            "must be >= 0",
+        )?;
+        range(
+            "processing.require_calibration",
+            !self.require_calibration || self.calibration.is_some(),
+            "is true but processing.calibration is not set",
+        )?;
+        Ok(())
+    }
+}
+
+impl ProximityConfig {
+    /// Range-check the `[proximity]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "proximity.near_mm",
+            (1..=65_000).contains(&self.near_mm),
+            "must be within 1..=65000",
+        )?;
+        range(
+            "proximity.far_mm",
+            self.far_mm > self.near_mm,
+            "must be greater than proximity.near_mm",
+        )?;
+        range(
+            "proximity.far_mm",
+            self.far_mm <= 65_000,
+            "must be at most 65000",
+        )?;
+        range(
+            "proximity.far_debounce",
+            (1..=1000).contains(&self.far_debounce),
+            "must be within 1..=1000",
+        )?;
+        fraction("proximity.min_valid_fraction", self.min_valid_fraction)?;
+        range(
+            "proximity.reflectivity_floor",
+            self.reflectivity_floor.is_finite()
+                && self.reflectivity_floor > 0.0
+                && self.reflectivity_floor < 1.0,
+            "must be within (0, 1)",
+        )?;
+        range(
+            "proximity.depth_uncertainty_mm",
+            self.depth_uncertainty_mm <= 1000,
+            "must be at most 1000",
+        )?;
+        range(
+            "proximity.nominal_amplitude_scale",
+            self.nominal_amplitude_scale.is_finite() && self.nominal_amplitude_scale > 0.0,
+            "must be > 0",
+        )?;
+        range(
+            "proximity.second_modulation_hz",
+            self.second_modulation_hz == 0.0
+                || tofprox_core::sensor::validate_modulation_hz(self.second_modulation_hz).is_ok(),
+            "must be 0 (off) or a valid modulation frequency",
+        )?;
+        range(
+            "proximity.confirm_reflectivity",
+            self.confirm_reflectivity.is_finite() && self.confirm_reflectivity >= 0.0,
+            "must be ≥ 0",
+        )?;
+        range(
+            "proximity.brightest_far_gain",
+            self.brightest_far_gain.is_finite() && self.brightest_far_gain >= 0.0,
+            "must be ≥ 0",
+        )?;
+        if let Some([_, _, rows, cols]) = self.roi {
+            range(
+                "proximity.roi",
+                rows > 0 && cols > 0,
+                "rows and cols must be > 0",
+            )?;
+        }
+        Ok(())
+    }
+}
+
+impl AmbientConfig {
+    /// Range-check the `[ambient]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "ambient.probe_every",
+            self.probe_every >= 1,
+            "must be at least 1",
+        )?;
+        range(
+            "ambient.high_lsb",
+            self.high_lsb.is_finite() && self.high_lsb > 0.0,
+            "must be > 0",
+        )?;
+        range(
+            "ambient.low_lsb",
+            self.low_lsb.is_finite() && self.low_lsb >= 0.0 && self.low_lsb < self.high_lsb,
+            "must be >= 0 and below ambient.high_lsb",
+        )?;
+        range(
+            "ambient.low_readings",
+            self.low_readings >= 1,
+            "must be at least 1",
+        )?;
+        Ok(())
+    }
+}
+
+impl ExposureConfig {
+    /// Range-check the `[exposure]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        finite_pos("exposure.min_us", self.min_us)?;
+        finite_pos("exposure.max_us", self.max_us)?;
+        range(
+            "exposure.max_us",
+            self.max_us <= 10_000.0,
+            "must be at most 10000 µs (eye safety)",
+        )?;
+        range(
+            "exposure.max_us",
+            self.max_us >= self.min_us,
+            "must be >= exposure.min_us",
+        )?;
+        range(
+            "exposure.initial_us",
+            self.initial_us.is_finite()
+                && self.initial_us >= self.min_us
+                && self.initial_us <= self.max_us,
+            "must be within exposure.min_us..=exposure.max_us",
+        )?;
+        fraction("exposure.saturated_fraction", self.saturated_fraction)?;
+        fraction(
+            "exposure.low_amplitude_fraction",
+            self.low_amplitude_fraction,
+        )?;
+        range(
+            "exposure.step",
+            self.step.is_finite() && self.step > 1.0 && self.step <= 10.0,
+            "must be within (1, 10]",
+        )?;
+        Ok(())
+    }
+}
+
+impl EnergyConfig {
+    /// Range-check the `[energy]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        non_neg("energy.capture_mw_mode2", self.capture_mw_mode2)?;
+        non_neg("energy.capture_mw_mode5", self.capture_mw_mode5)?;
+        non_neg("energy.capture_mw_mode9", self.capture_mw_mode9)?;
+        non_neg("energy.readout_mj_per_image", self.readout_mj_per_image)?;
+        non_neg("energy.idle_mw", self.idle_mw)?;
+        non_neg("energy.off_mw", self.off_mw)?;
+        non_neg("energy.startup_mw", self.startup_mw)?;
+        non_neg("energy.flash_load_mw", self.flash_load_mw)?;
+        non_neg("energy.flash_write_mw", self.flash_write_mw)?;
+        range(
+            "energy.average_cycles",
+            (1..=10_000).contains(&self.average_cycles),
+            "must be within 1..=10000",
+        )?;
+        Ok(())
+    }
+}
+
+impl DbusConfig {
+    /// Range-check the `[dbus]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        finite_pos("dbus.depth_max_hz", self.depth_max_hz)?;
+        range(
+            "dbus.depth_max_hz",
+            self.depth_max_hz <= 60.0,
+            "must be at most 60 Hz",
+        )?;
         Ok(())
     }
 }

@@ -21,7 +21,7 @@ use tofprox_core::pipeline::{
     Calibration, DepthFrame, FLAG_LOW_AMPLITUDE, FLAG_SATURATED, Pipeline, PipelineConfig,
     RawSample,
 };
-use tofprox_core::proximity::{NearFarConfig, NearFarDetector, Roi};
+use tofprox_core::proximity::{NearFarConfig, NearFarDetector, ProximityReading, Roi};
 use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
 
 use crate::config::{Config, Mode};
@@ -31,9 +31,10 @@ use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_a
 use crate::policy::window::WINDOW_CHANGE_BOUND;
 use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
-    CycleObservation, EnergyAccount, ExposureObservation, Pacing, RailsDecision, RailsObservation,
-    RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
-    WindowObservation, WindowTracker, rails_point_at_zero_distance, saturating_fraction_at,
+    CycleObservation, EnergyAccount, EnergyDecision, ExposureObservation, Pacing, RailsDecision,
+    RailsObservation, RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck,
+    SecondFrequency, WindowObservation, WindowTracker, rails_point_at_zero_distance,
+    saturating_fraction_at,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -142,6 +143,33 @@ pub struct StepOutcome {
     pub captured_mode: Option<Mode>,
 }
 
+/// What the measure stage read from one frame (the depth frame itself stays in the pipeline
+/// of its mode).
+struct Measurement {
+    /// The ROI in the frame's coordinates.
+    roi: Roi,
+    /// The detector's reading.
+    reading: ProximityReading,
+    /// A reading: a distance, near, or nothing in range.
+    valid: bool,
+    /// Saturated and low-amplitude fractions over the ROI.
+    stats: RoiStats,
+    /// For the ambient switch (4-phase frames).
+    ambient: Option<AmbientObservation>,
+    /// The second frequency found a far target.
+    aliased_far: bool,
+    /// The second-frequency capture of this cycle, if one was taken.
+    second: Option<RawCycle>,
+    /// Fraction of the ROI saturated in the second-frequency capture (0 without one).
+    saturated_f2: f32,
+    /// Fraction of the ROI a longer exposure would saturate, in either capture.
+    saturated_when_longer: f32,
+    /// Near pixels the cover window alone can explain (`flag_window_explained`).
+    window_explained: usize,
+    /// The depth message, when asked for.
+    depth: Option<DepthMessage>,
+}
+
 /// The loop controller.
 pub struct Controller<S: FrameSource> {
     cfg: Config,
@@ -237,13 +265,7 @@ impl<S: FrameSource> Controller<S> {
             }
         }
         // Validate detector parameters once up front.
-        NearFarDetector::new(NearFarConfig {
-            near_mm: cfg.proximity.near_mm,
-            far_mm: cfg.proximity.far_mm,
-            roi: Roi::default(),
-            far_debounce: cfg.proximity.far_debounce,
-            min_valid_fraction: cfg.proximity.min_valid_fraction,
-        })?;
+        NearFarDetector::new(detector_config(&cfg, Roi::default()))?;
         Ok(Self {
             ambient: AmbientSwitch::new(
                 cfg.ambient.clone(),
@@ -484,6 +506,9 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
+    /// A frame with usable codes, through the daemon's cycle: measure (the frame through the
+    /// one pipeline of its mode, to a near/far reading) → monitor (the cover window) →
+    /// policies (the next cycle) → report (the published status).
     fn process(
         &mut self,
         cycle: &RawCycle,
@@ -491,9 +516,25 @@ impl<S: FrameSource> Controller<S> {
         captured: Mode,
         want_depth: bool,
     ) -> Result<StepOutcome, SourceError> {
-        // Pipelines and the detector are rebuilt when this changes.
+        let m = self.measure(cycle, req, captured, want_depth)?;
+        self.monitor_window(cycle, captured, &m);
+        let energy = self.decide_next(cycle, &m);
+        Ok(self.report(m, energy, captured))
+    }
+
+    /// Measure: the ambient indicator from the raw images, the frame through the one pipeline
+    /// of its mode (pipelines and the detector are rebuilt when the window changes), near
+    /// depths without a plausible return flagged, dim near candidates confirmed at a second
+    /// frequency, the detector's reading. Everything that can fail a cycle fails here, before
+    /// the monitor or a policy sees the frame.
+    fn measure(
+        &mut self,
+        cycle: &RawCycle,
+        req: &CycleRequest,
+        captured: Mode,
+        want_depth: bool,
+    ) -> Result<Measurement, SourceError> {
         let g = cycle.geometry;
-        // ROI in this frame's coordinates.
         let roi = frame_roi(&self.cfg, g);
         if roi.rows == 0 || roi.cols == 0 {
             return Err(SourceError::new(
@@ -501,107 +542,135 @@ impl<S: FrameSource> Controller<S> {
                 "the ROI lies outside the read-out window",
             ));
         }
-
-        // Pixels a longer exposure would saturate (auto-exposure never lengthens into them).
-        let (dark, max_code) = (self.dark_level(g, roi), g.max_code() as f32);
-        let step = self.cfg.exposure.step;
-        let when_longer = |c: &RawCycle| match &c.frames {
-            RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
-            RawImages::F32(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
-        };
-        let mut saturated_when_longer = when_longer(cycle);
-        // Background-light indicator from the data: the common-mode level of the four raw
-        // images above the dark level (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
-        let mut ambient_high = None;
-        if captured == Mode::FourPhase {
-            let dark = self.dark_level(g, roi);
-            let ind = match &cycle.frames {
-                RawImages::U16(a) => common_mode_lsb(a.view(), roi, dark),
-                RawImages::F32(a) => common_mode_lsb(a.view(), roi, dark),
-            };
-            self.ambient_lsb = Some(ind);
-            ambient_high = Some(ind);
-        }
-
-        let frames = &cycle.frames;
-        let min_amp = self.cfg.processing.min_amplitude_lsb;
-        let exposure = (cycle.exposure_us, self.window.scale());
-        let mut discrepancy_mm: Option<f64> = None;
-        if captured == Mode::FourPhase && self.cfg.ambient.enabled {
-            // 2-vs-4-phase discrepancy over the ROI (first two images as 2-phase).
-            let d2 = {
-                let p = pipeline_slot(
-                    &mut self.pipe2,
-                    &self.calib.two_phase,
-                    min_amp,
-                    Mode::TwoPhase,
-                    g,
-                    exposure,
-                )?;
-                let f = process_images(p, frames, &cycle.phases_deg, 2)?;
-                roi_median_mm(f, roi)
-            };
-            let p4 = pipeline_slot(
-                &mut self.pipe4,
-                &self.calib.four_phase,
-                min_amp,
-                Mode::FourPhase,
-                g,
-                exposure,
-            )?;
-            let f4 = process_images(p4, frames, &cycle.phases_deg, 4)?;
-            if let (Some(a), Some(b)) = (d2, roi_median_mm(f4, roi)) {
-                discrepancy_mm = Some((a - b).abs());
-            }
-        }
-        let proc_mode = captured;
+        let indicator_lsb =
+            (captured == Mode::FourPhase).then(|| self.ambient_indicator_lsb(cycle, roi));
         let pipe = mode_pipeline(
             [&mut self.pipe2, &mut self.pipe4],
             &self.calib,
-            min_amp,
-            proc_mode,
+            self.cfg.processing.min_amplitude_lsb,
+            captured,
             g,
-            exposure,
+            (cycle.exposure_us, self.window.scale()),
         )?;
-        if !(proc_mode == Mode::FourPhase && self.cfg.ambient.enabled) {
-            let k = frames.dim().0;
-            process_images(pipe, frames, &cycle.phases_deg, k)?;
+        process_images(pipe, &cycle.frames, &cycle.phases_deg, cycle.frames.dim().0)?;
+        let ambient = match indicator_lsb {
+            Some(indicator_lsb) => Some(AmbientObservation {
+                indicator_lsb,
+                discrepancy_mm: self.two_phase_discrepancy_mm(cycle, roi)?,
+            }),
+            None => None,
+        };
+        let (dim, window_explained) = self.flag_wrapped_near(cycle, captured, roi)?;
+        // dim candidates matter only when they can make or hold a near reading
+        let decisive = !dim.is_empty() && {
+            let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
+            detector_slot(&mut self.detector, &self.cfg, g, roi)?.statistic_below_far(frame)
+        };
+        let second = self.second_frequency_frame(req, cycle, captured, dim.len(), decisive)?;
+        let aliased_far = self.apply_second_frequency(cycle, captured, &dim, second.as_ref());
+        // saturation at the second frequency counts too: the confirmation needs both measurable
+        let saturated_f2 = second
+            .as_ref()
+            .map_or(0.0, |(_, f2)| roi_stats(f2, roi).saturated_fraction);
+        let saturated_when_longer = std::iter::once(cycle)
+            .chain(second.as_ref().map(|(c2, _)| c2))
+            .map(|c| self.saturated_when_longer(c, roi))
+            .fold(0.0f32, f32::max);
+        let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
+        let stats = roi_stats(frame, roi);
+        let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
+        let reading = self.detect(g, roi, captured)?;
+        Ok(Measurement {
+            roi,
+            reading,
+            // nothing in range is a reading too: far, DistanceMm "beyond range"
+            valid: reading.distance_mm.is_some() || reading.near || reading.no_target,
+            stats,
+            ambient,
+            aliased_far,
+            second: second.map(|(c2, _)| c2),
+            saturated_f2,
+            saturated_when_longer,
+            window_explained,
+            depth,
+        })
+    }
+
+    /// Fraction of the ROI a longer exposure (× `exposure.step`) would saturate: auto-exposure
+    /// never lengthens into it (`policy::saturating_fraction_at`).
+    fn saturated_when_longer(&self, c: &RawCycle, roi: Roi) -> f32 {
+        let (dark, max_code) = (self.dark_level(c.geometry, roi), c.geometry.max_code() as f32);
+        let step = self.cfg.exposure.step;
+        match &c.frames {
+            RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
+            RawImages::F32(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
         }
-        // No near from a wrapped phase: a near depth needs the amplitude of a real target
-        // (thesis 2.2.1, 1/d²).
-        let scale = amplitude_scale_slot(
-            &mut self.amp_scale,
-            self.calib.amplitude.as_ref(),
-            self.cfg.proximity.nominal_amplitude_scale,
-            g,
+    }
+
+    /// Background-light indicator from the data: the common-mode level of the four raw images
+    /// above the dark level over the ROI (eq. 2.3 cancels it, eq. 2.2 does not — 5.1.2.3).
+    fn ambient_indicator_lsb(&mut self, cycle: &RawCycle, roi: Roi) -> f32 {
+        let dark = self.dark_level(cycle.geometry, roi);
+        let ind = match &cycle.frames {
+            RawImages::U16(a) => common_mode_lsb(a.view(), roi, dark),
+            RawImages::F32(a) => common_mode_lsb(a.view(), roi, dark),
+        };
+        self.ambient_lsb = Some(ind);
+        ind
+    }
+
+    /// The ambient switch's cross-check of a 4-phase frame (when the switch is on): its first
+    /// two images as a 2-phase frame, |2-phase − 4-phase| median depth over the ROI.
+    fn two_phase_discrepancy_mm(
+        &mut self,
+        cycle: &RawCycle,
+        roi: Roi,
+    ) -> Result<Option<f64>, SourceError> {
+        if !self.cfg.ambient.enabled {
+            return Ok(None);
+        }
+        let four = roi_median_mm(
+            processed(&mut self.pipe2, &mut self.pipe4, Mode::FourPhase)?.frame(),
+            roi,
+        );
+        let p2 = pipeline_slot(
+            &mut self.pipe2,
+            &self.calib.two_phase,
+            self.cfg.processing.min_amplitude_lsb,
+            Mode::TwoPhase,
+            cycle.geometry,
+            (cycle.exposure_us, self.window.scale()),
         )?;
-        let plaus = NearPlausibility {
+        let two = roi_median_mm(
+            process_images(p2, &cycle.frames, &cycle.phases_deg, 2)?,
+            roi,
+        );
+        Ok(two.zip(four).map(|(a, b)| (a - b).abs()))
+    }
+
+    /// The plausibility of near depths: a near depth needs the amplitude of a real target
+    /// (thesis 2.2.1, 1/d²), checked below the far threshold.
+    fn plausibility(&self) -> NearPlausibility {
+        NearPlausibility {
             reflectivity_floor: self.cfg.proximity.reflectivity_floor,
             depth_uncertainty_m: f64::from(self.cfg.proximity.depth_uncertainty_mm) / 1e3,
             check_below_m: f64::from(self.cfg.proximity.far_mm) / 1e3,
-        };
-        let implausible =
-            flag_implausible_near(pipe.frame_mut(), scale.view(), cycle.exposure_us, &plaus);
-        if let Some(n) = implausible.filter(|&n| n > 0) {
-            tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
         }
-        // A window that changes: near pixels the window alone can explain do not count
-        // (`policy::window`, the rule in docs/daemon.md).
-        let (frame_mut, used) = pipe.frame_mut_and_calibration();
-        let window_explained = used.crosstalk.as_ref().map_or(0, |x| {
-            let below_m = plaus.check_below_m as f32;
-            let t = cycle.exposure_us;
-            flag_window_explained(
-                frame_mut,
-                x,
-                proc_mode,
-                roi,
-                t,
-                WINDOW_CHANGE_BOUND,
-                below_m,
-            )
-        });
-        // A dim near candidate is confirmed at a second frequency before Near is published.
+    }
+
+    /// No near from a wrapped phase: near depths of the processed frame without a plausible
+    /// return are flagged invalid, and so are near pixels the cover window alone can explain
+    /// (`policy::window`, the rule in docs/daemon.md). Returns the dim near candidates left
+    /// (pixels to confirm at a second frequency before Near is published) and the number of
+    /// window-explained pixels.
+    fn flag_wrapped_near(
+        &mut self,
+        cycle: &RawCycle,
+        captured: Mode,
+        roi: Roi,
+    ) -> Result<(Vec<(usize, usize)>, usize), SourceError> {
+        let g = cycle.geometry;
+        let plaus = self.plausibility();
         let rule = DimNearRule {
             confirm_reflectivity: self.cfg.proximity.confirm_reflectivity,
             brightest_far_gain: self.cfg.proximity.brightest_far_gain,
@@ -609,126 +678,150 @@ impl<S: FrameSource> Controller<S> {
             check_below_m: plaus.check_below_m,
             modulation_hz: g.modulation_hz,
         };
-        let dim = dim_near_candidates(pipe.frame(), roi, scale.view(), cycle.exposure_us, &rule);
-        let det = detector_slot(&mut self.detector, &self.cfg, g, roi)?;
-        // dim candidates matter only when they can make or hold a near reading
-        let decisive = !dim.is_empty() && det.statistic_below_far(pipe.frame());
-        let second = self.second_frequency_frame(req, cycle, captured, dim.len(), decisive)?;
-        let pipe = mode_pipeline(
-            [&mut self.pipe2, &mut self.pipe4],
-            &self.calib,
-            min_amp,
-            proc_mode,
+        let scale = amplitude_scale_slot(
+            &mut self.amp_scale,
+            self.calib.amplitude.as_ref(),
+            self.cfg.proximity.nominal_amplitude_scale,
             g,
-            exposure,
         )?;
-        // a far target the second frequency found is not "only the window returns"
-        let mut aliased_far = false;
-        if let Some((c2, f2)) = &second {
-            let f2_hz = c2.geometry.modulation_hz;
-            let v = reject_aliased(
-                pipe.frame_mut(),
-                g.modulation_hz,
-                f2,
-                f2_hz,
-                &dim,
-                plaus.check_below_m,
-            );
-            tracing::debug!("second frequency {f2_hz} Hz: {v:?}");
-            self.second.note(v);
-            aliased_far = v.aliased > 0;
+        let pipe = processed(&mut self.pipe2, &mut self.pipe4, captured)?;
+        let (frame, used) = pipe.frame_mut_and_calibration();
+        let implausible = flag_implausible_near(frame, scale.view(), cycle.exposure_us, &plaus);
+        if let Some(n) = implausible.filter(|&n| n > 0) {
+            tracing::debug!("{n} pixels with a near depth but no plausible return (wrapped phase)");
         }
-        let frame = pipe.frame();
-        let stats = roi_stats(frame, roi);
-        let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
+        let t = cycle.exposure_us;
+        let below_m = plaus.check_below_m as f32;
+        let window_explained = used.crosstalk.as_ref().map_or(0, |x| {
+            flag_window_explained(frame, x, captured, roi, t, WINDOW_CHANGE_BOUND, below_m)
+        });
+        let dim = dim_near_candidates(frame, roi, scale.view(), t, &rule);
+        Ok((dim, window_explained))
+    }
 
-        let reading = detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame);
-        // Nothing in range is a reading too: far, DistanceMm "beyond range".
-        let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
-        // With nothing in range only the cover window returns light: what is left of it after
-        // the compensation says whether the window changed since calibration (a smudge).
-        // Those readings: nothing in range, or a far reading whose light points at the window
-        // (a residual big enough to be a depth: ≈ 0 mm or wrapped just under the range).
-        // The estimate learns from them (`policy::window`), never with a near candidate.
-        let window_tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, g.modulation_hz);
+    /// The second frequency's verdict on the dim near candidates, applied to the processed
+    /// frame (aliases of a far target lose their near depth). Returns whether it found a far
+    /// target — then the frame is not "only the window returns".
+    fn apply_second_frequency(
+        &mut self,
+        cycle: &RawCycle,
+        captured: Mode,
+        dim: &[(usize, usize)],
+        second: Option<&(RawCycle, DepthFrame)>,
+    ) -> bool {
+        let Some((c2, f2)) = second else {
+            return false;
+        };
+        let check_below_m = self.plausibility().check_below_m;
+        let Ok(pipe) = processed(&mut self.pipe2, &mut self.pipe4, captured) else {
+            return false;
+        };
+        let f2_hz = c2.geometry.modulation_hz;
+        let g = cycle.geometry;
+        let v = reject_aliased(
+            pipe.frame_mut(),
+            g.modulation_hz,
+            f2,
+            f2_hz,
+            dim,
+            check_below_m,
+        );
+        tracing::debug!("second frequency {f2_hz} Hz: {v:?}");
+        self.second.note(v);
+        v.aliased > 0
+    }
+
+    /// The detector's reading of the processed frame (rebuilt when the window changed; starts
+    /// far).
+    fn detect(
+        &mut self,
+        g: SensorGeometry,
+        roi: Roi,
+        captured: Mode,
+    ) -> Result<ProximityReading, SourceError> {
+        let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
+        Ok(detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame))
+    }
+
+    /// Monitor: with nothing in range only the cover window returns light; what is left of it
+    /// after the compensation says whether the window changed since the estimate (a smudge).
+    /// The online estimate (`policy::window`) learns from those readings — valid, no near
+    /// candidate, no far target found at the second frequency, and nothing in range or the
+    /// ROI's light pointing at the window (a residual big enough to be a depth: ≈ 0 mm or
+    /// wrapped just under the range) — never with a near candidate.
+    fn monitor_window(&mut self, cycle: &RawCycle, captured: Mode, m: &Measurement) {
+        let Ok(pipe) = processed(&mut self.pipe2, &mut self.pipe4, captured) else {
+            return;
+        };
+        let frame = pipe.frame();
+        let tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, cycle.geometry.modulation_hz);
         let far_mm = self.cfg.proximity.far_mm;
         let became = self.window.next(WindowObservation {
-            valid,
-            near: reading.near,
-            near_candidates: reading.distance_mm.is_some_and(|d| d < far_mm),
-            aliased_far,
-            points_at_window: phasor_points_at_window(frame, roi, window_tolerance_rad),
-            no_target: reading.no_target,
-            window_explained,
+            valid: m.valid,
+            near: m.reading.near,
+            near_candidates: m.reading.distance_mm.is_some_and(|d| d < far_mm),
+            aliased_far: m.aliased_far,
+            points_at_window: phasor_points_at_window(frame, m.roi, tolerance_rad),
+            no_target: m.reading.no_target,
+            window_explained: m.window_explained,
             residual_ratio: (pipe.calibration().crosstalk.as_ref())
-                .and_then(|x| residual_ratio(frame, x, proc_mode, roi, cycle.exposure_us)),
+                .and_then(|x| residual_ratio(frame, x, captured, m.roi, cycle.exposure_us)),
         });
         if let Some(now) = became {
             tracing::warn!("{}", now.message());
         }
-        // Near from saturation (target too close/bright to measure): the statistic of the
-        // remaining valid pixels is the background, not the target — publish "unknown" (0).
-        let shown_mm = match reading.distance_mm {
-            Some(d) if reading.near && d >= self.cfg.proximity.far_mm => 0,
-            Some(d) => d,
-            None if reading.no_target && !reading.near => DISTANCE_BEYOND_RANGE_MM,
-            None => 0,
-        };
+    }
 
-        // The policies decide the next cycle.
-        if let Some(indicator_lsb) = ambient_high {
-            self.ambient.next(AmbientObservation {
-                indicator_lsb,
-                discrepancy_mm,
-            });
+    /// Policies: the decisions for the next cycle in their fixed order — ambient switch
+    /// (4-phase frames), exposure, rate, energy account (whose sleep follows the new rate; a
+    /// second-frequency capture is counted with its cycle).
+    fn decide_next(&mut self, cycle: &RawCycle, m: &Measurement) -> EnergyDecision {
+        if let Some(obs) = m.ambient {
+            self.ambient.next(obs);
         }
         // the window's return is no target: its pixels count as pixels without a return
-        let roi_px = (roi.rows * roi.cols).max(1) as f32;
-        // saturation at the second frequency too: the confirmation needs both measurable
-        let mut saturated_f2 = 0.0f32;
-        if let Some((c2, f2)) = &second {
-            saturated_f2 = roi_stats(f2, roi).saturated_fraction;
-            saturated_when_longer = saturated_when_longer.max(when_longer(c2));
-        }
+        let roi_px = (m.roi.rows * m.roi.cols).max(1) as f32;
         self.exposure.next(ExposureObservation::Roi {
-            saturated_fraction: stats.saturated_fraction.max(saturated_f2),
-            low_amplitude_fraction: stats.low_amplitude_fraction + window_explained as f32 / roi_px,
-            saturated_when_longer,
+            saturated_fraction: m.stats.saturated_fraction.max(m.saturated_f2),
+            low_amplitude_fraction: m.stats.low_amplitude_fraction
+                + m.window_explained as f32 / roi_px,
+            saturated_when_longer: m.saturated_when_longer,
         });
         self.rate.next(RateObservation {
-            near: reading.near,
-            distance_mm: reading.distance_mm,
+            near: m.reading.near,
+            distance_mm: m.reading.distance_mm,
         });
         let rate_hz = self.rate.rate_hz();
-        let energy = self.energy.next_with(
+        self.energy.next_with(
             CycleObservation::of(cycle, rate_hz),
-            second
+            m.second
                 .as_ref()
-                .map(|(c2, _)| CycleObservation::of(c2, rate_hz)),
-        );
-        let sleep = energy.sleep;
+                .map(|c2| CycleObservation::of(c2, rate_hz)),
+        )
+    }
 
+    /// Report: a valid reading becomes the published Near and state, the failure count and
+    /// the time since the last valid reading restart, `LastError` clears — or names the
+    /// changed cover window while it lasts.
+    fn report(&mut self, m: Measurement, energy: EnergyDecision, captured: Mode) -> StepOutcome {
         self.consecutive_failures = 0;
-        self.last_sleep = sleep;
-        if valid {
+        self.last_sleep = energy.sleep;
+        if m.valid {
             self.since_valid.reading(self.source.now());
+            self.near = m.reading.near;
+            self.state = State::Running;
         }
-        // LastError after a good cycle: "" — or the changed cover window, while it lasts.
         let note = match self.window.status() {
             s @ CrosstalkStatus::Changed { .. } => s.message(),
             _ => String::new(),
         };
         let last_error_changed = self.last_error != note;
         self.last_error = note;
-        if valid {
-            self.near = reading.near;
-            self.state = State::Running;
-        }
-        Ok(StepOutcome {
+        StepOutcome {
             update: StatusUpdate {
                 state: Some(self.state),
-                near: valid.then_some(self.near),
-                distance_mm: Some(shown_mm),
+                near: m.valid.then_some(self.near),
+                distance_mm: Some(shown_distance_mm(&m.reading, self.cfg.proximity.far_mm)),
                 mode: Some(self.ambient.mode()),
                 rate_hz: Some(self.rate.rate_hz()),
                 power_mw: Some(energy.average_mw),
@@ -740,19 +833,19 @@ impl<S: FrameSource> Controller<S> {
                 } else {
                     "nominal"
                 }),
-                valid_reading: valid,
+                valid_reading: m.valid,
                 cycle: true,
                 error: false,
             },
-            depth,
-            sleep,
+            depth: m.depth,
+            sleep: energy.sleep,
             error: None,
             near: self.near,
-            distance_mm: reading.distance_mm,
-            valid,
+            distance_mm: m.reading.distance_mm,
+            valid: m.valid,
             end_of_data: false,
             captured_mode: Some(captured),
-        })
+        }
     }
 
     /// Saturation is evidence ([`SaturationCheck`]): whether an all-rails frame is the sensor's
@@ -932,7 +1025,8 @@ fn check_cycle(c: &RawCycle) -> Result<Mode, SourceError> {
     Ok(mode)
 }
 
-/// The pipeline of `mode` (slots `[2-phase, 4-phase]`) for the window of `g`, at `exposure_us`.
+/// The pipeline of `mode` (slots `[2-phase, 4-phase]`) for the window of `g`, at `exposure`
+/// (µs, and the window's crosstalk scale).
 fn mode_pipeline<'a>(
     [two, four]: [&'a mut Option<(SensorGeometry, Pipeline)>; 2],
     calib: &ModeCalibrations,
@@ -946,6 +1040,44 @@ fn mode_pipeline<'a>(
         Mode::FourPhase => (four, &calib.four_phase),
     };
     pipeline_slot(slot, full, min_amplitude_lsb, mode, g, exposure)
+}
+
+/// The pipeline of `mode` holding this cycle's processed frame (slots `[2-phase, 4-phase]`).
+fn processed<'a>(
+    two: &'a mut Option<(SensorGeometry, Pipeline)>,
+    four: &'a mut Option<(SensorGeometry, Pipeline)>,
+    mode: Mode,
+) -> Result<&'a mut Pipeline, SourceError> {
+    let slot = match mode {
+        Mode::TwoPhase => two,
+        Mode::FourPhase => four,
+    };
+    slot.as_mut()
+        .map(|(_, p)| p)
+        .ok_or_else(|| SourceError::new(SourceErrorKind::Other, "pipeline missing"))
+}
+
+/// The detector's parameters for an ROI.
+fn detector_config(cfg: &Config, roi: Roi) -> NearFarConfig {
+    NearFarConfig {
+        near_mm: cfg.proximity.near_mm,
+        far_mm: cfg.proximity.far_mm,
+        roi,
+        far_debounce: cfg.proximity.far_debounce,
+        min_valid_fraction: cfg.proximity.min_valid_fraction,
+    }
+}
+
+/// The published `DistanceMm` of a reading: near from saturation (target too close/bright to
+/// measure) publishes "unknown" (0) — the statistic of the remaining valid pixels is the
+/// background, not the target —; nothing in range [`DISTANCE_BEYOND_RANGE_MM`].
+fn shown_distance_mm(reading: &ProximityReading, far_mm: u32) -> u32 {
+    match reading.distance_mm {
+        Some(d) if reading.near && d >= far_mm => 0,
+        Some(d) => d,
+        None if reading.no_target && !reading.near => DISTANCE_BEYOND_RANGE_MM,
+        None => 0,
+    }
 }
 
 fn pipeline_slot<'a>(
@@ -993,14 +1125,8 @@ fn detector_slot<'a>(
     roi: Roi,
 ) -> Result<&'a mut NearFarDetector, SourceError> {
     if slot.as_ref().is_none_or(|(geo, _)| *geo != g) {
-        let det = NearFarDetector::new(NearFarConfig {
-            near_mm: cfg.proximity.near_mm,
-            far_mm: cfg.proximity.far_mm,
-            roi,
-            far_debounce: cfg.proximity.far_debounce,
-            min_valid_fraction: cfg.proximity.min_valid_fraction,
-        })
-        .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
+        let det = NearFarDetector::new(detector_config(cfg, roi))
+            .map_err(|e| SourceError::new(SourceErrorKind::Other, format!("detector: {e}")))?;
         *slot = Some((g, det));
     }
     match slot {

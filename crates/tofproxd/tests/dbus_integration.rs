@@ -6,7 +6,7 @@
 //! When a tool is missing (`dbus-daemon`, `busctl` from `systemd`,
 //! `python3-dbus`, `python3-gi`, `monitor-sensor` from `iio-sensor-proxy`) a
 //! test fails with `CI` set and skips loudly otherwise
-//! (`tofprox_e2e::require_program`); `.ci/run` installs them all.
+//! (`tofprox_testkit::require_program`); `.ci/run` installs them all.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -15,50 +15,19 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+use tofprox_testkit::PrivateBus as Bus;
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-struct Bus {
-    child: Child,
-    address: String,
-    /// The socket's directory (system-policy buses).
-    _dir: Option<tempfile::TempDir>,
-}
-
-impl Drop for Bus {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
 }
 
 /// A private bus, or `None` when a tool these tests drive is missing (a loud
 /// skip; a failure in CI): `dbus-daemon`, `busctl`, and python3 with
 /// dbus-python and PyGObject for `tests/dbus/client.py`.
 fn start_bus() -> Option<Bus> {
-    let dbus_daemon = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon")?;
-    tofprox_e2e::require_program("busctl", "systemd")?;
+    tofprox_testkit::require_program("busctl", "systemd")?;
     python()?;
-    let mut child = Command::new(dbus_daemon)
-        .args(["--session", "--print-address", "--nofork"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn dbus-daemon");
-    let mut line = String::new();
-    let stdout = child.stdout.take().expect("piped stdout");
-    BufReader::new(stdout)
-        .read_line(&mut line)
-        .expect("bus address");
-    let address = line.trim().to_string();
-    assert!(!address.is_empty(), "dbus-daemon printed no address");
-    Some(Bus {
-        child,
-        address,
-        _dir: None,
-    })
+    Bus::session()
 }
 
 /// A private bus enforcing the shipped system-bus policy (`systemd/org.tofprox.Proximity1.conf`)
@@ -66,8 +35,7 @@ fn start_bus() -> Option<Bus> {
 /// system bus's compiled-in limits), and `setpriv` to run clients as `nobody` (outside the
 /// depth group). `None` (a loud skip; a failure in CI) without the tools or without root.
 fn start_system_policy_bus(test: &str) -> Option<(Bus, PathBuf)> {
-    let dbus_daemon = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon")?;
-    let setpriv = tofprox_e2e::require_program("setpriv", "util-linux")?;
+    let setpriv = tofprox_testkit::require_program("setpriv", "util-linux")?;
     if !Command::new("id")
         .arg("-u")
         .output()
@@ -76,14 +44,8 @@ fn start_system_policy_bus(test: &str) -> Option<(Bus, PathBuf)> {
         eprintln!("SKIPPED {test}: needs root to run a client as nobody");
         return None;
     }
-    let dir = tempfile::tempdir().expect("tempdir");
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).expect("chmod");
-    let socket = dir.path().join("bus");
-    let conf = dir.path().join("bus.conf");
     let policy = repo().join("systemd/org.tofprox.Proximity1.conf");
-    std::fs::write(
-        &conf,
+    let bus = Bus::configured(|socket| {
         format!(
             r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-BUS Bus Configuration 1.0//EN"
  "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
@@ -118,34 +80,13 @@ fn start_system_policy_bus(test: &str) -> Option<(Bus, PathBuf)> {
 "#,
             socket = socket.display(),
             policy = policy.display()
-        ),
-    )
-    .expect("write bus config");
-    let mut child = Command::new(dbus_daemon)
-        .arg(format!("--config-file={}", conf.display()))
-        .args(["--nofork", "--print-address"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("spawn dbus-daemon");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("bus address");
-    let address = line.trim().to_string();
-    assert!(!address.is_empty(), "dbus-daemon printed no address");
-    Some((
-        Bus {
-            child,
-            address,
-            _dir: Some(dir),
-        },
-        setpriv,
-    ))
+        )
+    })?;
+    Some((bus, setpriv))
 }
 
 fn python() -> Option<PathBuf> {
-    tofprox_e2e::require_python(
+    tofprox_testkit::require_python(
         "import dbus, dbus.mainloop.glib; from gi.repository import GLib",
         "python3-dbus python3-gi",
     )
@@ -237,7 +178,7 @@ fn spawn_daemon_env(bus: &Bus, config: &str, env: &[(String, String)]) -> Daemon
     let child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
         .arg("--config")
         .arg(&cfg)
-        .args(["--bus", &bus.address])
+        .args(["--bus", bus.address()])
         .env("RUST_LOG", "info")
         .envs(env.iter().map(|(k, v)| (k, v)))
         .stdout(Stdio::null())
@@ -253,7 +194,7 @@ fn spawn_daemon_env(bus: &Bus, config: &str, env: &[(String, String)]) -> Daemon
 
 fn name_has_owner(bus: &Bus, name: &str) -> bool {
     let out = Command::new("busctl")
-        .arg(format!("--address={}", bus.address))
+        .arg(format!("--address={}", bus.address()))
         .args([
             "call",
             "org.freedesktop.DBus",
@@ -329,7 +270,7 @@ impl Client {
         let mut child = Command::new(python().expect("checked by start_bus"))
             .arg(repo().join("tests/dbus/client.py"))
             .args(args)
-            .args(["--address", &bus.address])
+            .args(["--address", bus.address()])
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
@@ -393,7 +334,7 @@ fn changed(v: &Value, prop: &str) -> Option<Value> {
 
 fn busctl(bus: &Bus, args: &[&str]) -> std::process::Output {
     Command::new("busctl")
-        .arg(format!("--address={}", bus.address))
+        .arg(format!("--address={}", bus.address()))
         .args(args)
         .output()
         .expect("busctl")
@@ -910,7 +851,7 @@ fn shipped_introspection_matches_the_daemon() {
     };
     let live = |dest: &str, path: &str| -> String {
         let out = Command::new("busctl")
-            .arg(format!("--address={}", bus.address))
+            .arg(format!("--address={}", bus.address()))
             .args([
                 "call",
                 dest,
@@ -960,7 +901,7 @@ fn sd_notify_ready_watchdog_and_stopping() {
     let mut child = Command::new(env!("CARGO_BIN_EXE_tofproxd"))
         .arg("--config")
         .arg(&cfg)
-        .args(["--bus", &bus.address])
+        .args(["--bus", bus.address()])
         .env("NOTIFY_SOCKET", &sock_path)
         .env("WATCHDOG_USEC", "400000")
         .env_remove("WATCHDOG_PID")
@@ -1074,14 +1015,14 @@ fn depth_frames_only_reach_the_depth_claimer() {
 fn writing_a_read_only_property_is_refused_as_read_only() {
     let Some(bus) = start_bus() else { return };
     // dbus-send prints the D-Bus error name (busctl only its message)
-    let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
+    let Some(dbus_send) = tofprox_testkit::require_program("dbus-send", "dbus-bin") else {
         return;
     };
     let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
     let _daemon = start_daemon(&bus, &cfg);
     let set = |dest: &str, path: &str, iface: &str, prop: &str| -> String {
         let out = Command::new(&dbus_send)
-            .arg(format!("--bus={}", bus.address))
+            .arg(format!("--bus={}", bus.address()))
             .args(["--print-reply", &format!("--dest={dest}"), path])
             .arg("org.freedesktop.DBus.Properties.Set")
             .arg(format!("string:{iface}"))
@@ -1121,7 +1062,7 @@ fn writing_a_read_only_property_is_refused_as_read_only() {
 /// `nobody` (skips loudly otherwise).
 #[test]
 fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
-    let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
+    let Some(dbus_send) = tofprox_testkit::require_program("dbus-send", "dbus-bin") else {
         return;
     };
     let Some((bus, setpriv)) =
@@ -1136,7 +1077,7 @@ fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
         let out = Command::new(&setpriv)
             .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
             .arg(&dbus_send)
-            .arg(format!("--bus={}", bus.address))
+            .arg(format!("--bus={}", bus.address()))
             .args(["--print-reply", "--dest=org.tofprox.Proximity1"])
             .args(args)
             .output()
@@ -1223,7 +1164,7 @@ for _ in range(3):
     let senders: Vec<_> = (0..3)
         .map(|_| {
             Command::new(python().expect("checked by start_bus"))
-                .args(["-c", sender, &bus.address])
+                .args(["-c", sender, bus.address()])
                 .stdout(Stdio::piped())
                 .spawn()
                 .expect("spawn sender")
@@ -1280,7 +1221,7 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
         Command::new(&setpriv)
             .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
             .arg(&py)
-            .args(["-c", script, &bus.address])
+            .args(["-c", script, bus.address()])
             .args(args)
             .stdout(Stdio::piped())
             .spawn()
@@ -1343,12 +1284,12 @@ fn a_depth_claim_alone_shows_nothing_to_an_unprivileged_client() {
     let idle = Command::new(&setpriv)
         .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
         .arg(&py)
-        .args(["-c", PUBLIC_VIEW, &bus.address, "0"])
+        .args(["-c", PUBLIC_VIEW, bus.address(), "0"])
         .output()
         .expect("setpriv python3");
     let idle: Value = serde_json::from_slice(&idle.stdout).expect("public view json");
     let mut depth = Command::new(&py)
-        .args(["-c", DEPTH_ONLY, &bus.address, "4"])
+        .args(["-c", DEPTH_ONLY, bus.address(), "4"])
         .stdout(Stdio::piped())
         .spawn()
         .expect("depth claimer");
@@ -1360,7 +1301,7 @@ fn a_depth_claim_alone_shows_nothing_to_an_unprivileged_client() {
     let seen = Command::new(&setpriv)
         .args(["--reuid=nobody", "--regid=nogroup", "--clear-groups"])
         .arg(&py)
-        .args(["-c", PUBLIC_VIEW, &bus.address, "1.5"])
+        .args(["-c", PUBLIC_VIEW, bus.address(), "1.5"])
         .output()
         .expect("setpriv python3");
     let seen: Value = serde_json::from_slice(&seen.stdout).expect("public view json");
@@ -1478,12 +1419,13 @@ print(json.dumps({"n": len(lat), "max_ms": lat[-1] * 1e3, "median_ms": lat[len(l
 #[test]
 fn unmodified_monitor_sensor_sees_near_and_far() {
     let Some(bus) = start_bus() else { return };
-    let Some(monitor_sensor) = tofprox_e2e::require_program("monitor-sensor", "iio-sensor-proxy")
+    let Some(monitor_sensor) =
+        tofprox_testkit::require_program("monitor-sensor", "iio-sensor-proxy")
     else {
         return;
     };
     let mut monitor = Command::new(monitor_sensor)
-        .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
+        .env("DBUS_SYSTEM_BUS_ADDRESS", bus.address())
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()

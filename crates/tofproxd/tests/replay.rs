@@ -110,31 +110,20 @@ fn replay_is_deterministic_and_follows_the_recording() {
 /// same sequence of Near changes twice.
 #[test]
 fn replay_over_dbus_gives_the_same_sequence_every_run() {
-    use std::io::{BufRead, BufReader};
     use std::process::{Command, Stdio};
-    let Some(dbus_daemon) = tofprox_e2e::require_program("dbus-daemon", "dbus-daemon") else {
+    let Some(_) = tofprox_testkit::require_program("busctl", "systemd") else {
         return;
     };
-    let Some(_) = tofprox_e2e::require_program("busctl", "systemd") else {
-        return;
-    };
-    let Some(python) = tofprox_e2e::require_python(
+    let Some(python) = tofprox_testkit::require_python(
         "import dbus; from gi.repository import GLib",
         "python3-dbus python3-gi",
     ) else {
         return;
     };
-    let mut bus = Command::new(dbus_daemon)
-        .args(["--session", "--print-address", "--nofork"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn dbus-daemon");
-    let mut addr = String::new();
-    BufReader::new(bus.stdout.take().unwrap())
-        .read_line(&mut addr)
-        .unwrap();
-    let addr = addr.trim().to_string();
+    let Some(bus) = tofprox_testkit::PrivateBus::session() else {
+        return;
+    };
+    let addr = bus.address().to_string();
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("rec");
     write_recording(&rec);
@@ -193,8 +182,7 @@ fn replay_over_dbus_gives_the_same_sequence_every_run() {
             .collect();
         runs.push(seq);
     }
-    let _ = bus.kill();
-    let _ = bus.wait();
+    drop(bus);
     assert!(
         runs[0].iter().any(|n| n == "true"),
         "near seen over D-Bus: {:?}",

@@ -79,7 +79,7 @@ fn soak_rejects_a_bad_fault_rate() {
 
 /// `systemd-analyze`, or a loud skip (a failure in CI) when it is missing.
 fn systemd_analyze() -> bool {
-    tofprox_e2e::require_program("systemd-analyze", "systemd").is_some()
+    tofprox_testkit::require_program("systemd-analyze", "systemd").is_some()
 }
 
 #[test]

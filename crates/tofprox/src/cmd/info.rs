@@ -2,13 +2,14 @@
 //! `docs/recording-format.md`, calibration sets: `docs/calibration.md`).
 
 use std::collections::BTreeMap;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use serde_json::json;
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_format::{
-    CalibPart, CalibrationSet, DepthRecording, PartState, Recording, RecordingKind,
+    CalibPart, CalibrationSet, DepthRecording, PartSource, PartState, Recording, RecordingKind,
 };
 
 use super::common::{fmt_num, mode_label, progress};
@@ -34,100 +35,148 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         return depth_info(&a);
     }
     let rec = Recording::open(&a.recording)?;
-    let s = *rec.sensor();
-    let caps = rec.captures();
-    let pb = progress(caps.len(), "reading");
-    let mut sat = Vec::with_capacity(caps.len());
-    for i in 0..caps.len() {
+    let sat = saturation_per_capture(&rec)?;
+    let tally = Tally::of(&rec);
+    if a.json {
+        println!("{}", recording_json(&a, &rec, &tally, &sat));
+    } else {
+        print!("{}", recording_text(&a, &rec, &tally, &sat));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Per capture, the fraction of pixels with a raw image at a rail.
+fn saturation_per_capture(rec: &Recording) -> anyhow::Result<Vec<f64>> {
+    let n = rec.captures().len();
+    let pb = progress(n, "reading");
+    let mut sat = Vec::with_capacity(n);
+    for i in 0..n {
         let f = rec.load(i)?;
-        sat.push(f.saturated_fraction(s.adc_bits));
+        sat.push(f.saturated_fraction(rec.sensor().adc_bits));
         pb.inc(1);
     }
     pb.finish_and_clear();
+    Ok(sat)
+}
 
-    let mut by_mode: BTreeMap<String, usize> = BTreeMap::new();
-    let mut by_exposure: BTreeMap<String, usize> = BTreeMap::new();
-    let mut by_illum: BTreeMap<&str, usize> = BTreeMap::new();
-    let mut by_dtype: BTreeMap<&str, usize> = BTreeMap::new();
-    let mut conds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
-    for (i, c) in caps.iter().enumerate() {
-        let mode = if c.illumination {
-            mode_label(c)
-        } else {
-            format!("dark {}", mode_label(c))
+/// A recording's captures counted by mode, exposure, illumination and sample type, and the
+/// values of each condition.
+struct Tally {
+    by_mode: BTreeMap<String, usize>,
+    by_exposure: BTreeMap<String, usize>,
+    by_illum: BTreeMap<String, usize>,
+    by_dtype: BTreeMap<String, usize>,
+    conds: BTreeMap<String, Vec<f64>>,
+}
+
+impl Tally {
+    fn of(rec: &Recording) -> Self {
+        let mut t = Tally {
+            by_mode: BTreeMap::new(),
+            by_exposure: BTreeMap::new(),
+            by_illum: BTreeMap::new(),
+            by_dtype: BTreeMap::new(),
+            conds: BTreeMap::new(),
         };
-        *by_mode.entry(mode).or_default() += 1;
-        *by_exposure.entry(fmt_num(c.exposure_us)).or_default() += 1;
-        *by_illum
-            .entry(if c.illumination { "on" } else { "off" })
-            .or_default() += 1;
-        *by_dtype
-            .entry(rec.dtype(i).map_or("?", |d| d.name()))
-            .or_default() += 1;
-        for (k, v) in &c.conditions {
-            conds.entry(k.clone()).or_default().push(*v);
+        for (i, c) in rec.captures().iter().enumerate() {
+            let mode = if c.illumination {
+                mode_label(c)
+            } else {
+                format!("dark {}", mode_label(c))
+            };
+            *t.by_mode.entry(mode).or_default() += 1;
+            *t.by_exposure.entry(fmt_num(c.exposure_us)).or_default() += 1;
+            *t.by_illum.entry(on_off(c.illumination).into()).or_default() += 1;
+            *t.by_dtype.entry(dtype_name(rec, i).into()).or_default() += 1;
+            for (k, v) in &c.conditions {
+                t.conds.entry(k.clone()).or_default().push(*v);
+            }
         }
+        t
     }
-    let total_sat = if sat.is_empty() {
+}
+
+fn on_off(b: bool) -> &'static str {
+    if b { "on" } else { "off" }
+}
+
+fn dtype_name(rec: &Recording, i: usize) -> &'static str {
+    rec.dtype(i).map_or("?", |d| d.name())
+}
+
+/// The distinct values of a condition, sorted.
+fn distinct(v: &[f64]) -> Vec<f64> {
+    let mut d = v.to_vec();
+    d.sort_by(f64::total_cmp);
+    d.dedup();
+    d
+}
+
+fn mean_or_zero(v: &[f64]) -> f64 {
+    if v.is_empty() {
         0.0
     } else {
-        sat.iter().sum::<f64>() / sat.len() as f64
-    };
-    let range_m = unambiguous_range_m(s.modulation_hz);
-
-    if a.json {
-        let per: Vec<_> = caps
-            .iter()
-            .enumerate()
-            .map(|(i, c)| {
-                json!({
-                    "index": i,
-                    "frames": c.frames,
-                    "mode": mode_label(c),
-                    "phases_deg": c.phases_deg,
-                    "exposure_us": c.exposure_us,
-                    "illumination": c.illumination,
-                    "averaged": c.averaged,
-                    "dtype": rec.dtype(i).map(|d| d.name()),
-                    "timestamp_ns": c.timestamp_ns,
-                    "conditions": c.conditions,
-                    "saturated_fraction": sat.get(i),
-                })
-            })
-            .collect();
-        let cond_json: BTreeMap<_, _> = conds
-            .iter()
-            .map(|(k, v)| {
-                let mut d = v.clone();
-                d.sort_by(f64::total_cmp);
-                d.dedup();
-                (k.clone(), json!({"captures": v.len(), "values": d}))
-            })
-            .collect();
-        let out = json!({
-            "recording": a.recording.display().to_string(),
-            "description": rec.description(),
-            "sensor": {
-                "rows": s.rows, "cols": s.cols, "roi_origin": s.roi_origin,
-                "full_rows": s.full_rows, "full_cols": s.full_cols,
-                "adc_bits": s.adc_bits, "modulation_hz": s.modulation_hz,
-                "unambiguous_range_m": range_m,
-            },
-            "captures": caps.len(),
-            "by_mode": by_mode,
-            "by_exposure_us": by_exposure,
-            "by_illumination": by_illum,
-            "by_dtype": by_dtype,
-            "conditions": cond_json,
-            "saturated_fraction": total_sat,
-            "per_capture": per,
-        });
-        println!("{out}");
-        return Ok(ExitCode::SUCCESS);
+        v.iter().sum::<f64>() / v.len() as f64
     }
+}
 
+/// `tofprox info REC --json`.
+fn recording_json(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> serde_json::Value {
+    let s = *rec.sensor();
+    let caps = rec.captures();
+    let per: Vec<_> = caps
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            json!({
+                "index": i,
+                "frames": c.frames,
+                "mode": mode_label(c),
+                "phases_deg": c.phases_deg,
+                "exposure_us": c.exposure_us,
+                "illumination": c.illumination,
+                "averaged": c.averaged,
+                "dtype": rec.dtype(i).map(|d| d.name()),
+                "timestamp_ns": c.timestamp_ns,
+                "conditions": c.conditions,
+                "saturated_fraction": sat.get(i),
+            })
+        })
+        .collect();
+    let cond_json: BTreeMap<_, _> = t
+        .conds
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.clone(),
+                json!({"captures": v.len(), "values": distinct(v)}),
+            )
+        })
+        .collect();
+    json!({
+        "recording": a.recording.display().to_string(),
+        "description": rec.description(),
+        "sensor": {
+            "rows": s.rows, "cols": s.cols, "roi_origin": s.roi_origin,
+            "full_rows": s.full_rows, "full_cols": s.full_cols,
+            "adc_bits": s.adc_bits, "modulation_hz": s.modulation_hz,
+            "unambiguous_range_m": unambiguous_range_m(s.modulation_hz),
+        },
+        "captures": caps.len(),
+        "by_mode": t.by_mode,
+        "by_exposure_us": t.by_exposure,
+        "by_illumination": t.by_illum,
+        "by_dtype": t.by_dtype,
+        "conditions": cond_json,
+        "saturated_fraction": mean_or_zero(sat),
+        "per_capture": per,
+    })
+}
+
+/// `tofprox info REC`: the summary, then one line per capture.
+fn recording_text(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> String {
+    let s = *rec.sensor();
     let mut o = String::new();
-    use std::fmt::Write as _;
     let _ = writeln!(o, "recording   {}", a.recording.display());
     if let Some(d) = rec.description() {
         let _ = writeln!(o, "description {d}");
@@ -144,56 +193,17 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
         s.adc_bits,
         s.mid_code(),
         fmt_num(s.modulation_hz / 1e6),
-        range_m
+        unambiguous_range_m(s.modulation_hz)
     );
-    let join = |m: &BTreeMap<String, usize>, unit: &str| -> String {
-        m.iter()
-            .map(|(k, v)| format!("{k}{unit} ×{v}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    let _ = writeln!(o, "captures    {}", caps.len());
-    let _ = writeln!(o, "  by mode         {}", join(&by_mode, ""));
-    let _ = writeln!(o, "  by exposure     {}", join(&by_exposure, " µs"));
-    let illum: BTreeMap<String, usize> =
-        by_illum.iter().map(|(k, v)| (k.to_string(), *v)).collect();
-    let _ = writeln!(o, "  illumination    {}", join(&illum, ""));
-    let dt: BTreeMap<String, usize> = by_dtype.iter().map(|(k, v)| (k.to_string(), *v)).collect();
-    let _ = writeln!(o, "  dtype           {}", join(&dt, ""));
-    for (k, v) in &conds {
-        let mut d = v.clone();
-        d.sort_by(f64::total_cmp);
-        d.dedup();
-        let shown: Vec<String> = d.iter().take(12).map(|x| fmt_num(*x)).collect();
-        let more = if d.len() > 12 { ", …" } else { "" };
-        let _ = writeln!(
-            o,
-            "  {k:<15} {} capture(s): {}{more}",
-            v.len(),
-            shown.join(", ")
-        );
-    }
-    let (worst_i, worst) =
-        sat.iter().copied().enumerate().fold(
-            (0, 0.0f64),
-            |acc, (i, v)| if v > acc.1 { (i, v) } else { acc },
-        );
-    let _ = write!(
-        o,
-        "saturation  {:.2} % of pixels have a raw image at a rail",
-        100.0 * total_sat
-    );
-    if worst > 0.0 {
-        let _ = write!(o, " (worst: capture {worst_i}, {:.2} %)", 100.0 * worst);
-    }
-    let _ = writeln!(o);
+    write_tally(&mut o, rec.captures().len(), t);
+    write_saturation(&mut o, sat);
     let _ = writeln!(o);
     let _ = writeln!(
         o,
         "{:>5}  {:<20} {:<16} {:>11} {:>5} {:>4} {:>8} {:>7}  conditions",
         "index", "frames", "mode", "exposure_us", "illum", "avg", "dtype", "sat %"
     );
-    for (i, c) in caps.iter().enumerate() {
+    for (i, c) in rec.captures().iter().enumerate() {
         let cond: Vec<String> = c
             .conditions
             .iter()
@@ -206,131 +216,147 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
             c.frames,
             mode_label(c),
             fmt_num(c.exposure_us),
-            if c.illumination { "on" } else { "off" },
+            on_off(c.illumination),
             c.averaged,
-            rec.dtype(i).map_or("?", |d| d.name()),
+            dtype_name(rec, i),
             100.0 * sat.get(i).copied().unwrap_or(0.0),
             cond.join(" ")
         );
     }
-    print!("{o}");
-    Ok(ExitCode::SUCCESS)
+    o
+}
+
+/// The captures' counts and each condition's values (the first 12).
+fn write_tally(o: &mut String, captures: usize, t: &Tally) {
+    let join = |m: &BTreeMap<String, usize>, unit: &str| -> String {
+        m.iter()
+            .map(|(k, v)| format!("{k}{unit} ×{v}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let _ = writeln!(o, "captures    {captures}");
+    let _ = writeln!(o, "  by mode         {}", join(&t.by_mode, ""));
+    let _ = writeln!(o, "  by exposure     {}", join(&t.by_exposure, " µs"));
+    let _ = writeln!(o, "  illumination    {}", join(&t.by_illum, ""));
+    let _ = writeln!(o, "  dtype           {}", join(&t.by_dtype, ""));
+    for (k, v) in &t.conds {
+        let d = distinct(v);
+        let shown: Vec<String> = d.iter().take(12).map(|x| fmt_num(*x)).collect();
+        let more = if d.len() > 12 { ", …" } else { "" };
+        let _ = writeln!(
+            o,
+            "  {k:<15} {} capture(s): {}{more}",
+            v.len(),
+            shown.join(", ")
+        );
+    }
+}
+
+/// The mean share of pixels at a rail and the worst capture.
+fn write_saturation(o: &mut String, sat: &[f64]) {
+    let (worst_i, worst) =
+        sat.iter().copied().enumerate().fold(
+            (0, 0.0f64),
+            |acc, (i, v)| if v > acc.1 { (i, v) } else { acc },
+        );
+    let _ = write!(
+        o,
+        "saturation  {:.2} % of pixels have a raw image at a rail",
+        100.0 * mean_or_zero(sat)
+    );
+    if worst > 0.0 {
+        let _ = write!(o, " (worst: capture {worst_i}, {:.2} %)", 100.0 * worst);
+    }
+    let _ = writeln!(o);
+}
+
+/// One part of a calibration set, summarised: the quantity it holds, its statistics over
+/// every value, and where it came from.
+struct PartSummary {
+    part: CalibPart,
+    what: &'static str,
+    mean: f64,
+    sd: f64,
+    lo: f64,
+    hi: f64,
+    unit: &'static str,
+    src: PartSource,
+}
+
+impl PartSummary {
+    fn of(set: &CalibrationSet, part: CalibPart) -> Self {
+        let values: Vec<f32> = match part {
+            CalibPart::Intrinsics => set
+                .intrinsics
+                .iter()
+                .flat_map(|k| [k.fx_px as f32, k.fy_px as f32])
+                .collect(),
+            CalibPart::Offset => set
+                .offset
+                .iter()
+                .flat_map(|o| o.dark_lsb.iter().copied())
+                .collect(),
+            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => part
+                .algorithm()
+                .and_then(|alg| set.wiggling(alg))
+                .into_iter()
+                .flat_map(|w| w.correction_rad.iter().copied())
+                .collect(),
+            CalibPart::Amplitude => set
+                .amplitude
+                .iter()
+                .flat_map(|a| a.lsb_m2_per_us.iter().copied())
+                .collect(),
+            CalibPart::Crosstalk => set
+                .crosstalk
+                .iter()
+                .flat_map(|x| x.lsb_per_us.iter().copied())
+                .collect(),
+            CalibPart::Fppn | CalibPart::Fppn2Phase => match part {
+                CalibPart::Fppn => set.fppn.as_ref(),
+                _ => set.fppn_2phase.as_ref(),
+            }
+            .into_iter()
+            .flat_map(|f| f.phase_offset_rad.iter().copied())
+            .collect(),
+        };
+        let (what, unit) = match part {
+            CalibPart::Intrinsics => ("focal length", "px"),
+            CalibPart::Offset => ("dark level", "LSB"),
+            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => ("correction", "rad"),
+            CalibPart::Amplitude => ("scale K of A = K·ρ·t/d²", "LSB·m²/µs"),
+            CalibPart::Crosstalk => ("crosstalk", "LSB/us"),
+            CalibPart::Fppn | CalibPart::Fppn2Phase => ("phase offset", "rad"),
+        };
+        let v: Vec<f64> = values.into_iter().map(f64::from).collect();
+        let n = v.len().max(1) as f64;
+        let mean = v.iter().sum::<f64>() / n;
+        PartSummary {
+            part,
+            what,
+            mean,
+            sd: (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt(),
+            lo: v.iter().copied().fold(f64::INFINITY, f64::min),
+            hi: v.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            unit,
+            src: set.sources.get(&part).cloned().unwrap_or_default(),
+        }
+    }
 }
 
 /// `tofprox info CALIB`: what a calibration set holds.
 fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
     let set = CalibrationSet::load(&a.recording)?;
-    let v = &set.validity;
-    let mm_per_rad = 1000.0 * unambiguous_range_m(v.modulation_hz) / std::f64::consts::TAU;
-    let stats = |x: &mut dyn Iterator<Item = f32>| -> (f64, f64, f64, f64) {
-        let v: Vec<f64> = x.map(f64::from).collect();
-        let n = v.len().max(1) as f64;
-        let mean = v.iter().sum::<f64>() / n;
-        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
-        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        (mean, sd, lo, hi)
-    };
-    let mut parts = Vec::new();
-    for part in set.parts() {
-        let (what, (mean, sd, lo, hi), unit) = match part {
-            CalibPart::Intrinsics => (
-                "focal length",
-                stats(
-                    &mut set
-                        .intrinsics
-                        .iter()
-                        .flat_map(|k| [k.fx_px as f32, k.fy_px as f32]),
-                ),
-                "px",
-            ),
-            CalibPart::Offset => (
-                "dark level",
-                stats(&mut set.offset.iter().flat_map(|o| o.dark_lsb.iter().copied())),
-                "LSB",
-            ),
-            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => (
-                "correction",
-                stats(
-                    &mut part
-                        .algorithm()
-                        .and_then(|alg| set.wiggling(alg))
-                        .into_iter()
-                        .flat_map(|w| w.correction_rad.iter().copied()),
-                ),
-                "rad",
-            ),
-            CalibPart::Amplitude => (
-                "scale K of A = K·ρ·t/d²",
-                stats(
-                    &mut set
-                        .amplitude
-                        .iter()
-                        .flat_map(|a| a.lsb_m2_per_us.iter().copied()),
-                ),
-                "LSB·m²/µs",
-            ),
-            CalibPart::Crosstalk => (
-                "crosstalk",
-                stats(
-                    &mut set
-                        .crosstalk
-                        .iter()
-                        .flat_map(|x| x.lsb_per_us.iter().copied()),
-                ),
-                "LSB/us",
-            ),
-            CalibPart::Fppn | CalibPart::Fppn2Phase => (
-                "phase offset",
-                stats(
-                    &mut (match part {
-                        CalibPart::Fppn => set.fppn.as_ref(),
-                        _ => set.fppn_2phase.as_ref(),
-                    })
-                    .into_iter()
-                    .flat_map(|f| f.phase_offset_rad.iter().copied()),
-                ),
-                "rad",
-            ),
-        };
-        let src = set.sources.get(&part).cloned().unwrap_or_default();
-        parts.push((part, what, mean, sd, lo, hi, unit, src));
-    }
+    let parts: Vec<PartSummary> = set
+        .parts()
+        .into_iter()
+        .map(|p| PartSummary::of(&set, p))
+        .collect();
     if a.json {
-        let ps: BTreeMap<_, _> = parts
-            .iter()
-            .map(|(part, what, mean, sd, lo, hi, unit, src)| {
-                (
-                    part.name(),
-                    json!({
-                        "quantity": what, "unit": unit, "mean": mean, "std": sd, "min": lo, "max": hi,
-                        "sha256": set.checksum(*part),
-                        "source_recording": src.recording, "source_captures": src.captures,
-                        "distance_m": src.distance_m, "created": src.created, "tool": src.tool,
-                    }),
-                )
-            })
-            .collect();
-        let out = json!({
-            "calibration": a.recording.display().to_string(),
-            "description": set.description,
-            "valid_for": {
-                "modulation_hz": v.modulation_hz, "adc_bits": v.adc_bits, "rows": v.rows,
-                "cols": v.cols, "roi_origin": v.roi_origin, "full_rows": v.full_rows,
-                "full_cols": v.full_cols,
-            },
-            "parts": ps,
-            "chain": set.chain().iter().map(|e| json!({
-                "part": e.part.name(),
-                "after": e.after.iter().map(|p| p.name()).collect::<Vec<_>>(),
-                "state": chain_state(&e.state),
-            })).collect::<Vec<_>>(),
-            "complete": set.is_complete(),
-            "next_steps": set.next_steps(&a.recording.display().to_string()),
-        });
-        println!("{out}");
+        println!("{}", calib_json(a, &set, &parts));
         return Ok(ExitCode::SUCCESS);
     }
+    let v = &set.validity;
     println!("calibration {} (checksums verified)", a.recording.display());
     if let Some(d) = &set.description {
         println!("description {d}");
@@ -346,47 +372,96 @@ fn calib_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
         v.adc_bits,
         fmt_num(v.modulation_hz / 1e6)
     );
-    for (part, what, mean, sd, lo, hi, unit, src) in &parts {
-        let in_mm = |x: f64| {
-            if *unit == "rad" {
-                format!(" ({:.1} mm)", x * mm_per_rad)
-            } else {
-                String::new()
-            }
-        };
-        let size = match part {
-            CalibPart::Intrinsics => set.intrinsics.as_ref().map_or(String::new(), |k| {
-                let d = &k.distortion;
-                format!(
-                    "; principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}",
-                    k.cx_px, k.cy_px, d.k1, d.k2, d.k3, d.p1, d.p2
-                )
-            }),
-            CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => part
-                .algorithm()
-                .and_then(|alg| set.wiggling(alg))
-                .map_or(String::new(), |w| format!(", {} bins", w.len())),
-            _ => String::new(),
-        };
-        println!(
-            "{:<16} {what}: mean {mean:.4} {unit}{}, σ {sd:.4} {unit}{}, range {lo:.4} .. {hi:.4} {unit}{size}",
-            part.name(),
-            in_mm(*mean),
-            in_mm(*sd),
-        );
-        let dist = src
-            .distance_m
-            .map_or(String::new(), |d| format!(" at {} m", fmt_num(d)));
-        println!(
-            "{:<16} from {} captures {:?}{dist}, {} by {}",
-            "", src.recording, src.captures, src.created, src.tool
-        );
+    for p in &parts {
+        print_part(&set, p);
     }
     if parts.is_empty() {
         println!("(no parts)");
     }
     print_chain(&set, &a.recording.display().to_string());
     Ok(ExitCode::SUCCESS)
+}
+
+/// `tofprox info CALIB --json`.
+fn calib_json(a: &InfoArgs, set: &CalibrationSet, parts: &[PartSummary]) -> serde_json::Value {
+    let v = &set.validity;
+    let ps: BTreeMap<_, _> = parts
+        .iter()
+        .map(|p| {
+            let src = &p.src;
+            (
+                p.part.name(),
+                json!({
+                    "quantity": p.what, "unit": p.unit, "mean": p.mean, "std": p.sd,
+                    "min": p.lo, "max": p.hi,
+                    "sha256": set.checksum(p.part),
+                    "source_recording": src.recording, "source_captures": src.captures,
+                    "distance_m": src.distance_m, "created": src.created, "tool": src.tool,
+                }),
+            )
+        })
+        .collect();
+    json!({
+        "calibration": a.recording.display().to_string(),
+        "description": set.description,
+        "valid_for": {
+            "modulation_hz": v.modulation_hz, "adc_bits": v.adc_bits, "rows": v.rows,
+            "cols": v.cols, "roi_origin": v.roi_origin, "full_rows": v.full_rows,
+            "full_cols": v.full_cols,
+        },
+        "parts": ps,
+        "chain": set.chain().iter().map(|e| json!({
+            "part": e.part.name(),
+            "after": e.after.iter().map(|p| p.name()).collect::<Vec<_>>(),
+            "state": chain_state(&e.state),
+        })).collect::<Vec<_>>(),
+        "complete": set.is_complete(),
+        "next_steps": set.next_steps(&a.recording.display().to_string()),
+    })
+}
+
+/// Two lines of a part: its statistics (phase values also in mm of depth), then where it
+/// came from.
+fn print_part(set: &CalibrationSet, p: &PartSummary) {
+    let mm_per_rad =
+        1000.0 * unambiguous_range_m(set.validity.modulation_hz) / std::f64::consts::TAU;
+    let in_mm = |x: f64| {
+        if p.unit == "rad" {
+            format!(" ({:.1} mm)", x * mm_per_rad)
+        } else {
+            String::new()
+        }
+    };
+    let size = match p.part {
+        CalibPart::Intrinsics => set.intrinsics.as_ref().map_or(String::new(), |k| {
+            let d = &k.distortion;
+            format!(
+                "; principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}",
+                k.cx_px, k.cy_px, d.k1, d.k2, d.k3, d.p1, d.p2
+            )
+        }),
+        CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => p
+            .part
+            .algorithm()
+            .and_then(|alg| set.wiggling(alg))
+            .map_or(String::new(), |w| format!(", {} bins", w.len())),
+        _ => String::new(),
+    };
+    let (what, unit, mean, sd, lo, hi) = (p.what, p.unit, p.mean, p.sd, p.lo, p.hi);
+    println!(
+        "{:<16} {what}: mean {mean:.4} {unit}{}, σ {sd:.4} {unit}{}, range {lo:.4} .. {hi:.4} {unit}{size}",
+        p.part.name(),
+        in_mm(mean),
+        in_mm(sd),
+    );
+    let src = &p.src;
+    let dist = src
+        .distance_m
+        .map_or(String::new(), |d| format!(" at {} m", fmt_num(d)));
+    println!(
+        "{:<16} from {} captures {:?}{dist}, {} by {}",
+        "", src.recording, src.captures, src.created, src.tool
+    );
 }
 
 /// The chain of a set: each part, what it is extracted after, where it stands; then whether the

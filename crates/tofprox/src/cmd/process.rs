@@ -9,14 +9,14 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use ndarray::{Array2, s};
 use serde_json::json;
-use tofprox_core::Algorithm;
 use tofprox_core::camera::RayGrid;
-use tofprox_core::crosstalk::residual_ratio;
+use tofprox_core::crosstalk::{CrosstalkCalibration, residual_ratio};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::{
-    DepthFrame, FLAG_INVALID, Pipeline, PipelineConfig, depth_m_to_mm, median_valid_m,
+    Calibration, DepthFrame, FLAG_INVALID, Pipeline, PipelineConfig, depth_m_to_mm, median_valid_m,
 };
 use tofprox_core::proximity::Roi;
+use tofprox_core::{Algorithm, SensorGeometry};
 use tofprox_format::npy;
 use tofprox_format::{
     CalibrationSet, CaptureMeta, PointCloudFormat, RawFrames, Recording, encode_points,
@@ -210,56 +210,9 @@ impl PointsOutput {
 pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     let rec = Recording::open(&a.recording)?;
     let sensor = *rec.sensor();
-    let (calibration, rays) = match &a.calib {
-        Some(dir) => {
-            let set = CalibrationSet::load(dir)?;
-            set.check_compatible(&sensor).with_context(|| {
-                format!(
-                    "refusing to apply {} to {}",
-                    dir.display(),
-                    a.recording.display()
-                )
-            })?;
-            if set.wiggling(a.algo).is_none() {
-                eprintln!(
-                    "note: {} has no {} wiggling table: depth is not wiggling corrected",
-                    dir.display(),
-                    a.algo
-                );
-            }
-            if set.offset.is_none() {
-                eprintln!(
-                    "note: {} has no offset (FPN): the mid code is subtracted instead",
-                    dir.display()
-                );
-            }
-            let rays = set
-                .rays()
-                .transpose()
-                .with_context(|| format!("the lens of {}", dir.display()))?;
-            (set.to_pipeline_calibration(a.algo), rays)
-        }
-        None => {
-            eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
-            (Default::default(), None)
-        }
-    };
+    let (calibration, rays) = calibration_for(&a, &sensor)?;
     let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
-    // Z depth and points need each pixel's ray (thesis 5.1.3; docs/calibration.md)
-    let needs_lens = a.depth_kind == DepthKind::Z || a.points.is_some();
-    if needs_lens && rays.is_none() {
-        bail!(
-            "{} needs the lens: a --calib set with intrinsics (tofprox calibrate intrinsics; docs/calibration.md){}",
-            if a.points.is_some() {
-                "--points"
-            } else {
-                "--depth-kind z"
-            },
-            a.calib
-                .as_ref()
-                .map_or(String::new(), |d| format!(", and {} has none", d.display()))
-        );
-    }
+    check_lens(&a, rays.is_some())?;
     let max_m = match a.png_max_m {
         Some(m) if m.is_finite() && m > 0.0 => m,
         Some(m) => bail!("--png-max-m {m} is not a positive distance"),
@@ -274,7 +227,104 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
     let mut pipeline = Pipeline::new(sensor.rows, sensor.cols, config, calibration)
         .context("setting up the processing pipeline")?;
     fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let todo = processable_captures(&rec, &a)?;
+    let outputs = Outputs {
+        rays: rays.as_ref(),
+        points: points.as_ref(),
+        origin: sensor.roi_origin,
+        max_m,
+    };
+    let pb = progress(todo.len(), "processing");
+    if !a.json {
+        println!(
+            "{:>5}  {:>10}  {:>14}  {:>9}  {:>8}  {:>10}",
+            "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
+        );
+    }
+    // (cloned once: the frame borrows the pipeline while the residual is computed)
+    let crosstalk = pipeline.calibration().crosstalk.clone();
+    for &i in &todo {
+        let row = process_capture(&rec, i, &a, &mut pipeline, crosstalk.as_ref(), &outputs)?;
+        print_row(&a, i, &row)?;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    if !a.json {
+        println!(
+            "wrote {} depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
+            a.depth_kind.name(),
+            a.out.display()
+        );
+        if let Some(p) = &points {
+            println!(
+                "wrote a point cloud per capture to {}",
+                p.path(todo[0]).display()
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
 
+/// The pipeline calibration of `--calib` (checked against the recording's sensor; what it
+/// lacks is noted) and its lens's rays; without `--calib` none.
+fn calibration_for(
+    a: &ProcessArgs,
+    sensor: &SensorGeometry,
+) -> anyhow::Result<(Calibration, Option<RayGrid>)> {
+    let Some(dir) = &a.calib else {
+        eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
+        return Ok((Default::default(), None));
+    };
+    let set = CalibrationSet::load(dir)?;
+    set.check_compatible(sensor).with_context(|| {
+        format!(
+            "refusing to apply {} to {}",
+            dir.display(),
+            a.recording.display()
+        )
+    })?;
+    if set.wiggling(a.algo).is_none() {
+        eprintln!(
+            "note: {} has no {} wiggling table: depth is not wiggling corrected",
+            dir.display(),
+            a.algo
+        );
+    }
+    if set.offset.is_none() {
+        eprintln!(
+            "note: {} has no offset (FPN): the mid code is subtracted instead",
+            dir.display()
+        );
+    }
+    let rays = set
+        .rays()
+        .transpose()
+        .with_context(|| format!("the lens of {}", dir.display()))?;
+    Ok((set.to_pipeline_calibration(a.algo), rays))
+}
+
+/// Z depth and points need each pixel's ray (thesis 5.1.3; docs/calibration.md).
+fn check_lens(a: &ProcessArgs, has_lens: bool) -> anyhow::Result<()> {
+    let needs_lens = a.depth_kind == DepthKind::Z || a.points.is_some();
+    if needs_lens && !has_lens {
+        bail!(
+            "{} needs the lens: a --calib set with intrinsics (tofprox calibrate intrinsics; docs/calibration.md){}",
+            if a.points.is_some() {
+                "--points"
+            } else {
+                "--depth-kind z"
+            },
+            a.calib
+                .as_ref()
+                .map_or(String::new(), |d| format!(", and {} has none", d.display()))
+        );
+    }
+    Ok(())
+}
+
+/// The captures `--algo` can process (illuminated ones it cannot are noted); an error when
+/// there is none.
+fn processable_captures(rec: &Recording, a: &ProcessArgs) -> anyhow::Result<Vec<usize>> {
     let caps = rec.captures();
     let todo: Vec<usize> = (0..caps.len())
         .filter(|&i| match unusable_reason(&caps[i], a.algo) {
@@ -294,103 +344,112 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
             a.algo
         );
     }
+    Ok(todo)
+}
+
+/// Where a processed capture goes besides the depth and amplitude arrays.
+struct Outputs<'a> {
+    /// The lens's rays (Z depth, points).
+    rays: Option<&'a RayGrid>,
+    /// `--points`.
+    points: Option<&'a PointsOutput>,
+    /// The window's origin in the sensor (the preview's axes).
+    origin: [usize; 2],
+    /// Depth at the top of the preview's colour scale.
+    max_m: f64,
+}
+
+/// What one processed capture printed.
+struct CaptureRow {
+    truth_m: Option<f64>,
+    median_m: Option<f64>,
+    valid_fraction: f32,
+    process_us: f64,
+    crosstalk_residual: Option<f32>,
+}
+
+/// Process capture `i` and write its depth, amplitude, preview (and points).
+fn process_capture(
+    rec: &Recording,
+    i: usize,
+    a: &ProcessArgs,
+    pipeline: &mut Pipeline,
+    crosstalk: Option<&CrosstalkCalibration>,
+    out: &Outputs<'_>,
+) -> anyhow::Result<CaptureRow> {
+    let meta = &rec.captures()[i];
+    let raw = rec.load(i)?;
+    pipeline.set_quadrature(meta.quadrature(a.algo).unwrap_or_default());
+    if crosstalk.is_some() {
+        pipeline
+            .set_exposure_us(meta.exposure_us)
+            .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
+    }
     let k = a.algo.raw_images();
-    let pb = progress(todo.len(), "processing");
-    let stdout = std::io::stdout();
-    if !a.json {
-        println!(
-            "{:>5}  {:>10}  {:>14}  {:>9}  {:>8}  {:>10}",
-            "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
-        );
+    let t0 = Instant::now();
+    let frame = match &raw {
+        RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
+        RawFrames::F32(x) => pipeline.process(x.slice(s![..k, .., ..])),
+        RawFrames::F64(x) => pipeline.process(x.slice(s![..k, .., ..])),
     }
-    // (cloned once: the frame borrows the pipeline while the residual is computed)
-    let crosstalk = pipeline.calibration().crosstalk.clone();
-    for &i in &todo {
-        let raw = rec.load(i)?;
-        pipeline.set_quadrature(caps[i].quadrature(a.algo).unwrap_or_default());
-        if crosstalk.is_some() {
-            pipeline
-                .set_exposure_us(caps[i].exposure_us)
-                .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
-        }
-        let t0 = Instant::now();
-        let frame = match &raw {
-            RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
-            RawFrames::F32(x) => pipeline.process(x.slice(s![..k, .., ..])),
-            RawFrames::F64(x) => pipeline.process(x.slice(s![..k, .., ..])),
-        }
-        .with_context(|| format!("processing capture {i}"))?;
-        let process_us = t0.elapsed().as_secs_f64() * 1e6;
-        let valid = frame.valid_fraction();
-        // what is left of the cover-window crosstalk relative to the calibrated one
-        // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
-        let crosstalk_residual = crosstalk
-            .as_ref()
-            .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
-        let (depth_mm, median) = depth_output(frame, a.depth_kind, rays.as_ref())?;
-        let amplitude = frame.amplitude_lsb.clone();
-        let stem = format!("{i:06}");
-        if let (Some(out), Some(rays)) = (&points, &rays) {
-            out.write(i, frame, rays)?;
-        }
-        let p = a.out.join(format!("{stem}_depth_mm.npy"));
-        tofprox_format::write_atomic(&p, &npy::encode_u16(&depth_mm))?;
-        let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
-        tofprox_format::write_atomic(&p, &npy::encode_f32(&amplitude))?;
-        write_depth_png(
-            &a.out.join(format!("{stem}_depth.png")),
-            &depth_mm,
-            sensor.roi_origin,
-            max_m,
-        )?;
-        let mut out = stdout.lock();
-        let truth = caps[i].distance_m();
-        let error_mm = truth.zip(median).map(|(t, m)| (m - t) * 1000.0);
-        if a.json {
-            let mut line = json!({
-                "index": i,
-                "depth_kind": a.depth_kind.name(),
-                // micrometre resolution: the f32 depth carries no more
-                "distance_m": truth,
-                "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
-                "error_mm": error_mm.map(|e| (e * 1e3).round() / 1e3),
-                "valid_fraction": valid,
-                "process_us": (process_us * 10.0).round() / 10.0,
-            });
-            // only with a crosstalk calibration
-            if let (Some(r), Some(o)) = (crosstalk_residual, line.as_object_mut()) {
-                o.insert("crosstalk_residual".into(), json!(r));
-            }
-            writeln!(out, "{line}").context("writing to stdout")?;
-        } else {
-            let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));
-            writeln!(
-                out,
-                "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
-                i,
-                truth.map_or("-".into(), fmt_num),
-                median.map_or("-".into(), |m| format!("{m:.4}")),
-                err,
-                100.0 * valid,
-                process_us
-            )
-            .context("writing to stdout")?;
-        }
-        pb.inc(1);
+    .with_context(|| format!("processing capture {i}"))?;
+    let process_us = t0.elapsed().as_secs_f64() * 1e6;
+    // what is left of the cover-window crosstalk relative to the calibrated one
+    // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
+    let crosstalk_residual =
+        crosstalk.and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), meta.exposure_us));
+    let (depth_mm, median_m) = depth_output(frame, a.depth_kind, out.rays)?;
+    let stem = format!("{i:06}");
+    if let (Some(points), Some(rays)) = (out.points, out.rays) {
+        points.write(i, frame, rays)?;
     }
-    pb.finish_and_clear();
-    if !a.json {
-        println!(
-            "wrote {} depth_mm (.npy, u16, 0 = invalid), amplitude_lsb (.npy, f32) and a depth preview (.png, 0..{max_m:.2} m) per capture to {}",
-            a.depth_kind.name(),
-            a.out.display()
-        );
-        if let Some(p) = &points {
-            println!(
-                "wrote a point cloud per capture to {}",
-                p.path(todo[0]).display()
-            );
+    let p = a.out.join(format!("{stem}_depth_mm.npy"));
+    tofprox_format::write_atomic(&p, &npy::encode_u16(&depth_mm))?;
+    let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
+    tofprox_format::write_atomic(&p, &npy::encode_f32(&frame.amplitude_lsb))?;
+    let png = a.out.join(format!("{stem}_depth.png"));
+    write_depth_png(&png, &depth_mm, out.origin, out.max_m)?;
+    Ok(CaptureRow {
+        truth_m: meta.distance_m(),
+        median_m,
+        valid_fraction: frame.valid_fraction(),
+        process_us,
+        crosstalk_residual,
+    })
+}
+
+/// One line on stdout for a processed capture: a JSON Lines object or a table row.
+fn print_row(a: &ProcessArgs, i: usize, row: &CaptureRow) -> anyhow::Result<()> {
+    let mut out = std::io::stdout().lock();
+    let error_mm = row.truth_m.zip(row.median_m).map(|(t, m)| (m - t) * 1000.0);
+    if a.json {
+        let mut line = json!({
+            "index": i,
+            "depth_kind": a.depth_kind.name(),
+            // micrometre resolution: the f32 depth carries no more
+            "distance_m": row.truth_m,
+            "median_depth_m": row.median_m.map(|m| (m * 1e6).round() / 1e6),
+            "error_mm": error_mm.map(|e| (e * 1e3).round() / 1e3),
+            "valid_fraction": row.valid_fraction,
+            "process_us": (row.process_us * 10.0).round() / 10.0,
+        });
+        // only with a crosstalk calibration
+        if let (Some(r), Some(o)) = (row.crosstalk_residual, line.as_object_mut()) {
+            o.insert("crosstalk_residual".into(), json!(r));
         }
+        writeln!(out, "{line}").context("writing to stdout")
+    } else {
+        let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));
+        writeln!(
+            out,
+            "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
+            i,
+            row.truth_m.map_or("-".into(), fmt_num),
+            row.median_m.map_or("-".into(), |m| format!("{m:.4}")),
+            err,
+            100.0 * row.valid_fraction,
+            row.process_us
+        )
+        .context("writing to stdout")
     }
-    Ok(ExitCode::SUCCESS)
 }

@@ -155,12 +155,10 @@ mod tests {
     use ndarray::Array3;
 
     /// Raw images of a return `A·cos(φ − θ)` far above full scale, clipped to a 12-bit range
-    /// (written here, not through the crate's synthesiser).
+    /// (the testkit's ideal codes, not the crate's synthesiser).
     fn clipped(phi: f64, phases: &[f64], amplitude: f64) -> Array3<u16> {
-        Array3::from_shape_fn((phases.len(), 4, 4), |(k, _, _)| {
-            let v = 2048.0 + amplitude * (phi - phases[k].to_radians()).cos();
-            v.clamp(0.0, 4095.0) as u16
-        })
+        use tofprox_testkit::frames::{clipped_u16, ideal_codes};
+        clipped_u16(&ideal_codes(phi, amplitude, 2048.0, (4, 4), phases), 4095.0)
     }
 
     #[test]

@@ -1,13 +1,8 @@
-//! Shared helpers for the workspace's tests (the end-to-end tests in
-//! `tests/tests/` and the crates' integration tests).
-//!
-//! [`require_program`] and [`require_python`] are the one place that decides
-//! what a test does when an external tool it drives (`dbus-daemon`, `busctl`,
-//! `monitor-sensor`, `systemd-analyze`, python3 with dbus-python…) is missing:
-//! with `CI` set it **fails** the test, otherwise it skips it **loudly** on the
-//! real standard error (visible without `--nocapture`) and the test returns
-//! early. `.ci/run` installs every tool named here; the README's set-up
-//! section lists them.
+//! The one place that decides what a test does when an external tool it drives
+//! (`dbus-daemon`, `busctl`, `monitor-sensor`, `systemd-analyze`, python3 with dbus-python…)
+//! is missing: with `CI` set it **fails** the test, otherwise it skips it **loudly** on the
+//! real standard error (visible without `--nocapture`) and the test returns early.
+//! `.ci/run` installs every tool named here; the README's set-up section lists them.
 
 use std::ffi::OsStr;
 use std::io::Write;
@@ -29,7 +24,7 @@ fn ci_value_is_set(v: Option<&OsStr>) -> bool {
 /// `package` is the Debian package that provides it.
 ///
 /// ```no_run
-/// let Some(_busctl) = tofprox_e2e::require_program("busctl", "systemd") else { return };
+/// let Some(_busctl) = tofprox_testkit::require_program("busctl", "systemd") else { return };
 /// ```
 pub fn require_program(program: &str, package: &str) -> Option<PathBuf> {
     let found = find_on_path(program, std::env::var_os("PATH").as_deref());
@@ -98,38 +93,6 @@ fn missing_to<T>(ci: bool, what: &str, package: &str, out: &mut impl Write) -> O
     None
 }
 
-/// The recording metadata of a simulated capture: its phases, exposure, illumination and
-/// averaging, and as conditions the ground-truth `distance_m` (with the simulated wall's
-/// `reflectivity` 0.9) when given, the ambient light and the temperature.
-pub fn capture_spec(
-    req: &tofprox_model::CaptureRequest,
-    distance_m: Option<f64>,
-) -> tofprox_format::CaptureSpec {
-    let mut conditions = std::collections::BTreeMap::new();
-    if let Some(d) = distance_m {
-        conditions.insert("distance_m".to_string(), d);
-        conditions.insert("reflectivity".to_string(), 0.9);
-    }
-    conditions.insert("ambient_klux".to_string(), req.ambient_klux);
-    conditions.insert("temperature_c".to_string(), req.temperature_c);
-    tofprox_format::CaptureSpec {
-        phases_deg: req.phases_deg.clone(),
-        exposure_us: req.exposure_us,
-        illumination: req.illumination,
-        averaged: req.averaged,
-        timestamp_ns: None,
-        conditions,
-    }
-}
-
-/// A calibration part's provenance naming only the recording.
-pub fn part_source(recording: &str) -> tofprox_format::PartSource {
-    tofprox_format::PartSource {
-        recording: recording.into(),
-        ..Default::default()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -167,8 +130,9 @@ mod tests {
         assert_eq!(missing_to::<PathBuf>(false, "`x`", "x-pkg", &mut out), None);
         let out = String::from_utf8(out).unwrap();
         assert!(
-            out.contains("SKIPPED tests::a_missing_tool_skips_loudly_outside_ci: `x` is missing")
-                && out.contains("apt-get install x-pkg"),
+            out.contains(
+                "SKIPPED ci::tests::a_missing_tool_skips_loudly_outside_ci: `x` is missing"
+            ) && out.contains("apt-get install x-pkg"),
             "{out}"
         );
     }
