@@ -64,7 +64,6 @@ fn controller_cycle_2phase_full_frame(b: Bencher) {
         exposure_us: 100.0,
         geometry: tofprox_core::SensorGeometry::full(ROWS, COLS, 12, 80e6),
         timings: Some(CycleTimings::default()),
-        timestamp_ns: 0,
     };
     let mut ctl = Controller::new(
         full_frame_config(),

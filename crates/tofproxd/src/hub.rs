@@ -65,6 +65,12 @@ pub struct Status {
     pub state: State,
     /// `Near`.
     pub near: bool,
+    /// `NearChangedNs`: `CLOCK_BOOTTIME` (ns) of the capture whose reading last changed `Near`
+    /// (0 = unchanged since the daemon started).
+    pub near_changed_ns: u64,
+    /// `ReadingTimestampNs`: `CLOCK_BOOTTIME` (ns) of the capture of the last valid reading
+    /// (0 = none yet).
+    pub reading_ns: u64,
     /// `DistanceMm` (0 = unknown).
     pub distance_mm: u32,
     /// `NearThresholdMm`.
@@ -215,6 +221,8 @@ impl Hub {
             has_sensor: true,
             state: State::Off,
             near: false,
+            near_changed_ns: 0,
+            reading_ns: 0,
             distance_mm: 0,
             near_threshold_mm: cfg.proximity.near_mm,
             far_threshold_mm: cfg.proximity.far_mm,
@@ -415,7 +423,13 @@ impl Hub {
                 s.state = v;
             }
             if let Some(v) = u.near {
+                if v != s.near {
+                    s.near_changed_ns = u.timestamp_ns.unwrap_or(s.near_changed_ns);
+                }
                 s.near = v;
+            }
+            if u.valid_reading && let Some(t) = u.timestamp_ns {
+                s.reading_ns = t;
             }
             if let Some(v) = u.distance_mm {
                 s.distance_mm = v;
@@ -460,7 +474,7 @@ impl Hub {
 /// A depth frame to publish.
 #[derive(Debug, Clone)]
 pub struct DepthMessage {
-    /// Capture time (ns).
+    /// Capture time: `CLOCK_BOOTTIME` (ns) when the frames were in ([`crate::boottime`]).
     pub timestamp_ns: u64,
     /// Columns.
     pub width: u16,
@@ -488,6 +502,9 @@ pub struct StatusUpdate {
     pub state: Option<State>,
     /// New near.
     pub near: Option<bool>,
+    /// `CLOCK_BOOTTIME` (ns, [`crate::boottime`]) of the capture this update comes from (of
+    /// the moment of the decision for an update without one: a stop, a failed cycle).
+    pub timestamp_ns: Option<u64>,
     /// New distance (0 = unknown).
     pub distance_mm: Option<u32>,
     /// New mode.
@@ -775,6 +792,35 @@ mod tests {
             (after.state, after.rate_hz, after.cycles),
             (State::Off, 0.0, 1)
         );
+    }
+
+    /// A Near change takes the time of the capture that changed it; a reading that leaves
+    /// Near as it was moves only the reading's time; an update without a valid reading
+    /// moves neither.
+    #[test]
+    fn near_changes_and_readings_carry_their_capture_time() {
+        let h = hub();
+        let reading = |near: bool, t: u64| StatusUpdate {
+            near: Some(near),
+            timestamp_ns: Some(t),
+            valid_reading: true,
+            cycle: true,
+            ..StatusUpdate::default()
+        };
+        let (_, s) = h.apply(&reading(false, 1_000));
+        assert_eq!((s.near_changed_ns, s.reading_ns), (0, 1_000), "far stays far");
+        let (_, s) = h.apply(&reading(true, 2_000));
+        assert_eq!((s.near, s.near_changed_ns, s.reading_ns), (true, 2_000, 2_000));
+        let (_, s) = h.apply(&reading(true, 3_000));
+        assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
+        let (_, s) = h.apply(&StatusUpdate {
+            error: true,
+            timestamp_ns: Some(4_000),
+            ..StatusUpdate::default()
+        });
+        assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
+        let (_, s) = h.apply(&reading(false, 5_000));
+        assert_eq!((s.near, s.near_changed_ns, s.reading_ns), (false, 5_000, 5_000));
     }
 
     #[test]

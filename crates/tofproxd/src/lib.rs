@@ -9,6 +9,7 @@
 //! nor the physical model (`tofprox-model`).
 
 pub mod backends;
+pub mod boottime;
 pub mod calibration;
 pub mod client;
 pub mod config;

@@ -148,6 +148,12 @@ async fn publish_changes(conn: &Connection, compat: bool, before: &Status, after
     if before.near != after.near {
         ch.insert(property::NEAR, Variant::from(after.near));
     }
+    if before.near_changed_ns != after.near_changed_ns {
+        ch.insert(
+            property::NEAR_CHANGED_NS,
+            Variant::from(after.near_changed_ns),
+        );
+    }
     if before.mode != after.mode {
         ch.insert(property::MODE, Variant::from(after.mode.as_str()));
     }

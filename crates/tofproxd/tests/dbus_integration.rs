@@ -454,6 +454,23 @@ fn wait_status(
     }
 }
 
+/// Now on CLOCK_BOOTTIME read independently of the daemon: `/proc/uptime` (seconds since boot,
+/// suspend included, 10 ms resolution).
+fn uptime_ns() -> u64 {
+    let s = std::fs::read_to_string("/proc/uptime").expect("/proc/uptime");
+    let secs: f64 = s.split_whitespace().next().unwrap().parse().unwrap();
+    (secs * 1e9) as u64
+}
+
+/// A published capture time `t_ns` lies before `seen_ns` (when a client saw it; 20 ms for
+/// /proc/uptime's resolution) and less than 1.5 s before (the loop runs at ≥ 5 Hz here).
+fn assert_close_before(t_ns: u64, seen_ns: u64, what: &str) {
+    assert!(
+        t_ns <= seen_ns + 20_000_000 && seen_ns < t_ns + 1_500_000_000,
+        "{what} {t_ns} ns, seen at {seen_ns} ns"
+    );
+}
+
 #[test]
 fn claim_gives_near_on_approach_and_far_after_leaving() {
     let Some(bus) = start_bus() else { return };
@@ -469,16 +486,40 @@ fn claim_gives_near_on_approach_and_far_after_leaving() {
     assert_eq!(claimed["props"]["HasSensor"], true);
     assert_eq!(claimed["props"]["Mode"], "2phase");
     assert_eq!(claimed["props"]["NearThresholdMm"], 300);
-    c.wait_for(Duration::from_secs(8), "Near=true", |v| {
-        changed(v, "Near") == Some(Value::Bool(true))
-    });
-    c.wait_for(Duration::from_secs(8), "Near=false", |v| {
-        changed(v, "Near") == Some(Value::Bool(false))
-    });
+    // Each Near change carries its capture's CLOCK_BOOTTIME, in the same signal: before the
+    // client got it, and not long before (the loop runs at ≥ 5 Hz).
+    let mut last_change_ns = 0;
+    for want in [true, false] {
+        let v = c.wait_for(Duration::from_secs(8), &format!("Near={want}"), |v| {
+            changed(v, "Near") == Some(Value::Bool(want))
+        });
+        let received_ns = uptime_ns();
+        let t = changed(&v, "NearChangedNs")
+            .and_then(|t| t.as_u64())
+            .unwrap_or_else(|| panic!("NearChangedNs with Near: {v}"));
+        assert_close_before(t, received_ns, "NearChangedNs");
+        assert!(t > last_change_ns, "{last_change_ns} then {t}");
+        last_change_ns = t;
+    }
     assert!(
         c.seen.iter().all(|v| changed(v, "DistanceMm").is_none()),
         "DistanceMm has no change signal"
     );
+    assert!(
+        c.seen.iter().all(|v| changed(v, "ReadingTimestampNs").is_none()),
+        "ReadingTimestampNs has no change signal"
+    );
+    // Each reading's time (polled, like DistanceMm): fresh and rising from poll to poll.
+    let mut last_reading_ns = 0;
+    for _ in 0..3 {
+        let s = status(&bus);
+        let polled_ns = uptime_ns();
+        let t = s["ReadingTimestampNs"].as_u64().expect("ReadingTimestampNs");
+        assert_close_before(t, polled_ns, "ReadingTimestampNs");
+        assert!(t > last_reading_ns, "{last_reading_ns} then {t}");
+        last_reading_ns = t;
+        std::thread::sleep(Duration::from_millis(400));
+    }
     // PropertiesChanged only on change: no signal repeats Near with the same value twice in a row.
     let nears: Vec<bool> = c
         .seen
