@@ -17,6 +17,7 @@ pub mod controller;
 pub mod data;
 pub mod energy;
 pub mod hub;
+pub mod input;
 pub mod logging;
 pub mod policy;
 pub mod publisher;
