@@ -287,6 +287,27 @@ mod tests {
         assert!(d.name.len() < 80);
     }
 
+    /// The shipped udev rule tags this very device for iio-sensor-proxy: its event node, by
+    /// the name the device is made with, with the type iio-sensor-proxy's rule starts it for.
+    #[test]
+    fn the_udev_rule_tags_the_device_for_iio_sensor_proxy() {
+        let rules = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../systemd/70-tofprox.rules");
+        let text = std::fs::read_to_string(rules).unwrap();
+        let name = format!("ATTRS{{name}}==\"{}\"", DeviceDescription::proximity().name);
+        let line = text
+            .lines()
+            .find(|l| !l.starts_with('#') && l.contains(&name))
+            .expect("a rule for the device");
+        for part in [
+            "SUBSYSTEM==\"input\"",
+            "KERNEL==\"event*\"",
+            "ENV{IIO_SENSOR_PROXY_TYPE}+=\"input-proximity\"",
+        ] {
+            assert!(line.contains(part), "{part} in {line}");
+        }
+    }
+
     #[test]
     fn only_near_changes_are_written_each_as_switch_then_report() {
         let seen = Arc::new(Mutex::new(Vec::new()));

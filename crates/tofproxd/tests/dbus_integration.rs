@@ -224,6 +224,11 @@ object_reflectivity = 0.5
 wall_reflectivity = 0.6
 "#;
 
+/// The compatibility mode, with the check for an installed iio-sensor-proxy off: the test
+/// machines have it installed (`monitor-sensor` comes with it) and stand in for a phone
+/// without it; `compat_mode_refuses_to_start_where_iio_sensor_proxy_is_installed` checks it.
+const COMPAT: &str = "\n[dbus]\niio_sensor_proxy_compat = true\niio_sensor_proxy_paths = []\n";
+
 fn spawn_daemon(bus: &Bus, config: &str) -> Daemon {
     spawn_daemon_env(bus, config, &[])
 }
@@ -653,7 +658,7 @@ fn malformed_calls_get_dbus_errors() {
 #[test]
 fn compat_mode_works_like_iio_sensor_proxy() {
     let Some(bus) = start_bus() else { return };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let mut c = Client::start(&bus, &["compat", "--timeout", "30"]);
     let v = c.wait_for(Duration::from_secs(10), "compat claims", |v| {
@@ -689,14 +694,15 @@ fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
         v["event"] == "owned"
     });
     assert_eq!(v["reply"], 1, "stand-in owns the name");
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let mut d = spawn_daemon(&bus, &cfg);
     let st = d.wait_exit(Duration::from_secs(20), "tofproxd should refuse and exit");
     assert!(!st.success());
     let log = d.log();
     assert!(
-        log.contains("net.hadess.SensorProxy") && log.contains("iio-sensor-proxy"),
-        "{log}"
+        log.contains("iio-sensor-proxy is running (it owns net.hadess.SensorProxy)")
+            && log.contains("publisher = \"input\""),
+        "says why and what to use instead: {log}"
     );
     assert!(
         name_has_owner(&bus, "net.hadess.SensorProxy"),
@@ -706,6 +712,35 @@ fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
         !name_has_owner(&bus, "org.tofprox.Proximity1"),
         "our name is released again"
     );
+}
+
+/// Where iio-sensor-proxy is installed (its binary present), the compatibility mode does not
+/// start — it would take the name from iio-sensor-proxy whenever it came first — and says to
+/// use the input publisher; neither name is left owned.
+#[test]
+fn compat_mode_refuses_to_start_where_iio_sensor_proxy_is_installed() {
+    let Some(bus) = start_bus() else { return };
+    let root = tempfile::tempdir().unwrap();
+    let binary = root.path().join("usr/libexec/iio-sensor-proxy");
+    std::fs::create_dir_all(binary.parent().unwrap()).unwrap();
+    std::fs::write(&binary, b"").unwrap();
+    let missing = root.path().join("usr/sbin/iio-sensor-proxy");
+    let cfg = format!(
+        "{HAND}\n[dbus]\niio_sensor_proxy_compat = true\niio_sensor_proxy_paths = [{:?}, {:?}]\n",
+        missing.display().to_string(),
+        binary.display().to_string()
+    );
+    let mut d = spawn_daemon(&bus, &cfg);
+    let st = d.wait_exit(Duration::from_secs(20), "tofproxd should refuse and exit");
+    assert!(!st.success());
+    let log = d.log();
+    assert!(
+        log.contains(&format!("iio-sensor-proxy is installed ({})", binary.display()))
+            && log.contains("publisher = \"input\""),
+        "{log}"
+    );
+    assert!(!name_has_owner(&bus, "net.hadess.SensorProxy"));
+    assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
 }
 
 #[test]
@@ -932,7 +967,7 @@ fn stops_cleanly_on(sig: &str) {
 #[test]
 fn shipped_introspection_matches_the_daemon() {
     let Some(bus) = start_bus() else { return };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let block = |xml: &str, iface: &str| -> String {
         let start = xml
@@ -1118,7 +1153,7 @@ fn writing_a_read_only_property_is_refused_as_read_only() {
     let Some(dbus_send) = tofprox_e2e::require_program("dbus-send", "dbus-bin") else {
         return;
     };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let set = |dest: &str, path: &str, iface: &str, prop: &str| -> String {
         let out = Command::new(&dbus_send)
@@ -1170,7 +1205,7 @@ fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
     else {
         return;
     };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     // (ok, stdout + stderr) of a call by `nobody`
     let as_nobody = |args: &[&str]| -> (bool, String) {
@@ -1314,7 +1349,7 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
     };
     let Some(py) = python() else { return };
     let (env, memory_max_kb) = unit_env();
-    let cfg = "backend = \"usb\"\n[loop]\nretry_ms = 50\n[dbus]\niio_sensor_proxy_compat = true\n";
+    let cfg = &format!("backend = \"usb\"\n[loop]\nretry_ms = 50\n{COMPAT}");
     let daemon = start_daemon_env(&bus, cfg, &env);
     let hwm0_kb = daemon.hwm_kb();
     let as_nobody = |script: &str, args: &[&str]| {
@@ -1529,7 +1564,7 @@ fn unmodified_monitor_sensor_sees_near_and_far() {
         .stderr(Stdio::null())
         .spawn()
         .expect("spawn monitor-sensor");
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let (tx, rx) = mpsc::channel();
     let stdout = monitor.stdout.take().expect("piped stdout");
