@@ -6,6 +6,7 @@ pub mod daemon;
 pub mod device;
 pub mod info;
 pub mod lab;
+pub mod lab_export;
 pub mod live;
 pub mod process;
 pub mod sim;
