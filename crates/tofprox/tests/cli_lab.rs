@@ -50,6 +50,25 @@ fn diagnose_add_report_end_to_end() {
     ] {
         assert!(c0.get(k).is_some(), "candidate lacks {k}");
     }
+    // each fitted parameter with its standard error; the droop the truth has is many of
+    // them away from zero
+    let (params, ses) = (
+        c0["params"].as_object().unwrap(),
+        c0["standard_errors"].as_object().unwrap(),
+    );
+    assert_eq!(
+        params.keys().collect::<Vec<_>>(),
+        ses.keys().collect::<Vec<_>>()
+    );
+    let significance = params
+        .iter()
+        .filter_map(|(k, p)| Some((p.as_f64()? / ses[k].as_f64()?).abs()))
+        .fold(0.0, f64::max);
+    assert!(
+        ses.values().any(|s| s.as_f64().is_some_and(|s| s > 0.0)),
+        "{ses:?}"
+    );
+    assert!(significance > 10.0, "{params:?} ± {ses:?}");
     for k in ["chi2_per_dof", "z"] {
         assert!(v["fit"][k].is_number());
     }
