@@ -362,7 +362,9 @@ fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
     let rec = repo_file("examples/recording");
     let model = repo_file("config/model/baseline.toml");
     let compare = |extra: &[&str]| {
-        let args = ["lab", "compare", &rec, "--model", &model, "--json", "--export"];
+        let args = [
+            "lab", "compare", &rec, "--model", &model, "--json", "--export",
+        ];
         run(&[&args[..], &[dir.to_str().unwrap()], extra].concat())
     };
     let o = compare(&[]);
@@ -376,7 +378,12 @@ fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
     let np: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     // the recording's own shape, read by the format crate
     let r = tofprox_format::Recording::open(std::path::Path::new(&rec)).unwrap();
-    let k_max = r.captures().iter().map(|c| c.phases_deg.len()).max().unwrap();
+    let k_max = r
+        .captures()
+        .iter()
+        .map(|c| c.phases_deg.len())
+        .max()
+        .unwrap();
     let (rows, cols) = (r.sensor().rows, r.sensor().cols);
     assert_eq!(
         np["shape"],
@@ -393,7 +400,10 @@ fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
     let dof = n - v["parameters"].as_f64().unwrap();
     let chi2_per_dof = np["chi2"].as_f64().unwrap() / dof;
     let want = v["fit"]["chi2_per_dof"].as_f64().unwrap();
-    assert!((chi2_per_dof / want - 1.0).abs() < 1e-5, "{chi2_per_dof} vs {want}");
+    assert!(
+        (chi2_per_dof / want - 1.0).abs() < 1e-5,
+        "{chi2_per_dof} vs {want}"
+    );
     let rms = np["raw_rms_lsb"].as_f64().unwrap();
     let want = v["rms"]["raw_lsb"].as_f64().unwrap();
     assert!((rms / want - 1.0).abs() < 1e-5, "{rms} vs {want}");
@@ -422,6 +432,10 @@ fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
     // nothing replaced without --force
     let o = compare(&[]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(text(&o.stderr).contains("pass --force"), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("pass --force"),
+        "{}",
+        text(&o.stderr)
+    );
     assert!(compare(&["--force"]).status.success());
 }

@@ -138,6 +138,7 @@ fn frame_to_properties_changed(b: Bencher) {
             erx,
             false,
             5.0,
+            None,
         ));
         let client = zbus::connection::Builder::address(addr.as_str())
             .build()

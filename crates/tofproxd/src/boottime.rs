@@ -41,6 +41,9 @@ mod tests {
         let b = boottime_ns();
         assert!(b >= a, "{a} then {b}");
         let diff_s = (b as f64 * 1e-9 - uptime_s).abs();
-        assert!(diff_s < 0.05, "CLOCK_BOOTTIME {b} ns vs uptime {uptime_s} s");
+        assert!(
+            diff_s < 0.05,
+            "CLOCK_BOOTTIME {b} ns vs uptime {uptime_s} s"
+        );
     }
 }

@@ -1268,7 +1268,10 @@ mod tests {
             let t = c.step(false).update.timestamp_ns.expect("stamped");
             let after = uptime_ns();
             // /proc/uptime has 10 ms resolution
-            assert!(t + 20_000_000 >= before && t <= after + 20_000_000, "{before} ≤ {t} ≤ {after}");
+            assert!(
+                t + 20_000_000 >= before && t <= after + 20_000_000,
+                "{before} ≤ {t} ≤ {after}"
+            );
             assert!(t >= last, "monotone: {last} then {t}");
             last = t;
         }

@@ -388,6 +388,7 @@ impl Hub {
         let mut g = self.lock();
         let counts = |s: &Status| [s.cycles, s.valid_readings, s.errors];
         let counts_before = counts(&g.status);
+        let near_before = g.status.near;
         f(&mut g.status);
         if g.status.state == State::Off || g.status.state == State::Starting {
             g.have_reading = false;
@@ -399,6 +400,17 @@ impl Hub {
             public.cycles -= g.hidden_counts[0];
             public.valid_readings -= g.hidden_counts[1];
             public.errors -= g.hidden_counts[2];
+            // The times clients see are of what they saw: a reading counted for them, a Near
+            // change of theirs (one shown only now, after a depth claim alone, is stamped now).
+            if g.status.valid_readings == counts_before[1] {
+                public.reading_ns = before.reading_ns;
+            }
+            public.near_changed_ns = match (public.near != before.near, near_before != public.near)
+            {
+                (false, _) => before.near_changed_ns,
+                (true, true) => g.status.near_changed_ns,
+                (true, false) => crate::boottime::boottime_ns(),
+            };
             g.public = public;
         } else {
             let counts_after = counts(&g.status);
@@ -428,7 +440,9 @@ impl Hub {
                 }
                 s.near = v;
             }
-            if u.valid_reading && let Some(t) = u.timestamp_ns {
+            if u.valid_reading
+                && let Some(t) = u.timestamp_ns
+            {
                 s.reading_ns = t;
             }
             if let Some(v) = u.distance_mm {
@@ -759,6 +773,7 @@ mod tests {
         let running = StatusUpdate {
             state: Some(State::Running),
             near: Some(true),
+            timestamp_ns: Some(77),
             distance_mm: Some(120),
             rate_hz: Some(4.0),
             cycle: true,
@@ -773,7 +788,20 @@ mod tests {
             (State::Off, false, 0, 0.0)
         );
         assert_eq!((after.cycles, after.valid_readings), (0, 0));
+        assert_eq!(
+            (after.reading_ns, after.near_changed_ns),
+            (0, 0),
+            "no reading time either"
+        );
         h.set_claim(":1.2", Claim::Proximity, true);
+        // shown at the claim, Near is stamped then, not with the hidden reading's time
+        let t_claim = crate::boottime::boottime_ns();
+        let (_, shown) = h.update(|_| {});
+        assert!(shown.near && shown.near_changed_ns >= t_claim, "{shown:?}");
+        assert_eq!(
+            shown.reading_ns, 0,
+            "the hidden reading's time stays hidden"
+        );
         let (_, after) = h.apply(&running);
         assert_eq!(
             (after.state, after.near, after.distance_mm, after.rate_hz),
@@ -783,6 +811,11 @@ mod tests {
             (after.cycles, after.valid_readings),
             (1, 1),
             "own cycles only"
+        );
+        assert_eq!(
+            (after.reading_ns, after.near_changed_ns),
+            (77, shown.near_changed_ns),
+            "a reading of its own shows its time; Near did not change"
         );
         // the proximity claim goes, the depth claim stays: seen stopped at once
         h.set_claim(":1.2", Claim::Proximity, false);
@@ -808,9 +841,16 @@ mod tests {
             ..StatusUpdate::default()
         };
         let (_, s) = h.apply(&reading(false, 1_000));
-        assert_eq!((s.near_changed_ns, s.reading_ns), (0, 1_000), "far stays far");
+        assert_eq!(
+            (s.near_changed_ns, s.reading_ns),
+            (0, 1_000),
+            "far stays far"
+        );
         let (_, s) = h.apply(&reading(true, 2_000));
-        assert_eq!((s.near, s.near_changed_ns, s.reading_ns), (true, 2_000, 2_000));
+        assert_eq!(
+            (s.near, s.near_changed_ns, s.reading_ns),
+            (true, 2_000, 2_000)
+        );
         let (_, s) = h.apply(&reading(true, 3_000));
         assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
         let (_, s) = h.apply(&StatusUpdate {
@@ -820,7 +860,10 @@ mod tests {
         });
         assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
         let (_, s) = h.apply(&reading(false, 5_000));
-        assert_eq!((s.near, s.near_changed_ns, s.reading_ns), (false, 5_000, 5_000));
+        assert_eq!(
+            (s.near, s.near_changed_ns, s.reading_ns),
+            (false, 5_000, 5_000)
+        );
     }
 
     #[test]

@@ -20,6 +20,7 @@ use std::fs::File;
 use std::io::Write;
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
 
 /// `EV_SYN` (linux/input-event-codes.h).
 pub const EV_SYN: u16 = 0x00;
@@ -141,6 +142,28 @@ impl InputPublisher {
         }
         self.device.write_events(&near_events(near))?;
         self.near = near;
+        Ok(())
+    }
+}
+
+/// A [`SwitchDevice`] that keeps what it is sent: the stand-in for uinput where there is none
+/// (the tests; clones share the record).
+#[derive(Debug, Clone, Default)]
+pub struct RecordingDevice(Arc<Mutex<Vec<InputEvent>>>);
+
+impl RecordingDevice {
+    /// Every event written so far, in order.
+    pub fn events(&self) -> Vec<InputEvent> {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).clone()
+    }
+}
+
+impl SwitchDevice for RecordingDevice {
+    fn write_events(&mut self, events: &[InputEvent]) -> std::io::Result<()> {
+        self.0
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .extend_from_slice(events);
         Ok(())
     }
 }
@@ -267,23 +290,15 @@ impl Drop for UinputDevice {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::sync::{Arc, Mutex};
-
-    /// A device that records what it is sent.
-    struct Recorder(Arc<Mutex<Vec<InputEvent>>>);
-
-    impl SwitchDevice for Recorder {
-        fn write_events(&mut self, events: &[InputEvent]) -> std::io::Result<()> {
-            self.0.lock().unwrap().extend_from_slice(events);
-            Ok(())
-        }
-    }
 
     #[test]
     fn the_device_is_a_virtual_front_proximity_switch() {
         let d = DeviceDescription::proximity();
         // the numbers of linux/input-event-codes.h and linux/input.h, written out here
-        assert_eq!((d.bustype, d.event_types.clone(), d.switches.clone()), (6, vec![5], vec![11]));
+        assert_eq!(
+            (d.bustype, d.event_types.clone(), d.switches.clone()),
+            (6, vec![5], vec![11])
+        );
         assert!(d.name.len() < 80);
     }
 
@@ -291,8 +306,8 @@ mod tests {
     /// the name the device is made with, with the type iio-sensor-proxy's rule starts it for.
     #[test]
     fn the_udev_rule_tags_the_device_for_iio_sensor_proxy() {
-        let rules = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../systemd/70-tofprox.rules");
+        let rules =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../systemd/70-tofprox.rules");
         let text = std::fs::read_to_string(rules).unwrap();
         let name = format!("ATTRS{{name}}==\"{}\"", DeviceDescription::proximity().name);
         let line = text
@@ -310,15 +325,15 @@ mod tests {
 
     #[test]
     fn only_near_changes_are_written_each_as_switch_then_report() {
-        let seen = Arc::new(Mutex::new(Vec::new()));
-        let mut p = InputPublisher::new(Box::new(Recorder(seen.clone())));
+        let seen = RecordingDevice::default();
+        let mut p = InputPublisher::new(Box::new(seen.clone()));
         for near in [false, true, true, false, false, true] {
             p.publish(near).unwrap();
         }
         let ev = |kind, code, value| InputEvent { kind, code, value };
         let (sw, syn) = (|v| ev(5, 11, v), ev(0, 0, 0));
         assert_eq!(
-            *seen.lock().unwrap(),
+            seen.events(),
             vec![sw(1), syn, sw(0), syn, sw(1), syn],
             "far at creation: the first far is not written"
         );
@@ -338,7 +353,10 @@ mod tests {
         assert_eq!(at(0, c, 2), 11u16.to_ne_bytes());
         assert_eq!(at(0, v, 4), 1i32.to_ne_bytes());
         assert_eq!(at(1, t, 2), 0u16.to_ne_bytes());
-        assert!(at(0, 0, t).iter().all(|&b| b == 0), "time left to the kernel");
+        assert!(
+            at(0, 0, t).iter().all(|&b| b == 0),
+            "time left to the kernel"
+        );
     }
 
     #[test]
@@ -351,12 +369,18 @@ mod tests {
             .err()
             .expect("no device node");
         let msg = e.to_string();
-        assert!(msg.contains("uinput") && msg.contains(&missing.display().to_string()), "{msg}");
+        assert!(
+            msg.contains("uinput") && msg.contains(&missing.display().to_string()),
+            "{msg}"
+        );
         // a node that is no uinput device refuses the first request
         std::fs::write(&missing, b"").unwrap();
         let e = UinputDevice::create(&missing, &DeviceDescription::proximity())
             .err()
             .expect("not a uinput device");
-        assert!(e.to_string().starts_with("uinput UI_SET_EVBIT failed"), "{e}");
+        assert!(
+            e.to_string().starts_with("uinput UI_SET_EVBIT failed"),
+            "{e}"
+        );
     }
 }

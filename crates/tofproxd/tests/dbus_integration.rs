@@ -511,7 +511,9 @@ fn claim_gives_near_on_approach_and_far_after_leaving() {
         "DistanceMm has no change signal"
     );
     assert!(
-        c.seen.iter().all(|v| changed(v, "ReadingTimestampNs").is_none()),
+        c.seen
+            .iter()
+            .all(|v| changed(v, "ReadingTimestampNs").is_none()),
         "ReadingTimestampNs has no change signal"
     );
     // Each reading's time (polled, like DistanceMm): fresh and rising from poll to poll.
@@ -519,7 +521,9 @@ fn claim_gives_near_on_approach_and_far_after_leaving() {
     for _ in 0..3 {
         let s = status(&bus);
         let polled_ns = uptime_ns();
-        let t = s["ReadingTimestampNs"].as_u64().expect("ReadingTimestampNs");
+        let t = s["ReadingTimestampNs"]
+            .as_u64()
+            .expect("ReadingTimestampNs");
         assert_close_before(t, polled_ns, "ReadingTimestampNs");
         assert!(t > last_reading_ns, "{last_reading_ns} then {t}");
         last_reading_ns = t;
@@ -735,8 +739,10 @@ fn compat_mode_refuses_to_start_where_iio_sensor_proxy_is_installed() {
     assert!(!st.success());
     let log = d.log();
     assert!(
-        log.contains(&format!("iio-sensor-proxy is installed ({})", binary.display()))
-            && log.contains("publisher = \"input\""),
+        log.contains(&format!(
+            "iio-sensor-proxy is installed ({})",
+            binary.display()
+        )) && log.contains("publisher = \"input\""),
         "{log}"
     );
     assert!(!name_has_owner(&bus, "net.hadess.SensorProxy"));

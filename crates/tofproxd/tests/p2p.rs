@@ -2,13 +2,12 @@
 //! `Daemon` (loop thread, publisher, interface) driven by a scripted source.
 
 use std::os::unix::net::UnixStream;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tofproxd::client::ProximityProxy;
 use tofproxd::config::Config;
 use tofproxd::controller::{Controller, ModeCalibrations};
-use tofproxd::input::{InputEvent, SwitchDevice};
+use tofproxd::input::{InputEvent, RecordingDevice, SwitchDevice};
 use tofproxd::run::Daemon;
 use tofproxd::service::next_item;
 use tofproxd::source::{ScriptedSource, SourceErrorKind, Step};
@@ -124,16 +123,6 @@ fn claim_wait_is_bounded_and_failures_show_in_state() {
     });
 }
 
-/// A uinput stand-in recording the events written to it.
-struct Recorder(Arc<Mutex<Vec<InputEvent>>>);
-
-impl SwitchDevice for Recorder {
-    fn write_events(&mut self, events: &[InputEvent]) -> std::io::Result<()> {
-        self.0.lock().unwrap().extend_from_slice(events);
-        Ok(())
-    }
-}
-
 /// The input publisher: with no claim held the loop runs, and each Near change reaches the
 /// device as exactly EV_SW SW_FRONT_PROXIMITY (1 near, 0 far) then EV_SYN SYN_REPORT — the
 /// numbers of linux/input-event-codes.h written out here — and nothing else.
@@ -143,25 +132,29 @@ fn input_publisher_writes_each_near_change_as_a_switch_report_without_a_claim() 
         let mut steps = vec![Step::target(800.0); 3];
         steps.extend(vec![Step::target(50.0); 3]);
         steps.extend(vec![Step::target(800.0); 200]);
-        let seen = Arc::new(Mutex::new(Vec::new()));
-        let device = Box::new(Recorder(seen.clone()));
+        let seen = RecordingDevice::default();
+        let device = Box::new(seen.clone());
         let (daemon, client) = pair_with_input(&fast_config(), steps, Some(device)).await;
         let p = ProximityProxy::builder(&client).build().await.unwrap();
         let t0 = Instant::now();
-        while seen.lock().unwrap().len() < 4 {
-            assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", seen.lock().unwrap());
+        while seen.events().len() < 4 {
+            assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", seen.events());
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
         let ev = |kind, code, value| InputEvent { kind, code, value };
         let syn = ev(0, 0, 0);
+        assert_eq!(seen.events(), vec![ev(5, 11, 1), syn, ev(5, 11, 0), syn]);
         assert_eq!(
-            *seen.lock().unwrap(),
-            vec![ev(5, 11, 1), syn, ev(5, 11, 0), syn]
+            p.state().await.unwrap(),
+            "running",
+            "no claim, loop running"
         );
-        assert_eq!(p.state().await.unwrap(), "running", "no claim, loop running");
         let s = p.get_status().await.unwrap();
         assert_eq!(u32::try_from(&s["ProximityClaims"]).unwrap(), 0);
-        assert!(p.near_changed_ns().await.unwrap() > 0, "the far change is stamped");
+        assert!(
+            p.near_changed_ns().await.unwrap() > 0,
+            "the far change is stamped"
+        );
         daemon.shutdown().await;
     });
 }

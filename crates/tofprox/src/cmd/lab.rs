@@ -283,7 +283,12 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let opts = options(a.tolerance_mm)?;
     let d = diagnose_with(&prep, &cmp, &opts, &cb)?;
     pb.finish_and_clear();
-    export(&a.export, &prep, Export::Comparison(&cmp, Some(&d)), a.force)?;
+    export(
+        &a.export,
+        &prep,
+        Export::Comparison(&cmp, Some(&d)),
+        a.force,
+    )?;
     emit(a.json, &report::diagnosis_json(&d), || {
         Ok(report::diagnosis_text(&d))
     })?;

@@ -37,7 +37,10 @@ fn comparison_files(
     // (`explain` keeps no residual table of its steps: their maps and tables only)
     if !cmp.recs.is_empty() {
         let (res, z) = residual_arrays(prep, cmp);
-        files.push(("residual_lsb.npy".into(), tofprox_format::npy::encode_f32(&res)));
+        files.push((
+            "residual_lsb.npy".into(),
+            tofprox_format::npy::encode_f32(&res),
+        ));
         files.push(("residual_z.npy".into(), tofprox_format::npy::encode_f32(&z)));
     }
     files.extend([
@@ -46,7 +49,10 @@ fn comparison_files(
         ("gain_lsb.npy".into(), map(&cmp.model.gain)),
         ("phase_rad.npy".into(), map(&cmp.model.phase)),
         ("captures.csv".into(), captures_csv(cmp).into_bytes()),
-        ("structure.csv".into(), structure_csv(&cmp.structure).into_bytes()),
+        (
+            "structure.csv".into(),
+            structure_csv(&cmp.structure).into_bytes(),
+        ),
     ]);
     if let Some(d) = d {
         files.push(("candidates.csv".into(), candidates_csv(d).into_bytes()));
@@ -56,7 +62,12 @@ fn comparison_files(
 
 /// The residual table as dense arrays `(captures, K, rows, cols)`: r (LSB) and r·√w.
 fn residual_arrays(prep: &Prepared, cmp: &Comparison) -> (Array4<f32>, Array4<f32>) {
-    let k_max = prep.caps.iter().map(|c| c.theta_rad.len()).max().unwrap_or(0);
+    let k_max = prep
+        .caps
+        .iter()
+        .map(|c| c.theta_rad.len())
+        .max()
+        .unwrap_or(0);
     let shape = (prep.caps.len(), k_max, prep.rows, prep.cols);
     let mut res = Array4::from_elem(shape, f32::NAN);
     let mut z = Array4::from_elem(shape, f32::NAN);
