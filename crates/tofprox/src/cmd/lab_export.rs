@@ -132,7 +132,7 @@ fn structure_csv(st: &[ConditionScore]) -> String {
             text(&c.condition),
             num(c.z),
             c.dof,
-            text(&c.direction),
+            text(c.direction),
             num(c.size_mm),
             num(c.size_lsb)
         );
