@@ -27,6 +27,33 @@ pub struct SignatureFit {
     pub n_params: usize,
     /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
     pub nuisance: [f64; NUISANCE],
+    /// Standard errors of `lin` and of `nl` ([`standard_errors`]; NaN for a discrete one).
+    pub lin_se: Vec<f64>,
+    /// (see `lin_se`)
+    pub nl_se: Vec<f64>,
+}
+
+/// Standard errors of the parameters `p` (layout of [`accumulate`]) from the curvature of χ²
+/// at the optimum: √diag((JᵀWJ)⁻¹) over the `free` ones (the nuisance shifts among them, so
+/// their correlation with the effect widens its errors), NaN for the others. W = 1/σ² of the
+/// noise model: errors of the noise, not scaled by χ²/dof.
+fn standard_errors(
+    sig: &dyn Signature,
+    recs: &[Sample],
+    prep: &Prepared,
+    p: &[f64],
+    free: &[usize],
+) -> Vec<f64> {
+    let m = total(&accumulate(sig, recs, prep, p, true, 1)).select(free);
+    let mut se = vec![f64::NAN; p.len()];
+    for (j, &i) in free.iter().enumerate() {
+        let mut e = vec![0.0; free.len()];
+        e[j] = 1.0;
+        if let Some(col) = solve_sym(&m.jtj, &e) {
+            se[i] = col[j].max(0.0).sqrt();
+        }
+    }
+    se
 }
 
 /// Global nuisance directions refitted with every candidate: the shifts of
@@ -180,13 +207,13 @@ pub fn fit_signature(
         )));
     }
     let mut p = best[0].2.clone();
+    // The parameters LM refines: a discrete one stays at its grid value (its zero Jacobian
+    // column would make JᵀJ singular).
+    let free: Vec<usize> = (0..nlin + n_nl)
+        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+        .collect();
     if n_nl > 0 {
-        // LM on a subsample (the non-linear parameters are few and smooth)
-        // over the parameters it refines: a discrete one stays at its grid
-        // value (its zero Jacobian column would make JᵀJ singular) …
-        let free: Vec<usize> = (0..nlin + n_nl)
-            .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
-            .collect();
+        // LM on a subsample (the non-linear parameters are few and smooth) …
         let mut refined: Option<(f64, Vec<f64>)> = None;
         for (_, _, start) in &best {
             let full = |q: &[f64]| {
@@ -244,10 +271,13 @@ pub fn fit_signature(
         v
     };
     let chi2_before: f64 = before.iter().sum();
+    let se = standard_errors(sig, recs, prep, &p, &free);
     let nl = p[nlin..].to_vec();
     let nuisance = [p[nlin - 3], p[nlin - 2], p[nlin - 1]];
     p.truncate(nlin - NUISANCE);
     Ok(SignatureFit {
+        lin_se: se[..nlin - NUISANCE].to_vec(),
+        nl_se: se[nlin..].to_vec(),
         n_params: p.len() + nl.len(),
         lin: p,
         nl,

@@ -380,6 +380,9 @@ pub struct CandidateScore {
     pub z_after: f64,
     /// Fitted parameters by name.
     pub params: BTreeMap<String, f64>,
+    /// Their standard errors by name (from the curvature of χ² under the noise model; NaN
+    /// for a parameter held on a grid).
+    pub standard_errors: BTreeMap<String, f64>,
     /// Why a reported value was clamped (a share above 100 %, a negative
     /// z after): the raw figure and what it means.
     pub flags: Vec<String>,
@@ -551,11 +554,16 @@ pub fn diagnose_with(
             let chi_after = cmp.chi2 - dchi;
             let dof_after = cmp.dof - f.n_params as f64;
             let mut params = BTreeMap::new();
-            for (n, v) in sig.lin_names().into_iter().zip(&f.lin) {
-                params.insert(n, *v);
-            }
-            for (n, v) in sig.nl_names().into_iter().zip(&f.nl) {
-                params.insert(n, *v);
+            let mut standard_errors = BTreeMap::new();
+            let names = sig.lin_names().into_iter().chain(sig.nl_names());
+            let values = f
+                .lin
+                .iter()
+                .chain(&f.nl)
+                .zip(f.lin_se.iter().chain(&f.nl_se));
+            for (n, (v, se)) in names.zip(values) {
+                params.insert(n.clone(), *v);
+                standard_errors.insert(n, *se);
             }
             let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             progress("candidates", k as f64 / ids.len().max(1) as f64);
@@ -567,6 +575,7 @@ pub fn diagnose_with(
                 explained: cmp.size_of(dchi, prep),
                 z_after: chi2_z(chi_after, dof_after),
                 params,
+                standard_errors,
                 flags: Vec::new(),
                 fit: Some(EffectFit {
                     id: id.to_string(),
@@ -1371,6 +1380,7 @@ mod tests {
             explained: Size::default(),
             z_after,
             params: BTreeMap::new(),
+            standard_errors: BTreeMap::new(),
             flags: Vec::new(),
             fit: None,
             nuisance: [0.0; 3],

@@ -32,6 +32,7 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "explained_lsb": num(c.explained.lsb),
             "z_after": num(c.z_after),
             "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "standard_errors": c.standard_errors.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
             "flags": c.flags,
         })).collect::<Vec<_>>(),
         "reason": d.reason,

@@ -50,6 +50,25 @@ fn diagnose_add_report_end_to_end() {
     ] {
         assert!(c0.get(k).is_some(), "candidate lacks {k}");
     }
+    // each fitted parameter with its standard error; the droop the truth has is many of
+    // them away from zero
+    let (params, ses) = (
+        c0["params"].as_object().unwrap(),
+        c0["standard_errors"].as_object().unwrap(),
+    );
+    assert_eq!(
+        params.keys().collect::<Vec<_>>(),
+        ses.keys().collect::<Vec<_>>()
+    );
+    let significance = params
+        .iter()
+        .filter_map(|(k, p)| Some((p.as_f64()? / ses[k].as_f64()?).abs()))
+        .fold(0.0, f64::max);
+    assert!(
+        ses.values().any(|s| s.as_f64().is_some_and(|s| s > 0.0)),
+        "{ses:?}"
+    );
+    assert!(significance > 10.0, "{params:?} ± {ses:?}");
     for k in ["chi2_per_dof", "z"] {
         assert!(v["fit"][k].is_number());
     }
@@ -309,4 +328,114 @@ fn add_onto_an_existing_file_needs_force() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     let written = tofprox_model::ModelConfig::load(&model).unwrap();
     assert!(written.effect("vcsel_droop").is_some_and(|e| e.enabled));
+}
+
+/// What numpy reads back from `--export`: the shapes, the χ²/dof and raw RMS recomputed from
+/// the exported residuals, the per-pixel χ² map against the residuals it summarises.
+const READ_EXPORT_PY: &str = r#"
+import json, sys
+import numpy as np
+d = sys.argv[1]
+r = np.load(d + "/residual_lsb.npy").astype(np.float64)
+z = np.load(d + "/residual_z.npy").astype(np.float64)
+pc = np.load(d + "/pixel_chi2.npy")
+maps = {n: list(np.load(d + "/" + n + ".npy").shape) for n in ("offset_lsb", "gain_lsb", "phase_rad")}
+ok = np.isfinite(r)
+cnt = np.isfinite(z).sum(axis=(0, 1))
+per_pixel = np.nansum(z ** 2, axis=(0, 1)) / cnt
+print(json.dumps({
+    "shape": list(r.shape), "dtype": str(np.load(d + "/residual_lsb.npy").dtype),
+    "samples": int(ok.sum()), "same_mask": bool((ok == np.isfinite(z)).all()),
+    "chi2": float(np.nansum(z ** 2)), "raw_rms_lsb": float(np.sqrt(np.mean(r[ok] ** 2))),
+    "pixel_chi2_max_rel_diff": float(np.nanmax(np.abs(per_pixel - pc) / pc)),
+    "maps": maps,
+}))
+"#;
+
+#[test]
+fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
+    let Some(python) = tofprox_e2e::require_python("import numpy", "python3-numpy") else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("out");
+    let rec = repo_file("examples/recording");
+    let model = repo_file("config/model/baseline.toml");
+    let compare = |extra: &[&str]| {
+        let args = [
+            "lab", "compare", &rec, "--model", &model, "--json", "--export",
+        ];
+        run(&[&args[..], &[dir.to_str().unwrap()], extra].concat())
+    };
+    let o = compare(&[]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let out = std::process::Command::new(python)
+        .args(["-c", READ_EXPORT_PY, dir.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let np: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    // the recording's own shape, read by the format crate
+    let r = tofprox_format::Recording::open(std::path::Path::new(&rec)).unwrap();
+    let k_max = r
+        .captures()
+        .iter()
+        .map(|c| c.phases_deg.len())
+        .max()
+        .unwrap();
+    let (rows, cols) = (r.sensor().rows, r.sensor().cols);
+    assert_eq!(
+        np["shape"],
+        serde_json::json!([r.captures().len(), k_max, rows, cols])
+    );
+    assert_eq!(np["dtype"], "float32");
+    assert_eq!(np["same_mask"], true);
+    for m in ["offset_lsb", "gain_lsb", "phase_rad"] {
+        assert_eq!(np["maps"][m], serde_json::json!([rows, cols]), "{m}");
+    }
+    // the fit's own figures, recomputed from the exported residuals
+    let n = v["samples"].as_f64().unwrap();
+    assert_eq!(np["samples"].as_f64().unwrap(), n);
+    let dof = n - v["parameters"].as_f64().unwrap();
+    let chi2_per_dof = np["chi2"].as_f64().unwrap() / dof;
+    let want = v["fit"]["chi2_per_dof"].as_f64().unwrap();
+    assert!(
+        (chi2_per_dof / want - 1.0).abs() < 1e-5,
+        "{chi2_per_dof} vs {want}"
+    );
+    let rms = np["raw_rms_lsb"].as_f64().unwrap();
+    let want = v["rms"]["raw_lsb"].as_f64().unwrap();
+    assert!((rms / want - 1.0).abs() < 1e-5, "{rms} vs {want}");
+    assert!(np["pixel_chi2_max_rel_diff"].as_f64().unwrap() < 1e-5);
+    // the tables: the structure rows are the JSON's, in order; one row per ranged capture
+    let structure = std::fs::read_to_string(dir.join("structure.csv")).unwrap();
+    let names: Vec<&str> = structure
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    let want: Vec<&str> = v["structure"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["condition"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, want);
+    let captures = std::fs::read_to_string(dir.join("captures.csv")).unwrap();
+    let ranged = r
+        .captures()
+        .iter()
+        .filter(|c| c.illumination && c.conditions.contains_key("distance_m"))
+        .count();
+    assert_eq!(captures.lines().count() - 1, ranged, "{captures}");
+    // nothing replaced without --force
+    let o = compare(&[]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        text(&o.stderr).contains("pass --force"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert!(compare(&["--force"]).status.success());
 }

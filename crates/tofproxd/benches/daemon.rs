@@ -64,7 +64,6 @@ fn controller_cycle_2phase_full_frame(b: Bencher) {
         exposure_us: 100.0,
         geometry: tofprox_core::SensorGeometry::full(ROWS, COLS, 12, 80e6),
         timings: Some(CycleTimings::default()),
-        timestamp_ns: 0,
     };
     let mut ctl = Controller::new(
         full_frame_config(),
@@ -139,6 +138,7 @@ fn frame_to_properties_changed(b: Bencher) {
             erx,
             false,
             5.0,
+            None,
         ));
         let client = zbus::connection::Builder::address(addr.as_str())
             .build()

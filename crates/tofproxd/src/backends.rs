@@ -108,7 +108,6 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
             frames: RawImages::U16(out.frames),
             phases_deg: out.phases_deg,
             exposure_us: out.exposure_us,
-            timestamp_ns: u64::try_from(self.clock.now().as_nanos()).unwrap_or(u64::MAX),
         })
     }
 
@@ -247,7 +246,6 @@ impl ReplaySource {
                 ..*self.rec.sensor()
             },
             timings: None,
-            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
         })
     }
 }
@@ -290,7 +288,6 @@ impl FrameSource for ReplaySource {
             geometry: sensor,
             // A recording holds no state timings: none are invented.
             timings: None,
-            timestamp_ns: meta.timestamp_ns.unwrap_or(idx as u64),
         })
     }
 

@@ -31,6 +31,12 @@ pub trait Proximity {
     /// Near.
     #[zbus(property)]
     fn near(&self) -> zbus::Result<bool>;
+    /// NearChangedNs (CLOCK_BOOTTIME of the capture that last changed Near; signalled with Near).
+    #[zbus(property)]
+    fn near_changed_ns(&self) -> zbus::Result<u64>;
+    /// ReadingTimestampNs (CLOCK_BOOTTIME of the last valid reading's capture; no change signal).
+    #[zbus(property(emits_changed_signal = "false"))]
+    fn reading_timestamp_ns(&self) -> zbus::Result<u64>;
     /// DistanceMm (no change signal).
     #[zbus(property(emits_changed_signal = "false"))]
     fn distance_mm(&self) -> zbus::Result<u32>;

@@ -48,6 +48,17 @@ pub enum Backend {
     Replay,
 }
 
+/// Where Near is published besides `org.tofprox.Proximity1` (always served: status, claims).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Publisher {
+    /// D-Bus only.
+    Dbus,
+    /// Also a uinput device reporting `SW_FRONT_PROXIMITY` (iio-sensor-proxy reads it). No
+    /// claim reaches us through an input device, so the loop runs as with `loop.always_on`.
+    Input,
+}
+
 /// Processing mode of a reading: the shared measurement mode [`tofprox_core::Algorithm`]
 /// (serde and the D-Bus `Mode` property: `"2phase"` / `"4phase"`, thesis eqs. 2.2 / 2.3).
 pub use tofprox_core::Algorithm as Mode;
@@ -58,6 +69,9 @@ pub use tofprox_core::Algorithm as Mode;
 pub struct Config {
     /// `usb`, `emulated` or `replay`.
     pub backend: Backend,
+    /// Where Near goes besides the native D-Bus interface: `dbus` (nowhere else) or `input`
+    /// (also the switch of a uinput device, for iio-sensor-proxy: [`crate::input`]).
+    pub publisher: Publisher,
     /// Main loop settings.
     #[serde(rename = "loop")]
     pub loop_: LoopConfig,
@@ -87,6 +101,7 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             backend: Backend::Emulated,
+            publisher: Publisher::Dbus,
             loop_: LoopConfig::default(),
             processing: ProcessingConfig::default(),
             proximity: ProximityConfig::default(),
@@ -384,6 +399,10 @@ impl Default for EnergyConfig {
 pub struct DbusConfig {
     /// Also own `net.hadess.SensorProxy` (iio-sensor-proxy compatibility).
     pub iio_sensor_proxy_compat: bool,
+    /// Files whose presence means iio-sensor-proxy is installed (its binary, its unit): the
+    /// compatibility mode refuses to start beside it. A unit masked in `/etc/systemd/system`
+    /// (a link to `/dev/null`) does not count. Empty: no check.
+    pub iio_sensor_proxy_paths: Vec<PathBuf>,
     /// Maximum DepthFrame signal rate (Hz).
     pub depth_max_hz: f64,
 }
@@ -392,6 +411,16 @@ impl Default for DbusConfig {
     fn default() -> Self {
         Self {
             iio_sensor_proxy_compat: false,
+            iio_sensor_proxy_paths: [
+                "/usr/libexec/iio-sensor-proxy",
+                "/usr/sbin/iio-sensor-proxy",
+                "/usr/lib/iio-sensor-proxy/iio-sensor-proxy",
+                "/usr/lib/systemd/system/iio-sensor-proxy.service",
+                "/lib/systemd/system/iio-sensor-proxy.service",
+            ]
+            .into_iter()
+            .map(PathBuf::from)
+            .collect(),
             depth_max_hz: 5.0,
         }
     }

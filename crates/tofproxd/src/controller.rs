@@ -24,6 +24,7 @@ use tofprox_core::pipeline::{
 use tofprox_core::proximity::{NearFarConfig, NearFarDetector, ProximityReading, Roi};
 use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausible_near};
 
+use crate::boottime::boottime_ns;
 use crate::config::{Config, Mode};
 use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
@@ -363,6 +364,7 @@ impl<S: FrameSource> Controller<S> {
         StatusUpdate {
             state: Some(State::Off),
             near: Some(false),
+            timestamp_ns: Some(boottime_ns()),
             distance_mm: Some(0),
             rate_hz: Some(0.0),
             ..StatusUpdate::default()
@@ -423,6 +425,7 @@ impl<S: FrameSource> Controller<S> {
             update: StatusUpdate {
                 state: Some(state),
                 near: near_update,
+                timestamp_ns: Some(boottime_ns()),
                 last_error: Some(self.last_error.clone()),
                 has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
                 cycle: true,
@@ -489,18 +492,35 @@ impl<S: FrameSource> Controller<S> {
                 return self.fail(e);
             }
         };
-        let captured = match check_cycle(&cycle) {
+        // The capture's time: its frames are in (published with Near and the reading).
+        let captured_ns = boottime_ns();
+        let mut out = self.after_capture(&cycle, &req, probe, want_depth, captured_ns);
+        out.update.timestamp_ns = Some(captured_ns);
+        out
+    }
+
+    /// Everything a cycle's capture (its frames in at `captured_ns`) leads to: a rails
+    /// decision or a processed reading.
+    fn after_capture(
+        &mut self,
+        cycle: &RawCycle,
+        req: &CycleRequest,
+        probe: bool,
+        want_depth: bool,
+        captured_ns: u64,
+    ) -> StepOutcome {
+        let captured = match check_cycle(cycle) {
             Ok(m) => m,
             Err(e) => return self.fail(e),
         };
-        if !rails_only(&cycle) {
+        if !rails_only(cycle) {
             self.saturation.measurable();
-        } else if self.rails_decision(&cycle, captured) != RailsDecision::NearReturn {
-            return self.rails_cycle(&cycle);
+        } else if self.rails_decision(cycle, captured) != RailsDecision::NearReturn {
+            return self.rails_cycle(cycle);
         }
         // (a near return on the rails is processed: every pixel saturated reads near)
         self.ambient.note_capture(probe, captured);
-        match self.process(&cycle, &req, captured, want_depth) {
+        match self.process(cycle, req, captured, want_depth, captured_ns) {
             Ok(out) => out,
             Err(e) => self.fail(e),
         }
@@ -515,8 +535,9 @@ impl<S: FrameSource> Controller<S> {
         req: &CycleRequest,
         captured: Mode,
         want_depth: bool,
+        captured_ns: u64,
     ) -> Result<StepOutcome, SourceError> {
-        let m = self.measure(cycle, req, captured, want_depth)?;
+        let m = self.measure(cycle, req, captured, want_depth, captured_ns)?;
         self.monitor_window(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
         Ok(self.report(m, energy, captured))
@@ -533,6 +554,7 @@ impl<S: FrameSource> Controller<S> {
         req: &CycleRequest,
         captured: Mode,
         want_depth: bool,
+        captured_ns: u64,
     ) -> Result<Measurement, SourceError> {
         let g = cycle.geometry;
         let roi = frame_roi(&self.cfg, g);
@@ -578,7 +600,7 @@ impl<S: FrameSource> Controller<S> {
             .fold(0.0f32, f32::max);
         let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
         let stats = roi_stats(frame, roi);
-        let depth = want_depth.then(|| depth_message(frame, cycle.timestamp_ns));
+        let depth = want_depth.then(|| depth_message(frame, captured_ns));
         let reading = self.detect(g, roi, captured)?;
         Ok(Measurement {
             roi,
@@ -821,6 +843,8 @@ impl<S: FrameSource> Controller<S> {
             update: StatusUpdate {
                 state: Some(self.state),
                 near: m.valid.then_some(self.near),
+                // the capture's time, set by `step` (the frames were in)
+                timestamp_ns: None,
                 distance_mm: Some(shown_distance_mm(&m.reading, self.cfg.proximity.far_mm)),
                 mode: Some(self.ambient.mode()),
                 rate_hz: Some(self.rate.rate_hz()),
@@ -1401,6 +1425,39 @@ mod tests {
         assert!(c.step(false).near, "debounce 1");
         assert!(c.step(false).near, "debounce 2");
         assert!(!c.step(false).near, "far after 3");
+    }
+
+    /// Every update carries a CLOCK_BOOTTIME stamp taken between the cycle's call and its
+    /// return (the capture's frames are in), read against `/proc/uptime` (an independent view
+    /// of the same clock), never going backwards — failed cycles and the stop included.
+    #[test]
+    fn every_update_carries_the_capture_time_on_boottime() {
+        let uptime_ns = || -> u64 {
+            let s = std::fs::read_to_string("/proc/uptime").expect("/proc/uptime");
+            let secs: f64 = s.split_whitespace().next().unwrap().parse().unwrap();
+            (secs * 1e9) as u64
+        };
+        let mut c = ctl(vec![
+            Step::target(800.0),
+            Step::target(50.0),
+            Step::Fail(SourceErrorKind::Timeout),
+            Step::target(800.0),
+        ]);
+        let mut last = 0;
+        for _ in 0..4 {
+            let before = uptime_ns();
+            let t = c.step(false).update.timestamp_ns.expect("stamped");
+            let after = uptime_ns();
+            // /proc/uptime has 10 ms resolution
+            assert!(
+                t + 20_000_000 >= before && t <= after + 20_000_000,
+                "{before} ≤ {t} ≤ {after}"
+            );
+            assert!(t >= last, "monotone: {last} then {t}");
+            last = t;
+        }
+        let t = c.stop().timestamp_ns.expect("the stop is stamped");
+        assert!(t >= last);
     }
 
     #[test]

@@ -65,6 +65,12 @@ pub struct Status {
     pub state: State,
     /// `Near`.
     pub near: bool,
+    /// `NearChangedNs`: `CLOCK_BOOTTIME` (ns) of the capture whose reading last changed `Near`
+    /// (0 = unchanged since the daemon started).
+    pub near_changed_ns: u64,
+    /// `ReadingTimestampNs`: `CLOCK_BOOTTIME` (ns) of the capture of the last valid reading
+    /// (0 = none yet).
+    pub reading_ns: u64,
     /// `DistanceMm` (0 = unknown).
     pub distance_mm: u32,
     /// `NearThresholdMm`.
@@ -215,6 +221,8 @@ impl Hub {
             has_sensor: true,
             state: State::Off,
             near: false,
+            near_changed_ns: 0,
+            reading_ns: 0,
             distance_mm: 0,
             near_threshold_mm: cfg.proximity.near_mm,
             far_threshold_mm: cfg.proximity.far_mm,
@@ -380,6 +388,7 @@ impl Hub {
         let mut g = self.lock();
         let counts = |s: &Status| [s.cycles, s.valid_readings, s.errors];
         let counts_before = counts(&g.status);
+        let near_before = g.status.near;
         f(&mut g.status);
         if g.status.state == State::Off || g.status.state == State::Starting {
             g.have_reading = false;
@@ -391,6 +400,17 @@ impl Hub {
             public.cycles -= g.hidden_counts[0];
             public.valid_readings -= g.hidden_counts[1];
             public.errors -= g.hidden_counts[2];
+            // The times clients see are of what they saw: a reading counted for them, a Near
+            // change of theirs (one shown only now, after a depth claim alone, is stamped now).
+            if g.status.valid_readings == counts_before[1] {
+                public.reading_ns = before.reading_ns;
+            }
+            public.near_changed_ns = match (public.near != before.near, near_before != public.near)
+            {
+                (false, _) => before.near_changed_ns,
+                (true, true) => g.status.near_changed_ns,
+                (true, false) => crate::boottime::boottime_ns(),
+            };
             g.public = public;
         } else {
             let counts_after = counts(&g.status);
@@ -415,7 +435,15 @@ impl Hub {
                 s.state = v;
             }
             if let Some(v) = u.near {
+                if v != s.near {
+                    s.near_changed_ns = u.timestamp_ns.unwrap_or(s.near_changed_ns);
+                }
                 s.near = v;
+            }
+            if u.valid_reading
+                && let Some(t) = u.timestamp_ns
+            {
+                s.reading_ns = t;
             }
             if let Some(v) = u.distance_mm {
                 s.distance_mm = v;
@@ -460,7 +488,7 @@ impl Hub {
 /// A depth frame to publish.
 #[derive(Debug, Clone)]
 pub struct DepthMessage {
-    /// Capture time (ns).
+    /// Capture time: `CLOCK_BOOTTIME` (ns) when the frames were in ([`crate::boottime`]).
     pub timestamp_ns: u64,
     /// Columns.
     pub width: u16,
@@ -488,6 +516,9 @@ pub struct StatusUpdate {
     pub state: Option<State>,
     /// New near.
     pub near: Option<bool>,
+    /// `CLOCK_BOOTTIME` (ns, [`crate::boottime`]) of the capture this update comes from (of
+    /// the moment of the decision for an update without one: a stop, a failed cycle).
+    pub timestamp_ns: Option<u64>,
     /// New distance (0 = unknown).
     pub distance_mm: Option<u32>,
     /// New mode.
@@ -742,6 +773,7 @@ mod tests {
         let running = StatusUpdate {
             state: Some(State::Running),
             near: Some(true),
+            timestamp_ns: Some(77),
             distance_mm: Some(120),
             rate_hz: Some(4.0),
             cycle: true,
@@ -756,7 +788,20 @@ mod tests {
             (State::Off, false, 0, 0.0)
         );
         assert_eq!((after.cycles, after.valid_readings), (0, 0));
+        assert_eq!(
+            (after.reading_ns, after.near_changed_ns),
+            (0, 0),
+            "no reading time either"
+        );
         h.set_claim(":1.2", Claim::Proximity, true);
+        // shown at the claim, Near is stamped then, not with the hidden reading's time
+        let t_claim = crate::boottime::boottime_ns();
+        let (_, shown) = h.update(|_| {});
+        assert!(shown.near && shown.near_changed_ns >= t_claim, "{shown:?}");
+        assert_eq!(
+            shown.reading_ns, 0,
+            "the hidden reading's time stays hidden"
+        );
         let (_, after) = h.apply(&running);
         assert_eq!(
             (after.state, after.near, after.distance_mm, after.rate_hz),
@@ -767,6 +812,11 @@ mod tests {
             (1, 1),
             "own cycles only"
         );
+        assert_eq!(
+            (after.reading_ns, after.near_changed_ns),
+            (77, shown.near_changed_ns),
+            "a reading of its own shows its time; Near did not change"
+        );
         // the proximity claim goes, the depth claim stays: seen stopped at once
         h.set_claim(":1.2", Claim::Proximity, false);
         let (before, after) = h.update(|_| {});
@@ -774,6 +824,45 @@ mod tests {
         assert_eq!(
             (after.state, after.rate_hz, after.cycles),
             (State::Off, 0.0, 1)
+        );
+    }
+
+    /// A Near change takes the time of the capture that changed it; a reading that leaves
+    /// Near as it was moves only the reading's time; an update without a valid reading
+    /// moves neither.
+    #[test]
+    fn near_changes_and_readings_carry_their_capture_time() {
+        let h = hub();
+        let reading = |near: bool, t: u64| StatusUpdate {
+            near: Some(near),
+            timestamp_ns: Some(t),
+            valid_reading: true,
+            cycle: true,
+            ..StatusUpdate::default()
+        };
+        let (_, s) = h.apply(&reading(false, 1_000));
+        assert_eq!(
+            (s.near_changed_ns, s.reading_ns),
+            (0, 1_000),
+            "far stays far"
+        );
+        let (_, s) = h.apply(&reading(true, 2_000));
+        assert_eq!(
+            (s.near, s.near_changed_ns, s.reading_ns),
+            (true, 2_000, 2_000)
+        );
+        let (_, s) = h.apply(&reading(true, 3_000));
+        assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
+        let (_, s) = h.apply(&StatusUpdate {
+            error: true,
+            timestamp_ns: Some(4_000),
+            ..StatusUpdate::default()
+        });
+        assert_eq!((s.near_changed_ns, s.reading_ns), (2_000, 3_000));
+        let (_, s) = h.apply(&reading(false, 5_000));
+        assert_eq!(
+            (s.near, s.near_changed_ns, s.reading_ns),
+            (false, 5_000, 5_000)
         );
     }
 

@@ -9,6 +9,7 @@
 //! nor the physical model (`tofprox-model`).
 
 pub mod backends;
+pub mod boottime;
 pub mod calibration;
 pub mod client;
 pub mod config;
@@ -16,6 +17,7 @@ pub mod controller;
 pub mod data;
 pub mod energy;
 pub mod hub;
+pub mod input;
 pub mod logging;
 pub mod policy;
 pub mod publisher;

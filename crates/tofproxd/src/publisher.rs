@@ -12,6 +12,7 @@ use zbus::object_server::SignalEmitter;
 use zbus::{Connection, Variant, fdo};
 
 use crate::hub::{DepthMessage, Event, Hub, Status};
+use crate::input::InputPublisher;
 use crate::service::{COMPAT_BUS_NAME, COMPAT_PATH, INTERFACE, OBJECT_PATH, Proximity, property};
 
 /// Emit PropertiesChanged for `iface` with the given changes (one signal).
@@ -73,8 +74,8 @@ async fn send_depth(conn: &Connection, hub: &Hub, d: &DepthMessage) {
     }
 }
 
-/// The publisher: applies loop events to the hub and emits signals. Runs until the
-/// event channel closes. The channel is bounded ([`crate::hub::event_channel`]): while
+/// The publisher: applies loop events to the hub and emits signals (and, with the input
+/// publisher, writes Near to its uinput switch). Runs until the event channel closes. The channel is bounded ([`crate::hub::event_channel`]): while
 /// this task is behind, the loop waits to send status updates and drops depth frames.
 pub async fn run_publisher(
     conn: Connection,
@@ -82,6 +83,7 @@ pub async fn run_publisher(
     mut events: mpsc::Receiver<Event>,
     compat: bool,
     depth_max_hz: f64,
+    mut input: Option<InputPublisher>,
 ) {
     // PowerEstimateMw: at most one change signal per second, carried by the cycle's own
     // update (no timer of its own: no extra wake-up between cycles).
@@ -97,6 +99,7 @@ pub async fn run_publisher(
             Ok(()) = demand.changed() => {
                 let (before, after) = hub.update(|_| {});
                 publish_changes(&conn, compat, &before, &after).await;
+                publish_input(input.as_mut(), &after);
                 continue;
             }
         };
@@ -127,11 +130,21 @@ pub async fn run_publisher(
                     }
                 }
                 publish_changes(&conn, compat, &before, &after).await;
+                publish_input(input.as_mut(), &after);
                 if u.valid_reading {
                     hub.note_valid_reading();
                 }
             }
         }
+    }
+}
+
+/// Near to the input publisher's switch (written only when it changed).
+fn publish_input(input: Option<&mut InputPublisher>, after: &Status) {
+    if let Some(p) = input
+        && let Err(e) = p.publish(after.near)
+    {
+        tracing::warn!("input publisher: writing Near to the uinput device failed: {e}");
     }
 }
 
@@ -147,6 +160,12 @@ async fn publish_changes(conn: &Connection, compat: bool, before: &Status, after
     }
     if before.near != after.near {
         ch.insert(property::NEAR, Variant::from(after.near));
+    }
+    if before.near_changed_ns != after.near_changed_ns {
+        ch.insert(
+            property::NEAR_CHANGED_NS,
+            Variant::from(after.near_changed_ns),
+        );
     }
     if before.mode != after.mode {
         ch.insert(property::MODE, Variant::from(after.mode.as_str()));

@@ -3,6 +3,7 @@
 //! tracking, sd-notify (READY/STATUS/WATCHDOG) and the clean stop (the binary calls
 //! [`Daemon::shutdown`] on every terminating signal).
 
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::mpsc as stdmpsc;
 use std::time::Duration;
@@ -11,9 +12,10 @@ use tokio::sync::watch;
 use zbus::Connection;
 use zbus::fdo::{RequestNameFlags, RequestNameReply};
 
-use crate::config::Config;
+use crate::config::{Config, DbusConfig, Publisher};
 use crate::controller::Controller;
 use crate::hub::{Demand, EventSender, Hub, State, StatusUpdate, event_channel};
+use crate::input::{DeviceDescription, InputError, InputPublisher, SwitchDevice, UinputDevice};
 use crate::service::{
     self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
     ReadOnlyProperties, SensorProxyCompass, SensorProxyCompat,
@@ -68,6 +70,17 @@ pub enum RunError {
         /// Likely owner.
         what: &'static str,
     },
+    /// Compatibility mode asked for where iio-sensor-proxy is installed or running.
+    #[error(
+        "iio-sensor-proxy is {found}: the compatibility mode would take net.hadess.SensorProxy from it, and with it the accelerometer and light sensor it serves. Use the input publisher instead (`publisher = \"input\"`, `[dbus] iio_sensor_proxy_compat = false`): iio-sensor-proxy then reads our proximity from a uinput switch (docs/daemon.md, \"Beside iio-sensor-proxy\")"
+    )]
+    BesideIioSensorProxy {
+        /// "installed (<path>)" or "running (it owns net.hadess.SensorProxy)".
+        found: String,
+    },
+    /// The input publisher's uinput device could not be made.
+    #[error("input publisher: {0}")]
+    Input(#[from] InputError),
     /// Any other D-Bus failure.
     #[error("D-Bus: {0}")]
     Dbus(#[from] zbus::Error),
@@ -104,6 +117,25 @@ async fn request_name(
             Err(RunError::NameTaken { name, what })
         }
         Err(e) => Err(e.into()),
+    }
+}
+
+/// The first of `dbus.iio_sensor_proxy_paths` that exists: iio-sensor-proxy is installed.
+pub fn iio_sensor_proxy_installed(dbus: &DbusConfig) -> Option<&Path> {
+    dbus.iio_sensor_proxy_paths
+        .iter()
+        .map(PathBuf::as_path)
+        .find(|p| p.symlink_metadata().is_ok())
+}
+
+/// The compatibility mode never starts beside iio-sensor-proxy: refused when it is installed
+/// (a phone whose other sensors it serves would lose them whenever we start first).
+pub fn refuse_compat_beside_iio_sensor_proxy(dbus: &DbusConfig) -> Result<(), RunError> {
+    match iio_sensor_proxy_installed(dbus) {
+        Some(p) if dbus.iio_sensor_proxy_compat => Err(RunError::BesideIioSensorProxy {
+            found: format!("installed ({})", p.display()),
+        }),
+        _ => Ok(()),
     }
 }
 
@@ -274,51 +306,48 @@ pub struct Daemon {
 }
 
 impl Daemon {
-    /// Serve on `conn`: export the objects, take the names, start the loop.
+    /// Serve on `conn`: export the objects, take the names, start the loop; with
+    /// `publisher = "input"` on a uinput device made here ([`crate::input`]).
     pub async fn start<S: FrameSource + 'static>(
         conn: Connection,
         cfg: &Config,
         ctl: Controller<S>,
     ) -> Result<Self, RunError> {
+        refuse_compat_beside_iio_sensor_proxy(&cfg.dbus)?;
+        let input: Option<Box<dyn SwitchDevice>> = match cfg.publisher {
+            Publisher::Dbus => None,
+            Publisher::Input => Some(Box::new(UinputDevice::create(
+                Path::new(crate::input::UINPUT_PATH),
+                &DeviceDescription::proximity(),
+            )?)),
+        };
+        Self::start_with_input(conn, cfg, ctl, input).await
+    }
+
+    /// [`Daemon::start`] with the input publisher's device given (`None`: D-Bus only); the
+    /// loop then runs without a claim, as no claim reaches us through an input device.
+    pub async fn start_with_input<S: FrameSource + 'static>(
+        conn: Connection,
+        cfg: &Config,
+        ctl: Controller<S>,
+        input: Option<Box<dyn SwitchDevice>>,
+    ) -> Result<Self, RunError> {
+        refuse_compat_beside_iio_sensor_proxy(&cfg.dbus)?;
         let backend = ctl.source().describe();
         let (hub, demand_rx) = Hub::new(cfg, backend);
         let compat = cfg.dbus.iio_sensor_proxy_compat;
-        conn.object_server()
-            .at(OBJECT_PATH, ReadOnlyProperties(Proximity::new(hub.clone())))
-            .await?;
-        if compat {
-            conn.object_server()
-                .at(
-                    COMPAT_PATH,
-                    ReadOnlyProperties(SensorProxyCompat::new(hub.clone())),
-                )
-                .await?;
-            conn.object_server()
-                .at(COMPAT_COMPASS_PATH, ReadOnlyProperties(SensorProxyCompass))
-                .await?;
-        }
-        let mut tasks = Vec::new();
-        if conn.is_bus() {
-            // Subscribe before taking the name so no departing client is missed.
-            let stream = service::subscribe_clients(&conn).await?;
-            tasks.push(tokio::spawn(service::watch_clients(stream, hub.clone())));
-            request_name(&conn, service::BUS_NAME, "tofproxd").await?;
-            if compat && let Err(e) = request_name(&conn, COMPAT_BUS_NAME, "iio-sensor-proxy").await
-            {
-                let _ = conn.release_name(service::BUS_NAME).await;
-                return Err(e);
-            }
-        }
+        let mut tasks = serve_objects(&conn, &hub, compat).await?;
         let (ev_tx, ev_rx) = event_channel();
+        let always_on = cfg.loop_.always_on || input.is_some();
         let publisher = Some(tokio::spawn(crate::publisher::run_publisher(
             conn.clone(),
             hub.clone(),
             ev_rx,
             compat,
             cfg.dbus.depth_max_hz,
+            input.map(InputPublisher::new),
         )));
         let (cmd_tx, cmd_rx) = stdmpsc::channel();
-        let always_on = cfg.loop_.always_on;
         let health = Arc::new(LoopHealth::new());
         let loop_health = health.clone();
         let thread = std::thread::Builder::new()
@@ -381,6 +410,47 @@ impl Daemon {
             t.abort();
         }
     }
+}
+
+/// Export the objects and, on a bus, follow client departures and take the names (the
+/// compat name never from a running iio-sensor-proxy). Returns the client-tracking task.
+async fn serve_objects(
+    conn: &Connection,
+    hub: &Arc<Hub>,
+    compat: bool,
+) -> Result<Vec<tokio::task::JoinHandle<()>>, RunError> {
+    let server = conn.object_server();
+    server
+        .at(OBJECT_PATH, ReadOnlyProperties(Proximity::new(hub.clone())))
+        .await?;
+    if compat {
+        server
+            .at(
+                COMPAT_PATH,
+                ReadOnlyProperties(SensorProxyCompat::new(hub.clone())),
+            )
+            .await?;
+        server
+            .at(COMPAT_COMPASS_PATH, ReadOnlyProperties(SensorProxyCompass))
+            .await?;
+    }
+    let mut tasks = Vec::new();
+    if conn.is_bus() {
+        // Subscribe before taking the name so no departing client is missed.
+        let stream = service::subscribe_clients(conn).await?;
+        tasks.push(tokio::spawn(service::watch_clients(stream, hub.clone())));
+        request_name(conn, service::BUS_NAME, "tofproxd").await?;
+        if compat && let Err(e) = request_name(conn, COMPAT_BUS_NAME, "iio-sensor-proxy").await {
+            let _ = conn.release_name(service::BUS_NAME).await;
+            return Err(match e {
+                RunError::NameTaken { .. } => RunError::BesideIioSensorProxy {
+                    found: format!("running (it owns {COMPAT_BUS_NAME})"),
+                },
+                e => e,
+            });
+        }
+    }
+    Ok(tasks)
 }
 
 async fn forward_demand(mut rx: watch::Receiver<Demand>, tx: stdmpsc::Sender<LoopCmd>) {

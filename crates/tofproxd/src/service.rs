@@ -40,6 +40,10 @@ pub mod property {
     pub const STATE: &str = "State";
     /// `org.tofprox.Proximity1.Near`.
     pub const NEAR: &str = "Near";
+    /// `org.tofprox.Proximity1.NearChangedNs`.
+    pub const NEAR_CHANGED_NS: &str = "NearChangedNs";
+    /// `org.tofprox.Proximity1.ReadingTimestampNs`.
+    pub const READING_TIMESTAMP_NS: &str = "ReadingTimestampNs";
     /// `org.tofprox.Proximity1.DistanceMm`.
     pub const DISTANCE_MM: &str = "DistanceMm";
     /// `org.tofprox.Proximity1.NearThresholdMm`.
@@ -55,10 +59,12 @@ pub mod property {
     /// `org.tofprox.Proximity1.LastError`.
     pub const LAST_ERROR: &str = "LastError";
     /// Every property of `org.tofprox.Proximity1`.
-    pub const ALL: [&str; 10] = [
+    pub const ALL: [&str; 12] = [
         HAS_SENSOR,
         STATE,
         NEAR,
+        NEAR_CHANGED_NS,
+        READING_TIMESTAMP_NS,
         DISTANCE_MM,
         NEAR_THRESHOLD_MM,
         FAR_THRESHOLD_MM,
@@ -220,6 +226,14 @@ impl Proximity {
         m.insert(property::STATE.into(), variant_str(s.state.as_str()));
         m.insert(property::NEAR.into(), OwnedVariant::from(s.near));
         m.insert(
+            property::NEAR_CHANGED_NS.into(),
+            OwnedVariant::from(s.near_changed_ns),
+        );
+        m.insert(
+            property::READING_TIMESTAMP_NS.into(),
+            OwnedVariant::from(s.reading_ns),
+        );
+        m.insert(
             property::DISTANCE_MM.into(),
             OwnedVariant::from(s.distance_mm),
         );
@@ -282,6 +296,20 @@ impl Proximity {
     #[zbus(property)]
     fn near(&self) -> bool {
         self.hub.status().near
+    }
+
+    /// CLOCK_BOOTTIME (ns, the clock of Android's sensor events) of the capture whose reading
+    /// last changed Near (0 = unchanged since start); its change signal comes with Near's.
+    #[zbus(property)]
+    fn near_changed_ns(&self) -> u64 {
+        self.hub.status().near_changed_ns
+    }
+
+    /// CLOCK_BOOTTIME (ns) of the capture of the last valid reading (0 = none yet), the one
+    /// DistanceMm shows. No change signal: poll it with DistanceMm.
+    #[zbus(property(emits_changed_signal = "false"))]
+    fn reading_timestamp_ns(&self) -> u64 {
+        self.hub.status().reading_ns
     }
 
     /// Distance of the ROI (mm, 0 = unknown, 4294967295 = nothing in range: a valid far reading). No change signal: poll it.

@@ -52,7 +52,8 @@ impl RawImages {
 
 /// One cycle's raw data, source-neutral: the raw images with their phases and exposure,
 /// the sensor geometry and read-out window, the state timings where the source measures them
-/// (a recording has none), and the time stamp published with the reading.
+/// (a recording has none). The time published with the reading is the controller's
+/// (`CLOCK_BOOTTIME` when the frames are in, [`crate::boottime`]), one clock for every source.
 #[derive(Debug, Clone)]
 pub struct RawCycle {
     /// The raw images `(K, rows, cols)`.
@@ -65,8 +66,6 @@ pub struct RawCycle {
     pub geometry: SensorGeometry,
     /// Measured state durations (energy model), `None` when the source has none (replay).
     pub timings: Option<CycleTimings>,
-    /// Capture timestamp (ns, source clock).
-    pub timestamp_ns: u64,
 }
 
 impl RawCycle {
@@ -230,7 +229,6 @@ pub struct ScriptedSource {
     pub requests: Vec<CycleRequest>,
     /// Number of `power_off` calls.
     pub power_offs: u32,
-    t_ns: u64,
     window_support: bool,
 }
 
@@ -251,7 +249,6 @@ impl ScriptedSource {
             modulation_hz: 60e6,
             requests: Vec::new(),
             power_offs: 0,
-            t_ns: 0,
             window_support: true,
         }
     }
@@ -311,7 +308,6 @@ impl FrameSource for ScriptedSource {
         };
         self.served = Some(step.clone());
         let modulation_hz = req.modulation_hz.unwrap_or(self.modulation_hz);
-        self.t_ns += 100_000_000;
         let (row0, rows) = match (self.window_support, req.row_window) {
             (true, Some(w)) => {
                 let row0 = usize::from(w.row0).min(self.rows.saturating_sub(1));
@@ -362,7 +358,6 @@ impl FrameSource for ScriptedSource {
             exposure_us: req.exposure_us,
             geometry,
             timings: Some(timings),
-            timestamp_ns: self.t_ns,
         })
     }
 

@@ -165,6 +165,11 @@ object_reflectivity = 0.5
 wall_reflectivity = 0.6
 "#;
 
+/// The compatibility mode, with the check for an installed iio-sensor-proxy off: the test
+/// machines have it installed (`monitor-sensor` comes with it) and stand in for a phone
+/// without it; `compat_mode_refuses_to_start_where_iio_sensor_proxy_is_installed` checks it.
+const COMPAT: &str = "\n[dbus]\niio_sensor_proxy_compat = true\niio_sensor_proxy_paths = []\n";
+
 fn spawn_daemon(bus: &Bus, config: &str) -> Daemon {
     spawn_daemon_env(bus, config, &[])
 }
@@ -395,6 +400,23 @@ fn wait_status(
     }
 }
 
+/// Now on CLOCK_BOOTTIME read independently of the daemon: `/proc/uptime` (seconds since boot,
+/// suspend included, 10 ms resolution).
+fn uptime_ns() -> u64 {
+    let s = std::fs::read_to_string("/proc/uptime").expect("/proc/uptime");
+    let secs: f64 = s.split_whitespace().next().unwrap().parse().unwrap();
+    (secs * 1e9) as u64
+}
+
+/// A published capture time `t_ns` lies before `seen_ns` (when a client saw it; 20 ms for
+/// /proc/uptime's resolution) and less than 1.5 s before (the loop runs at ≥ 5 Hz here).
+fn assert_close_before(t_ns: u64, seen_ns: u64, what: &str) {
+    assert!(
+        t_ns <= seen_ns + 20_000_000 && seen_ns < t_ns + 1_500_000_000,
+        "{what} {t_ns} ns, seen at {seen_ns} ns"
+    );
+}
+
 #[test]
 fn claim_gives_near_on_approach_and_far_after_leaving() {
     let Some(bus) = start_bus() else { return };
@@ -410,16 +432,44 @@ fn claim_gives_near_on_approach_and_far_after_leaving() {
     assert_eq!(claimed["props"]["HasSensor"], true);
     assert_eq!(claimed["props"]["Mode"], "2phase");
     assert_eq!(claimed["props"]["NearThresholdMm"], 300);
-    c.wait_for(Duration::from_secs(8), "Near=true", |v| {
-        changed(v, "Near") == Some(Value::Bool(true))
-    });
-    c.wait_for(Duration::from_secs(8), "Near=false", |v| {
-        changed(v, "Near") == Some(Value::Bool(false))
-    });
+    // Each Near change carries its capture's CLOCK_BOOTTIME, in the same signal: before the
+    // client got it, and not long before (the loop runs at ≥ 5 Hz).
+    let mut last_change_ns = 0;
+    for want in [true, false] {
+        let v = c.wait_for(Duration::from_secs(8), &format!("Near={want}"), |v| {
+            changed(v, "Near") == Some(Value::Bool(want))
+        });
+        let received_ns = uptime_ns();
+        let t = changed(&v, "NearChangedNs")
+            .and_then(|t| t.as_u64())
+            .unwrap_or_else(|| panic!("NearChangedNs with Near: {v}"));
+        assert_close_before(t, received_ns, "NearChangedNs");
+        assert!(t > last_change_ns, "{last_change_ns} then {t}");
+        last_change_ns = t;
+    }
     assert!(
         c.seen.iter().all(|v| changed(v, "DistanceMm").is_none()),
         "DistanceMm has no change signal"
     );
+    assert!(
+        c.seen
+            .iter()
+            .all(|v| changed(v, "ReadingTimestampNs").is_none()),
+        "ReadingTimestampNs has no change signal"
+    );
+    // Each reading's time (polled, like DistanceMm): fresh and rising from poll to poll.
+    let mut last_reading_ns = 0;
+    for _ in 0..3 {
+        let s = status(&bus);
+        let polled_ns = uptime_ns();
+        let t = s["ReadingTimestampNs"]
+            .as_u64()
+            .expect("ReadingTimestampNs");
+        assert_close_before(t, polled_ns, "ReadingTimestampNs");
+        assert!(t > last_reading_ns, "{last_reading_ns} then {t}");
+        last_reading_ns = t;
+        std::thread::sleep(Duration::from_millis(400));
+    }
     // PropertiesChanged only on change: no signal repeats Near with the same value twice in a row.
     let nears: Vec<bool> = c
         .seen
@@ -553,7 +603,7 @@ fn malformed_calls_get_dbus_errors() {
 #[test]
 fn compat_mode_works_like_iio_sensor_proxy() {
     let Some(bus) = start_bus() else { return };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let mut c = Client::start(&bus, &["compat", "--timeout", "30"]);
     let v = c.wait_for(Duration::from_secs(10), "compat claims", |v| {
@@ -589,14 +639,15 @@ fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
         v["event"] == "owned"
     });
     assert_eq!(v["reply"], 1, "stand-in owns the name");
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let mut d = spawn_daemon(&bus, &cfg);
     let st = d.wait_exit(Duration::from_secs(20), "tofproxd should refuse and exit");
     assert!(!st.success());
     let log = d.log();
     assert!(
-        log.contains("net.hadess.SensorProxy") && log.contains("iio-sensor-proxy"),
-        "{log}"
+        log.contains("iio-sensor-proxy is running (it owns net.hadess.SensorProxy)")
+            && log.contains("publisher = \"input\""),
+        "says why and what to use instead: {log}"
     );
     assert!(
         name_has_owner(&bus, "net.hadess.SensorProxy"),
@@ -606,6 +657,37 @@ fn compat_mode_never_takes_the_name_from_iio_sensor_proxy() {
         !name_has_owner(&bus, "org.tofprox.Proximity1"),
         "our name is released again"
     );
+}
+
+/// Where iio-sensor-proxy is installed (its binary present), the compatibility mode does not
+/// start — it would take the name from iio-sensor-proxy whenever it came first — and says to
+/// use the input publisher; neither name is left owned.
+#[test]
+fn compat_mode_refuses_to_start_where_iio_sensor_proxy_is_installed() {
+    let Some(bus) = start_bus() else { return };
+    let root = tempfile::tempdir().unwrap();
+    let binary = root.path().join("usr/libexec/iio-sensor-proxy");
+    std::fs::create_dir_all(binary.parent().unwrap()).unwrap();
+    std::fs::write(&binary, b"").unwrap();
+    let missing = root.path().join("usr/sbin/iio-sensor-proxy");
+    let cfg = format!(
+        "{HAND}\n[dbus]\niio_sensor_proxy_compat = true\niio_sensor_proxy_paths = [{:?}, {:?}]\n",
+        missing.display().to_string(),
+        binary.display().to_string()
+    );
+    let mut d = spawn_daemon(&bus, &cfg);
+    let st = d.wait_exit(Duration::from_secs(20), "tofproxd should refuse and exit");
+    assert!(!st.success());
+    let log = d.log();
+    assert!(
+        log.contains(&format!(
+            "iio-sensor-proxy is installed ({})",
+            binary.display()
+        )) && log.contains("publisher = \"input\""),
+        "{log}"
+    );
+    assert!(!name_has_owner(&bus, "net.hadess.SensorProxy"));
+    assert!(!name_has_owner(&bus, "org.tofprox.Proximity1"));
 }
 
 #[test]
@@ -832,7 +914,7 @@ fn stops_cleanly_on(sig: &str) {
 #[test]
 fn shipped_introspection_matches_the_daemon() {
     let Some(bus) = start_bus() else { return };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let block = |xml: &str, iface: &str| -> String {
         let start = xml
@@ -1018,7 +1100,7 @@ fn writing_a_read_only_property_is_refused_as_read_only() {
     let Some(dbus_send) = tofprox_testkit::require_program("dbus-send", "dbus-bin") else {
         return;
     };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let set = |dest: &str, path: &str, iface: &str, prop: &str| -> String {
         let out = Command::new(&dbus_send)
@@ -1070,7 +1152,7 @@ fn system_policy_in_compat_mode_keeps_native_and_depth_closed() {
     else {
         return;
     };
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     // (ok, stdout + stderr) of a call by `nobody`
     let as_nobody = |args: &[&str]| -> (bool, String) {
@@ -1214,7 +1296,7 @@ fn claim_flood_on_the_system_policy_stays_bounded_and_get_status_answers() {
     };
     let Some(py) = python() else { return };
     let (env, memory_max_kb) = unit_env();
-    let cfg = "backend = \"usb\"\n[loop]\nretry_ms = 50\n[dbus]\niio_sensor_proxy_compat = true\n";
+    let cfg = &format!("backend = \"usb\"\n[loop]\nretry_ms = 50\n{COMPAT}");
     let daemon = start_daemon_env(&bus, cfg, &env);
     let hwm0_kb = daemon.hwm_kb();
     let as_nobody = |script: &str, args: &[&str]| {
@@ -1430,7 +1512,7 @@ fn unmodified_monitor_sensor_sees_near_and_far() {
         .stderr(Stdio::null())
         .spawn()
         .expect("spawn monitor-sensor");
-    let cfg = format!("{HAND}\n[dbus]\niio_sensor_proxy_compat = true\n");
+    let cfg = format!("{HAND}{COMPAT}");
     let _daemon = start_daemon(&bus, &cfg);
     let (tx, rx) = mpsc::channel();
     let stdout = monitor.stdout.take().expect("piped stdout");

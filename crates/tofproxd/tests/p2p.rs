@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use tofproxd::client::ProximityProxy;
 use tofproxd::config::Config;
 use tofproxd::controller::{Controller, ModeCalibrations};
+use tofproxd::input::{InputEvent, RecordingDevice, SwitchDevice};
 use tofproxd::run::Daemon;
 use tofproxd::service::next_item;
 use tofproxd::source::{ScriptedSource, SourceErrorKind, Step};
@@ -23,6 +24,15 @@ fn fast_config() -> Config {
 }
 
 async fn pair(cfg: &Config, steps: Vec<Step>) -> (Daemon, zbus::Connection) {
+    pair_with_input(cfg, steps, None).await
+}
+
+/// A daemon with the input publisher's device given (`None`: D-Bus only) and its client.
+async fn pair_with_input(
+    cfg: &Config,
+    steps: Vec<Step>,
+    input: Option<Box<dyn SwitchDevice>>,
+) -> (Daemon, zbus::Connection) {
     let (a, b) = UnixStream::pair().expect("socketpair");
     let guid = zbus::Guid::generate();
     let server = zbus::connection::Builder::unix_stream(a)
@@ -37,7 +47,7 @@ async fn pair(cfg: &Config, steps: Vec<Step>) -> (Daemon, zbus::Connection) {
         ModeCalibrations::default(),
     )
     .expect("controller");
-    let daemon = Daemon::start(server.expect("server"), cfg, ctl)
+    let daemon = Daemon::start_with_input(server.expect("server"), cfg, ctl, input)
         .await
         .expect("daemon");
     (daemon, client.expect("client"))
@@ -109,6 +119,42 @@ fn claim_wait_is_bounded_and_failures_show_in_state() {
         assert!(state == "error" || state == "unavailable", "{state}");
         assert!(p.last_error().await.unwrap().contains("timeout"));
         assert!(!p.near().await.unwrap());
+        daemon.shutdown().await;
+    });
+}
+
+/// The input publisher: with no claim held the loop runs, and each Near change reaches the
+/// device as exactly EV_SW SW_FRONT_PROXIMITY (1 near, 0 far) then EV_SYN SYN_REPORT — the
+/// numbers of linux/input-event-codes.h written out here — and nothing else.
+#[test]
+fn input_publisher_writes_each_near_change_as_a_switch_report_without_a_claim() {
+    rt().block_on(async {
+        let mut steps = vec![Step::target(800.0); 3];
+        steps.extend(vec![Step::target(50.0); 3]);
+        steps.extend(vec![Step::target(800.0); 200]);
+        let seen = RecordingDevice::default();
+        let device = Box::new(seen.clone());
+        let (daemon, client) = pair_with_input(&fast_config(), steps, Some(device)).await;
+        let p = ProximityProxy::builder(&client).build().await.unwrap();
+        let t0 = Instant::now();
+        while seen.events().len() < 4 {
+            assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", seen.events());
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let ev = |kind, code, value| InputEvent { kind, code, value };
+        let syn = ev(0, 0, 0);
+        assert_eq!(seen.events(), vec![ev(5, 11, 1), syn, ev(5, 11, 0), syn]);
+        assert_eq!(
+            p.state().await.unwrap(),
+            "running",
+            "no claim, loop running"
+        );
+        let s = p.get_status().await.unwrap();
+        assert_eq!(u32::try_from(&s["ProximityClaims"]).unwrap(), 0);
+        assert!(
+            p.near_changed_ns().await.unwrap() > 0,
+            "the far change is stamped"
+        );
         daemon.shutdown().await;
     });
 }

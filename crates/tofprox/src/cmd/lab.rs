@@ -14,6 +14,8 @@ use tofprox_lab::diagnose::{
 use tofprox_lab::report;
 use tofprox_lab::signatures::{SIGNATURE_IDS, cancels_in_4phase};
 use tofprox_lab::{Comparison, Prepared};
+
+use super::lab_export::Export;
 use tofprox_model::ModelConfig;
 
 #[derive(clap::Subcommand, Debug)]
@@ -48,6 +50,20 @@ pub struct CompareArgs {
     /// physics); only per-pixel and per-unit parameters are refitted.
     #[arg(long)]
     pub hold_effects: bool,
+    #[command(flatten)]
+    pub export: ExportArgs,
+    /// Replace existing files in the `--export` directory.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// `--export DIR` (with `--force`) of compare, diagnose and explain.
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    /// Write residuals and per-pixel maps (.npy) and per-condition tables (.csv) to this
+    /// directory (docs/lab-json.md, "Exported files").
+    #[arg(long, value_name = "DIR")]
+    pub export: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -65,6 +81,11 @@ pub struct DiagnoseArgs {
     pub report: Option<PathBuf>,
     #[arg(long, help = tolerance_help())]
     pub tolerance_mm: Option<f64>,
+    #[command(flatten)]
+    pub export: ExportArgs,
+    /// Replace existing files in the `--export` directory.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// `--tolerance-mm`'s help, its default from the code's constant.
@@ -87,9 +108,12 @@ pub struct ExplainArgs {
     /// when nothing was added).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Replace `--out` when it exists (also when it is the `--model` itself).
+    /// Replace `--out` when it exists (also when it is the `--model` itself), and the files
+    /// of the `--export` directory.
     #[arg(long)]
     pub force: bool,
+    #[command(flatten)]
+    pub export: ExportArgs,
     /// One self-contained HTML report with every step.
     #[arg(long)]
     pub report: Option<PathBuf>,
@@ -199,6 +223,14 @@ fn fit(prep: &Prepared, m: &ModelConfig, pb: &ProgressBar) -> anyhow::Result<Com
     Ok(compare(prep, &spec_from_model(m), &cb)?)
 }
 
+/// `--export DIR`, when given.
+fn export(a: &ExportArgs, prep: &Prepared, what: Export<'_>, force: bool) -> anyhow::Result<()> {
+    match &a.export {
+        Some(dir) => super::lab_export::write(dir, prep, what, force),
+        None => Ok(()),
+    }
+}
+
 fn write_report(path: &Path, html: &str) -> anyhow::Result<()> {
     tofprox_format::write_atomic(path, html.as_bytes())
         .with_context(|| format!("writing report {}", path.display()))?;
@@ -230,6 +262,7 @@ fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
         fit(&prep, &m, &pb)?
     };
     pb.finish_and_clear();
+    export(&a.export, &prep, Export::Comparison(&cmp, None), a.force)?;
     emit(a.json, &report::comparison_json(&cmp), || {
         Ok(report::comparison_text(&cmp))
     })?;
@@ -250,6 +283,12 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let opts = options(a.tolerance_mm)?;
     let d = diagnose_with(&prep, &cmp, &opts, &cb)?;
     pb.finish_and_clear();
+    export(
+        &a.export,
+        &prep,
+        Export::Comparison(&cmp, Some(&d)),
+        a.force,
+    )?;
     emit(a.json, &report::diagnosis_json(&d), || {
         Ok(report::diagnosis_text(&d))
     })?;
@@ -370,6 +409,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     let cb = on_progress(&pb);
     let ex = explain(&prep, &spec_from_model(&m), &opts, &cb)?;
     pb.finish_and_clear();
+    export(&a.export, &prep, Export::Explanation(&ex), a.force)?;
     let mut notes = Vec::new();
     if let Some(fin) = ex.final_model() {
         for e in &ex.added {

@@ -7,6 +7,7 @@ pub mod device;
 pub mod device_decode;
 pub mod info;
 pub mod lab;
+pub mod lab_export;
 pub mod live;
 pub mod process;
 pub mod sim;
