@@ -354,7 +354,7 @@ print(json.dumps({
 
 #[test]
 fn export_writes_residuals_maps_and_tables_numpy_reads_back() {
-    let Some(python) = tofprox_e2e::require_python("import numpy", "python3-numpy") else {
+    let Some(python) = tofprox_testkit::require_python("import numpy", "python3-numpy") else {
         return;
     };
     let tmp = tempfile::tempdir().unwrap();
