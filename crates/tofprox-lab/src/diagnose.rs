@@ -521,241 +521,27 @@ pub fn diagnose_with(
     if let Some(why) = no_signal(prep, cmp) {
         return Ok(refused(cmp, why, tolerance_mm));
     }
-    let spec = &cmp.model.spec;
-    let mut excess = (cmp.chi2 - cmp.dof).max(1e-9);
     let noise_known = cmp.model.noise.source.measured();
     // Shares of the excess are scores only while there is an excess: at
     // z ≤ Z_NULL it is noise, and a share of it is noise over noise (values of
     // 10⁹ % when it vanishes). Then each candidate is given by its size only.
     let significant = !noise_known || cmp.fit.z > Z_NULL;
-    let share = |x: f64| if significant { x } else { f64::NAN };
+    let mut excess = (cmp.chi2 - cmp.dof).max(1e-9);
     let mut skipped = Vec::new();
-    let ids: Vec<&str> = SIGNATURE_IDS
-        .iter()
-        .copied()
-        .filter(|id| !spec.effects.iter().any(|e| e == id))
-        .filter(|id| match not_identifiable(id, prep, spec) {
-            Some(why) => {
-                skipped.push((id.to_string(), why));
-                false
-            }
-            None => true,
-        })
-        .collect();
-    progress("candidates", 0.0);
-    let done = std::sync::atomic::AtomicUsize::new(0);
-    let fits: Vec<Result<CandidateScore, (String, LabError)>> = ids
-        .par_iter()
-        .map(|id| {
-            let fail = |e: LabError| (id.to_string(), e);
-            let sig = make_signature(id, prep, spec, &cmp.model.waveform).map_err(fail)?;
-            let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None).map_err(fail)?;
-            let dchi = (f.chi2_before - f.chi2).max(0.0);
-            let chi_after = cmp.chi2 - dchi;
-            let dof_after = cmp.dof - f.n_params as f64;
-            let mut params = BTreeMap::new();
-            let mut standard_errors = BTreeMap::new();
-            let names = sig.lin_names().into_iter().chain(sig.nl_names());
-            let values = f
-                .lin
-                .iter()
-                .chain(&f.nl)
-                .zip(f.lin_se.iter().chain(&f.nl_se));
-            for (n, (v, se)) in names.zip(values) {
-                params.insert(n.clone(), *v);
-                standard_errors.insert(n, *se);
-            }
-            let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-            progress("candidates", k as f64 / ids.len().max(1) as f64);
-            Ok(CandidateScore {
-                effect: id.to_string(),
-                delta_bic: bic(chi_after, f.n_params, cmp.n) - bic(cmp.chi2, 0, cmp.n),
-                explained_excess: share(dchi / excess),
-                cv_gain: share((f.cv_chi2_before - f.cv_chi2) / excess),
-                explained: cmp.size_of(dchi, prep),
-                z_after: chi2_z(chi_after, dof_after),
-                params,
-                standard_errors,
-                flags: Vec::new(),
-                fit: Some(EffectFit {
-                    id: id.to_string(),
-                    lin: f.lin,
-                    nl: f.nl,
-                }),
-                nuisance: f.nuisance,
-                structure_after: None,
-                rms_after: None,
-                cancels_in_4phase: cancels_in_4phase(id),
-                refit: None,
-            })
-        })
-        .collect();
-    let mut cands = Vec::new();
-    for f in fits {
-        match f {
-            Ok(c) => cands.push(c),
-            Err((id, e)) => {
-                tracing::warn!("candidate {id} failed: {e}");
-                skipped.push((id, format!("fit failed: {e}")));
-            }
-        }
-    }
+    let ids = candidate_ids(prep, &cmp.model.spec, &mut skipped);
+    let mut cands = screen_candidates(prep, cmp, &ids, excess, significant, progress, &mut skipped);
     if !noise_known {
-        // Without repeated captures the noise was estimated from residuals
-        // that contain the structure, so χ² − dof understates the excess:
-        // measure shares against the best explanation instead.
-        let best = cands
-            .iter()
-            .map(|c| c.explained_excess * excess)
-            .fold(0.0f64, f64::max);
-        if best > excess {
-            let f = excess / best;
-            for c in &mut cands {
-                c.explained_excess *= f;
-                c.cv_gain *= f;
-            }
-            excess = best;
-        }
+        excess = rescale_to_best(&mut cands, excess);
     }
     cands.sort_by(rank);
-    // The leading candidates are refitted with the whole model (the per-pixel
-    // parameters re-adjust with the effect present): z after, structure left
-    // and depth errors after come from that refit.
-    // The runner-up is refitted only when it could compete (screening share
-    // at least half the leader's).
-    // (none without an excess: the verdict is `nothing_missing` whatever they do)
-    let mut top: Vec<usize> = (0..cands.len().min(usize::from(significant))).collect();
-    if cands.len() > 1
-        && cands[1].explained_excess >= 0.5 * cands[0].explained_excess.max(0.0)
-        && cands[1].explained_excess > 0.05
-    {
-        top.push(1);
-    }
-    // One after the other (each refit is parallel inside): only one refitted
-    // residual table is alive beside the comparison's.
-    let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();
-    for i in &top {
-        let mut c2 = {
-            let c = &cands[*i];
-            let fit = c
-                .fit
-                .clone()
-                .ok_or_else(|| LabError::numerical("candidate without fit"))?;
-            let m = crate::fit::refit_with(prep, &cmp.model, &fit, c.nuisance, 3)?;
-            comparison_of(prep, m)?
-        };
-        let c = &mut cands[*i];
-        c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
-        c.z_after = c2.fit.z;
-        c.delta_bic =
-            bic(c2.chi2, c2.model.n_params, cmp.n) - bic(cmp.chi2, cmp.model.n_params, cmp.n);
-        c.structure_after = Some(c2.structure.first().map(|s| s.z).unwrap_or(0.0));
-        // Cross-validate again on the refitted model (the per-pixel parameters
-        // no longer absorb the effect): the effect's contribution is put back
-        // into the residual and refitted on training blocks only.
-        // (the residual of the refitted model without the effect: for an
-        // effect on the phasor its A and φ change too, not only the codes)
-        if let Some(i) = c2.model.effects.iter().position(|e| e.id == c.effect) {
-            let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
-            c2.recs = Vec::new();
-            let mut without = c2.model.clone();
-            let e = without.effects.remove(i);
-            let recs = without.records(prep)?;
-            let f = fit_signature(sig.as_ref(), &recs, prep, Some(&e))?;
-            let ex = f.chi2_before - c2.dof;
-            if ex > 0.0 {
-                // never credited beyond what the refit explains of the baseline excess
-                let refit_cv = ((f.cv_chi2_before - f.cv_chi2) / ex).min(c.explained_excess);
-                c.cv_gain = c.cv_gain.max(refit_cv);
-            }
-        }
-        c.rms_after = Some(c2.rms);
-        remaining.push(c2.structure);
-        c.refit = Some(Box::new(c2.model));
-    }
+    let remaining = refit_leaders(prep, cmp, &mut cands, excess, significant)?;
     // re-rank with the refitted evidence (as reported: clamped, see `clamp_reported`)
     cands.iter_mut().for_each(clamp_reported);
     cands.sort_by(rank);
     progress("candidates", 1.0);
-    let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
-    let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, &cands);
-    if !noise_known && d.verdict == Verdict::NothingMissing && struct_base > STRUCTURE_NULL {
-        // the global z is not trustworthy without repeats; structure decides
-        d = decide(f64::INFINITY, f64::INFINITY, struct_base, &cands);
-    }
-    let remaining_structure = if d.verdict == Verdict::Unexplained
-        && cands.first().is_some_and(|c| c.explained_excess > 0.3)
-    {
-        remaining
-            .into_iter()
-            .next()
-            .unwrap_or_else(|| cmp.structure.clone())
-    } else {
-        cmp.structure.clone()
-    };
+    let (d, remaining_structure) = verdict_of(prep, cmp, &cands, remaining, noise_known);
     let strongest = strongest_condition(&remaining_structure);
-    if d.verdict == Verdict::Ambiguous
-        && let (Some(a), Some(b)) = (&d.effect, &d.runner_up)
-    {
-        d.separate_by = Some(separating_condition(a, b, prep));
-    }
-    // Detectable is not the same as relevant: with 10⁶ samples any small
-    // departure of the true law from the model's is significant. What remains
-    // is compared, in depth-equivalent mm, with a tolerance tied to the noise.
-    // without repeats the global excess is not known: the structure's size counts
-    let top_structure = cmp
-        .structure
-        .iter()
-        .map(|s| s.size_mm)
-        .fold(0.0f64, f64::max);
-    let remaining_mm = cmp.size.mm.max(top_structure);
-    let mut small = Vec::new();
-    // a catalogue effect that leaves noise-like residuals is named however small
-    let fully_explained = d.verdict == Verdict::MissingEffect
-        && cands
-            .first()
-            .is_some_and(|c| c.z_after <= Z_NULL && c.explained_excess >= MIN_EXPLAINED);
-    if remaining_mm <= tolerance_mm && !fully_explained {
-        for st in cmp.structure.iter().filter(|s| s.z > STRUCTURE_NULL) {
-            small.push(SmallStructure {
-                name: st.condition.clone(),
-                kind: "condition",
-                z: st.z,
-                size_mm: st.size_mm,
-                size_lsb: st.size_lsb,
-            });
-        }
-        if d.verdict != Verdict::NothingMissing {
-            if let Some(e) = &d.effect {
-                small.push(SmallStructure {
-                    name: e.clone(),
-                    kind: "effect",
-                    z: cmp.fit.z,
-                    size_mm: cmp.size.mm,
-                    size_lsb: cmp.size.lsb,
-                });
-            }
-            d = Decision {
-                verdict: Verdict::NothingMissing,
-                effect: None,
-                runner_up: None,
-                separate_by: None,
-                reason: format!(
-                    "what remains ({remaining_mm:.2} mm depth-equivalent, {:.2} LSB, z = {:.1}) is below the tolerance {tolerance_mm:.2} mm{}",
-                    cmp.size.lsb,
-                    cmp.fit.z,
-                    if opts.tolerance_mm.is_none() {
-                        format!(
-                            " ({TOLERANCE_NOISE_SHARE} × the single-acquisition noise {:.2} mm)",
-                            cmp.noise_single.mm
-                        )
-                    } else {
-                        String::new()
-                    }
-                ),
-            };
-        }
-    }
+    let (mut d, small, remaining_mm) = apply_tolerance(cmp, opts, tolerance_mm, &cands, d);
     (d.verdict, d.reason) = honest_verdict(cmp, d.verdict, d.reason);
     if d.verdict != Verdict::MissingEffect && d.verdict != Verdict::Ambiguous {
         d.effect = None;
@@ -783,6 +569,330 @@ pub fn diagnose_with(
         structure_remaining: remaining_structure,
         reason: d.reason,
     })
+}
+
+/// The catalogue effects the model lacks and the recording can identify;
+/// the others go to `skipped` with why.
+fn candidate_ids(
+    prep: &Prepared,
+    spec: &LabSpec,
+    skipped: &mut Vec<(String, String)>,
+) -> Vec<&'static str> {
+    SIGNATURE_IDS
+        .iter()
+        .copied()
+        .filter(|id| !spec.effects.iter().any(|e| e == id))
+        .filter(|id| match not_identifiable(id, prep, spec) {
+            Some(why) => {
+                skipped.push((id.to_string(), why));
+                false
+            }
+            None => true,
+        })
+        .collect()
+}
+
+/// Screening: each candidate's signature fitted to the residuals in parallel;
+/// the ones whose fit failed go to `skipped`.
+fn screen_candidates(
+    prep: &Prepared,
+    cmp: &Comparison,
+    ids: &[&str],
+    excess: f64,
+    significant: bool,
+    progress: Progress<'_>,
+    skipped: &mut Vec<(String, String)>,
+) -> Vec<CandidateScore> {
+    progress("candidates", 0.0);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let fits: Vec<Result<CandidateScore, (String, LabError)>> = ids
+        .par_iter()
+        .map(|id| {
+            let c = screen_candidate(id, prep, cmp, excess, significant)
+                .map_err(|e| (id.to_string(), e))?;
+            let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress("candidates", k as f64 / ids.len().max(1) as f64);
+            Ok(c)
+        })
+        .collect();
+    let mut cands = Vec::new();
+    for f in fits {
+        match f {
+            Ok(c) => cands.push(c),
+            Err((id, e)) => {
+                tracing::warn!("candidate {id} failed: {e}");
+                skipped.push((id, format!("fit failed: {e}")));
+            }
+        }
+    }
+    cands
+}
+
+/// One candidate's screening score: its signature fitted to the residuals of
+/// the model as it is (shares of the excess only when `significant`).
+fn screen_candidate(
+    id: &str,
+    prep: &Prepared,
+    cmp: &Comparison,
+    excess: f64,
+    significant: bool,
+) -> Result<CandidateScore, LabError> {
+    let share = |x: f64| if significant { x } else { f64::NAN };
+    let sig = make_signature(id, prep, &cmp.model.spec, &cmp.model.waveform)?;
+    let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None)?;
+    let dchi = (f.chi2_before - f.chi2).max(0.0);
+    let chi_after = cmp.chi2 - dchi;
+    let dof_after = cmp.dof - f.n_params as f64;
+    let mut params = BTreeMap::new();
+    let mut standard_errors = BTreeMap::new();
+    let names = sig.lin_names().into_iter().chain(sig.nl_names());
+    let values = f.lin.iter().chain(&f.nl).zip(f.lin_se.iter().chain(&f.nl_se));
+    for (n, (v, se)) in names.zip(values) {
+        params.insert(n.clone(), *v);
+        standard_errors.insert(n, *se);
+    }
+    Ok(CandidateScore {
+        effect: id.to_string(),
+        delta_bic: bic(chi_after, f.n_params, cmp.n) - bic(cmp.chi2, 0, cmp.n),
+        explained_excess: share(dchi / excess),
+        cv_gain: share((f.cv_chi2_before - f.cv_chi2) / excess),
+        explained: cmp.size_of(dchi, prep),
+        z_after: chi2_z(chi_after, dof_after),
+        params,
+        standard_errors,
+        flags: Vec::new(),
+        fit: Some(EffectFit {
+            id: id.to_string(),
+            lin: f.lin,
+            nl: f.nl,
+        }),
+        nuisance: f.nuisance,
+        structure_after: None,
+        rms_after: None,
+        cancels_in_4phase: cancels_in_4phase(id),
+        refit: None,
+    })
+}
+
+/// Without repeated captures the noise was estimated from residuals that
+/// contain the structure, so χ² − dof understates the excess: shares are
+/// measured against the best explanation instead. Returns the excess used.
+fn rescale_to_best(cands: &mut [CandidateScore], excess: f64) -> f64 {
+    let best = cands
+        .iter()
+        .map(|c| c.explained_excess * excess)
+        .fold(0.0f64, f64::max);
+    if best <= excess {
+        return excess;
+    }
+    let f = excess / best;
+    for c in cands.iter_mut() {
+        c.explained_excess *= f;
+        c.cv_gain *= f;
+    }
+    best
+}
+
+/// The leading candidates are refitted with the whole model (the per-pixel
+/// parameters re-adjust with the effect present): z after, structure left
+/// and depth errors after come from that refit. Returns the structure each
+/// refit leaves, in refit order.
+fn refit_leaders(
+    prep: &Prepared,
+    cmp: &Comparison,
+    cands: &mut [CandidateScore],
+    excess: f64,
+    significant: bool,
+) -> Result<Vec<Vec<ConditionScore>>, LabError> {
+    // The runner-up is refitted only when it could compete (screening share
+    // at least half the leader's).
+    // (none without an excess: the verdict is `nothing_missing` whatever they do)
+    let mut top: Vec<usize> = (0..cands.len().min(usize::from(significant))).collect();
+    if cands.len() > 1
+        && cands[1].explained_excess >= 0.5 * cands[0].explained_excess.max(0.0)
+        && cands[1].explained_excess > 0.05
+    {
+        top.push(1);
+    }
+    // One after the other (each refit is parallel inside): only one refitted
+    // residual table is alive beside the comparison's.
+    let mut remaining: Vec<Vec<ConditionScore>> = Vec::new();
+    for i in top {
+        remaining.push(refit_leader(prep, cmp, &mut cands[i], excess)?);
+    }
+    Ok(remaining)
+}
+
+/// Refit one leading candidate with the whole model and record its evidence
+/// after the refit; returns the structure the refit leaves.
+fn refit_leader(
+    prep: &Prepared,
+    cmp: &Comparison,
+    c: &mut CandidateScore,
+    excess: f64,
+) -> Result<Vec<ConditionScore>, LabError> {
+    let fit = c
+        .fit
+        .clone()
+        .ok_or_else(|| LabError::numerical("candidate without fit"))?;
+    let m = crate::fit::refit_with(prep, &cmp.model, &fit, c.nuisance, 3)?;
+    let mut c2 = comparison_of(prep, m)?;
+    c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
+    c.z_after = c2.fit.z;
+    c.delta_bic = bic(c2.chi2, c2.model.n_params, cmp.n) - bic(cmp.chi2, cmp.model.n_params, cmp.n);
+    c.structure_after = Some(c2.structure.first().map(|s| s.z).unwrap_or(0.0));
+    if let Some(gain) = refit_cv_gain(prep, &mut c2, c)? {
+        c.cv_gain = c.cv_gain.max(gain);
+    }
+    c.rms_after = Some(c2.rms);
+    c.refit = Some(Box::new(c2.model));
+    Ok(c2.structure)
+}
+
+/// Cross-validate again on the refitted model (the per-pixel parameters no
+/// longer absorb the effect): the effect's contribution is put back into the
+/// residual and refitted on training blocks only. (the residual of the
+/// refitted model without the effect: for an effect on the phasor its A and φ
+/// change too, not only the codes). `None` when there is nothing to credit.
+fn refit_cv_gain(
+    prep: &Prepared,
+    c2: &mut Comparison,
+    c: &CandidateScore,
+) -> Result<Option<f64>, LabError> {
+    let Some(i) = c2.model.effects.iter().position(|e| e.id == c.effect) else {
+        return Ok(None);
+    };
+    let sig = make_signature(&c.effect, prep, &c2.model.spec, &c2.model.waveform)?;
+    c2.recs = Vec::new();
+    let mut without = c2.model.clone();
+    let e = without.effects.remove(i);
+    let recs = without.records(prep)?;
+    let f = fit_signature(sig.as_ref(), &recs, prep, Some(&e))?;
+    let ex = f.chi2_before - c2.dof;
+    // never credited beyond what the refit explains of the baseline excess
+    Ok((ex > 0.0).then(|| ((f.cv_chi2_before - f.cv_chi2) / ex).min(c.explained_excess)))
+}
+
+/// The verdict from the fit and the ranked candidates, with the structure
+/// that remains to explain.
+fn verdict_of(
+    prep: &Prepared,
+    cmp: &Comparison,
+    cands: &[CandidateScore],
+    remaining: Vec<Vec<ConditionScore>>,
+    noise_known: bool,
+) -> (Decision, Vec<ConditionScore>) {
+    let struct_base = cmp.structure.first().map(|s| s.z).unwrap_or(0.0);
+    let mut d = decide(cmp.fit.z, cmp.fit.chi2_per_dof, struct_base, cands);
+    if !noise_known && d.verdict == Verdict::NothingMissing && struct_base > STRUCTURE_NULL {
+        // the global z is not trustworthy without repeats; structure decides
+        d = decide(f64::INFINITY, f64::INFINITY, struct_base, cands);
+    }
+    let remaining_structure = if d.verdict == Verdict::Unexplained
+        && cands.first().is_some_and(|c| c.explained_excess > 0.3)
+    {
+        remaining
+            .into_iter()
+            .next()
+            .unwrap_or_else(|| cmp.structure.clone())
+    } else {
+        cmp.structure.clone()
+    };
+    if d.verdict == Verdict::Ambiguous
+        && let (Some(a), Some(b)) = (&d.effect, &d.runner_up)
+    {
+        d.separate_by = Some(separating_condition(a, b, prep));
+    }
+    (d, remaining_structure)
+}
+
+/// Detectable is not the same as relevant: with 10⁶ samples any small
+/// departure of the true law from the model's is significant. What remains
+/// is compared, in depth-equivalent mm, with a tolerance tied to the noise.
+/// Returns the decision, the detectable-but-small structures and the size
+/// of what remains (mm).
+fn apply_tolerance(
+    cmp: &Comparison,
+    opts: &DiagnoseOptions,
+    tolerance_mm: f64,
+    cands: &[CandidateScore],
+    mut d: Decision,
+) -> (Decision, Vec<SmallStructure>, f64) {
+    // without repeats the global excess is not known: the structure's size counts
+    let top_structure = cmp
+        .structure
+        .iter()
+        .map(|s| s.size_mm)
+        .fold(0.0f64, f64::max);
+    let remaining_mm = cmp.size.mm.max(top_structure);
+    let mut small = Vec::new();
+    // a catalogue effect that leaves noise-like residuals is named however small
+    let fully_explained = d.verdict == Verdict::MissingEffect
+        && cands
+            .first()
+            .is_some_and(|c| c.z_after <= Z_NULL && c.explained_excess >= MIN_EXPLAINED);
+    if remaining_mm <= tolerance_mm && !fully_explained {
+        small = small_structures(cmp, &d);
+        if d.verdict != Verdict::NothingMissing {
+            d = below_tolerance(cmp, opts, tolerance_mm, remaining_mm);
+        }
+    }
+    (d, small, remaining_mm)
+}
+
+/// The structures detectable (z > STRUCTURE_NULL) but below the tolerance:
+/// the conditions, and the effect `d` names unless nothing is missing.
+fn small_structures(cmp: &Comparison, d: &Decision) -> Vec<SmallStructure> {
+    let mut small = Vec::new();
+    for st in cmp.structure.iter().filter(|s| s.z > STRUCTURE_NULL) {
+        small.push(SmallStructure {
+            name: st.condition.clone(),
+            kind: "condition",
+            z: st.z,
+            size_mm: st.size_mm,
+            size_lsb: st.size_lsb,
+        });
+    }
+    if d.verdict != Verdict::NothingMissing
+        && let Some(e) = &d.effect
+    {
+        small.push(SmallStructure {
+            name: e.clone(),
+            kind: "effect",
+            z: cmp.fit.z,
+            size_mm: cmp.size.mm,
+            size_lsb: cmp.size.lsb,
+        });
+    }
+    small
+}
+
+/// The `nothing_missing` decision for what remains below the tolerance.
+fn below_tolerance(
+    cmp: &Comparison,
+    opts: &DiagnoseOptions,
+    tolerance_mm: f64,
+    remaining_mm: f64,
+) -> Decision {
+    Decision {
+        verdict: Verdict::NothingMissing,
+        effect: None,
+        runner_up: None,
+        separate_by: None,
+        reason: format!(
+            "what remains ({remaining_mm:.2} mm depth-equivalent, {:.2} LSB, z = {:.1}) is below the tolerance {tolerance_mm:.2} mm{}",
+            cmp.size.lsb,
+            cmp.fit.z,
+            if opts.tolerance_mm.is_none() {
+                format!(
+                    " ({TOLERANCE_NOISE_SHARE} × the single-acquisition noise {:.2} mm)",
+                    cmp.noise_single.mm
+                )
+            } else {
+                String::new()
+            }
+        ),
+    }
 }
 
 /// The median signal-to-noise ratio of the model's amplitude over the

@@ -44,6 +44,55 @@ struct CaptureConsts {
     lsb_per_e: f64,
     tof_rad_per_m: f64,
     averaged: f64,
+    /// Read, kTC, dark-shot and averaged-quantisation variance (LSB², before ÷ averaged).
+    var_const_lsb2: f64,
+    /// tap_gain_mismatch: D = (1 + ε/2) N_A − (1 − ε/2) N_B (0 when off).
+    tap_eps: f64,
+}
+
+/// The scene as seen by the pixels: a flat wall or depth/reflectivity maps
+/// whose window starts at `origin`.
+struct SceneView<'a> {
+    maps: Option<(ArrayView2<'a, f64>, ArrayView2<'a, f64>)>,
+    origin: [usize; 2],
+    wall_d: f64,
+    wall_r: f64,
+}
+
+impl SceneView<'_> {
+    /// (distance m, reflectivity) seen by window pixel (r, c), before the lens.
+    fn at(&self, r: usize, c: usize) -> Result<(f64, f64), ModelError> {
+        let Some((dm, rm)) = &self.maps else {
+            return Ok((self.wall_d, self.wall_r));
+        };
+        let idx = (r + self.origin[0], c + self.origin[1]);
+        match (dm.get(idx), rm.get(idx)) {
+            (Some(&d), Some(&rf)) => Ok((d, rf)),
+            _ => Err(ModelError::invalid("scene: depth map index out of range")),
+        }
+    }
+}
+
+/// Pass 1's per-pixel results, row-major over the window.
+struct PixelTerms {
+    sig: Vec<f64>,
+    phase: Vec<f64>,
+    var_a: Vec<f64>,
+    var_b: Vec<f64>,
+    amb_e: Vec<f64>,
+    xt_e: Vec<f64>,
+    xt_phi: Vec<f64>,
+}
+
+/// One pixel of pass 1: signal and ambient electrons, phase, noise variance
+/// coefficients (LSB²) and the window return (electrons, phase) when on.
+struct PixelTerm {
+    s: f64,
+    phi: f64,
+    amb: f64,
+    var_a: f64,
+    var_b: f64,
+    crosstalk: Option<(f64, f64)>,
 }
 
 impl Simulator {
@@ -144,6 +193,8 @@ impl Simulator {
         let t = req.exposure_us;
         let px = PixelParams::new(m, t, req.temperature_c);
         let illum = req.illumination;
+        let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
+        let var_const_lsb2 = self.constant_var_lsb2(&px, lsb_per_e, req);
         CaptureConsts {
             thetas: req.phases_deg.iter().map(|d| d.to_radians()).collect(),
             droop: (0..req.phases_deg.len())
@@ -185,12 +236,33 @@ impl Simulator {
                     m.get(xt::GRADIENT_REL),
                 )
             }),
+            var_const_lsb2,
+            tap_eps: if m.is_enabled(ids::tap_gain_mismatch::ID) {
+                m.get(ids::tap_gain_mismatch::MISMATCH_REL)
+            } else {
+                0.0
+            },
             px,
-            lsb_per_e: m.get(ids::sensor::LSB_PER_KE) * 1e-3,
+            lsb_per_e,
             // eq. 2.6 inverted: φ = 4π f d / c
             tof_rad_per_m: self.geometry.phase_rad_per_m(),
             averaged: f64::from(req.averaged.max(1)),
         }
+    }
+
+    /// The noise variance that does not depend on the signal (LSB², before
+    /// ÷ averaged): kTC and dark shot noise of both taps, read noise, and the
+    /// quantisation 1/12 LSB² of each averaged acquisition.
+    fn constant_var_lsb2(&self, px: &PixelParams, lsb_per_e: f64, req: &CaptureRequest) -> f64 {
+        let extra_q_var = if self.adc.quantizes() && req.averaged > 1 {
+            1.0 / 12.0
+        } else {
+            0.0
+        };
+        (2.0 * px.ktc_var_e2 + if px.dark_shot { 2.0 * px.dark_e } else { 0.0 })
+            * (lsb_per_e * lsb_per_e)
+            + px.read_var_lsb2
+            + extra_q_var
     }
 
     fn run<R: Rng>(
@@ -201,220 +273,262 @@ impl Simulator {
     ) -> Result<Array3<f64>, ModelError> {
         req.validate()?;
         scene.validate()?;
-        let g = &self.geometry;
-        let (rows, cols) = (g.rows, g.cols);
-        // Scene accessor: constant, window-shaped or full-array-shaped map.
-        let (dmap, rmap, origin): (Option<ArrayView2<f64>>, Option<ArrayView2<f64>>, [usize; 2]) =
-            match scene {
-                Scene::FlatWall { .. } => (None, None, [0, 0]),
-                Scene::DepthMap {
-                    distance_m,
-                    reflectivity,
-                } => {
-                    let dim = distance_m.dim();
-                    let origin = if dim == (rows, cols) {
-                        [0, 0]
-                    } else if dim == (g.full_rows, g.full_cols) {
-                        g.roi_origin
-                    } else {
-                        return Err(ModelError::invalid(format!(
-                            "scene: depth map {}x{} matches neither the window {}x{} nor the full array {}x{}",
-                            dim.0, dim.1, rows, cols, g.full_rows, g.full_cols
-                        )));
-                    };
-                    (Some(distance_m.view()), Some(reflectivity.view()), origin)
-                }
-            };
-        let (wall_d, wall_r) = match scene {
-            Scene::FlatWall {
-                distance_m,
-                reflectivity,
-            } => (*distance_m, *reflectivity),
-            Scene::DepthMap { .. } => (1.0, 1.0),
-        };
-
+        let view = self.scene_view(scene)?;
         let cc = self.consts(req);
-        let origin_col = g.roi_origin[1];
-        let k_images = cc.thetas.len();
-        let mut out = Array3::<f64>::zeros((k_images, rows, cols));
+        let terms = self.pixel_pass(&view, &cc)?;
+        let (rows, cols) = (self.geometry.rows, self.geometry.cols);
+        let mut out = Array3::<f64>::zeros((cc.thetas.len(), rows, cols));
         let plane = rows * cols;
         let Some(buf) = out.as_slice_mut() else {
             return Err(ModelError::invalid("internal: output array not contiguous"));
         };
-        let adc = &self.adc;
-        let quantize_each = adc.quantizes() && req.averaged == 1;
-        let extra_q_var = if adc.quantizes() && req.averaged > 1 {
-            1.0 / 12.0
-        } else {
-            0.0
-        };
-        let corr = &self.correlation;
-        let px = &cc.px;
-        let k_con = cc.contrast;
-
-        // Pass 1, per pixel: signal electrons, phase, and the noise variance
-        // coefficients var = a · droop_k + b (LSB², already ÷ averaged).
-        let g2 = cc.lsb_per_e * cc.lsb_per_e;
-        let mp_rel = cc.multipath.map_or(0.0, |(a, _)| a);
-        let mp_dphi = cc.multipath.map_or(0.0, |(_, d)| d);
-        let var_const = (2.0 * px.ktc_var_e2 + if px.dark_shot { 2.0 * px.dark_e } else { 0.0 })
-            * g2
-            + px.read_var_lsb2
-            + extra_q_var;
-        let mut sig = vec![0.0f64; plane];
-        let mut phase = vec![0.0f64; plane];
-        let mut var_a = vec![0.0f64; plane];
-        let mut var_b = vec![0.0f64; plane];
-        let mut amb_e = vec![0.0f64; plane];
-        // cover_window_crosstalk per pixel: electrons and phase (empty when off)
-        let xt_on = cc.crosstalk.is_some();
-        let (mut xt_e, mut xt_phi) = if xt_on {
-            (vec![0.0f64; plane], vec![0.0f64; plane])
-        } else {
-            (Vec::new(), Vec::new())
-        };
-        let col_span = (g.full_cols.max(2) - 1) as f64;
-        for r in 0..rows {
-            for c in 0..cols {
-                let i = r * cols + c;
-                let (d, refl) = match (&dmap, &rmap) {
-                    (Some(dm), Some(rm)) => {
-                        let idx = (r + origin[0], c + origin[1]);
-                        match (dm.get(idx), rm.get(idx)) {
-                            (Some(&d), Some(&rf)) => (d, rf),
-                            _ => {
-                                return Err(ModelError::invalid(
-                                    "scene: depth map index out of range",
-                                ));
-                            }
-                        }
-                    }
-                    _ => (wall_d, wall_r),
-                };
-                // Through the lens (thesis 5.1.3): a flat wall at perpendicular distance d is
-                // seen along the pixel's ray, d / cos θ; the image irradiance falls with cos⁴ θ
-                // (natural vignetting) and the wall is lit at incidence θ (Lambert, cos θ).
-                let (d, lens_gain) = match self.rays.as_ref().and_then(|g| g.dir(r, c)) {
-                    Some(dir) => {
-                        let cos4 = dir[2].powi(4);
-                        match dmap {
-                            None => (
-                                Plane::fronto_parallel(d).ray_length_m(dir).unwrap_or(d),
-                                cos4 * dir[2],
-                            ),
-                            Some(_) => (d, cos4),
-                        }
-                    }
-                    None => (d, 1.0),
-                };
-                let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0) * lens_gain;
-                let delay = self.patterns.delay_rad.get(i).copied().unwrap_or(0.0);
-                // signal_falloff: N ∝ ρ (1 m / d)^n; prnu multiplies all optical electrons
-                let falloff = match cc.falloff_n {
-                    Some(2.0) => 1.0 / (d * d),
-                    Some(n) => d.powf(-n),
-                    None => 1.0,
-                };
-                let s = cc.signal_e * refl * falloff * gain;
-                let amb = cc.ambient_e * gain;
-                // eq. 2.6 inverted + FPPN/global delay + drift + amplitude-dependent error
-                let phi =
-                    cc.tof_rad_per_m * d + delay + px.drift_rad + px.amplitude_phase_rad(s * k_con);
-                if let (Some(a), Some(b), Some(sg), Some(ph), Some(am)) = (
-                    var_a.get_mut(i),
-                    var_b.get_mut(i),
-                    sig.get_mut(i),
-                    phase.get_mut(i),
-                    amb_e.get_mut(i),
-                ) {
-                    // the window return: w(c) g_p N_xt at 4π f d_w / c + the pixel's delay
-                    let mut xe = 0.0;
-                    if let (Some((n_xt, phi_w, grad)), Some(x), Some(xp)) =
-                        (cc.crosstalk, xt_e.get_mut(i), xt_phi.get_mut(i))
-                    {
-                        let u = (c + origin_col) as f64 / col_span - 0.5;
-                        xe = n_xt * (1.0 + grad * u).max(0.0) * gain;
-                        *x = xe;
-                        *xp = phi_w + delay + px.drift_rad;
-                    }
-                    // shot noise of both taps: F (N_A + N_B) = F ((N (1 + a_mp) + N_xt) droop + 2 N_amb) (eq. 2.16)
-                    *a = px.shot_f * (s * (1.0 + mp_rel) + xe) * g2 / cc.averaged;
-                    *b = (px.shot_f * 2.0 * amb * g2 + var_const) / cc.averaged;
-                    *sg = s;
-                    *ph = phi;
-                    *am = amb;
-                }
-            }
-        }
-
-        // Pass 2, per raw image (acquisition order), contiguous over pixels.
-        let dark = px.dark_e;
-        let sbi_on = px.sbi.is_some();
-        // tap_gain_mismatch: D = (1 + ε/2) N_A − (1 − ε/2) N_B
-        let tap_eps = if self.model.is_enabled(ids::tap_gain_mismatch::ID) {
-            self.model.get(ids::tap_gain_mismatch::MISMATCH_REL)
-        } else {
-            0.0
-        };
-        let noisy = rng.is_some();
-        for k in 0..k_images {
-            let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
-            let dr = cc.droop.get(k).copied().unwrap_or(1.0);
+        let quantize_each = self.adc.quantizes() && req.averaged == 1 && rng.is_some();
+        for k in 0..cc.thetas.len() {
             let Some(out_k) = buf.get_mut(k * plane..(k + 1) * plane) else {
                 return Err(ModelError::invalid("internal: output plane out of range"));
             };
-            let pixels = out_k
-                .iter_mut()
-                .zip(&sig)
-                .zip(&phase)
-                .zip(&var_a)
-                .zip(&var_b)
-                .zip(&amb_e)
-                .zip(&self.patterns.offset_lsb);
-            for (i, ((((((o, &s), &phi), &va), &vb), &amb), &offset)) in pixels.enumerate() {
-                let sk = s * dr;
-                // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ)) (2.2.2)
-                let mut corr_e = sk * corr.eval(phi - theta);
-                if mp_rel > 0.0 {
-                    corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
-                }
-                let mut xk = 0.0;
-                if xt_on && let (Some(&x), Some(&xp)) = (xt_e.get(i), xt_phi.get(i)) {
-                    xk = x * dr;
-                    corr_e += xk * corr.eval(xp - theta);
-                }
-                let mut diff = k_con * corr_e;
-                let total = sk * (1.0 + mp_rel) + xk;
-                if sbi_on {
-                    let na = 0.5 * (total + diff) + amb + dark;
-                    let nb = 0.5 * (total - diff) + amb + dark;
-                    diff += px.sbi_error_e(na, nb);
-                }
-                if tap_eps != 0.0 {
-                    // ε/2 · (N_A + N_B): a share of the total charge leaks into D
-                    diff += tap_gain_leak_e(tap_eps, total + 2.0 * (amb + dark));
-                }
-                let mut u = diff * cc.lsb_per_e + offset;
-                if let Some(rng) = rng.as_deref_mut() {
-                    let var = va * dr + vb;
-                    if var > 0.0 {
-                        let z: f64 = rng.sample(StandardNormal);
-                        u += var.sqrt() * z;
-                    }
-                }
-                *o = u;
-            }
+            self.image_pass(&cc, &terms, k, out_k, rng.as_deref_mut());
             // ADC in its own pass: short independent iterations pipeline well
-            if quantize_each && noisy {
-                for o in out_k.iter_mut() {
-                    *o = adc.quantize(adc.transfer(*o));
+            self.digitize(out_k, quantize_each);
+        }
+        Ok(out)
+    }
+
+    /// The scene as a per-pixel accessor: constant, window-shaped or full-array-shaped map.
+    fn scene_view<'a>(&self, scene: &'a Scene) -> Result<SceneView<'a>, ModelError> {
+        let g = &self.geometry;
+        let (rows, cols) = (g.rows, g.cols);
+        Ok(match scene {
+            Scene::FlatWall {
+                distance_m,
+                reflectivity,
+            } => SceneView {
+                maps: None,
+                origin: [0, 0],
+                wall_d: *distance_m,
+                wall_r: *reflectivity,
+            },
+            Scene::DepthMap {
+                distance_m,
+                reflectivity,
+            } => {
+                let dim = distance_m.dim();
+                let origin = if dim == (rows, cols) {
+                    [0, 0]
+                } else if dim == (g.full_rows, g.full_cols) {
+                    g.roi_origin
+                } else {
+                    return Err(ModelError::invalid(format!(
+                        "scene: depth map {}x{} matches neither the window {}x{} nor the full array {}x{}",
+                        dim.0, dim.1, rows, cols, g.full_rows, g.full_cols
+                    )));
+                };
+                SceneView {
+                    maps: Some((distance_m.view(), reflectivity.view())),
+                    origin,
+                    wall_d: 1.0,
+                    wall_r: 1.0,
                 }
-            } else {
-                for o in out_k.iter_mut() {
-                    *o = adc.mean_code(adc.transfer(*o));
+            }
+        })
+    }
+
+    /// Pass 1, per pixel: signal electrons, phase, and the noise variance
+    /// coefficients var = a · droop_k + b (LSB², already ÷ averaged).
+    fn pixel_pass(&self, view: &SceneView, cc: &CaptureConsts) -> Result<PixelTerms, ModelError> {
+        let (rows, cols) = (self.geometry.rows, self.geometry.cols);
+        let plane = rows * cols;
+        let mut t = PixelTerms {
+            sig: vec![0.0f64; plane],
+            phase: vec![0.0f64; plane],
+            var_a: vec![0.0f64; plane],
+            var_b: vec![0.0f64; plane],
+            amb_e: vec![0.0f64; plane],
+            // cover_window_crosstalk per pixel: electrons and phase (empty when off)
+            xt_e: Vec::new(),
+            xt_phi: Vec::new(),
+        };
+        if cc.crosstalk.is_some() {
+            (t.xt_e, t.xt_phi) = (vec![0.0f64; plane], vec![0.0f64; plane]);
+        }
+        for r in 0..rows {
+            for c in 0..cols {
+                let i = r * cols + c;
+                let p = self.pixel(view, cc, r, c, i)?;
+                if let (Some(a), Some(b), Some(sg), Some(ph), Some(am)) = (
+                    t.var_a.get_mut(i),
+                    t.var_b.get_mut(i),
+                    t.sig.get_mut(i),
+                    t.phase.get_mut(i),
+                    t.amb_e.get_mut(i),
+                ) {
+                    (*a, *b, *sg, *ph, *am) = (p.var_a, p.var_b, p.s, p.phi, p.amb);
+                }
+                if let (Some((xe, xphi)), Some(x), Some(xp)) =
+                    (p.crosstalk, t.xt_e.get_mut(i), t.xt_phi.get_mut(i))
+                {
+                    (*x, *xp) = (xe, xphi);
                 }
             }
         }
-        Ok(out)
+        Ok(t)
+    }
+
+    /// One pixel of pass 1: its distance through the lens, its electrons, phase
+    /// and noise variance coefficients.
+    fn pixel(
+        &self,
+        view: &SceneView,
+        cc: &CaptureConsts,
+        r: usize,
+        c: usize,
+        i: usize,
+    ) -> Result<PixelTerm, ModelError> {
+        let px = &cc.px;
+        let (d, refl) = view.at(r, c)?;
+        let (d, lens_gain) = self.through_lens(view, d, r, c);
+        let gain = self.patterns.gain.get(i).copied().unwrap_or(1.0) * lens_gain;
+        let delay = self.patterns.delay_rad.get(i).copied().unwrap_or(0.0);
+        // signal_falloff: N ∝ ρ (1 m / d)^n; prnu multiplies all optical electrons
+        let falloff = match cc.falloff_n {
+            Some(2.0) => 1.0 / (d * d),
+            Some(n) => d.powf(-n),
+            None => 1.0,
+        };
+        let s = cc.signal_e * refl * falloff * gain;
+        let amb = cc.ambient_e * gain;
+        // eq. 2.6 inverted + FPPN/global delay + drift + amplitude-dependent error
+        let phi =
+            cc.tof_rad_per_m * d + delay + px.drift_rad + px.amplitude_phase_rad(s * cc.contrast);
+        // the window return: w(c) g_p N_xt at 4π f d_w / c + the pixel's delay
+        let col_span = (self.geometry.full_cols.max(2) - 1) as f64;
+        let crosstalk = cc.crosstalk.map(|(n_xt, phi_w, grad)| {
+            let u = (c + self.geometry.roi_origin[1]) as f64 / col_span - 0.5;
+            (
+                n_xt * (1.0 + grad * u).max(0.0) * gain,
+                phi_w + delay + px.drift_rad,
+            )
+        });
+        let xe = crosstalk.map_or(0.0, |(x, _)| x);
+        let g2 = cc.lsb_per_e * cc.lsb_per_e;
+        let mp_rel = cc.multipath.map_or(0.0, |(a, _)| a);
+        Ok(PixelTerm {
+            // shot noise of both taps: F (N_A + N_B) = F ((N (1 + a_mp) + N_xt) droop + 2 N_amb) (eq. 2.16)
+            var_a: px.shot_f * (s * (1.0 + mp_rel) + xe) * g2 / cc.averaged,
+            var_b: (px.shot_f * 2.0 * amb * g2 + cc.var_const_lsb2) / cc.averaged,
+            s,
+            phi,
+            amb,
+            crosstalk,
+        })
+    }
+
+    /// Through the lens (thesis 5.1.3): a flat wall at perpendicular distance d is
+    /// seen along the pixel's ray, d / cos θ; the image irradiance falls with cos⁴ θ
+    /// (natural vignetting) and the wall is lit at incidence θ (Lambert, cos θ).
+    /// Returns (distance along the ray, irradiance gain).
+    fn through_lens(&self, view: &SceneView, d: f64, r: usize, c: usize) -> (f64, f64) {
+        match self.rays.as_ref().and_then(|g| g.dir(r, c)) {
+            Some(dir) => {
+                let cos4 = dir[2].powi(4);
+                match view.maps {
+                    None => (
+                        Plane::fronto_parallel(d).ray_length_m(dir).unwrap_or(d),
+                        cos4 * dir[2],
+                    ),
+                    Some(_) => (d, cos4),
+                }
+            }
+            None => (d, 1.0),
+        }
+    }
+
+    /// Pass 2 for raw image `k` (acquisition order), contiguous over pixels:
+    /// the ADC-input voltage in LSB, with noise when `rng` is given.
+    fn image_pass<R: Rng>(
+        &self,
+        cc: &CaptureConsts,
+        t: &PixelTerms,
+        k: usize,
+        out_k: &mut [f64],
+        mut rng: Option<&mut R>,
+    ) {
+        let theta = cc.thetas.get(k).copied().unwrap_or(0.0);
+        let dr = cc.droop.get(k).copied().unwrap_or(1.0);
+        let pixels = out_k
+            .iter_mut()
+            .zip(&t.sig)
+            .zip(&t.phase)
+            .zip(&t.var_a)
+            .zip(&t.var_b)
+            .zip(&t.amb_e)
+            .zip(&self.patterns.offset_lsb);
+        for (i, ((((((o, &s), &phi), &va), &vb), &amb), &offset)) in pixels.enumerate() {
+            let xt = t.xt_e.get(i).copied().zip(t.xt_phi.get(i).copied());
+            let diff =
+                self.differential_e(cc, s * dr, phi, theta, amb, xt.map(|(x, xp)| (x * dr, xp)));
+            let mut u = diff * cc.lsb_per_e + offset;
+            if let Some(rng) = rng.as_deref_mut() {
+                let var = va * dr + vb;
+                if var > 0.0 {
+                    let z: f64 = rng.sample(StandardNormal);
+                    u += var.sqrt() * z;
+                }
+            }
+            *o = u;
+        }
+    }
+
+    /// The differential charge D of one pixel in one raw image (electrons):
+    /// signal `sk` (droop applied) at phase `phi`, ambient `amb`, the window
+    /// return `xt` (electrons with droop, phase), correlated at step `theta`.
+    fn differential_e(
+        &self,
+        cc: &CaptureConsts,
+        sk: f64,
+        phi: f64,
+        theta: f64,
+        amb: f64,
+        xt: Option<(f64, f64)>,
+    ) -> f64 {
+        let corr = &self.correlation;
+        let px = &cc.px;
+        let (mp_rel, mp_dphi) = cc.multipath.unwrap_or((0.0, 0.0));
+        // correlation of each return: N_A,B = N/2 (1 ± K C(φ − θ)) (2.2.2)
+        let mut corr_e = sk * corr.eval(phi - theta);
+        if mp_rel > 0.0 {
+            corr_e += mp_rel * sk * corr.eval(phi + mp_dphi - theta);
+        }
+        let mut xk = 0.0;
+        if let Some((x, xp)) = xt {
+            xk = x;
+            corr_e += xk * corr.eval(xp - theta);
+        }
+        let mut diff = cc.contrast * corr_e;
+        let total = sk * (1.0 + mp_rel) + xk;
+        if px.sbi.is_some() {
+            let na = 0.5 * (total + diff) + amb + px.dark_e;
+            let nb = 0.5 * (total - diff) + amb + px.dark_e;
+            diff += px.sbi_error_e(na, nb);
+        }
+        if cc.tap_eps != 0.0 {
+            // ε/2 · (N_A + N_B): a share of the total charge leaks into D
+            diff += tap_gain_leak_e(cc.tap_eps, total + 2.0 * (amb + px.dark_e));
+        }
+        diff
+    }
+
+    /// The ADC of one raw image: quantised codes (`quantize_each`) or the mean code.
+    fn digitize(&self, out_k: &mut [f64], quantize_each: bool) {
+        let adc = &self.adc;
+        if quantize_each {
+            for o in out_k.iter_mut() {
+                *o = adc.quantize(adc.transfer(*o));
+            }
+        } else {
+            for o in out_k.iter_mut() {
+                *o = adc.mean_code(adc.transfer(*o));
+            }
+        }
     }
 }
