@@ -439,34 +439,54 @@ fn html_sections(
 ) -> String {
     let mut h = String::new();
     if let Some(d) = diag {
-        let _ = write!(
-            h,
-            "<h2>Verdict: {} {}</h2><p>{}</p>",
-            d.verdict.as_str(),
-            esc(d.effect.as_deref().unwrap_or("")),
-            esc(&d.reason)
-        );
-        if let Some(sep) = &d.separate_by {
-            let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
-        }
-        let _ = write!(
-            h,
-            "<p>Remaining structure: {:.2} mm depth-equivalent ({:.3} LSB, z = {:.1}); tolerance {:.2} mm \
-             (single-acquisition noise {:.2} mm).</p>",
-            d.size.mm, d.size.lsb, d.fit.z, d.tolerance_mm, d.noise_single.mm
-        );
-        for sm in &d.small {
-            let _ = write!(
-                h,
-                "<p>Detectable but small: {} <b>{}</b> (z = {:.1}, {:.3} mm, {:.3} LSB)</p>",
-                sm.kind,
-                esc(&sm.name),
-                sm.z,
-                sm.size_mm,
-                sm.size_lsb
-            );
-        }
+        verdict_html(&mut h, d);
     }
+    fit_html(&mut h, cmp);
+    model_charts_html(&mut h, cmp);
+    h.push_str("<h3>Residual map</h3>");
+    h.push_str(&pixel_map(cmp, rows, cols, origin));
+    if let Some(d) = diag {
+        candidates_html(&mut h, d);
+    }
+    if let Some((effect, before, after)) = add {
+        after_adding_html(&mut h, effect, before, after);
+    }
+    h
+}
+
+/// The verdict, its reason, what separates look-alikes, the remaining structure in mm and LSB.
+fn verdict_html(h: &mut String, d: &Diagnosis) {
+    let _ = write!(
+        h,
+        "<h2>Verdict: {} {}</h2><p>{}</p>",
+        d.verdict.as_str(),
+        esc(d.effect.as_deref().unwrap_or("")),
+        esc(&d.reason)
+    );
+    if let Some(sep) = &d.separate_by {
+        let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
+    }
+    let _ = write!(
+        h,
+        "<p>Remaining structure: {:.2} mm depth-equivalent ({:.3} LSB, z = {:.1}); tolerance {:.2} mm \
+         (single-acquisition noise {:.2} mm).</p>",
+        d.size.mm, d.size.lsb, d.fit.z, d.tolerance_mm, d.noise_single.mm
+    );
+    for sm in &d.small {
+        let _ = write!(
+            h,
+            "<p>Detectable but small: {} <b>{}</b> (z = {:.1}, {:.3} mm, {:.3} LSB)</p>",
+            sm.kind,
+            esc(&sm.name),
+            sm.z,
+            sm.size_mm,
+            sm.size_lsb
+        );
+    }
+}
+
+/// How well the model explains the measurement: χ²/dof, z, RMS, and the noise model used.
+fn fit_html(h: &mut String, cmp: &Comparison) {
     let _ = write!(
         h,
         "<h2>How well the model explains the measurement</h2><table><tr><th>χ²/dof</th><th>z</th><th>raw RMS [LSB]</th>\
@@ -486,6 +506,10 @@ fn html_sections(
         cmp.model.noise.c,
         cmp.model.noise.e,
     );
+}
+
+/// Measured vs model amplitude, the depth residual per capture, the residual vs each condition.
+fn model_charts_html(h: &mut String, cmp: &Comparison) {
     let meas: Vec<(f64, f64)> = cmp
         .depth
         .iter()
@@ -543,84 +567,85 @@ fn html_sections(
             ],
         ));
     }
-    h.push_str("<h3>Residual map</h3>");
-    h.push_str(&pixel_map(cmp, rows, cols, origin));
-    if let Some(d) = diag {
-        h.push_str(
-            "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
-             <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
-        );
-        const NO_EXCESS: &str =
-            "no share: the residual has no significant excess over the noise (see explained [mm])";
-        const NOT_REFITTED: &str =
-            "not refitted: only the leading candidates are refitted with the whole model";
-        for c in &d.candidates {
-            let after = c.rms_after;
-            let _ = write!(
-                h,
-                "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
-                esc(&c.effect),
-                percent_cell(c.explained_excess, NO_EXCESS),
-                percent_cell(c.cv_gain, NO_EXCESS),
-                cell(Some(c.explained.mm), 3, "no screening fit"),
-                cell(Some(c.z_after), 1, NOT_REFITTED),
-                cell(Some(c.delta_bic), 0, NOT_REFITTED),
-                cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
-                cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
-                if cancels_in_4phase(&c.effect) {
-                    "yes"
-                } else {
-                    "no"
-                }
-            );
-        }
-        h.push_str("</table>");
-        if d.candidates.iter().any(|c| c.rms_after.is_none()) {
-            let _ = write!(
-                h,
-                "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>"
-            );
-        }
-        for (id, why) in &d.skipped {
-            let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
-        }
-        for c in &d.candidates {
-            for f in &c.flags {
-                let _ = write!(h, "<p class=\"note\">{}: {}</p>", esc(&c.effect), esc(f));
-            }
-        }
-    }
-    if let Some((effect, before, after)) = add {
-        let b = ErrorSummary::of(before);
-        let a = ErrorSummary::of(after);
+}
+
+/// The candidate effects table, with what was skipped and each candidate's flags.
+fn candidates_html(h: &mut String, d: &Diagnosis) {
+    h.push_str(
+        "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
+         <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
+    );
+    const NO_EXCESS: &str =
+        "no share: the residual has no significant excess over the noise (see explained [mm])";
+    const NOT_REFITTED: &str =
+        "not refitted: only the leading candidates are refitted with the whole model";
+    for c in &d.candidates {
+        let after = c.rms_after;
         let _ = write!(
             h,
-            "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
-             <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
-            cell(Some(b.raw_lsb), 3, NO_DATA),
-            cell(Some(b.depth_2phase_mm), 2, NO_DATA),
-            cell(Some(b.depth_4phase_mm), 2, NO_DATA),
-            cell(Some(b.chi2_per_dof), 3, NO_DATA),
-            cell(Some(a.raw_lsb), 3, NO_DATA),
-            cell(Some(a.depth_2phase_mm), 2, NO_DATA),
-            cell(Some(a.depth_4phase_mm), 2, NO_DATA),
-            cell(Some(a.chi2_per_dof), 3, NO_DATA),
-            e = esc(effect)
+            "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
+            esc(&c.effect),
+            percent_cell(c.explained_excess, NO_EXCESS),
+            percent_cell(c.cv_gain, NO_EXCESS),
+            cell(Some(c.explained.mm), 3, "no screening fit"),
+            cell(Some(c.z_after), 1, NOT_REFITTED),
+            cell(Some(c.delta_bic), 0, NOT_REFITTED),
+            cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
+            cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
+            if cancels_in_4phase(&c.effect) {
+                "yes"
+            } else {
+                "no"
+            }
         );
-        let (b2, b4) = depth_series(&before.depth);
-        let (a2, a4) = depth_series(&after.depth);
-        h.push_str(&chart(
-            "depth residual before/after (mean per capture)",
-            "distance [m]",
-            "depth residual [mm]",
-            // "after" as the mean per distance, joined in distance order
-            vec![
-                Series::points("2-phase before", b2).colour(ORANGE),
-                Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),
-                Series::points("4-phase before", b4).colour(LIGHT_BLUE),
-                Series::line("4-phase after (mean per distance)", mean_per_x(&a4)).colour(BLUE),
-            ],
-        ));
     }
-    h
+    h.push_str("</table>");
+    if d.candidates.iter().any(|c| c.rms_after.is_none()) {
+        let _ = write!(
+            h,
+            "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>"
+        );
+    }
+    for (id, why) in &d.skipped {
+        let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
+    }
+    for c in &d.candidates {
+        for f in &c.flags {
+            let _ = write!(h, "<p class=\"note\">{}: {}</p>", esc(&c.effect), esc(f));
+        }
+    }
+}
+
+/// The errors before and after adding `effect`, as a table and a chart.
+fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &Comparison) {
+    let b = ErrorSummary::of(before);
+    let a = ErrorSummary::of(after);
+    let _ = write!(
+        h,
+        "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
+         <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
+        cell(Some(b.raw_lsb), 3, NO_DATA),
+        cell(Some(b.depth_2phase_mm), 2, NO_DATA),
+        cell(Some(b.depth_4phase_mm), 2, NO_DATA),
+        cell(Some(b.chi2_per_dof), 3, NO_DATA),
+        cell(Some(a.raw_lsb), 3, NO_DATA),
+        cell(Some(a.depth_2phase_mm), 2, NO_DATA),
+        cell(Some(a.depth_4phase_mm), 2, NO_DATA),
+        cell(Some(a.chi2_per_dof), 3, NO_DATA),
+        e = esc(effect)
+    );
+    let (b2, b4) = depth_series(&before.depth);
+    let (a2, a4) = depth_series(&after.depth);
+    h.push_str(&chart(
+        "depth residual before/after (mean per capture)",
+        "distance [m]",
+        "depth residual [mm]",
+        // "after" as the mean per distance, joined in distance order
+        vec![
+            Series::points("2-phase before", b2).colour(ORANGE),
+            Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),
+            Series::points("4-phase before", b4).colour(LIGHT_BLUE),
+            Series::line("4-phase after (mean per distance)", mean_per_x(&a4)).colour(BLUE),
+        ],
+    ));
 }
