@@ -533,15 +533,15 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
     ));
     let (d2, d4) = depth_series(&cmp.depth);
     h.push_str("<h3>Where the model fails</h3>");
-    h.push_str(&chart(
-        "depth residual depth(measured) − depth(model), mean per capture",
-        "distance [m]",
-        "depth residual [mm]",
-        vec![
-            Series::points("2-phase", d2).colour(ORANGE),
-            Series::points("4-phase", d4).colour(BLUE),
-        ],
-    ));
+    // one chart per algorithm (small multiples): their residuals overlap near zero
+    for (alg, points, colour) in [("2-phase", d2, ORANGE), ("4-phase", d4, BLUE)] {
+        h.push_str(&chart(
+            &format!("{alg} depth residual depth(measured) − depth(model), mean per capture"),
+            "distance [m]",
+            "depth residual [mm]",
+            vec![Series::points(alg, points).colour(colour)],
+        ));
+    }
     h.push_str(&structure_bars(&cmp.structure));
     for st in cmp.structure.iter().take(3) {
         let di = match st.direction {
@@ -636,16 +636,21 @@ fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &
     );
     let (b2, b4) = depth_series(&before.depth);
     let (a2, a4) = depth_series(&after.depth);
-    h.push_str(&chart(
-        "depth residual before/after (mean per capture)",
-        "distance [m]",
-        "depth residual [mm]",
-        // "after" as the mean per distance, joined in distance order
-        vec![
-            Series::points("2-phase before", b2).colour(ORANGE),
-            Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),
-            Series::points("4-phase before", b4).colour(LIGHT_BLUE),
-            Series::line("4-phase after (mean per distance)", mean_per_x(&a4)).colour(BLUE),
-        ],
-    ));
+    // one chart per algorithm (small multiples); "after" as the mean per distance, joined in
+    // distance order
+    for (alg, b, a, colours) in [
+        ("2-phase", b2, a2, (ORANGE, BROWN)),
+        ("4-phase", b4, a4, (LIGHT_BLUE, BLUE)),
+    ] {
+        h.push_str(&chart(
+            &format!("{alg} depth residual before/after (mean per capture)"),
+            "distance [m]",
+            "depth residual [mm]",
+            vec![
+                Series::points(format!("{alg} before"), b).colour(colours.0),
+                Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
+                    .colour(colours.1),
+            ],
+        ));
+    }
 }
