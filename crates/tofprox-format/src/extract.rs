@@ -17,7 +17,7 @@ use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
 use tofprox_core::camera::{
-    Intrinsics, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+    Intrinsics, IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
     calibrate_intrinsics_with_wiggling,
 };
 use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
@@ -634,49 +634,12 @@ impl<'a> Extractor<'a> {
             "{}: fitting the lens to captures {idx:?} (at {at_m} m)",
             self.rec.dir().display()
         ));
-        let min_amplitude_lsb = f64::from(PipelineConfig::default().min_amplitude_lsb);
         let (fit, how) = if joint {
-            // the nearest correlation capture: the strongest return (1/d², thesis 2.2.1)
-            let k = (0..idx.len())
-                .filter(|&j| correlation.contains(&idx[j]))
-                .min_by(|&a, &b| sweep[a].distance_m.total_cmp(&sweep[b].distance_m))
-                .unwrap_or(0);
-            let j =
-                calibrate_intrinsics_with_wiggling(&sweep[k], &sweep, &sensor, min_amplitude_lsb)
-                    .map_err(context)?;
-            let how = format!(
-                "4-phase phases corrected by the wiggling table of capture {} at {} m, fitted jointly with the lens ({} passes, last change {:.2} standard errors)",
-                idx[k],
-                fmt_num(sweep[k].distance_m),
-                j.passes,
-                j.last_change_se
-            );
-            self.note(&format!(
-                "correlation captures at only {} distance(s): the lens is fitted to the 4-phase walls too, their wiggling corrected by the table of capture {} (fitted jointly with the lens)",
-                corr_m.len(),
-                idx[k]
-            ));
-            (j.fit, how)
+            self.fit_lens_jointly(&sweep, &idx, &correlation, corr_m.len())
         } else {
-            if !walls.is_empty() {
-                self.note(&format!(
-                    "left out captures {walls:?} of the lens fit: with fewer than {MIN_HARMONIC_FREE_PHASES} phases their phase holds the uncorrected wiggling (3rd/5th harmonics, thesis 3.3.6), which the lens would absorb; the fit uses the correlation captures (≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases)"
-                ));
-            }
-            let fit = calibrate_intrinsics(
-                &sweep,
-                sensor.adc_bits,
-                sensor.modulation_hz,
-                min_amplitude_lsb,
-                sensor.roi_origin[0],
-                sensor.roi_origin[1],
-            )
-            .map_err(context)?;
-            (
-                fit,
-                "first harmonic of the correlation captures".to_string(),
-            )
-        };
+            self.fit_lens_to_first_harmonic(&sweep, &walls)
+        }
+        .map_err(context)?;
         let line = format!(
             "intrinsics: fitted to {} captures at {at_m} m over {} pixels ({how}): {}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
             idx.len(),
@@ -686,6 +649,66 @@ impl<'a> Extractor<'a> {
             1000.0 * fit.rms_ray_factor
         );
         Ok((fit.intrinsics, idx, line))
+    }
+
+    /// [`calibrate_intrinsics_with_wiggling`] with the wiggling table of the nearest correlation
+    /// capture (the strongest return, 1/d², thesis 2.2.1); `idx` are the sweep's capture indices.
+    fn fit_lens_jointly(
+        &mut self,
+        sweep: &[SweepCapture<'_>],
+        idx: &[usize],
+        correlation: &[usize],
+        correlation_distances: usize,
+    ) -> Result<(IntrinsicsFit, String), CoreError> {
+        let k = (0..idx.len())
+            .filter(|&j| correlation.contains(&idx[j]))
+            .min_by(|&a, &b| sweep[a].distance_m.total_cmp(&sweep[b].distance_m))
+            .unwrap_or(0);
+        let min_amplitude_lsb = f64::from(PipelineConfig::default().min_amplitude_lsb);
+        let j = calibrate_intrinsics_with_wiggling(
+            &sweep[k],
+            sweep,
+            self.rec.sensor(),
+            min_amplitude_lsb,
+        )?;
+        self.note(&format!(
+            "correlation captures at only {correlation_distances} distance(s): the lens is fitted to the 4-phase walls too, their wiggling corrected by the table of capture {} (fitted jointly with the lens)",
+            idx[k]
+        ));
+        let how = format!(
+            "4-phase phases corrected by the wiggling table of capture {} at {} m, fitted jointly with the lens ({} passes, last change {:.2} standard errors)",
+            idx[k],
+            fmt_num(sweep[k].distance_m),
+            j.passes,
+            j.last_change_se
+        );
+        Ok((j.fit, how))
+    }
+
+    /// [`calibrate_intrinsics`] on correlation captures; the 4-phase `walls` left out with a note.
+    fn fit_lens_to_first_harmonic(
+        &mut self,
+        sweep: &[SweepCapture<'_>],
+        walls: &[usize],
+    ) -> Result<(IntrinsicsFit, String), CoreError> {
+        if !walls.is_empty() {
+            self.note(&format!(
+                "left out captures {walls:?} of the lens fit: with fewer than {MIN_HARMONIC_FREE_PHASES} phases their phase holds the uncorrected wiggling (3rd/5th harmonics, thesis 3.3.6), which the lens would absorb; the fit uses the correlation captures (≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases)"
+            ));
+        }
+        let sensor = self.rec.sensor();
+        let fit = calibrate_intrinsics(
+            sweep,
+            sensor.adc_bits,
+            sensor.modulation_hz,
+            f64::from(PipelineConfig::default().min_amplitude_lsb),
+            sensor.roi_origin[0],
+            sensor.roi_origin[1],
+        )?;
+        Ok((
+            fit,
+            "first harmonic of the correlation captures".to_string(),
+        ))
     }
 
     /// Why the recording's captures cannot pin the lens, and what to capture.
