@@ -243,6 +243,22 @@ fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
     )
 }
 
+/// One value of a capture's depth comparison (mm).
+type DepthOf = fn(&CaptureDepth) -> f64;
+
+/// Per exposure (ascending), the captures' (distance, `value`) points.
+fn by_exposure(d: &[CaptureDepth], value: DepthOf) -> Vec<(f64, Curve)> {
+    let mut out: Vec<(f64, Curve)> = Vec::new();
+    for c in d {
+        match out.iter_mut().find(|(t, _)| *t == c.exposure_us) {
+            Some((_, points)) => points.push((c.distance_m, value(c))),
+            None => out.push((c.exposure_us, vec![(c.distance_m, value(c))])),
+        }
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    out
+}
+
 /// The systematic part of a depth residual (mm): the RMS over distances of its mean per
 /// distance, which the capture-to-capture noise averages out of; `None` without data.
 fn systematic_mm(points: &[(f64, f64)]) -> Option<f64> {
@@ -539,15 +555,26 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
             Series::points("measured", meas).colour(BLUE),
         ],
     ));
-    let (d2, d4) = depth_series(&cmp.depth);
     h.push_str("<h3>Where the model fails</h3>");
-    // one chart per algorithm (small multiples): their residuals overlap near zero
-    for (alg, points, colour) in [("2-phase", d2, ORANGE), ("4-phase", d4, BLUE)] {
+    // one chart per algorithm (small multiples): their residuals overlap near zero; one series
+    // per exposure, labelled, told apart by marker shape (the chart's markers cycle)
+    let by_alg: [(&str, DepthOf, [u8; 3]); 2] = [
+        ("2-phase", |c| c.depth_2phase_mm, ORANGE),
+        ("4-phase", |c| c.depth_4phase_mm, BLUE),
+    ];
+    for (alg, value, colour) in by_alg {
+        let series = by_exposure(&cmp.depth, value)
+            .into_iter()
+            .map(|(t, points)| {
+                let name = format!("{alg}, {} µs", tofprox_format::fmt_num(t));
+                Series::points(name, points).colour(colour)
+            })
+            .collect();
         h.push_str(&chart(
             &format!("{alg} depth residual depth(measured) − depth(model), mean per capture"),
             "distance [m]",
             "depth residual [mm]",
-            vec![Series::points(alg, points).colour(colour)],
+            series,
         ));
     }
     h.push_str(&structure_bars(&cmp.structure));

@@ -175,8 +175,8 @@ impl Screenshot {
     /// Whether a series (as the checker saw it: colour, legend, screen points) can be told apart
     /// in the picture from the chart's `others` series of its style (colour, legend text: a mean
     /// line runs through its own scatter of points): at ≥
-    /// [`SERIES_ALONE_SHARE`] of its points its own colour shows within 2 px and no other
-    /// series' colour within 3 px. A series the legend announces as coincident with another is
+    /// [`SERIES_ALONE_SHARE`] of its points its own colour shows within 2 px (5 px for a marker)
+    /// and no other series' colour within 3 px. A series the legend announces as coincident with another is
     /// exempt (drawn dashed over it); one that others coincide with need only show its colour.
     fn series_problem(&self, s: &Value, others: &[([u8; 3], &str)]) -> Option<String> {
         let name = s["name"].as_str().unwrap_or_default();
@@ -196,10 +196,12 @@ impl Screenshot {
             .iter()
             .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
             .collect();
+        // a marker's colour may lie only on its outline (a ring of radius 4)
+        let own_radius = if s["style"] == "points" { 5 } else { 2 };
         let alone = at
             .iter()
             .filter(|&&p| {
-                self.near(p, 2).iter().any(|c| close(*c, own))
+                self.near(p, own_radius).iter().any(|c| close(*c, own))
                     && (covered
                         || !self.near(p, 3).iter().any(|c| {
                             // a series in the same colour is drawn as one element with it (the
