@@ -166,223 +166,150 @@ fn marker(out: &mut String, k: usize, x: f64, y: f64, col: &str, class: &str) {
     }
 }
 
-/// Render the chart as a standalone SVG element.
-pub fn line_chart(c: &LineChart) -> String {
-    let x_range = padded_range(
-        c.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)),
-        0.02,
-    )
-    .unwrap_or((0.0, 1.0));
-    let y_range = padded_range(
-        c.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)),
-        0.06,
-    )
-    .unwrap_or((0.0, 1.0));
-    let coincident = coincident_with(&c.series, y_range.1 - y_range.0);
-    let colours: Vec<Rgb> = c
-        .series
-        .iter()
-        .enumerate()
-        .map(|(i, s)| s.colour.unwrap_or(PALETTE[i % PALETTE.len()]))
-        .collect();
-    let marker_kind: Vec<usize> = c
-        .series
-        .iter()
-        .scan(0usize, |k, s| {
-            let v = *k;
-            if s.style == SeriesStyle::Points {
-                *k += 1;
+/// How each series is drawn: its colour, marker shape (points), the earlier series it coincides
+/// with on the page, its legend text; and the notes under the legend.
+struct Styling {
+    colours: Vec<Rgb>,
+    marker_kind: Vec<usize>,
+    coincident: Vec<Option<usize>>,
+    legend_names: Vec<String>,
+    notes: Vec<String>,
+}
+
+impl Styling {
+    fn new(c: &LineChart, y_span: f64) -> Self {
+        let coincident = coincident_with(&c.series, y_span);
+        let colours = c
+            .series
+            .iter()
+            .enumerate()
+            .map(|(i, s)| s.colour.unwrap_or(PALETTE[i % PALETTE.len()]))
+            .collect();
+        let marker_kind = c
+            .series
+            .iter()
+            .scan(0usize, |k, s| {
+                let v = *k;
+                if s.style == SeriesStyle::Points {
+                    *k += 1;
+                }
+                Some(v)
+            })
+            .collect();
+        let legend_names = c
+            .series
+            .iter()
+            .zip(&coincident)
+            .map(|(s, co)| match co {
+                Some(i) => format!("{} (= {}, coincident)", s.name, c.series[*i].name),
+                None => s.name.clone(),
+            })
+            .collect();
+        let mut notes = Vec::new();
+        for (j, co) in coincident.iter().enumerate() {
+            if let Some(i) = co {
+                let how = match c.series[j].style {
+                    SeriesStyle::Line => "drawn dashed over it",
+                    SeriesStyle::Points => "its markers drawn over the other's",
+                };
+                notes.push(format!(
+                    "“{}” coincides with “{}” on this scale ({how}).",
+                    c.series[j].name, c.series[*i].name
+                ));
             }
-            Some(v)
-        })
-        .collect();
-    let legend_names: Vec<String> = c
-        .series
-        .iter()
-        .zip(&coincident)
-        .map(|(s, co)| match co {
-            Some(i) => format!("{} (= {}, coincident)", s.name, c.series[*i].name),
-            None => s.name.clone(),
-        })
-        .collect();
-    let mut notes = Vec::new();
-    for (j, co) in coincident.iter().enumerate() {
-        if let Some(i) = co {
-            let how = match c.series[j].style {
-                SeriesStyle::Line => "drawn dashed over it",
-                SeriesStyle::Points => "its markers drawn over the other's",
-            };
-            notes.push(format!(
-                "“{}” coincides with “{}” on this scale ({how}).",
-                c.series[j].name, c.series[*i].name
-            ));
+        }
+        notes.extend(c.notes.iter().cloned());
+        Styling {
+            colours,
+            marker_kind,
+            coincident,
+            legend_names,
+            notes,
         }
     }
-    notes.extend(c.notes.iter().cloned());
 
-    let (x0, x1) = (LEFT, W - RIGHT);
-    let (y0, y1) = (TOP, TOP + PLOT_H);
-    let xs = Scale {
-        d0: x_range.0,
-        d1: x_range.1,
-        p0: x0,
-        p1: x1,
-    };
-    let ys = Scale {
-        d0: y_range.0,
-        d1: y_range.1,
-        p0: y1,
-        p1: y0,
-    };
-    let widths: Vec<f64> = legend_names
+    /// The dash pattern of series `i`'s line: dashed when it coincides with an earlier one.
+    fn dash(&self, i: usize) -> &'static str {
+        if self.coincident[i].is_some() {
+            " stroke-dasharray=\"7 5\""
+        } else {
+            ""
+        }
+    }
+}
+
+/// The plot area on the page and the data ranges it shows.
+struct Frame {
+    x_range: (f64, f64),
+    y_range: (f64, f64),
+    xs: Scale,
+    ys: Scale,
+}
+
+impl Frame {
+    const X0: f64 = LEFT;
+    const X1: f64 = W - RIGHT;
+    const Y0: f64 = TOP;
+    const Y1: f64 = TOP + PLOT_H;
+
+    fn new(c: &LineChart) -> Self {
+        let x_range = padded_range(
+            c.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)),
+            0.02,
+        )
+        .unwrap_or((0.0, 1.0));
+        let y_range = padded_range(
+            c.series.iter().flat_map(|s| s.points.iter().map(|p| p.1)),
+            0.06,
+        )
+        .unwrap_or((0.0, 1.0));
+        Frame {
+            x_range,
+            y_range,
+            xs: Scale {
+                d0: x_range.0,
+                d1: x_range.1,
+                p0: Self::X0,
+                p1: Self::X1,
+            },
+            ys: Scale {
+                d0: y_range.0,
+                d1: y_range.1,
+                p0: Self::Y1,
+                p1: Self::Y0,
+            },
+        }
+    }
+}
+
+/// Render the chart as a standalone SVG element.
+pub fn line_chart(c: &LineChart) -> String {
+    let f = Frame::new(c);
+    let st = Styling::new(c, f.y_range.1 - f.y_range.0);
+    let (x0, x1) = (Frame::X0, Frame::X1);
+    let widths: Vec<f64> = st
+        .legend_names
         .iter()
         .map(|n| 34.0 + text_width(n, 12.0) + 16.0)
         .collect();
     let (at, legend_h) = flow(&widths, x1 - x0, LEGEND_ROW);
-    let legend_top = y1 + 48.0;
+    let legend_top = Frame::Y1 + 48.0;
     let notes_top = legend_top + legend_h + 8.0;
-    let h = notes_top + 18.0 * notes.len() as f64 + 8.0;
+    let h = notes_top + 18.0 * st.notes.len() as f64 + 8.0;
 
     let mut o = String::new();
     svg::open(&mut o, "line-chart", W, h);
     text(&mut o, "title", W / 2.0, 24.0, 15.0, "middle", &c.title);
     let _ = write!(
         o,
-        "<rect class=\"plot-area\" x=\"{x0:.1}\" y=\"{y0:.1}\" width=\"{:.1}\" height=\"{PLOT_H:.1}\" fill=\"none\" stroke=\"#444\"/>",
+        "<rect class=\"plot-area\" x=\"{x0:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{PLOT_H:.1}\" fill=\"none\" stroke=\"#444\"/>",
+        Frame::Y0,
         x1 - x0
     );
-    // axes: ticks, grid, titles
-    let (xt, xd) = nice_ticks(x_range.0, x_range.1, 8);
-    o.push_str("<g class=\"axis x-axis\">");
-    for t in xt {
-        let px = xs.at(t);
-        svg::seg(&mut o, px, y0, px, y1, "#eee");
-        svg::seg(&mut o, px, y1, px, y1 + 5.0, "#444");
-        text(
-            &mut o,
-            "tick",
-            px,
-            y1 + 18.0,
-            11.0,
-            "middle",
-            &fmt_num(t, xd),
-        );
-    }
-    text(
-        &mut o,
-        "axis-title",
-        (x0 + x1) / 2.0,
-        y1 + 36.0,
-        12.0,
-        "middle",
-        &c.x_label,
-    );
-    o.push_str("</g><g class=\"axis y-axis\">");
-    let (yt, yd) = nice_ticks(y_range.0, y_range.1, 6);
-    for t in yt {
-        let py = ys.at(t);
-        svg::seg(&mut o, x0, py, x1, py, "#eee");
-        svg::seg(&mut o, x0 - 5.0, py, x0, py, "#444");
-        text(
-            &mut o,
-            "tick",
-            x0 - 8.0,
-            py + 4.0,
-            11.0,
-            "end",
-            &fmt_num(t, yd),
-        );
-    }
-    vtext(
-        &mut o,
-        "axis-title",
-        18.0,
-        (y0 + y1) / 2.0,
-        12.0,
-        &c.y_label,
-    );
-    o.push_str("</g>");
-    // data: lines first, then markers on top
-    let _ = write!(
-        o,
-        "<clipPath id=\"plot-clip\"><rect x=\"{x0:.1}\" y=\"{y0:.1}\" width=\"{:.1}\" height=\"{PLOT_H:.1}\"/></clipPath>",
-        x1 - x0
-    );
-    for pass in [SeriesStyle::Line, SeriesStyle::Points] {
-        for (i, s) in c.series.iter().enumerate().filter(|(_, s)| s.style == pass) {
-            let col = hex(colours[i]);
-            let _ = write!(
-                o,
-                "<g class=\"series\" data-name=\"{}\" clip-path=\"url(#plot-clip)\">",
-                escape(&s.name)
-            );
-            match s.style {
-                SeriesStyle::Line => {
-                    let dash = if coincident[i].is_some() {
-                        " stroke-dasharray=\"7 5\""
-                    } else {
-                        ""
-                    };
-                    let mut pts = s.points.clone();
-                    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-                    for run in pts.split(|(x, y)| !(x.is_finite() && y.is_finite())) {
-                        if run.is_empty() {
-                            continue;
-                        }
-                        o.push_str("<polyline class=\"line\" points=\"");
-                        for (x, y) in run {
-                            let _ = write!(o, "{:.1},{:.1} ", xs.at(*x), ys.at(*y));
-                        }
-                        let _ = write!(
-                            o,
-                            "\" fill=\"none\" stroke=\"{col}\" stroke-width=\"2\"{dash}/>"
-                        );
-                    }
-                }
-                SeriesStyle::Points => {
-                    for (x, y) in s
-                        .points
-                        .iter()
-                        .filter(|(x, y)| x.is_finite() && y.is_finite())
-                    {
-                        marker(&mut o, marker_kind[i], xs.at(*x), ys.at(*y), &col, "point");
-                    }
-                }
-            }
-            o.push_str("</g>");
-        }
-    }
-    // legend below the plot area: never on the data
-    let _ = write!(
-        o,
-        "<g class=\"legend\" transform=\"translate({x0:.1} {legend_top:.1})\">"
-    );
-    for (i, ((s, name), (lx, ly))) in c.series.iter().zip(&legend_names).zip(&at).enumerate() {
-        let col = hex(colours[i]);
-        let _ = write!(
-            o,
-            "<g class=\"legend-entry\" data-name=\"{}\" transform=\"translate({lx:.1} {ly:.1})\">",
-            escape(&s.name)
-        );
-        match s.style {
-            SeriesStyle::Line => {
-                let dash = if coincident[i].is_some() {
-                    " stroke-dasharray=\"7 5\""
-                } else {
-                    ""
-                };
-                let _ = write!(
-                    o,
-                    "<line x1=\"0\" y1=\"9\" x2=\"26\" y2=\"9\" stroke=\"{col}\" stroke-width=\"2\"{dash}/>"
-                );
-            }
-            SeriesStyle::Points => marker(&mut o, marker_kind[i], 13.0, 9.0, &col, "legend-marker"),
-        }
-        text(&mut o, "legend-text", 34.0, 13.0, 12.0, "start", name);
-        o.push_str("</g>");
-    }
-    o.push_str("</g>");
-    for (k, n) in notes.iter().enumerate() {
+    draw_axes(&mut o, c, &f);
+    draw_series(&mut o, c, &f, &st);
+    draw_legend(&mut o, c, &st, &at, legend_top);
+    for (k, n) in st.notes.iter().enumerate() {
         text(
             &mut o,
             "note",
@@ -395,6 +322,129 @@ pub fn line_chart(c: &LineChart) -> String {
     }
     o.push_str("</svg>");
     o
+}
+
+/// Both axes: ticks, grid lines, titles.
+fn draw_axes(o: &mut String, c: &LineChart, f: &Frame) {
+    let (x0, x1, y0, y1) = (Frame::X0, Frame::X1, Frame::Y0, Frame::Y1);
+    let (xt, xd) = nice_ticks(f.x_range.0, f.x_range.1, 8);
+    o.push_str("<g class=\"axis x-axis\">");
+    for t in xt {
+        let px = f.xs.at(t);
+        svg::seg(o, px, y0, px, y1, "#eee");
+        svg::seg(o, px, y1, px, y1 + 5.0, "#444");
+        text(o, "tick", px, y1 + 18.0, 11.0, "middle", &fmt_num(t, xd));
+    }
+    let x_mid = (x0 + x1) / 2.0;
+    text(
+        o,
+        "axis-title",
+        x_mid,
+        y1 + 36.0,
+        12.0,
+        "middle",
+        &c.x_label,
+    );
+    o.push_str("</g><g class=\"axis y-axis\">");
+    let (yt, yd) = nice_ticks(f.y_range.0, f.y_range.1, 6);
+    for t in yt {
+        let py = f.ys.at(t);
+        svg::seg(o, x0, py, x1, py, "#eee");
+        svg::seg(o, x0 - 5.0, py, x0, py, "#444");
+        text(o, "tick", x0 - 8.0, py + 4.0, 11.0, "end", &fmt_num(t, yd));
+    }
+    vtext(o, "axis-title", 18.0, (y0 + y1) / 2.0, 12.0, &c.y_label);
+    o.push_str("</g>");
+}
+
+/// The data, clipped to the plot area: lines first, then markers on top.
+fn draw_series(o: &mut String, c: &LineChart, f: &Frame, st: &Styling) {
+    let _ = write!(
+        o,
+        "<clipPath id=\"plot-clip\"><rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{PLOT_H:.1}\"/></clipPath>",
+        Frame::X0,
+        Frame::Y0,
+        Frame::X1 - Frame::X0
+    );
+    for pass in [SeriesStyle::Line, SeriesStyle::Points] {
+        for (i, s) in c.series.iter().enumerate().filter(|(_, s)| s.style == pass) {
+            let col = hex(st.colours[i]);
+            let _ = write!(
+                o,
+                "<g class=\"series\" data-name=\"{}\" clip-path=\"url(#plot-clip)\">",
+                escape(&s.name)
+            );
+            match s.style {
+                SeriesStyle::Line => polylines(o, s, f, &col, st.dash(i)),
+                SeriesStyle::Points => {
+                    for (x, y) in s
+                        .points
+                        .iter()
+                        .filter(|(x, y)| x.is_finite() && y.is_finite())
+                    {
+                        marker(
+                            o,
+                            st.marker_kind[i],
+                            f.xs.at(*x),
+                            f.ys.at(*y),
+                            &col,
+                            "point",
+                        );
+                    }
+                }
+            }
+            o.push_str("</g>");
+        }
+    }
+}
+
+/// A line series joined in x order, one polyline per run between missing values.
+fn polylines(o: &mut String, s: &Series, f: &Frame, col: &str, dash: &str) {
+    let mut pts = s.points.clone();
+    pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+    for run in pts.split(|(x, y)| !(x.is_finite() && y.is_finite())) {
+        if run.is_empty() {
+            continue;
+        }
+        o.push_str("<polyline class=\"line\" points=\"");
+        for (x, y) in run {
+            let _ = write!(o, "{:.1},{:.1} ", f.xs.at(*x), f.ys.at(*y));
+        }
+        let _ = write!(
+            o,
+            "\" fill=\"none\" stroke=\"{col}\" stroke-width=\"2\"{dash}/>"
+        );
+    }
+}
+
+/// The legend below the plot area (never on the data), entries at `at` (from [`flow`]).
+fn draw_legend(o: &mut String, c: &LineChart, st: &Styling, at: &[(f64, f64)], top: f64) {
+    let _ = write!(
+        o,
+        "<g class=\"legend\" transform=\"translate({:.1} {top:.1})\">",
+        Frame::X0
+    );
+    for (i, ((s, name), (lx, ly))) in c.series.iter().zip(&st.legend_names).zip(at).enumerate() {
+        let col = hex(st.colours[i]);
+        let _ = write!(
+            o,
+            "<g class=\"legend-entry\" data-name=\"{}\" transform=\"translate({lx:.1} {ly:.1})\">",
+            escape(&s.name)
+        );
+        match s.style {
+            SeriesStyle::Line => {
+                let _ = write!(
+                    o,
+                    "<line x1=\"0\" y1=\"9\" x2=\"26\" y2=\"9\" stroke=\"{col}\" stroke-width=\"2\"{}/>",
+                    st.dash(i)
+                );
+            }
+            SeriesStyle::Points => marker(o, st.marker_kind[i], 13.0, 9.0, &col, "legend-marker"),
+        }
+        text(o, "legend-text", 34.0, 13.0, 12.0, "start", name);
+        o.push_str("</g>");
+    }
+    o.push_str("</g>");
 }
 
 #[cfg(test)]

@@ -23,6 +23,7 @@
 //!   outside its valid field) is an error, never a silently wrong ray.
 
 use crate::CoreError;
+use crate::calib::WigglingLut;
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
 use serde::{Deserialize, Serialize};
 
@@ -569,6 +570,19 @@ pub struct SweepCapture<'a> {
 /// first-harmonic phase shaped by the geometry alone.
 pub const MIN_HARMONIC_FREE_PHASES: usize = 8;
 
+/// How the phases of a lens-calibration sweep are freed of the wiggling (the 3rd and 5th
+/// harmonics of the correlation, thesis 3.3.6) before the lens is fitted to them: a lens fitted to
+/// phases that still hold the wiggling absorbs it.
+#[derive(Debug, Clone, Copy)]
+pub enum SweepPhase<'a> {
+    /// The first harmonic of correlation captures (≥ [`MIN_HARMONIC_FREE_PHASES`] equally spaced
+    /// phases): free of the wiggling by construction.
+    FirstHarmonic,
+    /// The 4-phase phase (eq. 2.3) of the images at 0°, 90°, 180°, 270° corrected by this 4-phase
+    /// wiggling table (3.3.7.2); every capture must hold those four images.
+    WigglingCorrected(&'a WigglingLut),
+}
+
 /// The lens calibration from raw captures (`tofprox calibrate intrinsics`): per capture (each
 /// with ≥ [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases, refused otherwise) the
 /// N-phase phase ([`crate::phasor::nphase_frame`], offsets cancel) with pixels that touch a rail
@@ -582,16 +596,58 @@ pub fn calibrate_intrinsics(
     row0: usize,
     col0: usize,
 ) -> Result<IntrinsicsFit, CoreError> {
-    if !(1..=16).contains(&adc_bits) {
-        return Err(CoreError::param(
-            "adc_bits",
-            format!("must be 1..=16, got {adc_bits}"),
-        ));
-    }
-    let max_code = ((1u32 << adc_bits) - 1) as f64;
-    let mut phases = Vec::with_capacity(sweep.len());
-    for cap in sweep {
-        if cap.phases_deg.len() < MIN_HARMONIC_FREE_PHASES {
+    let sensor = SweepSensor {
+        adc_bits,
+        modulation_hz,
+        min_amplitude_lsb,
+        origin: [row0, col0],
+    };
+    fit_sweep(sweep, SweepPhase::FirstHarmonic, &sensor)
+}
+
+/// What the lens fit needs to know of the sensor: ADC resolution (rails), modulation frequency
+/// (eq. 2.6), the amplitude below which a pixel is left out, the window's full-array origin.
+struct SweepSensor {
+    adc_bits: u8,
+    modulation_hz: f64,
+    min_amplitude_lsb: f64,
+    origin: [usize; 2],
+}
+
+/// [`ray_factors_from_sweep`] and [`fit_intrinsics`] on the sweep's phases, freed of the wiggling
+/// as `how` says ([`sweep_phase`]).
+fn fit_sweep(
+    sweep: &[SweepCapture<'_>],
+    how: SweepPhase<'_>,
+    sensor: &SweepSensor,
+) -> Result<IntrinsicsFit, CoreError> {
+    crate::sensor::validate_adc_bits(sensor.adc_bits)?;
+    let max_code = f64::from(crate::sensor::adc_max_code(sensor.adc_bits));
+    let phases = sweep
+        .iter()
+        .map(|cap| {
+            Ok((
+                cap.distance_m,
+                sweep_phase(cap, how, max_code, sensor.min_amplitude_lsb)?,
+            ))
+        })
+        .collect::<Result<Vec<_>, CoreError>>()?;
+    let views: Vec<_> = phases.iter().map(|(d, p)| (*d, p.view())).collect();
+    let factors = ray_factors_from_sweep(&views, sensor.modulation_hz)?;
+    fit_intrinsics(factors.view(), sensor.origin[0], sensor.origin[1])
+}
+
+/// Per-pixel phase of one sweep capture freed of the wiggling as `how` says; NaN where one of the
+/// images used touches a rail (`≤ 0` or `≥ max_code`) or the amplitude is below
+/// `min_amplitude_lsb`.
+fn sweep_phase(
+    cap: &SweepCapture<'_>,
+    how: SweepPhase<'_>,
+    max_code: f64,
+    min_amplitude_lsb: f64,
+) -> Result<Array2<f64>, CoreError> {
+    let images: Vec<usize> = match how {
+        SweepPhase::FirstHarmonic if cap.phases_deg.len() < MIN_HARMONIC_FREE_PHASES => {
             return Err(CoreError::InvalidData(format!(
                 "lens calibration: the capture at {} m has {} phases; only captures with ≥ \
                  {MIN_HARMONIC_FREE_PHASES} equally spaced phases (a correlation capture) give a \
@@ -601,22 +657,153 @@ pub fn calibrate_intrinsics(
                 cap.phases_deg.len()
             )));
         }
-        let (mut phase, amplitude) = crate::phasor::nphase_frame(cap.raw, cap.phases_deg)?;
-        for ((r, c), p) in phase.indexed_iter_mut() {
-            let clipped = cap
-                .raw
-                .slice(ndarray::s![.., r, c])
-                .iter()
-                .any(|v| !(*v > 0.0 && *v < max_code));
-            if clipped || amplitude[(r, c)] < min_amplitude_lsb {
-                *p = f64::NAN;
-            }
-        }
-        phases.push((cap.distance_m, phase));
+        SweepPhase::FirstHarmonic => (0..cap.phases_deg.len()).collect(),
+        SweepPhase::WigglingCorrected(lut) => quadrature_images(cap, lut)?.to_vec(),
+    };
+    let raw = cap.raw.select(ndarray::Axis(0), &images);
+    let phases_deg: Vec<f64> = images.iter().map(|&k| cap.phases_deg[k]).collect();
+    let (mut phase, amplitude) = crate::phasor::nphase_frame(raw.view(), &phases_deg)?;
+    for ((r, c), p) in phase.indexed_iter_mut() {
+        let clipped = raw
+            .slice(ndarray::s![.., r, c])
+            .iter()
+            .any(|v| !(*v > 0.0 && *v < max_code));
+        *p = match how {
+            _ if clipped || amplitude[(r, c)] < min_amplitude_lsb => f64::NAN,
+            SweepPhase::FirstHarmonic => *p,
+            SweepPhase::WigglingCorrected(lut) => lut.correct(*p),
+        };
     }
-    let views: Vec<_> = phases.iter().map(|(d, p)| (*d, p.view())).collect();
-    let factors = ray_factors_from_sweep(&views, modulation_hz)?;
-    fit_intrinsics(factors.view(), row0, col0)
+    Ok(phase)
+}
+
+/// Indices of the images at 0°, 90°, 180°, 270° of a capture (those of eq. 2.3), for the 4-phase
+/// table `lut`; an error naming what is missing otherwise.
+fn quadrature_images(cap: &SweepCapture<'_>, lut: &WigglingLut) -> Result<[usize; 4], CoreError> {
+    if lut.algorithm != crate::Algorithm::FourPhase {
+        return Err(CoreError::param(
+            "wiggling",
+            format!(
+                "the lens fit corrects 4-phase walls and needs the 4phase table, got {}",
+                lut.algorithm
+            ),
+        ));
+    }
+    let find = |want: f64| {
+        cap.phases_deg.iter().position(|p| {
+            let diff = (p - want).rem_euclid(360.0);
+            diff.min(360.0 - diff) < 1e-6
+        })
+    };
+    match [find(0.0), find(90.0), find(180.0), find(270.0)] {
+        [Some(a), Some(b), Some(c), Some(d)] => Ok([a, b, c, d]),
+        _ => Err(CoreError::InvalidData(format!(
+            "lens calibration: the capture at {} m has no images at 0°, 90°, 180° and 270° \
+             (phases {:?}°), which the 4-phase wiggling correction needs",
+            cap.distance_m, cap.phases_deg
+        ))),
+    }
+}
+
+/// Passes of [`calibrate_intrinsics_with_wiggling`] at most: each re-extracts the wiggling table
+/// through the lens of the previous one.
+pub const JOINT_LENS_MAX_PASSES: usize = 4;
+
+/// Bins of the 4-phase table [`calibrate_intrinsics_with_wiggling`] corrects the walls with: its
+/// linear interpolation errs by `(2π h / bins)² / 8` of harmonic `h`'s amplitude, 2 µrad for a
+/// 5th harmonic of 30 mrad (0.6 µm at 80 MHz), against 0.06 mrad with the pipeline's 256 bins —
+/// which the lens would absorb. The table is the fit's own and is not stored.
+pub const JOINT_LENS_LUT_SIZE: usize = 4096;
+
+/// Result of [`calibrate_intrinsics_with_wiggling`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointLensFit {
+    /// The lens of the last pass, with its standard errors.
+    pub fit: IntrinsicsFit,
+    /// The 4-phase wiggling table the walls were corrected with in the last pass (through the
+    /// lens of the pass before).
+    pub wiggling: WigglingLut,
+    /// Passes taken (table → lens, then table through that lens → lens, …).
+    pub passes: usize,
+    /// Largest change of a lens value in the last pass, in units of its standard error (the
+    /// passes stop below 0.1).
+    pub last_change_se: f64,
+}
+
+/// The lens from 4-phase walls when correlation captures exist at fewer than 3 distances (issue
+/// 25): the wiggling table and the lens fitted jointly, by alternation. The 4-phase wiggling
+/// table ([`crate::calib::extract_wiggling_through_lens`], thesis 3.3.7.2) is extracted from the
+/// `correlation` capture, at first without a lens (the centre region's median: its pixels are
+/// nearly on-axis), and corrects the 4-phase phase of every capture of `sweep` (their images at
+/// 0°, 90°, 180°, 270°; the correlation capture may be one of them); the lens is fitted to those
+/// phases ([`ray_factors_from_sweep`], [`fit_intrinsics`]); the table is extracted again through
+/// that lens's rays and the lens fitted again, until no lens value moves by 0.1 of its standard
+/// error (at most [`JOINT_LENS_MAX_PASSES`] passes). The table's anchoring (global delay) is one
+/// constant for every capture, so it falls into each pixel's intercept, not its ray factor.
+///
+/// `sensor` is the window the captures were read from. Errors as [`calibrate_intrinsics`] (e.g.
+/// walls at fewer than 3 distinct distances), and when the table cannot be extracted or a capture
+/// lacks the four images.
+pub fn calibrate_intrinsics_with_wiggling(
+    correlation: &SweepCapture<'_>,
+    sweep: &[SweepCapture<'_>],
+    sensor: &crate::sensor::SensorGeometry,
+    min_amplitude_lsb: f64,
+) -> Result<JointLensFit, CoreError> {
+    let fit_sensor = SweepSensor {
+        adc_bits: sensor.adc_bits,
+        modulation_hz: sensor.modulation_hz,
+        min_amplitude_lsb,
+        origin: sensor.roi_origin,
+    };
+    let (_, rows, cols) = correlation.raw.dim();
+    let mut rays: Option<RayGrid> = None;
+    let mut previous: Option<IntrinsicsFit> = None;
+    let mut passes = 0;
+    loop {
+        passes += 1;
+        let wiggling = crate::calib::extract_wiggling_through_lens(
+            correlation.raw,
+            correlation.phases_deg,
+            None,
+            correlation.distance_m,
+            rays.as_ref(),
+            sensor.modulation_hz,
+            sensor.adc_bits,
+            crate::Algorithm::FourPhase,
+            JOINT_LENS_LUT_SIZE,
+        )?;
+        let fit = fit_sweep(sweep, SweepPhase::WigglingCorrected(&wiggling), &fit_sensor)?;
+        let last_change_se = previous.map_or(f64::INFINITY, |p| largest_change_se(&p, &fit));
+        if last_change_se < 0.1 || passes == JOINT_LENS_MAX_PASSES {
+            return Ok(JointLensFit {
+                fit,
+                wiggling,
+                passes,
+                last_change_se,
+            });
+        }
+        let [row0, col0] = sensor.roi_origin;
+        rays = Some(fit.intrinsics.rays(row0, col0, rows, cols)?);
+        previous = Some(fit);
+    }
+}
+
+/// Largest change of a fitted lens value between two fits, in units of the new fit's standard
+/// error of that value (`k3` is held and never changes).
+fn largest_change_se(before: &IntrinsicsFit, after: &IntrinsicsFit) -> f64 {
+    let values = |k: &Intrinsics| {
+        let d = k.distortion;
+        [k.fx_px, k.fy_px, k.cx_px, k.cy_px, d.k1, d.k2, d.p1, d.p2]
+    };
+    let (a, b, se) = (
+        values(&before.intrinsics),
+        values(&after.intrinsics),
+        values(&after.standard_errors),
+    );
+    (0..a.len())
+        .map(|j| (b[j] - a[j]).abs() / se[j])
+        .fold(0.0, f64::max)
 }
 
 /// Result of [`fit_intrinsics`].

@@ -17,7 +17,8 @@ use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
 use tofprox_core::camera::{
-    Intrinsics, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+    Intrinsics, IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+    calibrate_intrinsics_with_wiggling,
 };
 use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
 use tofprox_core::phasor::unambiguous_range_m;
@@ -40,8 +41,9 @@ pub const NO_TARGET_CONDITION: &str = "no_target";
 /// Which part of a calibration set to extract.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Extract {
-    /// Lens intrinsics and distortion fitted to a sweep of a flat target at ≥ 3 known distances
-    /// (every illuminated capture with `distance_m` and N ≥ 4 equally spaced phases).
+    /// Lens intrinsics and distortion fitted to a sweep of a flat target at ≥ 3 known distances:
+    /// correlation captures with `distance_m`, or (with correlation captures at fewer distances)
+    /// 4-phase walls corrected by a correlation capture's wiggling table, fitted jointly.
     Intrinsics,
     /// Lens intrinsics taken from a module's datasheet ([`load_lens_datasheet`]) instead.
     LensDatasheet {
@@ -585,78 +587,62 @@ impl<'a> Extractor<'a> {
         Ok(set.set_crosstalk(x, self.source(idx, None))?)
     }
 
-    /// Fits the lens to every illuminated capture of a flat target with `distance_m` and N ≥
-    /// [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases ([`calibrate_intrinsics`], thesis
-    /// 5.1.3): their first-harmonic phase is shaped by the lens alone. Wall captures with fewer
-    /// phases (4-phase) are left out with a note: their wiggling is not corrected yet when the
-    /// lens comes first, and the lens would absorb it.
+    /// Fits the lens to the recording's flat-target captures (thesis 5.1.3). With correlation
+    /// captures (N ≥ [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases) at ≥ 3 distinct
+    /// distances, to their first harmonic alone ([`calibrate_intrinsics`]): it is shaped by the
+    /// lens alone; 4-phase walls are then left out with a note (their wiggling is not corrected
+    /// yet when the lens comes first, and the lens would absorb it). With correlation captures at
+    /// fewer distances, to the 4-phase walls and correlation captures together, their 4-phase
+    /// phase corrected by the wiggling table of the nearest correlation capture, table and lens
+    /// fitted jointly ([`calibrate_intrinsics_with_wiggling`]). Data at fewer than 3 distinct
+    /// distances, or walls without a correlation capture, is refused with what to capture.
     fn fit_lens(&mut self) -> Result<(Intrinsics, Vec<usize>, String), ExtractError> {
         let sensor = *self.rec.sensor();
-        let mut idx = Vec::new();
-        let mut data = Vec::new();
-        let mut left_out = Vec::new();
         let rec: &'a Recording = self.rec;
-        for (i, c) in rec.captures().iter().enumerate() {
-            let Some(d) = c.distance_m().filter(|d| *d > 0.0) else {
-                continue;
-            };
-            let phases_rad: Vec<f64> = c.phases_deg.iter().map(|p| p.to_radians()).collect();
-            if !c.illumination
-                || c.phases_deg.len() < 4
-                || !tofprox_core::phasor::is_equally_spaced_circle(&phases_rad)
-            {
-                continue;
-            }
-            if c.phases_deg.len() < MIN_HARMONIC_FREE_PHASES {
-                left_out.push(i);
-                continue;
-            }
-            idx.push(i);
-            data.push((d, self.rec.load(i)?.to_f64(), c.phases_deg.clone()));
+        let caps = rec.captures();
+        let (correlation, walls) = lens_captures(caps);
+        let distances =
+            |idx: &[usize]| distinct_distances(idx.iter().map(|&i| caps[i].distance_m()));
+        let corr_m = distances(&correlation);
+        let all: Vec<usize> = correlation.iter().chain(&walls).copied().collect();
+        let joint = corr_m.len() < 3 && !correlation.is_empty() && distances(&all).len() >= 3;
+        if corr_m.len() < 3 && !joint {
+            return Err(self.cannot_pin_lens(&corr_m, &distances(&walls)));
         }
-        if !left_out.is_empty() {
-            self.note(&format!(
-                "left out captures {left_out:?} of the lens fit: with fewer than {MIN_HARMONIC_FREE_PHASES} phases their phase holds the uncorrected wiggling (3rd/5th harmonics, thesis 3.3.6), which the lens would absorb; the fit uses the correlation captures (≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases)"
-            ));
-        }
-        let sweep: Vec<SweepCapture<'_>> = data
-            .iter()
-            .map(|(d, raw, phases)| SweepCapture {
-                distance_m: *d,
-                raw: raw.view(),
-                phases_deg: phases,
-            })
-            .collect();
         if sensor.rows * 2 < sensor.full_rows || sensor.cols * 2 < sensor.full_cols {
             self.note(&format!(
                 "the {}×{} window covers less than half of the {}×{} array: the distortion is only determined inside it",
                 sensor.rows, sensor.cols, sensor.full_rows, sensor.full_cols
             ));
         }
-        let fit = calibrate_intrinsics(
-            &sweep,
-            sensor.adc_bits,
-            sensor.modulation_hz,
-            f64::from(PipelineConfig::default().min_amplitude_lsb),
-            sensor.roi_origin[0],
-            sensor.roi_origin[1],
-        )
-        .map_err(core(format!(
-            "{}: lens calibration needs illuminated captures of a flat target (perpendicular to the optical axis) at ≥ 3 distinct distances with conditions.distance_m and N ≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases (correlation captures); {} such captures (at {} m)",
-            self.rec.dir().display(),
-            idx.len(),
-            data.iter()
-                .map(|(d, _, _)| fmt_num(*d))
-                .collect::<Vec<_>>()
-                .join(", ")
-        )))?;
+        let mut idx = if joint { all } else { correlation.clone() };
+        idx.sort_unstable();
+        let data = idx
+            .iter()
+            .map(|&i| Ok((i, self.rec.load(i)?.to_f64())))
+            .collect::<Result<Vec<_>, ExtractError>>()?;
+        let sweep: Vec<SweepCapture<'_>> = data
+            .iter()
+            .map(|(i, raw)| SweepCapture {
+                distance_m: caps[*i].distance_m().unwrap_or(0.0),
+                raw: raw.view(),
+                phases_deg: &caps[*i].phases_deg,
+            })
+            .collect();
+        let at_m = fmt_list(idx.iter().map(|&i| caps[i].distance_m().unwrap_or(0.0)));
+        let context = core(format!(
+            "{}: fitting the lens to captures {idx:?} (at {at_m} m)",
+            self.rec.dir().display()
+        ));
+        let (fit, how) = if joint {
+            self.fit_lens_jointly(&sweep, &idx, &correlation, corr_m.len())
+        } else {
+            self.fit_lens_to_first_harmonic(&sweep, &walls)
+        }
+        .map_err(context)?;
         let line = format!(
-            "intrinsics: fitted to {} captures at {} m over {} pixels: {}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
+            "intrinsics: fitted to {} captures at {at_m} m over {} pixels ({how}): {}; ray-factor residual RMS {:.2e} ({:.2} mm at 1 m)",
             idx.len(),
-            data.iter()
-                .map(|(d, _, _)| fmt_num(*d))
-                .collect::<Vec<_>>()
-                .join(", "),
             fit.pixels,
             lens_with_errors(&fit.intrinsics, &fit.standard_errors),
             fit.rms_ray_factor,
@@ -664,6 +650,128 @@ impl<'a> Extractor<'a> {
         );
         Ok((fit.intrinsics, idx, line))
     }
+
+    /// [`calibrate_intrinsics_with_wiggling`] with the wiggling table of the nearest correlation
+    /// capture (the strongest return, 1/d², thesis 2.2.1); `idx` are the sweep's capture indices.
+    fn fit_lens_jointly(
+        &mut self,
+        sweep: &[SweepCapture<'_>],
+        idx: &[usize],
+        correlation: &[usize],
+        correlation_distances: usize,
+    ) -> Result<(IntrinsicsFit, String), CoreError> {
+        let k = (0..idx.len())
+            .filter(|&j| correlation.contains(&idx[j]))
+            .min_by(|&a, &b| sweep[a].distance_m.total_cmp(&sweep[b].distance_m))
+            .unwrap_or(0);
+        let min_amplitude_lsb = f64::from(PipelineConfig::default().min_amplitude_lsb);
+        let j = calibrate_intrinsics_with_wiggling(
+            &sweep[k],
+            sweep,
+            self.rec.sensor(),
+            min_amplitude_lsb,
+        )?;
+        self.note(&format!(
+            "correlation captures at only {correlation_distances} distance(s): the lens is fitted to the 4-phase walls too, their wiggling corrected by the table of capture {} (fitted jointly with the lens)",
+            idx[k]
+        ));
+        let how = format!(
+            "4-phase phases corrected by the wiggling table of capture {} at {} m, fitted jointly with the lens ({} passes, last change {:.2} standard errors)",
+            idx[k],
+            fmt_num(sweep[k].distance_m),
+            j.passes,
+            j.last_change_se
+        );
+        Ok((j.fit, how))
+    }
+
+    /// [`calibrate_intrinsics`] on correlation captures; the 4-phase `walls` left out with a note.
+    fn fit_lens_to_first_harmonic(
+        &mut self,
+        sweep: &[SweepCapture<'_>],
+        walls: &[usize],
+    ) -> Result<(IntrinsicsFit, String), CoreError> {
+        if !walls.is_empty() {
+            self.note(&format!(
+                "left out captures {walls:?} of the lens fit: with fewer than {MIN_HARMONIC_FREE_PHASES} phases their phase holds the uncorrected wiggling (3rd/5th harmonics, thesis 3.3.6), which the lens would absorb; the fit uses the correlation captures (≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases)"
+            ));
+        }
+        let sensor = self.rec.sensor();
+        let fit = calibrate_intrinsics(
+            sweep,
+            sensor.adc_bits,
+            sensor.modulation_hz,
+            f64::from(PipelineConfig::default().min_amplitude_lsb),
+            sensor.roi_origin[0],
+            sensor.roi_origin[1],
+        )?;
+        Ok((
+            fit,
+            "first harmonic of the correlation captures".to_string(),
+        ))
+    }
+
+    /// Why the recording's captures cannot pin the lens, and what to capture.
+    fn cannot_pin_lens(&self, correlation_m: &[f64], walls_m: &[f64]) -> ExtractError {
+        let listed = |d: &[f64]| match d {
+            [] => "none".to_string(),
+            d => format!("at {} m", fmt_list(d.iter().copied())),
+        };
+        let todo = if correlation_m.is_empty() && walls_m.len() >= 3 {
+            "capture one correlation capture (24 × 15°) of the wall at any distance in range, whose wiggling table corrects the 4-phase walls".to_string()
+        } else {
+            let have = distinct_distances(correlation_m.iter().chain(walls_m).map(|d| Some(*d)));
+            format!(
+                "capture the flat wall at {} more distinct distance(s), e.g. correlation captures (24 × 15°){}",
+                3 - have.len().min(3),
+                if correlation_m.is_empty() {
+                    ""
+                } else {
+                    " or 4-phase walls"
+                }
+            )
+        };
+        ExtractError::NoCapture {
+            recording: self.rec.dir().to_path_buf(),
+            what: format!(
+                "captures that can pin the lens: it needs a flat target perpendicular to the optical axis at ≥ 3 distinct distances (at one distance a pixel's ray factor cannot be told from its delay), as correlation captures (N ≥ {MIN_HARMONIC_FREE_PHASES} equally spaced phases) or as 4-phase walls with a correlation capture whose wiggling table corrects them; correlation captures: {}; 4-phase walls: {}; {todo}",
+                listed(correlation_m),
+                listed(walls_m)
+            ),
+        }
+    }
+}
+
+/// The captures a lens fit may use: illuminated, with a positive `distance_m`, as
+/// (correlation captures: N ≥ [`MIN_HARMONIC_FREE_PHASES`] equally spaced phases; 4-phase walls).
+fn lens_captures(caps: &[CaptureMeta]) -> (Vec<usize>, Vec<usize>) {
+    let (mut correlation, mut walls) = (Vec::new(), Vec::new());
+    for (i, c) in caps.iter().enumerate() {
+        if !c.illumination || !c.distance_m().is_some_and(|d| d > 0.0) {
+            continue;
+        }
+        let phases_rad: Vec<f64> = c.phases_deg.iter().map(|p| p.to_radians()).collect();
+        let equally_spaced = tofprox_core::phasor::is_equally_spaced_circle(&phases_rad);
+        if equally_spaced && c.phases_deg.len() >= MIN_HARMONIC_FREE_PHASES {
+            correlation.push(i);
+        } else if c.is_four_phase() {
+            walls.push(i);
+        }
+    }
+    (correlation, walls)
+}
+
+/// The distinct distances (1 µm apart) among `distances`, ascending.
+fn distinct_distances(distances: impl Iterator<Item = Option<f64>>) -> Vec<f64> {
+    let mut d: Vec<f64> = distances.flatten().collect();
+    d.sort_by(f64::total_cmp);
+    d.dedup_by(|b, a| (*b - *a).abs() <= 1e-6);
+    d
+}
+
+/// `0.3, 0.45, 0.6` (each number as [`fmt_num`] writes it).
+fn fmt_list(values: impl Iterator<Item = f64>) -> String {
+    values.map(fmt_num).collect::<Vec<_>>().join(", ")
 }
 
 /// A fitted lens with the standard error of each value (`fx 172.50 ± 2.1e-2 px, …`; `k3` is held

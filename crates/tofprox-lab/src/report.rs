@@ -244,6 +244,30 @@ fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
     )
 }
 
+/// One value of a capture's depth comparison (mm).
+type DepthOf = fn(&CaptureDepth) -> f64;
+
+/// Per exposure (ascending), the captures' (distance, `value`) points.
+fn by_exposure(d: &[CaptureDepth], value: DepthOf) -> Vec<(f64, Curve)> {
+    let mut out: Vec<(f64, Curve)> = Vec::new();
+    for c in d {
+        match out.iter_mut().find(|(t, _)| *t == c.exposure_us) {
+            Some((_, points)) => points.push((c.distance_m, value(c))),
+            None => out.push((c.exposure_us, vec![(c.distance_m, value(c))])),
+        }
+    }
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    out
+}
+
+/// The systematic part of a depth residual (mm): the RMS over distances of its mean per
+/// distance, which the capture-to-capture noise averages out of; `None` without data.
+fn systematic_mm(points: &[(f64, f64)]) -> Option<f64> {
+    let means = mean_per_x(points);
+    (!means.is_empty())
+        .then(|| (means.iter().map(|(_, y)| y * y).sum::<f64>() / means.len() as f64).sqrt())
+}
+
 const ORANGE: [u8; 3] = [230, 120, 0];
 const BROWN: [u8; 3] = [120, 60, 0];
 const LIGHT_BLUE: [u8; 3] = [100, 140, 255];
@@ -440,34 +464,54 @@ fn html_sections(
 ) -> String {
     let mut h = String::new();
     if let Some(d) = diag {
-        let _ = write!(
-            h,
-            "<h2>Verdict: {} {}</h2><p>{}</p>",
-            d.verdict.as_str(),
-            esc(d.effect.as_deref().unwrap_or("")),
-            esc(&d.reason)
-        );
-        if let Some(sep) = &d.separate_by {
-            let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
-        }
-        let _ = write!(
-            h,
-            "<p>Remaining structure: {:.2} mm depth-equivalent ({:.3} LSB, z = {:.1}); tolerance {:.2} mm \
-             (single-acquisition noise {:.2} mm).</p>",
-            d.size.mm, d.size.lsb, d.fit.z, d.tolerance_mm, d.noise_single.mm
-        );
-        for sm in &d.small {
-            let _ = write!(
-                h,
-                "<p>Detectable but small: {} <b>{}</b> (z = {:.1}, {:.3} mm, {:.3} LSB)</p>",
-                sm.kind,
-                esc(&sm.name),
-                sm.z,
-                sm.size_mm,
-                sm.size_lsb
-            );
-        }
+        verdict_html(&mut h, d);
     }
+    fit_html(&mut h, cmp);
+    model_charts_html(&mut h, cmp);
+    h.push_str("<h3>Residual map</h3>");
+    h.push_str(&pixel_map(cmp, rows, cols, origin));
+    if let Some(d) = diag {
+        candidates_html(&mut h, d);
+    }
+    if let Some((effect, before, after)) = add {
+        after_adding_html(&mut h, effect, before, after);
+    }
+    h
+}
+
+/// The verdict, its reason, what separates look-alikes, the remaining structure in mm and LSB.
+fn verdict_html(h: &mut String, d: &Diagnosis) {
+    let _ = write!(
+        h,
+        "<h2>Verdict: {} {}</h2><p>{}</p>",
+        d.verdict.as_str(),
+        esc(d.effect.as_deref().unwrap_or("")),
+        esc(&d.reason)
+    );
+    if let Some(sep) = &d.separate_by {
+        let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
+    }
+    let _ = write!(
+        h,
+        "<p>Remaining structure: {:.2} mm depth-equivalent ({:.3} LSB, z = {:.1}); tolerance {:.2} mm \
+         (single-acquisition noise {:.2} mm).</p>",
+        d.size.mm, d.size.lsb, d.fit.z, d.tolerance_mm, d.noise_single.mm
+    );
+    for sm in &d.small {
+        let _ = write!(
+            h,
+            "<p>Detectable but small: {} <b>{}</b> (z = {:.1}, {:.3} mm, {:.3} LSB)</p>",
+            sm.kind,
+            esc(&sm.name),
+            sm.z,
+            sm.size_mm,
+            sm.size_lsb
+        );
+    }
+}
+
+/// How well the model explains the measurement: χ²/dof, z, RMS, and the noise model used.
+fn fit_html(h: &mut String, cmp: &Comparison) {
     let _ = write!(
         h,
         "<h2>How well the model explains the measurement</h2><table><tr><th>χ²/dof</th><th>z</th><th>raw RMS [LSB]</th>\
@@ -487,6 +531,10 @@ fn html_sections(
         cmp.model.noise.c,
         cmp.model.noise.e,
     );
+}
+
+/// Measured vs model amplitude, the depth residual per capture, the residual vs each condition.
+fn model_charts_html(h: &mut String, cmp: &Comparison) {
     let meas: Vec<(f64, f64)> = cmp
         .depth
         .iter()
@@ -508,17 +556,28 @@ fn html_sections(
             Series::points("measured", meas).colour(BLUE),
         ],
     ));
-    let (d2, d4) = depth_series(&cmp.depth);
     h.push_str("<h3>Where the model fails</h3>");
-    h.push_str(&chart(
-        "depth residual depth(measured) − depth(model), mean per capture",
-        "distance [m]",
-        "depth residual [mm]",
-        vec![
-            Series::points("2-phase", d2).colour(ORANGE),
-            Series::points("4-phase", d4).colour(BLUE),
-        ],
-    ));
+    // one chart per algorithm (small multiples): their residuals overlap near zero; one series
+    // per exposure, labelled, told apart by marker shape (the chart's markers cycle)
+    let by_alg: [(&str, DepthOf, [u8; 3]); 2] = [
+        ("2-phase", |c| c.depth_2phase_mm, ORANGE),
+        ("4-phase", |c| c.depth_4phase_mm, BLUE),
+    ];
+    for (alg, value, colour) in by_alg {
+        let series = by_exposure(&cmp.depth, value)
+            .into_iter()
+            .map(|(t, points)| {
+                let name = format!("{alg}, {} µs", tofprox_format::fmt_num(t));
+                Series::points(name, points).colour(colour)
+            })
+            .collect();
+        h.push_str(&chart(
+            &format!("{alg} depth residual depth(measured) − depth(model), mean per capture"),
+            "distance [m]",
+            "depth residual [mm]",
+            series,
+        ));
+    }
     h.push_str(&structure_bars(&cmp.structure));
     for st in cmp.structure.iter().take(3) {
         let di = match st.direction {
@@ -544,84 +603,118 @@ fn html_sections(
             ],
         ));
     }
-    h.push_str("<h3>Residual map</h3>");
-    h.push_str(&pixel_map(cmp, rows, cols, origin));
-    if let Some(d) = diag {
-        h.push_str(
-            "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
-             <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
-        );
-        const NO_EXCESS: &str =
-            "no share: the residual has no significant excess over the noise (see explained [mm])";
-        const NOT_REFITTED: &str =
-            "not refitted: only the leading candidates are refitted with the whole model";
-        for c in &d.candidates {
-            let after = c.rms_after;
-            let _ = write!(
-                h,
-                "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
-                esc(&c.effect),
-                percent_cell(c.explained_excess, NO_EXCESS),
-                percent_cell(c.cv_gain, NO_EXCESS),
-                cell(Some(c.explained.mm), 3, "no screening fit"),
-                cell(Some(c.z_after), 1, NOT_REFITTED),
-                cell(Some(c.delta_bic), 0, NOT_REFITTED),
-                cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
-                cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
-                if cancels_in_4phase(&c.effect) {
-                    "yes"
-                } else {
-                    "no"
-                }
-            );
-        }
-        h.push_str("</table>");
-        if d.candidates.iter().any(|c| c.rms_after.is_none()) {
-            let _ = write!(
-                h,
-                "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>"
-            );
-        }
-        for (id, why) in &d.skipped {
-            let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
-        }
-        for c in &d.candidates {
-            for f in &c.flags {
-                let _ = write!(h, "<p class=\"note\">{}: {}</p>", esc(&c.effect), esc(f));
-            }
-        }
-    }
-    if let Some((effect, before, after)) = add {
-        let b = ErrorSummary::of(before);
-        let a = ErrorSummary::of(after);
+}
+
+/// The candidate effects table, with what was skipped and each candidate's flags.
+fn candidates_html(h: &mut String, d: &Diagnosis) {
+    h.push_str(
+        "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
+         <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
+    );
+    const NO_EXCESS: &str =
+        "no share: the residual has no significant excess over the noise (see explained [mm])";
+    const NOT_REFITTED: &str =
+        "not refitted: only the leading candidates are refitted with the whole model";
+    for c in &d.candidates {
+        let after = c.rms_after;
         let _ = write!(
             h,
-            "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
-             <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
-            cell(Some(b.raw_lsb), 3, NO_DATA),
-            cell(Some(b.depth_2phase_mm), 2, NO_DATA),
-            cell(Some(b.depth_4phase_mm), 2, NO_DATA),
-            cell(Some(b.chi2_per_dof), 3, NO_DATA),
-            cell(Some(a.raw_lsb), 3, NO_DATA),
-            cell(Some(a.depth_2phase_mm), 2, NO_DATA),
-            cell(Some(a.depth_4phase_mm), 2, NO_DATA),
-            cell(Some(a.chi2_per_dof), 3, NO_DATA),
-            e = esc(effect)
+            "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
+            esc(&c.effect),
+            percent_cell(c.explained_excess, NO_EXCESS),
+            percent_cell(c.cv_gain, NO_EXCESS),
+            cell(Some(c.explained.mm), 3, "no screening fit"),
+            cell(Some(c.z_after), 1, NOT_REFITTED),
+            cell(Some(c.delta_bic), 0, NOT_REFITTED),
+            cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
+            cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
+            if cancels_in_4phase(&c.effect) {
+                "yes"
+            } else {
+                "no"
+            }
         );
-        let (b2, b4) = depth_series(&before.depth);
-        let (a2, a4) = depth_series(&after.depth);
+    }
+    h.push_str("</table>");
+    if d.candidates.iter().any(|c| c.rms_after.is_none()) {
+        let _ = write!(
+            h,
+            "<p class=\"note\">n/a: {NOT_REFITTED}; they are ranked by their screening fit.</p>"
+        );
+    }
+    for (id, why) in &d.skipped {
+        let _ = write!(h, "<p>{}: not testable — {}</p>", esc(id), esc(why));
+    }
+    for c in &d.candidates {
+        for f in &c.flags {
+            let _ = write!(h, "<p class=\"note\">{}: {}</p>", esc(&c.effect), esc(f));
+        }
+    }
+}
+
+/// The errors before and after adding `effect`, as a table and a chart.
+fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &Comparison) {
+    let b = ErrorSummary::of(before);
+    let a = ErrorSummary::of(after);
+    let _ = write!(
+        h,
+        "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
+         <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
+        cell(Some(b.raw_lsb), 3, NO_DATA),
+        cell(Some(b.depth_2phase_mm), 2, NO_DATA),
+        cell(Some(b.depth_4phase_mm), 2, NO_DATA),
+        cell(Some(b.chi2_per_dof), 3, NO_DATA),
+        cell(Some(a.raw_lsb), 3, NO_DATA),
+        cell(Some(a.depth_2phase_mm), 2, NO_DATA),
+        cell(Some(a.depth_4phase_mm), 2, NO_DATA),
+        cell(Some(a.chi2_per_dof), 3, NO_DATA),
+        e = esc(effect)
+    );
+    let (b2, b4) = depth_series(&before.depth);
+    let (a2, a4) = depth_series(&after.depth);
+    let _ = write!(
+        h,
+        "<p>Systematic depth error (RMS over distances of the mean residual per distance, the part \
+         averaging does not remove): 2-phase {} → {} mm, 4-phase {} → {} mm.</p>",
+        systematic_mm(&b2).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
+        systematic_mm(&a2).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
+        systematic_mm(&b4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
+        systematic_mm(&a4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
+    );
+    // one chart per algorithm (small multiples); "after" as the mean per distance, joined in
+    // distance order
+    for (alg, b, a, colours) in [
+        ("2-phase", b2, a2, (ORANGE, BROWN)),
+        ("4-phase", b4, a4, (LIGHT_BLUE, BLUE)),
+    ] {
         h.push_str(&chart(
-            "depth residual before/after (mean per capture)",
+            &format!("{alg} depth residual before/after (mean per capture)"),
             "distance [m]",
             "depth residual [mm]",
-            // "after" as the mean per distance, joined in distance order
             vec![
-                Series::points("2-phase before", b2).colour(ORANGE),
-                Series::line("2-phase after (mean per distance)", mean_per_x(&a2)).colour(BROWN),
-                Series::points("4-phase before", b4).colour(LIGHT_BLUE),
-                Series::line("4-phase after (mean per distance)", mean_per_x(&a4)).colour(BLUE),
+                Series::points(format!("{alg} before"), b).colour(colours.0),
+                Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
+                    .colour(colours.1),
             ],
         ));
     }
-    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::systematic_mm;
+
+    #[test]
+    fn systematic_error_is_the_rms_of_the_mean_per_distance_not_of_the_noise() {
+        // per distance a systematic offset (3, −4 mm) and two repeats with ±10 mm of noise
+        let points = [
+            (0.5, 3.0 + 10.0),
+            (0.5, 3.0 - 10.0),
+            (1.0, -4.0 - 10.0),
+            (1.0, -4.0 + 10.0),
+        ];
+        let want = ((9.0 + 16.0) / 2.0f64).sqrt();
+        assert!((systematic_mm(&points).unwrap() - want).abs() < 1e-12);
+        assert_eq!(systematic_mm(&[(0.5, f64::NAN)]), None);
+    }
 }

@@ -41,6 +41,18 @@ pub struct Figure {
     pub y_label: String,
     /// Curves.
     pub series: Vec<Series>,
+    /// Readability of noisy series that lie on top of each other: drawn apart, each legend entry
+    /// naming its shift; `None`: as they are. The data stays unshifted.
+    pub offsets: Option<Offsets>,
+}
+
+/// How a figure's series are drawn apart: series `k` shifted by `⌊k / every⌋ × step`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Offsets {
+    /// Shift between groups, y axis units.
+    pub step: f64,
+    /// Consecutive series drawn together (e.g. 2: a noisy simulation and its mean).
+    pub every: usize,
 }
 
 impl Figure {
@@ -137,6 +149,7 @@ pub fn fig_3_7() -> Result<Figure, ModelError> {
         title: "Fig. 3.7: 30 LSB offset, t_exp = 0.5 ms".into(),
         x_label: "distance [m]".into(),
         y_label: "depth error [cm]".into(),
+        offsets: None,
         series: vec![
             Series {
                 name: "2-phase".into(),
@@ -187,6 +200,7 @@ pub fn fig_3_8() -> Result<Figure, ModelError> {
         title: "Fig. 3.8: ADC INL, 2-phase, amplitude FSR/4".into(),
         x_label: "true phase [deg]".into(),
         y_label: "depth error [cm]".into(),
+        offsets: None,
         series,
     })
 }
@@ -221,6 +235,10 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
         title: "Fig. 3.9: ADC DNL (table 3.2), amplitude 300 LSB".into(),
         x_label: "distance [m]".into(),
         y_label: "depth error [mm]".into(),
+        offsets: Some(Offsets {
+            step: 8.0,
+            every: 1,
+        }),
         series,
     })
 }
@@ -274,6 +292,10 @@ pub fn fig_5_1() -> Result<Figure, ModelError> {
         title: "Fig. 5.1: measured-like waveform, t_exp = 1 ms, 16x averaged".into(),
         x_label: "distance [m]".into(),
         y_label: "relative depth error [%]".into(),
+        offsets: Some(Offsets {
+            step: 3.0,
+            every: 2,
+        }),
         series: vec![
             Series {
                 name: "2-phase (simulated)".into(),
@@ -281,14 +303,14 @@ pub fn fig_5_1() -> Result<Figure, ModelError> {
                 markers: true,
             },
             Series {
-                name: "4-phase (simulated)".into(),
-                points: n4,
-                markers: true,
-            },
-            Series {
                 name: "2-phase mean".into(),
                 points: e2,
                 markers: false,
+            },
+            Series {
+                name: "4-phase (simulated)".into(),
+                points: n4,
+                markers: true,
             },
             Series {
                 name: "4-phase mean".into(),
@@ -318,19 +340,22 @@ pub fn fig_5_8_model() -> Result<ModelConfig, ModelError> {
 }
 
 /// Fig. 5.7/5.8: background light activating the SBI: 2-phase error of several cm,
-/// 4-phase unaffected; t_exp = 0.5 ms and 1 ms. Returns (fig. 5.7 distance vs truth, fig. 5.8 error).
+/// 4-phase unaffected; t_exp = 0.5 ms and 1 ms. Returns (fig. 5.7, fig. 5.8). The thesis's
+/// fig. 5.7 plots the calculated distance against the ground truth, where every line lies on the
+/// identity at the page's scale; here it plots the calculated distance minus the ground truth
+/// (mm) against the ground truth, the identity as the zero line.
 pub fn fig_5_7_5_8() -> Result<(Figure, Figure), ModelError> {
     let m = fig_5_8_model()?;
     let sim = Simulator::new(&m, centre_geometry()?, 8)?;
     let mid = sim.adc().mid();
     let (mut dist, mut err) = (Vec::new(), Vec::new());
-    let truth: Vec<(f64, f64)> = sweep(0.30, 1.50, 0.01)
+    let identity: Vec<(f64, f64)> = sweep(0.30, 1.50, 0.01)
         .into_iter()
-        .map(|d| (d, d))
+        .map(|d| (d, 0.0))
         .collect();
     dist.push(Series {
-        name: "ground truth".into(),
-        points: truth,
+        name: "identity (calculated = ground truth)".into(),
+        points: identity,
         markers: false,
     });
     for t in [500.0, 1000.0] {
@@ -340,8 +365,8 @@ pub fn fig_5_7_5_8() -> Result<(Figure, Figure), ModelError> {
         for d in sweep(0.30, 1.50, 0.01) {
             let c = codes_of(&sim.expected(&Scene::wall(d, 1.0), &req)?);
             let (z2, z4) = (depth_2phase(&c, mid), depth_4phase(&c));
-            d2.push((d, d + wrapped_error(z2, d)));
-            d4.push((d, d + wrapped_error(z4, d)));
+            d2.push((d, 1000.0 * wrapped_error(z2, d)));
+            d4.push((d, 1000.0 * wrapped_error(z4, d)));
             e2.push((d, 100.0 * wrapped_error(z2, d)));
             e4.push((d, 100.0 * wrapped_error(z4, d)));
         }
@@ -353,10 +378,11 @@ pub fn fig_5_7_5_8() -> Result<(Figure, Figure), ModelError> {
         Figure {
             id: "fig5_7_sbi_distance",
             title: format!(
-                "Fig. 5.7: calculated distance with background light ({FIG_5_8_AMBIENT_KLUX} klux)"
+                "Fig. 5.7: calculated distance with background light ({FIG_5_8_AMBIENT_KLUX} klux), against the identity"
             ),
             x_label: "ground truth [m]".into(),
-            y_label: "calculated distance [m]".into(),
+            y_label: "calculated − ground truth [mm]".into(),
+            offsets: None,
             series: dist,
         },
         Figure {
@@ -364,6 +390,7 @@ pub fn fig_5_7_5_8() -> Result<(Figure, Figure), ModelError> {
             title: format!("Fig. 5.8: SBI asymmetry, background light {FIG_5_8_AMBIENT_KLUX} klux"),
             x_label: "distance [m]".into(),
             y_label: "depth error [cm]".into(),
+            offsets: None,
             series: err,
         },
     ))

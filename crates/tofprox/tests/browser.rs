@@ -68,6 +68,23 @@ const CHECKER: &str = r#"<script>
         }
       });
     });
+    // where each series is on the screen, for the test that looks at the screenshot's pixels
+    svg.querySelectorAll('g.series').forEach((g) => {
+      const el = g.querySelector('polyline, .point');
+      if (!el) return;
+      const stroke = el.getAttribute('stroke');
+      const colour = stroke && stroke !== 'none' ? stroke : el.getAttribute('fill');
+      const entry = [...svg.querySelectorAll('g.legend-entry')].find((e) => e.dataset.name === g.dataset.name);
+      const legend = entry ? entry.textContent : '';
+      const at = [];
+      g.querySelectorAll('polyline').forEach((pl) => {
+        const m = pl.getScreenCTM();
+        for (const p of pl.points) { const s = new DOMPoint(p.x, p.y).matrixTransform(m); at.push([s.x, s.y]); }
+      });
+      g.querySelectorAll('.point').forEach((p) => at.push(mid(p.getBoundingClientRect())));
+      const style = el.tagName === 'polyline' ? 'line' : 'points';
+      (out.seen = out.seen || []).push({ chart: name, name: g.dataset.name, style, colour, legend, at });
+    });
   });
   if (document.body.innerText.includes('NaN')) P.push('"NaN" in the page text');
   const pre = document.createElement('pre');
@@ -113,8 +130,117 @@ fn shots_dir() -> PathBuf {
     d
 }
 
+/// A screenshot's pixels (RGB or RGBA, 8 bit).
+struct Screenshot {
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: Vec<u8>,
+}
+
+/// Fewest of a series' points that must show its own colour, alone, in the screenshot.
+const SERIES_ALONE_SHARE: f64 = 0.5;
+
+impl Screenshot {
+    fn load(path: &Path) -> Self {
+        let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+        let mut reader = png::Decoder::new(file).read_info().unwrap();
+        let mut data = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut data).unwrap();
+        assert_eq!(info.bit_depth, png::BitDepth::Eight, "{}", path.display());
+        Screenshot {
+            width: info.width as usize,
+            height: info.height as usize,
+            channels: info.line_size / info.width as usize,
+            data,
+        }
+    }
+
+    /// The colours (as `#rrggbb`-near RGB) found within `radius` px of `(x, y)`.
+    fn near(&self, (x, y): (f64, f64), radius: i64) -> Vec<[u8; 3]> {
+        let mut out = Vec::new();
+        for dy in -radius..=radius {
+            for dx in -radius..=radius {
+                let (px, py) = (x.round() as i64 + dx, y.round() as i64 + dy);
+                if px < 0 || py < 0 || px as usize >= self.width || py as usize >= self.height {
+                    continue;
+                }
+                let i = (py as usize * self.width + px as usize) * self.channels;
+                out.push([self.data[i], self.data[i + 1], self.data[i + 2]]);
+            }
+        }
+        out
+    }
+
+    /// Whether a series (as the checker saw it: colour, legend, screen points) can be told apart
+    /// in the picture from the chart's `others` series of its style (colour, legend text: a mean
+    /// line runs through its own scatter of points): at ≥
+    /// [`SERIES_ALONE_SHARE`] of its points its own colour shows within 2 px (5 px for a marker)
+    /// and no other series' colour within 3 px. A series the legend announces as coincident with another is
+    /// exempt (drawn dashed over it); one that others coincide with need only show its colour.
+    fn series_problem(&self, s: &Value, others: &[([u8; 3], &str)]) -> Option<String> {
+        let name = s["name"].as_str().unwrap_or_default();
+        if s["legend"]
+            .as_str()
+            .unwrap_or_default()
+            .contains("coincident")
+        {
+            return None;
+        }
+        let covered = others
+            .iter()
+            .any(|(_, legend)| legend.contains(&format!("(= {name}, coincident)")));
+        let own = hex_rgb(s["colour"].as_str()?)?;
+        let at: Vec<(f64, f64)> = s["at"]
+            .as_array()?
+            .iter()
+            .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
+            .collect();
+        // a marker's colour may lie only on its outline (a ring of radius 4)
+        let own_radius = if s["style"] == "points" { 5 } else { 2 };
+        let alone = at
+            .iter()
+            .filter(|&&p| {
+                self.near(p, own_radius).iter().any(|c| close(*c, own))
+                    && (covered
+                        || !self.near(p, 3).iter().any(|c| {
+                            // a series in the same colour is drawn as one element with it (the
+                            // two edges of a ±2 SE band)
+                            others.iter().any(|(o, _)| !close(*o, own) && close(*c, *o))
+                        }))
+            })
+            .count();
+        let share = alone as f64 / at.len().max(1) as f64;
+        (share < SERIES_ALONE_SHARE).then(|| {
+            format!(
+                "{}: series “{name}” shows alone in the picture at only {:.0} % of its {} points",
+                s["chart"].as_str().unwrap_or_default(),
+                100.0 * share,
+                at.len()
+            )
+        })
+    }
+}
+
+/// `#rrggbb` → RGB.
+fn hex_rgb(h: &str) -> Option<[u8; 3]> {
+    let h = h.strip_prefix('#')?;
+    let c = |i: usize| u8::from_str_radix(h.get(i..i + 2)?, 16).ok();
+    Some([c(0)?, c(2)?, c(4)?])
+}
+
+/// Two colours the eye takes for the same (sum of channel differences ≤ 60).
+fn close(a: [u8; 3], b: [u8; 3]) -> bool {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.abs_diff(y) as u32)
+        .sum::<u32>()
+        <= 60
+}
+
 /// Render `html` (a page or a bare SVG) in the browser: a screenshot for a
-/// person, and the checker's findings.
+/// person, and the checker's findings — its layout checks, and every series
+/// told apart in the screenshot's pixels ([`Screenshot::series_problem`]).
 fn render(chromium: &Path, name: &str, html: &str) -> Value {
     let body = if html.trim_start().starts_with("<svg") {
         format!(
@@ -152,7 +278,18 @@ fn render(chromium: &Path, name: &str, html: &str) -> Value {
         .replace("&gt;", ">")
         .replace("&amp;", "&");
     let v: Value = serde_json::from_str(&json).unwrap();
-    let problems = v["problems"].as_array().unwrap();
+    let mut problems: Vec<Value> = v["problems"].as_array().unwrap().clone();
+    let picture = Screenshot::load(&shot);
+    let seen: &[Value] = v["seen"].as_array().map_or(&[], |a| a.as_slice());
+    for s in seen {
+        let others: Vec<([u8; 3], &str)> = seen
+            .iter()
+            .filter(|o| o["chart"] == s["chart"] && o["name"] != s["name"])
+            .filter(|o| o["style"] == s["style"])
+            .filter_map(|o| Some((hex_rgb(o["colour"].as_str()?)?, o["legend"].as_str()?)))
+            .collect();
+        problems.extend(picture.series_problem(s, &others).map(Value::from));
+    }
     assert!(
         problems.is_empty(),
         "{name} as rendered by chromium (screenshot {}):\n{}",

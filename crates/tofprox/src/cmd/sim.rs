@@ -606,9 +606,10 @@ fn figures(a: FiguresArgs) -> anyhow::Result<ExitCode> {
 }
 
 /// Render a figure as SVG with the one chart component (legend below the
-/// plot, coincident series announced).
+/// plot, coincident series announced); with [`Figure::offsets`] the series drawn apart, each
+/// legend entry naming its shift.
 pub fn render_svg(f: &Figure, path: &Path) -> anyhow::Result<()> {
-    use tofprox_chart::{LineChart, Series, line_chart};
+    use tofprox_chart::{LineChart, line_chart};
     if !f
         .series
         .iter()
@@ -617,6 +618,17 @@ pub fn render_svg(f: &Figure, path: &Path) -> anyhow::Result<()> {
     {
         bail!("figure {} has no data", f.id);
     }
+    let unit = f
+        .y_label
+        .rsplit_once('[')
+        .and_then(|(_, u)| u.strip_suffix(']'))
+        .unwrap_or("");
+    let notes = f.offsets.map_or_else(Vec::new, |o| {
+        vec![format!(
+            "Series drawn {} {unit} apart so none hides another: read each against the shift its legend entry names.",
+            tofprox_format::fmt_num(o.step)
+        )]
+    });
     let svg = line_chart(&LineChart {
         title: f.title.clone(),
         x_label: f.x_label.clone(),
@@ -624,19 +636,38 @@ pub fn render_svg(f: &Figure, path: &Path) -> anyhow::Result<()> {
         series: f
             .series
             .iter()
-            .map(|s| {
-                if s.markers {
-                    Series::points(s.name.as_str(), s.points.clone())
-                } else {
-                    Series::line(s.name.as_str(), s.points.clone())
-                }
+            .enumerate()
+            .map(|(k, s)| {
+                let shift = f.offsets.map(|o| (k / o.every.max(1)) as f64 * o.step);
+                figure_series(s, shift, unit)
             })
             .collect(),
-        notes: Vec::new(),
+        notes,
     });
     tofprox_format::write_atomic(path, svg.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
+}
+
+/// One figure series as a chart series, drawn `shift` higher (the legend says by how much).
+fn figure_series(
+    s: &tofprox_model::figures::Series,
+    shift: Option<f64>,
+    unit: &str,
+) -> tofprox_chart::Series {
+    use tofprox_chart::Series;
+    let (name, points) = match shift {
+        Some(dy) if dy != 0.0 => (
+            format!("{} (drawn +{} {unit})", s.name, tofprox_format::fmt_num(dy)),
+            s.points.iter().map(|(x, y)| (*x, y + dy)).collect(),
+        ),
+        _ => (s.name.clone(), s.points.clone()),
+    };
+    if s.markers {
+        Series::points(name, points)
+    } else {
+        Series::line(name, points)
+    }
 }
 
 fn effects(a: EffectsArgs) -> anyhow::Result<ExitCode> {
