@@ -11,7 +11,7 @@ use tofprox_format::{
     CalibPart, CalibrationSet, DepthRecording, PartState, Recording, RecordingKind,
 };
 
-use super::common::{fmt_num, mode_label, progress};
+use super::common::{fmt_num, progress};
 
 /// `tofprox info REC [--json]`
 #[derive(clap::Args, Debug)]
@@ -52,9 +52,9 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
     let mut conds: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     for (i, c) in caps.iter().enumerate() {
         let mode = if c.illumination {
-            mode_label(c)
+            c.mode_label()
         } else {
-            format!("dark {}", mode_label(c))
+            format!("dark {}", c.mode_label())
         };
         *by_mode.entry(mode).or_default() += 1;
         *by_exposure.entry(fmt_num(c.exposure_us)).or_default() += 1;
@@ -83,7 +83,7 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
                 json!({
                     "index": i,
                     "frames": c.frames,
-                    "mode": mode_label(c),
+                    "mode": c.mode_label(),
                     "phases_deg": c.phases_deg,
                     "exposure_us": c.exposure_us,
                     "illumination": c.illumination,
@@ -204,7 +204,7 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
             "{:>5}  {:<20} {:<16} {:>11} {:>5} {:>4} {:>8} {:>7.2}  {}",
             i,
             c.frames,
-            mode_label(c),
+            c.mode_label(),
             fmt_num(c.exposure_us),
             if c.illumination { "on" } else { "off" },
             c.averaged,

@@ -4,45 +4,19 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 use anyhow::{Context, bail};
-use ndarray::{Array2, s};
-use serde_json::json;
+use ndarray::Array2;
 use tofprox_core::Algorithm;
 use tofprox_core::camera::RayGrid;
-use tofprox_core::crosstalk::residual_ratio;
 use tofprox_core::phasor::unambiguous_range_m;
-use tofprox_core::pipeline::{
-    DepthFrame, FLAG_INVALID, Pipeline, PipelineConfig, depth_m_to_mm, median_valid_m,
-};
-use tofprox_core::proximity::Roi;
+use tofprox_core::pipeline::{DepthFrame, FLAG_INVALID, PipelineConfig};
 use tofprox_format::npy;
 use tofprox_format::{
-    CalibrationSet, CaptureMeta, PointCloudFormat, RawFrames, Recording, encode_points,
+    DepthKind, PointCloudFormat, ProcessOptions, ProcessRow, Processing, encode_points,
 };
 
-use super::common::{fmt_num, mode_label, progress};
-
-/// Which depth the depth outputs carry.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DepthKind {
-    /// Radial distance: the length of each pixel's ray to the surface (eq. 2.6, what the phase
-    /// measures).
-    Radial,
-    /// Z depth: the distance along the optical axis (radial · cos θ of the pixel's ray; needs the
-    /// calibration set's intrinsics).
-    Z,
-}
-
-impl DepthKind {
-    fn name(self) -> &'static str {
-        match self {
-            DepthKind::Radial => "radial",
-            DepthKind::Z => "z",
-        }
-    }
-}
+use super::common::{fmt_num, progress};
 
 #[derive(clap::Args, Debug)]
 pub struct ProcessArgs {
@@ -59,7 +33,7 @@ pub struct ProcessArgs {
     pub out: PathBuf,
     /// Depth in NNNNNN_depth_mm.npy, the preview and the printed median: radial (along each
     /// pixel's ray) or z (along the optical axis; needs --calib with intrinsics).
-    #[arg(long, value_enum, default_value_t = DepthKind::Radial)]
+    #[arg(long, default_value = "radial", value_name = "radial|z")]
     pub depth_kind: DepthKind,
     /// Also write each capture's point cloud (metres, camera frame X right, Y down, Z forward;
     /// needs --calib with intrinsics) to DIR/NAME_NNNNNN.EXT for --points DIR/NAME.EXT: .npy
@@ -122,46 +96,6 @@ fn write_depth_png(
     Ok(tofprox_format::write_atomic(path, &bytes)?)
 }
 
-/// Why a capture cannot be processed with `alg`, if it cannot.
-fn unusable_reason(c: &CaptureMeta, alg: Algorithm) -> Option<String> {
-    if !c.illumination {
-        return Some("dark capture".into());
-    }
-    let need = alg.phases_deg();
-    // [0, 90(, 180, 270)], or what a sensor with another phase convention records as such
-    // (shifts are canonical once read: docs/recording-format.md)
-    if c.quadrature(alg).is_some() {
-        None
-    } else {
-        let need: Vec<String> = need.iter().map(|p| fmt_num(*p)).collect();
-        Some(format!(
-            "a {} capture; {alg} needs phases starting [{}]",
-            mode_label(c),
-            need.join(", ")
-        ))
-    }
-}
-
-/// The depth image (`u16` mm, 0 = invalid) and its median over the valid pixels (metres) of
-/// `kind`: the frame's radial distance, or Z = radial · cos θ through `rays`.
-fn depth_output(
-    frame: &DepthFrame,
-    kind: DepthKind,
-    rays: Option<&RayGrid>,
-) -> anyhow::Result<(Array2<u16>, Option<f64>)> {
-    Ok(match (kind, rays) {
-        (DepthKind::Z, Some(rays)) => {
-            let z_m = rays
-                .radial_to_z(frame.depth_m.view())
-                .context("Z depth through the lens")?;
-            let median = median_valid_m(z_m.view(), frame.flags.view());
-            (z_m.mapv(depth_m_to_mm), median)
-        }
-        (DepthKind::Z, None) => bail!("--depth-kind z needs the lens (intrinsics)"),
-        (DepthKind::Radial, _) => (frame.depth_mm.clone(), frame.median_valid_depth_m()),
-    })
-}
-
 /// Where and how `--points DIR/NAME.EXT` writes each capture's cloud: `DIR/NAME_NNNNNN.EXT`.
 struct PointsOutput {
     dir: PathBuf,
@@ -207,94 +141,53 @@ impl PointsOutput {
     }
 }
 
-pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
-    let rec = Recording::open(&a.recording)?;
-    let sensor = *rec.sensor();
-    let (calibration, rays) = match &a.calib {
-        Some(dir) => {
-            let set = CalibrationSet::load(dir)?;
-            set.check_compatible(&sensor).with_context(|| {
-                format!(
-                    "refusing to apply {} to {}",
-                    dir.display(),
-                    a.recording.display()
-                )
-            })?;
-            if set.wiggling(a.algo).is_none() {
-                eprintln!(
-                    "note: {} has no {} wiggling table: depth is not wiggling corrected",
-                    dir.display(),
-                    a.algo
-                );
-            }
-            if set.offset.is_none() {
-                eprintln!(
-                    "note: {} has no offset (FPN): the mid code is subtracted instead",
-                    dir.display()
-                );
-            }
-            let rays = set
-                .rays()
-                .transpose()
-                .with_context(|| format!("the lens of {}", dir.display()))?;
-            (set.to_pipeline_calibration(a.algo), rays)
-        }
-        None => {
-            eprintln!("note: no --calib: processing without offset, wiggling or FPPN correction");
-            (Default::default(), None)
-        }
+/// The row as the table prints it.
+fn table_line(r: &ProcessRow) -> String {
+    format!(
+        "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
+        r.index,
+        r.distance_m.map_or("-".into(), fmt_num),
+        r.median_depth_m.map_or("-".into(), |m| format!("{m:.4}")),
+        r.error_mm.map_or("-".into(), |e| format!("{e:+.1}")),
+        100.0 * r.valid_fraction,
+        r.process_us
+    )
+}
+
+/// Open the recording for processing as `a` asks, its notes on stderr.
+fn open(a: &ProcessArgs) -> anyhow::Result<Processing> {
+    let opts = ProcessOptions {
+        algo: a.algo,
+        depth_kind: a.depth_kind,
+        min_amplitude_lsb: a.min_amplitude_lsb,
     };
-    let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
-    // Z depth and points need each pixel's ray (thesis 5.1.3; docs/calibration.md)
-    let needs_lens = a.depth_kind == DepthKind::Z || a.points.is_some();
-    if needs_lens && rays.is_none() {
+    let proc = Processing::open(&a.recording, a.calib.as_deref(), opts)?;
+    for n in proc.notes() {
+        eprintln!("note: {n}");
+    }
+    // points need each pixel's ray (thesis 5.1.3; docs/calibration.md)
+    if a.points.is_some() && proc.rays().is_none() {
         bail!(
-            "{} needs the lens: a --calib set with intrinsics (tofprox calibrate intrinsics; docs/calibration.md){}",
-            if a.points.is_some() {
-                "--points"
-            } else {
-                "--depth-kind z"
-            },
+            "--points needs the lens: a --calib set with intrinsics (tofprox calibrate intrinsics; docs/calibration.md){}",
             a.calib
                 .as_ref()
                 .map_or(String::new(), |d| format!(", and {} has none", d.display()))
         );
     }
+    Ok(proc)
+}
+
+pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
+    let mut proc = open(&a)?;
+    let sensor = *proc.recording().sensor();
+    let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
     let max_m = match a.png_max_m {
         Some(m) if m.is_finite() && m > 0.0 => m,
         Some(m) => bail!("--png-max-m {m} is not a positive distance"),
         None => unambiguous_range_m(sensor.modulation_hz),
     };
-    let config = PipelineConfig {
-        algorithm: a.algo,
-        modulation_hz: sensor.modulation_hz,
-        adc_bits: sensor.adc_bits,
-        min_amplitude_lsb: a.min_amplitude_lsb,
-    };
-    let mut pipeline = Pipeline::new(sensor.rows, sensor.cols, config, calibration)
-        .context("setting up the processing pipeline")?;
     fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
-
-    let caps = rec.captures();
-    let todo: Vec<usize> = (0..caps.len())
-        .filter(|&i| match unusable_reason(&caps[i], a.algo) {
-            None => true,
-            Some(why) => {
-                if caps[i].illumination {
-                    eprintln!("note: skipping capture {i}: {why}");
-                }
-                false
-            }
-        })
-        .collect();
-    if todo.is_empty() {
-        bail!(
-            "{} has no illuminated capture that can be processed as {}",
-            a.recording.display(),
-            a.algo
-        );
-    }
-    let k = a.algo.raw_images();
+    let todo = proc.todo().to_vec();
     let pb = progress(todo.len(), "processing");
     let stdout = std::io::stdout();
     if !a.json {
@@ -303,79 +196,28 @@ pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
             "index", "distance_m", "median_depth_m", "error_mm", "valid_%", "process_us"
         );
     }
-    // (cloned once: the frame borrows the pipeline while the residual is computed)
-    let crosstalk = pipeline.calibration().crosstalk.clone();
     for &i in &todo {
-        let raw = rec.load(i)?;
-        pipeline.set_quadrature(caps[i].quadrature(a.algo).unwrap_or_default());
-        if crosstalk.is_some() {
-            pipeline
-                .set_exposure_us(caps[i].exposure_us)
-                .with_context(|| format!("capture {i}: scaling the crosstalk calibration"))?;
-        }
-        let t0 = Instant::now();
-        let frame = match &raw {
-            RawFrames::U16(x) => pipeline.process(x.slice(s![..k, .., ..])),
-            RawFrames::F32(x) => pipeline.process(x.slice(s![..k, .., ..])),
-            RawFrames::F64(x) => pipeline.process(x.slice(s![..k, .., ..])),
-        }
-        .with_context(|| format!("processing capture {i}"))?;
-        let process_us = t0.elapsed().as_secs_f64() * 1e6;
-        let valid = frame.valid_fraction();
-        // what is left of the cover-window crosstalk relative to the calibrated one
-        // (meaningful with nothing in range: +1 = doubled, e.g. a smudge)
-        let crosstalk_residual = crosstalk
-            .as_ref()
-            .and_then(|x| residual_ratio(frame, x, a.algo, Roi::default(), caps[i].exposure_us));
-        let (depth_mm, median) = depth_output(frame, a.depth_kind, rays.as_ref())?;
-        let amplitude = frame.amplitude_lsb.clone();
+        let done = proc.capture(i)?;
         let stem = format!("{i:06}");
-        if let (Some(out), Some(rays)) = (&points, &rays) {
-            out.write(i, frame, rays)?;
+        if let (Some(out), Some(rays)) = (&points, done.rays) {
+            out.write(i, done.frame, rays)?;
         }
         let p = a.out.join(format!("{stem}_depth_mm.npy"));
-        tofprox_format::write_atomic(&p, &npy::encode_u16(&depth_mm))?;
+        tofprox_format::write_atomic(&p, &npy::encode_u16(&done.depth_mm))?;
         let p = a.out.join(format!("{stem}_amplitude_lsb.npy"));
-        tofprox_format::write_atomic(&p, &npy::encode_f32(&amplitude))?;
+        tofprox_format::write_atomic(&p, &npy::encode_f32(&done.frame.amplitude_lsb))?;
         write_depth_png(
             &a.out.join(format!("{stem}_depth.png")),
-            &depth_mm,
+            &done.depth_mm,
             sensor.roi_origin,
             max_m,
         )?;
-        let mut out = stdout.lock();
-        let truth = caps[i].distance_m();
-        let error_mm = truth.zip(median).map(|(t, m)| (m - t) * 1000.0);
-        if a.json {
-            let mut line = json!({
-                "index": i,
-                "depth_kind": a.depth_kind.name(),
-                // micrometre resolution: the f32 depth carries no more
-                "distance_m": truth,
-                "median_depth_m": median.map(|m| (m * 1e6).round() / 1e6),
-                "error_mm": error_mm.map(|e| (e * 1e3).round() / 1e3),
-                "valid_fraction": valid,
-                "process_us": (process_us * 10.0).round() / 10.0,
-            });
-            // only with a crosstalk calibration
-            if let (Some(r), Some(o)) = (crosstalk_residual, line.as_object_mut()) {
-                o.insert("crosstalk_residual".into(), json!(r));
-            }
-            writeln!(out, "{line}").context("writing to stdout")?;
+        let line = if a.json {
+            serde_json::to_string(&done.row)?
         } else {
-            let err = error_mm.map_or("-".into(), |e| format!("{e:+.1}"));
-            writeln!(
-                out,
-                "{:>5}  {:>10}  {:>14}  {:>9}  {:>8.1}  {:>10.1}",
-                i,
-                truth.map_or("-".into(), fmt_num),
-                median.map_or("-".into(), |m| format!("{m:.4}")),
-                err,
-                100.0 * valid,
-                process_us
-            )
-            .context("writing to stdout")?;
-        }
+            table_line(&done.row)
+        };
+        writeln!(stdout.lock(), "{line}").context("writing to stdout")?;
         pb.inc(1);
     }
     pb.finish_and_clear();
