@@ -119,6 +119,14 @@ pub enum ProcessError {
         /// The measurement mode asked for.
         algo: Algorithm,
     },
+    /// [`Processing::capture`] was asked for a capture the algorithm cannot process.
+    #[error("capture {index} cannot be processed: {why}")]
+    Unusable {
+        /// The capture's index.
+        index: usize,
+        /// Why not.
+        why: String,
+    },
     /// The pipeline refused the configuration or a capture.
     #[error("{what}")]
     Core {
@@ -354,16 +362,12 @@ impl Processing {
     /// Process capture `i` (one of [`Processing::todo`]).
     pub fn capture(&mut self, i: usize) -> Result<Processed<'_>, ProcessError> {
         let algo = self.opts.algo;
-        let meta =
-            self.rec
-                .captures()
-                .get(i)
-                .cloned()
-                .ok_or_else(|| ProcessError::NothingToProcess {
-                    recording: self.rec.dir().to_path_buf(),
-                    algo,
-                })?;
+        // (load checks that capture i exists)
         let raw = self.rec.load(i)?;
+        let meta = &self.rec.captures()[i];
+        if let Some(why) = unusable_reason(meta, algo) {
+            return Err(ProcessError::Unusable { index: i, why });
+        }
         self.pipeline
             .set_quadrature(meta.quadrature(algo).unwrap_or_default());
         if self.crosstalk.is_some() {
