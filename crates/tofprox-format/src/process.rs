@@ -91,7 +91,7 @@ pub enum ProcessError {
         recording: PathBuf,
         /// Every mismatch.
         #[source]
-        source: FormatError,
+        source: Box<FormatError>,
     },
     /// The set's lens does not give a ray per pixel.
     #[error("the lens of {}", calib.display())]
@@ -100,7 +100,7 @@ pub enum ProcessError {
         calib: PathBuf,
         /// Why.
         #[source]
-        source: FormatError,
+        source: Box<FormatError>,
     },
     /// Z depth without intrinsics.
     #[error(
@@ -259,7 +259,7 @@ impl Processing {
                     .map_err(|source| ProcessError::Incompatible {
                         calib: dir.to_path_buf(),
                         recording: recording.to_path_buf(),
-                        source,
+                        source: Box::new(source),
                     })?;
                 if set.wiggling(opts.algo).is_none() {
                     notes.push(format!(
@@ -279,7 +279,7 @@ impl Processing {
                     .transpose()
                     .map_err(|source| ProcessError::Lens {
                         calib: dir.to_path_buf(),
-                        source,
+                        source: Box::new(source),
                     })?;
                 (set.to_pipeline_calibration(opts.algo), rays)
             }

@@ -15,11 +15,14 @@ pyo3::create_exception!(
 (`capture[3].phases_deg`), each None when unknown; str(e) is the message the command line prints."
 );
 
-/// The first error of type `T` in `e`'s chain (`e` itself, then its sources).
+/// The first error of type `T` (or a boxed one) in `e`'s chain (`e` itself, then its sources).
 fn find<'a, T: StdError + 'static>(e: &'a (dyn StdError + 'static)) -> Option<&'a T> {
     let mut cur = Some(e);
     while let Some(err) = cur {
-        if let Some(t) = err.downcast_ref::<T>() {
+        if let Some(t) = err
+            .downcast_ref::<T>()
+            .or_else(|| err.downcast_ref::<Box<T>>().map(|b| &**b))
+        {
             return Some(t);
         }
         cur = err.source();

@@ -57,6 +57,7 @@ def without(d, *keys):
 
 # ---- process ----------------------------------------------------------------------------
 
+@pytest.mark.filterwarnings("ignore:skipping capture")
 @pytest.mark.parametrize("algo", ["2phase", "4phase"])
 def test_process_equals_the_cli(cli, tmp_path, algo):
     out = tmp_path / "out"
