@@ -167,15 +167,19 @@ def truth_model(tmp):
     return base, truth
 
 
-@pytest.fixture(scope="session")
-def readme_lab(cli, tmp_path_factory):
-    """The README's lab recording (docs/lab.md: 139 captures of a droopy sensor)."""
-    tmp = tmp_path_factory.mktemp("lab")
+def droop_sweep(cli, tmp, distances):
+    """A sweep of the droopy sensor (16×16 window, 2 exposures, 2 repeats) and the baseline."""
     base, truth = truth_model(tmp)
-    run_cli(cli, "sim", "sweep", "--model", truth, "--distances", "0.15:1.80:0.05",
+    run_cli(cli, "sim", "sweep", "--model", truth, "--distances", distances,
             "--exposures", "250,1000", "--repeats", "2", "--averaged", "16",
             "--window", "78,104,16,16", "--seed", "7", "--out", tmp / "rec", "--force")
     return tmp, base, tmp / "rec"
+
+
+@pytest.fixture(scope="session")
+def readme_lab(cli, tmp_path_factory):
+    """The README's lab recording (docs/lab.md: 139 captures of a droopy sensor)."""
+    return droop_sweep(cli, tmp_path_factory.mktemp("lab"), "0.15:1.80:0.05")
 
 
 def test_diagnose_equals_the_cli_and_names_the_droop(cli, readme_lab):
@@ -207,12 +211,7 @@ def test_add_equals_the_cli_and_writes_the_same_model(cli, readme_lab):
 @pytest.fixture(scope="session")
 def small_lab(cli, tmp_path_factory):
     """A smaller droop sweep for the slower calls (compare, explain)."""
-    tmp = tmp_path_factory.mktemp("small")
-    base, truth = truth_model(tmp)
-    run_cli(cli, "sim", "sweep", "--model", truth, "--distances", "0.2:1.6:0.1",
-            "--exposures", "250,1000", "--repeats", "2", "--averaged", "16",
-            "--window", "78,104,16,16", "--seed", "7", "--out", tmp / "rec", "--force")
-    return tmp, base, tmp / "rec"
+    return droop_sweep(cli, tmp_path_factory.mktemp("small"), "0.2:1.6:0.1")
 
 
 def test_compare_equals_the_cli(cli, small_lab):
