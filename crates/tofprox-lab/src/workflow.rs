@@ -1,7 +1,7 @@
 //! The lab's commands as a workflow over files: read the recording and the model file, check
 //! what `add` is asked before fitting, and write fitted effects back into the user's model file
 //! with its comments and layout kept. `tofprox lab` and the Python package are thin adapters
-//! over these functions and [`crate::diagnose`]; neither has lab logic of its own.
+//! over these functions and [`mod@crate::diagnose`]; neither has lab logic of its own.
 use std::path::Path;
 
 use tofprox_model::ModelConfig;
