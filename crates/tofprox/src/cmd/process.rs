@@ -178,9 +178,9 @@ fn open(a: &ProcessArgs) -> anyhow::Result<Processing> {
 }
 
 pub fn process(a: ProcessArgs) -> anyhow::Result<ExitCode> {
+    let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
     let mut proc = open(&a)?;
     let sensor = *proc.recording().sensor();
-    let points = a.points.as_deref().map(PointsOutput::new).transpose()?;
     let max_m = match a.png_max_m {
         Some(m) if m.is_finite() && m > 0.0 => m,
         Some(m) => bail!("--png-max-m {m} is not a positive distance"),
