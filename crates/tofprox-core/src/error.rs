@@ -56,3 +56,24 @@ impl CoreError {
         }
     }
 }
+
+/// An error and its causes as one line, `outer: cause: root`, each message
+/// once: a cause whose text the line already holds (an error that prints its
+/// source, e.g. `cannot read X: No such file (os error 2)` over the I/O error)
+/// is not repeated. The one error printer of the
+/// binaries and the Python package.
+pub fn error_line(err: &(dyn std::error::Error + 'static)) -> String {
+    let mut line = String::new();
+    let mut cur: Option<&(dyn std::error::Error + 'static)> = Some(err);
+    while let Some(e) = cur {
+        let m = e.to_string();
+        if !m.is_empty() && !line.contains(&m) {
+            if !line.is_empty() {
+                line.push_str(": ");
+            }
+            line.push_str(&m);
+        }
+        cur = e.source();
+    }
+    line
+}

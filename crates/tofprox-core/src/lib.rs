@@ -42,7 +42,7 @@ pub mod sensor;
 pub mod serde_exact;
 mod simd;
 
-pub use error::CoreError;
+pub use error::{CoreError, error_line};
 pub use sensor::{CycleRequest, RowWindow, SPEED_OF_LIGHT_M_PER_S, SensorGeometry};
 pub use simd::SimdLevel;
 

@@ -10,6 +10,9 @@
 //! - [`encode_points`]: a frame's point cloud as `.npy` or `.ply`.
 //! - [`extract()`]: a calibration part extracted from a recording into a set
 //!   (the workflow `tofprox calibrate` runs).
+//! - [`Processing`]: a recording's captures through the pipeline to depth,
+//!   amplitude and the summary row `tofprox process --json` prints (the
+//!   workflow `tofprox process` and the Python package run).
 //!
 //! Every error is a [`FormatError`] naming the file and the key.
 
@@ -21,6 +24,7 @@ mod fsutil;
 pub mod limits;
 pub mod npy;
 mod points;
+mod process;
 mod recording;
 mod text;
 
@@ -38,6 +42,7 @@ pub use extract::{
 };
 pub use fsutil::{create_new, write_atomic};
 pub use points::{PointCloudFormat, encode_points};
+pub use process::{DepthKind, ProcessError, ProcessOptions, ProcessRow, Processed, Processing};
 pub use recording::{
     BOOKKEEPING_CONDITIONS, CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML,
     RECORDING_VERSION, RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind,

@@ -273,6 +273,21 @@ impl CaptureMeta {
     pub fn quadrature(&self, algorithm: Algorithm) -> Option<Quadrature> {
         Quadrature::of_canonical(&self.phases_deg, algorithm)
     }
+    /// A short name for the acquisition mode: `4phase`, `2phase`, `correlation-N` or
+    /// `N-phase[p0,p1,…]`.
+    pub fn mode_label(&self) -> String {
+        let n = self.phases_deg.len();
+        if self.is_four_phase() {
+            "4phase".into()
+        } else if n == 2 && self.starts_two_phase() {
+            "2phase".into()
+        } else if self.is_correlation() {
+            format!("correlation-{n}")
+        } else {
+            let p: Vec<String> = self.phases_deg.iter().map(|p| format!("{p}")).collect();
+            format!("{n}-phase[{}]", p.join(","))
+        }
+    }
     /// True when the phases are `n >= 8` equally spaced steps covering the
     /// circle, in any order (a correlation capture; the standard one is 24 × 15°
     /// from 0°; a sensor shifting its illumination records them descending).

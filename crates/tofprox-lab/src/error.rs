@@ -48,6 +48,15 @@ impl LabError {
             source: Some(Box::new(source)),
         }
     }
+    /// A model file that does not load: `message` says which, the model crate's error (kind,
+    /// file) is kept as the source.
+    pub fn model(message: impl Into<String>, source: tofprox_model::ModelError) -> Self {
+        Self {
+            kind: ErrorKind::InvalidModel,
+            message: message.into(),
+            source: Some(Box::new(source)),
+        }
+    }
     /// What went wrong, for callers that branch on it.
     pub fn kind(&self) -> ErrorKind {
         self.kind

@@ -4,7 +4,7 @@
 //! Pipeline: [`data::Dataset`] → [`fit::Prepared`] → [`diagnose::compare`]
 //! (fits the [`fit::LabModel`], noise, residual structure) →
 //! [`diagnose::diagnose`] (candidate signatures, verdict) →
-//! [`diagnose::add_effect`].
+//! [`diagnose::add_effect`]; [`workflow`]: the same over the user's files.
 pub mod adapter;
 pub mod candidates;
 pub mod data;
@@ -19,6 +19,7 @@ pub mod structure;
 #[doc(hidden)]
 pub mod synth;
 pub mod waveform;
+pub mod workflow;
 
 pub use data::{Capture, Dataset};
 pub use diagnose::{

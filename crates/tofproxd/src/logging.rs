@@ -25,25 +25,8 @@ pub fn init_logging(default_filter: &str) {
         .try_init();
 }
 
-/// An error and its causes as one line, `outer: cause: root`, each message
-/// once: a cause whose text the line already holds (an error that prints its
-/// source, e.g. `cannot read X: No such file (os error 2)` over the I/O error)
-/// is not repeated. The one error printer of both binaries.
-pub fn error_line(err: &(dyn std::error::Error + 'static)) -> String {
-    let mut line = String::new();
-    let mut cur: Option<&(dyn std::error::Error + 'static)> = Some(err);
-    while let Some(e) = cur {
-        let m = e.to_string();
-        if !m.is_empty() && !line.contains(&m) {
-            if !line.is_empty() {
-                line.push_str(": ");
-            }
-            line.push_str(&m);
-        }
-        cur = e.source();
-    }
-    line
-}
+/// The one error printer of both binaries (and of the Python package's exceptions).
+pub use tofprox_core::error_line;
 
 #[cfg(test)]
 mod tests {

@@ -1,10 +1,9 @@
 //! Helpers shared by the recording commands (`info`, `calibrate`, `process`):
-//! progress bars, number formatting, capture mode labels.
+//! progress bars, number formatting.
 
 use std::io::IsTerminal;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tofprox_format::CaptureMeta;
 pub use tofprox_format::fmt_num;
 
 /// The tool name and version recorded in the provenance of what the commands write.
@@ -23,19 +22,4 @@ pub fn progress(len: usize, what: &str) -> ProgressBar {
         pb.set_draw_target(ProgressDrawTarget::hidden());
     }
     pb
-}
-
-/// A short name for the acquisition mode of a capture.
-pub fn mode_label(c: &CaptureMeta) -> String {
-    let n = c.phases_deg.len();
-    if c.is_four_phase() {
-        "4phase".into()
-    } else if n == 2 && c.starts_two_phase() {
-        "2phase".into()
-    } else if c.is_correlation() {
-        format!("correlation-{n}")
-    } else {
-        let p: Vec<String> = c.phases_deg.iter().map(|p| format!("{p}")).collect();
-        format!("{n}-phase[{}]", p.join(","))
-    }
 }

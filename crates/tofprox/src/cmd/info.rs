@@ -12,7 +12,7 @@ use tofprox_format::{
     CalibPart, CalibrationSet, DepthRecording, PartSource, PartState, Recording, RecordingKind,
 };
 
-use super::common::{fmt_num, mode_label, progress};
+use super::common::{fmt_num, progress};
 
 /// `tofprox info REC [--json]`
 #[derive(clap::Args, Debug)]
@@ -80,9 +80,9 @@ impl Tally {
         };
         for (i, c) in rec.captures().iter().enumerate() {
             let mode = if c.illumination {
-                mode_label(c)
+                c.mode_label()
             } else {
-                format!("dark {}", mode_label(c))
+                format!("dark {}", c.mode_label())
             };
             *t.by_mode.entry(mode).or_default() += 1;
             *t.by_exposure.entry(fmt_num(c.exposure_us)).or_default() += 1;
@@ -131,7 +131,7 @@ fn recording_json(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> serd
             json!({
                 "index": i,
                 "frames": c.frames,
-                "mode": mode_label(c),
+                "mode": c.mode_label(),
                 "phases_deg": c.phases_deg,
                 "exposure_us": c.exposure_us,
                 "illumination": c.illumination,
@@ -214,7 +214,7 @@ fn recording_text(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> Stri
             "{:>5}  {:<20} {:<16} {:>11} {:>5} {:>4} {:>8} {:>7.2}  {}",
             i,
             c.frames,
-            mode_label(c),
+            c.mode_label(),
             fmt_num(c.exposure_us),
             on_off(c.illumination),
             c.averaged,

@@ -5,14 +5,13 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tofprox_lab::adapter::{
-    load_recording, spec_from_model, spec_holding_model, update_model_text, write_effect,
-};
-use tofprox_lab::diagnose::{
-    DiagnoseOptions, add_effect, compare, diagnose_with, effect_params, explain,
-};
+use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
+use tofprox_lab::diagnose::{compare, diagnose_with, explain};
 use tofprox_lab::report;
 use tofprox_lab::signatures::{SIGNATURE_IDS, cancels_in_4phase};
+use tofprox_lab::workflow::{
+    add_to_model, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
+};
 use tofprox_lab::{Comparison, Prepared};
 
 use super::lab_export::Export;
@@ -211,13 +210,6 @@ fn html(
     )
 }
 
-fn load(rec: &Path, model: &Path) -> anyhow::Result<(Prepared, ModelConfig)> {
-    let m = ModelConfig::load(model).with_context(|| format!("model file {}", model.display()))?;
-    let ds = load_recording(rec)?;
-    let prep = Prepared::new(&ds).with_context(|| format!("recording {}", rec.display()))?;
-    Ok((prep, m))
-}
-
 fn fit(prep: &Prepared, m: &ModelConfig, pb: &ProgressBar) -> anyhow::Result<Comparison> {
     let cb = on_progress(pb);
     Ok(compare(prep, &spec_from_model(m), &cb)?)
@@ -280,7 +272,7 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
     let pb = progress_bar();
     let cmp = fit(&prep, &m, &pb)?;
     let cb = on_progress(&pb);
-    let opts = options(a.tolerance_mm)?;
+    let opts = diagnose_options(a.tolerance_mm)?;
     let d = diagnose_with(&prep, &cmp, &opts, &cb)?;
     pb.finish_and_clear();
     export(
@@ -302,23 +294,13 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
 }
 
 fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
-    if !SIGNATURE_IDS.contains(&a.effect.as_str()) {
-        let hint = tofprox_model::catalogue::closest(&a.effect, SIGNATURE_IDS.iter().copied())
-            .map(|c| format!(" (did you mean `{c}`?)"))
-            .unwrap_or_default();
-        anyhow::bail!(
-            "the lab cannot add `{}`{hint}; it can add: {}",
-            a.effect,
-            SIGNATURE_IDS.join(", ")
-        );
-    }
+    check_addable(&a.effect)?;
     check_out(a.out.as_deref(), a.force)?;
     let (prep, mut m) = load(&a.data, &a.model)?;
     let pb = progress_bar();
     let cb = on_progress(&pb);
-    let res = add_effect(&prep, &spec_from_model(&m), &a.effect, &cb)?;
+    let (res, notes) = add_to_model(&prep, &mut m, &a.effect, &cb)?;
     pb.finish_and_clear();
-    let notes = write_effect(&mut m, &a.effect, &res.params, &res.after.model, &prep)?;
     if let Some(p) = &a.out {
         write_model(&a.model, &m, std::slice::from_ref(&a.effect), p)?;
         eprintln!("model with {} written to {}", a.effect, p.display());
@@ -369,40 +351,8 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// A model file is never overwritten (the `--model` read included) without `--force`.
-fn check_out(out: Option<&Path>, force: bool) -> anyhow::Result<()> {
-    match out {
-        Some(p) if p.exists() && !force => anyhow::bail!(
-            "{} exists: pass --force to replace it, or choose another --out",
-            p.display()
-        ),
-        _ => Ok(()),
-    }
-}
-
-/// Write `m` to `out` as the user's model file `from` with the `changed`
-/// effects updated (comments and layout of `from` kept).
-fn write_model(from: &Path, m: &ModelConfig, changed: &[String], out: &Path) -> anyhow::Result<()> {
-    let text =
-        tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
-            .with_context(|| format!("reading model {}", from.display()))?;
-    let updated = update_model_text(&text, m, changed)
-        .with_context(|| format!("model file {}", from.display()))?;
-    tofprox_format::write_atomic(out, updated.as_bytes())
-        .with_context(|| format!("writing model {}", out.display()))
-}
-
-fn options(tolerance_mm: Option<f64>) -> anyhow::Result<DiagnoseOptions> {
-    if let Some(t) = tolerance_mm
-        && !(t.is_finite() && t >= 0.0)
-    {
-        anyhow::bail!("--tolerance-mm must be a finite number >= 0, got {t}");
-    }
-    Ok(DiagnoseOptions { tolerance_mm })
-}
-
 fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
-    let opts = options(a.tolerance_mm)?;
+    let opts = diagnose_options(a.tolerance_mm)?;
     check_out(a.out.as_deref(), a.force)?;
     let (prep, mut m) = load(&a.rec, &a.model)?;
     let pb = progress_bar();
@@ -410,13 +360,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
     let ex = explain(&prep, &spec_from_model(&m), &opts, &cb)?;
     pb.finish_and_clear();
     export(&a.export, &prep, Export::Explanation(&ex), a.force)?;
-    let mut notes = Vec::new();
-    if let Some(fin) = ex.final_model() {
-        for e in &ex.added {
-            let (_, params) = effect_params(&prep, fin, e)?;
-            notes.extend(write_effect(&mut m, e, &params, fin, &prep)?);
-        }
-    }
+    let notes = apply_explained(&prep, &mut m, &ex)?;
     match &a.out {
         Some(p) if ex.added.is_empty() => {
             eprintln!("nothing added: {} not written", p.display());

@@ -1,0 +1,117 @@
+//! The lab's commands as a workflow over files: read the recording and the model file, check
+//! what `add` is asked before fitting, and write fitted effects back into the user's model file
+//! with its comments and layout kept. `tofprox lab` and the Python package are thin adapters
+//! over these functions and [`mod@crate::diagnose`]; neither has lab logic of its own.
+use std::path::Path;
+
+use tofprox_model::ModelConfig;
+
+use crate::adapter::{load_recording, spec_from_model, update_model_text, write_effect};
+use crate::diagnose::{AddOutcome, DiagnoseOptions, Explanation, add_effect, effect_params};
+use crate::error::{ErrorKind, LabError};
+use crate::fit::{Prepared, Progress};
+use crate::signatures::SIGNATURE_IDS;
+
+/// The recording at `rec`, prepared for fitting, and the model file at `model`.
+pub fn load(rec: &Path, model: &Path) -> Result<(Prepared, ModelConfig), LabError> {
+    let m = ModelConfig::load(model)
+        .map_err(|e| LabError::model(format!("model file {}", model.display()), e))?;
+    let ds = load_recording(rec)?;
+    let prep = Prepared::new(&ds)
+        .map_err(|e| LabError::new(e.kind(), format!("recording {}: {e}", rec.display())))?;
+    Ok((prep, m))
+}
+
+/// `Ok` when the lab can add `effect` (it has a signature for it); otherwise an
+/// [`ErrorKind::UnknownEffect`] naming the closest id and every addable one.
+pub fn check_addable(effect: &str) -> Result<(), LabError> {
+    if SIGNATURE_IDS.contains(&effect) {
+        return Ok(());
+    }
+    let hint = tofprox_model::catalogue::closest(effect, SIGNATURE_IDS.iter().copied())
+        .map(|c| format!(" (did you mean `{c}`?)"))
+        .unwrap_or_default();
+    Err(LabError::new(
+        ErrorKind::UnknownEffect,
+        format!(
+            "the lab cannot add `{effect}`{hint}; it can add: {}",
+            SIGNATURE_IDS.join(", ")
+        ),
+    ))
+}
+
+/// The verdict's settings: `tolerance_mm` must be a finite number ≥ 0 (`None`: the
+/// recording's noise decides).
+pub fn diagnose_options(tolerance_mm: Option<f64>) -> Result<DiagnoseOptions, LabError> {
+    if let Some(t) = tolerance_mm
+        && !(t.is_finite() && t >= 0.0)
+    {
+        return Err(LabError::new(
+            ErrorKind::InvalidModel,
+            format!("--tolerance-mm must be a finite number >= 0, got {t}"),
+        ));
+    }
+    Ok(DiagnoseOptions { tolerance_mm })
+}
+
+/// A model file is never overwritten (the model read included) unless `force`.
+pub fn check_out(out: Option<&Path>, force: bool) -> Result<(), LabError> {
+    match out {
+        Some(p) if p.exists() && !force => Err(LabError::new(
+            ErrorKind::Io,
+            format!(
+                "{} exists: pass --force to replace it, or choose another --out",
+                p.display()
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Enable `effect` in `m`, fit it on `prep` and write the fitted values into `m`: the outcome
+/// (before/after) and notes on what did not map onto the model file's parameters.
+pub fn add_to_model(
+    prep: &Prepared,
+    m: &mut ModelConfig,
+    effect: &str,
+    progress: Progress<'_>,
+) -> Result<(AddOutcome, Vec<String>), LabError> {
+    check_addable(effect)?;
+    let res = add_effect(prep, &spec_from_model(m), effect, progress)?;
+    let notes = write_effect(m, effect, &res.params, &res.after.model, prep)?;
+    Ok((res, notes))
+}
+
+/// Write every effect `ex` added, as fitted in its final model, into `m`; notes as
+/// [`add_to_model`]'s.
+pub fn apply_explained(
+    prep: &Prepared,
+    m: &mut ModelConfig,
+    ex: &Explanation,
+) -> Result<Vec<String>, LabError> {
+    let mut notes = Vec::new();
+    if let Some(fin) = ex.final_model() {
+        for e in &ex.added {
+            let (_, params) = effect_params(prep, fin, e)?;
+            notes.extend(write_effect(m, e, &params, fin, prep)?);
+        }
+    }
+    Ok(notes)
+}
+
+/// Write `m` to `out` as the user's model file `from` with the `changed` effects updated
+/// (comments and layout of `from` kept).
+pub fn write_model(
+    from: &Path,
+    m: &ModelConfig,
+    changed: &[String],
+    out: &Path,
+) -> Result<(), LabError> {
+    let text =
+        tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
+            .map_err(|e| LabError::format(format!("reading model {}", from.display()), e))?;
+    let updated = update_model_text(&text, m, changed)
+        .map_err(|e| LabError::new(e.kind(), format!("model file {}: {e}", from.display())))?;
+    tofprox_format::write_atomic(out, updated.as_bytes())
+        .map_err(|e| LabError::format(format!("writing model {}", out.display()), e))
+}

@@ -1,0 +1,33 @@
+from os import PathLike
+from typing import Any, Optional, Union
+
+_Path = Union[str, PathLike[str]]
+
+def compare(
+    recording_dir: _Path, model: _Path, hold_effects: bool = False
+) -> dict[str, Any]:
+    """Fit ``model``'s enabled effects to the recording: ``tofprox lab compare --json``."""
+
+def diagnose(
+    recording_dir: _Path, model: _Path, tolerance_mm: Optional[float] = None
+) -> dict[str, Any]:
+    """Rank the effects ``model`` lacks and give a verdict: ``tofprox lab diagnose --json``."""
+
+def add(
+    effect: str,
+    model: _Path,
+    data: _Path,
+    out: Optional[_Path] = None,
+    force: bool = False,
+) -> dict[str, Any]:
+    """Enable ``effect``, fit it on the recording ``data``, write the model to ``out``:
+    ``tofprox lab add --json`` (errors before and after, fitted parameters)."""
+
+def explain(
+    recording_dir: _Path,
+    model: _Path,
+    out: Optional[_Path] = None,
+    force: bool = False,
+    tolerance_mm: Optional[float] = None,
+) -> dict[str, Any]:
+    """Loop diagnose → add until nothing is missing: ``tofprox lab explain --json``."""
