@@ -646,7 +646,11 @@ fn screen_candidate(
     let mut params = BTreeMap::new();
     let mut standard_errors = BTreeMap::new();
     let names = sig.lin_names().into_iter().chain(sig.nl_names());
-    let values = f.lin.iter().chain(&f.nl).zip(f.lin_se.iter().chain(&f.nl_se));
+    let values = f
+        .lin
+        .iter()
+        .chain(&f.nl)
+        .zip(f.lin_se.iter().chain(&f.nl_se));
     for (n, (v, se)) in names.zip(values) {
         params.insert(n.clone(), *v);
         standard_errors.insert(n, *se);

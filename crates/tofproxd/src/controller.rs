@@ -621,7 +621,10 @@ impl<S: FrameSource> Controller<S> {
     /// Fraction of the ROI a longer exposure (× `exposure.step`) would saturate: auto-exposure
     /// never lengthens into it (`policy::saturating_fraction_at`).
     fn saturated_when_longer(&self, c: &RawCycle, roi: Roi) -> f32 {
-        let (dark, max_code) = (self.dark_level(c.geometry, roi), c.geometry.max_code() as f32);
+        let (dark, max_code) = (
+            self.dark_level(c.geometry, roi),
+            c.geometry.max_code() as f32,
+        );
         let step = self.cfg.exposure.step;
         match &c.frames {
             RawImages::U16(a) => saturating_fraction_at(a.view(), roi, dark, max_code, step),
