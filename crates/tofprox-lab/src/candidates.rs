@@ -27,7 +27,7 @@ pub struct SignatureFit {
     pub n_params: usize,
     /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
     pub nuisance: [f64; NUISANCE],
-    /// Standard errors of `lin` and of `nl` ([`standard_errors`]; NaN for a discrete one).
+    /// Standard errors of `lin` and of `nl` (`standard_errors`; NaN for a discrete one).
     pub lin_se: Vec<f64>,
     /// (see `lin_se`)
     pub nl_se: Vec<f64>,

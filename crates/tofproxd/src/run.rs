@@ -75,7 +75,7 @@ pub enum RunError {
         "iio-sensor-proxy is {found}: the compatibility mode would take net.hadess.SensorProxy from it, and with it the accelerometer and light sensor it serves. Use the input publisher instead (`publisher = \"input\"`, `[dbus] iio_sensor_proxy_compat = false`): iio-sensor-proxy then reads our proximity from a uinput switch (docs/daemon.md, \"Beside iio-sensor-proxy\")"
     )]
     BesideIioSensorProxy {
-        /// "installed (<path>)" or "running (it owns net.hadess.SensorProxy)".
+        /// "installed (`<path>`)" or "running (it owns net.hadess.SensorProxy)".
         found: String,
     },
     /// The input publisher's uinput device could not be made.
