@@ -10,6 +10,8 @@
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
 //!   radial → Z depth, point clouds (thesis 5.1.3).
+//! - [`lsq`]: least squares for small parameter vectors: normal equations, Cholesky and the one
+//!   Levenberg–Marquardt solver (the lens fit, the model lab's fits).
 //! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]) and the
 //!   eight-lane abstraction the kernel is written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
@@ -30,6 +32,7 @@ pub mod camera;
 pub mod crosstalk;
 mod error;
 mod fastmath;
+pub mod lsq;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
