@@ -44,15 +44,15 @@ impl Normal {
     #[inline]
     pub fn add(&mut self, j: &[f64], r: f64, w: f64) {
         let n = self.n;
-        for a in 0..n {
+        // rows by zipped slices: no bounds checks in the inner loop, which vectorises
+        for (a, (row, jtr)) in self.jtj.chunks_exact_mut(n.max(1)).zip(&mut self.jtr).enumerate() {
             let wa = w * j[a];
             if wa == 0.0 {
                 continue;
             }
-            self.jtr[a] += wa * r;
-            let row = &mut self.jtj[a * n..a * n + n];
-            for b in a..n {
-                row[b] += wa * j[b];
+            *jtr += wa * r;
+            for (x, jb) in row[a..].iter_mut().zip(&j[a..n]) {
+                *x += wa * jb;
             }
         }
         self.chi2 += w * r * r;
