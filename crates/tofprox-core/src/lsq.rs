@@ -45,7 +45,12 @@ impl Normal {
     pub fn add(&mut self, j: &[f64], r: f64, w: f64) {
         let n = self.n;
         // rows by zipped slices: no bounds checks in the inner loop, which vectorises
-        for (a, (row, jtr)) in self.jtj.chunks_exact_mut(n.max(1)).zip(&mut self.jtr).enumerate() {
+        for (a, (row, jtr)) in self
+            .jtj
+            .chunks_exact_mut(n.max(1))
+            .zip(&mut self.jtr)
+            .enumerate()
+        {
             let wa = w * j[a];
             if wa == 0.0 {
                 continue;
@@ -302,7 +307,12 @@ where
 
 /// One Levenberg–Marquardt step from `p`: raise the damping `lambda` (Marquardt's diagonal
 /// scaling) until a step lowers χ², then lower it; `None` when none does within 12 tries.
-fn damped_step<F>(eval: &mut F, p: &[f64], cur: &Normal, lambda: &mut f64) -> Option<(Vec<f64>, Normal)>
+fn damped_step<F>(
+    eval: &mut F,
+    p: &[f64],
+    cur: &Normal,
+    lambda: &mut f64,
+) -> Option<(Vec<f64>, Normal)>
 where
     F: FnMut(&[f64]) -> Normal,
 {
@@ -423,7 +433,11 @@ mod tests {
         // the decay length must stay positive: the domain ends at p[1] ≤ 0
         let res = |p: &[f64], out: &mut Vec<f64>| {
             out.clear();
-            out.extend(xs.iter().zip(&ys).map(|(x, y)| p[0] * (-x / p[1]).exp() + p[2] - y));
+            out.extend(
+                xs.iter()
+                    .zip(&ys)
+                    .map(|(x, y)| p[0] * (-x / p[1]).exp() + p[2] - y),
+            );
             p[1] > 0.0
         };
         let relative = Stop {

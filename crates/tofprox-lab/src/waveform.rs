@@ -96,7 +96,10 @@ mod tests {
                     dv -= (h as f64 + 1.0) * (g[0] * hx.sin() + g[1] * hx.cos());
                 }
                 let (c, d) = w.eval(x);
-                assert!((c - cv).abs() < 1e-13 && (d - dv).abs() < 1e-12, "{order} {x}");
+                assert!(
+                    (c - cv).abs() < 1e-13 && (d - dv).abs() < 1e-12,
+                    "{order} {x}"
+                );
             }
         }
         let s = Waveform::sinusoid();
