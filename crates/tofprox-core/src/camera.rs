@@ -24,6 +24,7 @@
 
 use crate::CoreError;
 use crate::calib::WigglingLut;
+use crate::lsq::{Normal, Stop, fit_residuals, solve_spd};
 use ndarray::{Array2, Array3, ArrayView2, ArrayView3};
 use serde::{Deserialize, Serialize};
 
@@ -861,20 +862,16 @@ pub fn fit_intrinsics(
         )));
     }
     // Closed-form start (no distortion).
-    let mut ata = [[0.0; 5]; 5];
-    let mut atb = [0.0; 5];
+    let mut ata = Normal::zeros(5);
     for &(u, v, l) in &obs {
-        let row = [u * u, v * v, u, v, 1.0];
-        for i in 0..5 {
-            for j in 0..5 {
-                ata[i][j] += row[i] * row[j];
-            }
-            atb[i] += row[i] * (l * l - 1.0);
-        }
+        ata.add(&[u * u, v * v, u, v, 1.0], l * l - 1.0, 1.0);
     }
-    let [a, b, c, d, _] = solve::<5>(ata, atb).ok_or_else(|| {
-        CoreError::InvalidData("lens calibration: the ray factors are degenerate".into())
-    })?;
+    ata.symmetrize();
+    let Some(&[a, b, c, d, _]) = solve_spd(&ata.jtj, &ata.jtr).as_deref() else {
+        return Err(CoreError::InvalidData(
+            "lens calibration: the ray factors are degenerate".into(),
+        ));
+    };
     if !(a > 0.0 && b > 0.0) {
         return Err(CoreError::InvalidData(format!(
             "lens calibration: the ray factors do not grow away from a centre (curvature {a:.3e}, \
@@ -894,7 +891,7 @@ pub fn fit_intrinsics(
     // [fx, fy, cx, cy, k1, k2, p1, p2]; k3 stays 0 (OpenCV's CALIB_FIX_K3 advice for lenses that
     // are not fisheyes: over a field of normalised radius ≲ 1 the r⁶ term trades off against k1
     // and k2 and lets noise fold the polynomial inside the field).
-    let to_intrinsics = |p: &[f64; 8]| Intrinsics {
+    let to_intrinsics = |p: &[f64]| Intrinsics {
         fx_px: p[0],
         fy_px: p[1],
         cx_px: p[2],
@@ -921,7 +918,7 @@ pub fn fit_intrinsics(
     // Stage 1, forward (never folds): a pixel whose ray factor says its undistorted radius is
     // ρ = √(L² − 1) must distort onto its own normalised position; the ray's direction is taken
     // from that position (exact without tangential terms, which stage 2 then refines).
-    let forward = |p: &[f64; 8], out: &mut Vec<f64>| -> bool {
+    let forward = |p: &[f64], out: &mut Vec<f64>| -> bool {
         out.clear();
         let k = to_intrinsics(p);
         if k.validate().is_err() {
@@ -942,10 +939,13 @@ pub fn fit_intrinsics(
         }
         true
     };
-    let (p, _, it1) = levenberg_marquardt(start, &step, forward)
-        .map_err(|e| CoreError::InvalidData(format!("{e} (closed-form start {start:?})")))?;
+    let first = fit_residuals(forward, &start, &step, LENS_STOP).map_err(|_| {
+        CoreError::InvalidData(format!(
+            "lens calibration: the start is not a usable lens (closed-form start {start:?})"
+        ))
+    })?;
     // Stage 2, the model itself: L(u, v) = √(1 + x² + y²) of the undistorted pixel.
-    let inverse = |p: &[f64; 8], out: &mut Vec<f64>| -> bool {
+    let inverse = |p: &[f64], out: &mut Vec<f64>| -> bool {
         out.clear();
         let k = to_intrinsics(p);
         if k.validate().is_err() {
@@ -959,12 +959,13 @@ pub fn fit_intrinsics(
         }
         true
     };
-    let (p, cost, it2) = levenberg_marquardt(p, &step, inverse).map_err(|e| {
+    let second = fit_residuals(inverse, &first.params, &step, LENS_STOP).map_err(|_| {
         CoreError::InvalidData(format!(
-            "{e} (after the forward stage {:?})",
-            to_intrinsics(&p)
+            "lens calibration: the distortion cannot be inverted at the forward stage's fit {:?}",
+            to_intrinsics(&first.params)
         ))
     })?;
+    let (p, cost) = (second.params, second.chi2);
     let intrinsics = to_intrinsics(&p);
     intrinsics.validate()?;
     let dof = obs.len().saturating_sub(8).max(1) as f64;
@@ -974,110 +975,17 @@ pub fn fit_intrinsics(
         standard_errors: to_intrinsics(&sigma),
         rms_ray_factor: (cost / obs.len() as f64).sqrt(),
         pixels: obs.len(),
-        iterations: it1 + it2,
+        iterations: first.iterations + second.iterations,
     })
 }
 
-/// Levenberg–Marquardt (Marquardt's diagonal scaling, numerical Jacobian with the given steps)
-/// minimising the sum of squares of `residuals`, which returns `false` for parameters outside the
-/// model's domain (such trials are rejected). Returns the parameters, the final cost and the
-/// number of iterations.
-fn levenberg_marquardt<const P: usize>(
-    start: [f64; P],
-    step: &[f64; P],
-    residuals: impl Fn(&[f64; P], &mut Vec<f64>) -> bool,
-) -> Result<([f64; P], f64, usize), CoreError> {
-    let cost = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
-    let mut p = start;
-    let mut r = Vec::new();
-    if !residuals(&p, &mut r) {
-        return Err(CoreError::InvalidData(
-            "lens calibration: the start is not a usable lens".into(),
-        ));
-    }
-    let mut c0 = cost(&r);
-    let mut lambda = 1e-3;
-    let mut iterations = 0;
-    let (mut rp, mut rm, mut rt) = (Vec::new(), Vec::new(), Vec::new());
-    let mut jac = vec![[0.0f64; P]; r.len()];
-    for it in 0..200 {
-        iterations = it + 1;
-        let (jtj, jtr) = normal_equations(&p, step, &r, &residuals, &mut jac, [&mut rp, &mut rm])?;
-        let mut improved = false;
-        while lambda < 1e12 {
-            let mut m = jtj;
-            for (a, row) in m.iter_mut().enumerate() {
-                row[a] += lambda * jtj[a][a].max(1e-30);
-            }
-            let Some(delta) = solve::<P>(m, jtr.map(|v| -v)) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let mut trial = p;
-            for (t, dv) in trial.iter_mut().zip(delta) {
-                *t += dv;
-            }
-            if residuals(&trial, &mut rt) && cost(&rt) < c0 {
-                let c1 = cost(&rt);
-                improved = (c0 - c1) > 1e-12 * c0;
-                p = trial;
-                std::mem::swap(&mut r, &mut rt);
-                c0 = c1;
-                lambda = (lambda / 10.0).max(1e-12);
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !improved {
-            break;
-        }
-    }
-    Ok((p, c0, iterations))
-}
-
-/// The Gauss–Newton normal equations `(JᵀJ, Jᵀr)` at `p` (residuals `r`), with `J` by central
-/// differences of the given steps (one-sided where a trial lies outside the model's domain),
-/// written into `jac`; `scratch` holds the trial residuals.
-fn normal_equations<const P: usize>(
-    p: &[f64; P],
-    step: &[f64; P],
-    r: &[f64],
-    residuals: &impl Fn(&[f64; P], &mut Vec<f64>) -> bool,
-    jac: &mut [[f64; P]],
-    scratch: [&mut Vec<f64>; 2],
-) -> Result<([[f64; P]; P], [f64; P]), CoreError> {
-    let [rp, rm] = scratch;
-    for j in 0..P {
-        let (mut pp, mut pm) = (*p, *p);
-        pp[j] += step[j];
-        pm[j] -= step[j];
-        let (hi, lo, width) = match (residuals(&pp, rp), residuals(&pm, rm)) {
-            (true, true) => (&rp[..], &rm[..], 2.0 * step[j]),
-            (true, false) => (&rp[..], r, step[j]),
-            (false, true) => (r, &rm[..], step[j]),
-            (false, false) => {
-                return Err(CoreError::InvalidData(
-                    "lens calibration: the distortion cannot be inverted near the current fit"
-                        .into(),
-                ));
-            }
-        };
-        for (i, row) in jac.iter_mut().enumerate() {
-            row[j] = (hi[i] - lo[i]) / width;
-        }
-    }
-    let mut jtj = [[0.0; P]; P];
-    let mut jtr = [0.0; P];
-    for (row, &ri) in jac.iter().zip(r) {
-        for a in 0..P {
-            jtr[a] += row[a] * ri;
-            for b in 0..P {
-                jtj[a][b] += row[a] * row[b];
-            }
-        }
-    }
-    Ok((jtj, jtr))
-}
+/// When the lens fit's Levenberg–Marquardt stops: the cost (squared ray-factor or normalised
+/// coordinate residuals) has no noise scale, so convergence is relative.
+const LENS_STOP: Stop = Stop {
+    max_iter: 200,
+    tol_chi2: 0.0,
+    rel_chi2: 1e-12,
+};
 
 /// Names of the lens fit's parameters, in the order of its parameter vector.
 const LENS_PARAMETERS: [&str; 8] = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"];
@@ -1087,22 +995,21 @@ const LENS_PARAMETERS: [&str; 8] = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p
 /// unit diagonal that is singular, or whose inverse has a diagonal entry (variance inflation
 /// factor) above 1e10, means some combination of parameters leaves the residuals unchanged (rank
 /// deficient: e.g. a window too small to see the distortion).
-fn standard_errors<const P: usize>(
-    p: &[f64; P],
-    step: &[f64; P],
+fn standard_errors(
+    p: &[f64],
+    step: &[f64],
     variance: f64,
-    residuals: impl Fn(&[f64; P], &mut Vec<f64>) -> bool,
-) -> Result<[f64; P], CoreError> {
-    let mut r = Vec::new();
-    if !residuals(p, &mut r) {
-        return Err(CoreError::InvalidData(
-            "lens calibration: the fit is not a usable lens".into(),
-        ));
-    }
-    let (mut rp, mut rm) = (Vec::new(), Vec::new());
-    let mut jac = vec![[0.0f64; P]; r.len()];
-    let (jtj, _) = normal_equations(p, step, &r, &residuals, &mut jac, [&mut rp, &mut rm])?;
-    let scale: [f64; P] = std::array::from_fn(|j| jtj[j][j].sqrt());
+    residuals: impl Fn(&[f64], &mut Vec<f64>) -> bool,
+) -> Result<Vec<f64>, CoreError> {
+    let n = p.len();
+    let jtj = Normal::numerical(p, step, &residuals)
+        .ok_or_else(|| {
+            CoreError::InvalidData(
+                "lens calibration: the distortion cannot be inverted near the fit".into(),
+            )
+        })?
+        .jtj;
+    let scale: Vec<f64> = (0..n).map(|j| jtj[j * n + j].sqrt()).collect();
     let unpinned = |j: usize| {
         CoreError::InvalidData(format!(
             "lens calibration: the data cannot pin {} (rank-deficient design: the ray factors do \
@@ -1111,16 +1018,17 @@ fn standard_errors<const P: usize>(
             LENS_PARAMETERS.get(j).copied().unwrap_or("a parameter")
         ))
     };
-    if let Some(j) = (0..P).find(|&j| !(scale[j] > 0.0 && scale[j].is_finite())) {
+    if let Some(j) = (0..n).find(|&j| !(scale[j] > 0.0 && scale[j].is_finite())) {
         return Err(unpinned(j));
     }
-    let corr: [[f64; P]; P] =
-        std::array::from_fn(|a| std::array::from_fn(|b| jtj[a][b] / (scale[a] * scale[b])));
-    let mut sigma = [0.0; P];
-    for j in 0..P {
-        let mut e = [0.0; P];
+    let corr: Vec<f64> = (0..n * n)
+        .map(|i| jtj[i] / (scale[i / n] * scale[i % n]))
+        .collect();
+    let mut sigma = vec![0.0; n];
+    for j in 0..n {
+        let mut e = vec![0.0; n];
         e[j] = 1.0;
-        let col = solve(corr, e).ok_or_else(|| unpinned(j))?;
+        let col = solve_spd(&corr, &e).ok_or_else(|| unpinned(j))?;
         // (JᵀJ)⁻¹_jj = C⁻¹_jj / scale_j²; a tiny or negative value means a near-null direction
         if !(col[j] > 0.0 && col[j] < 1e10) {
             return Err(unpinned(j));
@@ -1128,33 +1036,6 @@ fn standard_errors<const P: usize>(
         sigma[j] = (variance * col[j]).sqrt() / scale[j];
     }
     Ok(sigma)
-}
-
-/// Solves the `N × N` system `m x = b` by Gaussian elimination with partial pivoting; `None` when
-/// it is singular.
-fn solve<const N: usize>(mut m: [[f64; N]; N], mut b: [f64; N]) -> Option<[f64; N]> {
-    for col in 0..N {
-        let piv = (col..N).max_by(|&i, &j| m[i][col].abs().total_cmp(&m[j][col].abs()))?;
-        if m[piv][col].abs() <= 1e-300 || m[piv][col].is_nan() {
-            return None;
-        }
-        m.swap(col, piv);
-        b.swap(col, piv);
-        let pivot_row = m[col];
-        for row in col + 1..N {
-            let f = m[row][col] / pivot_row[col];
-            for (x, &pv) in m[row][col..].iter_mut().zip(&pivot_row[col..]) {
-                *x -= f * pv;
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    let mut x = [0.0; N];
-    for row in (0..N).rev() {
-        let s: f64 = (row + 1..N).map(|k| m[row][k] * x[k]).sum();
-        x[row] = (b[row] - s) / m[row][row];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
 }
 
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -1214,12 +1095,13 @@ mod tests {
             .enumerate()
             .map(|(i, x)| 1.0 + 2.0 * x + if i % 2 == 0 { 0.1 } else { -0.1 })
             .collect();
-        let line = |p: &[f64; 2], out: &mut Vec<f64>| {
+        let line = |p: &[f64], out: &mut Vec<f64>| {
             out.clear();
             out.extend(xs.iter().zip(&ys).map(|(x, y)| p[0] + p[1] * x - y));
             true
         };
-        let (p, cost, _) = levenberg_marquardt([0.0, 0.0], &[1e-6, 1e-6], line).unwrap();
+        let fit = fit_residuals(line, &[0.0, 0.0], &[1e-6, 1e-6], LENS_STOP).unwrap();
+        let (p, cost) = (fit.params, fit.chi2);
         let n = xs.len() as f64;
         let s2 = cost / (n - 2.0);
         let mean = xs.iter().sum::<f64>() / n;
@@ -1236,7 +1118,7 @@ mod tests {
     #[test]
     fn standard_errors_refuse_a_parameter_the_data_cannot_pin() {
         // the residuals depend on p0 + p1 only: the design is rank deficient
-        let sum = |p: &[f64; 2], out: &mut Vec<f64>| {
+        let sum = |p: &[f64], out: &mut Vec<f64>| {
             out.clear();
             out.extend((0..10).map(|i| p[0] + p[1] - f64::from(i)));
             true
@@ -1244,7 +1126,7 @@ mod tests {
         let err = standard_errors(&[1.0, 2.0], &[1e-6, 1e-6], 1.0, sum).unwrap_err();
         assert!(err.to_string().contains("cannot pin"), "{err}");
         // and one that does not act at all
-        let none = |p: &[f64; 2], out: &mut Vec<f64>| {
+        let none = |p: &[f64], out: &mut Vec<f64>| {
             out.clear();
             out.extend((0..10).map(|i| p[0] - f64::from(i)));
             true

@@ -13,6 +13,8 @@
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
 //!   radial → Z depth, point clouds (thesis 5.1.3).
+//! - [`lsq`]: least squares for small parameter vectors: normal equations, Cholesky and the one
+//!   Levenberg–Marquardt solver (the lens fit, the model lab's fits).
 //! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]), the
 //!   zero-sized tokens that prove this CPU has one, and the eight-lane operations the kernel is
 //!   written against once (generic, AVX2, NEON).
@@ -34,6 +36,7 @@ pub mod camera;
 pub mod crosstalk;
 mod error;
 pub mod frame;
+pub mod lsq;
 pub mod phasor;
 pub mod pipeline;
 pub mod proximity;

@@ -6,7 +6,7 @@ use rayon::prelude::*;
 use crate::error::LabError;
 use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
 use crate::signatures::{ImageMemo, Signature};
-use crate::stats::{Normal, levenberg_marquardt, solve_sym};
+use tofprox_core::lsq::{Normal, Stop, levenberg_marquardt, solve_sym};
 
 /// Result of fitting one signature.
 #[derive(Debug, Clone)]
@@ -66,9 +66,14 @@ fn nuisance(r: &Rec) -> [f64; NUISANCE] {
     [1.0, r.a * r.c, r.a * r.cd]
 }
 
-/// Convergence of the non-linear parameters: a χ² decrease below this (in
-/// units of the noise) is a parameter change of 0.1 standard errors.
-const LM_TOL_CHI2: f64 = 1e-2;
+/// Convergence of the non-linear parameters: at most 30 iterations; a χ²
+/// decrease below 10⁻² (in units of the noise) is a parameter change of 0.1
+/// standard errors.
+const LM_STOP: Stop = Stop {
+    max_iter: 30,
+    tol_chi2: 1e-2,
+    rel_chi2: 0.0,
+};
 
 /// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
 fn accumulate(
@@ -227,9 +232,9 @@ pub fn fit_signature(
             let r = levenberg_marquardt(
                 |q| total(&accumulate(sig, recs, prep, &full(q), true, stride)).select(&free),
                 &q0,
-                30,
-                LM_TOL_CHI2,
-            )?;
+                LM_STOP,
+            )
+            .map_err(|e| LabError::numerical(e.to_string()))?;
             // … from the best grid point of each discrete setting, keeping the lowest χ²
             if refined.as_ref().is_none_or(|b| r.chi2 < b.0) {
                 refined = Some((r.chi2, full(&r.params)));

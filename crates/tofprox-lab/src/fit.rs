@@ -21,8 +21,8 @@ use crate::data::Dataset;
 use crate::error::LabError;
 use crate::noise::{NoiseModel, fit_noise};
 use crate::signatures::{ImageMemo, Signature, make_signature};
-use crate::stats::{Normal, solve_sym};
 use crate::waveform::Waveform;
+use tofprox_core::lsq::{Normal, solve_sym};
 
 /// Number of cross-validation folds (blocks of distance/condition).
 pub const FOLDS: usize = 5;

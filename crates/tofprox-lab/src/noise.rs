@@ -13,7 +13,7 @@ use serde::Serialize;
 
 use crate::error::LabError;
 use crate::fit::{LabModel, Prepared, key_f};
-use crate::stats::solve_sym;
+use tofprox_core::lsq::solve_sym;
 
 /// At least this many squared differences make a measured noise model.
 const MIN_NOISE_DIFFERENCES: usize = 200;

@@ -450,7 +450,7 @@ impl AmpPhase {
     /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
     /// with the global nuisance shifts on a subsample.
     fn screen(nl: &[f64], recs: &[Sample], prep: &Prepared) -> Option<f64> {
-        let mut acc = crate::stats::Normal::zeros(4);
+        let mut acc = tofprox_core::lsq::Normal::zeros(4);
         for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
             let r = s.rec(prep);
             let j = [
@@ -462,7 +462,7 @@ impl AmpPhase {
             acc.add(&j, r.r, r.w);
         }
         acc.symmetrize();
-        crate::stats::solve_sym(&acc.jtj, &acc.jtr).map(|v| v[0])
+        tofprox_core::lsq::solve_sym(&acc.jtj, &acc.jtr).map(|v| v[0])
     }
 }
 impl Signature for AmpPhase {
@@ -553,7 +553,7 @@ impl TempDrift {
     /// squares on a subsample; its phase coefficients start the full law.
     fn screen(&self, recs: &[Sample], prep: &Prepared) -> Option<Vec<f64>> {
         let n = self.n_terms();
-        let mut acc = crate::stats::Normal::zeros(2 * n + 3);
+        let mut acc = tofprox_core::lsq::Normal::zeros(2 * n + 3);
         let mut j = vec![0.0; 2 * n + 3];
         for s in recs.iter().step_by((recs.len() / 60_000).max(1)) {
             let r = s.rec(prep);
@@ -568,7 +568,7 @@ impl TempDrift {
             acc.add(&j, r.r, r.w);
         }
         acc.symmetrize();
-        let sol = crate::stats::solve_sym(&acc.jtj, &acc.jtr)?;
+        let sol = tofprox_core::lsq::solve_sym(&acc.jtj, &acc.jtr)?;
         Some(sol[..n].to_vec())
     }
 }

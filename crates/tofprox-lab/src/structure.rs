@@ -7,7 +7,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::fit::{Prepared, Rec, Sample};
-use crate::stats::solve_sym;
+use tofprox_core::lsq::solve_sym;
 
 /// The conditions every recording is scored against (when they vary); the
 /// recording's own numeric conditions are added by name ([`conditions`]).
