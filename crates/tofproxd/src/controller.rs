@@ -520,7 +520,8 @@ impl<S: FrameSource> Controller<S> {
         }
         // (a near return on the rails is processed: every pixel saturated reads near)
         self.ambient.note_capture(probe, captured);
-        match self.process(cycle, req, captured, want_depth, captured_ns) {
+        let depth_at_ns = want_depth.then_some(captured_ns);
+        match self.process(cycle, req, captured, depth_at_ns) {
             Ok(out) => out,
             Err(e) => self.fail(e),
         }
@@ -528,16 +529,16 @@ impl<S: FrameSource> Controller<S> {
 
     /// A frame with usable codes, through the daemon's cycle: measure (the frame through the
     /// one pipeline of its mode, to a near/far reading) → monitor (the cover window) →
-    /// policies (the next cycle) → report (the published status).
+    /// policies (the next cycle) → report (the published status). `depth_at_ns`: the capture time
+    /// (CLOCK_BOOTTIME) when a depth message is wanted.
     fn process(
         &mut self,
         cycle: &RawCycle,
         req: &CycleRequest,
         captured: Mode,
-        want_depth: bool,
-        captured_ns: u64,
+        depth_at_ns: Option<u64>,
     ) -> Result<StepOutcome, SourceError> {
-        let m = self.measure(cycle, req, captured, want_depth, captured_ns)?;
+        let m = self.measure(cycle, req, captured, depth_at_ns)?;
         self.monitor_window(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
         Ok(self.report(m, energy, captured))
@@ -553,8 +554,7 @@ impl<S: FrameSource> Controller<S> {
         cycle: &RawCycle,
         req: &CycleRequest,
         captured: Mode,
-        want_depth: bool,
-        captured_ns: u64,
+        depth_at_ns: Option<u64>,
     ) -> Result<Measurement, SourceError> {
         let g = cycle.geometry;
         let roi = frame_roi(&self.cfg, g);
@@ -600,7 +600,7 @@ impl<S: FrameSource> Controller<S> {
             .fold(0.0f32, f32::max);
         let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
         let stats = roi_stats(frame, roi);
-        let depth = want_depth.then(|| depth_message(frame, captured_ns));
+        let depth = depth_at_ns.map(|t| depth_message(frame, t));
         let reading = self.detect(g, roi, captured)?;
         Ok(Measurement {
             roi,
