@@ -118,8 +118,8 @@ pub fn decode_frame(
     };
     // the map's adc_bits is validated to at most 16 bits: the rail fits in u16
     let limit = u16::try_from(tofprox_core::sensor::adc_max_code(adc_bits)).unwrap_or(u16::MAX);
-    crate::pixels::unpack_raw16_line(pixels, out);
-    if out.iter().any(|&v| v & !limit != 0) {
+    // one pass: the words and their OR (a bit above the ADC's range in any word)
+    if crate::pixels::unpack_raw16_line(pixels, out) & !limit != 0 {
         return Err(ContentError::PixelRange);
     }
     Ok(status)

@@ -133,11 +133,15 @@ fn unpack_raw12_line(line: &[u8], out: &mut [u16]) {
     }
 }
 
-/// Unpack little-endian 16-bit words (RAW16); also the CX3 frame path's (`frame.rs`).
-pub(crate) fn unpack_raw16_line(line: &[u8], out: &mut [u16]) {
+/// Unpack little-endian 16-bit words (RAW16); also the CX3 frame path's (`frame.rs`). Returns
+/// the OR of every word, so a caller checks the code range without a second pass.
+pub(crate) fn unpack_raw16_line(line: &[u8], out: &mut [u16]) -> u16 {
+    let mut all = 0u16;
     for (b, p) in line.chunks_exact(2).zip(out.iter_mut()) {
         *p = u16::from_le_bytes([b[0], b[1]]);
+        all |= *p;
     }
+    all
 }
 
 /// Decode a buffer into `(images, rows, cols)` codes, checking its size and every code's range.
@@ -157,7 +161,9 @@ pub fn decode_buffer(buf: &[u8], layout: &BufferLayout) -> Result<Array3<u16>, P
         let dst = &mut codes[r * cols..(r + 1) * cols];
         match layout.packing {
             PixelPacking::Raw12 => unpack_raw12_line(&line[..line_bytes], dst),
-            PixelPacking::Raw16 => unpack_raw16_line(&line[..line_bytes], dst),
+            PixelPacking::Raw16 => {
+                unpack_raw16_line(&line[..line_bytes], dst);
+            }
         }
     }
     let max =
