@@ -11,7 +11,7 @@ use tofprox_model::ids::{self, EffectId};
 use crate::data::{Capture, Dataset};
 use crate::error::LabError;
 use crate::fit::{EffectFit, LabSpec, Prepared};
-use crate::signatures::{SIGNATURE_IDS, harmonic_order, held_params};
+use crate::signatures::{SIGNATURE_IDS, harmonic_order, held_params, waveform_effect};
 
 /// The conditions the lab model uses by meaning; every other numeric key of
 /// `[capture.conditions]` except the bookkeeping ones
@@ -77,7 +77,7 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
         effects: SIGNATURE_IDS
             .iter()
             .filter_map(|id| EffectId::parse(id))
-            .filter(|id| *id != ids::waveform_harmonics::ID && m.is_enabled(*id))
+            .filter(|id| waveform_effect(id.as_str()).is_none() && m.is_enabled(*id))
             .map(|id| id.as_str().to_string())
             .collect(),
         held: Vec::new(),

@@ -39,6 +39,43 @@ impl LabEffect for Effect {
         }
         w.notes
     }
+
+    fn in_waveform(&self) -> bool {
+        true
+    }
+
+    fn widen_spec(&self, spec: &mut LabSpec) {
+        spec.harmonic_order = MAX_HARMONIC;
+    }
+
+    /// lin = [Re γ_h, Im γ_h] for h from the waveform's order + 1 to
+    /// [`MAX_HARMONIC`] (the signature's basis).
+    fn extend_waveform(&self, w: &mut Waveform, lin: &[f64]) {
+        let from = w.order() + 1;
+        for (i, h) in (from..=MAX_HARMONIC).enumerate() {
+            while w.gamma.len() < h {
+                w.gamma.push([0.0, 0.0]);
+            }
+            let re = lin.get(2 * i).copied().unwrap_or(0.0);
+            let im = lin.get(2 * i + 1).copied().unwrap_or(0.0);
+            w.gamma[h - 1] = [re, im];
+        }
+    }
+
+    fn waveform_params(&self, w: &Waveform) -> Fitted {
+        let mut params = Fitted::new();
+        for (h, g) in w.gamma.iter().enumerate().skip(1) {
+            let [re, im] = coefficient_names(h + 1);
+            params.insert(re, g[0]);
+            params.insert(im, g[1]);
+        }
+        params
+    }
+}
+
+/// The names of harmonic h's fitted coefficients: its real and imaginary part.
+fn coefficient_names(h: usize) -> [String; 2] {
+    [format!("h{h}_re"), format!("h{h}_im")]
 }
 
 /// Highest harmonic the model file describes (1 when waveform_harmonics is off).
@@ -68,7 +105,7 @@ impl Signature for Harmonics {
     }
     fn lin_names(&self) -> Vec<String> {
         (self.from..=MAX_HARMONIC)
-            .flat_map(|h| [format!("h{h}_re"), format!("h{h}_im")])
+            .flat_map(coefficient_names)
             .collect()
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {

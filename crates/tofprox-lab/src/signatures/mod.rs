@@ -155,6 +155,21 @@ pub trait LabEffect: Sync {
     fn held(&self, _m: &ModelConfig, _prep: &Prepared) -> Option<(Vec<f64>, Vec<f64>)> {
         None
     }
+    /// Whether the effect is part of the lab model's correlation waveform
+    /// (fitted with it) rather than a Δcode on top of the model; the methods
+    /// below are called only for such an effect.
+    fn in_waveform(&self) -> bool {
+        false
+    }
+    /// `spec` made to fit the effect with the waveform.
+    fn widen_spec(&self, _spec: &mut LabSpec) {}
+    /// `w` extended by the effect's fitted linear coefficients `lin` (its
+    /// signature's, on top of `w`).
+    fn extend_waveform(&self, _w: &mut Waveform, _lin: &[f64]) {}
+    /// The effect's parameters, read from the fitted waveform `w`.
+    fn waveform_params(&self, _w: &Waveform) -> Fitted {
+        Fitted::new()
+    }
 }
 
 /// One entry of the lab's registry: a catalogue effect and its lab module.
@@ -223,6 +238,21 @@ pub fn lab_effect(id: &str) -> Option<&'static dyn LabEffect> {
         .iter()
         .find(|e| e.id.as_str() == id)
         .map(|e| e.effect)
+}
+
+/// The in-waveform lab module of effect `id` ([`LabEffect::in_waveform`]).
+pub fn waveform_effect(id: &str) -> Option<&'static dyn LabEffect> {
+    lab_effect(id).filter(|e| e.in_waveform())
+}
+
+/// `spec` with effect `id` enabled: an in-waveform effect widens the
+/// waveform's fit, any other is added to the fitted effects.
+pub fn enable_in_spec(spec: &mut LabSpec, id: &str) {
+    match waveform_effect(id) {
+        Some(e) => e.widen_spec(spec),
+        None if !spec.effects.iter().any(|e| e == id) => spec.effects.push(id.to_string()),
+        None => {}
+    }
 }
 
 /// Conditions each effect varies with (used to advise how to separate two):
