@@ -183,43 +183,20 @@ pub struct Entry {
 /// Every effect the lab has a signature for, in catalogue order — the one
 /// place that pairs a model effect with its lab module.
 pub const REGISTRY: &[Entry] = &[
-    Entry {
-        id: ids::sbi_asymmetry::ID,
-        effect: &sbi::Effect,
-    },
-    Entry {
-        id: ids::tap_gain_mismatch::ID,
-        effect: &tap_gain::Effect,
-    },
-    Entry {
-        id: ids::vcsel_droop::ID,
-        effect: &droop::Effect,
-    },
-    Entry {
-        id: ids::amplitude_phase_error::ID,
-        effect: &amp_phase::Effect,
-    },
-    Entry {
-        id: ids::temperature_drift::ID,
-        effect: &temp_drift::Effect,
-    },
-    Entry {
-        id: ids::waveform_harmonics::ID,
-        effect: &harmonics::Effect,
-    },
-    Entry {
-        id: ids::adc_inl::ID,
-        effect: &inl::Effect,
-    },
-    Entry {
-        id: ids::dark_current::ID,
-        effect: &dark::Effect,
-    },
-    Entry {
-        id: ids::multipath::ID,
-        effect: &multipath::Effect,
-    },
+    entry(ids::sbi_asymmetry::ID, &sbi::Effect),
+    entry(ids::tap_gain_mismatch::ID, &tap_gain::Effect),
+    entry(ids::vcsel_droop::ID, &droop::Effect),
+    entry(ids::amplitude_phase_error::ID, &amp_phase::Effect),
+    entry(ids::temperature_drift::ID, &temp_drift::Effect),
+    entry(ids::waveform_harmonics::ID, &harmonics::Effect),
+    entry(ids::adc_inl::ID, &inl::Effect),
+    entry(ids::dark_current::ID, &dark::Effect),
+    entry(ids::multipath::ID, &multipath::Effect),
 ];
+
+const fn entry(id: EffectId, effect: &'static dyn LabEffect) -> Entry {
+    Entry { id, effect }
+}
 
 /// The ids of [`REGISTRY`], in its order.
 pub const SIGNATURE_IDS: &[&str] = &{
