@@ -318,8 +318,8 @@ pub fn acts_on_phasor(id: &str) -> bool {
 /// The signal gain factor 1 + G and the phase shift Δφ (rad) of a pixel of
 /// capture `cap` whose amplitude without them is `a_lsb`, from the fitted
 /// effects that act on the phasor: the temperature drift first
-/// ([`temp_drift::gain_phase`]), then the amplitude-phase error at the
-/// drifted amplitude ([`amp_phase::phase_at`]). Called per sample, so the
+/// (`temp_drift::gain_phase`), then the amplitude-phase error at the
+/// drifted amplitude (`amp_phase::phase_at`). Called per sample, so the
 /// two phasor effects are matched directly rather than looked up.
 pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     let (mut f, mut ph) = (1.0, 0.0);
