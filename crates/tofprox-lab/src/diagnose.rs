@@ -1199,11 +1199,7 @@ pub fn separating_condition(a: &str, b: &str, prep: &Prepared) -> String {
 /// The spec with one more effect enabled.
 pub fn spec_with(spec: &LabSpec, effect: &str) -> LabSpec {
     let mut s = spec.clone();
-    if effect == tofprox_model::ids::waveform_harmonics::ID.as_str() {
-        s.harmonic_order = crate::signatures::MAX_HARMONIC;
-    } else if !s.effects.iter().any(|e| e == effect) {
-        s.effects.push(effect.to_string());
-    }
+    crate::signatures::enable_in_spec(&mut s, effect);
     s
 }
 
@@ -1332,12 +1328,8 @@ pub fn effect_params(
     model: &LabModel,
     effect: &str,
 ) -> Result<(EffectFit, BTreeMap<String, f64>), LabError> {
-    let mut params = BTreeMap::new();
-    if effect == tofprox_model::ids::waveform_harmonics::ID.as_str() {
-        for (h, g) in model.waveform.gamma.iter().enumerate().skip(1) {
-            params.insert(format!("h{}_re", h + 1), g[0]);
-            params.insert(format!("h{}_im", h + 1), g[1]);
-        }
+    if let Some(e) = crate::signatures::waveform_effect(effect) {
+        let params = e.waveform_params(&model.waveform);
         let fit = EffectFit {
             id: effect.into(),
             lin: Vec::new(),
@@ -1345,6 +1337,7 @@ pub fn effect_params(
         };
         return Ok((fit, params));
     }
+    let mut params = BTreeMap::new();
     let sig = make_signature(effect, prep, &model.spec, &model.waveform)?;
     let f = model
         .effects

@@ -1000,17 +1000,9 @@ pub fn refit_with(
     rounds: usize,
 ) -> Result<LabModel, LabError> {
     let mut m = base.clone();
-    if effect.id == tofprox_model::ids::waveform_harmonics::ID.as_str() {
-        let from = m.waveform.order() + 1;
-        m.spec.harmonic_order = crate::signatures::MAX_HARMONIC;
-        for (i, h) in (from..=crate::signatures::MAX_HARMONIC).enumerate() {
-            while m.waveform.gamma.len() < h {
-                m.waveform.gamma.push([0.0, 0.0]);
-            }
-            let re = effect.lin.get(2 * i).copied().unwrap_or(0.0);
-            let im = effect.lin.get(2 * i + 1).copied().unwrap_or(0.0);
-            m.waveform.gamma[h - 1] = [re, im];
-        }
+    if let Some(e) = crate::signatures::waveform_effect(&effect.id) {
+        e.widen_spec(&mut m.spec);
+        e.extend_waveform(&mut m.waveform, &effect.lin);
     } else {
         m.spec.effects.push(effect.id.clone());
         m.effects.push(effect.clone());

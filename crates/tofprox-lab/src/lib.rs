@@ -11,6 +11,7 @@ pub mod data;
 pub mod diagnose;
 pub mod error;
 pub mod fit;
+pub mod model_file;
 pub mod noise;
 pub mod report;
 pub mod signatures;

@@ -6,11 +6,12 @@ use std::path::Path;
 
 use tofprox_model::ModelConfig;
 
-use crate::adapter::{load_recording, spec_from_model, update_model_text, write_effect};
+use crate::adapter::{load_recording, spec_from_model};
 use crate::diagnose::{AddOutcome, DiagnoseOptions, Explanation, add_effect, effect_params};
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{Prepared, Progress};
-use crate::signatures::SIGNATURE_IDS;
+use crate::model_file::update_model_text;
+use crate::signatures::{SIGNATURE_IDS, write_effect};
 
 /// The recording at `rec`, prepared for fitting, and the model file at `model`.
 pub fn load(rec: &Path, model: &Path) -> Result<(Prepared, ModelConfig), LabError> {

@@ -6,9 +6,8 @@
 use ndarray::Array3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use tofprox_lab::adapter::{
-    dataset_from_recording, spec_from_model, spec_holding_model, write_effect,
-};
+use tofprox_lab::adapter::{dataset_from_recording, spec_from_model, spec_holding_model};
+use tofprox_lab::signatures::write_effect;
 mod common;
 
 use tofprox_lab::diagnose::{Verdict, add_effect, compare, diagnose};
