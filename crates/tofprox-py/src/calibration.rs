@@ -91,7 +91,7 @@ impl Calibration {
     fn arrays<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let s = &self.set;
         let d = PyDict::new(py);
-        let mut put = |part: CalibPart, a: Option<Bound<'py, PyAny>>| match a {
+        let put = |part: CalibPart, a: Option<Bound<'py, PyAny>>| match a {
             Some(a) => d.set_item(part.name(), a),
             None => Ok(()),
         };

@@ -72,7 +72,7 @@ impl Recording {
         for (i, (c, f)) in captures.iter().zip(&frames).enumerate() {
             let spec = from_py::<CaptureIn>(py, &format!("captures[{i}]"), c)?.spec();
             let raw = raw_frames(i, f)?;
-            check(&sensor, i, &spec, &raw).map_err(to_py_err)?;
+            tofprox_format::check_capture(&sensor, i, &spec, &raw).map_err(to_py_err)?;
             todo.push((spec, raw));
         }
         py.detach(|| {
@@ -200,22 +200,6 @@ fn raw_frames(i: usize, a: &Bound<'_, PyAny>) -> PyResult<RawFrames> {
     Err(PyTypeError::new_err(format!(
         "frames[{i}]: expected a 3-D uint16, float32 or float64 numpy array (images, rows, cols), got {what}"
     )))
-}
-
-/// What `RecordingWriter::append` checks of capture `i`, before anything is written.
-fn check(
-    sensor: &SensorGeometry,
-    i: usize,
-    spec: &CaptureSpec,
-    raw: &RawFrames,
-) -> Result<(), tofprox_format::FormatError> {
-    let key = format!("capture[{i}]");
-    tofprox_format::validate_spec(spec).map_err(|e| {
-        let k = e.key_name().unwrap_or("").to_string();
-        e.key(format!("{key}.{k}"))
-    })?;
-    raw.validate(sensor, spec.phases_deg.len())
-        .map_err(|e| e.key(format!("{key}.frames")))
 }
 
 /// A capture's `[[capture]]` keys as a dict (without `frames`: no file yet).

@@ -8,7 +8,8 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyList;
 use tofprox_format::{RawFrames, Recording as RecordingFile, RecordingWriter};
-use tofprox_model::sweep::{self, PlannedCapture, SweepError, SweepPlan};
+use tofprox_model::sweep::{PlannedCapture, SweepError, SweepPlan};
+use tofprox_model::sweep as plans;
 use tofprox_model::{CaptureRequest, ModelConfig, ModelError, SensorGeometry, Simulator};
 
 use crate::errors::to_py_err;
@@ -35,7 +36,7 @@ fn simulate_all(
     seed: u64,
 ) -> Result<Vec<RawFrames>, ModelError> {
     let mut out = Vec::with_capacity(plan.len());
-    sweep::simulate_each(sim, plan, seed, |_, f| {
+    plans::simulate_each(sim, plan, seed, |_, f| {
         out.push(f);
         Ok::<(), ModelError>(())
     })?;
@@ -43,7 +44,7 @@ fn simulate_all(
 }
 
 /// Captures of one dtype and shape stacked along a new first axis, as one numpy array.
-fn stacked<'py, T: numpy::Element>(
+fn stacked<'py, T: numpy::Element + Clone>(
     py: Python<'py>,
     views: &[ArrayView3<'_, T>],
 ) -> PyResult<Bound<'py, PyAny>> {
@@ -83,7 +84,7 @@ pub fn simulate<'py>(
     }
     let m = load(&model)?;
     let request = CaptureRequest {
-        phases_deg: sweep::phases_for(phases).map_err(to_py_err)?,
+        phases_deg: plans::phases_for(phases).map_err(to_py_err)?,
         exposure_us,
         illumination,
         averaged,
@@ -94,7 +95,7 @@ pub fn simulate<'py>(
         .iter()
         .map(|&d| PlannedCapture::wall(request.clone(), d, reflectivity))
         .collect();
-    sweep::validate(&plan).map_err(to_py_err)?;
+    plans::validate(&plan).map_err(to_py_err)?;
     let sim = Simulator::new(&m, geometry(window)?, seed).map_err(to_py_err)?;
     let frames = py
         .detach(|| simulate_all(&sim, &plan, seed))
@@ -151,7 +152,7 @@ fn sweep_plan(
 /// issued as a `UserWarning` (the command line's notes).
 fn like_plan(py: Python<'_>, like: &PathBuf) -> PyResult<(SensorGeometry, Vec<PlannedCapture>)> {
     let rec = RecordingFile::open(like).map_err(to_py_err)?;
-    let plan = sweep::plan_like(&rec).map_err(to_py_err)?;
+    let plan = plans::plan_like(&rec).map_err(to_py_err)?;
     let warn = py.import("warnings")?.getattr("warn")?;
     if !plan.ignored.is_empty() {
         let note = format!(
@@ -207,6 +208,18 @@ pub fn sweep<'py>(
     force: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     let m = load(&model)?;
+    let sweep_args = [
+        distances_m.is_some(),
+        exposures_us.is_some(),
+        phases.is_some(),
+        ambient_klux.is_some(),
+        temperatures_c.is_some(),
+        reflectivity.is_some(),
+        repeats.is_some(),
+        averaged.is_some(),
+        correlation_distance_m.is_some(),
+        window.is_some(),
+    ];
     let plan = sweep_plan(
         distances_m,
         exposures_us,
@@ -219,7 +232,7 @@ pub fn sweep<'py>(
         correlation_distance_m,
     );
     let (geometry, captures) = match &like {
-        Some(_) if plan != SweepPlan::default() || window.is_some() => {
+        Some(_) if sweep_args.contains(&true) => {
             return Err(PyValueError::new_err(
                 "like: the recording sets the captures; give no sweep argument with it",
             ));
@@ -251,7 +264,7 @@ pub fn sweep<'py>(
         } else {
             RecordingWriter::create(&out, geometry, Some(description))
         }?;
-        sweep::write_plan(&sim, &captures, seed, &mut writer, || {})
+        plans::write_plan(&sim, &captures, seed, &mut writer, || {})
     })
     .map_err(|e: SweepError| to_py_err(e))?;
     Recording::open(py, out)
