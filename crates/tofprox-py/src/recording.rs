@@ -76,11 +76,7 @@ impl Recording {
             todo.push((spec, raw));
         }
         py.detach(|| {
-            let mut w = if force {
-                RecordingWriter::replace(&path, sensor, description)
-            } else {
-                RecordingWriter::create(&path, sensor, description)
-            }?;
+            let mut w = new_writer(&path, sensor, description, force)?;
             todo.into_iter()
                 .try_for_each(|(spec, raw)| w.append(spec, &raw).map(drop))
         })
@@ -200,6 +196,20 @@ fn raw_frames(i: usize, a: &Bound<'_, PyAny>) -> PyResult<RawFrames> {
     Err(PyTypeError::new_err(format!(
         "frames[{i}]: expected a 3-D uint16, float32 or float64 numpy array (images, rows, cols), got {what}"
     )))
+}
+
+/// A new recording in `dir`; the one already there is replaced only with `force`.
+pub(crate) fn new_writer(
+    dir: &std::path::Path,
+    sensor: SensorGeometry,
+    description: Option<String>,
+    force: bool,
+) -> Result<RecordingWriter, tofprox_format::FormatError> {
+    if force {
+        RecordingWriter::replace(dir, sensor, description)
+    } else {
+        RecordingWriter::create(dir, sensor, description)
+    }
 }
 
 /// A capture's `[[capture]]` keys as a dict (without `frames`: no file yet).

@@ -1,20 +1,20 @@
 //! `tofprox.simulate` and `tofprox.sweep`: the physical model's captures as numpy arrays or as
 //! a recording — the planning and simulation of `tofprox sim sweep` (`tofprox_model::sweep`).
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use numpy::PyArray;
 use numpy::ndarray::{ArrayView3, Axis, stack};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyList;
-use tofprox_format::{RawFrames, Recording as RecordingFile, RecordingWriter};
-use tofprox_model::sweep::{PlannedCapture, SweepError, SweepPlan};
+use tofprox_format::{RawFrames, Recording as RecordingFile};
 use tofprox_model::sweep as plans;
+use tofprox_model::sweep::{PlannedCapture, SweepError, SweepPlan};
 use tofprox_model::{CaptureRequest, ModelConfig, ModelError, SensorGeometry, Simulator};
 
 use crate::errors::to_py_err;
 use crate::frames_to_py;
-use crate::recording::{Recording, spec_to_py};
+use crate::recording::{Recording, new_writer, spec_to_py};
 
 /// The sensor's read-out window `(row, col, height, width)` on the full array (None: all).
 fn geometry(window: Option<(usize, usize, usize, usize)>) -> PyResult<SensorGeometry> {
@@ -25,7 +25,7 @@ fn geometry(window: Option<(usize, usize, usize, usize)>) -> PyResult<SensorGeom
     }
 }
 
-fn load(model: &PathBuf) -> PyResult<ModelConfig> {
+fn load(model: &Path) -> PyResult<ModelConfig> {
     ModelConfig::load(model).map_err(to_py_err)
 }
 
@@ -121,36 +121,9 @@ pub fn simulate<'py>(
     stacked(py, &f32s)
 }
 
-/// The sweep's plan from the arguments given, the rest as `tofprox sim sweep`'s defaults.
-#[allow(clippy::too_many_arguments)]
-fn sweep_plan(
-    distances_m: Option<Vec<f64>>,
-    exposures_us: Option<Vec<f64>>,
-    phases: Option<usize>,
-    ambient_klux: Option<Vec<f64>>,
-    temperatures_c: Option<Vec<f64>>,
-    reflectivity: Option<f64>,
-    repeats: Option<u32>,
-    averaged: Option<u32>,
-    correlation_distance_m: Option<f64>,
-) -> SweepPlan {
-    let d = SweepPlan::default();
-    SweepPlan {
-        distances_m: distances_m.unwrap_or(d.distances_m),
-        exposures_us: exposures_us.unwrap_or(d.exposures_us),
-        phases: phases.unwrap_or(d.phases),
-        ambient_klux: ambient_klux.unwrap_or(d.ambient_klux),
-        temperatures_c: temperatures_c.unwrap_or(d.temperatures_c),
-        reflectivity: reflectivity.unwrap_or(d.reflectivity),
-        repeats: repeats.unwrap_or(d.repeats),
-        averaged: averaged.unwrap_or(d.averaged),
-        correlation_distance_m: correlation_distance_m.unwrap_or(d.correlation_distance_m),
-    }
-}
-
 /// A recording's own conditions as a plan; what is copied but not simulated, or skipped, is
 /// issued as a `UserWarning` (the command line's notes).
-fn like_plan(py: Python<'_>, like: &PathBuf) -> PyResult<(SensorGeometry, Vec<PlannedCapture>)> {
+fn like_plan(py: Python<'_>, like: &Path) -> PyResult<(SensorGeometry, Vec<PlannedCapture>)> {
     let rec = RecordingFile::open(like).map_err(to_py_err)?;
     let plan = plans::plan_like(&rec).map_err(to_py_err)?;
     let warn = py.import("warnings")?.getattr("warn")?;
@@ -208,7 +181,7 @@ pub fn sweep<'py>(
     force: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
     let m = load(&model)?;
-    let sweep_args = [
+    let given = [
         distances_m.is_some(),
         exposures_us.is_some(),
         phases.is_some(),
@@ -220,37 +193,32 @@ pub fn sweep<'py>(
         correlation_distance_m.is_some(),
         window.is_some(),
     ];
-    let plan = sweep_plan(
-        distances_m,
-        exposures_us,
-        phases,
-        ambient_klux,
-        temperatures_c,
-        reflectivity,
-        repeats,
-        averaged,
-        correlation_distance_m,
-    );
     let (geometry, captures) = match &like {
-        Some(_) if sweep_args.contains(&true) => {
+        Some(_) if given.contains(&true) => {
             return Err(PyValueError::new_err(
                 "like: the recording sets the captures; give no sweep argument with it",
             ));
         }
         Some(rec) => like_plan(py, rec)?,
-        None => (geometry(window)?, plan.captures().map_err(to_py_err)?),
+        None => {
+            let d = SweepPlan::default();
+            let plan = SweepPlan {
+                distances_m: distances_m.unwrap_or(d.distances_m),
+                exposures_us: exposures_us.unwrap_or(d.exposures_us),
+                phases: phases.unwrap_or(d.phases),
+                ambient_klux: ambient_klux.unwrap_or(d.ambient_klux),
+                temperatures_c: temperatures_c.unwrap_or(d.temperatures_c),
+                reflectivity: reflectivity.unwrap_or(d.reflectivity),
+                repeats: repeats.unwrap_or(d.repeats),
+                averaged: averaged.unwrap_or(d.averaged),
+                correlation_distance_m: correlation_distance_m.unwrap_or(d.correlation_distance_m),
+            };
+            (geometry(window)?, plan.captures().map_err(to_py_err)?)
+        }
     };
     let sim = Simulator::new(&m, geometry, seed).map_err(to_py_err)?;
     let Some(out) = out else {
-        let frames = py
-            .detach(|| simulate_all(&sim, &captures, seed))
-            .map_err(to_py_err)?;
-        let specs = PyList::empty(py);
-        for p in &captures {
-            specs.append(spec_to_py(py, &p.spec())?)?;
-        }
-        let arrays: Vec<_> = frames.into_iter().map(|f| frames_to_py(py, f)).collect();
-        return Ok((specs, arrays).into_pyobject(py)?.into_any());
+        return sweep_arrays(py, &sim, &captures, seed);
     };
     let description = format!(
         "tofprox.sweep{}: model {} (effects: {}), seed {seed}",
@@ -259,15 +227,28 @@ pub fn sweep<'py>(
         m.enabled_effects().join(", "),
     );
     py.detach(|| {
-        let mut writer = if force {
-            RecordingWriter::replace(&out, geometry, Some(description))
-        } else {
-            RecordingWriter::create(&out, geometry, Some(description))
-        }?;
+        let mut writer = new_writer(&out, geometry, Some(description), force)?;
         plans::write_plan(&sim, &captures, seed, &mut writer, || {})
     })
     .map_err(|e: SweepError| to_py_err(e))?;
-    Recording::open(py, out)
-        .map(|r| Bound::new(py, r))?
-        .map(Bound::into_any)
+    let rec = Recording::open(py, out)?;
+    Ok(Bound::new(py, rec)?.into_any())
+}
+
+/// The simulated captures as `(captures, frames)`: the dicts and arrays `Recording.write` takes.
+fn sweep_arrays<'py>(
+    py: Python<'py>,
+    sim: &Simulator,
+    captures: &[PlannedCapture],
+    seed: u64,
+) -> PyResult<Bound<'py, PyAny>> {
+    let frames = py
+        .detach(|| simulate_all(sim, captures, seed))
+        .map_err(to_py_err)?;
+    let specs = PyList::empty(py);
+    for p in captures {
+        specs.append(spec_to_py(py, &p.spec())?)?;
+    }
+    let arrays: Vec<_> = frames.into_iter().map(|f| frames_to_py(py, f)).collect();
+    Ok((specs, arrays).into_pyobject(py)?.into_any())
 }
