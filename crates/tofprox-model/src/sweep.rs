@@ -93,9 +93,8 @@ pub fn distance_range(from_m: f64, to_m: f64, step_m: f64) -> Result<Vec<f64>, M
     let n = ((to_m - from_m) / step_m + 1e-9).floor() as usize;
     if n >= MAX_DISTANCES {
         return Err(ModelError::invalid(format!(
-            "distances {from_m}:{to_m}:{step_m} give {} points, at most {}",
-            n + 1,
-            MAX_DISTANCES - 1
+            "distances {from_m}:{to_m}:{step_m} give {} points, at most {MAX_DISTANCES}",
+            n + 1
         )));
     }
     Ok((0..=n).map(|i| from_m + step_m * i as f64).collect())
