@@ -46,7 +46,7 @@ pub use process::{DepthKind, ProcessError, ProcessOptions, ProcessRow, Processed
 pub use recording::{
     BOOKKEEPING_CONDITIONS, CaptureMeta, CaptureSpec, FRAMES_DIR, RECORDING_FORMAT, RECORDING_TOML,
     RECORDING_VERSION, RECORDING_VERSIONS_READ, RawFrames, Recording, RecordingKind,
-    RecordingWriter, SecondFrequencyFrames, SecondFrequencyMeta, is_bookkeeping_condition,
-    recording_kind, validate_spec,
+    RecordingWriter, SecondFrequencyFrames, SecondFrequencyMeta, check_capture,
+    is_bookkeeping_condition, recording_kind, validate_spec,
 };
 pub use text::fmt_num;

@@ -1046,6 +1046,25 @@ fn render_recording_toml(
 
 // ---------------------------------------------------------------- writer
 
+/// What [`RecordingWriter::append`] checks of capture `index` of a recording of `sensor` (the
+/// capture's keys and ranges, the frames' shape and codes; errors keyed
+/// `capture[<index>].<key>`), for a caller that checks every capture before writing any.
+pub fn check_capture(
+    sensor: &SensorGeometry,
+    index: usize,
+    capture: &CaptureSpec,
+    frames: &RawFrames,
+) -> Result<(), FormatError> {
+    let key = format!("capture[{index}]");
+    validate_spec(capture).map_err(|e| {
+        let k = e.key_name().unwrap_or("").to_string();
+        e.key(format!("{key}.{k}"))
+    })?;
+    frames
+        .validate(sensor, capture.phases_deg.len())
+        .map_err(|e| e.key(format!("{key}.frames")))
+}
+
 /// Appends captures to a recording, crash-safely: each frames file is written
 /// to a temporary file, fsynced and renamed into place before
 /// `recording.toml` is rewritten the same way. A reader of a recording whose
@@ -1197,14 +1216,7 @@ impl RecordingWriter {
         second: Option<&SecondFrequencyFrames>,
     ) -> Result<usize, FormatError> {
         let index = self.captures.len();
-        let key = format!("capture[{index}]");
-        validate_spec(&capture).map_err(|e| {
-            let k = e.key_name().unwrap_or("").to_string();
-            e.key(format!("{key}.{k}"))
-        })?;
-        frames
-            .validate(&self.sensor, capture.phases_deg.len())
-            .map_err(|e| e.key(format!("{key}.frames")))?;
+        check_capture(&self.sensor, index, &capture, frames)?;
         let second = match second {
             Some(s) => Some(self.write_second(index, s)?),
             None => None,

@@ -6,6 +6,7 @@
 //! [`diagnose::diagnose`] (candidate signatures, verdict) →
 //! [`diagnose::add_effect`]; [`workflow`]: the same over the user's files.
 pub mod adapter;
+pub mod arrays;
 pub mod candidates;
 pub mod data;
 pub mod diagnose;

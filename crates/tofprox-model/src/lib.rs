@@ -29,6 +29,8 @@ pub mod geometry;
 pub mod ids;
 pub mod scene;
 pub mod sim;
+pub mod summary;
+pub mod sweep;
 pub mod waveform;
 
 pub use catalogue::{EffectInfo, ParamInfo, catalogue};
@@ -40,3 +42,5 @@ pub use scene::{
     phone_scenes,
 };
 pub use sim::Simulator;
+pub use summary::{EffectState, ModelSummary};
+pub use sweep::{PlannedCapture, SweepPlan};

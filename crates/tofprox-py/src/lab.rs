@@ -2,13 +2,16 @@
 //! `tofprox lab … --json` commands print, as Python objects (`docs/lab.md`).
 use std::path::{Path, PathBuf};
 
+use numpy::PyArray;
 use pyo3::prelude::*;
+use pyo3::types::PyDict;
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
+use tofprox_lab::arrays::ComparisonArrays;
 use tofprox_lab::diagnose::{compare as fit, diagnose_with, explain as explain_lab};
 use tofprox_lab::workflow::{
     add_to_model, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
 };
-use tofprox_lab::{LabError, report};
+use tofprox_lab::{Comparison, LabError, Prepared, report};
 
 use crate::errors::to_py_err;
 use crate::to_py;
@@ -25,26 +28,64 @@ fn run<'py>(
     to_py(py, &value)
 }
 
+/// The comparison's arrays as a dict of numpy arrays (moved, not copied): `residual_lsb`,
+/// `residual_z` (float32, captures × K × rows × cols, NaN where a code is not in the fit),
+/// `pixel_chi2`, `offset_lsb`, `gain_lsb`, `phase_rad` (float64, rows × cols).
+fn arrays_to_py<'py>(py: Python<'py>, a: ComparisonArrays) -> PyResult<Bound<'py, PyDict>> {
+    let d = PyDict::new(py);
+    if let (Some(r), Some(z)) = (a.residual_lsb, a.residual_z) {
+        d.set_item("residual_lsb", PyArray::from_owned_array(py, r))?;
+        d.set_item("residual_z", PyArray::from_owned_array(py, z))?;
+    }
+    d.set_item("pixel_chi2", PyArray::from_owned_array(py, a.pixel_chi2))?;
+    d.set_item("offset_lsb", PyArray::from_owned_array(py, a.offset_lsb))?;
+    d.set_item("gain_lsb", PyArray::from_owned_array(py, a.gain_lsb))?;
+    d.set_item("phase_rad", PyArray::from_owned_array(py, a.phase_rad))?;
+    Ok(d)
+}
+
+/// Run a comparison-based `f` without the GIL: its JSON as Python objects, with the
+/// comparison's arrays under `"arrays"` when asked for.
+fn run_with_arrays<'py>(
+    py: Python<'py>,
+    arrays: bool,
+    f: impl FnOnce() -> Result<(serde_json::Value, Prepared, Comparison), LabError> + Send,
+) -> PyResult<Bound<'py, PyAny>> {
+    let (value, a) = py
+        .detach(|| f().map(|(v, prep, cmp)| (v, arrays.then(|| ComparisonArrays::of(&prep, &cmp)))))
+        .map_err(to_py_err)?;
+    let out = to_py(py, &value)?;
+    if let Some(a) = a {
+        out.set_item("arrays", arrays_to_py(py, a)?)?;
+    }
+    Ok(out)
+}
+
 /// Fit the model file `model` (its enabled effects) to the recording in `recording_dir` and
 /// show where it fails: the dict `tofprox lab compare --json` prints (fit, rms, noise, the
 /// residual's structure per condition). `hold_effects`: hold the effects' parameters at the
-/// file's values; only per-pixel and per-unit parameters are refitted.
+/// file's values; only per-pixel and per-unit parameters are refitted. `arrays=True` adds
+/// `"arrays"`: the residuals and per-pixel maps `--export DIR` writes as `.npy` files, as
+/// numpy arrays (`residual_lsb`, `residual_z`, `pixel_chi2`, `offset_lsb`, `gain_lsb`,
+/// `phase_rad`; docs/lab-json.md).
 #[pyfunction]
-#[pyo3(signature = (recording_dir, model, hold_effects=false))]
+#[pyo3(signature = (recording_dir, model, hold_effects=false, arrays=false))]
 fn compare<'py>(
     py: Python<'py>,
     recording_dir: PathBuf,
     model: PathBuf,
     hold_effects: bool,
+    arrays: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
-    run(py, || {
+    run_with_arrays(py, arrays, || {
         let (prep, m) = load(&recording_dir, &model)?;
         let spec = if hold_effects {
             spec_holding_model(&m, &prep).0
         } else {
             spec_from_model(&m)
         };
-        Ok(report::comparison_json(&fit(&prep, &spec, &quiet)?))
+        let cmp = fit(&prep, &spec, &quiet)?;
+        Ok((report::comparison_json(&cmp), prep, cmp))
     })
 }
 
@@ -52,21 +93,22 @@ fn compare<'py>(
 /// `recording_dir` and give a verdict: the dict `tofprox lab diagnose --json` prints
 /// (`verdict`, `candidates`, `fit`, `rms`, …). `tolerance_mm`: remaining structure below this
 /// depth-equivalent RMS is not a missing effect (None: a share of the recording's noise).
+/// `arrays=True` adds `"arrays"`, the comparison's residuals and maps (as `compare`).
 #[pyfunction]
-#[pyo3(signature = (recording_dir, model, tolerance_mm=None))]
+#[pyo3(signature = (recording_dir, model, tolerance_mm=None, arrays=false))]
 fn diagnose<'py>(
     py: Python<'py>,
     recording_dir: PathBuf,
     model: PathBuf,
     tolerance_mm: Option<f64>,
+    arrays: bool,
 ) -> PyResult<Bound<'py, PyAny>> {
-    run(py, || {
+    run_with_arrays(py, arrays, || {
         let opts = diagnose_options(tolerance_mm)?;
         let (prep, m) = load(&recording_dir, &model)?;
         let cmp = fit(&prep, &spec_from_model(&m), &quiet)?;
-        Ok(report::diagnosis_json(&diagnose_with(
-            &prep, &cmp, &opts, &quiet,
-        )?))
+        let d = diagnose_with(&prep, &cmp, &opts, &quiet)?;
+        Ok((report::diagnosis_json(&d), prep, cmp))
     })
 }
 

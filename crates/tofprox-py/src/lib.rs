@@ -5,10 +5,13 @@
 //! arrays moved (not copied) out of the Rust buffers.
 use pyo3::prelude::*;
 
+mod calibration;
 mod errors;
 mod lab;
+mod model;
 mod process;
 mod recording;
+mod simulate;
 
 pub use errors::Error;
 
@@ -23,6 +26,17 @@ pub(crate) fn to_py<'py, T: serde::Serialize + ?Sized>(
     py.import("json")?.getattr("loads")?.call1((text,))
 }
 
+/// Raw frames as a numpy array, moved (not copied) out of the Rust buffer.
+pub(crate) fn frames_to_py(py: Python<'_>, raw: tofprox_format::RawFrames) -> Bound<'_, PyAny> {
+    use numpy::PyArray;
+    use tofprox_format::RawFrames;
+    match raw {
+        RawFrames::U16(a) => PyArray::from_owned_array(py, a).into_any(),
+        RawFrames::F32(a) => PyArray::from_owned_array(py, a).into_any(),
+        RawFrames::F64(a) => PyArray::from_owned_array(py, a).into_any(),
+    }
+}
+
 /// The native module `tofprox._tofprox`; the package `tofprox` re-exports it.
 #[pymodule]
 fn _tofprox(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -30,7 +44,12 @@ fn _tofprox(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("Error", py.get_type::<Error>())?;
     m.add_class::<recording::Recording>()?;
+    m.add_class::<calibration::Calibration>()?;
+    m.add_class::<model::Model>()?;
     m.add_function(wrap_pyfunction!(process::process, m)?)?;
+    m.add_function(wrap_pyfunction!(model::effects, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
+    m.add_function(wrap_pyfunction!(simulate::sweep, m)?)?;
     let lab = PyModule::new(py, "lab")?;
     lab::register(&lab)?;
     m.add_submodule(&lab)?;

@@ -117,6 +117,144 @@ def test_recording_is_recording_toml_and_its_npy_files():
         np.testing.assert_array_equal(frames, on_disk)
 
 
+def test_write_round_trips_a_recording(tmp_path):
+    rec = tofprox.Recording(EXAMPLE_REC)
+    frames = [rec.frames(i) for i in range(len(rec))]
+    out = tofprox.Recording.write(tmp_path / "copy", rec.sensor, rec.captures, frames,
+                                  description="a copy")
+    assert isinstance(out, tofprox.Recording) and len(out) == len(rec) == 8
+    assert out.sensor == rec.sensor
+    assert [without(c, "frames") for c in out.captures] == [without(c, "frames") for c in rec.captures]
+    for i, f in enumerate(frames):
+        assert out.frames(i).dtype == f.dtype
+        np.testing.assert_array_equal(out.frames(i), f)
+        np.testing.assert_array_equal(np.load(tmp_path / "copy" / out.captures[i]["frames"]), f)
+    # an existing recording is replaced only with force=True
+    with pytest.raises(tofprox.Error) as e:
+        tofprox.Recording.write(tmp_path / "copy", rec.sensor, rec.captures, frames)
+    assert e.value.kind == "AlreadyExists"
+    tofprox.Recording.write(tmp_path / "copy", rec.sensor, rec.captures[:1], frames[:1], force=True)
+    assert len(tofprox.Recording(tmp_path / "copy")) == 1
+
+
+def test_write_checks_as_the_reader_does_before_writing(tmp_path):
+    rec = tofprox.Recording(EXAMPLE_REC)
+    sensor, cap = rec.sensor, rec.captures[2]  # 4 phases, 16×16
+    good = rec.frames(2)
+    cases = [
+        ([good[:, :8, :]], [cap], "capture[0].frames"),             # not the window's shape
+        ([good[:2]], [cap], "capture[0].frames"),                  # 2 images for 4 phases
+        ([np.full((4, 16, 16), 4096, np.uint16)], [cap], "capture[0].frames"),  # > 12-bit codes
+        ([good], [dict(cap, exposure_us=-1.0)], "capture[0].exposure_us"),
+    ]
+    for frames, caps, key in cases:
+        target = tmp_path / "bad"
+        with pytest.raises(tofprox.Error) as e:
+            tofprox.Recording.write(target, sensor, caps, frames)
+        assert e.value.key == key, (key, e.value.kind, str(e.value))
+        assert not target.exists()  # nothing written
+    with pytest.raises(TypeError, match="uint16, float32 or float64"):
+        tofprox.Recording.write(tmp_path / "bad", sensor, [cap], [good.astype(np.int64)])
+    with pytest.raises(ValueError, match="captures\\[0\\]"):
+        tofprox.Recording.write(tmp_path / "bad", sensor, [dict(cap, exposure="x")], [good])
+    with pytest.raises(ValueError, match="2 captures but 1 frame arrays"):
+        tofprox.Recording.write(tmp_path / "bad", sensor, [cap, cap], [good])
+
+
+# ---- calibration sets and model files -----------------------------------------------------
+
+def test_calibration_is_calibration_toml_and_its_npy_files():
+    tomllib = pytest.importorskip("tomllib")
+    toml = tomllib.loads((EXAMPLE_CALIB / "calibration.toml").read_text())
+    cal = tofprox.Calibration(EXAMPLE_CALIB)
+    tables = {k for k, v in toml.items() if isinstance(v, dict) and "sha256" in v}
+    assert set(cal.parts) == tables == set(cal.arrays) == set(cal.sources)
+    assert cal.valid_for == toml["valid_for"]
+    assert cal.intrinsics is None
+    for part, array in cal.arrays.items():
+        assert array.dtype == np.float32
+        np.testing.assert_array_equal(array, np.load(EXAMPLE_CALIB / toml[part]["file"]))
+        assert cal.sources[part]["captures"] == toml[part]["source_captures"]
+    assert cal.arrays["offset"].shape == (16, 16)
+    with pytest.raises(tofprox.Error) as e:
+        tofprox.Calibration(EXAMPLE_REC)
+    assert e.value.file == str(EXAMPLE_REC / "calibration.toml")
+
+
+@pytest.mark.parametrize("name", ["ideal", "baseline", "full"])
+def test_model_equals_model_show(cli, name):
+    path = REPO / "config" / "model" / f"{name}.toml"
+    m = tofprox.Model(path)
+    shown = json.loads(run_cli(cli, "model", "show", path, "--json"))
+    assert m.summary() == shown
+    assert m.effects == shown["effects"] and m.sensor == shown["sensor"]
+    assert m.enabled == [e["id"] for e in tofprox.effects() if shown["effects"][e["id"]]["enabled"]]
+
+
+def test_effects_equal_model_effects(cli):
+    cat = tofprox.effects()
+    assert cat == json.loads(run_cli(cli, "model", "effects", "--json"))
+    droop = next(e for e in cat if e["id"] == "vcsel_droop")
+    p = droop["params"][0]
+    assert {"name", "unit", "min", "max", "typical"} <= set(p) and p["min"] <= p["typical"] <= p["max"]
+
+
+def test_a_bad_model_keeps_kind_and_file(tmp_path):
+    bad = tmp_path / "m.toml"
+    bad.write_text(BASELINE.read_text().replace("[effects.vcsel_droop]", "[effects.vcsel_drop]"))
+    with pytest.raises(tofprox.Error) as e:
+        tofprox.Model(bad)
+    assert e.value.kind == "UnknownEffect" and e.value.file == str(bad)
+
+
+# ---- simulation ---------------------------------------------------------------------------
+
+def test_simulate_sees_each_wall_at_its_distance():
+    """The ideal model's codes, demodulated by hand (4-phase arctangent, d = c·φ / 4πf)."""
+    d_m = [0.3, 0.75, 1.2]
+    a = tofprox.simulate(REPO / "config" / "model" / "ideal.toml", d_m, phases=4,
+                         averaged=16, window=(80, 100, 4, 4))
+    assert a.shape == (3, 4, 4, 4) and a.dtype == np.float32
+    i0, i90, i180, i270 = (a[:, k].astype(np.float64) for k in range(4))
+    phi = np.mod(np.arctan2(i90 - i270, i0 - i180), 2 * np.pi)
+    d = 299_792_458.0 * phi / (4 * np.pi * 80e6)
+    np.testing.assert_allclose(np.median(d, axis=(1, 2)), d_m, atol=0.01)
+    codes = tofprox.simulate(BASELINE, [0.5], phases=2, window=(80, 100, 4, 4))
+    assert codes.dtype == np.uint16 and codes.shape == (1, 2, 4, 4)
+    with pytest.raises(tofprox.Error) as e:
+        tofprox.simulate(BASELINE, [0.5], phases=3)
+    assert e.value.kind == "InvalidInput"
+
+
+@pytest.mark.parametrize("averaged", ["1", "4"])
+def test_sweep_writes_what_the_cli_writes(cli, tmp_path, averaged):
+    args = dict(distances_m=[0.3, 0.6], exposures_us=[250.0, 500.0], phases=2,
+                averaged=int(averaged), repeats=2, window=(80, 100, 8, 8), seed=5)
+    run_cli(cli, "sim", "sweep", "--model", BASELINE, "--distances", "0.3,0.6", "--exposures",
+            "250,500", "--phases", "2", "--averaged", averaged, "--repeats", "2",
+            "--window", "80,100,8,8", "--seed", "5", "--out", tmp_path / "cli")
+    rec = tofprox.sweep(BASELINE, out=tmp_path / "py", **args)
+    expected = tofprox.Recording(tmp_path / "cli")
+    assert len(rec) == len(expected) == 2 + 1 + 2 * 2 * 2
+    assert rec.captures == expected.captures and rec.sensor == expected.sensor
+    for c in rec.captures:  # byte for byte
+        assert (tmp_path / "py" / c["frames"]).read_bytes() == (tmp_path / "cli" / c["frames"]).read_bytes()
+    caps, frames = tofprox.sweep(BASELINE, **args)
+    assert caps == [without(c, "frames") for c in expected.captures]
+    for i, f in enumerate(frames):
+        np.testing.assert_array_equal(f, expected.frames(i))
+    # like: a recording's own conditions, as `sim sweep --like`
+    run_cli(cli, "sim", "sweep", "--like", tmp_path / "cli", "--model", BASELINE, "--seed", "2",
+            "--out", tmp_path / "cli-like")
+    with pytest.warns(UserWarning, match="copied but not simulated .*: repeat"):
+        like = tofprox.sweep(BASELINE, like=tmp_path / "cli", seed=2, out=tmp_path / "py-like")
+    assert like.captures == tofprox.Recording(tmp_path / "cli-like").captures
+    for c in like.captures:
+        assert (tmp_path / "py-like" / c["frames"]).read_bytes() == (tmp_path / "cli-like" / c["frames"]).read_bytes()
+    with pytest.raises(ValueError, match="like"):
+        tofprox.sweep(BASELINE, like=tmp_path / "cli", phases=4)
+
+
 # ---- errors keep kind, file and key -------------------------------------------------------
 
 def test_errors_keep_kind_file_and_key(tmp_path):
@@ -182,10 +320,25 @@ def readme_lab(cli, tmp_path_factory):
     return droop_sweep(cli, tmp_path_factory.mktemp("lab"), "0.15:1.80:0.05")
 
 
+def assert_arrays_are_the_export(arrays, export):
+    """The arrays Python returns equal the .npy files `--export DIR` writes (NaN where NaN)."""
+    names = {p.stem for p in export.glob("*.npy")}
+    assert set(arrays) == names == {"residual_lsb", "residual_z", "pixel_chi2", "offset_lsb",
+                                    "gain_lsb", "phase_rad"}
+    for name, a in arrays.items():
+        on_disk = np.load(export / f"{name}.npy")
+        assert a.dtype == on_disk.dtype and a.shape == on_disk.shape
+        np.testing.assert_array_equal(a, on_disk)
+
+
 def test_diagnose_equals_the_cli_and_names_the_droop(cli, readme_lab):
     tmp, base, rec = readme_lab
-    d = tofprox.lab.diagnose(rec, model=base)
-    assert d == json.loads(run_cli(cli, "lab", "diagnose", rec, "--model", base, "--json"))
+    d = tofprox.lab.diagnose(rec, model=base, arrays=True)
+    arrays = d.pop("arrays")
+    assert d == json.loads(run_cli(cli, "lab", "diagnose", rec, "--model", base, "--json",
+                                   "--export", tmp / "diag-export"))
+    assert_arrays_are_the_export(arrays, tmp / "diag-export")
+    assert arrays["residual_lsb"].shape == (139, 24, 16, 16)  # K: the correlation capture
     assert (d["verdict"], d["effect"]) == ("missing_effect", "vcsel_droop")
     assert round(d["fit"]["chi2_per_dof"], 3) == 7.786  # README / docs/lab.md
 
@@ -217,10 +370,18 @@ def small_lab(cli, tmp_path_factory):
 def test_compare_equals_the_cli(cli, small_lab):
     tmp, base, rec = small_lab
     for hold in (False, True):
-        c = tofprox.lab.compare(rec, model=base, hold_effects=hold)
-        args = ["lab", "compare", rec, "--model", base, "--json"] + (["--hold-effects"] if hold else [])
-        assert c == json.loads(run_cli(cli, *args))
+        c = tofprox.lab.compare(rec, model=base, hold_effects=hold, arrays=hold)
+        export = tmp / f"export-{hold}"
+        args = ["lab", "compare", rec, "--model", base, "--json", "--export", export]
+        assert without(c, "arrays") == json.loads(run_cli(cli, *args + (["--hold-effects"] if hold else [])))
         assert c["fit"]["chi2_per_dof"] > 1
+        if hold:
+            assert_arrays_are_the_export(c["arrays"], export)
+            # docs/lab-json.md: Σ z² over the finite entries is the fit's χ², one per sample
+            z = c["arrays"]["residual_z"].astype(np.float64)
+            assert np.isfinite(z).sum() == c["samples"]
+            chi2_per_dof = np.nansum(z ** 2) / (c["samples"] - c["parameters"])
+            assert chi2_per_dof == pytest.approx(c["fit"]["chi2_per_dof"], rel=1e-3)
 
 
 def test_explain_equals_the_cli(cli, small_lab):

@@ -4,14 +4,22 @@ from typing import Any, Optional, Union
 _Path = Union[str, PathLike[str]]
 
 def compare(
-    recording_dir: _Path, model: _Path, hold_effects: bool = False
+    recording_dir: _Path, model: _Path, hold_effects: bool = False, arrays: bool = False
 ) -> dict[str, Any]:
-    """Fit ``model``'s enabled effects to the recording: ``tofprox lab compare --json``."""
+    """Fit ``model``'s enabled effects to the recording: ``tofprox lab compare --json``.
+    ``arrays=True`` adds ``"arrays"``: what ``--export DIR`` writes as .npy files, as numpy
+    arrays (``residual_lsb``, ``residual_z``: float32 captures × K × rows × cols, NaN where a
+    code is not in the fit; ``pixel_chi2``, ``offset_lsb``, ``gain_lsb``, ``phase_rad``:
+    float64 rows × cols)."""
 
 def diagnose(
-    recording_dir: _Path, model: _Path, tolerance_mm: Optional[float] = None
+    recording_dir: _Path,
+    model: _Path,
+    tolerance_mm: Optional[float] = None,
+    arrays: bool = False,
 ) -> dict[str, Any]:
-    """Rank the effects ``model`` lacks and give a verdict: ``tofprox lab diagnose --json``."""
+    """Rank the effects ``model`` lacks and give a verdict: ``tofprox lab diagnose --json``
+    (``arrays=True``: the comparison's arrays under ``"arrays"``, as ``compare``)."""
 
 def add(
     effect: str,

@@ -16,7 +16,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
-use ndarray::{Array2, Array4};
+use tofprox_lab::arrays::ComparisonArrays;
 use tofprox_lab::diagnose::{Diagnosis, Explanation};
 use tofprox_lab::structure::ConditionScore;
 use tofprox_lab::{Comparison, Prepared};
@@ -27,27 +27,19 @@ fn comparison_files(
     cmp: &Comparison,
     d: Option<&Diagnosis>,
 ) -> Vec<(String, Vec<u8>)> {
-    let map = |v: &[f64]| {
-        let a = Array2::from_shape_fn((prep.rows, prep.cols), |(r, c)| {
-            v.get(r * prep.cols + c).copied().unwrap_or(f64::NAN)
-        });
-        tofprox_format::npy::encode_f64(&a)
-    };
+    use tofprox_format::npy::{encode_f32, encode_f64};
+    let a = ComparisonArrays::of(prep, cmp);
     let mut files = Vec::new();
     // (`explain` keeps no residual table of its steps: their maps and tables only)
-    if !cmp.recs.is_empty() {
-        let (res, z) = residual_arrays(prep, cmp);
-        files.push((
-            "residual_lsb.npy".into(),
-            tofprox_format::npy::encode_f32(&res),
-        ));
-        files.push(("residual_z.npy".into(), tofprox_format::npy::encode_f32(&z)));
+    if let (Some(res), Some(z)) = (&a.residual_lsb, &a.residual_z) {
+        files.push(("residual_lsb.npy".into(), encode_f32(res)));
+        files.push(("residual_z.npy".into(), encode_f32(z)));
     }
     files.extend([
-        ("pixel_chi2.npy".into(), map(&cmp.pixel_chi2)),
-        ("offset_lsb.npy".into(), map(&cmp.model.offset)),
-        ("gain_lsb.npy".into(), map(&cmp.model.gain)),
-        ("phase_rad.npy".into(), map(&cmp.model.phase)),
+        ("pixel_chi2.npy".into(), encode_f64(&a.pixel_chi2)),
+        ("offset_lsb.npy".into(), encode_f64(&a.offset_lsb)),
+        ("gain_lsb.npy".into(), encode_f64(&a.gain_lsb)),
+        ("phase_rad.npy".into(), encode_f64(&a.phase_rad)),
         ("captures.csv".into(), captures_csv(cmp).into_bytes()),
         (
             "structure.csv".into(),
@@ -58,28 +50,6 @@ fn comparison_files(
         files.push(("candidates.csv".into(), candidates_csv(d).into_bytes()));
     }
     files
-}
-
-/// The residual table as dense arrays `(captures, K, rows, cols)`: r (LSB) and r·√w.
-fn residual_arrays(prep: &Prepared, cmp: &Comparison) -> (Array4<f32>, Array4<f32>) {
-    let k_max = prep
-        .caps
-        .iter()
-        .map(|c| c.theta_rad.len())
-        .max()
-        .unwrap_or(0);
-    let shape = (prep.caps.len(), k_max, prep.rows, prep.cols);
-    let mut res = Array4::from_elem(shape, f32::NAN);
-    let mut z = Array4::from_elem(shape, f32::NAN);
-    for s in &cmp.recs {
-        let (row, col) = (s.pix as usize / prep.cols, s.pix as usize % prep.cols);
-        let at = [s.cap as usize, usize::from(s.k), row, col];
-        if let (Some(r), Some(zz)) = (res.get_mut(at), z.get_mut(at)) {
-            *r = s.r;
-            *zz = s.r * s.w.sqrt();
-        }
-    }
-    (res, z)
 }
 
 /// A CSV field of a number: shortest round-trip form, `nan` for NaN (numpy and Python read it).

@@ -13,13 +13,11 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
-use rand::SeedableRng;
-use rand::rngs::SmallRng;
-use rayon::prelude::*;
-use tofprox_format::{CaptureSpec, RawFrames, Recording, RecordingWriter};
+use tofprox_format::Recording;
 use tofprox_model::figures::Figure;
+use tofprox_model::sweep::{self, PlannedCapture, SweepPlan};
 use tofprox_model::{
-    CaptureRequest, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator, catalogue,
+    CaptureRequest, ModelConfig, SceneScript, SensorGeometry, Simulator, catalogue,
 };
 
 #[derive(clap::Subcommand, Debug)]
@@ -187,42 +185,19 @@ pub fn run_model(c: ModelCommand) -> anyhow::Result<ExitCode> {
 /// Parse `FROM:TO:STEP` or a comma list of distances.
 fn parse_distances(s: &str) -> anyhow::Result<Vec<f64>> {
     let bad = || format!("--distances `{s}`: expected FROM:TO:STEP or a comma list of metres");
-    let v: Vec<f64> = if s.contains(':') {
-        let parts: Vec<f64> = s
-            .split(':')
-            .map(|p| p.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .with_context(bad)?;
-        let [from, to, step] = parts[..] else {
-            bail!(bad())
-        };
-        if !(step.is_finite() && step > 0.0 && from.is_finite() && to.is_finite() && to >= from) {
-            bail!("{}: need STEP > 0 and TO ≥ FROM", bad());
+    let sep = if s.contains(':') { ':' } else { ',' };
+    let parts: Vec<f64> = s
+        .split(sep)
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .with_context(bad)?;
+    match parts[..] {
+        [from, to, step] if sep == ':' => {
+            Ok(sweep::distance_range(from, to, step).with_context(bad)?)
         }
-        let n = ((to - from) / step + 1e-9).floor() as usize;
-        if n > 100_000 {
-            bail!("--distances `{s}` gives {} points, at most 100000", n + 1);
-        }
-        (0..=n).map(|i| from + step * i as f64).collect()
-    } else {
-        s.split(',')
-            .map(|p| p.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .with_context(bad)?
-    };
-    if v.is_empty() {
-        bail!(bad());
+        _ if sep == ':' => bail!(bad()),
+        _ => Ok(parts),
     }
-    Ok(v)
-}
-
-fn phases_for(n: usize) -> anyhow::Result<Vec<f64>> {
-    Ok(match n {
-        2 => vec![0.0, 90.0],
-        4 => vec![0.0, 90.0, 180.0, 270.0],
-        24 => (0..24).map(|k| 15.0 * k as f64).collect(),
-        other => bail!("--phases {other}: allowed 2, 4 or 24"),
-    })
 }
 
 fn geometry_for(window: &Option<String>) -> anyhow::Result<SensorGeometry> {
@@ -240,23 +215,6 @@ fn geometry_for(window: &Option<String>) -> anyhow::Result<SensorGeometry> {
     }
 }
 
-/// Noise seed of capture `index`: independent of scheduling, so the output is the
-/// same for any thread count.
-fn capture_rng(seed: u64, index: usize) -> SmallRng {
-    let mut z = seed ^ (index as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    SmallRng::seed_from_u64(z ^ (z >> 31))
-}
-
-struct Planned {
-    req: CaptureRequest,
-    scene: Scene,
-    conditions: Vec<(&'static str, f64)>,
-    /// Conditions copied from a recording (`sweep --like`) that are no model input.
-    copied: Vec<(String, f64)>,
-}
-
 fn progress(n: usize, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(n as u64);
     pb.set_style(
@@ -268,123 +226,25 @@ fn progress(n: usize, what: &str) -> ProgressBar {
     pb
 }
 
-/// Simulate `plan` in parallel (chunks, in order) and append every capture.
-fn simulate_into(
+/// Simulate `plan` into a new recording `out` (a progress bar on the terminal).
+fn write_recording(
     sim: &Simulator,
-    plan: &[Planned],
+    plan: &[PlannedCapture],
     seed: u64,
-    writer: &mut RecordingWriter,
-    pb: &ProgressBar,
-) -> anyhow::Result<()> {
-    let chunk = (rayon::current_num_threads() * 8).max(8);
-    for (ci, block) in plan.chunks(chunk).enumerate() {
-        let base = ci * chunk;
-        let frames: Vec<anyhow::Result<RawFrames>> = block
-            .par_iter()
-            .enumerate()
-            .map(|(j, p)| {
-                let mut rng = capture_rng(seed, base + j);
-                if p.req.averaged == 1
-                    && sim.model().is_enabled(tofprox_model::ids::quantization::ID)
-                {
-                    Ok(RawFrames::U16(sim.capture_u16(&p.scene, &p.req, &mut rng)?))
-                } else {
-                    Ok(RawFrames::F32(
-                        sim.capture(&p.scene, &p.req, &mut rng)?.mapv(|v| v as f32),
-                    ))
-                }
-            })
-            .collect();
-        for (p, f) in block.iter().zip(frames) {
-            let f = f?;
-            let spec = CaptureSpec {
-                phases_deg: p.req.phases_deg.clone(),
-                exposure_us: p.req.exposure_us,
-                illumination: p.req.illumination,
-                averaged: p.req.averaged,
-                timestamp_ns: None,
-                conditions: p
-                    .conditions
-                    .iter()
-                    .map(|(k, v)| (k.to_string(), *v))
-                    .chain(p.copied.iter().cloned())
-                    .collect(),
-            };
-            writer.append(spec, &f)?;
-            pb.inc(1);
-        }
-    }
-    Ok(())
+    out: &Path,
+    description: String,
+    force: bool,
+    what: &str,
+) -> anyhow::Result<usize> {
+    let mut writer = super::new_recording(out, *sim.geometry(), Some(description), force)?;
+    let pb = progress(plan.len(), what);
+    sweep::write_plan(sim, plan, seed, &mut writer, || pb.inc(1))?;
+    pb.finish_and_clear();
+    Ok(writer.len())
 }
 
 fn load_model(path: &Path) -> anyhow::Result<ModelConfig> {
     Ok(ModelConfig::load(path)?)
-}
-
-/// The conditions of a recorded capture that the model takes as inputs.
-const MODEL_INPUTS: &[&str] = &[
-    "distance_m",
-    "reflectivity",
-    "ambient_klux",
-    "temperature_c",
-];
-
-/// The plan of `sweep --like`: every capture of `rec` under its own
-/// conditions. Returns the plan, the conditions copied but not simulated
-/// (by name) and the illuminated captures skipped for want of a distance.
-fn plan_like(rec: &Recording) -> anyhow::Result<(Vec<Planned>, Vec<String>, usize)> {
-    let mut plan = Vec::new();
-    let mut ignored = std::collections::BTreeSet::new();
-    let mut skipped = 0;
-    for (i, meta) in rec.captures().iter().enumerate() {
-        let cond = |k: &str| meta.conditions.get(k).copied();
-        let distance = cond("distance_m");
-        if meta.illumination && distance.is_none() {
-            skipped += 1;
-            continue;
-        }
-        let refl = cond("reflectivity").unwrap_or(1.0);
-        let req = CaptureRequest {
-            phases_deg: meta.phases_deg.clone(),
-            exposure_us: meta.exposure_us,
-            illumination: meta.illumination,
-            averaged: meta.averaged,
-            ambient_klux: cond("ambient_klux").unwrap_or(0.0),
-            // the model's default temperature when the recording states none
-            temperature_c: cond("temperature_c").unwrap_or(25.0),
-        };
-        req.validate()
-            .with_context(|| format!("{}: capture {i}", rec.dir().display()))?;
-        // a dark capture sees no target; the wall only sets the geometry
-        let scene = Scene::wall(distance.unwrap_or(1.0), refl);
-        scene
-            .validate()
-            .with_context(|| format!("{}: capture {i}", rec.dir().display()))?;
-        let conditions = MODEL_INPUTS
-            .iter()
-            .filter_map(|k| cond(k).map(|v| (*k, v)))
-            .collect();
-        let copied = meta
-            .conditions
-            .iter()
-            .filter(|(k, _)| !MODEL_INPUTS.contains(&k.as_str()))
-            .map(|(k, v)| (k.clone(), *v))
-            .collect::<Vec<_>>();
-        ignored.extend(copied.iter().map(|(k, _)| k.clone()));
-        plan.push(Planned {
-            copied,
-            req,
-            scene,
-            conditions,
-        });
-    }
-    if plan.is_empty() {
-        bail!(
-            "{}: no capture to simulate (illuminated captures need distance_m)",
-            rec.dir().display()
-        );
-    }
-    Ok((plan, ignored.into_iter().collect(), skipped))
 }
 
 /// `sim sweep --like REC`: the recording's own conditions through the model.
@@ -392,9 +252,8 @@ fn sweep_like(a: &SweepArgs, like: &Path) -> anyhow::Result<ExitCode> {
     let model = load_model(&a.model)?;
     let rec = Recording::open(like)
         .with_context(|| format!("cannot open recording {}", like.display()))?;
-    let geometry = *rec.sensor();
-    let (plan, ignored, skipped) = plan_like(&rec)?;
-    let sim = Simulator::new(&model, geometry, a.seed)?;
+    let plan = sweep::plan_like(&rec)?;
+    let sim = Simulator::new(&model, *rec.sensor(), a.seed)?;
     let description = format!(
         "tofprox sim sweep --like {}: model {} (effects: {}), seed {}",
         like.display(),
@@ -402,22 +261,29 @@ fn sweep_like(a: &SweepArgs, like: &Path) -> anyhow::Result<ExitCode> {
         model.enabled_effects().join(", "),
         a.seed
     );
-    let mut writer = super::new_recording(&a.out, geometry, Some(description), a.force)?;
-    let pb = progress(plan.len(), "sweep --like");
-    simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
-    pb.finish_and_clear();
-    if !ignored.is_empty() {
+    let n = write_recording(
+        &sim,
+        &plan.captures,
+        a.seed,
+        &a.out,
+        description,
+        a.force,
+        "sweep --like",
+    )?;
+    if !plan.ignored.is_empty() {
         eprintln!(
             "conditions copied but not simulated (no model input): {}",
-            ignored.join(", ")
+            plan.ignored.join(", ")
         );
     }
-    if skipped > 0 {
-        eprintln!("skipped {skipped} illuminated captures without distance_m");
+    if plan.skipped > 0 {
+        eprintln!(
+            "skipped {} illuminated captures without distance_m",
+            plan.skipped
+        );
     }
     eprintln!(
-        "wrote {} captures like {} to {}",
-        writer.len(),
+        "wrote {n} captures like {} to {}",
         like.display(),
         a.out.display()
     );
@@ -429,90 +295,28 @@ fn sweep(a: SweepArgs) -> anyhow::Result<ExitCode> {
         return sweep_like(&a, like);
     }
     let model = load_model(&a.model)?;
-    let distances = parse_distances(&a.distances)?;
-    let phases = phases_for(a.phases)?;
-    let geometry = geometry_for(&a.window)?;
-    if a.exposures.is_empty() || a.ambient.is_empty() || a.temperatures.is_empty() {
-        bail!("--exposures, --ambient and --temperatures need at least one value");
-    }
-    if a.repeats == 0 || a.repeats > 10_000 {
-        bail!("--repeats {}: allowed 1..=10000", a.repeats);
-    }
-    let sim = Simulator::new(&model, geometry, a.seed)?;
-    let refl = a.reflectivity;
-    let mut plan = Vec::new();
-    let request = |ph: &[f64], t: f64, illum: bool, amb: f64, temp: f64| CaptureRequest {
-        phases_deg: ph.to_vec(),
-        exposure_us: t,
-        illumination: illum,
+    let plan = SweepPlan {
+        distances_m: parse_distances(&a.distances)?,
+        exposures_us: a.exposures.clone(),
+        phases: a.phases,
+        ambient_klux: a.ambient.clone(),
+        temperatures_c: a.temperatures.clone(),
+        reflectivity: a.reflectivity,
+        repeats: a.repeats,
         averaged: a.averaged,
-        ambient_klux: amb,
-        temperature_c: temp,
-    };
-    // 1. dark frames per exposure and temperature (offset/FPN extraction, 2.3.1.3)
-    for &temp in &a.temperatures {
-        for &t in &a.exposures {
-            plan.push(Planned {
-                copied: Vec::new(),
-                req: request(&phases, t, false, 0.0, temp),
-                scene: Scene::wall(a.correlation_distance, refl),
-                conditions: vec![("ambient_klux", 0.0), ("temperature_c", temp)],
-            });
-        }
+        correlation_distance_m: a.correlation_distance,
     }
-    // 2. a 24-phase correlation capture at a known distance (3.3.6)
-    let corr_phases = phases_for(24)?;
-    let (t0, temp0) = (a.exposures[0], a.temperatures[0]);
-    plan.push(Planned {
-        copied: Vec::new(),
-        req: request(&corr_phases, t0, true, 0.0, temp0),
-        scene: Scene::wall(a.correlation_distance, refl),
-        conditions: vec![
-            ("distance_m", a.correlation_distance),
-            ("reflectivity", refl),
-            ("ambient_klux", 0.0),
-            ("temperature_c", temp0),
-        ],
-    });
-    // 3. the sweeps
-    for &temp in &a.temperatures {
-        for &amb in &a.ambient {
-            for &t in &a.exposures {
-                for &d in &distances {
-                    for rep in 0..a.repeats {
-                        plan.push(Planned {
-                            copied: Vec::new(),
-                            req: request(&phases, t, true, amb, temp),
-                            scene: Scene::wall(d, refl),
-                            conditions: vec![
-                                ("distance_m", d),
-                                ("reflectivity", refl),
-                                ("ambient_klux", amb),
-                                ("temperature_c", temp),
-                                ("repeat", f64::from(rep)),
-                            ],
-                        });
-                    }
-                }
-            }
-        }
-    }
-    // validate everything before writing anything
-    for p in &plan {
-        p.req.validate()?;
-        p.scene.validate()?;
-    }
+    .captures()?;
+    let geometry = geometry_for(&a.window)?;
+    let sim = Simulator::new(&model, geometry, a.seed)?;
     let description = format!(
         "tofprox sim sweep: model {} (effects: {}), seed {}",
         a.model.display(),
         model.enabled_effects().join(", "),
         a.seed
     );
-    let mut writer = super::new_recording(&a.out, geometry, Some(description), a.force)?;
-    let pb = progress(plan.len(), "sweep");
-    simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
-    pb.finish_and_clear();
-    eprintln!("wrote {} captures to {}", writer.len(), a.out.display());
+    let n = write_recording(&sim, &plan, a.seed, &a.out, description, a.force, "sweep")?;
+    eprintln!("wrote {n} captures to {}", a.out.display());
     Ok(ExitCode::SUCCESS)
 }
 
@@ -544,52 +348,37 @@ fn scene(a: SceneArgs) -> anyhow::Result<ExitCode> {
     if n == 0 || n > 100_000 {
         bail!("duration × rate gives {n} frames, allowed 1..=100000");
     }
-    let phases = phases_for(a.phases)?;
     if a.phases == 24 {
         bail!("--phases for scenes: 2 or 4");
     }
+    let phases = sweep::phases_for(a.phases)?;
     let geometry = geometry_for(&a.window)?;
     let sim = Simulator::new(&model, geometry, a.seed)?;
-    let plan: Vec<Planned> = (0..n)
+    let plan: Vec<PlannedCapture> = (0..n)
         .map(|i| {
             let t = i as f64 / a.rate;
-            let mut req = CaptureRequest::with_phases(phases.clone(), a.exposure_us);
-            req.averaged = 1;
-            Planned {
-                copied: Vec::new(),
-                req,
-                scene: script.at(t),
-                conditions: vec![
-                    ("distance_m", script.centre_distance_m(t)),
-                    (
-                        "reflectivity",
-                        if script.object_distance_m(t).is_some() {
-                            script.object_reflectivity
-                        } else {
-                            script.wall_reflectivity
-                        },
-                    ),
-                    ("ambient_klux", 0.0),
-                    ("temperature_c", 25.0),
-                    ("time_s", t),
-                ],
-            }
+            let mut request = CaptureRequest::with_phases(phases.clone(), a.exposure_us);
+            request.averaged = 1;
+            let reflectivity = if script.object_distance_m(t).is_some() {
+                script.object_reflectivity
+            } else {
+                script.wall_reflectivity
+            };
+            let mut p = PlannedCapture::wall(request, script.centre_distance_m(t), reflectivity);
+            p.scene = script.at(t);
+            p.conditions.insert("time_s".into(), t);
+            p
         })
         .collect();
-    for p in &plan {
-        p.req.validate()?;
-    }
+    sweep::validate(&plan)?;
     let description = format!(
         "tofprox sim scene: {:?} script, model {}, seed {}",
         script.kind,
         a.model.display(),
         a.seed
     );
-    let mut writer = super::new_recording(&a.out, geometry, Some(description), a.force)?;
-    let pb = progress(plan.len(), "scene");
-    simulate_into(&sim, &plan, a.seed, &mut writer, &pb)?;
-    pb.finish_and_clear();
-    eprintln!("wrote {} frames to {}", writer.len(), a.out.display());
+    let n = write_recording(&sim, &plan, a.seed, &a.out, description, a.force, "scene")?;
+    eprintln!("wrote {n} frames to {}", a.out.display());
     Ok(ExitCode::SUCCESS)
 }
 
@@ -714,36 +503,8 @@ fn effects(a: EffectsArgs) -> anyhow::Result<ExitCode> {
 fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
     let m = load_model(&a.model)?;
     if a.json {
-        let mut effects = serde_json::Map::new();
-        for e in catalogue() {
-            let mut params = serde_json::Map::new();
-            for p in e.params {
-                if let Some(v) = m.param(e.id, p.name) {
-                    params.insert(p.name.to_string(), serde_json::json!(v));
-                }
-            }
-            effects.insert(
-                e.id.to_string(),
-                serde_json::json!({"enabled": m.effect(e.id).is_some_and(|s| s.enabled), "params": params}),
-            );
-        }
-        let sensor: serde_json::Map<String, serde_json::Value> =
-            tofprox_model::catalogue::SENSOR_PARAMS
-                .iter()
-                .filter_map(|p| {
-                    m.param("sensor", p.name)
-                        .map(|v| (p.name.to_string(), serde_json::json!(v)))
-                })
-                .collect();
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&serde_json::json!({
-                "description": m.description,
-                "sensor": sensor,
-                "effects": effects,
-                "measured_waveforms": m.waveforms().is_some(),
-            }))?
-        );
+        let summary = tofprox_model::ModelSummary::of(&m);
+        println!("{}", serde_json::to_string_pretty(&summary)?);
         return Ok(ExitCode::SUCCESS);
     }
     println!("{}: valid model", a.model.display());
