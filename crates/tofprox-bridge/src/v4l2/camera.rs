@@ -59,6 +59,10 @@ pub struct V4l2Settings {
     pub buffers: u32,
     /// Longest wait for a buffer after STREAMON (ms).
     pub frame_timeout_ms: u64,
+    /// Close the node after every cycle (not only when no client claims): a driver that
+    /// powers its sensor with the open file then holds it in reset between readings, and
+    /// runs its whole bring-up each cycle. For the daemon's source; the camera ignores it.
+    pub release_between_cycles: bool,
 }
 
 impl Default for V4l2Settings {
@@ -79,6 +83,7 @@ impl Default for V4l2Settings {
             modulation_hz_per_unit: 1e6,
             buffers: 2,
             frame_timeout_ms: 2000,
+            release_between_cycles: false,
         }
     }
 }
