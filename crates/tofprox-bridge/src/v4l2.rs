@@ -246,7 +246,10 @@ mod tests {
         assert_eq!(PixelFormat::Y12P.fourcc(), 0x5032_3159);
         assert_eq!(PixelFormat::Y16.fourcc(), 0x2036_3159);
         assert_eq!(fourcc_str(PixelFormat::Y12.fourcc()), "Y12");
-        assert_eq!(PixelFormat::from_fourcc(0x5032_3159), Some(PixelFormat::Y12P));
+        assert_eq!(
+            PixelFormat::from_fourcc(0x5032_3159),
+            Some(PixelFormat::Y12P)
+        );
         assert_eq!(PixelFormat::from_fourcc(fourcc(b"YUYV")), None);
     }
 
@@ -257,7 +260,10 @@ mod tests {
         assert_eq!(Errno::EINVAL.kind(), ErrorKind::Config);
         assert_eq!(Errno::EAGAIN.kind(), ErrorKind::Timeout);
         let e = Errno::ENODEV.on("/dev/video0", "VIDIOC_DQBUF");
-        let msg = format!("{e}: {}", std::error::Error::source(&e).expect("errno kept"));
+        let msg = format!(
+            "{e}: {}",
+            std::error::Error::source(&e).expect("errno kept")
+        );
         assert!(msg.starts_with("/dev/video0: VIDIOC_DQBUF: "), "{msg}");
     }
 }

@@ -8,7 +8,9 @@ use std::time::Duration;
 
 use ndarray::Array3;
 use tofprox_bridge::v4l2::camera::{V4l2Camera, V4l2Settings};
-use tofprox_bridge::v4l2::fake::{FakeControl, FakeDevice, FakeScene, FakeSpec, Ioctl, SceneRequest};
+use tofprox_bridge::v4l2::fake::{
+    FakeControl, FakeDevice, FakeScene, FakeSpec, Ioctl, SceneRequest,
+};
 use tofprox_bridge::v4l2::{ControlInfo, Errno, PixelFormat};
 use tofprox_bridge::{Clock, ErrorKind, VirtualClock};
 
@@ -23,7 +25,9 @@ fn pattern(k: usize, r: usize, c: usize, exposure: i32) -> u16 {
 impl FakeScene for Pattern {
     fn images(&mut self, req: &SceneRequest) -> Array3<u16> {
         let e = req.controls.get("Exposure").copied().unwrap_or(0);
-        Array3::from_shape_fn((req.images, req.rows, req.cols), |(k, r, c)| pattern(k, r, c, e))
+        Array3::from_shape_fn((req.images, req.rows, req.cols), |(k, r, c)| {
+            pattern(k, r, c, e)
+        })
     }
 }
 
@@ -42,11 +46,15 @@ fn control(id: u32, name: &str, minimum: i32, maximum: i32) -> FakeControl {
 }
 
 fn fake(format: PixelFormat, clock: Arc<dyn Clock>) -> FakeDevice {
+    fake_of(format, 4, clock)
+}
+
+fn fake_of(format: PixelFormat, images: u32, clock: Arc<dyn Clock>) -> FakeDevice {
     let spec = FakeSpec {
         format,
         cols: 10,
         rows: 6,
-        images: 4,
+        images,
         pad_bytes: 4,
         adc_bits: 12,
         controls: vec![
@@ -65,7 +73,7 @@ fn settings(format: PixelFormat) -> V4l2Settings {
         width: 10,
         rows: 6,
         images: 4,
-        exposure_control: "exposure".into(), // names compare case-insensitively
+        exposure_controls: vec!["exposure".into()], // names compare case-insensitively
         ..V4l2Settings::default()
     }
 }
@@ -82,9 +90,8 @@ fn stacked_buffers_decode_to_the_codes_that_made_them() {
             // the control's range is 10..=2000 µs: 5000 is clamped, and reported as applied
             let applied = exposure_us.min(2000.0);
             assert_eq!(cap.exposure_us, applied);
-            let want = Array3::from_shape_fn((4, 6, 10), |(k, r, c)| {
-                pattern(k, r, c, applied as i32)
-            });
+            let want =
+                Array3::from_shape_fn((4, 6, 10), |(k, r, c)| pattern(k, r, c, applied as i32));
             assert_eq!(cap.frames, want, "{format:?}");
             assert_eq!(cap.phases_deg, vec![0.0, 90.0, 180.0, 270.0]);
             assert_eq!(cap.modulation_hz, 80e6);
@@ -94,6 +101,18 @@ fn stacked_buffers_decode_to_the_codes_that_made_them() {
         }
         cam.close().unwrap();
     }
+}
+
+#[test]
+fn a_sequence_starting_with_a_grey_image_gives_its_phase_images() {
+    let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
+    let dev = fake_of(PixelFormat::Y16, 5, clock.clone());
+    let mut s = settings(PixelFormat::Y16);
+    (s.images, s.first_phase_image) = (5, 1);
+    let mut cam = V4l2Camera::open(dev.open().unwrap(), s, clock).unwrap();
+    let cap = cam.capture(300.0, None).unwrap();
+    let want = Array3::from_shape_fn((4, 6, 10), |(k, r, c)| pattern(k + 1, r, c, 300));
+    assert_eq!(cap.frames, want);
 }
 
 #[test]
@@ -114,20 +133,27 @@ fn a_missing_control_is_refused_naming_the_key() {
     let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
     let dev = fake(PixelFormat::Y12, clock.clone());
     let mut s = settings(PixelFormat::Y12);
-    s.exposure_control = "Integration Time".into();
+    s.exposure_controls = vec!["Integration Time".into()];
     let Err(e) = V4l2Camera::open(dev.open().unwrap(), s, clock) else {
         panic!("opened without the control");
     };
     let msg = e.to_string();
-    assert!(msg.contains("v4l2.exposure_control = \"Integration Time\""), "{msg}");
+    assert!(
+        msg.contains("v4l2.exposure_controls = \"Integration Time\""),
+        "{msg}"
+    );
 }
 
 #[test]
 fn a_second_frequency_needs_the_modulation_control() {
     let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
     let dev = fake(PixelFormat::Y12, clock.clone());
-    let mut cam = V4l2Camera::open(dev.open().unwrap(), settings(PixelFormat::Y12), clock.clone())
-        .unwrap();
+    let mut cam = V4l2Camera::open(
+        dev.open().unwrap(),
+        settings(PixelFormat::Y12),
+        clock.clone(),
+    )
+    .unwrap();
     let e = cam.capture(100.0, Some(70e6)).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Config);
     assert!(e.to_string().contains("no v4l2.modulation_control"), "{e}");
@@ -144,12 +170,19 @@ fn busy_and_vanishing_devices_are_errors_naming_the_device() {
     let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
     let dev = fake(PixelFormat::Y12, clock.clone());
     let handle = dev.handle();
-    let mut cam = V4l2Camera::open(dev.open().unwrap(), settings(PixelFormat::Y12), clock.clone())
-        .unwrap();
+    let mut cam = V4l2Camera::open(
+        dev.open().unwrap(),
+        settings(PixelFormat::Y12),
+        clock.clone(),
+    )
+    .unwrap();
     handle.fail_next(Ioctl::Streamon, Errno::EBUSY);
     let e = cam.capture(100.0, None).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Access);
-    assert!(e.to_string().starts_with("/dev/video7: VIDIOC_STREAMON"), "{e}");
+    assert!(
+        e.to_string().starts_with("/dev/video7: VIDIOC_STREAMON"),
+        "{e}"
+    );
     // the failed cycle still stopped the stream: the next one runs
     cam.capture(100.0, None).unwrap();
 
@@ -157,8 +190,15 @@ fn busy_and_vanishing_devices_are_errors_naming_the_device() {
     cam.capture(100.0, None).unwrap();
     let e = cam.capture(100.0, None).unwrap_err();
     assert_eq!(e.kind(), ErrorKind::Disconnected);
-    assert!(e.to_string().starts_with("/dev/video7: VIDIOC_DQBUF"), "{e}");
-    assert_eq!(dev.open().err(), Some(Errno::ENOENT), "gone until replugged");
+    assert!(
+        e.to_string().starts_with("/dev/video7: VIDIOC_DQBUF"),
+        "{e}"
+    );
+    assert_eq!(
+        dev.open().err(),
+        Some(Errno::ENOENT),
+        "gone until replugged"
+    );
     handle.replug();
     let mut cam = V4l2Camera::open(dev.open().unwrap(), settings(PixelFormat::Y12), clock).unwrap();
     cam.capture(100.0, None).unwrap();

@@ -15,7 +15,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use ndarray::Array3;
-use tofprox_bridge::v4l2::fake::{FakeControl, FakeDevice, FakeScene, FakeSpec, FakeV4l2, SceneRequest};
+use tofprox_bridge::v4l2::fake::{
+    FakeControl, FakeDevice, FakeScene, FakeSpec, FakeV4l2, SceneRequest,
+};
 use tofprox_bridge::v4l2::{ControlInfo, PixelFormat};
 use tofprox_bridge::{Clock, VirtualClock};
 use tofproxd::backends::v4l2::V4l2Source;
@@ -31,8 +33,8 @@ const C_M_PER_S: f64 = 299_792_458.0;
 
 /// A hand approaching to 6 cm and leaving, in front of a wall at 0.9 m (one entry per cycle).
 const SCRIPT_MM: [f64; 15] = [
-    900.0, 900.0, 900.0, 700.0, 450.0, 250.0, 160.0, 60.0, 60.0, 60.0, 80.0, 200.0, 400.0,
-    700.0, 900.0,
+    900.0, 900.0, 900.0, 700.0, 450.0, 250.0, 160.0, 60.0, 60.0, 60.0, 80.0, 200.0, 400.0, 700.0,
+    900.0,
 ];
 
 /// The correlation of square-wave illumination with a square-wave demodulation: a triangle
@@ -108,7 +110,7 @@ fn config(format: PixelFormat) -> Config {
          [ambient]\nenabled = false\n[exposure]\ninitial_us = 80.0\n\
          [v4l2]\ndevice = \"/dev/video-tof\"\npixel_format = \"{format:?}\"\n\
          width = {COLS}\nrows = {ROWS}\nimages = 4\nphases_deg = [0.0, 90.0, 180.0, 270.0]\n\
-         modulation_hz = 80e6\nexposure_control = \"Exposure\"\n\
+         modulation_hz = 80e6\nexposure_controls = [\"Exposure\"]\n\
          modulation_control = \"Modulation Frequency\"\nmodulation_hz_per_unit = 1e6\n"
     );
     Config::parse(&text, Path::new("v4l2.toml")).expect("config")
@@ -133,14 +135,20 @@ fn full_cycles_follow_the_scene_through_the_drivers_controls() {
     for _ in 0..SCRIPT_MM.len() {
         let o = ctl.step(false);
         assert!(o.error.is_none(), "{:?}", o.error);
-        assert!(o.update.power_mw.is_some_and(|p| p > 0.0), "energy accounted");
+        assert!(
+            o.update.power_mw.is_some_and(|p| p > 0.0),
+            "energy accounted"
+        );
         // the exposure went through the driver's control (the fake's starts at 1000 µs)
         assert_eq!(o.update.exposure_us, Some(80.0));
         readings.push((o.near, o.distance_mm.expect("a reading")));
     }
     for ((_, got), want) in readings.iter().zip(SCRIPT_MM) {
         let got = f64::from(*got);
-        assert!((got - want).abs() < 30.0, "read {got} mm of a target at {want} mm");
+        assert!(
+            (got - want).abs() < 30.0,
+            "read {got} mm of a target at {want} mm"
+        );
     }
     let near: Vec<bool> = readings.iter().map(|r| r.0).collect();
     // near at the first reading ≤ near_mm (60 mm, cycle 7), far after 3 readings ≥ far_mm
@@ -166,8 +174,12 @@ fn a_vanished_device_is_an_error_naming_it_and_reopened_when_back() {
     cfg.proximity.second_modulation_hz = 0.0;
     let dev = fake_device(PixelFormat::Y12, clock.clone(), Seen::default());
     let handle = dev.handle();
-    let mut ctl = Controller::new(cfg.clone(), source(&cfg, &dev, clock), ModeCalibrations::default())
-        .expect("ctl");
+    let mut ctl = Controller::new(
+        cfg.clone(),
+        source(&cfg, &dev, clock),
+        ModeCalibrations::default(),
+    )
+    .expect("ctl");
     handle.vanish_after(2);
     for _ in 0..2 {
         assert!(ctl.step(false).error.is_none());
@@ -179,7 +191,10 @@ fn a_vanished_device_is_an_error_naming_it_and_reopened_when_back() {
         assert_eq!(e.kind(), SourceErrorKind::Disconnected);
         let msg = e.to_string();
         assert!(msg.contains(&format!("/dev/video-tof: {call}")), "{msg}");
-        assert!(!o.valid && o.distance_mm.is_none(), "no reading from a failed cycle");
+        assert!(
+            !o.valid && o.distance_mm.is_none(),
+            "no reading from a failed cycle"
+        );
     }
     handle.replug();
     let o = ctl.step(false);
@@ -192,8 +207,12 @@ fn a_wrong_format_is_an_error_naming_the_device_and_both_formats() {
     let cfg = config(PixelFormat::Y12);
     // the driver delivers packed RAW12 where the config expects Y12 words
     let dev = fake_device(PixelFormat::Y12P, clock.clone(), Seen::default());
-    let mut ctl = Controller::new(cfg.clone(), source(&cfg, &dev, clock), ModeCalibrations::default())
-        .expect("ctl");
+    let mut ctl = Controller::new(
+        cfg.clone(),
+        source(&cfg, &dev, clock),
+        ModeCalibrations::default(),
+    )
+    .expect("ctl");
     let o = ctl.step(false);
     let e = o.error.expect("refused");
     assert_eq!(e.kind(), SourceErrorKind::Unsupported);
@@ -209,8 +228,15 @@ fn config_keys_are_checked_and_unknown_ones_refused() {
     let e = Config::parse(&format!("{base}stacked = 4\n"), Path::new("x.toml")).unwrap_err();
     assert!(e.to_string().contains("unknown field `stacked`"), "{e}");
     let e = Config::parse(&format!("{base}images = 2\n"), Path::new("x.toml")).unwrap_err();
-    assert!(e.to_string().contains("v4l2.phases_deg: 4 phases for 2 images"), "{e}");
-    let e = Config::parse(&format!("{base}pixel_format = \"YUYV\"\n"), Path::new("x.toml"));
+    assert!(
+        e.to_string()
+            .contains("v4l2.phases_deg: 4 phases from image 0 of 2"),
+        "{e}"
+    );
+    let e = Config::parse(
+        &format!("{base}pixel_format = \"YUYV\"\n"),
+        Path::new("x.toml"),
+    );
     assert!(e.unwrap_err().to_string().contains("pixel_format"));
     let cfg = Config::parse(base, Path::new("x.toml")).expect("defaults");
     assert_eq!(cfg.backend, Backend::V4l2);
@@ -232,15 +258,21 @@ fn the_daemon_publishes_near_and_far_on_a_private_bus() {
         let clock: Arc<dyn Clock> = Arc::new(VirtualClock::new());
         let cfg = config(PixelFormat::Y12P);
         let dev = fake_device(PixelFormat::Y12P, clock.clone(), Seen::default());
-        let ctl = Controller::new(cfg.clone(), source(&cfg, &dev, clock), ModeCalibrations::default())
-            .expect("ctl");
+        let ctl = Controller::new(
+            cfg.clone(),
+            source(&cfg, &dev, clock),
+            ModeCalibrations::default(),
+        )
+        .expect("ctl");
         let connect = || async {
             zbus::connection::Builder::address(bus.address())
                 .build()
                 .await
                 .unwrap()
         };
-        let daemon = Daemon::start(connect().await, &cfg, ctl).await.expect("daemon");
+        let daemon = Daemon::start(connect().await, &cfg, ctl)
+            .await
+            .expect("daemon");
         let client = connect().await;
         let p = ProximityProxy::builder(&client).build().await.unwrap();
         let mut changes = p.receive_near_changed().await;
@@ -248,14 +280,21 @@ fn the_daemon_publishes_near_and_far_on_a_private_bus() {
         let mut seen = Vec::new();
         let deadline = Instant::now() + Duration::from_secs(10);
         while seen.len() < 3 && Instant::now() < deadline {
-            if let Ok(Some(c)) =
-                tokio::time::timeout(Duration::from_secs(2), tofproxd::service::next_item(&mut changes)).await
+            if let Ok(Some(c)) = tokio::time::timeout(
+                Duration::from_secs(2),
+                tofproxd::service::next_item(&mut changes),
+            )
+            .await
             {
                 seen.push(c.get().await.unwrap());
             }
         }
         assert_eq!(seen, vec![false, true, false], "initial, near, far");
-        assert!(p.get_status().await.unwrap()["Backend"].to_string().contains("/dev/video-tof"));
+        assert!(
+            p.get_status().await.unwrap()["Backend"]
+                .to_string()
+                .contains("/dev/video-tof")
+        );
         p.release_proximity().await.unwrap();
         daemon.shutdown().await;
     });

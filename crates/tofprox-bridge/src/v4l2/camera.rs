@@ -38,16 +38,21 @@ pub struct V4l2Settings {
     pub rows: u32,
     /// Raw images stacked in one buffer (the driver's sequence length).
     pub images: u32,
-    /// Phase of each stacked image (degrees), as the driver's sequence orders them.
+    /// Index of the first phase image in the stack (1 when the sequence starts with an
+    /// image the pipeline does not take, e.g. a grey one).
+    pub first_phase_image: u32,
+    /// Phases (degrees) of the images from `first_phase_image` on, as the sequence orders
+    /// them: 2 or 4 quadrature phases.
     pub phases_deg: Vec<f64>,
     /// ADC resolution of the codes.
     pub adc_bits: u8,
     /// Modulation frequency of the sequence (Hz).
     pub modulation_hz: f64,
-    /// Exposure per raw image (µs) when no `exposure_control` is named (the sequence's own).
+    /// Exposure per raw image (µs) when no `exposure_controls` are named (the sequence's own).
     pub fixed_exposure_us: f64,
-    /// Name of the integer control setting the exposure (`"Exposure"`), empty: none.
-    pub exposure_control: String,
+    /// Names of the integer controls setting the exposure, all set to the same value (one per
+    /// sequence entry where the driver has one each); empty: none.
+    pub exposure_controls: Vec<String>,
     /// Microseconds per unit of that control (`"Exposure Time, Absolute"`: 100).
     pub exposure_us_per_unit: f64,
     /// Name of the integer control setting the modulation frequency, empty: none (a second
@@ -73,11 +78,12 @@ impl Default for V4l2Settings {
             width: 352,
             rows: 288,
             images: 4,
+            first_phase_image: 0,
             phases_deg: vec![0.0, 90.0, 180.0, 270.0],
             adc_bits: 12,
             modulation_hz: 80e6,
             fixed_exposure_us: 1000.0,
-            exposure_control: String::new(),
+            exposure_controls: Vec::new(),
             exposure_us_per_unit: 1.0,
             modulation_control: String::new(),
             modulation_hz_per_unit: 1e6,
@@ -95,9 +101,15 @@ impl V4l2Settings {
         if self.width == 0 || self.rows == 0 || self.images == 0 {
             return bad("width/rows/images", "must be at least 1".into());
         }
-        if self.phases_deg.len() != self.images as usize {
-            let n = self.phases_deg.len();
-            return bad("phases_deg", format!("{n} phases for {} images", self.images));
+        let n = self.phases_deg.len();
+        if !(n == 2 || n == 4) || self.first_phase_image as usize + n > self.images as usize {
+            return bad(
+                "phases_deg",
+                format!(
+                    "{n} phases from image {} of {}: 2 or 4 phases within the stack",
+                    self.first_phase_image, self.images
+                ),
+            );
         }
         tofprox_core::sensor::validate_adc_bits(self.adc_bits)
             .map_err(|e| BridgeError::config(format!("v4l2.adc_bits: {e}")))?;
@@ -147,7 +159,7 @@ pub struct V4l2Timings {
     pub stream_off: Duration,
 }
 
-/// One capture: the stacked images as `(images, rows, cols)` codes.
+/// One capture: the phase images of the stack as `(phases, rows, cols)` codes.
 #[derive(Debug, Clone)]
 pub struct V4l2Capture {
     /// Raw images.
@@ -168,7 +180,7 @@ pub struct V4l2Camera<D: V4l2Device> {
     settings: V4l2Settings,
     name: String,
     layout: BufferLayout,
-    exposure: Option<ControlInfo>,
+    exposure: Vec<ControlInfo>,
     modulation: Option<ControlInfo>,
     buffers: u32,
     clock: Arc<dyn Clock>,
@@ -211,14 +223,24 @@ impl<D: V4l2Device> V4l2Camera<D> {
             )));
         }
         let layout = set_format(&mut dev, &settings, &name)?;
-        let exposure = named_control(&mut dev, &settings.exposure_control, "exposure_control", &name)?;
-        let modulation =
-            named_control(&mut dev, &settings.modulation_control, "modulation_control", &name)?;
+        let exposure = (settings.exposure_controls.iter())
+            .map(|c| named_control(&mut dev, c, "exposure_controls", &name))
+            .filter_map(Result::transpose)
+            .collect::<Result<Vec<_>, _>>()?;
+        let modulation = named_control(
+            &mut dev,
+            &settings.modulation_control,
+            "modulation_control",
+            &name,
+        )?;
         let buffers = dev
             .reqbufs(settings.buffers)
             .map_err(|e| e.on(&name, "VIDIOC_REQBUFS"))?;
         if buffers == 0 {
-            return Err(BridgeError::new(ErrorKind::Io, format!("{name}: no buffers granted")));
+            return Err(BridgeError::new(
+                ErrorKind::Io,
+                format!("{name}: no buffers granted"),
+            ));
         }
         Ok(Self {
             dev,
@@ -244,8 +266,15 @@ impl<D: V4l2Device> V4l2Camera<D> {
 
     /// Set a control to `value` in units of `per_unit`, rounded and clamped to its range.
     /// Returns the value applied, in the same physical unit.
-    fn set_scaled(&mut self, c: &ControlInfo, value: f64, per_unit: f64) -> Result<f64, BridgeError> {
-        let units = (value / per_unit).round().clamp(f64::from(c.minimum), f64::from(c.maximum));
+    fn set_scaled(
+        &mut self,
+        c: &ControlInfo,
+        value: f64,
+        per_unit: f64,
+    ) -> Result<f64, BridgeError> {
+        let units = (value / per_unit)
+            .round()
+            .clamp(f64::from(c.minimum), f64::from(c.maximum));
         let applied = self
             .dev
             .s_ctrl(c.id, units as i32)
@@ -260,10 +289,11 @@ impl<D: V4l2Device> V4l2Camera<D> {
         modulation_hz: Option<f64>,
     ) -> Result<(f64, f64), BridgeError> {
         let s = self.settings.clone();
-        let exposure_us = match self.exposure.clone() {
-            Some(c) => self.set_scaled(&c, exposure_us, s.exposure_us_per_unit)?,
-            None => s.fixed_exposure_us,
-        };
+        let mut applied_us = s.fixed_exposure_us;
+        for c in self.exposure.clone() {
+            applied_us = self.set_scaled(&c, exposure_us, s.exposure_us_per_unit)?;
+        }
+        let exposure_us = applied_us;
         let want_hz = modulation_hz.unwrap_or(s.modulation_hz);
         let modulation_hz = match self.modulation.clone() {
             Some(c) => self.set_scaled(&c, want_hz, s.modulation_hz_per_unit)?,
@@ -294,10 +324,18 @@ impl<D: V4l2Device> V4l2Camera<D> {
         };
         let frames = self.stream_one(&mut timings);
         let t3 = self.clock.now();
-        let off = self.dev.streamoff().map_err(|e| e.on(&self.name, "VIDIOC_STREAMOFF"));
+        let off = self
+            .dev
+            .streamoff()
+            .map_err(|e| e.on(&self.name, "VIDIOC_STREAMOFF"));
         timings.stream_off = self.clock.now() - t3;
-        let frames = frames?;
+        let stack = frames?;
         off?;
+        let first = self.settings.first_phase_image as usize;
+        let k = self.settings.phases_deg.len();
+        let frames = stack
+            .slice(ndarray::s![first..first + k, .., ..])
+            .to_owned();
         Ok(V4l2Capture {
             frames,
             phases_deg: self.settings.phases_deg.clone(),
@@ -314,30 +352,51 @@ impl<D: V4l2Device> V4l2Camera<D> {
             self.dev.qbuf(i).map_err(|e| e.on(&name, "VIDIOC_QBUF"))?;
         }
         let t1 = self.clock.now();
-        self.dev.streamon().map_err(|e| e.on(&name, "VIDIOC_STREAMON"))?;
+        self.dev
+            .streamon()
+            .map_err(|e| e.on(&name, "VIDIOC_STREAMON"))?;
         let t2 = self.clock.now();
         let timeout = Duration::from_millis(self.settings.frame_timeout_ms);
-        let d = self.dev.dqbuf(timeout).map_err(|e| e.on(&name, "VIDIOC_DQBUF"))?;
+        let d = self
+            .dev
+            .dqbuf(timeout)
+            .map_err(|e| e.on(&name, "VIDIOC_DQBUF"))?;
         timings.stream_on = t2 - t1;
         timings.to_frame = self.clock.now() - t2;
         let corrupt = |m: String| BridgeError::new(ErrorKind::CorruptFrame, format!("{name}: {m}"));
         if d.flags & BUF_FLAG_ERROR != 0 {
-            return Err(corrupt(format!("buffer {} (frame {}) flagged as corrupt", d.index, d.sequence)));
+            return Err(corrupt(format!(
+                "buffer {} (frame {}) flagged as corrupt",
+                d.index, d.sequence
+            )));
         }
         let need = self.layout.buffer_bytes();
-        let buf = self.dev.buffer(d.index).map_err(|e| e.on(&name, "mmap buffer"))?;
+        let buf = self
+            .dev
+            .buffer(d.index)
+            .map_err(|e| e.on(&name, "mmap buffer"))?;
         let used = (d.bytesused as usize).min(buf.len());
         if used < need {
-            return Err(corrupt(format!("frame {} holds {used} bytes, the format needs {need}", d.sequence)));
+            return Err(corrupt(format!(
+                "frame {} holds {used} bytes, the format needs {need}",
+                d.sequence
+            )));
         }
         decode_buffer(&buf[..need], &self.layout).map_err(|e| {
-            BridgeError::with_source(ErrorKind::CorruptFrame, format!("{name}: frame {}", d.sequence), e)
+            BridgeError::with_source(
+                ErrorKind::CorruptFrame,
+                format!("{name}: frame {}", d.sequence),
+                e,
+            )
         })
     }
 
     /// Free the buffers (REQBUFS 0); the device closes when dropped.
     pub fn close(mut self) -> Result<(), BridgeError> {
-        self.dev.reqbufs(0).map_err(|e| e.on(&self.name, "VIDIOC_REQBUFS 0")).map(drop)
+        self.dev
+            .reqbufs(0)
+            .map_err(|e| e.on(&self.name, "VIDIOC_REQBUFS 0"))
+            .map(drop)
     }
 
     /// The device path.
@@ -399,8 +458,20 @@ mod tests {
             ..V4l2Settings::default()
         };
         let e = s.validate().unwrap_err();
-        assert!(e.to_string().contains("v4l2.phases_deg: 4 phases for 2 images"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("v4l2.phases_deg: 4 phases from image 0 of 2"),
+            "{e}"
+        );
         s.phases_deg = vec![0.0, 90.0];
+        s.first_phase_image = 1;
+        assert!(
+            s.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("2 phases from image 1 of 2")
+        );
+        s.first_phase_image = 0;
         s.exposure_us_per_unit = 0.0;
         let e = s.validate().unwrap_err();
         assert!(e.to_string().contains("v4l2.exposure_us_per_unit"), "{e}");

@@ -13,9 +13,7 @@ use std::os::unix::ffi::OsStrExt;
 use std::path::Path;
 use std::time::Duration;
 
-use super::{
-    CAP_DEVICE_CAPS, Capability, ControlInfo, Dequeued, Errno, PixFormat, V4l2Device,
-};
+use super::{CAP_DEVICE_CAPS, Capability, ControlInfo, Dequeued, Errno, PixFormat, V4l2Device};
 
 const BUF_TYPE_VIDEO_CAPTURE: u32 = 1;
 const MEMORY_MMAP: u32 = 1;
@@ -171,7 +169,11 @@ const VIDIOC_S_CTRL: libc::c_ulong = iowr::<RawControl>(28);
 const VIDIOC_QUERYCTRL: libc::c_ulong = iowr::<RawQueryCtrl>(36);
 
 fn last_errno() -> Errno {
-    Errno(std::io::Error::last_os_error().raw_os_error().unwrap_or(libc::EIO))
+    Errno(
+        std::io::Error::last_os_error()
+            .raw_os_error()
+            .unwrap_or(libc::EIO),
+    )
 }
 
 fn text(bytes: &[u8]) -> String {
@@ -208,13 +210,21 @@ impl V4l2Fd {
     pub fn open(path: &Path) -> Result<Self, Errno> {
         let c = CString::new(path.as_os_str().as_bytes()).map_err(|_| Errno::EINVAL)?;
         // SAFETY: `c` is a valid NUL-terminated path; open has no other preconditions.
-        let fd = unsafe { libc::open(c.as_ptr(), libc::O_RDWR | libc::O_NONBLOCK | libc::O_CLOEXEC) };
+        let fd = unsafe {
+            libc::open(
+                c.as_ptr(),
+                libc::O_RDWR | libc::O_NONBLOCK | libc::O_CLOEXEC,
+            )
+        };
         if fd < 0 {
             return Err(last_errno());
         }
         // SAFETY: `fd` was just returned by open and is owned by nobody else.
         let fd = unsafe { OwnedFd::from_raw_fd(fd) };
-        Ok(Self { fd, maps: Vec::new() })
+        Ok(Self {
+            fd,
+            maps: Vec::new(),
+        })
     }
 
     /// One ioctl with `arg` as its in/out structure, retried on EINTR.
@@ -263,7 +273,10 @@ fn raw_buffer(index: u32) -> RawBuffer {
         bytesused: 0,
         flags: 0,
         field: 0,
-        timestamp: libc::timeval { tv_sec: 0, tv_usec: 0 },
+        timestamp: libc::timeval {
+            tv_sec: 0,
+            tv_usec: 0,
+        },
         timecode: RawTimecode::default(),
         sequence: 0,
         memory: MEMORY_MMAP,
@@ -300,7 +313,11 @@ impl V4l2Device for V4l2Fd {
     fn querycap(&mut self) -> Result<Capability, Errno> {
         let mut c = RawCapability::default();
         self.ioctl(VIDIOC_QUERYCAP, &mut c)?;
-        let caps = if c.capabilities & CAP_DEVICE_CAPS != 0 { c.device_caps } else { c.capabilities };
+        let caps = if c.capabilities & CAP_DEVICE_CAPS != 0 {
+            c.device_caps
+        } else {
+            c.capabilities
+        };
         Ok(Capability {
             driver: text(&c.driver),
             card: text(&c.card),
@@ -329,7 +346,10 @@ impl V4l2Device for V4l2Fd {
     }
 
     fn queryctrl(&mut self, id: u32) -> Result<ControlInfo, Errno> {
-        let mut q = RawQueryCtrl { id, ..RawQueryCtrl::default() };
+        let mut q = RawQueryCtrl {
+            id,
+            ..RawQueryCtrl::default()
+        };
         self.ioctl(VIDIOC_QUERYCTRL, &mut q)?;
         Ok(ControlInfo {
             id: q.id,
@@ -362,7 +382,9 @@ impl V4l2Device for V4l2Fd {
             ..RawRequestBuffers::default()
         };
         self.ioctl(VIDIOC_REQBUFS, &mut r)?;
-        self.maps = (0..r.count).map(|i| self.map_buffer(i)).collect::<Result<_, _>>()?;
+        self.maps = (0..r.count)
+            .map(|i| self.map_buffer(i))
+            .collect::<Result<_, _>>()?;
         Ok(r.count)
     }
 
@@ -371,19 +393,30 @@ impl V4l2Device for V4l2Fd {
     }
 
     fn dqbuf(&mut self, timeout: Duration) -> Result<Dequeued, Errno> {
-        let mut p = libc::pollfd { fd: self.fd.as_raw_fd(), events: libc::POLLIN, revents: 0 };
+        let mut p = libc::pollfd {
+            fd: self.fd.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
         let ms = libc::c_int::try_from(timeout.as_millis()).unwrap_or(libc::c_int::MAX);
         // SAFETY: one valid pollfd for the duration of the call.
         let n = unsafe { libc::poll(&mut p, 1, ms) };
         if n < 0 {
             return Err(last_errno());
         }
-        if p.revents & (libc::POLLERR | libc::POLLHUP | libc::POLLNVAL) != 0 && p.revents & libc::POLLIN == 0 {
+        if p.revents & (libc::POLLERR | libc::POLLHUP | libc::POLLNVAL) != 0
+            && p.revents & libc::POLLIN == 0
+        {
             return Err(Errno::ENODEV);
         }
         let mut b = raw_buffer(0);
         self.ioctl(VIDIOC_DQBUF, &mut b)?; // EAGAIN when poll timed out
-        Ok(Dequeued { index: b.index, bytesused: b.bytesused, flags: b.flags, sequence: b.sequence })
+        Ok(Dequeued {
+            index: b.index,
+            bytesused: b.bytesused,
+            flags: b.flags,
+            sequence: b.sequence,
+        })
     }
 
     fn buffer(&self, index: u32) -> Result<&[u8], Errno> {
