@@ -11,7 +11,7 @@ use tofprox_bridge::v4l2::camera::{V4l2Camera, V4l2Settings};
 use tofprox_bridge::v4l2::fake::{
     FakeControl, FakeDevice, FakeScene, FakeSpec, Ioctl, SceneRequest,
 };
-use tofprox_bridge::v4l2::{ControlInfo, Errno, PixelFormat};
+use tofprox_bridge::v4l2::{Errno, PixelFormat};
 use tofprox_bridge::{Clock, ErrorKind, VirtualClock};
 
 /// Codes that differ per image, row and column, with the exposure control's value in them,
@@ -31,20 +31,6 @@ impl FakeScene for Pattern {
     }
 }
 
-fn control(id: u32, name: &str, minimum: i32, maximum: i32) -> FakeControl {
-    FakeControl {
-        info: ControlInfo {
-            id,
-            name: name.into(),
-            minimum,
-            maximum,
-            step: 1,
-            flags: 0,
-        },
-        value: minimum,
-    }
-}
-
 fn fake(format: PixelFormat, clock: Arc<dyn Clock>) -> FakeDevice {
     fake_of(format, 4, clock)
 }
@@ -58,8 +44,8 @@ fn fake_of(format: PixelFormat, images: u32, clock: Arc<dyn Clock>) -> FakeDevic
         pad_bytes: 4,
         adc_bits: 12,
         controls: vec![
-            control(0x0098_0911, "Exposure", 10, 2000),
-            control(0x009a_0901, "Modulation Frequency", 10, 100),
+            FakeControl::integer(0x0098_0911, "Exposure", 10..=2000, 10),
+            FakeControl::integer(0x009a_0901, "Modulation Frequency", 10..=100, 10),
         ],
         frame_time: Duration::from_millis(30),
     };

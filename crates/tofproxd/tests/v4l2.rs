@@ -15,10 +15,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use ndarray::Array3;
+use tofprox_bridge::v4l2::PixelFormat;
 use tofprox_bridge::v4l2::fake::{
     FakeControl, FakeDevice, FakeScene, FakeSpec, FakeV4l2, SceneRequest,
 };
-use tofprox_bridge::v4l2::{ControlInfo, PixelFormat};
 use tofprox_bridge::{Clock, VirtualClock};
 use tofproxd::backends::v4l2::V4l2Source;
 use tofproxd::client::ProximityProxy;
@@ -73,18 +73,6 @@ impl FakeScene for Hand {
     }
 }
 
-fn control(id: u32, name: &str, minimum: i32, maximum: i32, value: i32) -> FakeControl {
-    let info = ControlInfo {
-        id,
-        name: name.into(),
-        minimum,
-        maximum,
-        step: 1,
-        flags: 0,
-    };
-    FakeControl { info, value }
-}
-
 fn fake_device(format: PixelFormat, clock: Arc<dyn Clock>, seen: Seen) -> FakeDevice {
     let spec = FakeSpec {
         format,
@@ -94,8 +82,8 @@ fn fake_device(format: PixelFormat, clock: Arc<dyn Clock>, seen: Seen) -> FakeDe
         pad_bytes: 0,
         adc_bits: 12,
         controls: vec![
-            control(0x0098_0911, "Exposure", 10, 2000, 1000),
-            control(0x009a_0990, "Modulation Frequency", 10, 100, 80),
+            FakeControl::integer(0x0098_0911, "Exposure", 10..=2000, 1000),
+            FakeControl::integer(0x009a_0990, "Modulation Frequency", 10..=100, 80),
         ],
         frame_time: Duration::from_millis(12),
     };

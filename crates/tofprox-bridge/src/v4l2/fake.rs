@@ -124,6 +124,21 @@ pub struct FakeControl {
     pub value: i32,
 }
 
+impl FakeControl {
+    /// An enabled integer control of step 1 in `range`, at `value`.
+    pub fn integer(id: u32, name: &str, range: std::ops::RangeInclusive<i32>, value: i32) -> Self {
+        let info = ControlInfo {
+            id,
+            name: name.into(),
+            minimum: *range.start(),
+            maximum: *range.end(),
+            step: 1,
+            flags: 0,
+        };
+        Self { info, value }
+    }
+}
+
 /// How the fake device is made: the driver's one format and its controls.
 pub struct FakeSpec {
     /// The format it delivers (S_FMT answers with this whatever is asked).
