@@ -170,3 +170,40 @@ impl<D: V4l2Device> FrameSource for V4l2Source<D> {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tofprox_bridge::v4l2::camera::V4l2Timings;
+
+    #[test]
+    fn capture_steps_become_the_energy_models_states() {
+        let ms = Duration::from_millis;
+        let c = V4l2Capture {
+            frames: ndarray::Array3::zeros((4, 2, 2)),
+            phases_deg: vec![0.0, 90.0, 180.0, 270.0],
+            exposure_us: 500.0,
+            modulation_hz: 80e6,
+            timings: V4l2Timings {
+                controls: ms(1),
+                stream_on: ms(3),
+                to_frame: ms(30),
+                stream_off: ms(2),
+            },
+        };
+        let t = cycle_timings(&c, ms(5));
+        // start-up: open + STREAMON; configuration: controls; exposure: 4 × 0.5 ms (modelled);
+        // read-out: the rest of the wait for the buffer (30 − 2 ms) + STREAMOFF
+        assert_eq!(t.startup, ms(8));
+        assert_eq!(t.config_load, ms(1));
+        assert_eq!(t.exposure, ms(2));
+        assert_eq!(t.readout, ms(30));
+        assert_eq!(t.active(), ms(41));
+        // an exposure longer than the wait (a driver answering early) is capped by it
+        let long = V4l2Capture {
+            exposure_us: 20_000.0,
+            ..c
+        };
+        assert_eq!(cycle_timings(&long, ms(0)).exposure, ms(30));
+    }
+}
