@@ -5,6 +5,9 @@
 //! The ioctl numbers use the generic Linux encoding (`_IOC`: dir in bits 30–31, size in
 //! 16–29, type in 8–15, number in 0–7) of arm, arm64, x86 and riscv — the single-board
 //! computers this is for; other encodings (powerpc, mips) are not supported.
+//!
+//! `unsafe` is allowed in this module only: ioctl, mmap/munmap, poll and open on raw
+//! descriptors, each block with its SAFETY argument.
 #![allow(unsafe_code)]
 
 use std::ffi::CString;
