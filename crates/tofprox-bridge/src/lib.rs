@@ -13,6 +13,11 @@
 //!    physical model (`tofprox-model`). Without the feature the crate does
 //!    not link the model: `cargo build -p tofprox-bridge --no-default-features`.
 //!
+//! 5. [`v4l2`]: a V4L2 capture device (a single-board computer's ToF kernel driver) behind
+//!    the ioctl-level seam [`v4l2::V4l2Device`], the real device (`v4l2::sys`, Linux) and a
+//!    fake (feature `v4l2-fake`, tests only); [`v4l2::camera::V4l2Camera`] captures one
+//!    stacked buffer per cycle.
+//!
 //! Every call blocks (the daemon runs the driver on its own loop thread). All
 //! waits sleep on an injected [`Clock`].
 
@@ -31,6 +36,7 @@ pub mod transport;
 pub mod usb;
 pub mod usbcap;
 pub mod uvc;
+pub mod v4l2;
 
 pub use clock::{Clock, SystemClock, VirtualClock};
 pub use driver::{

@@ -3,6 +3,7 @@
 
 #[cfg(feature = "emulated")]
 pub mod emulated;
+pub mod v4l2;
 
 use std::path::Path;
 use std::sync::Arc;
@@ -314,9 +315,6 @@ impl FrameSource for ReplaySource {
 
 /// Build the configured frame source. `base` resolves relative paths (the config's directory).
 pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, SourceError> {
-    let berr = |what: &str, e: BridgeError| {
-        SourceError::new(SourceErrorKind::Unsupported, format!("{what}: {e}"))
-    };
     match cfg.backend {
         Backend::Replay => {
             let dir = cfg.replay.recording.as_ref().ok_or_else(|| {
@@ -325,6 +323,7 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
             Ok(Box::new(ReplaySource::open(dir, cfg.replay.repeat)?))
         }
         Backend::Emulated => emulated_backend(cfg, base),
+        Backend::V4l2 => v4l2_backend(cfg),
         Backend::Usb => {
             let dcfg = match &cfg.usb.driver_config {
                 Some(p) => DriverConfigFile::load(p).map_err(|e| {
@@ -335,7 +334,8 @@ pub fn build_source(cfg: &Config, base: &Path) -> Result<Box<dyn FrameSource>, S
                 })?,
                 None => DriverConfig::emulated_default(),
             };
-            dcfg.validate().map_err(|e| berr("usb.driver_config", e))?;
+            dcfg.validate()
+                .map_err(|e| berr_unsupported("usb.driver_config", e))?;
             Ok(Box::new(UsbSource {
                 sel: cfg.usb.device.clone(),
                 dcfg,
@@ -361,6 +361,29 @@ fn emulated_backend(_cfg: &Config, _base: &Path) -> Result<Box<dyn FrameSource>,
         "backend = \"emulated\": this tofproxd is a production build without the emulated \
          device (build it with the default feature `emulated`)",
     ))
+}
+
+/// The V4L2 backend on the real device node (opened at the first cycle).
+#[cfg(target_os = "linux")]
+fn v4l2_backend(cfg: &Config) -> Result<Box<dyn FrameSource>, SourceError> {
+    cfg.v4l2
+        .validate()
+        .map_err(|e| berr_unsupported("v4l2", e))?;
+    Ok(Box::new(v4l2::system(cfg.v4l2.clone())))
+}
+
+/// V4L2 is Linux's.
+#[cfg(not(target_os = "linux"))]
+fn v4l2_backend(_cfg: &Config) -> Result<Box<dyn FrameSource>, SourceError> {
+    Err(SourceError::new(
+        SourceErrorKind::Unsupported,
+        "backend = \"v4l2\" needs Linux",
+    ))
+}
+
+/// A bridge error met while building a source: unsupported, naming what was built.
+fn berr_unsupported(what: &str, e: BridgeError) -> SourceError {
+    SourceError::new(SourceErrorKind::Unsupported, format!("{what}: {e}")).with_source(e)
 }
 
 /// USB backend that opens the device lazily (the daemon starts without the

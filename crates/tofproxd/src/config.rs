@@ -46,6 +46,9 @@ pub enum Backend {
     Emulated,
     /// Replay of a version 1 recording.
     Replay,
+    /// A V4L2 capture device whose kernel driver delivers the raw phase images (a
+    /// single-board computer's ToF module: `[v4l2]`).
+    V4l2,
 }
 
 /// Where Near is published besides `org.tofprox.Proximity1` (always served: status, claims).
@@ -67,7 +70,7 @@ pub use tofprox_core::Algorithm as Mode;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Config {
-    /// `usb`, `emulated` or `replay`.
+    /// `usb`, `emulated`, `replay` or `v4l2`.
     pub backend: Backend,
     /// Where Near goes besides the native D-Bus interface: `dbus` (nowhere else) or `input`
     /// (also the switch of a uinput device, for iio-sensor-proxy: [`crate::input`]).
@@ -95,6 +98,9 @@ pub struct Config {
     pub emulated: EmulatedConfig,
     /// Replay backend.
     pub replay: ReplayConfig,
+    /// V4L2 backend: the device node, its format and the names of its controls (the bridge's
+    /// settings, unknown keys refused).
+    pub v4l2: tofprox_bridge::v4l2::camera::V4l2Settings,
 }
 
 impl Default for Config {
@@ -113,6 +119,7 @@ impl Default for Config {
             usb: UsbConfig::default(),
             emulated: EmulatedConfig::default(),
             replay: ReplayConfig::default(),
+            v4l2: Default::default(),
         }
     }
 }
@@ -596,6 +603,12 @@ impl Config {
                 self.replay.recording.is_some(),
                 "must be set for backend = \"replay\"",
             )?;
+        }
+        if self.backend == Backend::V4l2 {
+            self.v4l2.validate().map_err(|e| ConfigError::Range {
+                key: "v4l2".into(),
+                message: e.to_string(),
+            })?;
         }
         Ok(())
     }
