@@ -10,6 +10,7 @@ pub mod candidates;
 pub mod data;
 pub mod diagnose;
 pub mod error;
+mod evidence;
 pub mod fit;
 pub mod noise;
 pub mod report;

@@ -2,6 +2,7 @@
 //! the compact terminal table, and the self-contained HTML report with inline
 //! SVG plots (drawn by `tofprox-chart`, the one chart component; no network,
 //! no fonts needed).
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use serde_json::{Value, json};
@@ -31,11 +32,12 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "explained_mm": num(c.explained.mm),
             "explained_lsb": num(c.explained.lsb),
             "z_after": num(c.z_after),
-            "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
-            "standard_errors": c.standard_errors.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "params": named(&c.params),
+            "standard_errors": named(&c.standard_errors),
             "flags": c.flags,
         })).collect::<Vec<_>>(),
         "reason": d.reason,
+        "evidence": d.evidence(),
         "noise": {"source": d.noise, "description": d.noise.describe()},
         "fit": {"chi2_per_dof": num(d.fit.chi2_per_dof), "z": num(d.fit.z)},
         "strongest_condition": d.strongest_condition,
@@ -74,6 +76,11 @@ pub fn explanation_json(ex: &Explanation) -> Value {
         "verdict": ex.verdict().as_str(),
         "added": ex.added,
         "stopped": ex.stopped,
+        "fitted": ex.fitted.iter().map(|f| json!({
+            "effect": f.effect,
+            "params": named(&f.params),
+            "standard_errors": named(&f.standard_errors),
+        })).collect::<Vec<_>>(),
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
             "diagnosis": diagnosis_json(&s.diagnosis),
@@ -97,8 +104,36 @@ pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
         "effect": effect,
         "before": summary_json(&ErrorSummary::of(&out.before)),
         "after": summary_json(&ErrorSummary::of(&out.after)),
-        "params": out.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+        "params": named(&out.params),
+        "standard_errors": named(&out.standard_errors),
     })
+}
+
+/// A name → number map as a JSON object (non-finite numbers as null).
+fn named(m: &BTreeMap<String, f64>) -> Value {
+    Value::Object(m.iter().map(|(k, v)| (k.clone(), num(*v))).collect())
+}
+
+/// The fitted parameters with their standard errors, one `  name = value ± SE` line each
+/// ("± —" where there is none), under a heading saying what they are.
+pub fn fitted_text(
+    effect: &str,
+    params: &BTreeMap<String, f64>,
+    standard_errors: &BTreeMap<String, f64>,
+) -> String {
+    let mut s = format!(
+        "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise):\n"
+    );
+    for (k, v) in params {
+        let se = standard_errors.get(k).copied().unwrap_or(f64::NAN);
+        let se = if se.is_finite() {
+            format!("{se:.2e}")
+        } else {
+            "—".into()
+        };
+        let _ = writeln!(s, "  {k:<20} = {v:>12.5e} ± {se}");
+    }
+    s
 }
 
 /// `compare --json`: fit statistics, RMS and the structure per condition.
@@ -180,6 +215,7 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     };
     let _ = writeln!(s, "verdict: {verdict}");
     let _ = writeln!(s, "         {}", d.reason);
+    let _ = writeln!(s, "evidence: {}", d.evidence());
     let _ = writeln!(
         s,
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
@@ -483,9 +519,10 @@ fn html_sections(
 fn verdict_html(h: &mut String, d: &Diagnosis) {
     let _ = write!(
         h,
-        "<h2>Verdict: {} {}</h2><p>{}</p>",
+        "<h2>Verdict: {} {}</h2><p class=\"evidence\"><b>Evidence:</b> {}</p><p>{}</p>",
         d.verdict.as_str(),
         esc(d.effect.as_deref().unwrap_or("")),
+        esc(&d.evidence()),
         esc(&d.reason)
     );
     if let Some(sep) = &d.separate_by {

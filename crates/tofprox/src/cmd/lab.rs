@@ -337,6 +337,11 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
             }
         }
+        t.push_str(&report::fitted_text(
+            &a.effect,
+            &res.params,
+            &res.standard_errors,
+        ));
         Ok(t)
     })?;
     let title = format!("tofprox lab add {}: {}", a.effect, a.data.display());
@@ -392,6 +397,13 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             ex.verdict().as_str(),
             ex.added.join(", ")
         ));
+        for f in &ex.fitted {
+            t.push_str(&report::fitted_text(
+                &f.effect,
+                &f.params,
+                &f.standard_errors,
+            ));
+        }
         if let Some(why) = &ex.stopped {
             t.push_str(&format!("explain stopped: {why}\n"));
         }
