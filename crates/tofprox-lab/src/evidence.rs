@@ -3,35 +3,47 @@
 //! strongly (structure z against the noise level [`STRUCTURE_NULL`]), the share
 //! of the excess the best catalogue effect explains, and where the noise came
 //! from. The lab's text output, HTML report and `--json` (`evidence`) print it.
-use crate::diagnose::{CandidateScore, Diagnosis, MIN_CHI2_PER_DOF, STRUCTURE_NULL, Verdict};
+use crate::diagnose::{CandidateScore, Diagnosis, MIN_CHI2_PER_DOF, STRUCTURE_NULL, Verdict, Z_NULL,
+};
 use crate::structure::ConditionScore;
 
 impl Diagnosis {
     /// The verdict's evidence in one sentence (docs/lab-json.md, `evidence`).
     pub fn evidence(&self) -> String {
-        let noise = format!("noise {}", self.noise.describe());
+        let noise = format!("the noise is {}", self.noise.describe());
         let follows = self.structure_remaining.first().map(follows);
         let best = self.candidates.first();
         match self.verdict {
             Verdict::MissingEffect => missing(self, follows, best, &noise),
             Verdict::Ambiguous => ambiguous(self, follows, &noise),
-            Verdict::NothingMissing => format!(
-                "The residual is as large as the noise predicts (χ²/dof = {:.3}, z = {:.1}{}); \
-                 what remains, {:.2} mm depth-equivalent, is below the tolerance {:.2} mm ({noise}).",
-                self.fit.chi2_per_dof,
-                self.fit.z,
-                strongest_clause(self.structure_remaining.first()),
-                self.size.mm,
-                self.tolerance_mm,
-            ),
+            Verdict::NothingMissing => format!("{} ({noise}).", quiet(self)),
             Verdict::NoiseNotMeasured => format!(
-                "The residual looks like noise (χ²/dof = {:.3}{}), but the {noise}, so a small \
-                 missing effect cannot be told from noise: record repeated captures.",
-                self.fit.chi2_per_dof,
-                strongest_clause(self.structure_remaining.first()),
+                "{}, but {noise}: without repeated captures a small missing effect cannot be \
+                 told from noise.",
+                quiet(self)
             ),
             Verdict::Unexplained => unexplained(self, follows, best, &noise),
         }
+    }
+}
+
+/// Why the residual counts as noise: below the tolerance though detectable, or as large as
+/// the noise predicts.
+fn quiet(d: &Diagnosis) -> String {
+    let strongest = strongest_clause(d.structure_remaining.first());
+    if d.fit.z > Z_NULL && d.size.mm <= d.tolerance_mm {
+        format!(
+            "What remains is detectable (z = {:.1}{strongest}) but small: {:.2} mm \
+             depth-equivalent, below the tolerance {:.2} mm",
+            d.fit.z, d.size.mm, d.tolerance_mm
+        )
+    } else {
+        format!(
+            "The residual is as large as the noise predicts (χ²/dof = {:.3}, z = {:.1} against \
+             ≤ {Z_NULL} for noise{strongest}); what remains is {:.2} mm depth-equivalent \
+             (tolerance {:.2} mm)",
+            d.fit.chi2_per_dof, d.fit.z, d.size.mm, d.tolerance_mm
+        )
     }
 }
 
@@ -123,7 +135,7 @@ fn unexplained(
     if d.fit.chi2_per_dof < MIN_CHI2_PER_DOF {
         return format!(
             "The residual is smaller than the noise allows (χ²/dof = {:.3} < {MIN_CHI2_PER_DOF}): \
-             the {noise} does not describe this recording.",
+             the noise does not describe this recording ({noise}).",
             d.fit.chi2_per_dof
         );
     }
