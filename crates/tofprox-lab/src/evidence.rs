@@ -3,7 +3,8 @@
 //! strongly (structure z against the noise level [`STRUCTURE_NULL`]), the share
 //! of the excess the best catalogue effect explains, and where the noise came
 //! from. The lab's text output, HTML report and `--json` (`evidence`) print it.
-use crate::diagnose::{CandidateScore, Diagnosis, MIN_CHI2_PER_DOF, STRUCTURE_NULL, Verdict, Z_NULL,
+use crate::diagnose::{
+    CandidateScore, Diagnosis, MIN_CHI2_PER_DOF, STRUCTURE_NULL, Verdict, Z_NULL,
 };
 use crate::structure::ConditionScore;
 

@@ -570,28 +570,37 @@ fn fit_html(h: &mut String, cmp: &Comparison) {
     );
 }
 
+/// The legend of the ±2 SE band: what it is and where its noise came from.
+fn band_label(cmp: &Comparison) -> String {
+    format!(
+        "±2 SE of the binned residual (noise {})",
+        cmp.model.noise.source.describe()
+    )
+}
+
+/// `exposure_us` as a legend label: "250 µs".
+fn exposure_label(t: f64) -> String {
+    format!("{} µs", tofprox_format::fmt_num(t))
+}
+
 /// Measured vs model amplitude, the depth residual per capture, the residual vs each condition.
 fn model_charts_html(h: &mut String, cmp: &Comparison) {
-    let meas: Vec<(f64, f64)> = cmp
-        .depth
-        .iter()
-        .map(|c| (c.distance_m, c.measured_amplitude_lsb))
-        .collect();
-    let model: Vec<(f64, f64)> = cmp
-        .depth
-        .iter()
-        .map(|c| (c.distance_m, c.model_amplitude_lsb))
-        .collect();
     h.push_str("<h3>Measured vs model</h3>");
+    // per exposure (the amplitude scales with it), the model as filled markers under the
+    // measurement's open ones: both stay visible, each exposure its own marker pair
+    let mut series = Vec::new();
+    let measured = by_exposure(&cmp.depth, |c| c.measured_amplitude_lsb);
+    let model = by_exposure(&cmp.depth, |c| c.model_amplitude_lsb);
+    for ((t, meas), (_, modl)) in measured.into_iter().zip(model) {
+        let e = exposure_label(t);
+        series.push(Series::points(format!("model, {e}"), modl).colour(RED));
+        series.push(Series::points(format!("measured, {e}"), meas).colour(BLUE));
+    }
     h.push_str(&chart(
         "4-phase amplitude per capture (mean over pixels)",
         "distance [m]",
         "amplitude [LSB]",
-        // the model as dots under the measurement's rings: both stay visible
-        vec![
-            Series::points("model", model).colour(RED),
-            Series::points("measured", meas).colour(BLUE),
-        ],
+        series,
     ));
     h.push_str("<h3>Where the model fails</h3>");
     // one chart per algorithm (small multiples): their residuals overlap near zero; one series
@@ -604,7 +613,7 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
         let series = by_exposure(&cmp.depth, value)
             .into_iter()
             .map(|(t, points)| {
-                let name = format!("{alg}, {} µs", tofprox_format::fmt_num(t));
+                let name = format!("{alg}, {}", exposure_label(t));
                 Series::points(name, points).colour(colour)
             })
             .collect();
@@ -624,8 +633,11 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
         };
         let unit = ["offset [LSB]", "relative amplitude", "phase [rad]"][di];
         let est: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, b.est[di])).collect();
-        let hi: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, 2.0 * b.se[di])).collect();
-        let lo: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, -2.0 * b.se[di])).collect();
+        let band: Vec<(f64, f64, f64)> = st
+            .bins
+            .iter()
+            .map(|b| (b.x, -2.0 * b.se[di], 2.0 * b.se[di]))
+            .collect();
         h.push_str(&chart(
             &format!(
                 "residual vs {} (z = {:.1}, {} direction)",
@@ -634,9 +646,8 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
             &st.condition,
             unit,
             vec![
+                Series::band(band_label(cmp), &band).colour(BLACK),
                 Series::points("binned residual", est).colour(RED),
-                Series::line("+2 SE", hi).colour(BLACK),
-                Series::line("−2 SE", lo).colour(BLACK),
             ],
         ));
     }
@@ -718,21 +729,29 @@ fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &
         systematic_mm(&b4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
         systematic_mm(&a4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
     );
-    // one chart per algorithm (small multiples); "after" as the mean per distance, joined in
-    // distance order
-    for (alg, b, a, colours) in [
-        ("2-phase", b2, a2, (ORANGE, BROWN)),
-        ("4-phase", b4, a4, (LIGHT_BLUE, BLUE)),
-    ] {
+    // one chart per algorithm (small multiples): "before" per exposure (labelled, one marker
+    // shape each), "after" as the mean per distance, joined in distance order
+    let by_alg: [(&str, DepthOf, Curve, [u8; 3], [u8; 3]); 2] = [
+        ("2-phase", |c| c.depth_2phase_mm, a2, ORANGE, BROWN),
+        ("4-phase", |c| c.depth_4phase_mm, a4, LIGHT_BLUE, BLUE),
+    ];
+    for (alg, value, a, before_colour, after_colour) in by_alg {
+        let mut series: Vec<Series> = by_exposure(&before.depth, value)
+            .into_iter()
+            .map(|(t, points)| {
+                Series::points(format!("{alg} before, {}", exposure_label(t)), points)
+                    .colour(before_colour)
+            })
+            .collect();
+        series.push(
+            Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
+                .colour(after_colour),
+        );
         h.push_str(&chart(
             &format!("{alg} depth residual before/after (mean per capture)"),
             "distance [m]",
             "depth residual [mm]",
-            vec![
-                Series::points(format!("{alg} before"), b).colour(colours.0),
-                Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
-                    .colour(colours.1),
-            ],
+            series,
         ));
     }
 }

@@ -84,7 +84,10 @@ fn diagnose_add_report_end_to_end() {
             100.0 * c0["explained_excess"].as_f64().unwrap()
         ),
         format!("leaving z = {:.1}", c0["z_after"].as_f64().unwrap()),
-        format!("the noise is {}", v["noise"]["description"].as_str().unwrap()),
+        format!(
+            "the noise is {}",
+            v["noise"]["description"].as_str().unwrap()
+        ),
     ] {
         assert!(ev.contains(&want), "evidence {ev:?} lacks {want:?}");
     }

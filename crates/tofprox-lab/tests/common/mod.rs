@@ -65,7 +65,10 @@ pub fn assert_evidence_quotes(d: &Diagnosis) {
     eprintln!("   evidence: {ev}");
     let mut want = vec![format!("the noise is {}", d.noise.describe())];
     let follows = |st: &tofprox_lab::structure::ConditionScore| {
-        format!("The residual follows {} (structure z = {:.1}", st.condition, st.z)
+        format!(
+            "The residual follows {} (structure z = {:.1}",
+            st.condition, st.z
+        )
     };
     let share = |c: &tofprox_lab::diagnose::CandidateScore| {
         if c.explained_excess.is_finite() {
@@ -95,7 +98,10 @@ pub fn assert_evidence_quotes(d: &Diagnosis) {
             want.push(format!("{:.2} mm depth-equivalent", d.size.mm));
             want.push(format!("{:.2} mm", d.tolerance_mm));
             let st = &d.structure_remaining[0];
-            want.push(format!("strongest structure z = {:.1} against {}", st.z, st.condition));
+            want.push(format!(
+                "strongest structure z = {:.1} against {}",
+                st.z, st.condition
+            ));
         }
         Verdict::Ambiguous => {
             want.push(format!("vary {}", d.separate_by.as_deref().unwrap()));
