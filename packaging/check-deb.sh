@@ -34,7 +34,9 @@ for f in /usr/bin/tofprox /usr/bin/tofproxd \
   /usr/share/tofprox/config/tofproxd-emulated.toml \
   /usr/share/tofprox/calib/emulated/calibration.toml \
   /usr/share/man/man1/tofprox.1.gz /usr/share/man/man1/tofprox-monitor.1.gz \
-  /usr/share/man/man8/tofproxd.8.gz /usr/share/doc/tofprox/daemon.md; do
+  /usr/share/man/man8/tofproxd.8.gz /usr/share/doc/tofprox/docs/daemon.md \
+  /usr/share/doc/tofprox/docs/lab-json.md /usr/share/tofprox/examples/recording/recording.toml \
+  /usr/share/tofprox/calib/example/calibration.toml; do
   grep -qx "$f" <<<"$contents" || fail "$f missing from $deb"
 done
 if grep -q '/target/\|\.rs$\|make\.sh$' <<<"$contents"; then fail "build files in the package"; fi
@@ -77,5 +79,23 @@ scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || f
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
 zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"
+for page in man8/tofproxd.8 man1/tofprox.1 man1/tofprox-lab-add.1; do # NAME: "prog \- what it is"
+  name="$(zcat "$root/usr/share/man/$page.gz" | sed -n '/^\.SH NAME/{n;p;q}')"
+  prog="$(basename "$page" | sed 's/\.[0-9]$//')"
+  grep -q "^$prog \\\\- [a-zA-Z]" <<<"$name" || fail "$page: NAME line '$name'"
+  if grep -q "\\\\- $prog\b" <<<"$name"; then fail "$page: NAME repeats the program name: '$name'"; fi
+done
+"$root/usr/bin/tofprox" --help | grep -q '^  lab  ' || fail "tofprox --help lists no lab command"
+# the README's tour from the installed data (cd /usr/share/tofprox): the example recording
+# with its calibration to depth, and the lab on it
+cd "$root/usr/share/tofprox"
+depth="$("$root/usr/bin/tofprox" process examples/recording --calib calib/example --algo 2phase \
+  --out "$root/depth" --json 2>/dev/null)" || fail "tofprox process of the installed example: $depth"
+grep -q '"index":2,.*"error_mm":' <<<"$depth" || fail "tofprox process of the installed example: $depth"
+lab="$("$root/usr/bin/tofprox" lab compare examples/recording --model config/model/baseline.toml \
+  --json 2>/dev/null)" || fail "tofprox lab compare of the installed example: $lab"
+grep -q '"chi2_per_dof"' <<<"$lab" || fail "tofprox lab compare of the installed example: $lab"
+echo "check-deb: the tour's first steps run from /usr/share/tofprox (process, lab compare)"
+cd "$root/elsewhere"
 echo "check-deb: installed binaries find their data under the prefix ($demo); man pages ok"
 echo "check-deb: PASS $(basename "$deb")"
