@@ -79,13 +79,14 @@ scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || f
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
 zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"
-for page in man8/tofproxd.8 man1/tofprox.1 man1/tofprox-lab-add.1; do # NAME: "prog \- what it is"
-  name="$(zcat "$root/usr/share/man/$page.gz" | sed -n '/^\.SH NAME/{n;p;q}')"
+for page in man8/tofproxd.8 man1/tofprox.1 man1/tofprox-lab-add.1; do # NAME: "prog - what it is"
+  name="$(zcat "$root/usr/share/man/$page.gz" | sed -n '/^\.SH NAME/{n;s/\\-/-/g;p;q}')"
   prog="$(basename "$page" | sed 's/\.[0-9]$//')"
-  grep -q "^$prog \\\\- [a-zA-Z]" <<<"$name" || fail "$page: NAME line '$name'"
-  if grep -q "\\\\- $prog\b" <<<"$name"; then fail "$page: NAME repeats the program name: '$name'"; fi
+  grep -q "^$prog - [a-zA-Z]" <<<"$name" || fail "$page: NAME line '$name'"
+  if grep -q -- "- $prog\b" <<<"$name"; then fail "$page: NAME repeats the program name: '$name'"; fi
 done
-"$root/usr/bin/tofprox" --help | grep -q '^  lab  ' || fail "tofprox --help lists no lab command"
+help="$("$root/usr/bin/tofprox" --help)" || fail "tofprox --help: $help"
+grep -q '^  lab  ' <<<"$help" || fail "tofprox --help lists no lab command: $help"
 # the README's tour from the installed data (cd /usr/share/tofprox): the example recording
 # with its calibration to depth, and the lab on it
 cd "$root/usr/share/tofprox"
