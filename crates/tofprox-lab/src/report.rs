@@ -283,6 +283,10 @@ fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
 /// One value of a capture's depth comparison (mm).
 type DepthOf = fn(&CaptureDepth) -> f64;
 
+/// One algorithm's before/after chart: its name, its value, the "after" points, and the
+/// colours of before and after.
+type BeforeAfter = (&'static str, DepthOf, Curve, [u8; 3], [u8; 3]);
+
 /// Per exposure (ascending), the captures' (distance, `value`) points.
 fn by_exposure(d: &[CaptureDepth], value: DepthOf) -> Vec<(f64, Curve)> {
     let mut out: Vec<(f64, Curve)> = Vec::new();
@@ -731,7 +735,7 @@ fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &
     );
     // one chart per algorithm (small multiples): "before" per exposure (labelled, one marker
     // shape each), "after" as the mean per distance, joined in distance order
-    let by_alg: [(&str, DepthOf, Curve, [u8; 3], [u8; 3]); 2] = [
+    let by_alg: [BeforeAfter; 2] = [
         ("2-phase", |c| c.depth_2phase_mm, a2, ORANGE, BROWN),
         ("4-phase", |c| c.depth_4phase_mm, a4, LIGHT_BLUE, BLUE),
     ];
