@@ -17,6 +17,17 @@ fn simulate(dir: &Path) -> (String, String, String) {
     (sweep.rec, sweep.base, sweep.truth)
 }
 
+/// `params` and `standard_errors` of a JSON object, asserting they name the same parameters.
+type Named = serde_json::Map<String, serde_json::Value>;
+fn params_with_errors(v: &serde_json::Value) -> (&Named, &Named) {
+    let (params, ses) = (
+        v["params"].as_object().unwrap(),
+        v["standard_errors"].as_object().unwrap(),
+    );
+    assert!(params.keys().eq(ses.keys()), "{params:?} ± {ses:?}");
+    (params, ses)
+}
+
 #[test]
 fn diagnose_add_report_end_to_end() {
     let tmp = tempfile::tempdir().unwrap();
@@ -52,14 +63,7 @@ fn diagnose_add_report_end_to_end() {
     }
     // each fitted parameter with its standard error; the droop the truth has is many of
     // them away from zero
-    let (params, ses) = (
-        c0["params"].as_object().unwrap(),
-        c0["standard_errors"].as_object().unwrap(),
-    );
-    assert_eq!(
-        params.keys().collect::<Vec<_>>(),
-        ses.keys().collect::<Vec<_>>()
-    );
+    let (params, ses) = params_with_errors(c0);
     let significance = params
         .iter()
         .filter_map(|(k, p)| Some((p.as_f64()? / ses[k].as_f64()?).abs()))
@@ -133,14 +137,7 @@ fn diagnose_add_report_end_to_end() {
     assert!(m.is_enabled(tofprox_model::ids::vcsel_droop::ID));
     // each fitted parameter with a finite positive standard error, and the truth's droop
     // rate (droop_rel/τ, τ in ms: the lab's signature) within 4 of them of the fit
-    let (params, ses) = (
-        a["params"].as_object().unwrap(),
-        a["standard_errors"].as_object().unwrap(),
-    );
-    assert_eq!(
-        params.keys().collect::<Vec<_>>(),
-        ses.keys().collect::<Vec<_>>()
-    );
+    let (params, ses) = params_with_errors(&a);
     for k in ["droop_rate", "ln_tau"] {
         let se = ses[k].as_f64().unwrap();
         assert!(se.is_finite() && se > 0.0, "{k}: SE {se}");
