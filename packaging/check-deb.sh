@@ -9,7 +9,9 @@
 #    with DPKG_ROOT): the postinst made the user and groups and the calibration directory;
 # 3. `systemd-analyze verify` of the installed unit against the installed binary;
 # 4. the installed binaries run from another directory and find their data under the
-#    install prefix, not in the source tree; the man pages are pages of both binaries.
+#    install prefix, not in the source tree; the man pages are pages of both binaries (NAME
+#    lines); `tofprox --help`; the README's tour's first steps from /usr/share/tofprox;
+#    `tofproxd --demo` on a private bus.
 # A missing tool is an error under CI=true and a loud skip otherwise.
 set -euo pipefail
 deb="$(realpath "$1")"
@@ -99,4 +101,17 @@ grep -q '"chi2_per_dof"' <<<"$lab" || fail "tofprox lab compare of the installed
 echo "check-deb: the tour's first steps run from /usr/share/tofprox (process, lab compare)"
 cd "$root/elsewhere"
 echo "check-deb: installed binaries find their data under the prefix ($demo); man pages ok"
+# the demo itself, as the README's first command (a private dbus-daemon, no session bus): the
+# hand comes near, every cycle gives a reading, the calibration is the installed one
+if command -v dbus-daemon >/dev/null; then
+  run="$(env -u DBUS_SESSION_BUS_ADDRESS timeout 120 "$root/usr/bin/tofproxd" --demo --demo-seconds 6 2>&1)" ||
+    fail "tofproxd --demo: $run"
+  grep -q "calibration $root/usr/share/tofprox/calib/emulated" <<<"$run" || fail "demo calibration: $run"
+  grep -q ' NEAR ' <<<"$run" || fail "tofproxd --demo saw no NEAR: $run"
+  grep -Eq '^demo: ([0-9]+) cycles, \1 valid readings, 0 errors' <<<"$run" || fail "tofproxd --demo: $run"
+  echo "check-deb: tofproxd --demo from the package: $(grep '^demo: [0-9]* cycles' <<<"$run")"
+else
+  [ "${CI:-}" = true ] && fail "dbus-daemon not on PATH (package dbus-daemon)"
+  echo "SKIPPED check-deb demo run: dbus-daemon not on PATH" >&2
+fi
 echo "check-deb: PASS $(basename "$deb")"
