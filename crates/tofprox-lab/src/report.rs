@@ -438,10 +438,14 @@ pub fn explain_html(
     let mut h = html_open(title);
     let _ = write!(
         h,
-        "<h2>Final verdict: {}</h2><p>{}</p><table><tr><th>step</th><th>verdict</th><th>added</th>\
+        "<h2>Final verdict: {}</h2><p class=\"evidence\"><b>Evidence:</b> {}</p><p>{}</p><table><tr><th>step</th><th>verdict</th><th>added</th>\
          <th>explained</th><th>cv gain</th><th>χ²/dof</th><th>z</th><th>remaining [mm]</th>\
          <th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th></tr>",
         ex.verdict().as_str(),
+        esc(&ex
+            .steps
+            .last()
+            .map_or(String::new(), |s| s.diagnosis.evidence())),
         esc(ex.steps.last().map_or("", |s| s.diagnosis.reason.as_str()))
     );
     for (i, st) in ex.steps.iter().enumerate() {

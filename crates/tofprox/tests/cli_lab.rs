@@ -327,6 +327,8 @@ fn explain_that_cannot_explain_exits_1_with_its_reason() {
         "--out",
         out.to_str().unwrap(),
         "--json",
+        "--report",
+        tmp.path().join("explain.html").to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -335,6 +337,29 @@ fn explain_that_cannot_explain_exits_1_with_its_reason() {
     assert!(why.contains("not measured"), "{why}");
     assert!(text(&o.stderr).contains("could not explain the recording"));
     assert!(!out.exists(), "nothing added, nothing written");
+    assert_eq!(
+        v["fitted"],
+        serde_json::json!([]),
+        "nothing added, nothing fitted"
+    );
+    // the final verdict's evidence heads the report (the sentence's numbers: its diagnosis)
+    let last = &v["steps"][v["steps"].as_array().unwrap().len() - 1]["diagnosis"];
+    let evidence = last["evidence"].as_str().unwrap();
+    assert!(
+        evidence.contains("but the noise is not measured"),
+        "{evidence}"
+    );
+    let tol = format!(
+        "below the tolerance {:.2} mm",
+        last["tolerance_mm"].as_f64().unwrap()
+    );
+    assert!(evidence.contains(&tol), "{evidence} lacks {tol}");
+    let page = std::fs::read_to_string(tmp.path().join("explain.html")).unwrap();
+    let head = page.split("<table>").next().unwrap();
+    assert!(
+        head.contains("<b>Evidence:</b> What remains is detectable"),
+        "{head}"
+    );
 }
 
 #[test]
