@@ -1542,11 +1542,18 @@ fn fitted_effects(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use tofprox_model::ids;
 
-    fn cand(effect: &str, explained: f64, cv: f64, z_after: f64, dbic: f64) -> CandidateScore {
+    /// A scored candidate with the given evidence (the other fields empty).
+    pub(crate) fn cand(
+        effect: &str,
+        explained: f64,
+        cv: f64,
+        z_after: f64,
+        dbic: f64,
+    ) -> CandidateScore {
         CandidateScore {
             effect: effect.into(),
             delta_bic: dbic,

@@ -156,30 +156,14 @@ fn unexplained(
 
 #[cfg(test)]
 mod tests {
-    use std::collections::BTreeMap;
-
     use super::*;
     use crate::diagnose::{FitStats, Rms, Size};
     use crate::noise::NoiseSource;
 
     fn candidate(effect: &str, share: f64, mm: f64, z_after: f64) -> CandidateScore {
-        CandidateScore {
-            effect: effect.into(),
-            delta_bic: -100.0,
-            explained_excess: share,
-            cv_gain: share,
-            explained: Size { lsb: 1.0, mm },
-            z_after,
-            params: BTreeMap::new(),
-            standard_errors: BTreeMap::new(),
-            flags: Vec::new(),
-            fit: None,
-            nuisance: [0.0; 3],
-            structure_after: None,
-            rms_after: None,
-            cancels_in_4phase: false,
-            refit: None,
-        }
+        let mut c = crate::diagnose::tests::cand(effect, share, share, z_after, -100.0);
+        c.explained = Size { lsb: 1.0, mm };
+        c
     }
 
     /// Two candidates explain about equally (the one verdict no synthetic test reaches).
