@@ -45,11 +45,14 @@ inst 0644 "$repo/config/tofproxd.toml" etc/tofprox/tofproxd.toml
 # model and sensor files, the emulated sensors' factory calibrations
 mkdir -p "$pkg/usr/share/tofprox"
 cp -r "$repo/config" "$pkg/usr/share/tofprox/config"
-for set in emulated phone; do
+for set in emulated phone example; do
   mkdir -p "$pkg/usr/share/tofprox/calib/$set"
   find "$repo/calib/$set" -maxdepth 1 -type f ! -name make.sh \
     -exec install -m 0644 -t "$pkg/usr/share/tofprox/calib/$set" {} +
 done
+# the example recording the README's tour and docs/lab.md start from (as in the repository:
+# from /usr/share/tofprox the tour's relative paths work)
+cp -r "$repo/examples" "$pkg/usr/share/tofprox/examples"
 # manual pages from the clap definitions
 man_dir="$stage/man"
 "$profile/tofprox" man --out "$man_dir/man1"
@@ -59,9 +62,11 @@ for f in "$man_dir"/man*/*; do
   mkdir -p "$pkg/usr/share/man/$sec"
   gzip -9n <"$f" >"$pkg/usr/share/man/$sec/$(basename "$f").gz"
 done
-# documentation (the unit's Documentation= names daemon.md)
+# documentation, laid out as in the repository so the README's links and the help texts'
+# `docs/….md` resolve under /usr/share/doc/tofprox (the unit's Documentation= names
+# docs/daemon.md)
 inst 0644 "$repo/README.md" usr/share/doc/tofprox/README.md
-inst 0644 "$repo/docs/daemon.md" usr/share/doc/tofprox/daemon.md
+cp -r "$repo/docs" "$pkg/usr/share/doc/tofprox/docs"
 inst 0644 "$repo/packaging/copyright" usr/share/doc/tofprox/copyright
 find "$pkg" -type d -exec chmod 0755 {} +
 find "$pkg/usr/share" "$pkg/etc" -type f -exec chmod 0644 {} +

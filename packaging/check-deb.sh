@@ -9,7 +9,9 @@
 #    with DPKG_ROOT): the postinst made the user and groups and the calibration directory;
 # 3. `systemd-analyze verify` of the installed unit against the installed binary;
 # 4. the installed binaries run from another directory and find their data under the
-#    install prefix, not in the source tree; the man pages are pages of both binaries.
+#    install prefix, not in the source tree; the man pages are pages of both binaries (NAME
+#    lines); `tofprox --help`; the README's tour's first steps from /usr/share/tofprox;
+#    `tofproxd --demo` on a private bus.
 # A missing tool is an error under CI=true and a loud skip otherwise.
 set -euo pipefail
 deb="$(realpath "$1")"
@@ -34,7 +36,9 @@ for f in /usr/bin/tofprox /usr/bin/tofproxd \
   /usr/share/tofprox/config/tofproxd-emulated.toml \
   /usr/share/tofprox/calib/emulated/calibration.toml \
   /usr/share/man/man1/tofprox.1.gz /usr/share/man/man1/tofprox-monitor.1.gz \
-  /usr/share/man/man8/tofproxd.8.gz /usr/share/doc/tofprox/daemon.md; do
+  /usr/share/man/man8/tofproxd.8.gz /usr/share/doc/tofprox/docs/daemon.md \
+  /usr/share/doc/tofprox/docs/lab-json.md /usr/share/tofprox/examples/recording/recording.toml \
+  /usr/share/tofprox/calib/example/calibration.toml; do
   grep -qx "$f" <<<"$contents" || fail "$f missing from $deb"
 done
 if grep -q '/target/\|\.rs$\|make\.sh$' <<<"$contents"; then fail "build files in the package"; fi
@@ -77,5 +81,37 @@ scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || f
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
 zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"
+for page in man8/tofproxd.8 man1/tofprox.1 man1/tofprox-lab-add.1; do # NAME: "prog - what it is"
+  name="$(zcat "$root/usr/share/man/$page.gz" | sed -n '/^\.SH NAME/{n;s/\\-/-/g;p;q}')"
+  prog="$(basename "$page" | sed 's/\.[0-9]$//')"
+  grep -q "^$prog - [a-zA-Z]" <<<"$name" || fail "$page: NAME line '$name'"
+  if grep -q -- "- $prog\b" <<<"$name"; then fail "$page: NAME repeats the program name: '$name'"; fi
+done
+help="$("$root/usr/bin/tofprox" --help)" || fail "tofprox --help: $help"
+grep -q '^  lab  ' <<<"$help" || fail "tofprox --help lists no lab command: $help"
+# the README's tour from the installed data (cd /usr/share/tofprox): the example recording
+# with its calibration to depth, and the lab on it
+cd "$root/usr/share/tofprox"
+depth="$("$root/usr/bin/tofprox" process examples/recording --calib calib/example --algo 2phase \
+  --out "$root/depth" --json 2>/dev/null)" || fail "tofprox process of the installed example: $depth"
+grep -q '"index":2,.*"error_mm":' <<<"$depth" || fail "tofprox process of the installed example: $depth"
+lab="$("$root/usr/bin/tofprox" lab compare examples/recording --model config/model/baseline.toml \
+  --json 2>/dev/null)" || fail "tofprox lab compare of the installed example: $lab"
+grep -q '"chi2_per_dof"' <<<"$lab" || fail "tofprox lab compare of the installed example: $lab"
+echo "check-deb: the tour's first steps run from /usr/share/tofprox (process, lab compare)"
+cd "$root/elsewhere"
 echo "check-deb: installed binaries find their data under the prefix ($demo); man pages ok"
+# the demo itself, as the README's first command (a private dbus-daemon, no session bus): the
+# hand comes near, every cycle gives a reading, the calibration is the installed one
+if command -v dbus-daemon >/dev/null; then
+  run="$(env -u DBUS_SESSION_BUS_ADDRESS timeout 120 "$root/usr/bin/tofproxd" --demo --demo-seconds 6 2>&1)" ||
+    fail "tofproxd --demo: $run"
+  grep -q "calibration $root/usr/share/tofprox/calib/emulated" <<<"$run" || fail "demo calibration: $run"
+  grep -q ' NEAR ' <<<"$run" || fail "tofproxd --demo saw no NEAR: $run"
+  grep -Eq '^demo: ([0-9]+) cycles, \1 valid readings, 0 errors' <<<"$run" || fail "tofproxd --demo: $run"
+  echo "check-deb: tofproxd --demo from the package: $(grep '^demo: [0-9]* cycles' <<<"$run")"
+else
+  [ "${CI:-}" = true ] && fail "dbus-daemon not on PATH (package dbus-daemon)"
+  echo "SKIPPED check-deb demo run: dbus-daemon not on PATH" >&2
+fi
 echo "check-deb: PASS $(basename "$deb")"

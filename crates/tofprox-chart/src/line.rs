@@ -12,6 +12,9 @@ pub enum SeriesStyle {
     Line,
     /// Separate markers (noisy data, several values per x).
     Points,
+    /// A filled band between a lower and an upper curve (an uncertainty band); its points are
+    /// the outline: the upper curve in x order, then the lower curve back ([`Series::band`]).
+    Band,
 }
 
 /// One series of a line chart.
@@ -44,6 +47,25 @@ impl Series {
             name: name.into(),
             points,
             style: SeriesStyle::Points,
+            colour: None,
+        }
+    }
+
+    /// A band from (x, lower, upper) triples, drawn filled under the other series and named
+    /// once in the legend; a triple with a non-finite value is left out.
+    pub fn band(name: impl Into<String>, x_lo_hi: &[(f64, f64, f64)]) -> Self {
+        let mut t: Vec<(f64, f64, f64)> = x_lo_hi
+            .iter()
+            .copied()
+            .filter(|(x, lo, hi)| x.is_finite() && lo.is_finite() && hi.is_finite())
+            .collect();
+        t.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let upper = t.iter().map(|(x, _, hi)| (*x, *hi));
+        let lower = t.iter().rev().map(|(x, lo, _)| (*x, *lo));
+        Series {
+            name: name.into(),
+            points: upper.chain(lower).collect(),
+            style: SeriesStyle::Band,
             colour: None,
         }
     }
@@ -125,6 +147,9 @@ pub fn coincident_with(series: &[Series], y_span: f64) -> Vec<Option<usize>> {
         })
         .collect()
 }
+
+/// Fill opacity of a band: the series drawn over it stay readable.
+const BAND_OPACITY: f64 = 0.2;
 
 const W: f64 = 860.0;
 const LEFT: f64 = 84.0;
@@ -210,6 +235,7 @@ impl Styling {
             if let Some(i) = co {
                 let how = match c.series[j].style {
                     SeriesStyle::Line => "drawn dashed over it",
+                    SeriesStyle::Band => "filled over it",
                     SeriesStyle::Points => "its markers drawn over the other's",
                 };
                 notes.push(format!(
@@ -357,7 +383,7 @@ fn draw_axes(o: &mut String, c: &LineChart, f: &Frame) {
     o.push_str("</g>");
 }
 
-/// The data, clipped to the plot area: lines first, then markers on top.
+/// The data, clipped to the plot area: bands first, then lines, then markers on top.
 fn draw_series(o: &mut String, c: &LineChart, f: &Frame, st: &Styling) {
     let _ = write!(
         o,
@@ -366,7 +392,7 @@ fn draw_series(o: &mut String, c: &LineChart, f: &Frame, st: &Styling) {
         Frame::Y0,
         Frame::X1 - Frame::X0
     );
-    for pass in [SeriesStyle::Line, SeriesStyle::Points] {
+    for pass in [SeriesStyle::Band, SeriesStyle::Line, SeriesStyle::Points] {
         for (i, s) in c.series.iter().enumerate().filter(|(_, s)| s.style == pass) {
             let col = hex(st.colours[i]);
             let _ = write!(
@@ -376,6 +402,16 @@ fn draw_series(o: &mut String, c: &LineChart, f: &Frame, st: &Styling) {
             );
             match s.style {
                 SeriesStyle::Line => polylines(o, s, f, &col, st.dash(i)),
+                SeriesStyle::Band => {
+                    o.push_str("<polygon class=\"band\" points=\"");
+                    for (x, y) in &s.points {
+                        let _ = write!(o, "{:.1},{:.1} ", f.xs.at(*x), f.ys.at(*y));
+                    }
+                    let _ = write!(
+                        o,
+                        "\" fill=\"{col}\" fill-opacity=\"{BAND_OPACITY}\" stroke=\"{col}\" stroke-width=\"1\"/>"
+                    );
+                }
                 SeriesStyle::Points => {
                     for (x, y) in s
                         .points
@@ -440,6 +476,12 @@ fn draw_legend(o: &mut String, c: &LineChart, st: &Styling, at: &[(f64, f64)], t
                 );
             }
             SeriesStyle::Points => marker(o, st.marker_kind[i], 13.0, 9.0, &col, "legend-marker"),
+            SeriesStyle::Band => {
+                let _ = write!(
+                    o,
+                    "<rect x=\"0\" y=\"3\" width=\"26\" height=\"12\" fill=\"{col}\" fill-opacity=\"{BAND_OPACITY}\" stroke=\"{col}\" stroke-width=\"1\"/>"
+                );
+            }
         }
         text(o, "legend-text", 34.0, 13.0, 12.0, "start", name);
         o.push_str("</g>");
@@ -490,6 +532,31 @@ mod tests {
             assert!(r.windows(2).all(|w| w[0] <= w[1]), "{r:?}");
         }
         assert!(!s.contains("NaN"));
+    }
+
+    #[test]
+    fn a_band_is_one_filled_outline_under_the_data_with_one_legend_entry() {
+        let b = Series::band(
+            "±2 SE",
+            &[(2.0, -1.0, 1.0), (1.0, -2.0, 2.0), (f64::NAN, 0.0, 1.0)],
+        );
+        // upper edge in x order, then the lower edge back; the non-finite triple left out
+        assert_eq!(
+            b.points,
+            vec![(1.0, 2.0), (2.0, 1.0), (2.0, -1.0), (1.0, -2.0)]
+        );
+        let c = LineChart {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            series: vec![Series::points("data", vec![(1.0, 0.5)]), b],
+            notes: vec![],
+        };
+        let s = line_chart(&c);
+        assert_eq!(s.matches("<polygon class=\"band\"").count(), 1);
+        assert!(s.find("class=\"band\"").unwrap() < s.find("class=\"point\"").unwrap());
+        assert_eq!(s.matches("class=\"legend-entry\"").count(), 2);
+        assert!(s.contains(">±2 SE</text>"));
     }
 
     #[test]

@@ -56,6 +56,28 @@ fn standard_errors(
     se
 }
 
+/// Standard errors of the fitted effect `fit` inside a fitted model (`recs`: that model's
+/// residual table): as [`standard_errors`] at the effect's values, with the global
+/// offset/gain/phase shifts free at zero (the model's per-pixel parameters hold them); those of
+/// `fit.lin`, then of `fit.nl` (NaN for one held on a grid).
+pub fn effect_standard_errors(
+    sig: &dyn Signature,
+    recs: &[Sample],
+    prep: &Prepared,
+    fit: &EffectFit,
+) -> Vec<f64> {
+    let nlin = sig.n_lin() + NUISANCE;
+    let mut p = fit.lin.clone();
+    p.extend([0.0; NUISANCE]);
+    p.extend_from_slice(&fit.nl);
+    let free: Vec<usize> = (0..p.len())
+        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+        .collect();
+    let mut se = standard_errors(sig, recs, prep, &p, &free);
+    se.drain(sig.n_lin()..nlin);
+    se
+}
+
 /// Global nuisance directions refitted with every candidate: the shifts of
 /// offset, gain and phase that the per-pixel parameters absorbed from the
 /// effect while the model was fitted without it.

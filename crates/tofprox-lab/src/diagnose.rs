@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tofprox_model::catalogue::Driver;
 
-use crate::candidates::fit_signature;
+use crate::candidates::{effect_standard_errors, fit_signature};
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
 use crate::noise::NoiseSource;
@@ -1238,6 +1238,8 @@ pub struct AddOutcome {
     pub effect: EffectFit,
     /// Its parameters by name.
     pub params: BTreeMap<String, f64>,
+    /// Their standard errors by name ([`fitted_effect`]).
+    pub standard_errors: BTreeMap<String, f64>,
 }
 
 /// Enable `effect` in the spec, refit everything, and compare before/after.
@@ -1313,12 +1315,52 @@ pub fn add_effect_to(
     } else {
         warm
     };
-    let (fitted, params) = effect_params(prep, &after.model, effect)?;
+    let f = fitted_effect(prep, &after, effect)?;
+    let (fitted, _) = effect_params(prep, &after.model, effect)?;
     Ok(AddOutcome {
         before,
         after,
         effect: fitted,
+        params: f.params,
+        standard_errors: f.standard_errors,
+    })
+}
+
+/// A fitted effect's parameters with their standard errors (`lab add`, `lab explain`).
+#[derive(Debug, Clone, Serialize)]
+pub struct FittedEffect {
+    /// Catalogue id.
+    pub effect: String,
+    /// Its parameters by the signature's names ([`effect_params`]).
+    pub params: BTreeMap<String, f64>,
+    /// The standard error of each, same names: √diag((JᵀWJ)⁻¹) over the effect's parameters
+    /// and the global offset/gain/phase shifts at the fitted values, W = 1/σ² of the noise
+    /// model, the per-pixel parameters held (as [`CandidateScore::standard_errors`]); NaN for
+    /// a parameter held on a grid and for the waveform's harmonics (fitted inside the
+    /// waveform, not as a signature).
+    pub standard_errors: BTreeMap<String, f64>,
+}
+
+/// `effect` as fitted in the model of `cmp` (which must hold its residual table), with the
+/// standard errors of its parameters.
+pub fn fitted_effect(
+    prep: &Prepared,
+    cmp: &Comparison,
+    effect: &str,
+) -> Result<FittedEffect, LabError> {
+    let (fit, params) = effect_params(prep, &cmp.model, effect)?;
+    let mut standard_errors: BTreeMap<String, f64> =
+        params.keys().map(|k| (k.clone(), f64::NAN)).collect();
+    if effect != tofprox_model::ids::waveform_harmonics::ID.as_str() {
+        let sig = make_signature(effect, prep, &cmp.model.spec, &cmp.model.waveform)?;
+        let se = effect_standard_errors(sig.as_ref(), &cmp.recs, prep, &fit);
+        let names = sig.lin_names().into_iter().chain(sig.nl_names());
+        standard_errors.extend(names.zip(se));
+    }
+    Ok(FittedEffect {
+        effect: effect.to_string(),
         params,
+        standard_errors,
     })
 }
 
@@ -1376,6 +1418,8 @@ pub struct Explanation {
     /// Why `explain` could not explain the recording (None: it ends at
     /// `nothing_missing`).
     pub stopped: Option<String>,
+    /// The effects added, as fitted in the final model, with standard errors.
+    pub fitted: Vec<FittedEffect>,
 }
 
 impl Explanation {
@@ -1405,6 +1449,7 @@ pub fn explain(
     let mut cmp = compare(prep, spec, progress)?;
     let mut steps = Vec::new();
     let mut added = Vec::new();
+    let mut fitted = Vec::new();
     for _ in 0..=MAX_EXPLAIN_STEPS {
         let mut d = diagnose_with(prep, &cmp, opts, progress)?;
         let named = d
@@ -1412,6 +1457,7 @@ pub fn explain(
             .clone()
             .filter(|_| d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS);
         let Some(effect) = named else {
+            fitted = fitted_effects(prep, &cmp, &added)?;
             cmp.recs = Vec::new();
             for c in &mut d.candidates {
                 c.refit = None;
@@ -1434,8 +1480,12 @@ pub fn explain(
         let chi_before = cmp.chi2 / cmp.dof;
         let out = add_effect_to(prep, cmp, &effect, start.as_deref(), progress)?;
         let mut before = out.before;
-        before.recs = Vec::new();
         let improved = out.after.fit.chi2_per_dof < chi_before;
+        if !improved {
+            // the final model is this one
+            fitted = fitted_effects(prep, &before, &added)?;
+        }
+        before.recs = Vec::new();
         steps.push(ExplainStep {
             comparison: before,
             diagnosis: d,
@@ -1450,6 +1500,7 @@ pub fn explain(
                 steps,
                 added,
                 stopped: Some(why),
+                fitted,
             });
         }
         added.push(effect);
@@ -1470,15 +1521,32 @@ pub fn explain(
         steps,
         added,
         stopped,
+        fitted,
     })
 }
 
+/// Each of `added` as fitted in the model of `cmp`, with standard errors.
+fn fitted_effects(
+    prep: &Prepared,
+    cmp: &Comparison,
+    added: &[String],
+) -> Result<Vec<FittedEffect>, LabError> {
+    added.iter().map(|e| fitted_effect(prep, cmp, e)).collect()
+}
+
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use tofprox_model::ids;
 
-    fn cand(effect: &str, explained: f64, cv: f64, z_after: f64, dbic: f64) -> CandidateScore {
+    /// A scored candidate with the given evidence (the other fields empty).
+    pub(crate) fn cand(
+        effect: &str,
+        explained: f64,
+        cv: f64,
+        z_after: f64,
+        dbic: f64,
+    ) -> CandidateScore {
         CandidateScore {
             effect: effect.into(),
             delta_bic: dbic,

@@ -11,6 +11,7 @@ pub mod candidates;
 pub mod data;
 pub mod diagnose;
 pub mod error;
+mod evidence;
 pub mod fit;
 pub mod model_file;
 pub mod noise;

@@ -2,6 +2,7 @@
 //! the compact terminal table, and the self-contained HTML report with inline
 //! SVG plots (drawn by `tofprox-chart`, the one chart component; no network,
 //! no fonts needed).
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
 use serde_json::{Value, json};
@@ -31,11 +32,12 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "explained_mm": num(c.explained.mm),
             "explained_lsb": num(c.explained.lsb),
             "z_after": num(c.z_after),
-            "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
-            "standard_errors": c.standard_errors.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+            "params": named(&c.params),
+            "standard_errors": named(&c.standard_errors),
             "flags": c.flags,
         })).collect::<Vec<_>>(),
         "reason": d.reason,
+        "evidence": d.evidence(),
         "noise": {"source": d.noise, "description": d.noise.describe()},
         "fit": {"chi2_per_dof": num(d.fit.chi2_per_dof), "z": num(d.fit.z)},
         "strongest_condition": d.strongest_condition,
@@ -74,6 +76,11 @@ pub fn explanation_json(ex: &Explanation) -> Value {
         "verdict": ex.verdict().as_str(),
         "added": ex.added,
         "stopped": ex.stopped,
+        "fitted": ex.fitted.iter().map(|f| json!({
+            "effect": f.effect,
+            "params": named(&f.params),
+            "standard_errors": named(&f.standard_errors),
+        })).collect::<Vec<_>>(),
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
             "diagnosis": diagnosis_json(&s.diagnosis),
@@ -97,8 +104,36 @@ pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
         "effect": effect,
         "before": summary_json(&ErrorSummary::of(&out.before)),
         "after": summary_json(&ErrorSummary::of(&out.after)),
-        "params": out.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
+        "params": named(&out.params),
+        "standard_errors": named(&out.standard_errors),
     })
+}
+
+/// A name → number map as a JSON object (non-finite numbers as null).
+fn named(m: &BTreeMap<String, f64>) -> Value {
+    Value::Object(m.iter().map(|(k, v)| (k.clone(), num(*v))).collect())
+}
+
+/// The fitted parameters with their standard errors, one `  name = value ± SE` line each
+/// ("± —" where there is none), under a heading saying what they are.
+pub fn fitted_text(
+    effect: &str,
+    params: &BTreeMap<String, f64>,
+    standard_errors: &BTreeMap<String, f64>,
+) -> String {
+    let mut s = format!(
+        "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise):\n"
+    );
+    for (k, v) in params {
+        let se = standard_errors.get(k).copied().unwrap_or(f64::NAN);
+        let se = if se.is_finite() {
+            format!("{se:.2e}")
+        } else {
+            "—".into()
+        };
+        let _ = writeln!(s, "  {k:<20} = {v:>12.5e} ± {se}");
+    }
+    s
 }
 
 /// `compare --json`: fit statistics, RMS and the structure per condition.
@@ -180,6 +215,7 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     };
     let _ = writeln!(s, "verdict: {verdict}");
     let _ = writeln!(s, "         {}", d.reason);
+    let _ = writeln!(s, "evidence: {}", d.evidence());
     let _ = writeln!(
         s,
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
@@ -246,6 +282,10 @@ fn depth_series(d: &[CaptureDepth]) -> (Curve, Curve) {
 
 /// One value of a capture's depth comparison (mm).
 type DepthOf = fn(&CaptureDepth) -> f64;
+
+/// One algorithm's before/after chart: its name, its value, the "after" points, and the
+/// colours of before and after.
+type BeforeAfter = (&'static str, DepthOf, Curve, [u8; 3], [u8; 3]);
 
 /// Per exposure (ascending), the captures' (distance, `value`) points.
 fn by_exposure(d: &[CaptureDepth], value: DepthOf) -> Vec<(f64, Curve)> {
@@ -398,10 +438,14 @@ pub fn explain_html(
     let mut h = html_open(title);
     let _ = write!(
         h,
-        "<h2>Final verdict: {}</h2><p>{}</p><table><tr><th>step</th><th>verdict</th><th>added</th>\
+        "<h2>Final verdict: {}</h2><p class=\"evidence\"><b>Evidence:</b> {}</p><p>{}</p><table><tr><th>step</th><th>verdict</th><th>added</th>\
          <th>explained</th><th>cv gain</th><th>χ²/dof</th><th>z</th><th>remaining [mm]</th>\
          <th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th></tr>",
         ex.verdict().as_str(),
+        esc(&ex
+            .steps
+            .last()
+            .map_or(String::new(), |s| s.diagnosis.evidence())),
         esc(ex.steps.last().map_or("", |s| s.diagnosis.reason.as_str()))
     );
     for (i, st) in ex.steps.iter().enumerate() {
@@ -483,9 +527,10 @@ fn html_sections(
 fn verdict_html(h: &mut String, d: &Diagnosis) {
     let _ = write!(
         h,
-        "<h2>Verdict: {} {}</h2><p>{}</p>",
+        "<h2>Verdict: {} {}</h2><p class=\"evidence\"><b>Evidence:</b> {}</p><p>{}</p>",
         d.verdict.as_str(),
         esc(d.effect.as_deref().unwrap_or("")),
+        esc(&d.evidence()),
         esc(&d.reason)
     );
     if let Some(sep) = &d.separate_by {
@@ -533,28 +578,37 @@ fn fit_html(h: &mut String, cmp: &Comparison) {
     );
 }
 
+/// The legend of the ±2 SE band: what it is and where its noise came from.
+fn band_label(cmp: &Comparison) -> String {
+    format!(
+        "±2 SE of the binned residual (noise {})",
+        cmp.model.noise.source.describe()
+    )
+}
+
+/// `exposure_us` as a legend label: "250 µs".
+fn exposure_label(t: f64) -> String {
+    format!("{} µs", tofprox_format::fmt_num(t))
+}
+
 /// Measured vs model amplitude, the depth residual per capture, the residual vs each condition.
 fn model_charts_html(h: &mut String, cmp: &Comparison) {
-    let meas: Vec<(f64, f64)> = cmp
-        .depth
-        .iter()
-        .map(|c| (c.distance_m, c.measured_amplitude_lsb))
-        .collect();
-    let model: Vec<(f64, f64)> = cmp
-        .depth
-        .iter()
-        .map(|c| (c.distance_m, c.model_amplitude_lsb))
-        .collect();
     h.push_str("<h3>Measured vs model</h3>");
+    // per exposure (the amplitude scales with it), the model as filled markers under the
+    // measurement's open ones: both stay visible, each exposure its own marker pair
+    let mut series = Vec::new();
+    let measured = by_exposure(&cmp.depth, |c| c.measured_amplitude_lsb);
+    let model = by_exposure(&cmp.depth, |c| c.model_amplitude_lsb);
+    for ((t, meas), (_, modl)) in measured.into_iter().zip(model) {
+        let e = exposure_label(t);
+        series.push(Series::points(format!("model, {e}"), modl).colour(RED));
+        series.push(Series::points(format!("measured, {e}"), meas).colour(BLUE));
+    }
     h.push_str(&chart(
         "4-phase amplitude per capture (mean over pixels)",
         "distance [m]",
         "amplitude [LSB]",
-        // the model as dots under the measurement's rings: both stay visible
-        vec![
-            Series::points("model", model).colour(RED),
-            Series::points("measured", meas).colour(BLUE),
-        ],
+        series,
     ));
     h.push_str("<h3>Where the model fails</h3>");
     // one chart per algorithm (small multiples): their residuals overlap near zero; one series
@@ -567,7 +621,7 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
         let series = by_exposure(&cmp.depth, value)
             .into_iter()
             .map(|(t, points)| {
-                let name = format!("{alg}, {} µs", tofprox_format::fmt_num(t));
+                let name = format!("{alg}, {}", exposure_label(t));
                 Series::points(name, points).colour(colour)
             })
             .collect();
@@ -587,8 +641,11 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
         };
         let unit = ["offset [LSB]", "relative amplitude", "phase [rad]"][di];
         let est: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, b.est[di])).collect();
-        let hi: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, 2.0 * b.se[di])).collect();
-        let lo: Vec<(f64, f64)> = st.bins.iter().map(|b| (b.x, -2.0 * b.se[di])).collect();
+        let band: Vec<(f64, f64, f64)> = st
+            .bins
+            .iter()
+            .map(|b| (b.x, -2.0 * b.se[di], 2.0 * b.se[di]))
+            .collect();
         h.push_str(&chart(
             &format!(
                 "residual vs {} (z = {:.1}, {} direction)",
@@ -597,9 +654,8 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
             &st.condition,
             unit,
             vec![
+                Series::band(band_label(cmp), &band).colour(BLACK),
                 Series::points("binned residual", est).colour(RED),
-                Series::line("+2 SE", hi).colour(BLACK),
-                Series::line("−2 SE", lo).colour(BLACK),
             ],
         ));
     }
@@ -681,21 +737,29 @@ fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &
         systematic_mm(&b4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
         systematic_mm(&a4).map_or(NO_DATA.into(), |v| format!("{v:.2}")),
     );
-    // one chart per algorithm (small multiples); "after" as the mean per distance, joined in
-    // distance order
-    for (alg, b, a, colours) in [
-        ("2-phase", b2, a2, (ORANGE, BROWN)),
-        ("4-phase", b4, a4, (LIGHT_BLUE, BLUE)),
-    ] {
+    // one chart per algorithm (small multiples): "before" per exposure (labelled, one marker
+    // shape each), "after" as the mean per distance, joined in distance order
+    let by_alg: [BeforeAfter; 2] = [
+        ("2-phase", |c| c.depth_2phase_mm, a2, ORANGE, BROWN),
+        ("4-phase", |c| c.depth_4phase_mm, a4, LIGHT_BLUE, BLUE),
+    ];
+    for (alg, value, a, before_colour, after_colour) in by_alg {
+        let mut series: Vec<Series> = by_exposure(&before.depth, value)
+            .into_iter()
+            .map(|(t, points)| {
+                Series::points(format!("{alg} before, {}", exposure_label(t)), points)
+                    .colour(before_colour)
+            })
+            .collect();
+        series.push(
+            Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
+                .colour(after_colour),
+        );
         h.push_str(&chart(
             &format!("{alg} depth residual before/after (mean per capture)"),
             "distance [m]",
             "depth residual [mm]",
-            vec![
-                Series::points(format!("{alg} before"), b).colour(colours.0),
-                Series::line(format!("{alg} after (mean per distance)"), mean_per_x(&a))
-                    .colour(colours.1),
-            ],
+            series,
         ));
     }
 }

@@ -356,6 +356,7 @@ fn check_explain(hidden: &[Hidden], vary: Vary, seed: u64, expected: &[&str]) {
     want.sort();
     assert_eq!(added, want, "effects added");
     assert_eq!(ex.verdict(), Verdict::NothingMissing);
+    fitted_with_standard_errors(&ex, &prep);
     written_model_reproduces(&ex, &prep);
     reaches_the_control(&ex, vary, seed);
 }
@@ -372,6 +373,25 @@ fn reaches_the_control(ex: &tofprox_lab::diagnose::Explanation, vary: Vary, seed
     assert!(last.rms.depth_4phase_mm <= 1.3 * c.rms.depth_4phase_mm);
     let dc = diagnose(&cprep, &c, &|_, _| {}).unwrap();
     assert_eq!(dc.verdict, Verdict::NothingMissing, "{}", dc.reason);
+}
+
+/// `explain` gives each added effect as fitted in the final model, every parameter with a
+/// standard error that is positive (NaN only for one held on a grid or the waveform's harmonics).
+fn fitted_with_standard_errors(ex: &tofprox_lab::diagnose::Explanation, prep: &Prepared) {
+    let fin = ex.final_model().unwrap();
+    let names: Vec<&String> = ex.fitted.iter().map(|f| &f.effect).collect();
+    assert_eq!(names, ex.added.iter().collect::<Vec<_>>());
+    for f in &ex.fitted {
+        eprintln!("{}: {:?} ± {:?}", f.effect, f.params, f.standard_errors);
+        let (_, params) = effect_params(prep, fin, &f.effect).unwrap();
+        assert_eq!(f.params, params);
+        assert!(f.params.keys().eq(f.standard_errors.keys()));
+        let ses = f.standard_errors.values();
+        assert!(ses.clone().all(|s| s.is_nan() || *s > 0.0), "{f:?}");
+        if f.effect != "waveform_harmonics" {
+            assert!(ses.clone().any(|s| s.is_finite()), "{f:?}");
+        }
+    }
 }
 
 /// `add` writes the fitted physics into the model file: holding the effects

@@ -174,6 +174,7 @@ fn without_measured_noise_a_noise_like_residual_is_not_nothing_missing() {
     let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
     assert_eq!(d.verdict, Verdict::NoiseNotMeasured, "{}", d.reason);
     assert!(d.reason.contains("not measured"), "{}", d.reason);
+    common::assert_evidence_quotes(&d);
     reported_values_are_honest(&d);
 }
 

@@ -29,6 +29,7 @@ fn run(s: SynthSpec) -> tofprox_lab::Diagnosis {
             c.effect, c.explained_excess, c.cv_gain, c.z_after, c.delta_bic, c.structure_after
         );
     }
+    common::assert_evidence_quotes(&d);
     d
 }
 

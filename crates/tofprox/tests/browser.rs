@@ -68,6 +68,16 @@ const CHECKER: &str = r#"<script>
         }
       });
     });
+    // every legend entry's text and rendered size; every band's outline on the screen
+    svg.querySelectorAll('g.legend-entry').forEach((e) => {
+      const r = e.getBoundingClientRect();
+      (out.legendEntries = out.legendEntries || []).push({ chart: name, text: e.textContent, w: r.width, h: r.height });
+    });
+    svg.querySelectorAll('polygon.band').forEach((b) => {
+      const m = b.getScreenCTM();
+      const pts = [...b.points].map((p) => { const s = new DOMPoint(p.x, p.y).matrixTransform(m); return [s.x, s.y]; });
+      (out.bands = out.bands || []).push({ chart: name, fill: b.getAttribute('fill'), opacity: parseFloat(b.getAttribute('fill-opacity')), pts });
+    });
     // where each series is on the screen, for the test that looks at the screenshot's pixels
     svg.querySelectorAll('g.series').forEach((g) => {
       const el = g.querySelector('polyline, .point');
@@ -222,6 +232,61 @@ impl Screenshot {
     }
 }
 
+impl Screenshot {
+    /// Whether a band (as the checker saw it: fill colour and opacity, outline = upper curve
+    /// then lower curve back) shows its tint in the picture: a quarter of the way from its upper
+    /// to its lower edge, at ≥ [`SERIES_ALONE_SHARE`] of its x positions that lie in the
+    /// screenshot and are ≥ 8 px wide, the fill blended over white shows within 1 px.
+    /// `Ok(false)`: the band is narrower than that everywhere (its outline shows it).
+    fn band_problem(&self, b: &Value) -> Result<bool, String> {
+        let chart = b["chart"].as_str().unwrap_or_default();
+        let bad = || format!("{chart}: the band has no fill colour or opacity");
+        let fill = b["fill"].as_str().and_then(hex_rgb).ok_or_else(bad)?;
+        let op = b["opacity"].as_f64().ok_or_else(bad)?;
+        let tint = fill.map(|c| (255.0 - op * (255.0 - f64::from(c))).round() as u8);
+        let pts: Vec<(f64, f64)> = b["pts"]
+            .as_array()
+            .map_or(&[][..], |a| a.as_slice())
+            .iter()
+            .filter_map(|p| Some((p[0].as_f64()?, p[1].as_f64()?)))
+            .collect();
+        let n = pts.len() / 2;
+        let probes: Vec<(f64, f64)> = (0..n)
+            .map(|i| (pts[i], pts[pts.len() - 1 - i]))
+            .filter(|(up, lo)| lo.1 - up.1 >= 8.0 && lo.1 < self.height as f64)
+            .map(|(up, lo)| (up.0, up.1 + 0.25 * (lo.1 - up.1)))
+            .collect();
+        let shown = probes
+            .iter()
+            .filter(|&&p| self.near(p, 1).iter().any(|c| close(*c, tint)))
+            .count();
+        if probes.is_empty() {
+            return Ok(false);
+        }
+        let share = shown as f64 / probes.len() as f64;
+        if share < SERIES_ALONE_SHARE {
+            return Err(format!(
+                "{chart}: the band shows its tint at only {:.0} % of its {} positions",
+                100.0 * share,
+                probes.len()
+            ));
+        }
+        Ok(true)
+    }
+}
+
+/// The rendered legend texts of the charts whose title starts with `chart`.
+fn legend_texts<'a>(v: &'a Value, chart: &str) -> Vec<&'a str> {
+    v["legendEntries"]
+        .as_array()
+        .map_or(&[][..], |a| a.as_slice())
+        .iter()
+        .filter(|e| e["chart"].as_str().is_some_and(|c| c.starts_with(chart)))
+        .filter(|e| e["w"].as_f64().unwrap_or(0.0) > 10.0 && e["h"].as_f64().unwrap_or(0.0) > 5.0)
+        .filter_map(|e| e["text"].as_str())
+        .collect()
+}
+
 /// `#rrggbb` → RGB.
 fn hex_rgb(h: &str) -> Option<[u8; 3]> {
     let h = h.strip_prefix('#')?;
@@ -280,6 +345,14 @@ fn render(chromium: &Path, name: &str, html: &str) -> Value {
     let v: Value = serde_json::from_str(&json).unwrap();
     let mut problems: Vec<Value> = v["problems"].as_array().unwrap().clone();
     let picture = Screenshot::load(&shot);
+    let bands: Vec<Value> = v["bands"].as_array().cloned().unwrap_or_default();
+    let mut bands_seen = 0;
+    for b in &bands {
+        match picture.band_problem(b) {
+            Ok(seen) => bands_seen += usize::from(seen),
+            Err(p) => problems.push(Value::from(p)),
+        }
+    }
     let seen: &[Value] = v["seen"].as_array().map_or(&[], |a| a.as_slice());
     for s in seen {
         let others: Vec<([u8; 3], &str)> = seen
@@ -300,6 +373,8 @@ fn render(chromium: &Path, name: &str, html: &str) -> Value {
             .collect::<Vec<_>>()
             .join("\n")
     );
+    let mut v = v;
+    v["bands_seen"] = Value::from(bands_seen);
     v
 }
 
@@ -332,6 +407,37 @@ fn lab_reports_render_correctly_in_a_browser() {
     );
     assert!(v["bars"].as_u64().unwrap() >= 5, "{v}");
     assert!(v["legends"].as_u64().unwrap() >= 3, "{v}");
+    // the ±2 SE band: one labelled band per residual chart, saying where the noise came from,
+    // its tint seen in the picture (`render` checks it); each exposure labelled
+    let bands = v["bands"].as_array().map_or(0, |b| b.len());
+    let band_legends = legend_texts(&v, "residual vs ");
+    let band_legends: Vec<_> = band_legends
+        .iter()
+        .filter(|t| t.starts_with("±2 SE of the binned residual (noise measured from "))
+        .collect();
+    assert!(
+        bands >= 1 && band_legends.len() == bands,
+        "{bands} bands, legends {band_legends:?}"
+    );
+    assert!(
+        v["bands_seen"].as_u64().unwrap() >= 1,
+        "no band wide enough to see its tint"
+    );
+    for (chart, label) in [
+        ("4-phase amplitude", "measured, "),
+        ("4-phase amplitude", "model, "),
+        ("2-phase depth residual", "2-phase, "),
+        ("4-phase depth residual", "4-phase, "),
+    ] {
+        let shown = legend_texts(&v, chart);
+        for e in ["250 µs", "1000 µs"] {
+            let want = format!("{label}{e}");
+            assert!(
+                shown.iter().any(|t| t.starts_with(&want)),
+                "{chart}: no legend {want:?} in {shown:?}"
+            );
+        }
+    }
     // each bar shows the score of the condition it is labelled with (compare --json
     // computes the same fit)
     let o = run(&["lab", "compare", &s(rec), "--model", &s(base_p), "--json"]);
@@ -380,6 +486,14 @@ fn lab_reports_render_correctly_in_a_browser() {
         &std::fs::read_to_string(&add).unwrap(),
     );
     assert!(v["lines"].as_u64().unwrap() >= 2, "{v}");
+    let shown = legend_texts(&v, "2-phase depth residual before/after");
+    for e in ["250 µs", "1000 µs"] {
+        let want = format!("2-phase before, {e}");
+        assert!(
+            shown.iter().any(|t| t.starts_with(&want)),
+            "no legend {want:?} in {shown:?}"
+        );
+    }
 }
 
 #[test]

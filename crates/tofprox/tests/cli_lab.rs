@@ -17,10 +17,21 @@ fn simulate(dir: &Path) -> (String, String, String) {
     (sweep.rec, sweep.base, sweep.truth)
 }
 
+/// `params` and `standard_errors` of a JSON object, asserting they name the same parameters.
+type Named = serde_json::Map<String, serde_json::Value>;
+fn params_with_errors(v: &serde_json::Value) -> (&Named, &Named) {
+    let (params, ses) = (
+        v["params"].as_object().unwrap(),
+        v["standard_errors"].as_object().unwrap(),
+    );
+    assert!(params.keys().eq(ses.keys()), "{params:?} ± {ses:?}");
+    (params, ses)
+}
+
 #[test]
 fn diagnose_add_report_end_to_end() {
     let tmp = tempfile::tempdir().unwrap();
-    let (rec, base, _) = simulate(tmp.path());
+    let (rec, base, truth) = simulate(tmp.path());
     let html = tmp.path().join("diag.html");
     let o = run(&[
         "lab",
@@ -52,14 +63,7 @@ fn diagnose_add_report_end_to_end() {
     }
     // each fitted parameter with its standard error; the droop the truth has is many of
     // them away from zero
-    let (params, ses) = (
-        c0["params"].as_object().unwrap(),
-        c0["standard_errors"].as_object().unwrap(),
-    );
-    assert_eq!(
-        params.keys().collect::<Vec<_>>(),
-        ses.keys().collect::<Vec<_>>()
-    );
+    let (params, ses) = params_with_errors(c0);
     let significance = params
         .iter()
         .filter_map(|(k, p)| Some((p.as_f64()? / ses[k].as_f64()?).abs()))
@@ -69,6 +73,28 @@ fn diagnose_add_report_end_to_end() {
         "{ses:?}"
     );
     assert!(significance > 10.0, "{params:?} ± {ses:?}");
+    // the one sentence of evidence quotes the diagnosis' own numbers
+    let ev = v["evidence"].as_str().unwrap();
+    let st0 = &v["structure"][0];
+    for want in [
+        format!(
+            "The residual follows {} (structure z = {:.1}",
+            st0["condition"].as_str().unwrap(),
+            st0["z"].as_f64().unwrap()
+        ),
+        format!(
+            "of the {} catalogue effects tested, vcsel_droop explains {:.0} % of the excess",
+            v["candidates"].as_array().unwrap().len(),
+            100.0 * c0["explained_excess"].as_f64().unwrap()
+        ),
+        format!("leaving z = {:.1}", c0["z_after"].as_f64().unwrap()),
+        format!(
+            "the noise is {}",
+            v["noise"]["description"].as_str().unwrap()
+        ),
+    ] {
+        assert!(ev.contains(&want), "evidence {ev:?} lacks {want:?}");
+    }
     for k in ["chi2_per_dof", "z"] {
         assert!(v["fit"][k].is_number());
     }
@@ -77,6 +103,8 @@ fn diagnose_add_report_end_to_end() {
     }
     let page = std::fs::read_to_string(&html).unwrap();
     assert!(page.starts_with("<!DOCTYPE html>") && page.matches("<svg").count() >= 4);
+    let quoted = format!("structure z = {:.1}", st0["z"].as_f64().unwrap());
+    assert!(page.contains("<b>Evidence:</b> The residual follows") && page.contains(&quoted));
     assert!(
         !page.contains("http://") || page.contains("xmlns"),
         "no network references beyond SVG namespaces"
@@ -107,6 +135,22 @@ fn diagnose_add_report_end_to_end() {
     );
     let m = ModelConfig::load(&m2).unwrap();
     assert!(m.is_enabled(tofprox_model::ids::vcsel_droop::ID));
+    // each fitted parameter with a finite positive standard error, and the truth's droop
+    // rate (droop_rel/τ, τ in ms: the lab's signature) within 4 of them of the fit
+    let (params, ses) = params_with_errors(&a);
+    for k in ["droop_rate", "ln_tau"] {
+        let se = ses[k].as_f64().unwrap();
+        assert!(se.is_finite() && se > 0.0, "{k}: SE {se}");
+    }
+    let truth = ModelConfig::load(Path::new(&truth)).unwrap();
+    let tau_ms = truth.param("vcsel_droop", "tau_us").unwrap() / 1000.0;
+    let want = 0.06 / tau_ms;
+    let got = params["droop_rate"].as_f64().unwrap();
+    let se = ses["droop_rate"].as_f64().unwrap();
+    assert!(
+        (got - want).abs() < 4.0 * se,
+        "droop_rate {got} ± {se}, truth {want}"
+    );
 
     let o = run(&[
         "lab",
@@ -283,6 +327,8 @@ fn explain_that_cannot_explain_exits_1_with_its_reason() {
         "--out",
         out.to_str().unwrap(),
         "--json",
+        "--report",
+        tmp.path().join("explain.html").to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o.stderr));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -291,6 +337,29 @@ fn explain_that_cannot_explain_exits_1_with_its_reason() {
     assert!(why.contains("not measured"), "{why}");
     assert!(text(&o.stderr).contains("could not explain the recording"));
     assert!(!out.exists(), "nothing added, nothing written");
+    assert_eq!(
+        v["fitted"],
+        serde_json::json!([]),
+        "nothing added, nothing fitted"
+    );
+    // the final verdict's evidence heads the report (the sentence's numbers: its diagnosis)
+    let last = &v["steps"][v["steps"].as_array().unwrap().len() - 1]["diagnosis"];
+    let evidence = last["evidence"].as_str().unwrap();
+    assert!(
+        evidence.contains("but the noise is not measured"),
+        "{evidence}"
+    );
+    let tol = format!(
+        "below the tolerance {:.2} mm",
+        last["tolerance_mm"].as_f64().unwrap()
+    );
+    assert!(evidence.contains(&tol), "{evidence} lacks {tol}");
+    let page = std::fs::read_to_string(tmp.path().join("explain.html")).unwrap();
+    let head = page.split("<table>").next().unwrap();
+    assert!(
+        head.contains("<b>Evidence:</b> What remains is detectable"),
+        "{head}"
+    );
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! Checks shared by the lab's integration tests.
 #![allow(dead_code)] // each test binary uses a subset of the helpers
-use tofprox_lab::diagnose::{AddOutcome, Rms};
+use tofprox_lab::Diagnosis;
+use tofprox_lab::diagnose::{AddOutcome, Rms, Verdict};
 
 /// The lab's promise (docs/lab.md): after `add`, the depth error falls to within 1.3× of the same
 /// recording without the hidden effect (`control`), and the fit improves.
@@ -51,5 +52,62 @@ pub fn write_recording(
         };
         w.append(spec, &tofprox_format::RawFrames::F64(c.frames.clone()))
             .unwrap();
+    }
+}
+
+/// The diagnosis' one sentence of evidence (`Diagnosis::evidence`, docs/lab-json.md) quotes its
+/// own numbers for its verdict: the condition the residual follows and its structure z, the
+/// best candidate's share of the excess (or size) and its z after, χ²/dof, the remaining size
+/// against the tolerance, and where the noise came from.
+#[track_caller]
+pub fn assert_evidence_quotes(d: &Diagnosis) {
+    let ev = d.evidence();
+    eprintln!("   evidence: {ev}");
+    let mut want = vec![format!("the noise is {}", d.noise.describe())];
+    let follows = |st: &tofprox_lab::structure::ConditionScore| {
+        format!(
+            "The residual follows {} (structure z = {:.1}",
+            st.condition, st.z
+        )
+    };
+    let share = |c: &tofprox_lab::diagnose::CandidateScore| {
+        if c.explained_excess.is_finite() {
+            format!("explains {:.0} % of the excess", 100.0 * c.explained_excess)
+        } else {
+            format!("removes {:.2} mm", c.explained.mm)
+        }
+    };
+    match d.verdict {
+        Verdict::MissingEffect => {
+            want.push(follows(&d.structure_remaining[0]));
+            let c = &d.candidates[0];
+            want.push(format!("{} {}", c.effect, share(c)));
+            want.push(format!("leaving z = {:.1}", d.candidates[0].z_after));
+        }
+        Verdict::Unexplained => {
+            want.push(follows(&d.structure_remaining[0]));
+            let c = &d.candidates[0];
+            want.push(format!(
+                "no catalogue effect accounts for it: the best of {}, {}, {}",
+                d.candidates.len(),
+                c.effect,
+                share(c)
+            ));
+        }
+        Verdict::NothingMissing | Verdict::NoiseNotMeasured => {
+            want.push(format!("{:.2} mm depth-equivalent", d.size.mm));
+            want.push(format!("{:.2} mm", d.tolerance_mm));
+            let st = &d.structure_remaining[0];
+            want.push(format!(
+                "strongest structure z = {:.1} against {}",
+                st.z, st.condition
+            ));
+        }
+        Verdict::Ambiguous => {
+            want.push(format!("vary {}", d.separate_by.as_deref().unwrap()));
+        }
+    }
+    for w in want {
+        assert!(ev.contains(&w), "evidence {ev:?} lacks {w:?}");
     }
 }

@@ -34,7 +34,7 @@ pub enum LabCommand {
 
 #[derive(clap::Args, Debug)]
 pub struct CompareArgs {
-    /// Recording directory (version 1 format).
+    /// Recording directory (docs/recording-format.md).
     pub rec: PathBuf,
     /// Model file (TOML) whose enabled effects are fitted.
     #[arg(long)]
@@ -67,12 +67,12 @@ pub struct ExportArgs {
 
 #[derive(clap::Args, Debug)]
 pub struct DiagnoseArgs {
-    /// Recording directory (version 1 format).
+    /// Recording directory (docs/recording-format.md).
     pub rec: PathBuf,
     /// Model file (TOML).
     #[arg(long)]
     pub model: PathBuf,
-    /// Print the verdict as JSON (verdict, candidates, fit, rms; docs/lab.md).
+    /// Print the verdict as JSON (verdict, evidence, candidates, fit, rms; docs/lab-json.md).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with SVG plots.
@@ -98,7 +98,7 @@ fn tolerance_help() -> String {
 
 #[derive(clap::Args, Debug)]
 pub struct ExplainArgs {
-    /// Recording directory (version 1 format).
+    /// Recording directory (docs/recording-format.md).
     pub rec: PathBuf,
     /// Model file (TOML) to start from.
     #[arg(long)]
@@ -139,7 +139,8 @@ pub struct AddArgs {
     /// Replace `--out` when it exists (also when it is the `--model` itself).
     #[arg(long)]
     pub force: bool,
-    /// Print before/after and the fitted parameters as JSON (docs/lab.md).
+    /// Print before/after and the fitted parameters with their standard errors as JSON
+    /// (docs/lab-json.md).
     #[arg(long)]
     pub json: bool,
     /// Write a self-contained HTML report with the before/after error curves.
@@ -337,6 +338,11 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
             }
         }
+        t.push_str(&report::fitted_text(
+            &a.effect,
+            &res.params,
+            &res.standard_errors,
+        ));
         Ok(t)
     })?;
     let title = format!("tofprox lab add {}: {}", a.effect, a.data.display());
@@ -392,6 +398,13 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             ex.verdict().as_str(),
             ex.added.join(", ")
         ));
+        for f in &ex.fitted {
+            t.push_str(&report::fitted_text(
+                &f.effect,
+                &f.params,
+                &f.standard_errors,
+            ));
+        }
         if let Some(why) = &ex.stopped {
             t.push_str(&format!("explain stopped: {why}\n"));
         }
