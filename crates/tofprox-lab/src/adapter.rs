@@ -96,6 +96,7 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .collect(),
         held: Vec::new(),
         dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
+        shapes: crate::shape::spec_shapes(m, code_per_e(m)),
     }
 }
 
@@ -127,6 +128,10 @@ fn held_params(id: EffectId, m: &ModelConfig, prep: &Prepared) -> Option<(Vec<f6
     let g = |p: ParamId| m.get(p);
     // 0 when the file has no conversion gain (NaN.max(0) is 0)
     let lsb_per_e = code_per_e(m).max(0.0);
+    if let Some(s) = m.shape(id) {
+        return crate::shape::held_shape(id, s, lsb_per_e, prep.temp_ref)
+            .map(|(_, lin, nl)| (lin, nl));
+    }
     match id {
         ids::vcsel_droop::ID => {
             use ids::vcsel_droop as p;
@@ -263,7 +268,22 @@ pub fn write_effect(
         notes: Vec::new(),
     };
     let g = |k: &str| params.get(k).copied();
-    match EffectId::parse(effect) {
+    let id = EffectId::parse(effect);
+    // the chosen form: a shape (its knots in the lab's spec), else the
+    // parametric law — never both in the file
+    let shape = model.spec.shapes.get(effect).and_then(|knots| {
+        let fit = model.effects.iter().find(|e| e.id == effect)?;
+        crate::shape::model_shape(effect, knots, fit, code_per_e(w.m), prep.temp_ref)
+    });
+    if let Some(id) = id.filter(|id| tofprox_model::effects::shape::shape_law(id.as_str()).is_some()) {
+        if let Err(e) = w.m.set_shape(id, shape.clone()) {
+            w.notes.push(format!("{effect}: shape not written ({e})"));
+        }
+        if shape.is_some() {
+            return Ok(w.notes);
+        }
+    }
+    match id {
         Some(ids::vcsel_droop::ID) => write_droop(&mut w, &g),
         Some(ids::temperature_drift::ID) => {
             use ids::temperature_drift as p;
@@ -492,7 +512,7 @@ pub fn update_model_text(
     let before = ModelConfig::from_toml_str(original).ok();
     let differs = |id: &str| {
         before.as_ref().is_some_and(|b| {
-            b.effect(id).map(|e| e.enabled) != m.effect(id).map(|e| e.enabled)
+            b.effect(id).map(|e| (e.enabled, &e.shape)) != m.effect(id).map(|e| (e.enabled, &e.shape))
                 || tofprox_model::catalogue::effect(id).is_some_and(|info| {
                     info.params
                         .iter()
@@ -545,8 +565,41 @@ pub fn update_model_text(
                 set(t, p.name, Value::from(v));
             }
         }
+        write_shape_keys(t, id, m.effect(id).and_then(|e| e.shape.as_ref()), &set);
     }
     Ok(doc.to_string())
+}
+
+/// The shape form's keys of `[effects.<id>]`: its knots and curves when
+/// `shape` is given, none of them when not (the parametric form).
+fn write_shape_keys(
+    t: &mut toml_edit::Table,
+    id: &str,
+    shape: Option<&tofprox_model::effects::shape::EffectShape>,
+    set: &dyn Fn(&mut toml_edit::Table, &str, toml_edit::Value),
+) {
+    let Some(law) = tofprox_model::effects::shape::shape_law(id) else {
+        return;
+    };
+    let array = |v: &[f64]| toml_edit::Value::Array(v.iter().copied().collect());
+    match shape {
+        Some(sh) => {
+            set(t, law.driver, array(&sh.knots));
+            for c in law.curves {
+                match sh.curves.iter().find(|(k, _)| k == c) {
+                    Some((_, v)) => set(t, c, array(v)),
+                    None => {
+                        t.remove(c);
+                    }
+                }
+            }
+        }
+        None => {
+            for k in std::iter::once(law.driver).chain(law.curves.iter().copied()) {
+                t.remove(k);
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -153,6 +153,37 @@ fn total(folds: &[Normal]) -> Normal {
     t
 }
 
+/// Block cross-validation of every parameter of a fitted signature (its
+/// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
+/// all blocks): per held-out block, the Gauss–Newton step from the fit on all
+/// data to the optimum of the other blocks (their normal equations at the
+/// fit), and the held-out χ² there, to first order. Σ over blocks; what
+/// compares forms with different numbers of non-linear parameters
+/// (`crate::shape::choose_form`).
+pub fn cv_refit(sig: &dyn Signature, recs: &[Sample], prep: &Prepared, f: &SignatureFit) -> f64 {
+    let nlin = sig.n_lin() + NUISANCE;
+    let mut p = f.lin.clone();
+    p.extend_from_slice(&f.nuisance);
+    p.extend_from_slice(&f.nl);
+    let free: Vec<usize> = (0..p.len())
+        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+        .collect();
+    let folds: Vec<Normal> = accumulate(sig, recs, prep, &p, true, 1)
+        .iter()
+        .map(|n| n.select(&free))
+        .collect();
+    let tot = total(&folds);
+    folds
+        .iter()
+        .filter(|f| f.count > 0)
+        .map(|f| {
+            let train = tot.minus(f);
+            let step = solve_sym(&train.jtj, &train.jtr).unwrap_or_else(|| vec![0.0; free.len()]);
+            f.chi2_after(&step)
+        })
+        .sum()
+}
+
 /// Fit `sig` to the residuals in `recs` (r = measured − current model).
 pub fn fit_signature(
     sig: &dyn Signature,

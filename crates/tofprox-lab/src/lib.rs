@@ -13,6 +13,7 @@ pub mod error;
 pub mod fit;
 pub mod noise;
 pub mod report;
+pub mod shape;
 pub mod signatures;
 pub mod stats;
 pub mod structure;

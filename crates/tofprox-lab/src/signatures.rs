@@ -156,6 +156,14 @@ pub fn make_signature(
             ),
         )
     };
+    // the spec gives the law as a shape (crate::shape)
+    if let Some(sig) = spec
+        .shapes
+        .get(id)
+        .and_then(|k| crate::shape::make_shape_signature(id, k, waveform))
+    {
+        return Ok(sig);
+    }
     Ok(match EffectId::parse(id).ok_or_else(unknown)? {
         ids::sbi_asymmetry::ID => {
             // total signal charge relative to the fundamental amplitude: the
@@ -194,7 +202,8 @@ pub fn make_signature(
     })
 }
 
-fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
+/// The values at quantiles `qs` of the finite ones of `v` (nearest rank below).
+pub(crate) fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
     v.retain(|x| x.is_finite());
     if v.is_empty() {
         return Vec::new();
@@ -634,12 +643,27 @@ pub fn acts_on_phasor(id: &str) -> bool {
 /// (`tofprox_model::effects::pixel::temperature_drift`, gain factor floored
 /// at 0 as the simulator does; lin = gain, nl = phase coefficients,
 /// `TempDrift`), then the amplitude-phase error at the drifted amplitude
-/// (`AmpPhase`).
-pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
+/// (`AmpPhase`). An effect the spec gives as a shape (`shapes`: its knots)
+/// by that shape (`crate::shape::shape_phasor`).
+pub fn phasor_shift(
+    effects: &[EffectFit],
+    shapes: &std::collections::BTreeMap<String, Vec<f64>>,
+    cap: &CapInfo,
+    a_lsb: f64,
+) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
     let (mut f, mut ph) = (1.0, 0.0);
+    let parametric = |e: &&EffectFit| !shapes.contains_key(&e.id);
+    for e in effects.iter().filter(|e| shapes.contains_key(&e.id)) {
+        if e.id == ids::temperature_drift::ID.as_str() {
+            let (g, dphi) = crate::shape::shape_phasor(e, &shapes[&e.id], cap, a_lsb);
+            f *= g;
+            ph += dphi;
+        }
+    }
     for e in effects
         .iter()
+        .filter(parametric)
         .filter(|e| e.id == ids::temperature_drift::ID.as_str())
     {
         let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
@@ -654,7 +678,9 @@ pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f
         .iter()
         .filter(|e| e.id == ids::amplitude_phase_error::ID.as_str())
     {
-        if cap.illum && e.nl.len() == 3 {
+        if let Some(k) = shapes.get(&e.id) {
+            ph += crate::shape::shape_phasor(e, k, cap, a_lsb * f).1;
+        } else if cap.illum && e.nl.len() == 3 {
             ph += AmpPhase::phase_rad(&e.nl, a_lsb * f);
         }
     }
