@@ -275,7 +275,9 @@ pub fn write_effect(
         let fit = model.effects.iter().find(|e| e.id == effect)?;
         crate::shape::model_shape(effect, knots, fit, code_per_e(w.m), prep.temp_ref)
     });
-    if let Some(id) = id.filter(|id| tofprox_model::effects::shape::shape_law(id.as_str()).is_some()) {
+    if let Some(id) =
+        id.filter(|id| tofprox_model::effects::shape::shape_law(id.as_str()).is_some())
+    {
         if let Err(e) = w.m.set_shape(id, shape.clone()) {
             w.notes.push(format!("{effect}: shape not written ({e})"));
         }
@@ -512,7 +514,8 @@ pub fn update_model_text(
     let before = ModelConfig::from_toml_str(original).ok();
     let differs = |id: &str| {
         before.as_ref().is_some_and(|b| {
-            b.effect(id).map(|e| (e.enabled, &e.shape)) != m.effect(id).map(|e| (e.enabled, &e.shape))
+            b.effect(id).map(|e| (e.enabled, &e.shape))
+                != m.effect(id).map(|e| (e.enabled, &e.shape))
                 || tofprox_model::catalogue::effect(id).is_some_and(|info| {
                     info.params
                         .iter()

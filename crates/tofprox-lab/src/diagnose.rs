@@ -647,7 +647,8 @@ fn screen_candidate(
 ) -> Result<CandidateScore, LabError> {
     let share = |x: f64| if significant { x } else { f64::NAN };
     let (sig, f, knots, form_scores) = if crate::shape::has_shape_form(id) {
-        let c = crate::shape::choose_form(id, prep, &cmp.model.spec, &cmp.model.waveform, &cmp.recs)?;
+        let c =
+            crate::shape::choose_form(id, prep, &cmp.model.spec, &cmp.model.waveform, &cmp.recs)?;
         (c.signature, c.fit, c.knots, c.scores)
     } else {
         let sig = make_signature(id, prep, &cmp.model.spec, &cmp.model.waveform)?;
@@ -1329,7 +1330,13 @@ pub fn add_effect_to(
         Some(m) => m.clone(),
         None => {
             // the law's form by cross-validation (crate::shape), then its fit
-            let c = crate::shape::choose_form(effect, prep, &spec, &before.model.waveform, &before.recs)?;
+            let c = crate::shape::choose_form(
+                effect,
+                prep,
+                &spec,
+                &before.model.waveform,
+                &before.recs,
+            )?;
             let fit = EffectFit {
                 id: effect.to_string(),
                 lin: c.fit.lin,

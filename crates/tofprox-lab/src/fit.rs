@@ -492,7 +492,12 @@ impl LabModel {
     /// ([`crate::signatures::phasor_shift`]).
     #[inline]
     pub fn phasor_shift(&self, cap: &CapInfo, p: usize) -> (f64, f64) {
-        crate::signatures::phasor_shift(&self.effects, &self.spec.shapes, cap, self.gain[p] * cap.law)
+        crate::signatures::phasor_shift(
+            &self.effects,
+            &self.spec.shapes,
+            cap,
+            self.gain[p] * cap.law,
+        )
     }
 
     /// Build the context of sample (c, k, p) under this model (code effects

@@ -239,21 +239,45 @@ pub fn make_shape_signature(
     }
 }
 
-/// `k` knots at evenly spaced quantiles of effect `id`'s driver in the
-/// recording (the samples' amplitudes; the illuminated captures'
-/// temperatures), or `None` when the driver has fewer than `k` distinct
-/// values.
-pub fn knots_at_quantiles(id: &str, k: usize, recs: &[Sample], prep: &Prepared) -> Option<Vec<f64>> {
+/// `k` knots of effect `id`'s driver in the recording, or `None` when it has
+/// fewer than `k` distinct values: the amplitude at evenly spaced quantiles
+/// (2 % … 98 %) of its phase information w·A²; the temperature at evenly
+/// spaced ranks of the illuminated captures' distinct temperatures, the
+/// coldest and the warmest included (at most as many knots as temperatures).
+pub fn knots_at_quantiles(
+    id: &str,
+    k: usize,
+    recs: &[Sample],
+    prep: &Prepared,
+) -> Option<Vec<f64>> {
     let qs: Vec<f64> = (0..k)
         .map(|i| 0.02 + 0.96 * i as f64 / (k - 1).max(1) as f64)
         .collect();
-    let v: Vec<f64> = match EffectId::parse(id)? {
-        ids::amplitude_phase_error::ID => recs
-            .iter()
-            .step_by((recs.len() / 20_000).max(1))
-            .filter(|r| r.a > 0.0)
-            .map(|r| f64::from(r.a))
-            .collect(),
+    match EffectId::parse(id)? {
+        ids::amplitude_phase_error::ID => {
+            // where the data pin a phase law: its information per sample is
+            // w·(A·C′)² ∝ w·A², so the knots sit at quantiles of the
+            // amplitude weighted by w·A² (dense where the bright samples are)
+            let mut a: Vec<(f64, f64)> = recs
+                .iter()
+                .step_by((recs.len() / 20_000).max(1))
+                .filter(|r| r.a > 0.0)
+                .map(|r| (f64::from(r.a), f64::from(r.w) * f64::from(r.a).powi(2)))
+                .collect();
+            a.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let total: f64 = a.iter().map(|x| x.1).sum();
+            let mut q = Vec::with_capacity(k);
+            let mut acc = 0.0;
+            let mut next = qs.iter().peekable();
+            for (v, w) in a {
+                acc += w;
+                while next.peek().is_some_and(|&&l| acc >= l * total) {
+                    q.push(v);
+                    next.next();
+                }
+            }
+            strictly_increasing(q, k)
+        }
         ids::temperature_drift::ID => {
             let mut t: Vec<f64> = prep
                 .caps
@@ -263,11 +287,15 @@ pub fn knots_at_quantiles(id: &str, k: usize, recs: &[Sample], prep: &Prepared) 
                 .collect();
             t.sort_by(f64::total_cmp);
             t.dedup();
-            return strictly_increasing(quantiles(t, &qs), k);
+            // few recorded temperatures: the extremes are knots (the law is
+            // flat beyond them), the others at evenly spaced ranks; at most
+            // one knot per temperature (then the shape is any monotone law)
+            let k = k.min(t.len());
+            let ranks: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64).collect();
+            strictly_increasing(quantiles(t, &ranks), k)
         }
-        _ => return None,
-    };
-    strictly_increasing(quantiles(v, &qs), k)
+        _ => None,
+    }
 }
 
 fn strictly_increasing(mut q: Vec<f64>, k: usize) -> Option<Vec<f64>> {
@@ -314,7 +342,7 @@ pub fn choose_form(
     plain.shapes.remove(id);
     let sig = make_signature(id, prep, &plain, waveform)?;
     let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
-    let cv = cv_refit(sig.as_ref(), recs, prep, &fit);
+    let cv = cv_refit(sig.as_ref(), recs, prep, &fit)?;
     let mut scores = vec![FormScore {
         form: PHYSICAL_FORM.into(),
         cv_chi2: cv,
@@ -332,15 +360,23 @@ pub fn choose_form(
             let Some(knots) = knots_at_quantiles(id, k, recs, prep) else {
                 continue;
             };
+            if scores
+                .iter()
+                .any(|s| s.form == shape_form_name(knots.len()))
+            {
+                continue;
+            }
             let Some(s) = make_shape_signature(id, &knots, waveform) else {
                 continue;
             };
             let Ok(f) = fit_signature(s.as_ref(), recs, prep, None) else {
                 continue;
             };
-            let c = cv_refit(s.as_ref(), recs, prep, &f);
+            let Ok(c) = cv_refit(s.as_ref(), recs, prep, &f) else {
+                continue;
+            };
             scores.push(FormScore {
-                form: shape_form_name(k),
+                form: shape_form_name(knots.len()),
                 cv_chi2: c,
             });
             let extra = f.n_params.saturating_sub(best.fit.n_params) as f64;
@@ -385,7 +421,10 @@ pub fn model_shape(
     match EffectId::parse(id)? {
         ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some(law::EffectShape {
             knots: knots.iter().map(|k| k / code_per_e).collect(),
-            curves: vec![(law::AMPLITUDE_PHASE_RAD, law::monotone_projection(&with0(&fit.nl)))],
+            curves: vec![(
+                law::AMPLITUDE_PHASE_RAD,
+                law::monotone_projection(&with0(&fit.nl)),
+            )],
         }),
         ids::temperature_drift::ID => {
             // relative to T_ref: G(T_ref) = 0 makes the file's 1 + G(T) the lab's factor
@@ -422,7 +461,8 @@ pub fn held_shape(
             .find(|(k, _)| *k == key)
             .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone())
     };
-    let rel = |v: &[f64], scale: f64| -> Vec<f64> { v[1..].iter().map(|x| (x - v[0]) / scale).collect() };
+    let rel =
+        |v: &[f64], scale: f64| -> Vec<f64> { v[1..].iter().map(|x| (x - v[0]) / scale).collect() };
     match id {
         ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some((
             s.knots.iter().map(|k| k * code_per_e).collect(),

@@ -563,12 +563,10 @@ impl ModelConfig {
     /// [`ShapeLaw`]), or `None` for its parametric form.
     pub fn set_shape(&mut self, id: EffectId, s: Option<EffectShape>) -> Result<(), ModelError> {
         if let Some(sh) = &s {
-            let law = shape::shape_law(id.as_str()).ok_or_else(|| {
-                ModelError::invalid(format!("`effects.{id}` has no shape form"))
-            })?;
-            sh.check(law).map_err(|(k, why)| {
-                ModelError::invalid(format!("`effects.{id}.{k}` {why}"))
-            })?;
+            let law = shape::shape_law(id.as_str())
+                .ok_or_else(|| ModelError::invalid(format!("`effects.{id}` has no shape form")))?;
+            sh.check(law)
+                .map_err(|(k, why)| ModelError::invalid(format!("`effects.{id}.{k}` {why}")))?;
         }
         let e = self
             .effects

@@ -540,7 +540,12 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
     let run = |m: &ModelConfig, t: f64| {
         let mut req = CaptureRequest::four_phase(300.0);
         req.temperature_c = t;
-        phasor_of(&Simulator::new(m, g, 1).unwrap().expected(&scene, &req).unwrap())
+        phasor_of(
+            &Simulator::new(m, g, 1)
+                .unwrap()
+                .expected(&scene, &req)
+                .unwrap(),
+        )
     };
     let mut m2 = m.clone();
     m2.set_param("sensor", "signal_e_per_us", 5.0).unwrap();
@@ -549,8 +554,14 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
         let (x, y) = run(&m2, t);
         let rot = (x0 * y - y0 * x).atan2(x0 * x + y0 * y).abs();
         let ratio = x.hypot(y) / x0.hypot(y0);
-        assert!((rot - dphi).abs() < 1e-6, "{t} °C: rotated {rot}, want {dphi}");
-        assert!((ratio - gain).abs() < 1e-6, "{t} °C: gain {ratio}, want {gain}");
+        assert!(
+            (rot - dphi).abs() < 1e-6,
+            "{t} °C: rotated {rot}, want {dphi}"
+        );
+        assert!(
+            (ratio - gain).abs() < 1e-6,
+            "{t} °C: gain {ratio}, want {gain}"
+        );
     }
     // the amplitude-phase error's shape: flat above its last knot
     let mut ap = ideal.clone();
@@ -600,7 +611,11 @@ fn bad_shapes_name_their_key() {
         "shape_gain_rel",
         "1 + G",
     );
-    bad("shape_phase_rad = [0.0, 0.1]\n", "shape_temperature_c", "knots");
+    bad(
+        "shape_phase_rad = [0.0, 0.1]\n",
+        "shape_temperature_c",
+        "knots",
+    );
     bad(
         &format!("{k}shape_phase_rad = \"up\"\n"),
         "shape_phase_rad",

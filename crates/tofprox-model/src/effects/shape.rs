@@ -256,9 +256,21 @@ mod tests {
     fn checks_name_what_is_wrong() {
         assert!(check_knots(&[1.0]).is_err());
         assert!(check_knots(&[1.0, 1.0]).unwrap_err().contains("strictly"));
-        assert!(check_knots(&[0.0, f64::NAN]).unwrap_err().contains("finite"));
-        assert!(check_values(&[0.0, 1.0], 3).unwrap_err().contains("one value per knot"));
-        assert!(check_values(&[0.0, 1.0, 0.5], 3).unwrap_err().contains("monotone"));
+        assert!(
+            check_knots(&[0.0, f64::NAN])
+                .unwrap_err()
+                .contains("finite")
+        );
+        assert!(
+            check_values(&[0.0, 1.0], 3)
+                .unwrap_err()
+                .contains("one value per knot")
+        );
+        assert!(
+            check_values(&[0.0, 1.0, 0.5], 3)
+                .unwrap_err()
+                .contains("monotone")
+        );
         assert!(check_values(&[1.0, 1.0, 0.5], 3).is_ok());
         let s = EffectShape {
             knots: vec![0.0, 10.0],
@@ -270,7 +282,13 @@ mod tests {
     #[test]
     fn projection_is_monotone_and_keeps_monotone_curves() {
         assert_eq!(monotone_projection(&[0.0, 1.0, 2.0]), [0.0, 1.0, 2.0]);
-        assert_eq!(monotone_projection(&[0.0, 2.0, 1.0, 3.0]), [0.0, 1.5, 1.5, 3.0]);
-        assert_eq!(monotone_projection(&[3.0, 1.0, 2.0, 0.0]), [3.0, 1.5, 1.5, 0.0]);
+        assert_eq!(
+            monotone_projection(&[0.0, 2.0, 1.0, 3.0]),
+            [0.0, 1.5, 1.5, 3.0]
+        );
+        assert_eq!(
+            monotone_projection(&[3.0, 1.0, 2.0, 0.0]),
+            [3.0, 1.5, 1.5, 0.0]
+        );
     }
 }
