@@ -630,3 +630,21 @@ fn bad_shapes_name_their_key() {
     let e = ModelConfig::from_toml_str("[effects.adc_inl]\nshape_phase_rad = [0.0, 1.0]\n");
     assert_eq!(e.unwrap_err().kind(), ErrorKind::UnknownParam);
 }
+
+/// docs/model.md's shape example is a model file that loads, with the shapes it shows.
+#[test]
+fn docs_shape_example_loads() {
+    let doc = std::fs::read_to_string(repo_file("docs/model.md")).unwrap();
+    let block = doc
+        .split("```toml\n")
+        .skip(1)
+        .filter_map(|b| b.split("```").next())
+        .find(|b| b.contains("shape_amplitude_e"))
+        .expect("the shape example");
+    let m = ModelConfig::from_toml_str(block).unwrap();
+    let ap = m.shape(ids::amplitude_phase_error::ID).unwrap();
+    assert_eq!(ap.knots.len(), 4);
+    let td = m.shape(ids::temperature_drift::ID).unwrap();
+    assert_eq!(td.curves.len(), 2);
+    assert!((td.eval("shape_phase_rad", 55.0) - 0.43).abs() < 1e-12);
+}
