@@ -44,11 +44,17 @@ pub fn has_shape_form(id: &str) -> bool {
     law::shape_law(id).is_some()
 }
 
+/// The most knots a shape the lab fits or holds may have (a model file's
+/// shape with more is fitted freely instead).
+const MAX_KNOTS: usize = 32;
+
 /// Σ_{j≥1} c_j·(h_j(x) − h_j(x_ref)): the shape with its first value held at
 /// 0, relative to the reference driver value (`x_ref = x` gives 0).
 fn rel_shape(knots: &[f64], coef: &[f64], x: f64, x_ref: f64) -> f64 {
-    let v: Vec<f64> = std::iter::once(0.0).chain(coef.iter().copied()).collect();
-    law::eval(knots, &v, x) - law::eval(knots, &v, x_ref)
+    let mut w = [0.0; MAX_KNOTS];
+    let w = &mut w[..coef.len()];
+    rel_weights(knots, x, x_ref, w);
+    w.iter().zip(coef).map(|(a, b)| a * b).sum()
 }
 
 /// The capture's temperature and the lab's reference temperature (the drift
@@ -91,12 +97,13 @@ struct DriftShape {
     waveform: Waveform,
 }
 
-/// The hat weights of knots 1.. at `x` minus those at `x_ref`.
+/// The hat weights of knots 1.. at `x` minus those at `x_ref`
+/// (`out`: one per knot after the first; at most [`MAX_KNOTS`] knots).
 fn rel_weights(knots: &[f64], x: f64, x_ref: f64, out: &mut [f64]) {
-    let n = knots.len();
-    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
-    law::hat_weights(knots, x, &mut a);
-    law::hat_weights(knots, x_ref, &mut b);
+    let n = knots.len().min(MAX_KNOTS);
+    let (mut a, mut b) = ([0.0; MAX_KNOTS], [0.0; MAX_KNOTS]);
+    law::hat_weights(&knots[..n], x, &mut a[..n]);
+    law::hat_weights(&knots[..n], x_ref, &mut b[..n]);
     for (o, j) in out.iter_mut().zip(1..n) {
         *o = a[j] - b[j];
     }
@@ -461,6 +468,9 @@ pub fn held_shape(
             .find(|(k, _)| *k == key)
             .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone())
     };
+    if s.knots.len() > MAX_KNOTS {
+        return None;
+    }
     let rel =
         |v: &[f64], scale: f64| -> Vec<f64> { v[1..].iter().map(|x| (x - v[0]) / scale).collect() };
     match id {

@@ -76,28 +76,33 @@ pub fn is_shape_key(law: &ShapeLaw, key: &str) -> bool {
     key == law.driver || law.curves.contains(&key)
 }
 
+/// Where `x` falls on `knots` (≥ 1, strictly increasing): the two knots
+/// j − 1, j around it and the fraction t of the way from j − 1 to j, or the
+/// one knot it is clamped to (NaN: the first).
+fn locate(knots: &[f64], x: f64) -> (usize, usize, f64) {
+    let n = knots.len();
+    if x.is_nan() || x <= knots[0] {
+        return (0, 0, 0.0);
+    }
+    if x >= knots[n - 1] {
+        return (n - 1, n - 1, 0.0);
+    }
+    // first knot above x: 1..n−1
+    let j = knots.partition_point(|k| *k <= x);
+    (j - 1, j, (x - knots[j - 1]) / (knots[j] - knots[j - 1]))
+}
+
 /// The hat-function weights h_j(x) of the piecewise-linear interpolant
 /// through `knots` (strictly increasing, ≥ 2): at most two are non-zero and
 /// they sum to 1; clamped flat outside the knots. f(x) = Σ_j v_j·h_j(x).
 pub fn hat_weights(knots: &[f64], x: f64, out: &mut [f64]) {
     out.iter_mut().for_each(|w| *w = 0.0);
-    let n = knots.len();
-    if n == 0 {
+    if knots.is_empty() {
         return;
     }
-    if !(x > knots[0]) {
-        out[0] = 1.0;
-        return;
-    }
-    if x >= knots[n - 1] {
-        out[n - 1] = 1.0;
-        return;
-    }
-    // first knot above x: 1..n−1
-    let j = knots.partition_point(|k| *k <= x);
-    let t = (x - knots[j - 1]) / (knots[j] - knots[j - 1]);
-    out[j - 1] = 1.0 - t;
-    out[j] = t;
+    let (i, j, t) = locate(knots, x);
+    out[i] += 1.0 - t;
+    out[j] += t;
 }
 
 /// The shape's value at `x`: linear between the knots, flat outside
@@ -107,15 +112,8 @@ pub fn eval(knots: &[f64], values: &[f64], x: f64) -> f64 {
     if n == 0 {
         return 0.0;
     }
-    if !(x > knots[0]) {
-        return values[0];
-    }
-    if x >= knots[n - 1] {
-        return values[n - 1];
-    }
-    let j = knots[..n].partition_point(|k| *k <= x);
-    let t = (x - knots[j - 1]) / (knots[j] - knots[j - 1]);
-    values[j - 1] + t * (values[j] - values[j - 1])
+    let (i, j, t) = locate(&knots[..n], x);
+    values[i] + t * (values[j] - values[i])
 }
 
 /// Why `knots` cannot be a shape's knots (finite, strictly increasing, at
