@@ -162,8 +162,8 @@ fn form_block(cap: u32) -> usize {
 /// Block cross-validation of every parameter of a fitted signature (its
 /// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
 /// all blocks): per held-out block, the signature refitted on the other
-/// blocks (started from `f`, the fit on all of them; large tables on a
-/// subsample) and its χ² on the held-out block. Σ over blocks; what compares
+/// blocks (started from `f`, the fit on all of them) and its χ² on the
+/// held-out block (large tables: both on a subsample). Σ over blocks; what compares
 /// forms with different numbers of non-linear parameters
 /// (`crate::shape::choose_form`). The blocks are whole captures, pairs of
 /// consecutive ones (a capture and its repeat together) dealt round the
@@ -179,7 +179,8 @@ pub fn cv_refit(
     prep: &Prepared,
     f: &SignatureFit,
 ) -> Result<f64, LabError> {
-    let stride = (recs.len() / 60_000).max(1);
+    // large tables: a subsample of ≤ 120 000 samples for training and scoring
+    let stride = (recs.len() / 120_000).max(1);
     let start = EffectFit {
         id: sig.id().to_string(),
         lin: f.lin.clone(),
@@ -189,13 +190,14 @@ pub fn cv_refit(
     for fold in 0..FOLDS {
         let held: Vec<Sample> = recs
             .iter()
+            .step_by(stride)
             .filter(|r| form_block(r.cap) == fold)
             .copied()
             .collect();
         let train: Vec<Sample> = recs
             .iter()
-            .filter(|r| form_block(r.cap) != fold)
             .step_by(stride)
+            .filter(|r| form_block(r.cap) != fold)
             .copied()
             .collect();
         if held.is_empty() || train.is_empty() {

@@ -34,6 +34,8 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "params": c.params.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
             "standard_errors": c.standard_errors.iter().map(|(k, v)| (k.clone(), num(*v))).collect::<serde_json::Map<_, _>>(),
             "flags": c.flags,
+            "form": c.form,
+            "form_scores": c.form_scores.iter().map(|f| json!({"form": f.form, "cv_chi2": num(f.cv_chi2)})).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "reason": d.reason,
         "noise": {"source": d.noise, "description": d.noise.describe()},

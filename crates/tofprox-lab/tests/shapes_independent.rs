@@ -187,6 +187,15 @@ fn named_in_form(
     assert_eq!(d.verdict, Verdict::MissingEffect, "{}", d.reason);
     assert_eq!(d.effect.as_deref(), Some(effect));
     let top = &d.candidates[0];
+    // the report names the form and every form's held-out score
+    let json = tofprox_lab::report::diagnosis_json(&d);
+    assert_eq!(json["candidates"][0]["form"], top.form.as_str());
+    assert_eq!(
+        json["candidates"][0]["form_scores"]
+            .as_array()
+            .map(Vec::len),
+        Some(top.form_scores.len())
+    );
     assert_eq!(
         top.form.starts_with("shape_"),
         shape,
