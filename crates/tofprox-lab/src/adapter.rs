@@ -638,4 +638,34 @@ mod tests {
         assert_eq!(back.get(ids::adc_inl::INL_LSB), -3.5);
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }
+
+    #[test]
+    fn update_writes_the_chosen_form_only() {
+        use tofprox_model::effects::shape::{DRIFT_PHASE_RAD, EffectShape};
+        let id = ids::temperature_drift::ID;
+        let text = "[effects.temperature_drift]\nenabled = true  # measured\n\
+                    phase_mrad_per_k = 2.0\n";
+        let mut m = ModelConfig::from_toml_str(text).unwrap();
+        let shape = EffectShape {
+            knots: vec![10.0, 25.0, 45.0],
+            curves: vec![(DRIFT_PHASE_RAD, vec![-0.1, 0.0, 0.3])],
+        };
+        m.set_shape(id, Some(shape.clone())).unwrap();
+        let out = update_model_text(text, &m, &[id.as_str().into()]).unwrap();
+        assert!(out.contains("enabled = true  # measured"), "{out}");
+        let back = ModelConfig::from_toml_str(&out).unwrap();
+        assert_eq!(back.shape(id), Some(&shape));
+        // back to the parametric form: the shape's keys go
+        let mut p = back.clone();
+        p.set_shape(id, None).unwrap();
+        let out2 = update_model_text(&out, &p, &[id.as_str().into()]).unwrap();
+        assert!(!out2.contains("shape_"), "{out2}");
+        assert_eq!(ModelConfig::from_toml_str(&out2).unwrap().shape(id), None);
+        // a shape the model refuses is never set
+        let bad = EffectShape {
+            knots: vec![10.0, 25.0],
+            curves: vec![(DRIFT_PHASE_RAD, vec![0.0])],
+        };
+        assert!(m.set_shape(id, Some(bad)).is_err());
+    }
 }

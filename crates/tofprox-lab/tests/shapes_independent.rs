@@ -232,6 +232,12 @@ fn written_file_reproduces(prep: &Prepared, out: &AddOutcome, effect: &str) -> M
     assert!(notes.is_empty(), "{notes:?}");
     let text = update_model_text(&base.to_toml_string(), &m, &[effect.to_string()]).unwrap();
     let written = ModelConfig::from_toml_str(&text).unwrap();
+    // the file, read as the user's model, asks the lab for the same form
+    let from_file = spec_from_model(&written);
+    assert_eq!(
+        from_file.shapes.get(effect).map(Vec::len),
+        out.after.model.spec.shapes.get(effect).map(Vec::len)
+    );
     let free = compare(prep, &out.after.model.spec, &|_, _| {}).unwrap();
     let (held, notes) = spec_holding_model(&written, prep);
     assert!(notes.is_empty(), "{notes:?}");
