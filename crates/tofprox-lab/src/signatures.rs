@@ -653,25 +653,22 @@ pub fn phasor_shift(
 ) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
     let (mut f, mut ph) = (1.0, 0.0);
-    let parametric = |e: &&EffectFit| !shapes.contains_key(&e.id);
-    for e in effects.iter().filter(|e| shapes.contains_key(&e.id)) {
-        if e.id == ids::temperature_drift::ID.as_str() {
-            let (g, dphi) = crate::shape::shape_phasor(e, &shapes[&e.id], cap, a_lsb);
-            f *= g;
-            ph += dphi;
-        }
-    }
     for e in effects
         .iter()
-        .filter(parametric)
         .filter(|e| e.id == ids::temperature_drift::ID.as_str())
     {
-        let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
-            cap.temp_rel,
-            [at(&e.nl, 0), at(&e.nl, 1)],
-            [at(&e.lin, 0), at(&e.lin, 1)],
-        );
-        f *= (1.0 + g).max(0.0);
+        let (g, dphi) = match shapes.get(&e.id) {
+            Some(k) => crate::shape::shape_phasor(e, k, cap, a_lsb),
+            None => {
+                let (dphi, g) = tofprox_model::effects::pixel::temperature_drift(
+                    cap.temp_rel,
+                    [at(&e.nl, 0), at(&e.nl, 1)],
+                    [at(&e.lin, 0), at(&e.lin, 1)],
+                );
+                ((1.0 + g).max(0.0), dphi)
+            }
+        };
+        f *= g;
         ph += dphi;
     }
     for e in effects
