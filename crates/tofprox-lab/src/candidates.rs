@@ -163,7 +163,8 @@ fn form_block(cap: u32) -> usize {
 /// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
 /// all blocks): per held-out block, the signature refitted on the other
 /// blocks (started from `f`, the fit on all of them) and its χ² on the
-/// held-out block (large tables: both on a subsample). Σ over blocks; what compares
+/// held-out block (large tables: both on a subsample). Returns (Σ over
+/// blocks, the same held-out samples' χ² without the effect). Σ over blocks; what compares
 /// forms with different numbers of non-linear parameters
 /// (`crate::shape::choose_form`). The blocks are whole captures, pairs of
 /// consecutive ones (a capture and its repeat together) dealt round the
@@ -178,7 +179,7 @@ pub fn cv_refit(
     recs: &[Sample],
     prep: &Prepared,
     f: &SignatureFit,
-) -> Result<f64, LabError> {
+) -> Result<(f64, f64), LabError> {
     // large tables: a subsample of ≤ 120 000 samples for training and scoring
     let stride = (recs.len() / 120_000).max(1);
     let start = EffectFit {
@@ -186,7 +187,7 @@ pub fn cv_refit(
         lin: f.lin.clone(),
         nl: f.nl.clone(),
     };
-    let mut cv = 0.0;
+    let (mut cv, mut before) = (0.0, 0.0);
     for fold in 0..FOLDS {
         let held: Vec<Sample> = recs
             .iter()
@@ -208,8 +209,9 @@ pub fn cv_refit(
         p.extend_from_slice(&t.nuisance);
         p.extend_from_slice(&t.nl);
         cv += total(&accumulate(sig, &held, prep, &p, false, 1)).chi2;
+        before += held.iter().map(Sample::chi2).sum::<f64>();
     }
-    Ok(cv)
+    Ok((cv, before))
 }
 
 /// Fit `sig` to the residuals in `recs` (r = measured − current model).

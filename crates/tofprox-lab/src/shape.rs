@@ -349,7 +349,7 @@ pub fn choose_form(
     plain.shapes.remove(id);
     let sig = make_signature(id, prep, &plain, waveform)?;
     let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
-    let cv = cv_refit(sig.as_ref(), recs, prep, &fit)?;
+    let (cv, cv_before) = cv_refit(sig.as_ref(), recs, prep, &fit)?;
     let mut scores = vec![FormScore {
         form: PHYSICAL_FORM.into(),
         cv_chi2: cv,
@@ -361,7 +361,7 @@ pub fn choose_form(
         scores: Vec::new(),
     };
     if has_shape_form(id) && !spec.held.iter().any(|h| h.id == id) {
-        let gain = (best.fit.cv_chi2_before - cv).max(0.0);
+        let gain = (cv_before - cv).max(0.0);
         let mut best_cv = cv;
         for &k in KNOT_COUNTS {
             let Some(knots) = knots_at_quantiles(id, k, recs, prep) else {
@@ -379,7 +379,7 @@ pub fn choose_form(
             let Ok(f) = fit_signature(s.as_ref(), recs, prep, None) else {
                 continue;
             };
-            let Ok(c) = cv_refit(s.as_ref(), recs, prep, &f) else {
+            let Ok((c, _)) = cv_refit(s.as_ref(), recs, prep, &f) else {
                 continue;
             };
             scores.push(FormScore {
