@@ -364,22 +364,13 @@ pub fn choose_form(
         let gain = (cv_before - cv).max(0.0);
         let mut best_cv = cv;
         for &k in KNOT_COUNTS {
-            let Some(knots) = knots_at_quantiles(id, k, recs, prep) else {
+            // (fewer knots where the driver has fewer values: each K once)
+            let Some(knots) = knots_at_quantiles(id, k, recs, prep)
+                .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
+            else {
                 continue;
             };
-            if scores
-                .iter()
-                .any(|s| s.form == shape_form_name(knots.len()))
-            {
-                continue;
-            }
-            let Some(s) = make_shape_signature(id, &knots, waveform) else {
-                continue;
-            };
-            let Ok(f) = fit_signature(s.as_ref(), recs, prep, None) else {
-                continue;
-            };
-            let Ok((c, _)) = cv_refit(s.as_ref(), recs, prep, &f) else {
+            let Some((f, s, c)) = try_shape(id, &knots, prep, waveform, recs) else {
                 continue;
             };
             scores.push(FormScore {
@@ -405,6 +396,21 @@ pub fn choose_form(
     }
     best.scores = scores;
     Ok(best)
+}
+
+/// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
+/// signature and held-out χ² ([`cv_refit`]); `None` when it cannot be fitted.
+fn try_shape(
+    id: &str,
+    knots: &[f64],
+    prep: &Prepared,
+    waveform: &Waveform,
+    recs: &[Sample],
+) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
+    let s = make_shape_signature(id, knots, waveform)?;
+    let f = fit_signature(s.as_ref(), recs, prep, None).ok()?;
+    let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
+    Some((f, s, c))
 }
 
 /// The name of the chosen form of `knots` (`physical` for none).
