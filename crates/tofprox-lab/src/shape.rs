@@ -334,7 +334,9 @@ pub struct FormChoice {
 
 /// Fit effect `id`'s parametric form and (when it has one) its shape form
 /// with each of [`KNOT_COUNTS`] knots to the residuals `recs`, and keep the
-/// one that predicts held-out blocks best. The parametric form is kept
+/// one that predicts held-out blocks best (only where the physical form
+/// explains at least [`MIN_SHARE_FOR_FORMS`] of the excess χ²: else it is
+/// not the effect missing, and `scores` stays empty). The parametric form is kept
 /// unless a shape's held-out χ² is lower by more than 1 % of what the
 /// parametric form explains there (and 2 per extra parameter): a law the
 /// physics fixes is not traded for a look-alike within the noise.
@@ -349,53 +351,86 @@ pub fn choose_form(
     plain.shapes.remove(id);
     let sig = make_signature(id, prep, &plain, waveform)?;
     let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
+    // an effect whose physical form explains little of the excess is not the
+    // one missing: its forms are not compared (the screening's cost)
+    let excess = fit.chi2_before - recs.len() as f64;
+    if !has_shape_form(id)
+        || spec.held.iter().any(|h| h.id == id)
+        || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
+    {
+        return Ok(FormChoice {
+            knots: None,
+            fit,
+            signature: sig,
+            scores: Vec::new(),
+        });
+    }
     let (cv, cv_before) = cv_refit(sig.as_ref(), recs, prep, &fit)?;
-    let mut scores = vec![FormScore {
-        form: PHYSICAL_FORM.into(),
-        cv_chi2: cv,
-    }];
-    let mut best = FormChoice {
+    let physical = FormChoice {
         knots: None,
         fit,
         signature: sig,
-        scores: Vec::new(),
+        scores: vec![FormScore {
+            form: PHYSICAL_FORM.into(),
+            cv_chi2: cv,
+        }],
     };
-    if has_shape_form(id) && !spec.held.iter().any(|h| h.id == id) {
-        let gain = (cv_before - cv).max(0.0);
-        let mut best_cv = cv;
-        for &k in KNOT_COUNTS {
-            // (fewer knots where the driver has fewer values: each K once)
-            let Some(knots) = knots_at_quantiles(id, k, recs, prep)
-                .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
-            else {
-                continue;
+    Ok(best_shape(
+        id,
+        prep,
+        waveform,
+        recs,
+        physical,
+        (cv_before - cv).max(0.0),
+    ))
+}
+
+/// `physical` (scored, explaining `gain` of the held-out χ²) against the
+/// shapes with each of [`KNOT_COUNTS`] knots: the best by held-out χ² under
+/// the margins of [`choose_form`], every form's score in its `scores`.
+fn best_shape(
+    id: &str,
+    prep: &Prepared,
+    waveform: &Waveform,
+    recs: &[Sample],
+    physical: FormChoice,
+    gain: f64,
+) -> FormChoice {
+    let mut scores = physical.scores.clone();
+    let mut best_cv = scores[0].cv_chi2;
+    let mut best = physical;
+    for &k in KNOT_COUNTS {
+        // (fewer knots where the driver has fewer values: each K once)
+        let Some(knots) = knots_at_quantiles(id, k, recs, prep)
+            .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
+        else {
+            continue;
+        };
+        let Some((f, s, c)) = try_shape(id, &knots, prep, waveform, recs) else {
+            continue;
+        };
+        scores.push(FormScore {
+            form: shape_form_name(knots.len()),
+            cv_chi2: c,
+        });
+        let extra = f.n_params.saturating_sub(best.fit.n_params) as f64;
+        let margin = if best.knots.is_none() {
+            (0.01 * gain).max(2.0 * extra)
+        } else {
+            2.0 * extra
+        };
+        if c < best_cv - margin {
+            best_cv = c;
+            best = FormChoice {
+                knots: Some(knots),
+                fit: f,
+                signature: s,
+                scores: Vec::new(),
             };
-            let Some((f, s, c)) = try_shape(id, &knots, prep, waveform, recs) else {
-                continue;
-            };
-            scores.push(FormScore {
-                form: shape_form_name(knots.len()),
-                cv_chi2: c,
-            });
-            let extra = f.n_params.saturating_sub(best.fit.n_params) as f64;
-            let margin = if best.knots.is_none() {
-                (0.01 * gain).max(2.0 * extra)
-            } else {
-                2.0 * extra
-            };
-            if c < best_cv - margin {
-                best_cv = c;
-                best = FormChoice {
-                    knots: Some(knots),
-                    fit: f,
-                    signature: s,
-                    scores: Vec::new(),
-                };
-            }
         }
     }
     best.scores = scores;
-    Ok(best)
+    best
 }
 
 /// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
@@ -412,6 +447,10 @@ fn try_shape(
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
     Some((f, s, c))
 }
+
+/// The least share of the residual's excess χ² (χ² − samples) the physical
+/// form must explain for the forms to be compared.
+const MIN_SHARE_FOR_FORMS: f64 = 0.05;
 
 /// The name of the chosen form of `knots` (`physical` for none).
 pub fn form_name(knots: Option<&Vec<f64>>) -> String {
