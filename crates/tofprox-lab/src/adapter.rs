@@ -82,6 +82,7 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .collect(),
         held: Vec::new(),
         dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
+        shapes: crate::shape::spec_shapes(m, crate::signatures::code_per_e(m)),
     }
 }
 

@@ -175,6 +175,68 @@ fn total(folds: &[Normal]) -> Normal {
     t
 }
 
+/// The block of capture `cap` in [`cv_refit`]: pairs of consecutive captures
+/// dealt round the [`FOLDS`] blocks.
+fn form_block(cap: u32) -> usize {
+    (cap / 2) as usize % FOLDS
+}
+
+/// Block cross-validation of every parameter of a fitted signature (its
+/// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
+/// all blocks): per held-out block, the signature refitted on the other
+/// blocks (started from `f`, the fit on all of them) and its χ² on the
+/// held-out block (large tables: both on a subsample). Returns (Σ over
+/// blocks, the same held-out samples' χ² without the effect). Σ over blocks; what compares
+/// forms with different numbers of non-linear parameters
+/// (`crate::shape::choose_form`). The blocks are whole captures, pairs of
+/// consecutive ones (a capture and its repeat together) dealt round the
+/// blocks in recording order ([`form_block`]): each block spans the
+/// drivers' range, so the score measures how a form predicts conditions it
+/// did not see between those it did — not its extrapolation beyond the
+/// recorded range, where a shape is flat by definition (the distance blocks
+/// of [`SignatureFit::cv_chi2`] hold out the nearest, brightest captures
+/// whole).
+pub fn cv_refit(
+    sig: &dyn Signature,
+    recs: &[Sample],
+    prep: &Prepared,
+    f: &SignatureFit,
+) -> Result<(f64, f64), LabError> {
+    // large tables: a subsample of ≤ 30 000 samples for training and scoring
+    // (a choice between forms, not the fit: ~6 000 samples per block)
+    let stride = (recs.len() / 30_000).max(1);
+    let start = EffectFit {
+        id: sig.id().to_string(),
+        lin: f.lin.clone(),
+        nl: f.nl.clone(),
+    };
+    let (mut cv, mut before) = (0.0, 0.0);
+    for fold in 0..FOLDS {
+        let held: Vec<Sample> = recs
+            .iter()
+            .step_by(stride)
+            .filter(|r| form_block(r.cap) == fold)
+            .copied()
+            .collect();
+        let train: Vec<Sample> = recs
+            .iter()
+            .step_by(stride)
+            .filter(|r| form_block(r.cap) != fold)
+            .copied()
+            .collect();
+        if held.is_empty() || train.is_empty() {
+            continue;
+        }
+        let t = fit_signature(sig, &train, prep, Some(&start))?;
+        let mut p = t.lin;
+        p.extend_from_slice(&t.nuisance);
+        p.extend_from_slice(&t.nl);
+        cv += total(&accumulate(sig, &held, prep, &p, false, 1)).chi2;
+        before += held.iter().map(Sample::chi2).sum::<f64>();
+    }
+    Ok((cv, before))
+}
+
 /// Fit `sig` to the residuals in `recs` (r = measured − current model).
 pub fn fit_signature(
     sig: &dyn Signature,

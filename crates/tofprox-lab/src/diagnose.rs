@@ -405,6 +405,14 @@ pub struct CandidateScore {
     /// never worse than the candidate's own fit on top of the model.
     #[serde(skip)]
     pub refit: Option<Box<LabModel>>,
+    /// The law's form that was fitted: `physical`, or `shape_<K>_knots`
+    /// (`crate::shape::choose_form`, by cross-validation on held-out blocks).
+    pub form: String,
+    /// Held-out χ² of every form tried (empty for an effect with one form).
+    pub form_scores: Vec<crate::shape::FormScore>,
+    /// The chosen shape's knots in the lab's driver units (None: physical).
+    #[serde(skip)]
+    pub knots: Option<Vec<f64>>,
 }
 
 /// Something the data still show that is smaller than the tolerance.
@@ -638,8 +646,15 @@ fn screen_candidate(
     significant: bool,
 ) -> Result<CandidateScore, LabError> {
     let share = |x: f64| if significant { x } else { f64::NAN };
-    let sig = make_signature(id, prep, &cmp.model.spec, &cmp.model.waveform)?;
-    let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None)?;
+    let (sig, f, knots, form_scores) = if crate::shape::has_shape_form(id) {
+        let c =
+            crate::shape::choose_form(id, prep, &cmp.model.spec, &cmp.model.waveform, &cmp.recs)?;
+        (c.signature, c.fit, c.knots, c.scores)
+    } else {
+        let sig = make_signature(id, prep, &cmp.model.spec, &cmp.model.waveform)?;
+        let f = fit_signature(sig.as_ref(), &cmp.recs, prep, None)?;
+        (sig, f, None, Vec::new())
+    };
     let dchi = (f.chi2_before - f.chi2).max(0.0);
     let chi_after = cmp.chi2 - dchi;
     let dof_after = cmp.dof - f.n_params as f64;
@@ -675,6 +690,9 @@ fn screen_candidate(
         rms_after: None,
         cancels_in_4phase: cancels_in_4phase(id),
         refit: None,
+        form: crate::shape::form_name(knots.as_ref()),
+        form_scores,
+        knots,
     })
 }
 
@@ -739,7 +757,8 @@ fn refit_leader(
         .fit
         .clone()
         .ok_or_else(|| LabError::numerical("candidate without fit"))?;
-    let m = crate::fit::refit_with(prep, &cmp.model, &fit, c.nuisance, 3)?;
+    let base = with_form(&cmp.model, &c.effect, c.knots.as_ref());
+    let m = crate::fit::refit_with(prep, &base, &fit, c.nuisance, 3)?;
     let mut c2 = comparison_of(prep, m)?;
     c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
     c.z_after = c2.fit.z;
@@ -751,6 +770,17 @@ fn refit_leader(
     c.rms_after = Some(c2.rms);
     c.refit = Some(Box::new(c2.model));
     Ok(c2.structure)
+}
+
+/// `model` with effect `id`'s law in the form of `knots` (a shape; `None`:
+/// the parametric form) for what is fitted next.
+fn with_form(model: &LabModel, id: &str, knots: Option<&Vec<f64>>) -> LabModel {
+    let mut m = model.clone();
+    match knots {
+        Some(k) => m.spec.shapes.insert(id.to_string(), k.clone()),
+        None => m.spec.shapes.remove(id),
+    };
+    m
 }
 
 /// Cross-validate again on the refitted model (the per-pixel parameters no
@@ -1293,20 +1323,30 @@ pub fn add_effect_to(
 ) -> Result<AddOutcome, LabError> {
     let spec = before.model.spec.clone();
     check_addable(prep, &spec, effect)?;
-    let spec2 = spec_with(&spec, effect);
+    let mut spec2 = spec_with(&spec, effect);
     let mut warm = match start {
         Some(m) => m.clone(),
         None => {
-            let sig = make_signature(effect, prep, &spec, &before.model.waveform)?;
-            let f = fit_signature(sig.as_ref(), &before.recs, prep, None)?;
+            // the law's form by cross-validation (crate::shape), then its fit
+            let c = crate::shape::choose_form(
+                effect,
+                prep,
+                &spec,
+                &before.model.waveform,
+                &before.recs,
+            )?;
             let fit = EffectFit {
                 id: effect.to_string(),
-                lin: f.lin,
-                nl: f.nl,
+                lin: c.fit.lin,
+                nl: c.fit.nl,
             };
-            crate::fit::refit_with(prep, &before.model, &fit, f.nuisance, 3)?
+            let base = with_form(&before.model, effect, c.knots.as_ref());
+            crate::fit::refit_with(prep, &base, &fit, c.fit.nuisance, 3)?
         }
     };
+    if let Some(k) = warm.spec.shapes.get(effect) {
+        spec2.shapes.insert(effect.to_string(), k.clone());
+    }
     crate::fit::refine(prep, &mut warm, 4, false, true, &|_, _| {})?;
     let warm = comparison_of(prep, warm)?;
     let scratch = compare(prep, &spec2, progress)?;
@@ -1563,6 +1603,9 @@ pub(crate) mod tests {
             rms_after: None,
             cancels_in_4phase: false,
             refit: None,
+            form: crate::shape::PHYSICAL_FORM.into(),
+            form_scores: Vec::new(),
+            knots: None,
         }
     }
 

@@ -47,6 +47,9 @@ pub struct LabSpec {
     /// The dark current's doubling ΔT₂ in K (`dark_current.doubling_c` of the
     /// model file; the registry's typical value by default).
     pub dark_doubling_k: f64,
+    /// Effects whose law is the shape form (`crate::shape`): their knots in
+    /// the lab's driver units (amplitude: LSB; temperature: °C).
+    pub shapes: std::collections::BTreeMap<String, Vec<f64>>,
 }
 
 impl Default for LabSpec {
@@ -61,6 +64,7 @@ impl Default for LabSpec {
             dark_doubling_k: tofprox_model::catalogue::typical(
                 tofprox_model::ids::dark_current::DOUBLING_C,
             ),
+            shapes: std::collections::BTreeMap::new(),
         }
     }
 }
@@ -488,7 +492,12 @@ impl LabModel {
     /// ([`crate::signatures::phasor_shift`]).
     #[inline]
     pub fn phasor_shift(&self, cap: &CapInfo, p: usize) -> (f64, f64) {
-        crate::signatures::phasor_shift(&self.effects, cap, self.gain[p] * cap.law)
+        crate::signatures::phasor_shift(
+            &self.effects,
+            &self.spec.shapes,
+            cap,
+            self.gain[p] * cap.law,
+        )
     }
 
     /// Build the context of sample (c, k, p) under this model (code effects

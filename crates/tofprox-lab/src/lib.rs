@@ -16,6 +16,7 @@ pub mod fit;
 pub mod model_file;
 pub mod noise;
 pub mod report;
+pub mod shape;
 pub mod signatures;
 pub mod stats;
 pub mod structure;

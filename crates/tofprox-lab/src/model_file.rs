@@ -19,7 +19,8 @@ pub fn update_model_text(
     let before = ModelConfig::from_toml_str(original).ok();
     let differs = |id: &str| {
         before.as_ref().is_some_and(|b| {
-            b.effect(id).map(|e| e.enabled) != m.effect(id).map(|e| e.enabled)
+            b.effect(id).map(|e| (e.enabled, &e.shape))
+                != m.effect(id).map(|e| (e.enabled, &e.shape))
                 || tofprox_model::catalogue::effect(id).is_some_and(|info| {
                     info.params
                         .iter()
@@ -72,8 +73,41 @@ pub fn update_model_text(
                 set(t, p.name, Value::from(v));
             }
         }
+        write_shape_keys(t, id, m.effect(id).and_then(|e| e.shape.as_ref()), &set);
     }
     Ok(doc.to_string())
+}
+
+/// The shape form's keys of `[effects.<id>]`: its knots and curves when
+/// `shape` is given, none of them when not (the parametric form).
+fn write_shape_keys(
+    t: &mut toml_edit::Table,
+    id: &str,
+    shape: Option<&tofprox_model::effects::shape::EffectShape>,
+    set: &dyn Fn(&mut toml_edit::Table, &str, toml_edit::Value),
+) {
+    let Some(law) = tofprox_model::effects::shape::shape_law(id) else {
+        return;
+    };
+    let array = |v: &[f64]| toml_edit::Value::Array(v.iter().copied().collect());
+    match shape {
+        Some(sh) => {
+            set(t, law.driver, array(&sh.knots));
+            for c in law.curves {
+                match sh.curves.iter().find(|(k, _)| k == c) {
+                    Some((_, v)) => set(t, c, array(v)),
+                    None => {
+                        t.remove(c);
+                    }
+                }
+            }
+        }
+        None => {
+            for k in std::iter::once(law.driver).chain(law.curves.iter().copied()) {
+                t.remove(k);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -109,5 +143,35 @@ mod tests {
         assert!(back.is_enabled(ids::vcsel_droop::ID) && back.is_enabled(ids::adc_inl::ID));
         assert_eq!(back.get(ids::adc_inl::INL_LSB), -3.5);
         assert!(update_model_text("[effects", &m, &[]).is_err());
+    }
+
+    #[test]
+    fn update_writes_the_chosen_form_only() {
+        use tofprox_model::effects::shape::{DRIFT_PHASE_RAD, EffectShape};
+        let id = ids::temperature_drift::ID;
+        let text = "[effects.temperature_drift]\nenabled = true  # measured\n\
+                    phase_mrad_per_k = 2.0\n";
+        let mut m = ModelConfig::from_toml_str(text).unwrap();
+        let shape = EffectShape {
+            knots: vec![10.0, 25.0, 45.0],
+            curves: vec![(DRIFT_PHASE_RAD, vec![-0.1, 0.0, 0.3])],
+        };
+        m.set_shape(id, Some(shape.clone())).unwrap();
+        let out = update_model_text(text, &m, &[id.as_str().into()]).unwrap();
+        assert!(out.contains("enabled = true  # measured"), "{out}");
+        let back = ModelConfig::from_toml_str(&out).unwrap();
+        assert_eq!(back.shape(id), Some(&shape));
+        // back to the parametric form: the shape's keys go
+        let mut p = back.clone();
+        p.set_shape(id, None).unwrap();
+        let out2 = update_model_text(&out, &p, &[id.as_str().into()]).unwrap();
+        assert!(!out2.contains("shape_"), "{out2}");
+        assert_eq!(ModelConfig::from_toml_str(&out2).unwrap().shape(id), None);
+        // a shape the model refuses is never set
+        let bad = EffectShape {
+            knots: vec![10.0, 25.0],
+            curves: vec![(DRIFT_PHASE_RAD, vec![0.0])],
+        };
+        assert!(m.set_shape(id, Some(bad)).is_err());
     }
 }

@@ -35,6 +35,8 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "params": named(&c.params),
             "standard_errors": named(&c.standard_errors),
             "flags": c.flags,
+            "form": c.form,
+            "form_scores": c.form_scores.iter().map(|f| json!({"form": f.form, "cv_chi2": num(f.cv_chi2)})).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "reason": d.reason,
         "evidence": d.evidence(),

@@ -559,7 +559,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
     EffectInfo {
         id: ids::amplitude_phase_error::ID.as_str(),
         title: "Amplitude-dependent phase error",
-        explanation: "Non-linearity of pixel and read-out makes the phase depend on the signal amplitude (dark vs bright surfaces, fig. 2.9): Δφ = φ_max · (1 − x/(1 + xⁿ)^(1/n)), x = A/A_ref, A the differential amplitude in electrons. n = 1 is the hyperbolic law φ_max·A_ref/(A_ref + A); larger n saturate more sharply (n ≈ 2 is close to a tanh).",
+        explanation: "Non-linearity of pixel and read-out makes the phase depend on the signal amplitude (dark vs bright surfaces, fig. 2.9): Δφ = φ_max · (1 − x/(1 + xⁿ)^(1/n)), x = A/A_ref, A the differential amplitude in electrons. n = 1 is the hyperbolic law φ_max·A_ref/(A_ref + A); larger n saturate more sharply (n ≈ 2 is close to a tanh). Second form, where no member of the family fits: a monotone shape Δφ(A) given by `shape_amplitude_e` (knots, e⁻) and `shape_phase_rad` (values), linear between the knots and flat outside them; it replaces the parametric law.",
         thesis_ref: "2.3.1.2 (fig. 2.9)",
         signature: "depth error depending on amplitude (reflectivity, distance, exposure), not on phase",
         params: &[
@@ -596,7 +596,7 @@ pub static CATALOGUE: &[EffectInfo] = &[
     EffectInfo {
         id: ids::temperature_drift::ID.as_str(),
         title: "Temperature drift of phase and gain",
-        explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ·ΔT + k_φ2·ΔT², gain ×(1 + k_g·ΔT + k_g2·ΔT²), ΔT = T − T_ref. The second-order terms describe a drift that bends (delays and responsivity that change faster when hot); 0 gives the linear law. T is the capture's temperature_c.",
+        explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ·ΔT + k_φ2·ΔT², gain ×(1 + k_g·ΔT + k_g2·ΔT²), ΔT = T − T_ref. The second-order terms describe a drift that bends (delays and responsivity that change faster when hot); 0 gives the linear law. T is the capture's temperature_c. Second form: monotone shapes of T itself given by `shape_temperature_c` (knots, °C) with `shape_phase_rad` (Δφ) and `shape_gain_rel` (G), linear between the knots and flat outside them; they replace the polynomial (and its reference_c).",
         thesis_ref: "3.1 (temperature compensation step of fig. 3.1)",
         signature: "depth offset and amplitude change with temperature_c (linear, or bending with the second-order terms)",
         params: &[

@@ -8,6 +8,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
+use crate::effects::shape::{self, EffectShape, ShapeLaw};
 use crate::error::{ErrorKind, ModelError};
 use crate::ids::{self, EffectId, ParamId};
 use tofprox_core::camera::Intrinsics;
@@ -22,6 +23,9 @@ pub struct EffectSettings {
     pub enabled: bool,
     /// Parameter values by name (every catalogue parameter is present).
     pub params: BTreeMap<&'static str, f64>,
+    /// The law as a monotone shape instead of its parametric form (effects
+    /// with a [`crate::effects::shape::ShapeLaw`] only; validated).
+    pub shape: Option<EffectShape>,
 }
 
 /// Measured illumination and modulation waveforms (one period each, equally spaced).
@@ -82,6 +86,53 @@ fn allowed_names(params: &[ParamInfo]) -> String {
     params.iter().map(|p| p.name).collect::<Vec<_>>().join(", ")
 }
 
+fn numbers(key: &str, v: &toml::Value) -> Result<Vec<f64>, ModelError> {
+    let arr = v.as_array().ok_or_else(|| {
+        ModelError::new(
+            ErrorKind::Parse,
+            format!("`{key}` must be an array of numbers"),
+        )
+    })?;
+    arr.iter().map(|x| value_as_f64(key, x)).collect()
+}
+
+/// The shape form's keys of `[effects.<id>]` (`law`'s driver and curves)
+/// from `t`, validated; `None` when the table gives none of them.
+fn parse_shape(
+    section: &str,
+    law: &ShapeLaw,
+    t: &toml::Table,
+) -> Result<Option<EffectShape>, ModelError> {
+    let key = |k: &str| format!("{section}.{k}");
+    let knots = t.get(law.driver).map(|v| numbers(&key(law.driver), v));
+    let mut curves = Vec::new();
+    for c in law.curves {
+        if let Some(v) = t.get(*c) {
+            curves.push((*c, numbers(&key(c), v)?));
+        }
+    }
+    let knots = match knots {
+        Some(k) => k?,
+        None if curves.is_empty() => return Ok(None),
+        None => {
+            return Err(ModelError::new(
+                ErrorKind::InvalidInput,
+                format!(
+                    "`{}`: a shape's values need its knots `{}` ({})",
+                    key(curves[0].0),
+                    key(law.driver),
+                    law.driver_doc
+                ),
+            ));
+        }
+    };
+    let s = EffectShape { knots, curves };
+    s.check(law).map_err(|(k, why)| {
+        ModelError::new(ErrorKind::InvalidInput, format!("`{}` {why}", key(&k)))
+    })?;
+    Ok(Some(s))
+}
+
 fn value_as_f64(key: &str, v: &toml::Value) -> Result<f64, ModelError> {
     match v {
         toml::Value::Float(f) => Ok(*f),
@@ -106,6 +157,7 @@ impl ModelConfig {
                         EffectSettings {
                             enabled: enabled(e),
                             params: typical_params(e.params),
+                            shape: None,
                         },
                     )
                 })
@@ -228,6 +280,13 @@ impl ModelConfig {
             ModelError::new(ErrorKind::Parse, format!("`effects.{id}` must be a table"))
         })?;
         let section = format!("effects.{id}");
+        let law = shape::shape_law(info.id);
+        if let Some(law) = law {
+            let sh = parse_shape(&section, law, t)?;
+            if let Some(s) = self.effects.get_mut(info.id) {
+                s.shape = sh;
+            }
+        }
         let mut illum: Option<(Vec<f64>, Option<PathBuf>)> = None;
         let mut modul: Option<(Vec<f64>, Option<PathBuf>)> = None;
         for (name, value) in t {
@@ -241,6 +300,9 @@ impl ModelConfig {
                 if let Some(s) = self.effects.get_mut(info.id) {
                     s.enabled = b;
                 }
+                continue;
+            }
+            if law.is_some_and(|l| shape::is_shape_key(l, name)) {
                 continue;
             }
             if info.id == ids::waveform_harmonics::ID.as_str() {
@@ -291,9 +353,11 @@ impl ModelConfig {
             }
             let pinfo = info.param(name).ok_or_else(|| {
                 let extra = if info.id == ids::waveform_harmonics::ID.as_str() {
-                    ", illumination_file, modulation_file, illumination, modulation"
+                    ", illumination_file, modulation_file, illumination, modulation".to_string()
+                } else if let Some(l) = law {
+                    format!(", {}, {}", l.driver, l.curves.join(", "))
                 } else {
-                    ""
+                    String::new()
                 };
                 ModelError::new(
                     ErrorKind::UnknownParam,
@@ -406,6 +470,13 @@ impl ModelConfig {
                 };
                 let _ = writeln!(out, "{} = {:?}{unit}", p.name, v);
             }
+            if let (Some(sh), Some(law)) = (&s.shape, shape::shape_law(e.id)) {
+                let _ = writeln!(out, "# the law as a monotone shape of {}", law.driver_doc);
+                let _ = writeln!(out, "{} = {:?}", law.driver, sh.knots);
+                for (k, v) in &sh.curves {
+                    let _ = writeln!(out, "{k} = {v:?}");
+                }
+            }
             if let (true, Some(w)) = (
                 e.id == ids::waveform_harmonics::ID.as_str(),
                 &self.waveforms,
@@ -481,6 +552,28 @@ impl ModelConfig {
     /// Settings of one effect.
     pub fn effect(&self, id: &str) -> Option<&EffectSettings> {
         self.effects.get(id)
+    }
+
+    /// The law of effect `id` as a monotone shape, when the model gives it so.
+    pub fn shape(&self, id: EffectId) -> Option<&EffectShape> {
+        self.effects.get(id.as_str())?.shape.as_ref()
+    }
+
+    /// Give effect `id`'s law as a monotone shape (validated against its
+    /// [`ShapeLaw`]), or `None` for its parametric form.
+    pub fn set_shape(&mut self, id: EffectId, s: Option<EffectShape>) -> Result<(), ModelError> {
+        if let Some(sh) = &s {
+            let law = shape::shape_law(id.as_str())
+                .ok_or_else(|| ModelError::invalid(format!("`effects.{id}` has no shape form")))?;
+            sh.check(law)
+                .map_err(|(k, why)| ModelError::invalid(format!("`effects.{id}.{k}` {why}")))?;
+        }
+        let e = self
+            .effects
+            .get_mut(id.as_str())
+            .ok_or_else(|| unknown_effect(id.as_str()))?;
+        e.shape = s;
+        Ok(())
     }
 
     /// Ids of the enabled effects, in catalogue order.

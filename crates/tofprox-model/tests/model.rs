@@ -514,3 +514,137 @@ fn scene_scripts_hand_and_face() {
     };
     assert!(long.validate().is_err());
 }
+
+/// The phasor Σ_k D_k e^{iθ_k} of pixel (0, 0) of 4-phase codes (0°, 90°,
+/// 180°, 270°), written here from eq. 2.2 (not the pipeline's code).
+fn phasor_of(codes: &ndarray::Array3<f64>) -> (f64, f64) {
+    let d = |k: usize| codes[[k, 0, 0]];
+    (d(0) - d(2), d(1) - d(3))
+}
+
+#[test]
+fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
+    let text = "[effects.temperature_drift]\nenabled = true\n\
+                shape_temperature_c = [20.0, 60.0]\nshape_phase_rad = [0.0, 0.4]\n\
+                shape_gain_rel = [0.0, 0.5]\n";
+    let m = ModelConfig::from_toml_str(text).unwrap();
+    let s = m.shape(ids::temperature_drift::ID).unwrap();
+    assert_eq!(s.knots, [20.0, 60.0]);
+    assert_eq!(ModelConfig::from_toml_str(&m.to_toml_string()).unwrap(), m);
+    // the simulator: at 40 °C half the way: Δφ = 0.2 rad, gain × 1.25; at
+    // 90 °C clamped flat at the last knot: 0.4 rad, × 1.5
+    let g = SensorGeometry::irs1645().window(60, 60, 1, 1).unwrap();
+    let scene = Scene::wall(0.9, 0.8);
+    let mut ideal = ModelConfig::ideal();
+    ideal.set_param("sensor", "signal_e_per_us", 5.0).unwrap();
+    let run = |m: &ModelConfig, t: f64| {
+        let mut req = CaptureRequest::four_phase(300.0);
+        req.temperature_c = t;
+        phasor_of(
+            &Simulator::new(m, g, 1)
+                .unwrap()
+                .expected(&scene, &req)
+                .unwrap(),
+        )
+    };
+    let mut m2 = m.clone();
+    m2.set_param("sensor", "signal_e_per_us", 5.0).unwrap();
+    let (x0, y0) = run(&ideal, 40.0);
+    for (t, dphi, gain) in [(40.0, 0.2, 1.25), (90.0, 0.4, 1.5), (10.0, 0.0, 1.0)] {
+        let (x, y) = run(&m2, t);
+        let rot = (x0 * y - y0 * x).atan2(x0 * x + y0 * y).abs();
+        let ratio = x.hypot(y) / x0.hypot(y0);
+        assert!(
+            (rot - dphi).abs() < 1e-6,
+            "{t} °C: rotated {rot}, want {dphi}"
+        );
+        assert!(
+            (ratio - gain).abs() < 1e-6,
+            "{t} °C: gain {ratio}, want {gain}"
+        );
+    }
+    // the amplitude-phase error's shape: flat above its last knot
+    let mut ap = ideal.clone();
+    ap.set_enabled("amplitude_phase_error", true).unwrap();
+    let text = "[effects.amplitude_phase_error]\nenabled = true\n\
+                shape_amplitude_e = [0.0, 1.0]\nshape_phase_rad = [0.3, 0.3]\n";
+    let shaped = ModelConfig::from_toml_str(text).unwrap();
+    ap.set_shape(
+        ids::amplitude_phase_error::ID,
+        shaped.shape(ids::amplitude_phase_error::ID).cloned(),
+    )
+    .unwrap();
+    let (x, y) = run(&ap, 40.0);
+    let rot = (x0 * y - y0 * x).atan2(x0 * x + y0 * y).abs();
+    assert!((rot - 0.3).abs() < 1e-6, "rotated {rot}");
+}
+
+#[test]
+fn bad_shapes_name_their_key() {
+    let bad = |body: &str, key: &str, why: &str| {
+        let t = format!("[effects.temperature_drift]\nenabled = true\n{body}");
+        let e = ModelConfig::from_toml_str(&t).unwrap_err();
+        let s = e.to_string();
+        assert!(
+            s.contains(&format!("effects.temperature_drift.{key}")) && s.contains(why),
+            "{body}: {s}"
+        );
+    };
+    let k = "shape_temperature_c = [20.0, 40.0, 60.0]\n";
+    bad(
+        &format!("{k}shape_phase_rad = [0.0, 0.1]\n"),
+        "shape_phase_rad",
+        "one value per knot",
+    );
+    bad(
+        "shape_temperature_c = [20.0, 20.0]\nshape_phase_rad = [0.0, 0.1]\n",
+        "shape_temperature_c",
+        "strictly",
+    );
+    bad(
+        &format!("{k}shape_phase_rad = [0.0, 0.3, 0.1]\n"),
+        "shape_phase_rad",
+        "monotone",
+    );
+    bad(
+        &format!("{k}shape_gain_rel = [0.0, -0.5, -1.2]\n"),
+        "shape_gain_rel",
+        "1 + G",
+    );
+    bad(
+        "shape_phase_rad = [0.0, 0.1]\n",
+        "shape_temperature_c",
+        "knots",
+    );
+    bad(
+        &format!("{k}shape_phase_rad = \"up\"\n"),
+        "shape_phase_rad",
+        "array of numbers",
+    );
+    bad(
+        &format!("{k}shape_phase_rad = [0, 1, 2]\nshape_gian_rel = [0, 1, 2]\n"),
+        "shape_gian_rel",
+        "shape_gain_rel",
+    );
+    // a shape form only where the catalogue has one
+    let e = ModelConfig::from_toml_str("[effects.adc_inl]\nshape_phase_rad = [0.0, 1.0]\n");
+    assert_eq!(e.unwrap_err().kind(), ErrorKind::UnknownParam);
+}
+
+/// docs/model.md's shape example is a model file that loads, with the shapes it shows.
+#[test]
+fn docs_shape_example_loads() {
+    let doc = std::fs::read_to_string(repo_file("docs/model.md")).unwrap();
+    let block = doc
+        .split("```toml\n")
+        .skip(1)
+        .filter_map(|b| b.split("```").next())
+        .find(|b| b.contains("shape_amplitude_e"))
+        .expect("the shape example");
+    let m = ModelConfig::from_toml_str(block).unwrap();
+    let ap = m.shape(ids::amplitude_phase_error::ID).unwrap();
+    assert_eq!(ap.knots.len(), 4);
+    let td = m.shape(ids::temperature_drift::ID).unwrap();
+    assert_eq!(td.curves.len(), 2);
+    assert!((td.eval("shape_phase_rad", 55.0) - 0.43).abs() < 1e-12);
+}

@@ -268,6 +268,14 @@ pub fn make_signature(
             ),
         )
     })?;
+    // the spec gives the law as a shape (crate::shape)
+    if let Some(sig) = spec
+        .shapes
+        .get(id)
+        .and_then(|k| crate::shape::make_shape_signature(id, k, waveform))
+    {
+        return Ok(sig);
+    }
     Ok(effect.signature(prep, spec, waveform))
 }
 
@@ -294,16 +302,48 @@ pub fn write_effect(
             format!("cannot enable `{effect}`: {e}"),
         )
     })?;
+    if let Some(notes) = write_shape(m, effect, model, prep) {
+        return Ok(notes);
+    }
     Ok(match lab_effect(effect) {
         Some(e) => e.write(params, m, &WriteCtx { model, prep }),
         None => vec![not_written(effect)],
     })
 }
 
+/// The chosen form of an effect that has one ([`tofprox_model::effects::shape::shape_law`]):
+/// a shape (its knots in the lab's spec) is written and its notes returned; the parametric
+/// law removes any shape keys and returns `None` (its parameters are written next) —
+/// never both forms in the file.
+fn write_shape(
+    m: &mut ModelConfig,
+    effect: &str,
+    model: &LabModel,
+    prep: &Prepared,
+) -> Option<Vec<String>> {
+    let id = EffectId::parse(effect)
+        .filter(|id| tofprox_model::effects::shape::shape_law(id.as_str()).is_some())?;
+    let shape = model.spec.shapes.get(effect).and_then(|knots| {
+        let fit = model.effects.iter().find(|e| e.id == effect)?;
+        crate::shape::model_shape(effect, knots, fit, code_per_e(m), prep.temp_ref)
+    });
+    let mut notes = Vec::new();
+    if let Err(e) = m.set_shape(id, shape.clone()) {
+        notes.push(format!("{effect}: shape not written ({e})"));
+    }
+    shape.is_some().then_some(notes)
+}
+
 /// The lab's (lin, nl) of effect `id` at model file `m`'s values
 /// ([`LabEffect::held`]), where they map onto the lab's law.
 pub fn held_params(id: &str, m: &ModelConfig, prep: &Prepared) -> Option<(Vec<f64>, Vec<f64>)> {
-    lab_effect(id)?.held(m, prep)
+    let effect = lab_effect(id)?;
+    // a file's shape form is held as the lab's shape (crate::shape)
+    if let Some(s) = EffectId::parse(id).and_then(|e| m.shape(e)) {
+        return crate::shape::held_shape(id, s, code_per_e(m).max(0.0), prep.temp_ref)
+            .map(|(_, lin, nl)| (lin, nl));
+    }
+    effect.held(m, prep)
 }
 
 /// Whether effect `id` acts on the signal phasor (its gain and phase) rather
@@ -321,13 +361,21 @@ pub fn acts_on_phasor(id: &str) -> bool {
 /// (`temp_drift::gain_phase`), then the amplitude-phase error at the
 /// drifted amplitude (`amp_phase::phase_at`). Called per sample, so the
 /// two phasor effects are matched directly rather than looked up.
-pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
+pub fn phasor_shift(
+    effects: &[EffectFit],
+    shapes: &std::collections::BTreeMap<String, Vec<f64>>,
+    cap: &CapInfo,
+    a_lsb: f64,
+) -> (f64, f64) {
     let (mut f, mut ph) = (1.0, 0.0);
     for e in effects
         .iter()
         .filter(|e| e.id == ids::temperature_drift::ID.as_str())
     {
-        let (gain, dphi) = temp_drift::gain_phase(e, cap);
+        let (gain, dphi) = match shapes.get(&e.id) {
+            Some(k) => crate::shape::shape_phasor(e, k, cap, a_lsb),
+            None => temp_drift::gain_phase(e, cap),
+        };
         f *= gain;
         ph += dphi;
     }
@@ -335,13 +383,16 @@ pub fn phasor_shift(effects: &[EffectFit], cap: &CapInfo, a_lsb: f64) -> (f64, f
         .iter()
         .filter(|e| e.id == ids::amplitude_phase_error::ID.as_str())
     {
-        ph += amp_phase::phase_at(e, cap, a_lsb * f);
+        ph += match shapes.get(&e.id) {
+            Some(k) => crate::shape::shape_phasor(e, k, cap, a_lsb * f).1,
+            None => amp_phase::phase_at(e, cap, a_lsb * f),
+        };
     }
     (f, ph)
 }
 
-/// The `qs` quantiles of the finite values of `v` (empty if none).
-fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
+/// The `qs` quantiles of the finite values of `v` (empty if none; nearest rank below).
+pub(crate) fn quantiles(mut v: Vec<f64>, qs: &[f64]) -> Vec<f64> {
     v.retain(|x| x.is_finite());
     if v.is_empty() {
         return Vec::new();
@@ -385,7 +436,7 @@ impl<'a> Writer<'a> {
 /// "LSB" are in: the conversion gain (`sensor.lsb_per_ke` / 1000) times the
 /// converter's slope (eq. 3.2, [`tofprox_model::effects::adc::gain_factor`]).
 /// NaN when the file has no conversion gain.
-fn code_per_e(m: &ModelConfig) -> f64 {
+pub(crate) fn code_per_e(m: &ModelConfig) -> f64 {
     m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc::gain_factor(m)
 }
 

@@ -6,9 +6,12 @@
 //! - [`fixed_pattern`]: `prnu`, `fpn_offset`, `fppn` (per-pixel patterns drawn once)
 //! - [`pixel`]: `sbi_asymmetry`, `amplitude_phase_error`, `temperature_drift`,
 //!   `dark_current`, `shot_noise`, `ktc_noise`, `read_noise`
+//! - [`shape`]: the monotone shape form of `amplitude_phase_error` and
+//!   `temperature_drift` (knots of the driver, values of the effect)
 //! - [`adc`]: `adc_gain`, `adc_offset`, `adc_inl`, `adc_dnl`, `quantization`
 
 pub mod adc;
 pub mod fixed_pattern;
 pub mod optical;
 pub mod pixel;
+pub mod shape;

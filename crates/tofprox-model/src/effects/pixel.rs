@@ -79,13 +79,81 @@ pub fn tap_gain_leak_e(mismatch_rel: f64, total_e: f64) -> f64 {
     0.5 * mismatch_rel * total_e
 }
 
+/// The amplitude-phase error's law (2.3.1.2) in one of its two forms.
+#[derive(Debug, Clone, PartialEq)]
+pub enum AmpPhaseLaw {
+    /// φ_max · s(A/A_ref; n) ([`amplitude_phase_shape`]): (max_rad, reference_e, n).
+    Saturating(f64, f64, f64),
+    /// Δφ(A) as a monotone shape of the amplitude in electrons
+    /// ([`crate::effects::shape::AMPLITUDE_PHASE`]): knots (e) and values (rad).
+    Shape(Vec<f64>, Vec<f64>),
+}
+
+impl AmpPhaseLaw {
+    /// The law of `model`'s `amplitude_phase_error` (its shape when the file gives one).
+    pub fn of(model: &ModelConfig) -> Self {
+        use crate::effects::shape::AMPLITUDE_PHASE_RAD;
+        if let Some(s) = model.shape(ids::amplitude_phase_error::ID) {
+            let v = s
+                .curves
+                .iter()
+                .find(|(k, _)| *k == AMPLITUDE_PHASE_RAD)
+                .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone());
+            return Self::Shape(s.knots.clone(), v);
+        }
+        Self::Saturating(
+            model.get(ids::amplitude_phase_error::MAX_RAD),
+            model.get(ids::amplitude_phase_error::REFERENCE_E),
+            model.get(ids::amplitude_phase_error::SHAPE),
+        )
+    }
+
+    /// Δφ in rad at the differential amplitude `amplitude_e` (electrons, ≥ 0).
+    #[inline]
+    pub fn phase_rad(&self, amplitude_e: f64) -> f64 {
+        let a = amplitude_e.max(0.0);
+        match self {
+            Self::Saturating(max_rad, reference_e, n) => {
+                max_rad * amplitude_phase_shape(a / reference_e, *n)
+            }
+            Self::Shape(knots, values) => crate::effects::shape::eval(knots, values, a),
+        }
+    }
+}
+
+/// Temperature drift (catalogue `temperature_drift`, thesis 3.1) of `model`
+/// at `temperature_c`: (Δφ in rad, relative gain change G), by the file's
+/// shape of T when it gives one ([`crate::effects::shape::TEMPERATURE_DRIFT`]),
+/// else by the polynomial in ΔT = T − T_ref ([`temperature_drift`]).
+pub fn temperature_drift_of(model: &ModelConfig, temperature_c: f64) -> (f64, f64) {
+    use crate::effects::shape::{DRIFT_GAIN_REL, DRIFT_PHASE_RAD};
+    use ids::temperature_drift as td;
+    if let Some(s) = model.shape(td::ID) {
+        return (
+            s.eval(DRIFT_PHASE_RAD, temperature_c),
+            s.eval(DRIFT_GAIN_REL, temperature_c),
+        );
+    }
+    temperature_drift(
+        temperature_c - model.get(td::REFERENCE_C),
+        [
+            model.get(td::PHASE_MRAD_PER_K) * 1e-3,
+            model.get(td::PHASE_MRAD_PER_K2) * 1e-3,
+        ],
+        [
+            model.get(td::GAIN_REL_PER_K),
+            model.get(td::GAIN_REL_PER_K2),
+        ],
+    )
+}
+
 /// Per-capture constants of the pixel effects.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct PixelParams {
     /// SBI on: threshold in electrons, mismatch and clamp share.
     pub sbi: Option<(f64, f64, f64)>,
-    /// Amplitude-phase error: (max_rad, reference_e, shape n).
-    pub amp_phase: Option<(f64, f64, f64)>,
+    /// Amplitude-phase error, when on.
+    pub amp_phase: Option<AmpPhaseLaw>,
     /// Phase drift in rad for this temperature.
     pub drift_rad: f64,
     /// Signal gain for this temperature.
@@ -113,26 +181,9 @@ impl PixelParams {
                 model.get(ids::sbi_asymmetry::CLAMP_SHARE),
             )
         });
-        let amp_phase = on(ids::amplitude_phase_error::ID).then(|| {
-            (
-                model.get(ids::amplitude_phase_error::MAX_RAD),
-                model.get(ids::amplitude_phase_error::REFERENCE_E),
-                model.get(ids::amplitude_phase_error::SHAPE),
-            )
-        });
+        let amp_phase = on(ids::amplitude_phase_error::ID).then(|| AmpPhaseLaw::of(model));
         let (drift_rad, drift_gain) = if on(ids::temperature_drift::ID) {
-            use ids::temperature_drift as td;
-            let (phase, gain) = temperature_drift(
-                temperature_c - model.get(td::REFERENCE_C),
-                [
-                    model.get(td::PHASE_MRAD_PER_K) * 1e-3,
-                    model.get(td::PHASE_MRAD_PER_K2) * 1e-3,
-                ],
-                [
-                    model.get(td::GAIN_REL_PER_K),
-                    model.get(td::GAIN_REL_PER_K2),
-                ],
-            );
+            let (phase, gain) = temperature_drift_of(model, temperature_c);
             (phase, (1.0 + gain).max(0.0))
         } else {
             (0.0, 1.0)
@@ -182,12 +233,9 @@ impl PixelParams {
     /// Amplitude-dependent phase error (2.3.1.2).
     #[inline]
     pub fn amplitude_phase_rad(&self, amplitude_e: f64) -> f64 {
-        match self.amp_phase {
-            Some((max_rad, reference_e, shape)) => {
-                max_rad * amplitude_phase_shape(amplitude_e.max(0.0) / reference_e, shape)
-            }
-            None => 0.0,
-        }
+        self.amp_phase
+            .as_ref()
+            .map_or(0.0, |law| law.phase_rad(amplitude_e))
     }
 
     /// SBI differential error in electrons for tap charges `n_a`, `n_b`

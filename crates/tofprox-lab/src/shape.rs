@@ -1,0 +1,552 @@
+//! The shape form of the effects whose law physics does not fix (issue 20,
+//! item 3): the amplitude-phase error Δφ(A) and the temperature drift
+//! Δφ(T), G(T) as the model's monotone piecewise-linear shape
+//! (`tofprox_model::effects::shape`: f(x) = Σ_j v_j·h_j(x), flat outside the
+//! knots) — the same evaluation the simulator runs, so what `add` writes is
+//! what was fitted.
+//!
+//! Knots sit at quantiles of the driver in the recording (K ∈
+//! [`KNOT_COUNTS`]): the amplitude of the illuminated samples (LSB), the
+//! captures' temperatures (°C). The value at the first knot is held at 0 (a
+//! constant phase or gain is the per-pixel phase and gain's), so the fitted
+//! coefficients are the K − 1 others. Fitting: the first-order law (A·C′·Δφ
+//! for the phase, linear in the hat basis) by least squares as the start,
+//! then the full law — the phasor rotated by Δφ, scaled by 1 + G — refined
+//! by the candidates' Levenberg–Marquardt path, like the parametric forms.
+//!
+//! The choice between the parametric form and the shapes (and of K) is made
+//! by cross-validation on held-out blocks of captures ([`choose_form`]).
+
+use std::collections::BTreeMap;
+
+use tofprox_model::effects::shape as law;
+use tofprox_model::ids::{self, EffectId};
+
+use crate::candidates::{SignatureFit, cv_refit, fit_signature};
+use crate::error::LabError;
+use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
+use crate::signatures::{Signature, make_signature, quantiles};
+use crate::waveform::Waveform;
+
+/// The knot counts the shape form is tried with.
+pub const KNOT_COUNTS: &[usize] = &[3, 4, 6];
+
+/// The name of the parametric form in reports.
+pub const PHYSICAL_FORM: &str = "physical";
+
+/// The name of the shape form with `k` knots in reports.
+pub fn shape_form_name(k: usize) -> String {
+    format!("shape_{k}_knots")
+}
+
+/// Whether effect `id` has a shape form.
+pub fn has_shape_form(id: &str) -> bool {
+    law::shape_law(id).is_some()
+}
+
+/// The most knots a shape the lab fits or holds may have (a model file's
+/// shape with more is fitted freely instead).
+const MAX_KNOTS: usize = 32;
+
+/// Σ_{j≥1} c_j·(h_j(x) − h_j(x_ref)): the shape with its first value held at
+/// 0, relative to the reference driver value (`x_ref = x` gives 0).
+fn rel_shape(knots: &[f64], coef: &[f64], x: f64, x_ref: f64) -> f64 {
+    let mut w = [0.0; MAX_KNOTS];
+    let w = &mut w[..coef.len()];
+    rel_weights(knots, x, x_ref, w);
+    w.iter().zip(coef).map(|(a, b)| a * b).sum()
+}
+
+/// The capture's temperature and the lab's reference temperature (the drift
+/// is relative to it; none when the capture states no temperature).
+fn temperatures(cap: &CapInfo) -> Option<(f64, f64)> {
+    cap.temperature_c.map(|t| (t, t - cap.temp_rel))
+}
+
+/// Gain factor and phase shift of the shape form of `e` (knots `knots`) at
+/// capture `cap` for a pixel of amplitude `a_lsb` (already drifted for the
+/// amplitude-phase error): the `phasor_shift` of `signatures.rs` for shapes.
+pub fn shape_phasor(e: &EffectFit, knots: &[f64], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
+    match EffectId::parse(&e.id) {
+        Some(ids::temperature_drift::ID) => match temperatures(cap) {
+            Some((t, t_ref)) => (
+                (1.0 + rel_shape(knots, &e.lin, t, t_ref)).max(0.0),
+                rel_shape(knots, &e.nl, t, t_ref),
+            ),
+            None => (1.0, 0.0),
+        },
+        Some(ids::amplitude_phase_error::ID) if cap.illum => {
+            (1.0, rel_shape(knots, &e.nl, a_lsb.max(0.0), knots[0]))
+        }
+        _ => (1.0, 0.0),
+    }
+}
+
+/// The amplitude-phase error as a shape of the amplitude A (LSB):
+/// Δ = A·(C(x + Δφ(A)) − C(x)), nl = Δφ at knots 1.. (rad).
+struct AmpPhaseShape {
+    knots: Vec<f64>,
+    waveform: Waveform,
+}
+
+/// The temperature drift as shapes of T (°C): Δ = A·(1 + G)·C(x + Δφ) − A·C(x),
+/// nl = Δφ at knots 1.. (rad), lin = G at knots 1.. (both relative to the
+/// lab's reference temperature).
+struct DriftShape {
+    knots: Vec<f64>,
+    waveform: Waveform,
+}
+
+/// The hat weights of knots 1.. at `x` minus those at `x_ref`
+/// (`out`: one per knot after the first; at most [`MAX_KNOTS`] knots).
+fn rel_weights(knots: &[f64], x: f64, x_ref: f64, out: &mut [f64]) {
+    let n = knots.len().min(MAX_KNOTS);
+    let (mut a, mut b) = ([0.0; MAX_KNOTS], [0.0; MAX_KNOTS]);
+    law::hat_weights(&knots[..n], x, &mut a[..n]);
+    law::hat_weights(&knots[..n], x_ref, &mut b[..n]);
+    for (o, j) in out.iter_mut().zip(1..n) {
+        *o = a[j] - b[j];
+    }
+}
+
+/// The first-order screening of a phase shape: least squares of
+/// r = Σ_j v_j·A·C′·w_j + nuisance (offset, gain, phase) on a subsample,
+/// w the relative hat weights of the sample's driver.
+fn screen_phase(
+    n: usize,
+    recs: &[Sample],
+    prep: &Prepared,
+    weights: &dyn Fn(&Rec, &mut [f64]),
+) -> Option<Vec<f64>> {
+    let mut acc = tofprox_core::lsq::Normal::zeros(n + 3);
+    let (mut w, mut j) = (vec![0.0; n], vec![0.0; n + 3]);
+    for s in recs.iter().step_by((recs.len() / 60_000).max(1)) {
+        let r = s.rec(prep);
+        weights(&r, &mut w);
+        for i in 0..n {
+            j[i] = r.a * r.cd * w[i];
+        }
+        j[n..].copy_from_slice(&[1.0, r.a * r.c, r.a * r.cd]);
+        acc.add(&j, r.r, r.w);
+    }
+    acc.symmetrize();
+    let sol = tofprox_core::lsq::solve_sym(&acc.jtj, &acc.jtr)?;
+    Some(sol[..n].to_vec())
+}
+
+/// The screening's start and a stronger one (sin Δφ < Δφ: the first-order
+/// fit underestimates a strong phase).
+fn grid_from(start: Option<Vec<f64>>, n: usize) -> Vec<Vec<f64>> {
+    let mut g = vec![vec![0.0; n]];
+    if let Some(v) = start {
+        for f in [1.0, 1.25] {
+            g.push(v.iter().map(|x| f * x).collect());
+        }
+    }
+    g
+}
+
+impl Signature for AmpPhaseShape {
+    fn id(&self) -> &'static str {
+        ids::amplitude_phase_error::ID.as_str()
+    }
+    fn n_lin(&self) -> usize {
+        0
+    }
+    fn lin_names(&self) -> Vec<String> {
+        Vec::new()
+    }
+    fn nl_names(&self) -> Vec<String> {
+        self.knots[1..]
+            .iter()
+            .map(|k| format!("phase_rad_at_{k:.1}_lsb"))
+            .collect()
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![0.0; self.knots.len() - 1]
+    }
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
+        let k0 = self.knots[0];
+        let w = |r: &Rec, o: &mut [f64]| rel_weights(&self.knots, r.a, k0, o);
+        grid_from(
+            screen_phase(self.knots.len() - 1, recs, prep, &w),
+            self.knots.len() - 1,
+        )
+    }
+    fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
+    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        let dphi = rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0]);
+        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    }
+}
+
+impl DriftShape {
+    fn phase(&self, nl: &[f64], cap: &CapInfo) -> f64 {
+        temperatures(cap).map_or(0.0, |(t, t_ref)| rel_shape(&self.knots, nl, t, t_ref))
+    }
+}
+
+impl Signature for DriftShape {
+    fn id(&self) -> &'static str {
+        ids::temperature_drift::ID.as_str()
+    }
+    fn n_lin(&self) -> usize {
+        self.knots.len() - 1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        self.knots[1..]
+            .iter()
+            .map(|k| format!("gain_rel_at_{k:.2}_c"))
+            .collect()
+    }
+    fn nl_names(&self) -> Vec<String> {
+        self.knots[1..]
+            .iter()
+            .map(|k| format!("phase_rad_at_{k:.2}_c"))
+            .collect()
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        vec![0.0; self.knots.len() - 1]
+    }
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
+        let w = |r: &Rec, o: &mut [f64]| match temperatures(&prep.caps[r.cap as usize]) {
+            Some((t, t_ref)) => rel_weights(&self.knots, t, t_ref, o),
+            None => o.iter_mut().for_each(|x| *x = 0.0),
+        };
+        grid_from(
+            screen_phase(self.knots.len() - 1, recs, prep, &w),
+            self.knots.len() - 1,
+        )
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let c = r.a * self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0;
+        match temperatures(cap) {
+            Some((t, t_ref)) => rel_weights(&self.knots, t, t_ref, out),
+            None => out.iter_mut().for_each(|x| *x = 0.0),
+        }
+        out.iter_mut().for_each(|o| *o *= c);
+    }
+    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        r.a * (self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0 - r.c)
+    }
+}
+
+/// The shape-form signature of effect `id` with `knots` in the lab's driver
+/// units (amplitude: LSB; temperature: °C); `None` when it has no shape form.
+pub fn make_shape_signature(
+    id: &str,
+    knots: &[f64],
+    waveform: &Waveform,
+) -> Option<Box<dyn Signature>> {
+    let (knots, waveform) = (knots.to_vec(), waveform.clone());
+    match EffectId::parse(id)? {
+        ids::amplitude_phase_error::ID => Some(Box::new(AmpPhaseShape { knots, waveform })),
+        ids::temperature_drift::ID => Some(Box::new(DriftShape { knots, waveform })),
+        _ => None,
+    }
+}
+
+/// `k` knots of effect `id`'s driver in the recording, or `None` when it has
+/// fewer than `k` distinct values: the amplitude at evenly spaced quantiles
+/// (2 % … 98 %) of its phase information w·A²; the temperature at evenly
+/// spaced ranks of the illuminated captures' distinct temperatures, the
+/// coldest and the warmest included (at most as many knots as temperatures).
+pub fn knots_at_quantiles(
+    id: &str,
+    k: usize,
+    recs: &[Sample],
+    prep: &Prepared,
+) -> Option<Vec<f64>> {
+    let qs: Vec<f64> = (0..k)
+        .map(|i| 0.02 + 0.96 * i as f64 / (k - 1).max(1) as f64)
+        .collect();
+    match EffectId::parse(id)? {
+        ids::amplitude_phase_error::ID => {
+            // where the data pin a phase law: its information per sample is
+            // w·(A·C′)² ∝ w·A², so the knots sit at quantiles of the
+            // amplitude weighted by w·A² (dense where the bright samples are)
+            let mut a: Vec<(f64, f64)> = recs
+                .iter()
+                .step_by((recs.len() / 20_000).max(1))
+                .filter(|r| r.a > 0.0)
+                .map(|r| (f64::from(r.a), f64::from(r.w) * f64::from(r.a).powi(2)))
+                .collect();
+            a.sort_by(|x, y| x.0.total_cmp(&y.0));
+            let total: f64 = a.iter().map(|x| x.1).sum();
+            let mut q = Vec::with_capacity(k);
+            let mut acc = 0.0;
+            let mut next = qs.iter().peekable();
+            for (v, w) in a {
+                acc += w;
+                while next.peek().is_some_and(|&&l| acc >= l * total) {
+                    q.push(v);
+                    next.next();
+                }
+            }
+            strictly_increasing(q, k)
+        }
+        ids::temperature_drift::ID => {
+            let mut t: Vec<f64> = prep
+                .caps
+                .iter()
+                .filter(|c| c.illum && c.used)
+                .filter_map(|c| c.temperature_c)
+                .collect();
+            t.sort_by(f64::total_cmp);
+            t.dedup();
+            // few recorded temperatures: the extremes are knots (the law is
+            // flat beyond them), the others at evenly spaced ranks; at most
+            // one knot per temperature (then the shape is any monotone law)
+            let k = k.min(t.len());
+            let ranks: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64).collect();
+            strictly_increasing(quantiles(t, &ranks), k)
+        }
+        _ => None,
+    }
+}
+
+fn strictly_increasing(mut q: Vec<f64>, k: usize) -> Option<Vec<f64>> {
+    q.dedup();
+    (q.len() == k && law::check_knots(&q).is_ok()).then_some(q)
+}
+
+/// One form's cross-validation score.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FormScore {
+    /// `physical` or `shape_<K>_knots`.
+    pub form: String,
+    /// Σ over held-out blocks of χ² with every parameter of the form fitted
+    /// on the other blocks ([`cv_refit`]).
+    pub cv_chi2: f64,
+}
+
+/// The form chosen for one effect and what it was chosen from.
+pub struct FormChoice {
+    /// Knots of the chosen shape (`None`: the parametric form).
+    pub knots: Option<Vec<f64>>,
+    /// The chosen form's fit.
+    pub fit: SignatureFit,
+    /// Its signature.
+    pub signature: Box<dyn Signature>,
+    /// Every form tried, in order.
+    pub scores: Vec<FormScore>,
+}
+
+/// Fit effect `id`'s parametric form and (when it has one) its shape form
+/// with each of [`KNOT_COUNTS`] knots to the residuals `recs`, and keep the
+/// one that predicts held-out blocks best (only where the physical form
+/// explains at least [`MIN_SHARE_FOR_FORMS`] of the excess χ²: else it is
+/// not the effect missing, and `scores` stays empty). The parametric form is kept
+/// unless a shape's held-out χ² is lower by more than 1 % of what the
+/// parametric form explains there (and 2 per extra parameter): a law the
+/// physics fixes is not traded for a look-alike within the noise.
+pub fn choose_form(
+    id: &str,
+    prep: &Prepared,
+    spec: &LabSpec,
+    waveform: &Waveform,
+    recs: &[Sample],
+) -> Result<FormChoice, LabError> {
+    let mut plain = spec.clone();
+    plain.shapes.remove(id);
+    let sig = make_signature(id, prep, &plain, waveform)?;
+    let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
+    // an effect whose physical form explains little of the excess is not the
+    // one missing: its forms are not compared (the screening's cost)
+    let excess = fit.chi2_before - recs.len() as f64;
+    if !has_shape_form(id)
+        || spec.held.iter().any(|h| h.id == id)
+        || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
+    {
+        return Ok(FormChoice {
+            knots: None,
+            fit,
+            signature: sig,
+            scores: Vec::new(),
+        });
+    }
+    let (cv, cv_before) = cv_refit(sig.as_ref(), recs, prep, &fit)?;
+    let physical = FormChoice {
+        knots: None,
+        fit,
+        signature: sig,
+        scores: vec![FormScore {
+            form: PHYSICAL_FORM.into(),
+            cv_chi2: cv,
+        }],
+    };
+    Ok(best_shape(
+        id,
+        prep,
+        waveform,
+        recs,
+        physical,
+        (cv_before - cv).max(0.0),
+    ))
+}
+
+/// `physical` (scored, explaining `gain` of the held-out χ²) against the
+/// shapes with each of [`KNOT_COUNTS`] knots: the best by held-out χ² under
+/// the margins of [`choose_form`], every form's score in its `scores`.
+fn best_shape(
+    id: &str,
+    prep: &Prepared,
+    waveform: &Waveform,
+    recs: &[Sample],
+    physical: FormChoice,
+    gain: f64,
+) -> FormChoice {
+    let mut scores = physical.scores.clone();
+    let mut best_cv = scores[0].cv_chi2;
+    let mut best = physical;
+    for &k in KNOT_COUNTS {
+        // (fewer knots where the driver has fewer values: each K once)
+        let Some(knots) = knots_at_quantiles(id, k, recs, prep)
+            .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
+        else {
+            continue;
+        };
+        let Some((f, s, c)) = try_shape(id, &knots, prep, waveform, recs) else {
+            continue;
+        };
+        scores.push(FormScore {
+            form: shape_form_name(knots.len()),
+            cv_chi2: c,
+        });
+        let extra = f.n_params.saturating_sub(best.fit.n_params) as f64;
+        let margin = if best.knots.is_none() {
+            (0.01 * gain).max(2.0 * extra)
+        } else {
+            2.0 * extra
+        };
+        if c < best_cv - margin {
+            best_cv = c;
+            best = FormChoice {
+                knots: Some(knots),
+                fit: f,
+                signature: s,
+                scores: Vec::new(),
+            };
+        }
+    }
+    best.scores = scores;
+    best
+}
+
+/// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
+/// signature and held-out χ² ([`cv_refit`]); `None` when it cannot be fitted.
+fn try_shape(
+    id: &str,
+    knots: &[f64],
+    prep: &Prepared,
+    waveform: &Waveform,
+    recs: &[Sample],
+) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
+    let s = make_shape_signature(id, knots, waveform)?;
+    let f = fit_signature(s.as_ref(), recs, prep, None).ok()?;
+    let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
+    Some((f, s, c))
+}
+
+/// The least share of the residual's excess χ² (χ² − samples) the physical
+/// form must explain for the forms to be compared.
+const MIN_SHARE_FOR_FORMS: f64 = 0.05;
+
+/// The name of the chosen form of `knots` (`physical` for none).
+pub fn form_name(knots: Option<&Vec<f64>>) -> String {
+    knots.map_or_else(|| PHYSICAL_FORM.to_string(), |k| shape_form_name(k.len()))
+}
+
+/// The model file's shape of effect `id` (`fit` in the lab's form with
+/// `knots`): knots in the model's units (amplitude: LSB ÷ `code_per_e` =
+/// electrons; temperature: °C) and the values relative to the lab's
+/// reference `temp_ref_c` (drift) — each curve projected onto the nearest
+/// monotone one (`law::monotone_projection`), as the model requires.
+pub fn model_shape(
+    id: &str,
+    knots: &[f64],
+    fit: &EffectFit,
+    code_per_e: f64,
+    temp_ref_c: f64,
+) -> Option<law::EffectShape> {
+    let with0 = |c: &[f64]| -> Vec<f64> { std::iter::once(0.0).chain(c.iter().copied()).collect() };
+    match EffectId::parse(id)? {
+        ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some(law::EffectShape {
+            knots: knots.iter().map(|k| k / code_per_e).collect(),
+            curves: vec![(
+                law::AMPLITUDE_PHASE_RAD,
+                law::monotone_projection(&with0(&fit.nl)),
+            )],
+        }),
+        ids::temperature_drift::ID => {
+            // relative to T_ref: G(T_ref) = 0 makes the file's 1 + G(T) the lab's factor
+            let at_ref = |c: &[f64]| {
+                let v = with0(c);
+                let r = law::eval(knots, &v, temp_ref_c);
+                law::monotone_projection(&v.iter().map(|x| x - r).collect::<Vec<_>>())
+            };
+            Some(law::EffectShape {
+                knots: knots.to_vec(),
+                curves: vec![
+                    (law::DRIFT_PHASE_RAD, at_ref(&fit.nl)),
+                    (law::DRIFT_GAIN_REL, at_ref(&fit.lin)),
+                ],
+            })
+        }
+        _ => None,
+    }
+}
+
+/// The lab's knots and (lin, nl) of the model file's shape `s` of effect
+/// `id` (the inverse of [`model_shape`]): values relative to the first
+/// knot's; the drift's gain divided by the file's 1 + G(T_ref) (the lab's
+/// factor is relative to its reference temperature `temp_ref_c`).
+pub fn held_shape(
+    id: EffectId,
+    s: &law::EffectShape,
+    code_per_e: f64,
+    temp_ref_c: f64,
+) -> Option<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+    let curve = |key: &str| -> Vec<f64> {
+        s.curves
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone())
+    };
+    if s.knots.len() > MAX_KNOTS {
+        return None;
+    }
+    let rel =
+        |v: &[f64], scale: f64| -> Vec<f64> { v[1..].iter().map(|x| (x - v[0]) / scale).collect() };
+    match id {
+        ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some((
+            s.knots.iter().map(|k| k * code_per_e).collect(),
+            Vec::new(),
+            rel(&curve(law::AMPLITUDE_PHASE_RAD), 1.0),
+        )),
+        ids::temperature_drift::ID => {
+            let g = curve(law::DRIFT_GAIN_REL);
+            let g_ref = (1.0 + law::eval(&s.knots, &g, temp_ref_c)).max(1e-9);
+            Some((
+                s.knots.clone(),
+                rel(&g, g_ref),
+                rel(&curve(law::DRIFT_PHASE_RAD), 1.0),
+            ))
+        }
+        _ => None,
+    }
+}
+
+/// The lab's knots of every enabled effect the model file gives as a shape
+/// (`code_per_e`: the file's output codes per electron).
+pub fn spec_shapes(m: &tofprox_model::ModelConfig, code_per_e: f64) -> BTreeMap<String, Vec<f64>> {
+    law::SHAPE_LAWS
+        .iter()
+        .filter(|l| m.is_enabled(l.effect))
+        .filter_map(|l| {
+            let s = m.shape(l.effect)?;
+            let (knots, _, _) = held_shape(l.effect, s, code_per_e, 0.0)?;
+            Some((l.effect.as_str().to_string(), knots))
+        })
+        .collect()
+}
