@@ -486,7 +486,8 @@ impl<T: UsbTransport> SensorDriver<T> {
         self.clock.sleep(us(b.pll_settle_us));
         self.write_reg(b.ctrl[0], b.ctrl[1])
             .ctx(|| "bring-up: imager CTRL")?;
-        self.write_reg(b.en[0], b.en[1]).ctx(|| "bring-up: imager EN")?;
+        self.write_reg(b.en[0], b.en[1])
+            .ctx(|| "bring-up: imager EN")?;
         self.clock.sleep(us(b.enable_settle_us));
         Ok(())
     }

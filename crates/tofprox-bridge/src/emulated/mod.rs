@@ -19,8 +19,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-pub use bringup::{BusEvent, BusTrace, TraceEvent};
 use bringup::BringUpMonitor;
+pub use bringup::{BusEvent, BusTrace, TraceEvent};
 pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource, TimingModel};
 use synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 
