@@ -401,33 +401,27 @@ fn broken_bring_up(edit: impl FnOnce(&mut DriverConfig)) -> (ErrorKind, Vec<Stri
     (e.kind(), why)
 }
 
+/// An edit of the driver's configuration.
+type Edit = fn(&mut DriverConfig);
+
+/// What the sensor refuses, and the edit of the driver's map that makes the driver do it.
+const BROKEN: [(&str, Edit); 4] = [
+    ("before the PLL settled", |c| {
+        c.map.bring_up.as_mut().unwrap().pll_settle_us = 0;
+    }),
+    ("EN (0xb400) before CTRL", |c| {
+        let b = c.map.bring_up.as_mut().unwrap();
+        (b.ctrl, b.en) = (b.en, b.ctrl);
+    }),
+    ("before the imager settled", |c| {
+        c.map.bring_up.as_mut().unwrap().enable_settle_us = 0;
+    }),
+    ("imager not enabled", |c| c.map.bring_up = None),
+];
+
 #[test]
 fn a_bring_up_out_of_order_or_too_fast_is_refused_by_the_sensor() {
-    let bring_up = |c: &mut DriverConfig| c.map.bring_up.as_mut().unwrap().clone();
-    let cases: [(&str, Box<dyn FnOnce(&mut DriverConfig)>); 4] = [
-        (
-            "before the PLL settled",
-            Box::new(|c| {
-                c.map.bring_up.as_mut().unwrap().pll_settle_us = 0;
-            }),
-        ),
-        (
-            "EN (0xb400) before CTRL",
-            Box::new(move |c| {
-                let mut b = bring_up(c);
-                (b.ctrl, b.en) = (b.en, b.ctrl);
-                c.map.bring_up = Some(b);
-            }),
-        ),
-        (
-            "before the imager settled",
-            Box::new(|c| {
-                c.map.bring_up.as_mut().unwrap().enable_settle_us = 0;
-            }),
-        ),
-        ("imager not enabled", Box::new(|c| c.map.bring_up = None)),
-    ];
-    for (want, edit) in cases {
+    for (want, edit) in BROKEN {
         let (kind, why) = broken_bring_up(edit);
         assert_eq!(kind, ErrorKind::Timeout, "{want}");
         assert!(why.iter().any(|w| w.contains(want)), "{want}: {why:?}");
