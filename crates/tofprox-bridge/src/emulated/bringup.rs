@@ -11,7 +11,8 @@ use serde::Serialize;
 
 use crate::regmap::{BringUp, RegWrite};
 
-/// Most events one cycle's trace keeps (a flash write adds ~10 register writes per page).
+/// Most events one cycle's trace keeps (writing the flash adds ~140 register writes per 256-byte
+/// page: the SPI TX window, its length and trigger).
 pub const TRACE_CAP: usize = 8192;
 
 /// What reached the sensor.

@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use bringup::BringUpMonitor;
-pub use bringup::{BusEvent, BusTrace, TraceEvent};
+pub use bringup::{BusEvent, TraceEvent};
 pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource, TimingModel};
 use synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 
