@@ -1,6 +1,7 @@
 //! Layer 3: the sensor driver. One [`SensorDriver::cycle`] is one proximity
 //! reading of the thesis's low-power loop (3.5.3, fig. 3.23, listing 4.11):
-//! restart (reset low → high) → minimum configuration over I2C → load the
+//! restart (reset low → high) → minimum configuration over I2C (PLL; with the
+//! map's `[bring_up]`: wait, imager `CTRL` then `EN`, wait) → load the
 //! configuration from flash (write it if missing or corrupt) → set exposure
 //! times (the flash image overwrites them every time) → start → read K raw
 //! frames → stop measurement → stop sensor (reset low).
@@ -308,9 +309,8 @@ impl<T: UsbTransport> SensorDriver<T> {
     /// [`power_off`](Self::power_off) afterwards).
     pub fn bring_up(&mut self) -> Result<(), BridgeError> {
         self.recover()?;
-        let minimum = self.cfg.map.sequences.minimum.clone();
         self.restart()
-            .and_then(|()| self.write_seq(&minimum).ctx(|| "minimum configuration"))
+            .and_then(|()| self.configure_imager())
             .inspect_err(|e| self.after_error(e))
     }
 
@@ -474,6 +474,24 @@ impl<T: UsbTransport> SensorDriver<T> {
         )
     }
 
+    /// The minimum configuration (clocks, PLL) and, for a map with `[bring_up]`, the imager
+    /// bring-up of the public record (`docs/bridge.md`, "Public facts"): wait for the PLL,
+    /// `CTRL` then `EN`, wait for the imager. The waits sleep on the injected clock.
+    fn configure_imager(&mut self) -> Result<(), BridgeError> {
+        let minimum = self.cfg.map.sequences.minimum.clone();
+        self.write_seq(&minimum).ctx(|| "minimum configuration")?;
+        let Some(b) = self.cfg.map.bring_up.clone() else {
+            return Ok(());
+        };
+        self.clock.sleep(us(b.pll_settle_us));
+        self.write_reg(b.ctrl[0], b.ctrl[1])
+            .ctx(|| "bring-up: imager CTRL")?;
+        self.write_reg(b.en[0], b.en[1])
+            .ctx(|| "bring-up: imager EN")?;
+        self.clock.sleep(us(b.enable_settle_us));
+        Ok(())
+    }
+
     fn cycle_inner(&mut self, req: &CycleRequest) -> Result<CycleOutput, BridgeError> {
         let clock = Arc::clone(&self.clock);
         let t0 = clock.now();
@@ -484,9 +502,8 @@ impl<T: UsbTransport> SensorDriver<T> {
         let t1 = clock.now();
         timings.startup = t1 - t0;
 
-        // 2. minimum configuration
-        let minimum = self.cfg.map.sequences.minimum.clone();
-        self.write_seq(&minimum).ctx(|| "minimum configuration")?;
+        // 2. minimum configuration (PLL), the imager enabled
+        self.configure_imager()?;
 
         // 3. load from flash, write it if missing
         let mut flash_written = false;

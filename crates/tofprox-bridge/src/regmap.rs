@@ -87,6 +87,27 @@ pub struct Sequences {
     pub stop_measurement: Vec<RegWrite>,
 }
 
+/// The imager bring-up after the PLL registers (`sequences.minimum`), as the public record gives
+/// it for IRS16x5 parts (Infineon's Strata SDK; `docs/bridge.md`, "Public facts"): reset pulsed
+/// low, the PLL registers, wait for the PLL, the imager state machine's `CTRL` then `EN`, wait.
+/// The order, the addresses and the waits are public; the values written are the map's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BringUp {
+    /// Shortest low pulse on the (open-drain) reset pin that resets the sensor, µs.
+    pub reset_low_us: u64,
+    /// Wait after the PLL registers before `ctrl`, µs (the PLL settles).
+    pub pll_settle_us: u64,
+    /// The imager state machine's `CTRL` write, written first.
+    #[serde(deserialize_with = "tofprox_core::serde_exact::array")]
+    pub ctrl: RegWrite,
+    /// The imager state machine's `EN` write, written after `ctrl`.
+    #[serde(deserialize_with = "tofprox_core::serde_exact::array")]
+    pub en: RegWrite,
+    /// Wait after `en` before the measurement may start, µs.
+    pub enable_settle_us: u64,
+}
+
 /// Per-raw-image registers: raw image `k` uses `base + k`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -213,6 +234,10 @@ pub struct SensorMap {
     pub sensor: SensorSection,
     /// Fixed sequences.
     pub sequences: Sequences,
+    /// The imager bring-up after the PLL registers (absent: none, the minimum configuration
+    /// is the whole bring-up).
+    #[serde(default)]
+    pub bring_up: Option<BringUp>,
     /// Per-raw-image registers.
     pub raw: RawImageRegs,
     /// Row window (absent: the sensor reads the full array only).
@@ -292,6 +317,7 @@ impl SensorMap {
                 count_register: 0x9060,
                 max_count: 24,
             },
+            bring_up: None,
             row_window: None,
             modulation: None,
             flash: FlashRegs {
@@ -332,6 +358,9 @@ impl SensorMap {
         }
         if let Some(m) = &self.modulation {
             validate_modulation(m, s.modulation_hz).or_else(|why| bad("modulation", why))?;
+        }
+        if let Some(b) = &self.bring_up {
+            validate_bring_up(b, &self.sequences.minimum).or_else(|why| bad("bring_up", why))?;
         }
         self.validate_use_cases()
     }
@@ -593,6 +622,30 @@ fn validate_modulation(m: &ModulationRegs, own_hz: f64) -> Result<(), String> {
     if !m.frequencies_hz.iter().any(|&f| (f - own_hz).abs() < 1.0) {
         return Err(format!(
             "frequencies_hz must include sensor.modulation_hz {own_hz}"
+        ));
+    }
+    Ok(())
+}
+
+/// The checks of a `[bring_up]` section: waits up to 1 s, a reset pulse of 1 µs to 1 s, `ctrl`
+/// and `en` two registers apart from the PLL registers they follow.
+fn validate_bring_up(b: &BringUp, minimum: &[RegWrite]) -> Result<(), String> {
+    for (k, v, least) in [
+        ("reset_low_us", b.reset_low_us, 1),
+        ("pll_settle_us", b.pll_settle_us, 0),
+        ("enable_settle_us", b.enable_settle_us, 0),
+    ] {
+        if !(least..=1_000_000).contains(&v) {
+            return Err(format!("{k} = {v} outside {least}..=1000000 µs"));
+        }
+    }
+    let (ctrl, en) = (b.ctrl[0], b.en[0]);
+    if ctrl == en {
+        return Err(format!("ctrl and en are both register {ctrl:#06x}"));
+    }
+    if let Some([r, _]) = minimum.iter().find(|[r, _]| *r == ctrl || *r == en) {
+        return Err(format!(
+            "register {r:#06x} is both a PLL register (sequences.minimum) and ctrl/en"
         ));
     }
     Ok(())

@@ -115,4 +115,33 @@ fn shipped_map_follows_the_public_facts() {
         );
     }
     assert!(m.sequences.flash_image.iter().all(|[r, _]| *r != LPFSMEN));
+
+    // the imager bring-up: reset pulsed ~2 µs; PLL registers, wait 2 ms, CTRL (0xB401) then
+    // EN (0xB400), wait 2 ms — addresses and waits public, the values written ours
+    const EN: u16 = 0xB400;
+    const CTRL: u16 = 0xB401;
+    let b = m.bring_up.as_ref().expect("the shipped map has [bring_up]");
+    assert_eq!((b.ctrl[0], b.en[0]), (CTRL, EN));
+    assert_eq!((b.pll_settle_us, b.enable_settle_us), (2000, 2000));
+    assert_eq!(b.reset_low_us, 2);
+    let pulse_us = DriverConfig::emulated_default().timing.reset_low_us;
+    assert!(
+        (2..=10).contains(&pulse_us),
+        "reset pulse {pulse_us} µs, ~2 µs public"
+    );
+    let (_, dev) = DeviceConfigFile::load(&config_dir().join("sensor/device.toml")).unwrap();
+    assert_eq!(dev.timing.reset_low_us, 2, "config/sensor/device.toml");
+    for seq in [&m.sequences.minimum, &m.sequences.flash_image] {
+        assert!(seq.iter().all(|[r, _]| *r != EN && *r != CTRL));
+    }
+    // the driver refuses a reset pulse shorter than the sensor's
+    let mut short = DriverConfig::emulated_default();
+    short.timing.reset_low_us = 1;
+    let e = short.validate().unwrap_err();
+    assert!(e.to_string().contains("timing.reset_low_us"), "{e}");
+    // a map naming one register for both is refused
+    let bad = tofprox_bridge::regmap::EMULATED_MAP_TOML
+        .replace("en = [0xB400, 0x0001]", "en = [0xB401, 0x0001]");
+    let e = tofprox_bridge::SensorMap::from_toml_str(&bad, "x").unwrap_err();
+    assert!(e.to_string().contains("bring_up"), "{e}");
 }

@@ -2,7 +2,9 @@
 
 use std::sync::Arc;
 
-use tofprox_bridge::emulated::{EmulatedConfig, FaultKind, FrameSource};
+use std::time::Duration;
+
+use tofprox_bridge::emulated::{BusEvent, EmulatedConfig, FaultKind, FrameSource, TraceEvent};
 use tofprox_bridge::{
     Algorithm, Clock, CycleRequest, DriverConfig, EmulatedDevice, ErrorKind, RowWindow,
     SensorDriver, SensorMode, VirtualClock,
@@ -302,4 +304,147 @@ fn unplugged_device_is_not_found_until_replugged() {
     d.cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
         .unwrap();
     assert_eq!(d.stats().reopens, 1);
+}
+
+// The public record's IRS16x5 bring-up (docs/bridge.md, "Public facts"), written here from the
+// facts, not from the map: the imager state machine's EN/CTRL, LPFSMEN's start value.
+const EN: u16 = 0xB400;
+const CTRL: u16 = 0xB401;
+const LPFSMEN: u16 = 0x9000;
+const LPFSMEN_START: u16 = 5;
+
+/// Clock time of the first write to `reg` (with `value`, when given) in the trace.
+fn written_at(trace: &[TraceEvent], reg: u16, value: Option<u16>) -> (usize, Duration) {
+    trace
+        .iter()
+        .enumerate()
+        .find_map(|(i, e)| match e.event {
+            BusEvent::Write { reg: r, value: v } if r == reg && value.is_none_or(|w| w == v) => {
+                Some((i, e.at))
+            }
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("no write to {reg:#06x} in the trace"))
+}
+
+#[test]
+fn bring_up_follows_the_public_order_and_waits() {
+    let (mut d, _c) = driver(fast(), 5);
+    let two = req(SensorMode::Depth(Algorithm::TwoPhase), 300.0);
+    d.cycle(&two).unwrap();
+    let o = d.cycle(&two).unwrap(); // the flash holds the image: a cycle as the loop runs it
+    let dev = d.transport();
+    assert!(
+        dev.bring_up_violations().is_empty(),
+        "{:?}",
+        dev.bring_up_violations()
+    );
+    let tr = dev.bus_trace();
+    // the reset pulse: commanded low, released ≥ 2 µs later (~2 µs: not the old 100 µs)
+    assert_eq!(
+        (tr[0].event, tr[1].event),
+        (BusEvent::ResetLow, BusEvent::ResetReleased)
+    );
+    let pulse = tr[1].at - tr[0].at;
+    assert!(
+        pulse >= Duration::from_micros(2) && pulse < Duration::from_micros(10),
+        "{pulse:?}"
+    );
+    // the PLL registers, then 2 ms, CTRL, EN, 2 ms, and only then the sequencer starts
+    let pll = d.config().map.sequences.minimum.clone();
+    let (i_pll, t_pll) = pll
+        .iter()
+        .map(|[r, v]| written_at(tr, *r, Some(*v)))
+        .max()
+        .unwrap();
+    let (i_ctrl, t_ctrl) = written_at(tr, CTRL, None);
+    let (i_en, t_en) = written_at(tr, EN, None);
+    let (i_start, t_start) = written_at(tr, LPFSMEN, Some(LPFSMEN_START));
+    assert!(
+        i_pll < i_ctrl && i_ctrl < i_en && i_en < i_start,
+        "{i_pll} {i_ctrl} {i_en} {i_start}"
+    );
+    assert!(
+        t_ctrl - t_pll >= Duration::from_millis(2),
+        "{:?}",
+        t_ctrl - t_pll
+    );
+    assert!(
+        t_start - t_en >= Duration::from_millis(2),
+        "{:?}",
+        t_start - t_en
+    );
+    // the 4 ms of waits are configuration time of the cycle (energy: flash_load_mw)
+    assert!(
+        o.timings.config_load >= Duration::from_millis(4),
+        "{:?}",
+        o.timings
+    );
+    assert_eq!(dev.stats().bring_up_violations, 0);
+}
+
+/// A driver whose map's bring-up is changed by `edit` against the emulated sensor of the
+/// shipped map: its cycle fails, and the sensor says why.
+fn broken_bring_up(edit: impl FnOnce(&mut DriverConfig)) -> (ErrorKind, Vec<String>) {
+    let clock = Arc::new(VirtualClock::new());
+    let dev = EmulatedDevice::new(fast(), clock.clone(), 9).unwrap();
+    let mut cfg = DriverConfig::emulated_default();
+    edit(&mut cfg);
+    let mut d = SensorDriver::new(dev, cfg, clock).unwrap();
+    // the flash holds the image (its write would outlast any wait before the start)
+    d.bring_up().unwrap();
+    d.flash_write().unwrap();
+    let two = req(SensorMode::Depth(Algorithm::TwoPhase), 300.0);
+    let e = d.cycle(&two).unwrap_err();
+    let why = d.transport().bring_up_violations().to_vec();
+    assert!(d.transport().stats().bring_up_violations >= 1);
+    (e.kind(), why)
+}
+
+/// An edit of the driver's configuration.
+type Edit = fn(&mut DriverConfig);
+
+/// What the sensor refuses, and the edit of the driver's map that makes the driver do it.
+const BROKEN: [(&str, Edit); 4] = [
+    ("before the PLL settled", |c| {
+        c.map.bring_up.as_mut().unwrap().pll_settle_us = 0;
+    }),
+    ("EN (0xb400) before CTRL", |c| {
+        let b = c.map.bring_up.as_mut().unwrap();
+        (b.ctrl, b.en) = (b.en, b.ctrl);
+    }),
+    ("before the imager settled", |c| {
+        c.map.bring_up.as_mut().unwrap().enable_settle_us = 0;
+    }),
+    ("imager not enabled", |c| c.map.bring_up = None),
+];
+
+#[test]
+fn a_bring_up_out_of_order_or_too_fast_is_refused_by_the_sensor() {
+    for (want, edit) in BROKEN {
+        let (kind, why) = broken_bring_up(edit);
+        assert_eq!(kind, ErrorKind::Timeout, "{want}");
+        assert!(why.iter().any(|w| w.contains(want)), "{want}: {why:?}");
+    }
+}
+
+#[test]
+fn a_reset_pulse_too_short_is_refused_by_the_sensor() {
+    // a driver that knows no bring-up and does not hold reset low: its first cycle fails
+    // (imager not enabled) and leaves the sensor in reset; the next releases it at once
+    let clock = Arc::new(VirtualClock::new());
+    let dev = EmulatedDevice::new(fast(), clock.clone(), 3).unwrap();
+    let mut cfg = DriverConfig::emulated_default();
+    cfg.map.bring_up = None;
+    cfg.timing.reset_low_us = 0;
+    let mut d = SensorDriver::new(dev, cfg, clock).unwrap();
+    let two = req(SensorMode::Depth(Algorithm::TwoPhase), 300.0);
+    d.cycle(&two).unwrap_err();
+    d.cycle(&two).unwrap_err();
+    let why = d.transport().bring_up_violations();
+    assert!(
+        why.iter()
+            .any(|w| w.contains("reset released after 0 µs low")),
+        "{why:?}"
+    );
 }

@@ -300,9 +300,10 @@ fn two_phase_cycle_performs_exactly_the_thesis_sequence() {
     assert_eq!(o.frames[[1, 0, 0]], 2010);
     assert_eq!(o.frames[[0, 3, 15]], 2063);
     assert!(!o.flash_written);
-    // reset low 100 µs + start-up delay 1 ms + one 200 µs poll: all slept on the clock
-    assert_eq!(o.timings.startup, Duration::from_micros(1100));
-    assert!(clock.now() >= Duration::from_micros(1300));
+    // reset low 2 µs (the public record's pulse) + start-up delay 1 ms + one 200 µs poll: all
+    // slept on the clock (this map has no [bring_up]: no PLL/imager waits)
+    assert_eq!(o.timings.startup, Duration::from_micros(1002));
+    assert!(clock.now() >= Duration::from_micros(1202));
 }
 
 #[test]

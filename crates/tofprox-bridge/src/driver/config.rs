@@ -14,7 +14,8 @@ use crate::regmap::SensorMap;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DriverTiming {
-    /// Reset held low before release, µs.
+    /// Reset held low before release, µs (at least the map's `bring_up.reset_low_us`; the
+    /// public record pulses the IRS16x5's open-drain reset ~2 µs).
     pub reset_low_us: u64,
     /// Sleep after reset release before the first chip-id read, µs.
     pub startup_delay_us: u64,
@@ -40,7 +41,7 @@ pub struct DriverTiming {
 impl Default for DriverTiming {
     fn default() -> Self {
         DriverTiming {
-            reset_low_us: 100,
+            reset_low_us: 2,
             startup_delay_us: 1000,
             startup_timeout_ms: 20,
             poll_interval_us: 200,
@@ -116,6 +117,14 @@ impl DriverConfig {
         let t = &self.timing;
         if t.poll_interval_us == 0 {
             return Err(BridgeError::config("timing.poll_interval_us must be > 0"));
+        }
+        if let Some(b) = &self.map.bring_up
+            && t.reset_low_us < b.reset_low_us
+        {
+            return Err(BridgeError::config(format!(
+                "timing.reset_low_us = {} is shorter than the sensor's reset pulse, bring_up.reset_low_us = {}",
+                t.reset_low_us, b.reset_low_us
+            )));
         }
         let words = usize::from(self.map.spi.window_bytes) / 2;
         if words > usize::from(u16::MAX) - usize::from(self.map.spi.tx_base) {

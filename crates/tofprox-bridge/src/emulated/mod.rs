@@ -6,6 +6,7 @@
 //! timing model on the injected [`Clock`], and frames synthesised from a
 //! scene. Faults are injected per cycle (a cycle starts at reset release).
 
+pub mod bringup;
 pub mod config;
 pub mod synth;
 
@@ -18,6 +19,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
+use bringup::BringUpMonitor;
+pub use bringup::{BusEvent, TraceEvent};
 pub use config::{EmulatedConfig, FaultConfig, FaultKind, FaultSpec, FrameSource, TimingModel};
 use synth::{FrameSynth, IdealSynth, ModelSynth, RawParams};
 
@@ -48,6 +51,8 @@ pub struct EmulatedStats {
     pub flash_erases: u64,
     /// Flash page programs.
     pub flash_programs: u64,
+    /// Bring-up steps out of the map's `[bring_up]` order or waits (each refused a measurement).
+    pub bring_up_violations: u64,
 }
 
 #[derive(Debug, Default, Clone)]
@@ -107,6 +112,7 @@ pub struct EmulatedDevice {
     injected_this_cycle: Vec<FaultKind>,
     stats: EmulatedStats,
     last_meas_frames: Option<Vec<Vec<u16>>>,
+    bring_up: BringUpMonitor,
 }
 
 impl std::fmt::Debug for EmulatedDevice {
@@ -206,6 +212,7 @@ impl EmulatedDevice {
             _ => vec![0xFF; size],
         };
         let d = EmulatedDevice {
+            bring_up: BringUpMonitor::new(map.bring_up.clone(), &map.sequences.minimum),
             proto: cfg.protocol.clone(),
             flash_path: cfg.flash_file.clone(),
             cfg,
@@ -270,6 +277,18 @@ impl EmulatedDevice {
     /// Register value (tests, diagnostics).
     pub fn register(&self, reg: u16) -> u16 {
         self.regs[usize::from(reg)]
+    }
+
+    /// What reached the sensor in the current cycle: from the last reset-low command before
+    /// the reset release, every reset command and register write with its clock time.
+    pub fn bus_trace(&self) -> &[TraceEvent] {
+        self.bring_up.trace()
+    }
+
+    /// Why the sensor refused to measure in the current cycle: bring-up steps out of the
+    /// order or waits of the map's `[bring_up]` (empty: none).
+    pub fn bring_up_violations(&self) -> &[String] {
+        self.bring_up.violations()
     }
 
     /// Whether the sensor is held in reset.
@@ -356,6 +375,9 @@ impl EmulatedDevice {
     }
 
     fn enter_reset(&mut self) {
+        if self.released_at.is_some() {
+            self.bring_up.entered_reset(self.clock.now());
+        }
         self.released_at = None;
         self.regs.fill(0);
         self.meas = None;
@@ -448,6 +470,7 @@ impl EmulatedDevice {
 
     fn write_reg(&mut self, reg: u16, value: u16) -> Result<(), BridgeError> {
         self.regs[usize::from(reg)] = value;
+        self.bring_up.write(self.clock.now(), reg, value);
         let m = &self.map;
         let is_load = reg == m.flash.load_register && value == m.flash.load_value;
         let is_spi = reg == m.spi.trigger_register && value & 1 == 1;
@@ -579,6 +602,10 @@ impl EmulatedDevice {
             tracing::debug!(
                 "emulated sensor: start ignored (minimum config or flash load missing)"
             );
+            return;
+        }
+        if !self.bring_up.may_measure(self.clock.now()) {
+            self.stats.bring_up_violations += 1;
             return;
         }
         let raw = &self.map.raw;
@@ -799,9 +826,13 @@ impl UsbTransport for EmulatedDevice {
         if s.request == p.req_gpio {
             let high = s.index != 0;
             if s.value == p.gpio_reset {
+                if !high {
+                    self.bring_up.reset_commanded(self.clock.now());
+                }
                 match (self.released_at.is_some(), high) {
                     (false, true) => {
                         self.released_at = Some(self.clock.now());
+                        self.bring_up.released(self.clock.now());
                         self.new_cycle()?;
                     }
                     (true, false) => self.enter_reset(),
