@@ -57,6 +57,12 @@ impl Normal {
         }
         fixed!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20)
     }
+    /// [`Normal::add`] for a caller that knows `n` at compile time (`N == n`).
+    #[inline(always)]
+    pub fn add_n<const N: usize>(&mut self, j: &[f64; N], r: f64, w: f64) {
+        debug_assert_eq!(self.n, N);
+        self.add_fixed::<N>(j, r, w);
+    }
     /// [`Normal::add`] for `n == N`.
     #[inline(always)]
     fn add_fixed<const N: usize>(&mut self, j: &[f64], r: f64, w: f64) {

@@ -1153,7 +1153,7 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                         (0.0, 0.0)
                     };
                     let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
-                    nrm.add(&[1.0, law * cv, a * cd], r, w);
+                    nrm.add_n(&[1.0, law * cv, a * cd], r, w);
                 }
             }
             nrm.symmetrize();
