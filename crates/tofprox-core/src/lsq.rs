@@ -430,7 +430,13 @@ mod tests {
             let mut by_hand = vec![0.0; n * n];
             for s in 0..7 {
                 let j: Vec<f64> = (0..n)
-                    .map(|i| if (i + s) % 4 == 0 { 0.0 } else { ((i * 7 + s * 3) as f64).sin() })
+                    .map(|i| {
+                        if (i + s) % 4 == 0 {
+                            0.0
+                        } else {
+                            ((i * 7 + s * 3) as f64).sin()
+                        }
+                    })
                     .collect();
                 let (r, w) = (0.3 * s as f64 - 1.0, 1.0 + 0.1 * s as f64);
                 fast.add(&j, r, w);

@@ -120,9 +120,8 @@ fn accumulate(
                 memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                let d: f64 = sig.fixed(nl, r, cap)
-                    + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
-                    + dn;
+                let d: f64 =
+                    sig.fixed(nl, r, cap) + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);
                 for (i, step) in steps.iter().enumerate() {
