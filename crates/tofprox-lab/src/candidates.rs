@@ -75,6 +75,22 @@ const LM_STOP: Stop = Stop {
     rel_chi2: 0.0,
 };
 
+/// The finite-difference step h and the parameter vector nl + h·e_i of each
+/// of the first `nnl` non-linear parameters; `None` for a discrete one (held
+/// at its grid value: no derivative, no step).
+fn fd_steps(sig: &dyn Signature, nl: &[f64], nnl: usize) -> Vec<Option<(f64, Vec<f64>)>> {
+    (0..nnl)
+        .map(|i| {
+            (!sig.nl_discrete(i)).then(|| {
+                let h = 1e-4 * nl[i].abs().max(1e-2);
+                let mut nlh = nl.to_vec();
+                nlh[i] = nl[i] + h;
+                (h, nlh)
+            })
+        })
+        .collect()
+}
+
 /// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
 fn accumulate(
     sig: &dyn Signature,
@@ -91,19 +107,7 @@ fn accumulate(
     let (lin_all, nl) = p.split_at(nlin);
     let (lin, nui) = lin_all.split_at(nsig);
     let chunk = 8192;
-    // the finite-difference step h and the parameter vector nl + h·e_i of
-    // each refined non-linear parameter (a discrete one is held at its grid
-    // value: no derivative, no step)
-    let steps: Vec<Option<(f64, Vec<f64>)>> = (0..nnl)
-        .map(|i| {
-            (!sig.nl_discrete(i)).then(|| {
-                let h = 1e-4 * nl[i].abs().max(1e-2);
-                let mut nlh = nl.to_vec();
-                nlh[i] = nl[i] + h;
-                (h, nlh)
-            })
-        })
-        .collect();
+    let steps = fd_steps(sig, nl, nnl);
     let parts: Vec<Vec<Normal>> = recs
         .par_chunks(chunk * stride)
         .map(|ch| {
