@@ -97,6 +97,22 @@ const LM_STOP: Stop = Stop {
     rel_chi2: 0.0,
 };
 
+/// The finite-difference step h and the parameter vector nl + h·e_i of each
+/// of the first `nnl` non-linear parameters; `None` for a discrete one (held
+/// at its grid value: no derivative, no step).
+fn fd_steps(sig: &dyn Signature, nl: &[f64], nnl: usize) -> Vec<Option<(f64, Vec<f64>)>> {
+    (0..nnl)
+        .map(|i| {
+            (!sig.nl_discrete(i)).then(|| {
+                let h = 1e-4 * nl[i].abs().max(1e-2);
+                let mut nlh = nl.to_vec();
+                nlh[i] = nl[i] + h;
+                (h, nlh)
+            })
+        })
+        .collect()
+}
+
 /// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
 fn accumulate(
     sig: &dyn Signature,
@@ -113,6 +129,7 @@ fn accumulate(
     let (lin_all, nl) = p.split_at(nlin);
     let (lin, nui) = lin_all.split_at(nsig);
     let chunk = 8192;
+    let steps = fd_steps(sig, nl, nnl);
     let parts: Vec<Vec<Normal>> = recs
         .par_chunks(chunk * stride)
         .map(|ch| {
@@ -120,7 +137,6 @@ fn accumulate(
             let mut b = vec![0.0; nsig];
             let mut b2 = vec![0.0; nsig];
             let mut j = vec![0.0; n];
-            let mut nlh = nl.to_vec();
             // one memo per parameter vector: nl and each finite-difference step
             let mut memo = ImageMemo::default();
             let mut memo_h = vec![ImageMemo::default(); nnl];
@@ -129,25 +145,20 @@ fn accumulate(
                 let cap = &prep.caps[r.cap as usize];
                 memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
-                let d: f64 = sig.fixed(nl, r, cap)
-                    + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
-                    + nu.iter().zip(nui).map(|(x, y)| x * y).sum::<f64>();
+                let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
+                let d: f64 =
+                    sig.fixed(nl, r, cap) + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);
-                let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                for i in 0..nnl {
-                    if sig.nl_discrete(i) {
-                        // held at its grid value: no derivative, no step
+                for (i, step) in steps.iter().enumerate() {
+                    let Some((h, nlh)) = step else {
                         j[nlin + i] = 0.0;
                         continue;
-                    }
-                    let h = 1e-4 * nl[i].abs().max(1e-2);
-                    nlh[i] = nl[i] + h;
-                    memo_h[i].basis(sig, &nlh, r, cap, &mut b2);
-                    let d2: f64 = sig.fixed(&nlh, r, cap)
+                    };
+                    memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                    let d2: f64 = sig.fixed(nlh, r, cap)
                         + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
                         + dn;
-                    nlh[i] = nl[i];
                     j[nlin + i] = (d2 - d) / h;
                 }
                 acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);

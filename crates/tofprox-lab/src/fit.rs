@@ -470,6 +470,10 @@ pub struct LabModel {
     pub gain_median: f64,
 }
 
+/// Amplitude A (LSB), phase φ (rad) and noise variance (LSB²) of a pixel in a
+/// capture under a lab model ([`LabModel::rec`]: the same for all raw images).
+type PixelState = (f64, f64, f64);
+
 /// Progress callback: (stage name, fraction done).
 pub type Progress<'a> = &'a (dyn Fn(&str, f64) + Sync);
 
@@ -477,7 +481,7 @@ impl LabModel {
     /// Amplitude a = g_p·law, phase φ_tof + φ_p and noise variance of pixel p in
     /// capture `cap` under this model (effects excluded).
     #[inline]
-    fn amp_phase_var(&self, cap: &CapInfo, p: usize) -> (f64, f64, f64) {
+    fn amp_phase_var(&self, cap: &CapInfo, p: usize) -> PixelState {
         let (f, dphi) = self.phasor_shift(cap, p);
         let a = self.gain[p] * cap.law * f;
         let phi = cap.phi_tof + self.phase[p] + dphi;
@@ -507,15 +511,31 @@ impl LabModel {
         let cap = &prep.caps[c];
         let x = cap.phi_tof + self.phasor_shift(cap, p).1 + self.phase[p] - cap.theta_rad[k];
         let (s, co) = x.sin_cos();
-        self.rec_at(prep, c, k, p, (co, s))
+        self.rec_at(prep, c, k, p, (co, s), self.amp_phase_var(cap, p))
+    }
+
+    /// (A, φ, σ²) of every pixel in capture `cap` (what all its raw images share).
+    fn pixel_states(&self, cap: &CapInfo) -> Vec<PixelState> {
+        (0..self.phase.len())
+            .map(|p| self.amp_phase_var(cap, p))
+            .collect()
     }
 
     /// [`LabModel::rec`] with e^{i(φ−θ_k)} = (cos, sin) given (from
-    /// [`rotation`]: one sin_cos per pixel and capture instead of per raw image).
+    /// [`rotation`]: one sin_cos per pixel and capture instead of per raw
+    /// image) and the pixel's state in the capture (from
+    /// [`LabModel::pixel_states`]: once per pixel and capture).
     #[inline]
-    pub fn rec_at(&self, prep: &Prepared, c: usize, k: usize, p: usize, e: (f64, f64)) -> Rec {
+    fn rec_at(
+        &self,
+        prep: &Prepared,
+        c: usize,
+        k: usize,
+        p: usize,
+        e: (f64, f64),
+        (a, phi, var): PixelState,
+    ) -> Rec {
         let cap = &prep.caps[c];
-        let (a, phi, var) = self.amp_phase_var(cap, p);
         let theta = cap.theta_rad[k];
         let (cv, cd) = if cap.illum {
             self.waveform.eval_at(e.0, e.1)
@@ -621,13 +641,14 @@ impl LabModel {
         let npix = prep.npix;
         let mut eval = DeltaEval::new(sigs, &self.effects);
         let (th, ph) = rotation(self, &prep.caps[c]);
+        let states = self.pixel_states(&prep.caps[c]);
         let sat = &self.sat[c * npix..(c + 1) * npix];
         for (k, &et) in th.iter().enumerate() {
             for (p, &e_phi) in ph.iter().enumerate() {
                 if sat[p] {
                     continue;
                 }
-                let mut r = self.rec_at(prep, c, k, p, rotate(e_phi, et));
+                let mut r = self.rec_at(prep, c, k, p, rotate(e_phi, et), states[p]);
                 for i in 0..sigs.len().min(self.effects.len()) {
                     r.r -= eval.one(i, &r, prep);
                 }
@@ -1039,9 +1060,10 @@ fn effects_delta(prep: &Prepared, model: &LabModel) -> Result<Vec<f64>, LabError
             let kk = prep.caps[c].theta_rad.len();
             let mut v = vec![0.0; kk * npix];
             let (th, ph) = rotation(model, &prep.caps[c]);
+            let states = model.pixel_states(&prep.caps[c]);
             for (k, &et) in th.iter().enumerate() {
                 for p in 0..npix {
-                    let r = model.rec_at(prep, c, k, p, rotate(ph[p], et));
+                    let r = model.rec_at(prep, c, k, p, rotate(ph[p], et), states[p]);
                     v[k * npix + p] = eval.sum(&r, prep);
                 }
             }
@@ -1132,7 +1154,7 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                         (0.0, 0.0)
                     };
                     let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
-                    nrm.add(&[1.0, law * cv, a * cd], r, w);
+                    nrm.add_n(&[1.0, law * cv, a * cd], r, w);
                 }
             }
             nrm.symmetrize();

@@ -103,7 +103,11 @@ impl AmpPhase {
     }
     /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
     fn phase0_range() -> (f64, f64) {
-        catalogue::param_info(p::MAX_RAD).map_or((-0.5, 0.5), |p| (p.min, p.max))
+        // looked up once: the fit asks for every sample
+        static RANGE: std::sync::OnceLock<(f64, f64)> = std::sync::OnceLock::new();
+        *RANGE.get_or_init(|| {
+            catalogue::param_info(p::MAX_RAD).map_or((-0.5, 0.5), |p| (p.min, p.max))
+        })
     }
     /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
     /// `add` can write).

@@ -339,8 +339,8 @@ fn write_shape(
 pub fn held_params(id: &str, m: &ModelConfig, prep: &Prepared) -> Option<(Vec<f64>, Vec<f64>)> {
     let effect = lab_effect(id)?;
     // a file's shape form is held as the lab's shape (crate::shape)
-    if let Some(s) = EffectId::parse(id).and_then(|e| m.shape(e)) {
-        return crate::shape::held_shape(id, s, code_per_e(m).max(0.0), prep.temp_ref)
+    if let Some((e, s)) = EffectId::parse(id).and_then(|e| Some((e, m.shape(e)?))) {
+        return crate::shape::held_shape(e, s, code_per_e(m).max(0.0), prep.temp_ref)
             .map(|(_, lin, nl)| (lin, nl));
     }
     effect.held(m, prep)
