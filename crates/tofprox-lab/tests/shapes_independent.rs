@@ -18,10 +18,10 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tofprox_core::SensorGeometry;
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
-use tofprox_lab::model_file::update_model_text;
-use tofprox_lab::signatures::write_effect;
 use tofprox_lab::diagnose::{AddOutcome, Verdict, add_effect, compare, diagnose};
 use tofprox_lab::fit::{LabSpec, Prepared};
+use tofprox_lab::model_file::update_model_text;
+use tofprox_lab::signatures::write_effect;
 use tofprox_lab::{Capture, Dataset};
 use tofprox_model::ModelConfig;
 
