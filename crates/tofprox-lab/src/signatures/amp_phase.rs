@@ -68,7 +68,7 @@ impl LabEffect for Effect {
 /// `a_lsb` in capture `cap` (none in dark captures).
 pub(super) fn phase_at(e: &EffectFit, cap: &CapInfo, a_lsb: f64) -> f64 {
     if cap.illum && e.nl.len() == 3 {
-        AmpPhase::phase_rad(&e.nl, a_lsb)
+        AmpPhase::phase_rad(&AmpPhase::law(&e.nl), a_lsb)
     } else {
         0.0
     }
@@ -90,8 +90,12 @@ struct AmpPhase {
     waveform: Waveform,
 }
 impl AmpPhase {
-    /// s(A/A_ref; n) − 1 for nl = [φ0, ln A_ref, ln n].
-    fn shape(nl: &[f64], a: f64) -> f64 {
+    /// The law's parameters [φ0, A_ref, n] from nl = [φ0, ln A_ref, ln n]:
+    /// φ0 held in the model file's range (what `add` can write), A_ref and
+    /// n in the lab's ranges — the clamps and exponentials, once per
+    /// parameter vector ([`Signature::prepare`]).
+    fn law(nl: &[f64]) -> Vec<f64> {
+        let (lo, hi) = Self::phase0_range();
         let aref = nl[1].clamp(-5.0, 18.0).exp();
         let n = nl
             .get(2)
@@ -99,30 +103,33 @@ impl AmpPhase {
             .unwrap_or(0.0)
             .clamp(0.25f64.ln(), 10f64.ln())
             .exp();
-        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n) - 1.0
+        vec![nl[0].clamp(lo, hi), aref, n]
+    }
+    /// s(A/A_ref; n) − 1 for `law` = [φ0, A_ref, n] ([`AmpPhase::law`]).
+    fn shape(law: &[f64], a: f64) -> f64 {
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / law[1], law[2]) - 1.0
     }
     /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
     fn phase0_range() -> (f64, f64) {
-        // looked up once: the fit asks for every sample
+        // looked up once: the fit asks for every parameter vector
         static RANGE: std::sync::OnceLock<(f64, f64)> = std::sync::OnceLock::new();
         *RANGE.get_or_init(|| {
             catalogue::param_info(p::MAX_RAD).map_or((-0.5, 0.5), |p| (p.min, p.max))
         })
     }
-    /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
-    /// `add` can write).
-    fn phase_rad(nl: &[f64], a: f64) -> f64 {
-        let (lo, hi) = Self::phase0_range();
-        nl[0].clamp(lo, hi) * Self::shape(nl, a)
+    /// Δφ at amplitude `a` (LSB) for `law` ([`AmpPhase::law`]).
+    fn phase_rad(law: &[f64], a: f64) -> f64 {
+        law[0] * Self::shape(law, a)
     }
     /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
     /// with the global nuisance shifts on a subsample.
     fn screen(nl: &[f64], recs: &[Sample], prep: &Prepared) -> Option<f64> {
+        let law = Self::law(nl);
         let mut acc = tofprox_core::lsq::Normal::zeros(4);
         for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
             let r = s.rec(prep);
             let j = [
-                r.a * r.cd * Self::shape(nl, r.a),
+                r.a * r.cd * Self::shape(&law, r.a),
                 1.0,
                 r.a * r.c,
                 r.a * r.cd,
@@ -181,8 +188,25 @@ impl Signature for AmpPhase {
         g
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
-        let dphi = Self::phase_rad(nl, r.a);
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    fn prepare(&self, nl: &[f64]) -> Vec<f64> {
+        Self::law(nl)
+    }
+    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        let mut out = [0.0];
+        self.fixed_all(&[law], r, cap, &mut out);
+        out[0]
+    }
+    /// The step of φ0 shares the shape s − 1 (the `powf`s) with the law
+    /// before it.
+    fn fixed_all(&self, laws: &[&[f64]], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let mut prev: Option<(&[f64], f64)> = None;
+        for (o, &law) in out.iter_mut().zip(laws) {
+            let s = match prev {
+                Some((p, s)) if p[1..] == law[1..] => s,
+                _ => Self::shape(law, r.a),
+            };
+            prev = Some((law, s));
+            *o = r.a * (self.waveform.eval(r.phi - r.theta + law[0] * s).0 - r.c);
+        }
     }
 }
