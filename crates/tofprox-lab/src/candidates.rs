@@ -179,9 +179,7 @@ fn accumulate(
                         continue;
                     };
                     memo_h[i].basis(sig, nlh, r, cap, &mut b2);
-                    let d2: f64 = fx[*k]
-                        + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
-                        + dn;
+                    let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
                 }
                 acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);

@@ -759,7 +759,11 @@ impl<'a> DeltaEval<'a> {
                 .map(|s| crate::signatures::acts_on_phasor(s.id()))
                 .collect(),
             effects,
-            laws: sigs.iter().zip(effects).map(|(s, e)| s.prepare(&e.nl)).collect(),
+            laws: sigs
+                .iter()
+                .zip(effects)
+                .map(|(s, e)| s.prepare(&e.nl))
+                .collect(),
             memos: vec![ImageMemo::default(); sigs.len()],
             buf: vec![0.0; 64],
         }
