@@ -210,3 +210,64 @@ impl Signature for AmpPhase {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The prepared laws of a parameter vector and of its finite-difference
+    /// steps, evaluated together (the φ0 step sharing the shape), give the
+    /// Δcode of Δφ = φ0·(s − 1) with s written as 1 − (1 + x⁻ⁿ)^(−1/n) and
+    /// C = cos, each the same to the last bit as the law evaluated alone.
+    #[test]
+    fn laws_evaluated_together_are_the_phasor_law() {
+        let ds = crate::synth::generate(&crate::synth::SynthSpec {
+            rows: 2,
+            cols: 2,
+            ..Default::default()
+        });
+        let prep = Prepared::new(&ds).unwrap();
+        let sig = AmpPhase {
+            waveform: Waveform::sinusoid(),
+        };
+        let (a, phi, theta) = (1000.0, 0.7, 1.2);
+        let r = Rec {
+            r: 0.0,
+            w: 1.0,
+            a,
+            phi,
+            theta,
+            c: (phi - theta).cos(),
+            cd: -(phi - theta).sin(),
+            x: 0.0,
+            gain_rel: 1.0,
+            cap: 0,
+            pix: 0,
+            k: 0,
+            fold: 0,
+        };
+        let (lo, hi) = AmpPhase::phase0_range();
+        for phi0 in [0.1, 5.0] {
+            let nl = [phi0, 300f64.ln(), 2.5f64.ln()];
+            let mut vecs = vec![nl.to_vec()];
+            for i in 0..3 {
+                let mut v = nl.to_vec();
+                v[i] += 1e-4 * nl[i].abs().max(1e-2);
+                vecs.push(v);
+            }
+            let laws: Vec<Vec<f64>> = vecs.iter().map(|v| sig.prepare(v)).collect();
+            let refs: Vec<&[f64]> = laws.iter().map(Vec::as_slice).collect();
+            let mut out = [0.0; 4];
+            sig.fixed_all(&refs, &r, &prep.caps[0], &mut out);
+            for (v, (law, o)) in vecs.iter().zip(laws.iter().zip(out)) {
+                let (x, n) = (a / v[1].exp(), v[2].exp());
+                let s = 1.0 - (1.0 + x.powf(-n)).powf(-1.0 / n);
+                let dphi = v[0].clamp(lo, hi) * (s - 1.0);
+                let want = a * ((phi - theta + dphi).cos() - (phi - theta).cos());
+                assert!((o - want).abs() < 1e-9, "{v:?}: {o} vs {want}");
+                assert!(want.abs() > 1.0, "{v:?}: {want}");
+                assert_eq!(o.to_bits(), sig.fixed(law, &r, &prep.caps[0]).to_bits());
+            }
+        }
+    }
+}
