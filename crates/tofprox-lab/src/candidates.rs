@@ -97,20 +97,40 @@ const LM_STOP: Stop = Stop {
     rel_chi2: 0.0,
 };
 
-/// The finite-difference step h and the parameter vector nl + h·e_i of each
-/// of the first `nnl` non-linear parameters; `None` for a discrete one (held
-/// at its grid value: no derivative, no step).
-fn fd_steps(sig: &dyn Signature, nl: &[f64], nnl: usize) -> Vec<Option<(f64, Vec<f64>)>> {
+/// A finite-difference step h, the parameter vector nl + h·e_i and its
+/// prepared law ([`Signature::prepare`]); `None` for a discrete parameter
+/// (held at its grid value: no derivative, no step).
+type Step = Option<(f64, Vec<f64>, Vec<f64>)>;
+
+/// The [`Step`] of each of the first `nnl` non-linear parameters.
+fn fd_steps(sig: &dyn Signature, nl: &[f64], nnl: usize) -> Vec<Step> {
     (0..nnl)
         .map(|i| {
             (!sig.nl_discrete(i)).then(|| {
                 let h = 1e-4 * nl[i].abs().max(1e-2);
                 let mut nlh = nl.to_vec();
                 nlh[i] = nl[i] + h;
-                (h, nlh)
+                let law = sig.prepare(&nlh);
+                (h, nlh, law)
             })
         })
         .collect()
+}
+
+/// The prepared laws of nl (`law`, first) and of its `steps`, and each
+/// step's slot among them ([`Signature::fixed_all`] evaluates them together).
+fn step_laws<'a>(law: &'a [f64], steps: &'a [Step]) -> (Vec<&'a [f64]>, Vec<Option<usize>>) {
+    let mut laws = vec![law];
+    let slots = steps
+        .iter()
+        .map(|s| {
+            s.as_ref().map(|(_, _, l)| {
+                laws.push(l.as_slice());
+                laws.len() - 1
+            })
+        })
+        .collect();
+    (laws, slots)
 }
 
 /// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
@@ -130,6 +150,8 @@ fn accumulate(
     let (lin, nui) = lin_all.split_at(nsig);
     let chunk = 8192;
     let steps = fd_steps(sig, nl, nnl);
+    let law = sig.prepare(nl);
+    let (laws, slots) = step_laws(&law, &steps);
     let parts: Vec<Vec<Normal>> = recs
         .par_chunks(chunk * stride)
         .map(|ch| {
@@ -137,6 +159,7 @@ fn accumulate(
             let mut b = vec![0.0; nsig];
             let mut b2 = vec![0.0; nsig];
             let mut j = vec![0.0; n];
+            let mut fx = vec![0.0; laws.len()];
             // one memo per parameter vector: nl and each finite-difference step
             let mut memo = ImageMemo::default();
             let mut memo_h = vec![ImageMemo::default(); nnl];
@@ -146,19 +169,17 @@ fn accumulate(
                 memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                let d: f64 =
-                    sig.fixed(nl, r, cap) + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
+                sig.fixed_all(&laws, r, cap, &mut fx);
+                let d: f64 = fx[0] + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);
-                for (i, step) in steps.iter().enumerate() {
-                    let Some((h, nlh)) = step else {
+                for (i, (step, slot)) in steps.iter().zip(&slots).enumerate() {
+                    let (Some((h, nlh, _)), Some(k)) = (step, slot) else {
                         j[nlin + i] = 0.0;
                         continue;
                     };
                     memo_h[i].basis(sig, nlh, r, cap, &mut b2);
-                    let d2: f64 = sig.fixed(nlh, r, cap)
-                        + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>()
-                        + dn;
+                    let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
                 }
                 acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);

@@ -743,6 +743,8 @@ pub struct DeltaEval<'a> {
     /// Effects on the phasor: already in A and φ, no Δcode added.
     on_phasor: Vec<bool>,
     effects: &'a [EffectFit],
+    /// Each effect's prepared law ([`Signature::prepare`]).
+    laws: Vec<Vec<f64>>,
     memos: Vec<ImageMemo>,
     buf: Vec<f64>,
 }
@@ -757,6 +759,11 @@ impl<'a> DeltaEval<'a> {
                 .map(|s| crate::signatures::acts_on_phasor(s.id()))
                 .collect(),
             effects,
+            laws: sigs
+                .iter()
+                .zip(effects)
+                .map(|(s, e)| s.prepare(&e.nl))
+                .collect(),
             memos: vec![ImageMemo::default(); sigs.len()],
             buf: vec![0.0; 64],
         }
@@ -780,7 +787,7 @@ impl<'a> DeltaEval<'a> {
             &prep.caps[r.cap as usize],
             &mut self.buf[..n],
         );
-        let fixed = sig.fixed(&e.nl, r, &prep.caps[r.cap as usize]);
+        let fixed = sig.fixed(&self.laws[i], r, &prep.caps[r.cap as usize]);
         fixed
             + self.buf[..n]
                 .iter()

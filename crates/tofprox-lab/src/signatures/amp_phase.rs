@@ -68,7 +68,7 @@ impl LabEffect for Effect {
 /// `a_lsb` in capture `cap` (none in dark captures).
 pub(super) fn phase_at(e: &EffectFit, cap: &CapInfo, a_lsb: f64) -> f64 {
     if cap.illum && e.nl.len() == 3 {
-        AmpPhase::phase_rad(&e.nl, a_lsb)
+        AmpPhase::phase_rad(&AmpPhase::law(&e.nl), a_lsb)
     } else {
         0.0
     }
@@ -90,8 +90,12 @@ struct AmpPhase {
     waveform: Waveform,
 }
 impl AmpPhase {
-    /// s(A/A_ref; n) − 1 for nl = [φ0, ln A_ref, ln n].
-    fn shape(nl: &[f64], a: f64) -> f64 {
+    /// The law's parameters [φ0, A_ref, n] from nl = [φ0, ln A_ref, ln n]:
+    /// φ0 held in the model file's range (what `add` can write), A_ref and
+    /// n in the lab's ranges — the clamps and exponentials, once per
+    /// parameter vector ([`Signature::prepare`]).
+    fn law(nl: &[f64]) -> Vec<f64> {
+        let (lo, hi) = Self::phase0_range();
         let aref = nl[1].clamp(-5.0, 18.0).exp();
         let n = nl
             .get(2)
@@ -99,30 +103,33 @@ impl AmpPhase {
             .unwrap_or(0.0)
             .clamp(0.25f64.ln(), 10f64.ln())
             .exp();
-        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / aref, n) - 1.0
+        vec![nl[0].clamp(lo, hi), aref, n]
+    }
+    /// s(A/A_ref; n) − 1 for `law` = [φ0, A_ref, n] ([`AmpPhase::law`]).
+    fn shape(law: &[f64], a: f64) -> f64 {
+        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / law[1], law[2]) - 1.0
     }
     /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
     fn phase0_range() -> (f64, f64) {
-        // looked up once: the fit asks for every sample
+        // looked up once: the fit asks for every parameter vector
         static RANGE: std::sync::OnceLock<(f64, f64)> = std::sync::OnceLock::new();
         *RANGE.get_or_init(|| {
             catalogue::param_info(p::MAX_RAD).map_or((-0.5, 0.5), |p| (p.min, p.max))
         })
     }
-    /// Δφ at amplitude `a` (LSB), φ0 held in the model file's range (what
-    /// `add` can write).
-    fn phase_rad(nl: &[f64], a: f64) -> f64 {
-        let (lo, hi) = Self::phase0_range();
-        nl[0].clamp(lo, hi) * Self::shape(nl, a)
+    /// Δφ at amplitude `a` (LSB) for `law` ([`AmpPhase::law`]).
+    fn phase_rad(law: &[f64], a: f64) -> f64 {
+        law[0] * Self::shape(law, a)
     }
     /// The first-order φ0 at (ln A_ref, ln n): least squares of A·C′·(s − 1)
     /// with the global nuisance shifts on a subsample.
     fn screen(nl: &[f64], recs: &[Sample], prep: &Prepared) -> Option<f64> {
+        let law = Self::law(nl);
         let mut acc = tofprox_core::lsq::Normal::zeros(4);
         for s in recs.iter().step_by((recs.len() / 20_000).max(1)) {
             let r = s.rec(prep);
             let j = [
-                r.a * r.cd * Self::shape(nl, r.a),
+                r.a * r.cd * Self::shape(&law, r.a),
                 1.0,
                 r.a * r.c,
                 r.a * r.cd,
@@ -181,8 +188,86 @@ impl Signature for AmpPhase {
         g
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
-        let dphi = Self::phase_rad(nl, r.a);
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    fn prepare(&self, nl: &[f64]) -> Vec<f64> {
+        Self::law(nl)
+    }
+    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        let mut out = [0.0];
+        self.fixed_all(&[law], r, cap, &mut out);
+        out[0]
+    }
+    /// The step of φ0 shares the shape s − 1 (the `powf`s) with the law
+    /// before it.
+    fn fixed_all(&self, laws: &[&[f64]], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let mut prev: Option<(&[f64], f64)> = None;
+        for (o, &law) in out.iter_mut().zip(laws) {
+            let s = match prev {
+                Some((p, s)) if p[1..] == law[1..] => s,
+                _ => Self::shape(law, r.a),
+            };
+            prev = Some((law, s));
+            *o = r.a * (self.waveform.eval(r.phi - r.theta + law[0] * s).0 - r.c);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The prepared laws of a parameter vector and of its finite-difference
+    /// steps, evaluated together (the φ0 step sharing the shape), give the
+    /// Δcode of Δφ = φ0·(s − 1) with s written as 1 − (1 + x⁻ⁿ)^(−1/n) and
+    /// C = cos, each the same to the last bit as the law evaluated alone.
+    #[test]
+    fn laws_evaluated_together_are_the_phasor_law() {
+        let ds = crate::synth::generate(&crate::synth::SynthSpec {
+            rows: 2,
+            cols: 2,
+            ..Default::default()
+        });
+        let prep = Prepared::new(&ds).unwrap();
+        let sig = AmpPhase {
+            waveform: Waveform::sinusoid(),
+        };
+        let (a, phi, theta) = (1000.0, 0.7, 1.2);
+        let r = Rec {
+            r: 0.0,
+            w: 1.0,
+            a,
+            phi,
+            theta,
+            c: (phi - theta).cos(),
+            cd: -(phi - theta).sin(),
+            x: 0.0,
+            gain_rel: 1.0,
+            cap: 0,
+            pix: 0,
+            k: 0,
+            fold: 0,
+        };
+        let (lo, hi) = AmpPhase::phase0_range();
+        for phi0 in [0.1, 5.0] {
+            let nl = [phi0, 300f64.ln(), 2.5f64.ln()];
+            let mut vecs = vec![nl.to_vec()];
+            for i in 0..3 {
+                let mut v = nl.to_vec();
+                v[i] += 1e-4 * nl[i].abs().max(1e-2);
+                vecs.push(v);
+            }
+            let laws: Vec<Vec<f64>> = vecs.iter().map(|v| sig.prepare(v)).collect();
+            let refs: Vec<&[f64]> = laws.iter().map(Vec::as_slice).collect();
+            let mut out = [0.0; 4];
+            sig.fixed_all(&refs, &r, &prep.caps[0], &mut out);
+            for (v, (law, o)) in vecs.iter().zip(laws.iter().zip(out)) {
+                let (x, n) = (a / v[1].exp(), v[2].exp());
+                let s = 1.0 - (1.0 + x.powf(-n)).powf(-1.0 / n);
+                let dphi = v[0].clamp(lo, hi) * (s - 1.0);
+                let want = a * ((phi - theta + dphi).cos() - (phi - theta).cos());
+                assert!((o - want).abs() < 1e-9, "{v:?}: {o} vs {want}");
+                assert!(want.abs() > 1.0, "{v:?}: {want}");
+                assert_eq!(o.to_bits(), sig.fixed(law, &r, &prep.caps[0]).to_bits());
+            }
+        }
     }
 }

@@ -64,9 +64,25 @@ pub trait Signature: Send + Sync {
     /// Basis values b_j at one sample.
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
     /// The part of Δcode no linear coefficient scales: a full law whose size
-    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j; 0 by default).
-    fn fixed(&self, _nl: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
+    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j; 0 by default),
+    /// given `law = prepare(nl)`.
+    fn fixed(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
         0.0
+    }
+    /// The terms of [`Signature::fixed`] that depend on `nl` alone (clamps
+    /// and exponentials of the parameters), computed once per parameter
+    /// vector rather than per sample: what `fixed` is called with. `nl`
+    /// itself by default.
+    fn prepare(&self, nl: &[f64]) -> Vec<f64> {
+        nl.to_vec()
+    }
+    /// [`Signature::fixed`] at each of `laws` (a parameter vector's and its
+    /// finite-difference steps'), into `out`: a signature whose laws share
+    /// terms computes them once.
+    fn fixed_all(&self, laws: &[&[f64]], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        for (o, law) in out.iter_mut().zip(laws) {
+            *o = self.fixed(law, r, cap);
+        }
     }
     /// The part of the basis that is the same for every pixel of raw image
     /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
