@@ -211,7 +211,7 @@ enum Vary {
     Supply,
     /// Ambient light 0, 10 and 25 klux.
     Ambient,
-    /// Temperatures 10, 25 and 45 °C, all under 25 klux of ambient light.
+    /// Temperatures 0, 25 and 55 °C, all under 25 klux of ambient light.
     TemperatureUnderAmbient,
 }
 
@@ -257,7 +257,7 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
         Vary::Supply => vec![(25.0, 3.0, 0.0), (25.0, 3.3, 0.0), (25.0, 3.6, 0.0)],
         Vary::Ambient => vec![(25.0, 3.3, 0.0), (25.0, 3.3, 10.0), (25.0, 3.3, 25.0)],
         Vary::TemperatureUnderAmbient => {
-            vec![(10.0, 3.3, 25.0), (25.0, 3.3, 25.0), (45.0, 3.3, 25.0)]
+            vec![(0.0, 3.3, 25.0), (25.0, 3.3, 25.0), (55.0, 3.3, 25.0)]
         }
     };
     let n_d = if matches!(vary, Vary::Nothing) { 16 } else { 8 };
@@ -823,7 +823,7 @@ fn strong_drift_over_55_k_without_repeats_is_not_refused() {
     strong_drift_without_repeats_is_named(Vary::Temperatures5, 42);
 }
 
-/// 0.015 rad/K from 10 to 45 °C under 25 klux of ambient light.
+/// 0.015 rad/K from 0 to 55 °C under 25 klux of ambient light.
 #[test]
 fn strong_drift_under_ambient_light_without_repeats_is_not_refused() {
     strong_drift_without_repeats_is_named(Vary::TemperatureUnderAmbient, 43);
