@@ -1,5 +1,5 @@
 //! compare → diagnose → add: the lab's workflow on a prepared recording.
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -929,33 +929,55 @@ fn below_tolerance(
     }
 }
 
-/// The median signal-to-noise ratio of the model's amplitude over the
-/// illuminated samples below which a recording shows no signal the model can
-/// follow (random codes, constant frames, the wrong distances).
-pub const MIN_SIGNAL_SNR: f64 = 3.0;
+/// The share of the codes' modulation the model must follow, below which a
+/// recording shows no signal the model can follow (random codes, constant
+/// frames, the wrong distances).
+pub const MIN_SIGNAL_SHARE: f64 = 0.25;
 
-/// Why the recording cannot be diagnosed at all: its illuminated codes carry
-/// no signal above the noise (the model's fitted amplitude A against σ, with
-/// the quantisation floor 1/12 LSB² per acquisition, thesis 2.3.2.6).
+/// Why the recording cannot be diagnosed at all: its illuminated codes do not
+/// follow the illumination. What random and constant frames lack is the
+/// modulation the phase–distance relation (eq. 2.6) and the falling amplitude
+/// put into the raw images of one capture: the share of the measured codes'
+/// variation over a capture's raw images (each pixel's mean removed, so
+/// offsets and the background do not count) that the model follows,
+/// `1 − Σ(r − r̄)² / Σ(y − ȳ)²`. A model error the lab is there to find
+/// (a drift of 0.5 rad leaves 1 − (2 sin 0.25)² ≈ 76 %) or noise at an
+/// amplitude-to-σ ratio above ~1 keep it above [`MIN_SIGNAL_SHARE`]; random
+/// codes give ~0, constant frames have no variation at all. It rests on no
+/// noise estimate, so a residual-based one inflated by a missing effect
+/// cannot trip it.
 fn no_signal(prep: &Prepared, cmp: &Comparison) -> Option<String> {
-    let snr: Vec<f64> = cmp
-        .recs
-        .iter()
-        .filter(|r| prep.caps[r.cap as usize].illum)
-        .map(|r| {
-            let cap = &prep.caps[r.cap as usize];
-            let var = 1.0 / f64::from(r.w).max(1e-300) + 1.0 / (12.0 * f64::from(cap.averaged));
-            f64::from(r.a).abs() / var.sqrt()
-        })
-        .collect();
-    let Some(median_snr) = crate::fit::median(&snr) else {
+    // per (capture, pixel): n, Σy, Σy², Σr, Σr²
+    let mut groups: HashMap<(u32, u32), [f64; 5]> = HashMap::new();
+    for r in cmp.recs.iter().filter(|r| prep.caps[r.cap as usize].illum) {
+        let y = prep.meas[prep.idx(r.cap as usize, usize::from(r.k), r.pix as usize)];
+        let res = f64::from(r.r);
+        let g = groups.entry((r.cap, r.pix)).or_default();
+        for (s, v) in g.iter_mut().zip([1.0, y, y * y, res, res * res]) {
+            *s += v;
+        }
+    }
+    if groups.is_empty() {
         return Some("no valid illuminated sample (all saturated or dark)".into());
+    }
+    let centred = |n: f64, s: f64, s2: f64| (s2 - s * s / n).max(0.0);
+    let (mut var_y, mut var_r) = (0.0, 0.0);
+    for [n, sy, sy2, sr, sr2] in groups.into_values() {
+        var_y += centred(n, sy, sy2);
+        var_r += centred(n, sr, sr2);
+    }
+    let share = if var_y > 0.0 {
+        1.0 - var_r / var_y
+    } else {
+        f64::NEG_INFINITY
     };
-    (median_snr < MIN_SIGNAL_SNR).then(|| {
+    (share < MIN_SIGNAL_SHARE).then(|| {
         format!(
-            "no signal: the model's amplitude is {median_snr:.2}× the noise at the median \
-             (needs ≥ {MIN_SIGNAL_SNR}); the codes do not follow the illumination at the \
-             recorded distances (random or constant frames?)"
+            "no signal: the model follows {:.0} % of the codes' variation over each capture's \
+             raw images (needs ≥ {:.0} %); the codes do not follow the illumination at the \
+             recorded distances (random or constant frames?)",
+            100.0 * share.max(0.0),
+            100.0 * MIN_SIGNAL_SHARE
         )
     })
 }

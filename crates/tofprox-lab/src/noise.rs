@@ -15,6 +15,13 @@ use crate::error::LabError;
 use crate::fit::{LabModel, Prepared, key_f};
 use tofprox_core::lsq::solve_sym;
 
+/// The floor of `a`, LSB² per acquisition: the quantisation noise of one
+/// code (1/12 LSB², thesis 2.3.2.6) is in every acquisition. Without it a
+/// residual-based fit whose residual grows faster than the photon-transfer law
+/// (a missing effect ∝ A) drives `a` to zero, and the scale calibration then
+/// divides the darkest samples' residuals by a near-zero variance.
+const QUANTISATION_FLOOR_LSB2: f64 = 1.0 / 12.0;
+
 /// At least this many squared differences make a measured noise model.
 const MIN_NOISE_DIFFERENCES: usize = 200;
 
@@ -154,7 +161,7 @@ impl NoiseModel {
         }
         let mean_y = obs.iter().map(|o| o.1).sum::<f64>() / obs.len() as f64;
         let mut beta = [0.0; NOISE_TERMS];
-        beta[0] = (mean_y / obs[0].0[0].max(1e-12)).max(1e-6);
+        beta[0] = (mean_y / obs[0].0[0].max(1e-12)).max(QUANTISATION_FLOOR_LSB2);
         for _ in 0..8 {
             let idx: Vec<usize> = (0..NOISE_TERMS).filter(|&t| active[t]).collect();
             let n = idx.len();
@@ -191,7 +198,7 @@ impl NoiseModel {
             if dropped {
                 continue;
             }
-            nb[0] = nb[0].max(1e-6);
+            nb[0] = nb[0].max(QUANTISATION_FLOOR_LSB2);
             beta = nb;
         }
         let mut model = NoiseModel {

@@ -211,6 +211,8 @@ enum Vary {
     Supply,
     /// Ambient light 0, 10 and 25 klux.
     Ambient,
+    /// Temperatures 0, 25 and 55 °C, all under 25 klux of ambient light.
+    TemperatureUnderAmbient,
 }
 
 /// Darks, a 24-phase correlation capture, a 4-phase distance sweep at two
@@ -254,6 +256,9 @@ fn record(hidden: &[Hidden], vary: Vary, seed: u64) -> Dataset {
             .collect(),
         Vary::Supply => vec![(25.0, 3.0, 0.0), (25.0, 3.3, 0.0), (25.0, 3.6, 0.0)],
         Vary::Ambient => vec![(25.0, 3.3, 0.0), (25.0, 3.3, 10.0), (25.0, 3.3, 25.0)],
+        Vary::TemperatureUnderAmbient => {
+            vec![(0.0, 3.3, 25.0), (25.0, 3.3, 25.0), (55.0, 3.3, 25.0)]
+        }
     };
     let n_d = if matches!(vary, Vary::Nothing) { 16 } else { 8 };
     for (temp, v, ambient_klux) in levels {
@@ -773,4 +778,53 @@ fn soft_knee_sbi_closes() {
         42,
         "sbi_asymmetry",
     );
+}
+
+/// `ds` without its repeats: of consecutive captures under equal conditions
+/// only the first is kept, so nothing measures the noise (issue 20: such a
+/// recording of a strong drift was refused as "no signal").
+fn without_repeats(mut ds: Dataset) -> Dataset {
+    ds.captures.dedup_by(|b, a| {
+        (a.phases_deg == b.phases_deg)
+            && (a.distance_m, a.exposure_us, a.ambient_klux, a.temperature_c)
+                == (b.distance_m, b.exposure_us, b.ambient_klux, b.temperature_c)
+    });
+    ds
+}
+
+/// A strong drift over a wide temperature span, without repeats: the
+/// residual-based noise estimate contains the drift, yet the recording is not
+/// refused as "no signal" (its codes follow the illumination) and the drift
+/// is named (issue 20).
+fn strong_drift_without_repeats_is_named(vary: Vary, seed: u64) {
+    let hidden = [Hidden::TempSecondOrder {
+        a1: 0.015,
+        a2: 0.0,
+        g1: -0.003,
+        g2: 0.0,
+    }];
+    let ds = without_repeats(record(&hidden, vary, seed));
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, &spec(), &|_, _| {}).unwrap();
+    assert_eq!(
+        cmp.model.noise.source,
+        tofprox_lab::noise::NoiseSource::NotMeasured
+    );
+    let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
+    eprintln!("{:?} {:?} ({})", d.verdict, d.effect, d.reason);
+    assert!(!d.reason.contains("no signal"), "{}", d.reason);
+    assert_eq!(d.verdict, Verdict::MissingEffect, "{}", d.reason);
+    assert_eq!(d.effect.as_deref(), Some("temperature_drift"));
+}
+
+/// 0.015 rad/K from 0 to 55 °C: −0.375 … +0.45 rad.
+#[test]
+fn strong_drift_over_55_k_without_repeats_is_not_refused() {
+    strong_drift_without_repeats_is_named(Vary::Temperatures5, 42);
+}
+
+/// 0.015 rad/K from 0 to 55 °C under 25 klux of ambient light.
+#[test]
+fn strong_drift_under_ambient_light_without_repeats_is_not_refused() {
+    strong_drift_without_repeats_is_named(Vary::TemperatureUnderAmbient, 43);
 }

@@ -138,6 +138,12 @@ fn assert_no_signal(what: &str, d: Result<Diagnosis, LabError>) {
     eprintln!("{what}: {:?}: {}", d.verdict, d.reason);
     assert_eq!(d.verdict, Verdict::Unexplained, "{what}: {}", d.reason);
     assert!(d.reason.contains("no signal"), "{what}: {}", d.reason);
+    // what the refusal rests on: the codes' variation the model follows
+    assert!(
+        d.reason.contains("variation over each capture"),
+        "{what}: {}",
+        d.reason
+    );
     assert!(d.effect.is_none() && d.candidates.is_empty());
 }
 
