@@ -57,7 +57,7 @@ fn standard_errors(
 }
 
 /// Standard errors of the fitted effect `fit` inside a fitted model (`recs`: that model's
-/// residual table): as [`standard_errors`] at the effect's values, with the global
+/// residual table): as `standard_errors` at the effect's values, with the global
 /// offset/gain/phase shifts free at zero (the model's per-pixel parameters hold them); those of
 /// `fit.lin`, then of `fit.nl` (NaN for one held on a grid).
 pub fn effect_standard_errors(
@@ -222,7 +222,7 @@ fn form_block(cap: u32) -> usize {
 /// forms with different numbers of non-linear parameters
 /// (`crate::shape::choose_form`). The blocks are whole captures, pairs of
 /// consecutive ones (a capture and its repeat together) dealt round the
-/// blocks in recording order ([`form_block`]): each block spans the
+/// blocks in recording order (`form_block`): each block spans the
 /// drivers' range, so the score measures how a form predicts conditions it
 /// did not see between those it did — not its extrapolation beyond the
 /// recorded range, where a shape is flat by definition (the distance blocks

@@ -335,7 +335,7 @@ pub struct FormChoice {
 /// Fit effect `id`'s parametric form and (when it has one) its shape form
 /// with each of [`KNOT_COUNTS`] knots to the residuals `recs`, and keep the
 /// one that predicts held-out blocks best (only where the physical form
-/// explains at least [`MIN_SHARE_FOR_FORMS`] of the excess χ²: else it is
+/// explains at least `MIN_SHARE_FOR_FORMS` of the excess χ²: else it is
 /// not the effect missing, and `scores` stays empty). The parametric form is kept
 /// unless a shape's held-out χ² is lower by more than 1 % of what the
 /// parametric form explains there (and 2 per extra parameter): a law the
