@@ -277,9 +277,8 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
         let captures = captures.len();
         return NoiseModel::fit(&obs, NoiseSource::RawImages { captures });
     }
-    tracing::warn!(
-        "noise not measured (no repeated captures or raw images): estimated from the model residuals, which contain any missing effect"
-    );
+    // not measured: the result says so (`NoiseSource::NotMeasured`), once, where it is
+    // reported — not here, where every refit of a diagnosis passes
     let obs: Vec<_> = recs
         .iter()
         .map(|r| (features(r.cap, r.a), f64::from(r.r).powi(2)))

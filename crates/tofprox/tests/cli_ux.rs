@@ -296,3 +296,40 @@ fn misspelled_effect_and_parameter_get_a_suggestion() {
         text(&o.stderr)
     );
 }
+
+/// Issue 24 item 4: each warning once. A recording without repeats gets one warning that its
+/// noise is not measured (the library fits the noise on every refit pass and no longer logs
+/// it there), and the verdict says the same.
+#[test]
+fn unmeasured_noise_is_warned_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec");
+    let model = repo_file("config/model/baseline.toml");
+    let o = run(&[
+        "sim",
+        "sweep",
+        "--model",
+        &model,
+        "--distances",
+        "0.3:1.0:0.1",
+        "--exposures",
+        "500",
+        "--window",
+        "78,104,8,8",
+        "--seed",
+        "3",
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let o = run(&["lab", "diagnose", rec.to_str().unwrap(), "--model", &model]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let err = text(&o.stderr);
+    assert_eq!(err.matches("noise not measured").count(), 1, "{err}");
+    assert_eq!(err.matches("WARN").count(), 1, "{err}");
+    assert!(
+        text(&o.stdout).contains("NOISE NOT MEASURED"),
+        "{}",
+        text(&o.stdout)
+    );
+}

@@ -213,7 +213,20 @@ fn html(
 
 fn fit(prep: &Prepared, m: &ModelConfig, pb: &ProgressBar) -> anyhow::Result<Comparison> {
     let cb = on_progress(pb);
-    Ok(compare(prep, &spec_from_model(m), &cb)?)
+    let cmp = compare(prep, &spec_from_model(m), &cb)?;
+    warn_unmeasured_noise(&cmp);
+    Ok(cmp)
+}
+
+/// The one warning a run without measured noise gets (the text and `--json` output also
+/// name the noise source).
+fn warn_unmeasured_noise(cmp: &Comparison) {
+    if !cmp.model.noise.source.measured() {
+        tracing::warn!(
+            "noise {}, which contain any missing effect",
+            cmp.model.noise.source.describe()
+        );
+    }
 }
 
 /// `--export DIR`, when given.
@@ -250,7 +263,9 @@ fn run_compare(a: CompareArgs) -> anyhow::Result<ExitCode> {
             eprintln!("note: {n}");
         }
         let cb = on_progress(&pb);
-        compare(&prep, &spec, &cb)?
+        let cmp = compare(&prep, &spec, &cb)?;
+        warn_unmeasured_noise(&cmp);
+        cmp
     } else {
         fit(&prep, &m, &pb)?
     };
