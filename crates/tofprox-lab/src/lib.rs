@@ -20,6 +20,8 @@ pub mod shape;
 pub mod signatures;
 pub mod stats;
 pub mod structure;
+/// Test machinery (feature `testing`): synthetic recordings for the tests.
+#[cfg(any(test, feature = "testing"))]
 #[doc(hidden)]
 pub mod synth;
 pub mod waveform;
