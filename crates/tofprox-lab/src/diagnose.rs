@@ -1512,12 +1512,10 @@ pub fn explain(
     let mut steps = Vec::new();
     let mut added = Vec::new();
     let mut fitted = Vec::new();
+    let mut trials = Vec::new();
     for _ in 0..=MAX_EXPLAIN_STEPS {
         let mut d = diagnose_with(prep, &cmp, opts, progress)?;
-        let named = d
-            .effect
-            .clone()
-            .filter(|_| d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS);
+        let named = next_effect(&mut d, &mut trials).filter(|_| added.len() < MAX_EXPLAIN_STEPS);
         let Some(effect) = named else {
             fitted = fitted_effects(prep, &cmp, &added)?;
             cmp.recs = Vec::new();
@@ -1568,6 +1566,7 @@ pub fn explain(
         added.push(effect);
         cmp = out.after;
     }
+    drop_unneeded_trials(prep, opts, &trials, &mut steps, &mut added, &mut fitted, progress)?;
     let stopped = steps.last().and_then(|s| {
         let d = &s.diagnosis;
         (d.verdict != Verdict::NothingMissing).then(|| match d.verdict {
@@ -1585,6 +1584,81 @@ pub fn explain(
         stopped,
         fitted,
     })
+}
+
+/// Several strong effects at once: each explains only part of the excess, so
+/// none may pass [`decide`]. When the best candidate explains at least this
+/// share of the excess, as much on held-out blocks, and clearly beats the
+/// runner-up, `explain` adds it **on trial** and diagnoses the rest; the
+/// diagnosis itself stays `unexplained`.
+pub const MIN_TRIAL: f64 = 0.15;
+
+/// The effect `explain` adds after diagnosis `d`: the named one, or one on
+/// trial ([`MIN_TRIAL`], recorded in `trials` and in `d.reason`).
+fn next_effect(d: &mut Diagnosis, trials: &mut Vec<String>) -> Option<String> {
+    if d.verdict == Verdict::MissingEffect {
+        return d.effect.clone();
+    }
+    let best = d.candidates.first()?;
+    let on_trial = d.verdict == Verdict::Unexplained
+        && d.noise.measured()
+        && best.explained_excess >= MIN_TRIAL
+        && best.cv_gain >= MIN_TRIAL.max(0.7 * best.explained_excess)
+        && clearly_best(best, d.candidates.get(1));
+    if !on_trial {
+        return None;
+    }
+    let e = best.effect.clone();
+    d.reason = format!(
+        "{}; `explain` adds {e} on trial ({:.0}% of the excess, {:.0}% on held-out blocks) and diagnoses the rest",
+        d.reason,
+        100.0 * best.explained_excess,
+        100.0 * best.cv_gain
+    );
+    trials.push(e.clone());
+    Some(e)
+}
+
+/// An effect added on trial stays only if the final model needs it: when the
+/// loop ends at `nothing_missing`, the model without it (fitted from scratch)
+/// is diagnosed, and if that, too, is `nothing_missing` the effect goes and
+/// that diagnosis becomes the last step (its reason says so).
+fn drop_unneeded_trials(
+    prep: &Prepared,
+    opts: &DiagnoseOptions,
+    trials: &[String],
+    steps: &mut [ExplainStep],
+    added: &mut Vec<String>,
+    fitted: &mut Vec<FittedEffect>,
+    progress: Progress<'_>,
+) -> Result<(), LabError> {
+    for e in trials {
+        let Some(last) = steps.last_mut() else {
+            return Ok(());
+        };
+        if last.diagnosis.verdict != Verdict::NothingMissing || !added.contains(e) {
+            continue;
+        }
+        let mut spec = last.comparison.model.spec.clone();
+        spec.effects.retain(|x| x != e);
+        spec.shapes.remove(e);
+        let mut without = compare(prep, &spec, progress)?;
+        let mut d = diagnose_with(prep, &without, opts, progress)?;
+        if d.verdict != Verdict::NothingMissing {
+            continue;
+        }
+        added.retain(|x| x != e);
+        *fitted = fitted_effects(prep, &without, added)?;
+        d.reason = format!("{e} (added on trial) is not needed: {}", d.reason);
+        d.candidates.iter_mut().for_each(|c| c.refit = None);
+        without.recs = Vec::new();
+        *last = ExplainStep {
+            comparison: without,
+            diagnosis: d,
+            added: None,
+        };
+    }
+    Ok(())
 }
 
 /// Each of `added` as fitted in the model of `cmp`, with standard errors.
