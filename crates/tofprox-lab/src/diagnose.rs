@@ -1566,6 +1566,7 @@ pub fn explain(
         added.push(effect);
         cmp = out.after;
     }
+    take_back_dead_trials(prep, &trials, &mut steps, &mut added, &mut fitted)?;
     drop_unneeded_trials(prep, opts, &trials, &mut steps, &mut added, &mut fitted, progress)?;
     let stopped = steps.last().and_then(|s| {
         let d = &s.diagnosis;
@@ -1617,6 +1618,42 @@ fn next_effect(d: &mut Diagnosis, trials: &mut Vec<String>) -> Option<String> {
     );
     trials.push(e.clone());
     Some(e)
+}
+
+/// A trial is a look-ahead: it stays when the diagnosis after it names an
+/// effect or finds nothing missing. When the loop ends `unexplained` right
+/// after a trial, the trial is taken back: the step before it is the last,
+/// with the model it had.
+fn take_back_dead_trials(
+    prep: &Prepared,
+    trials: &[String],
+    steps: &mut Vec<ExplainStep>,
+    added: &mut Vec<String>,
+    fitted: &mut Vec<FittedEffect>,
+) -> Result<(), LabError> {
+    let closed = |st: &ExplainStep| {
+        matches!(
+            st.diagnosis.verdict,
+            Verdict::NothingMissing | Verdict::MissingEffect
+        )
+    };
+    while steps.len() >= 2 && !closed(&steps[steps.len() - 1]) {
+        let prev = &steps[steps.len() - 2];
+        let Some(e) = prev.added.clone().filter(|e| trials.contains(e) && !closed(prev)) else {
+            break;
+        };
+        steps.pop();
+        added.retain(|x| *x != e);
+        let last = steps.last_mut().expect("two steps");
+        last.added = None;
+        last.diagnosis.reason = format!(
+            "{}; {e} on trial led to no named effect and was taken back",
+            last.diagnosis.reason
+        );
+        let cmp = comparison_of(prep, last.comparison.model.clone())?;
+        *fitted = fitted_effects(prep, &cmp, added)?;
+    }
+    Ok(())
 }
 
 /// An effect added on trial stays only if the final model needs it: when the
