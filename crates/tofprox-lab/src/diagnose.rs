@@ -1646,10 +1646,11 @@ fn take_back_dead_trials(
         added.retain(|x| *x != e);
         let last = steps.last_mut().expect("two steps");
         last.added = None;
-        last.diagnosis.reason = format!(
-            "{}; {e} on trial led to no named effect and was taken back",
-            last.diagnosis.reason
-        );
+        let r = &mut last.diagnosis.reason;
+        r.truncate(r.find("; `explain` adds").unwrap_or(r.len()));
+        r.push_str(&format!(
+            "; {e} added on trial led to no named effect and was taken back"
+        ));
         let cmp = comparison_of(prep, last.comparison.model.clone())?;
         *fitted = fitted_effects(prep, &cmp, added)?;
     }
