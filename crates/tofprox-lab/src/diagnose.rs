@@ -1567,7 +1567,15 @@ pub fn explain(
         cmp = out.after;
     }
     take_back_dead_trials(prep, &trials, &mut steps, &mut added, &mut fitted)?;
-    drop_unneeded_trials(prep, opts, &trials, &mut steps, &mut added, &mut fitted, progress)?;
+    drop_unneeded_trials(
+        prep,
+        opts,
+        &trials,
+        &mut steps,
+        &mut added,
+        &mut fitted,
+        progress,
+    )?;
     let stopped = steps.last().and_then(|s| {
         let d = &s.diagnosis;
         (d.verdict != Verdict::NothingMissing).then(|| match d.verdict {
@@ -1639,7 +1647,11 @@ fn take_back_dead_trials(
     };
     while steps.len() >= 2 && !closed(&steps[steps.len() - 1]) {
         let prev = &steps[steps.len() - 2];
-        let Some(e) = prev.added.clone().filter(|e| trials.contains(e) && !closed(prev)) else {
+        let Some(e) = prev
+            .added
+            .clone()
+            .filter(|e| trials.contains(e) && !closed(prev))
+        else {
             break;
         };
         steps.pop();

@@ -170,7 +170,13 @@ fn taps(px: &Pixels, hidden: &[Hidden], c: Cond, p: usize, k: usize, th_rad: f64
     (na, nb)
 }
 
-fn capture(px: &Pixels, hidden: &[Hidden], phases: &[f64], c: Cond, rng: &mut ChaCha8Rng) -> Capture {
+fn capture(
+    px: &Pixels,
+    hidden: &[Hidden],
+    phases: &[f64],
+    c: Cond,
+    rng: &mut ChaCha8Rng,
+) -> Capture {
     let mut frames = Array3::zeros((phases.len(), N, N));
     let gain_b = hidden.iter().fold(1.0, |g, h| match *h {
         Hidden::TapGain { eps } => g * (1.0 - eps),
@@ -184,7 +190,11 @@ fn capture(px: &Pixels, hidden: &[Hidden], phases: &[f64], c: Cond, rng: &mut Ch
             // shot noise with an excess factor 1.2, read noise 2 LSB²
             let sd = (LSB_PER_E * LSB_PER_E * 1.2 * (na + nb) + 2.0).sqrt();
             let sum: f64 = (0..AVERAGED)
-                .map(|_| (code + sd * rng.sample::<f64, _>(StandardNormal)).round().clamp(0.0, 4095.0))
+                .map(|_| {
+                    (code + sd * rng.sample::<f64, _>(StandardNormal))
+                        .round()
+                        .clamp(0.0, 4095.0)
+                })
                 .sum();
             frames[[k, p / N, p % N]] = sum / f64::from(AVERAGED);
         }
@@ -220,11 +230,25 @@ fn record(hidden: &[Hidden], seed: u64) -> Dataset {
     let mut conds = Vec::new();
     for &temperature_c in &temps {
         for &exposure_us in &exposures {
-            conds.push((four.to_vec(), Cond { exposure_us, temperature_c, ..base }));
+            conds.push((
+                four.to_vec(),
+                Cond {
+                    exposure_us,
+                    temperature_c,
+                    ..base
+                },
+            ));
         }
     }
     let corr: Vec<f64> = (0..24).map(|i| 15.0 * f64::from(i)).collect();
-    conds.push((corr, Cond { distance_m: Some(0.6), exposure_us: 400.0, ..base }));
+    conds.push((
+        corr,
+        Cond {
+            distance_m: Some(0.6),
+            exposure_us: 400.0,
+            ..base
+        },
+    ));
     for &temperature_c in &temps {
         for ambient_klux in [0.0, 20.0] {
             for &exposure_us in &exposures {
@@ -242,7 +266,11 @@ fn record(hidden: &[Hidden], seed: u64) -> Dataset {
         }
     }
     for i in 0..6 {
-        let c = Cond { distance_m: Some(0.25 + 1.1 * i as f64 / 5.0), exposure_us: 400.0, ..base };
+        let c = Cond {
+            distance_m: Some(0.25 + 1.1 * i as f64 / 5.0),
+            exposure_us: 400.0,
+            ..base
+        };
         conds.push((vec![0.0, 90.0], c));
     }
     let captures = conds
@@ -419,7 +447,10 @@ fn tap_gain_with_quadratic_drift_under_ambient_light() {
 /// and an SBI explaining it alike) is not closed, and the loop says why.
 #[test]
 fn droop_linear_phase_and_tap_gain() {
-    let droop = Hidden::DroopHyperbolic { d: 0.12, k_half: 1.5 };
+    let droop = Hidden::DroopHyperbolic {
+        d: 0.12,
+        k_half: 1.5,
+    };
     let (prep, ex) = run(&[droop, LINEAR_PHASE, Hidden::TapGain { eps: 0.06 }], 54);
     assert!(ex.added.iter().any(|e| e == "amplitude_phase_error"));
     assert_ne!(ex.verdict(), Verdict::NothingMissing);

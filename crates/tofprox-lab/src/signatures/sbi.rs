@@ -5,9 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
 use tofprox_model::ids::{self, sbi_asymmetry as p};
 
-use super::{
-    Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles, write_ambient,
-};
+use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles, write_ambient};
 use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -85,7 +83,6 @@ impl LabEffect for Effect {
         ))
     }
 }
-
 
 /// SBI asymmetry (2.2.2.1, 5.1.2.3, fig. 5.6): the taps collect
 /// N_a,b = B + κ·A(g ± C)/100 (B = ambient·t[ms]·pixel response, g = peak of

@@ -5,9 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::effects::optical::Correlation;
 use tofprox_model::ids::{self, tap_gain_mismatch as p};
 
-use super::{
-    Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient,
-};
+use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient};
 use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
 use crate::waveform::Waveform;
 
