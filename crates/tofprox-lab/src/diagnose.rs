@@ -1501,7 +1501,9 @@ impl Explanation {
 pub const MAX_EXPLAIN_STEPS: usize = 6;
 
 /// diagnose → add → diagnose … until the verdict is not `missing_effect` (or
-/// adding the named effect does not lower χ²).
+/// adding the named effect does not lower χ²). Where no effect is named but
+/// one clearly leads, it is added on trial ([`MIN_TRIAL`]) and kept only if it
+/// leads to a named effect and the final model needs it.
 pub fn explain(
     prep: &Prepared,
     spec: &LabSpec,
@@ -1509,74 +1511,73 @@ pub fn explain(
     progress: Progress<'_>,
 ) -> Result<Explanation, LabError> {
     let mut cmp = compare(prep, spec, progress)?;
-    let mut steps = Vec::new();
-    let mut added = Vec::new();
-    let mut fitted = Vec::new();
+    let mut ex = Explanation {
+        steps: Vec::new(),
+        added: Vec::new(),
+        stopped: None,
+        fitted: Vec::new(),
+    };
     let mut trials = Vec::new();
     for _ in 0..=MAX_EXPLAIN_STEPS {
         let mut d = diagnose_with(prep, &cmp, opts, progress)?;
-        let named = next_effect(&mut d, &mut trials).filter(|_| added.len() < MAX_EXPLAIN_STEPS);
+        let named = next_effect(&mut d, &mut trials).filter(|_| ex.added.len() < MAX_EXPLAIN_STEPS);
+        let start = named.as_ref().and_then(|e| {
+            let c = d.candidates.iter_mut().find(|c| c.effect == *e)?;
+            c.refit.take()
+        });
+        for c in &mut d.candidates {
+            c.refit = None;
+        }
         let Some(effect) = named else {
-            fitted = fitted_effects(prep, &cmp, &added)?;
+            ex.fitted = fitted_effects(prep, &cmp, &ex.added)?;
             cmp.recs = Vec::new();
-            for c in &mut d.candidates {
-                c.refit = None;
-            }
-            steps.push(ExplainStep {
+            ex.steps.push(ExplainStep {
                 comparison: cmp,
                 diagnosis: d,
                 added: None,
             });
             break;
         };
-        let start = d
-            .candidates
-            .iter_mut()
-            .find(|c| c.effect == effect)
-            .and_then(|c| c.refit.take());
-        for c in &mut d.candidates {
-            c.refit = None;
-        }
         let chi_before = cmp.chi2 / cmp.dof;
         let out = add_effect_to(prep, cmp, &effect, start.as_deref(), progress)?;
         let mut before = out.before;
-        let improved = out.after.fit.chi2_per_dof < chi_before;
+        let chi_after = out.after.fit.chi2_per_dof;
+        let improved = chi_after < chi_before;
         if !improved {
             // the final model is this one
-            fitted = fitted_effects(prep, &before, &added)?;
+            ex.fitted = fitted_effects(prep, &before, &ex.added)?;
+        }
+        let why =
+            format!("adding {effect} did not lower χ²/dof ({chi_before:.3} → {chi_after:.3})");
+        let failed_trial = !improved && trials.contains(&effect);
+        if failed_trial {
+            trial_failed(&mut d.reason, &format!("on trial: {why}"));
         }
         before.recs = Vec::new();
-        steps.push(ExplainStep {
+        ex.steps.push(ExplainStep {
             comparison: before,
             diagnosis: d,
             added: improved.then(|| effect.clone()),
         });
         if !improved {
-            let why = format!(
-                "adding {effect} did not lower χ²/dof ({chi_before:.3} → {:.3})",
-                out.after.fit.chi2_per_dof
-            );
-            return Ok(Explanation {
-                steps,
-                added,
-                stopped: Some(why),
-                fitted,
-            });
+            if failed_trial {
+                break;
+            }
+            ex.stopped = Some(why);
+            return Ok(ex);
         }
-        added.push(effect);
+        ex.added.push(effect);
         cmp = out.after;
     }
-    take_back_dead_trials(prep, &trials, &mut steps, &mut added, &mut fitted)?;
-    drop_unneeded_trials(
-        prep,
-        opts,
-        &trials,
-        &mut steps,
-        &mut added,
-        &mut fitted,
-        progress,
-    )?;
-    let stopped = steps.last().and_then(|s| {
+    take_back_dead_trials(prep, &trials, &mut ex)?;
+    drop_unneeded_trials(prep, opts, &trials, &mut ex, progress)?;
+    ex.stopped = stopped_reason(&ex.steps);
+    Ok(ex)
+}
+
+/// Why the loop ended where it did (None at `nothing_missing`).
+fn stopped_reason(steps: &[ExplainStep]) -> Option<String> {
+    steps.last().and_then(|s| {
         let d = &s.diagnosis;
         (d.verdict != Verdict::NothingMissing).then(|| match d.verdict {
             Verdict::MissingEffect => format!(
@@ -1586,12 +1587,6 @@ pub fn explain(
             ),
             v => format!("{}: {}", v.as_str(), d.reason),
         })
-    });
-    Ok(Explanation {
-        steps,
-        added,
-        stopped,
-        fitted,
     })
 }
 
@@ -1628,6 +1623,13 @@ fn next_effect(d: &mut Diagnosis, trials: &mut Vec<String>) -> Option<String> {
     Some(e)
 }
 
+/// The reason of a diagnosis whose trial failed: its announcement replaced by `why`.
+fn trial_failed(reason: &mut String, why: &str) {
+    reason.truncate(reason.find("; `explain` adds").unwrap_or(reason.len()));
+    reason.push_str("; ");
+    reason.push_str(why);
+}
+
 /// A trial is a look-ahead: it stays when the diagnosis after it names an
 /// effect or finds nothing missing. When the loop ends `unexplained` right
 /// after a trial, the trial is taken back: the step before it is the last,
@@ -1635,9 +1637,7 @@ fn next_effect(d: &mut Diagnosis, trials: &mut Vec<String>) -> Option<String> {
 fn take_back_dead_trials(
     prep: &Prepared,
     trials: &[String],
-    steps: &mut Vec<ExplainStep>,
-    added: &mut Vec<String>,
-    fitted: &mut Vec<FittedEffect>,
+    ex: &mut Explanation,
 ) -> Result<(), LabError> {
     let closed = |st: &ExplainStep| {
         matches!(
@@ -1645,6 +1645,7 @@ fn take_back_dead_trials(
             Verdict::NothingMissing | Verdict::MissingEffect
         )
     };
+    let steps = &mut ex.steps;
     while steps.len() >= 2 && !closed(&steps[steps.len() - 1]) {
         let prev = &steps[steps.len() - 2];
         let Some(e) = prev
@@ -1655,16 +1656,13 @@ fn take_back_dead_trials(
             break;
         };
         steps.pop();
-        added.retain(|x| *x != e);
+        ex.added.retain(|x| *x != e);
         let last = steps.last_mut().expect("two steps");
         last.added = None;
-        let r = &mut last.diagnosis.reason;
-        r.truncate(r.find("; `explain` adds").unwrap_or(r.len()));
-        r.push_str(&format!(
-            "; {e} added on trial led to no named effect and was taken back"
-        ));
+        let why = format!("{e} added on trial led to no named effect and was taken back");
+        trial_failed(&mut last.diagnosis.reason, &why);
         let cmp = comparison_of(prep, last.comparison.model.clone())?;
-        *fitted = fitted_effects(prep, &cmp, added)?;
+        ex.fitted = fitted_effects(prep, &cmp, &ex.added)?;
     }
     Ok(())
 }
@@ -1677,16 +1675,14 @@ fn drop_unneeded_trials(
     prep: &Prepared,
     opts: &DiagnoseOptions,
     trials: &[String],
-    steps: &mut [ExplainStep],
-    added: &mut Vec<String>,
-    fitted: &mut Vec<FittedEffect>,
+    ex: &mut Explanation,
     progress: Progress<'_>,
 ) -> Result<(), LabError> {
     for e in trials {
-        let Some(last) = steps.last_mut() else {
+        let Some(last) = ex.steps.last_mut() else {
             return Ok(());
         };
-        if last.diagnosis.verdict != Verdict::NothingMissing || !added.contains(e) {
+        if last.diagnosis.verdict != Verdict::NothingMissing || !ex.added.contains(e) {
             continue;
         }
         let mut spec = last.comparison.model.spec.clone();
@@ -1697,8 +1693,8 @@ fn drop_unneeded_trials(
         if d.verdict != Verdict::NothingMissing {
             continue;
         }
-        added.retain(|x| x != e);
-        *fitted = fitted_effects(prep, &without, added)?;
+        ex.added.retain(|x| x != e);
+        ex.fitted = fitted_effects(prep, &without, &ex.added)?;
         d.reason = format!("{e} (added on trial) is not needed: {}", d.reason);
         d.candidates.iter_mut().for_each(|c| c.refit = None);
         without.recs = Vec::new();
