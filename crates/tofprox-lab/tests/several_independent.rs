@@ -392,7 +392,7 @@ const LINEAR_PHASE: Hidden = Hidden::LinearPhase { rad_per_e: 1.5e-5 };
 /// ≈ 0.4 rad, outside the catalogue's saturating law). Both are named and the
 /// misfit falls by far more than 5×, but the saturating law cannot follow a
 /// linear growth: `explain` ends `unexplained` and says so. The drift alone
-/// explains 29 % of the excess: before issue 20's trial step `explain` added
+/// explains 33 % of the excess: before issue 20's trial step `explain` added
 /// nothing here.
 #[test]
 fn quadratic_drift_with_linear_phase_error() {
@@ -402,7 +402,7 @@ fn quadratic_drift_with_linear_phase_error() {
         g: -0.002,
     };
     let (prep, ex) = run(&[drift, LINEAR_PHASE], 52);
-    // the drift alone explains 29 %: added on trial, it lets the phase error
+    // the drift alone explains 33 %: added on trial, it lets the phase error
     // be named; a last trial that named nothing was taken back
     let trial = &ex.steps[0];
     assert_eq!(trial.diagnosis.verdict, Verdict::Unexplained);
