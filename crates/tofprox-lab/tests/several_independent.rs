@@ -9,8 +9,7 @@
 //! distance, reflectivity, exposure, temperature and ambient light, with
 //! repeats. Hidden effects follow laws of this file, 5–10× their typical size
 //! and two or three at once: a temperature drift with a quadratic term, a phase
-//! error growing linearly with the signal charge, a droop hyperbolic in the
-//! image index and ∝ √exposure, tap B converting with 1 − ε, an SBI whose
+//! error growing linearly with the signal charge, tap B converting with 1 − ε, an SBI whose
 //! removal sets in with a quadratic soft knee, dark current with an Arrhenius
 //! law. Neither tofprox-model nor the lab's signatures.
 use std::collections::BTreeMap;
@@ -49,8 +48,6 @@ enum Hidden {
     TempQuadratic { a1: f64, a2: f64, g: f64 },
     /// Phase k·S of the signal charge S (never saturating).
     LinearPhase { rad_per_e: f64 },
-    /// Power of raw image k: 1 − D·√(t/1 ms)·k/(k + k_half).
-    DroopHyperbolic { d: f64, k_half: f64 },
     /// Tap B converts with 1 − ε.
     TapGain { eps: f64 },
     /// Removal r(N_max) = 0 below q − w, (N_max − q + w)²/4w within, N_max − q
@@ -115,7 +112,7 @@ struct Cond {
     temperature_c: f64,
 }
 
-/// Signal charge and phase of pixel `p` (before the raw image's droop).
+/// Signal charge and phase of pixel `p`.
 fn signal(px: &Pixels, hidden: &[Hidden], c: Cond, p: usize) -> (f64, f64) {
     let Some(d) = c.distance_m else {
         return (0.0, 0.0);
@@ -136,23 +133,17 @@ fn signal(px: &Pixels, hidden: &[Hidden], c: Cond, p: usize) -> (f64, f64) {
     (s, phi)
 }
 
-/// Tap charges (A, B) of pixel `p` in raw image `k` shifted by `th_rad`.
-fn taps(px: &Pixels, hidden: &[Hidden], c: Cond, p: usize, k: usize, th_rad: f64) -> (f64, f64) {
-    let (mut s, phi) = signal(px, hidden, c, p);
+/// Tap charges (A, B) of pixel `p` in a raw image shifted by `th_rad`.
+fn taps(px: &Pixels, hidden: &[Hidden], c: Cond, p: usize, th_rad: f64) -> (f64, f64) {
+    let (s, phi) = signal(px, hidden, c, p);
     let background = AMBIENT_E_PER_US_KLUX * c.ambient_klux * c.exposure_us * px.gain[p];
     let (mut na, mut nb) = (background, background);
     for h in hidden {
-        match *h {
-            Hidden::DroopHyperbolic { d, k_half } => {
-                s *= 1.0 - d * (c.exposure_us / 1000.0).sqrt() * k as f64 / (k as f64 + k_half);
-            }
-            Hidden::DarkArrhenius { e_per_us, ea_ev } => {
-                let inv = 1.0 / (c.temperature_c + 273.15) - 1.0 / (T_REF_C + 273.15);
-                let dark = e_per_us * (-ea_ev / 8.617e-5 * inv).exp() * c.exposure_us;
-                na += 1.03 * dark * px.dark_rel[p];
-                nb += dark * px.dark_rel[p];
-            }
-            _ => {}
+        if let Hidden::DarkArrhenius { e_per_us, ea_ev } = *h {
+            let inv = 1.0 / (c.temperature_c + 273.15) - 1.0 / (T_REF_C + 273.15);
+            let dark = e_per_us * (-ea_ev / 8.617e-5 * inv).exp() * c.exposure_us;
+            na += 1.03 * dark * px.dark_rel[p];
+            nb += dark * px.dark_rel[p];
         }
     }
     let corr = CONTRAST * trapezoid(phi - th_rad);
@@ -185,7 +176,7 @@ fn capture(
     for (k, th) in phases.iter().enumerate() {
         let flicker_lsb = 0.25 * rng.sample::<f64, _>(StandardNormal);
         for p in 0..N * N {
-            let (na, nb) = taps(px, hidden, c, p, k, th.to_radians());
+            let (na, nb) = taps(px, hidden, c, p, th.to_radians());
             let code = 2048.0 + px.offset_lsb[p] + flicker_lsb + LSB_PER_E * (na - gain_b * nb);
             // shot noise with an excess factor 1.2, read noise 2 LSB²
             let sd = (LSB_PER_E * LSB_PER_E * 1.2 * (na + nb) + 2.0).sqrt();
