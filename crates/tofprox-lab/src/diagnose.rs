@@ -1842,4 +1842,74 @@ pub(crate) mod tests {
             "ambient_klux"
         );
     }
+
+    /// An unexplained diagnosis with `cands` (noise from repeats unless `measured` is false).
+    fn unexplained(cands: Vec<CandidateScore>, measured: bool) -> Diagnosis {
+        Diagnosis {
+            verdict: Verdict::Unexplained,
+            effect: None,
+            runner_up: None,
+            separate_by: None,
+            candidates: cands,
+            skipped: Vec::new(),
+            fit: FitStats {
+                chi2_per_dof: 138.0,
+                z: 9000.0,
+            },
+            strongest_condition: None,
+            rms: Rms::default(),
+            structure_remaining: Vec::new(),
+            reason: "best candidate explains 29% of the excess: not enough".into(),
+            size: Size::default(),
+            noise_single: Size::default(),
+            tolerance_mm: 0.5,
+            small: Vec::new(),
+            noise: if measured {
+                crate::noise::NoiseSource::Repeats { groups: 12 }
+            } else {
+                crate::noise::NoiseSource::NotMeasured
+            },
+        }
+    }
+
+    /// The trial rule: a clear leader of ≥ 15 % (held out as well) is added on
+    /// trial and recorded; a close runner-up, a share that does not hold out,
+    /// a small share or unmeasured noise add nothing.
+    #[test]
+    fn a_clear_partial_leader_is_added_on_trial() {
+        let drift = cand("temperature_drift", 0.29, 0.29, 9000.0, -1e5);
+        let mut d = unexplained(
+            vec![drift.clone(), cand("multipath", 0.04, 0.03, 9500.0, -10.0)],
+            true,
+        );
+        let mut trials = Vec::new();
+        assert_eq!(
+            next_effect(&mut d, &mut trials).as_deref(),
+            Some("temperature_drift")
+        );
+        assert_eq!(trials, ["temperature_drift"]);
+        assert!(d.reason.ends_with("adds temperature_drift on trial (29% of the excess, 29% on held-out blocks) and diagnoses the rest"));
+        trial_failed(&mut d.reason, "taken back");
+        assert_eq!(
+            d.reason,
+            "best candidate explains 29% of the excess: not enough; taken back"
+        );
+        let none = |cands: Vec<CandidateScore>, measured: bool| {
+            let mut t = Vec::new();
+            next_effect(&mut unexplained(cands, measured), &mut t).is_none() && t.is_empty()
+        };
+        assert!(none(
+            vec![drift.clone(), cand("adc_inl", 0.25, 0.24, 9100.0, -1e5)],
+            true
+        ));
+        assert!(none(
+            vec![cand("vcsel_droop", 0.30, 0.10, 9000.0, -1e5)],
+            true
+        ));
+        assert!(none(
+            vec![cand("vcsel_droop", 0.12, 0.12, 9000.0, -1e5)],
+            true
+        ));
+        assert!(none(vec![drift], false));
+    }
 }
