@@ -12,6 +12,8 @@
 //! error growing linearly with the signal charge, tap B converting with 1 − ε, an SBI whose
 //! removal sets in with a quadratic soft knee, dark current with an Arrhenius
 //! law. Neither tofprox-model nor the lab's signatures.
+mod common;
+
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
 
@@ -20,12 +22,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tofprox_core::SensorGeometry;
-use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
+use tofprox_lab::adapter::spec_from_model;
 use tofprox_lab::diagnose::{
     DiagnoseOptions, Explanation, Verdict, compare, diagnose, effect_params, explain,
 };
-use tofprox_lab::fit::{LabSpec, Prepared};
-use tofprox_lab::model_file::update_model_text;
+use tofprox_lab::fit::Prepared;
 use tofprox_lab::signatures::write_effect;
 use tofprox_lab::{Capture, Dataset};
 use tofprox_model::ModelConfig;
@@ -318,18 +319,7 @@ fn control_chi2(seed: u64) -> f64 {
 /// The file `explain` would write (`--out`), held at its values
 /// (`--hold-effects`, from a cold start): its χ²/dof.
 fn held_chi2(ex: &Explanation, prep: &Prepared) -> f64 {
-    let fin = ex.final_model().unwrap();
-    let base = baseline();
-    let mut m = base.clone();
-    for e in &ex.added {
-        let (_, params) = effect_params(prep, fin, e).unwrap();
-        let notes = write_effect(&mut m, e, &params, fin, prep).unwrap();
-        eprintln!("wrote {e}: {notes:?}");
-    }
-    let text = update_model_text(&base.to_toml_string(), &m, &ex.added).unwrap();
-    let written = ModelConfig::from_toml_str(&text).unwrap();
-    let (held, _) = spec_holding_model(&written, prep);
-    let held: LabSpec = held;
+    let (held, _) = common::written_and_held(ex, prep, &baseline());
     compare(prep, &held, &|_, _| {}).unwrap().fit.chi2_per_dof
 }
 
