@@ -1501,7 +1501,9 @@ impl Explanation {
 pub const MAX_EXPLAIN_STEPS: usize = 6;
 
 /// diagnose → add → diagnose … until the verdict is not `missing_effect` (or
-/// adding the named effect does not lower χ²).
+/// adding the named effect does not lower χ²). Where no effect is named but
+/// one clearly leads, it is added on trial ([`MIN_TRIAL`]) and kept only if it
+/// leads to a named effect and the final model needs it.
 pub fn explain(
     prep: &Prepared,
     spec: &LabSpec,
@@ -1509,66 +1511,73 @@ pub fn explain(
     progress: Progress<'_>,
 ) -> Result<Explanation, LabError> {
     let mut cmp = compare(prep, spec, progress)?;
-    let mut steps = Vec::new();
-    let mut added = Vec::new();
-    let mut fitted = Vec::new();
+    let mut ex = Explanation {
+        steps: Vec::new(),
+        added: Vec::new(),
+        stopped: None,
+        fitted: Vec::new(),
+    };
+    let mut trials = Vec::new();
     for _ in 0..=MAX_EXPLAIN_STEPS {
         let mut d = diagnose_with(prep, &cmp, opts, progress)?;
-        let named = d
-            .effect
-            .clone()
-            .filter(|_| d.verdict == Verdict::MissingEffect && added.len() < MAX_EXPLAIN_STEPS);
+        let named = next_effect(&mut d, &mut trials).filter(|_| ex.added.len() < MAX_EXPLAIN_STEPS);
+        let start = named.as_ref().and_then(|e| {
+            let c = d.candidates.iter_mut().find(|c| c.effect == *e)?;
+            c.refit.take()
+        });
+        for c in &mut d.candidates {
+            c.refit = None;
+        }
         let Some(effect) = named else {
-            fitted = fitted_effects(prep, &cmp, &added)?;
+            ex.fitted = fitted_effects(prep, &cmp, &ex.added)?;
             cmp.recs = Vec::new();
-            for c in &mut d.candidates {
-                c.refit = None;
-            }
-            steps.push(ExplainStep {
+            ex.steps.push(ExplainStep {
                 comparison: cmp,
                 diagnosis: d,
                 added: None,
             });
             break;
         };
-        let start = d
-            .candidates
-            .iter_mut()
-            .find(|c| c.effect == effect)
-            .and_then(|c| c.refit.take());
-        for c in &mut d.candidates {
-            c.refit = None;
-        }
         let chi_before = cmp.chi2 / cmp.dof;
         let out = add_effect_to(prep, cmp, &effect, start.as_deref(), progress)?;
         let mut before = out.before;
-        let improved = out.after.fit.chi2_per_dof < chi_before;
+        let chi_after = out.after.fit.chi2_per_dof;
+        let improved = chi_after < chi_before;
         if !improved {
             // the final model is this one
-            fitted = fitted_effects(prep, &before, &added)?;
+            ex.fitted = fitted_effects(prep, &before, &ex.added)?;
+        }
+        let why =
+            format!("adding {effect} did not lower χ²/dof ({chi_before:.3} → {chi_after:.3})");
+        let failed_trial = !improved && trials.contains(&effect);
+        if failed_trial {
+            trial_failed(&mut d.reason, &format!("on trial: {why}"));
         }
         before.recs = Vec::new();
-        steps.push(ExplainStep {
+        ex.steps.push(ExplainStep {
             comparison: before,
             diagnosis: d,
             added: improved.then(|| effect.clone()),
         });
         if !improved {
-            let why = format!(
-                "adding {effect} did not lower χ²/dof ({chi_before:.3} → {:.3})",
-                out.after.fit.chi2_per_dof
-            );
-            return Ok(Explanation {
-                steps,
-                added,
-                stopped: Some(why),
-                fitted,
-            });
+            if failed_trial {
+                break;
+            }
+            ex.stopped = Some(why);
+            return Ok(ex);
         }
-        added.push(effect);
+        ex.added.push(effect);
         cmp = out.after;
     }
-    let stopped = steps.last().and_then(|s| {
+    take_back_dead_trials(prep, &trials, &mut ex)?;
+    drop_unneeded_trials(prep, opts, &trials, &mut ex, progress)?;
+    ex.stopped = stopped_reason(&ex.steps);
+    Ok(ex)
+}
+
+/// Why the loop ended where it did (None at `nothing_missing`).
+fn stopped_reason(steps: &[ExplainStep]) -> Option<String> {
+    steps.last().and_then(|s| {
         let d = &s.diagnosis;
         (d.verdict != Verdict::NothingMissing).then(|| match d.verdict {
             Verdict::MissingEffect => format!(
@@ -1578,13 +1587,124 @@ pub fn explain(
             ),
             v => format!("{}: {}", v.as_str(), d.reason),
         })
-    });
-    Ok(Explanation {
-        steps,
-        added,
-        stopped,
-        fitted,
     })
+}
+
+/// Several strong effects at once: each explains only part of the excess, so
+/// none may pass [`decide`]. When the best candidate explains at least this
+/// share of the excess, as much on held-out blocks, and clearly beats the
+/// runner-up, `explain` adds it **on trial** and diagnoses the rest; the
+/// diagnosis itself stays `unexplained`.
+pub const MIN_TRIAL: f64 = 0.15;
+
+/// The effect `explain` adds after diagnosis `d`: the named one, or one on
+/// trial ([`MIN_TRIAL`], recorded in `trials` and in `d.reason`).
+fn next_effect(d: &mut Diagnosis, trials: &mut Vec<String>) -> Option<String> {
+    if d.verdict == Verdict::MissingEffect {
+        return d.effect.clone();
+    }
+    let best = d.candidates.first()?;
+    let on_trial = d.verdict == Verdict::Unexplained
+        && d.noise.measured()
+        && best.explained_excess >= MIN_TRIAL
+        && best.cv_gain >= MIN_TRIAL.max(0.7 * best.explained_excess)
+        && clearly_best(best, d.candidates.get(1));
+    if !on_trial {
+        return None;
+    }
+    let e = best.effect.clone();
+    d.reason = format!(
+        "{}; `explain` adds {e} on trial ({:.0}% of the excess, {:.0}% on held-out blocks) and diagnoses the rest",
+        d.reason,
+        100.0 * best.explained_excess,
+        100.0 * best.cv_gain
+    );
+    trials.push(e.clone());
+    Some(e)
+}
+
+/// The reason of a diagnosis whose trial failed: its announcement replaced by `why`.
+fn trial_failed(reason: &mut String, why: &str) {
+    reason.truncate(reason.find("; `explain` adds").unwrap_or(reason.len()));
+    reason.push_str("; ");
+    reason.push_str(why);
+}
+
+/// A trial is a look-ahead: it stays when the diagnosis after it names an
+/// effect or finds nothing missing. When the loop ends `unexplained` right
+/// after a trial, the trial is taken back: the step before it is the last,
+/// with the model it had.
+fn take_back_dead_trials(
+    prep: &Prepared,
+    trials: &[String],
+    ex: &mut Explanation,
+) -> Result<(), LabError> {
+    let closed = |st: &ExplainStep| {
+        matches!(
+            st.diagnosis.verdict,
+            Verdict::NothingMissing | Verdict::MissingEffect
+        )
+    };
+    let steps = &mut ex.steps;
+    while steps.len() >= 2 && !closed(&steps[steps.len() - 1]) {
+        let prev = &steps[steps.len() - 2];
+        let Some(e) = prev
+            .added
+            .clone()
+            .filter(|e| trials.contains(e) && !closed(prev))
+        else {
+            break;
+        };
+        steps.pop();
+        ex.added.retain(|x| *x != e);
+        let last = steps.last_mut().expect("two steps");
+        last.added = None;
+        let why = format!("{e} added on trial led to no named effect and was taken back");
+        trial_failed(&mut last.diagnosis.reason, &why);
+        let cmp = comparison_of(prep, last.comparison.model.clone())?;
+        ex.fitted = fitted_effects(prep, &cmp, &ex.added)?;
+    }
+    Ok(())
+}
+
+/// An effect added on trial stays only if the final model needs it: when the
+/// loop ends at `nothing_missing`, the model without it (fitted from scratch)
+/// is diagnosed, and if that, too, is `nothing_missing` the effect goes and
+/// that diagnosis becomes the last step (its reason says so).
+fn drop_unneeded_trials(
+    prep: &Prepared,
+    opts: &DiagnoseOptions,
+    trials: &[String],
+    ex: &mut Explanation,
+    progress: Progress<'_>,
+) -> Result<(), LabError> {
+    for e in trials {
+        let Some(last) = ex.steps.last_mut() else {
+            return Ok(());
+        };
+        if last.diagnosis.verdict != Verdict::NothingMissing || !ex.added.contains(e) {
+            continue;
+        }
+        let mut spec = last.comparison.model.spec.clone();
+        spec.effects.retain(|x| x != e);
+        spec.shapes.remove(e);
+        let mut without = compare(prep, &spec, progress)?;
+        let mut d = diagnose_with(prep, &without, opts, progress)?;
+        if d.verdict != Verdict::NothingMissing {
+            continue;
+        }
+        ex.added.retain(|x| x != e);
+        ex.fitted = fitted_effects(prep, &without, &ex.added)?;
+        d.reason = format!("{e} (added on trial) is not needed: {}", d.reason);
+        d.candidates.iter_mut().for_each(|c| c.refit = None);
+        without.recs = Vec::new();
+        *last = ExplainStep {
+            comparison: without,
+            diagnosis: d,
+            added: None,
+        };
+    }
+    Ok(())
 }
 
 /// Each of `added` as fitted in the model of `cmp`, with standard errors.
@@ -1721,5 +1841,75 @@ pub(crate) mod tests {
             ),
             "ambient_klux"
         );
+    }
+
+    /// An unexplained diagnosis with `cands` (noise from repeats unless `measured` is false).
+    fn unexplained(cands: Vec<CandidateScore>, measured: bool) -> Diagnosis {
+        Diagnosis {
+            verdict: Verdict::Unexplained,
+            effect: None,
+            runner_up: None,
+            separate_by: None,
+            candidates: cands,
+            skipped: Vec::new(),
+            fit: FitStats {
+                chi2_per_dof: 138.0,
+                z: 9000.0,
+            },
+            strongest_condition: None,
+            rms: Rms::default(),
+            structure_remaining: Vec::new(),
+            reason: "best candidate explains 29% of the excess: not enough".into(),
+            size: Size::default(),
+            noise_single: Size::default(),
+            tolerance_mm: 0.5,
+            small: Vec::new(),
+            noise: if measured {
+                crate::noise::NoiseSource::Repeats { groups: 12 }
+            } else {
+                crate::noise::NoiseSource::NotMeasured
+            },
+        }
+    }
+
+    /// The trial rule: a clear leader of ≥ 15 % (held out as well) is added on
+    /// trial and recorded; a close runner-up, a share that does not hold out,
+    /// a small share or unmeasured noise add nothing.
+    #[test]
+    fn a_clear_partial_leader_is_added_on_trial() {
+        let drift = cand("temperature_drift", 0.29, 0.29, 9000.0, -1e5);
+        let mut d = unexplained(
+            vec![drift.clone(), cand("multipath", 0.04, 0.03, 9500.0, -10.0)],
+            true,
+        );
+        let mut trials = Vec::new();
+        assert_eq!(
+            next_effect(&mut d, &mut trials).as_deref(),
+            Some("temperature_drift")
+        );
+        assert_eq!(trials, ["temperature_drift"]);
+        assert!(d.reason.ends_with("adds temperature_drift on trial (29% of the excess, 29% on held-out blocks) and diagnoses the rest"));
+        trial_failed(&mut d.reason, "taken back");
+        assert_eq!(
+            d.reason,
+            "best candidate explains 29% of the excess: not enough; taken back"
+        );
+        let none = |cands: Vec<CandidateScore>, measured: bool| {
+            let mut t = Vec::new();
+            next_effect(&mut unexplained(cands, measured), &mut t).is_none() && t.is_empty()
+        };
+        assert!(none(
+            vec![drift.clone(), cand("adc_inl", 0.25, 0.24, 9100.0, -1e5)],
+            true
+        ));
+        assert!(none(
+            vec![cand("vcsel_droop", 0.30, 0.10, 9000.0, -1e5)],
+            true
+        ));
+        assert!(none(
+            vec![cand("vcsel_droop", 0.12, 0.12, 9000.0, -1e5)],
+            true
+        ));
+        assert!(none(vec![drift], false));
     }
 }

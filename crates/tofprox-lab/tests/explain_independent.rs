@@ -11,6 +11,8 @@
 //! name the right effects and reach `nothing_missing`, the depth error after it
 //! must reach the same recording without the effects, and the control must say
 //! nothing missing.
+mod common;
+
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
 
@@ -403,17 +405,7 @@ fn fitted_with_standard_errors(ex: &tofprox_lab::diagnose::Explanation, prep: &P
 /// at the written values (`compare --hold-effects`) fits as well as the free
 /// fit (χ²/dof within 2 %).
 fn written_model_reproduces(ex: &tofprox_lab::diagnose::Explanation, prep: &Prepared) {
-    let fin = ex.final_model().unwrap();
-    let base = model_under_test();
-    let mut m = base.clone();
-    for e in &ex.added {
-        let (_, params) = effect_params(prep, fin, e).unwrap();
-        let notes = write_effect(&mut m, e, &params, fin, prep).unwrap();
-        eprintln!("wrote {e}: {notes:?}");
-    }
-    let text = update_model_text(&base.to_toml_string(), &m, &ex.added).unwrap();
-    let written = ModelConfig::from_toml_str(&text).unwrap();
-    let (held, notes) = spec_holding_model(&written, prep);
+    let (held, notes) = common::written_and_held(ex, prep, &model_under_test());
     assert!(notes.is_empty(), "{notes:?}");
     assert_eq!(held.held.len(), ex.added.len());
     let h = compare(prep, &held, &|_, _| {}).unwrap();

@@ -456,6 +456,26 @@ pub(crate) fn code_per_e(m: &ModelConfig) -> f64 {
     m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc::gain_factor(m)
 }
 
+/// A fit that measured the background charge per klux·ms (SBI, tap-gain
+/// mismatch under varying ambient light) writes it as the model's ambient
+/// responsivity `v` (e⁻/µs/klux), so that the file held reproduces the fit;
+/// `why` says what the fit measured.
+fn write_ambient(w: &mut Writer<'_>, v: f64, why: &str) {
+    let a = ids::ambient_light::E_PER_US_PER_KLUX;
+    if let Err(e) =
+        w.m.enable(ids::ambient_light::ID, true)
+            .and_then(|()| w.m.set(a, v))
+    {
+        w.notes.push(format!(
+            "{a} = {v:.6} not written ({e}); kept {:?}",
+            w.m.param(a.section(), a.name())
+        ));
+    } else {
+        w.notes
+            .push(format!("{a} = {v:.6} e-/us/klux written too: {why}"));
+    }
+}
+
 /// The demodulation contrast K of the model file (1 when the effect is off).
 fn contrast(m: &ModelConfig) -> f64 {
     if m.is_enabled(ids::demodulation_contrast::ID) {

@@ -5,7 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
 use tofprox_model::ids::{self, sbi_asymmetry as p};
 
-use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles};
+use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles, write_ambient};
 use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -59,7 +59,11 @@ impl LabEffect for Effect {
             w.set(p::CLAMP_SHARE, v.clamp(0.0, 1.0));
         }
         if let Some(v) = units.ambient_e_per_us_per_klux() {
-            write_ambient(&mut w, v);
+            write_ambient(
+                &mut w,
+                v,
+                "the SBI fit's background charge per signal charge, which the written threshold and mismatch are scaled with; it is determined only where background light is a sizeable part of the tap charges at the threshold (with little background the fit trades it against the threshold): check it against an independent measurement before simulating noise with it",
+            );
         }
         w.notes
     }
@@ -77,25 +81,6 @@ impl LabEffect for Effect {
             vec![-m.get(p::MISMATCH_REL) * u.e_per_unit * u.lsb_per_e],
             nl,
         ))
-    }
-}
-
-/// The SBI fit measured how many electrons a klux·ms of background adds per
-/// signal electron: that is the model's ambient responsivity, `v`.
-fn write_ambient(w: &mut Writer<'_>, v: f64) {
-    let a = ids::ambient_light::E_PER_US_PER_KLUX;
-    if let Err(e) =
-        w.m.enable(ids::ambient_light::ID, true)
-            .and_then(|()| w.m.set(a, v))
-    {
-        w.notes.push(format!(
-            "{a} = {v:.6} not written ({e}); kept {:?}",
-            w.m.param(a.section(), a.name())
-        ));
-    } else {
-        w.notes.push(format!(
-            "{a} = {v:.6} e-/us/klux written too: the SBI fit's background charge per signal charge, which the written threshold and mismatch are scaled with; it is determined only where background light is a sizeable part of the tap charges at the threshold (with little background the fit trades it against the threshold): check it against an independent measurement before simulating noise with it"
-        ));
     }
 }
 

@@ -5,7 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::effects::optical::Correlation;
 use tofprox_model::ids::{self, tap_gain_mismatch as p};
 
-use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast};
+use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient};
 use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
 use crate::waveform::Waveform;
 
@@ -26,11 +26,31 @@ impl LabEffect for Effect {
 
     /// Δ = ε/2 · total charge; the lab's A is the fundamental amplitude,
     /// total = A · peak(C)/contrast (C with fundamental 1): ε = 2·s·K/peak.
+    /// Under varying ambient light the fit measured b = ε·N_amb[e per
+    /// klux·ms]·lsb_per_e (see [`Effect::held`]): the model's ambient
+    /// responsivity b/(ε·1000·lsb_per_e) is written too, or the file held
+    /// would leak the file's own (typical) background instead of the measured.
     fn write(&self, fitted: &Fitted, m: &mut ModelConfig, ctx: &WriteCtx<'_>) -> Vec<String> {
         let mut w = Writer::new(m);
-        if let Some(sh) = fitted.get(SIGNAL_SHARE) {
-            let (k, peak) = (contrast(w.m), ctx.model.waveform.peak());
-            w.set(p::MISMATCH_REL, 2.0 * sh * k / peak);
+        let Some(sh) = fitted.get(SIGNAL_SHARE) else {
+            return w.notes;
+        };
+        let (k, peak) = (contrast(w.m), ctx.model.waveform.peak());
+        let eps = 2.0 * sh * k / peak;
+        w.set(p::MISMATCH_REL, eps);
+        let lsb_per_e = code_per_e(w.m);
+        if let Some(b) = fitted.get(AMBIENT)
+            && eps.abs() > 1e-9
+            && lsb_per_e > 0.0
+        {
+            let v = b / (eps * 1000.0 * lsb_per_e);
+            if v > 0.0 {
+                write_ambient(
+                    &mut w,
+                    v,
+                    "the tap-gain fit's background leak ambient_lsb_per_klux_ms over the written mismatch and the file's conversion gain",
+                );
+            }
         }
         w.notes
     }

@@ -111,3 +111,24 @@ pub fn assert_evidence_quotes(d: &Diagnosis) {
         assert!(ev.contains(&w), "evidence {ev:?} lacks {w:?}");
     }
 }
+
+/// The model file `explain` writes (`--out`): `base` with every added effect as
+/// fitted in the final model; and the spec that holds it at its values
+/// (`compare --hold-effects`), with the notes of holding it.
+pub fn written_and_held(
+    ex: &tofprox_lab::diagnose::Explanation,
+    prep: &tofprox_lab::fit::Prepared,
+    base: &tofprox_model::ModelConfig,
+) -> (tofprox_lab::fit::LabSpec, Vec<String>) {
+    let fin = ex.final_model().unwrap();
+    let mut m = base.clone();
+    for e in &ex.added {
+        let (_, params) = tofprox_lab::diagnose::effect_params(prep, fin, e).unwrap();
+        let notes = tofprox_lab::signatures::write_effect(&mut m, e, &params, fin, prep).unwrap();
+        eprintln!("wrote {e}: {notes:?}");
+    }
+    let text =
+        tofprox_lab::model_file::update_model_text(&base.to_toml_string(), &m, &ex.added).unwrap();
+    let written = tofprox_model::ModelConfig::from_toml_str(&text).unwrap();
+    tofprox_lab::adapter::spec_holding_model(&written, prep)
+}
