@@ -1292,6 +1292,9 @@ pub struct AddOutcome {
     pub params: BTreeMap<String, f64>,
     /// Their standard errors by name ([`fitted_effect`]).
     pub standard_errors: BTreeMap<String, f64>,
+    /// Why those errors understate how far the values may be off (None when
+    /// the model with the effect fits to the noise: [`errors_note`]).
+    pub standard_errors_note: Option<String>,
 }
 
 /// Enable `effect` in the spec, refit everything, and compare before/after.
@@ -1385,6 +1388,7 @@ pub fn add_effect_to(
         effect: fitted,
         params: f.params,
         standard_errors: f.standard_errors,
+        standard_errors_note: f.standard_errors_note,
     })
 }
 
@@ -1401,6 +1405,36 @@ pub struct FittedEffect {
     /// a parameter held on a grid and for the waveform's harmonics (fitted inside the
     /// waveform, not as a signature).
     pub standard_errors: BTreeMap<String, f64>,
+    /// Why those errors understate how far the values may be off ([`errors_note`]).
+    pub standard_errors_note: Option<String>,
+}
+
+/// The standard errors rest on the noise model alone: they say how far the
+/// values may be off only where the model fits to the noise. Where the model
+/// with the effect still leaves an excess χ² (z > [`Z_NULL`]) or structure
+/// against a condition (z > [`STRUCTURE_NULL`]), the law fitted and the
+/// truth's differ by more than the noise, and the values can be off by many
+/// of these errors (docs/lab.md, worked example: τ and β, 14 and 20 of them):
+/// the note says so, with the figures it rests on.
+pub fn errors_note(cmp: &Comparison) -> Option<String> {
+    let strongest = cmp
+        .structure
+        .iter()
+        .max_by(|a, b| a.z.total_cmp(&b.z))
+        .filter(|s| s.z > STRUCTURE_NULL);
+    if cmp.fit.z <= Z_NULL && strongest.is_none() {
+        return None;
+    }
+    let structure = strongest.map_or_else(String::new, |s| {
+        format!(
+            ", structure z {:.1} against {} (≤ {STRUCTURE_NULL} for noise)",
+            s.z, s.condition
+        )
+    });
+    Some(format!(
+        "errors of the noise alone: with it the model leaves χ²/dof {:.3} (z {:.1}, ≤ {Z_NULL} for noise){structure}, so the values may be off by more than these errors",
+        cmp.fit.chi2_per_dof, cmp.fit.z
+    ))
 }
 
 /// `effect` as fitted in the model of `cmp` (which must hold its residual table), with the
@@ -1423,6 +1457,7 @@ pub fn fitted_effect(
         effect: effect.to_string(),
         params,
         standard_errors,
+        standard_errors_note: errors_note(cmp),
     })
 }
 

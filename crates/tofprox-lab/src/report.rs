@@ -82,6 +82,7 @@ pub fn explanation_json(ex: &Explanation) -> Value {
             "effect": f.effect,
             "params": named(&f.params),
             "standard_errors": named(&f.standard_errors),
+            "standard_errors_note": f.standard_errors_note,
         })).collect::<Vec<_>>(),
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
@@ -108,6 +109,7 @@ pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
         "after": summary_json(&ErrorSummary::of(&out.after)),
         "params": named(&out.params),
         "standard_errors": named(&out.standard_errors),
+        "standard_errors_note": out.standard_errors_note,
     })
 }
 
@@ -117,11 +119,13 @@ fn named(m: &BTreeMap<String, f64>) -> Value {
 }
 
 /// The fitted parameters with their standard errors, one `  name = value ± SE` line each
-/// ("± —" where there is none), under a heading saying what they are.
+/// ("± —" where there is none), under a heading saying what they are, and the
+/// note of why the errors understate, if any ([`crate::diagnose::errors_note`]).
 pub fn fitted_text(
     effect: &str,
     params: &BTreeMap<String, f64>,
     standard_errors: &BTreeMap<String, f64>,
+    note: Option<&str>,
 ) -> String {
     let mut s = format!(
         "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise):\n"
@@ -134,6 +138,9 @@ pub fn fitted_text(
             "—".into()
         };
         let _ = writeln!(s, "  {k:<20} = {v:>12.5e} ± {se}");
+    }
+    if let Some(n) = note {
+        let _ = writeln!(s, "  note: {n}");
     }
     s
 }

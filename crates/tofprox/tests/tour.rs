@@ -407,9 +407,53 @@ fn assert_lab_story(origin: &str, runs: &[(String, Option<serde_json::Value>)], 
             p.name
         );
     }
+    assert_errors_carry_their_validity(origin, add, &truth);
     eprintln!(
         "{origin}: {effect} explains {:.1}%, χ²/dof {chi_before:.3} → add {chi_added:.3} → {chi_last:.3}",
         100.0 * share
+    );
+}
+
+/// `add`'s standard errors are of the noise alone: where a fitted droop
+/// parameter lies more than 4 of them from the truth, the output must say the
+/// errors understate (`standard_errors_note`, with the figures it rests on).
+/// The lab's droop signature: rate D/τ (τ in ms), ln τ, β (docs/lab.md).
+fn assert_errors_carry_their_validity(
+    origin: &str,
+    add: &serde_json::Value,
+    truth: &tofprox_model::ModelConfig,
+) {
+    assert_eq!(
+        add["effect"], "vcsel_droop",
+        "{origin}: the examples add droop"
+    );
+    let t = |k: &str| truth.param("vcsel_droop", k).unwrap();
+    let tau_ms = t("tau_us") / 1000.0;
+    let expected = [
+        ("droop_rate", t("droop_rel") / tau_ms),
+        ("ln_tau", tau_ms.ln()),
+        ("exposure_power", t("exposure_power")),
+    ];
+    let worst = expected
+        .iter()
+        .map(|(k, want)| {
+            let got = add["params"][k].as_f64().unwrap();
+            let se = add["standard_errors"][k].as_f64().unwrap();
+            ((got - want) / se).abs()
+        })
+        .fold(0.0, f64::max);
+    let note = add["standard_errors_note"].as_str();
+    if worst > 4.0 {
+        let n = note.unwrap_or_else(|| {
+            panic!("{origin}: a value {worst:.1} errors from the truth, and no note says the errors understate")
+        });
+        assert!(
+            n.contains("may be off by more") && n.contains("leaves χ²/dof "),
+            "{origin}: {n}"
+        );
+    }
+    eprintln!(
+        "{origin}: worst fitted droop parameter {worst:.1} errors from the truth; note: {note:?}"
     );
 }
 

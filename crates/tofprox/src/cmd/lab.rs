@@ -357,6 +357,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
             &a.effect,
             &res.params,
             &res.standard_errors,
+            res.standard_errors_note.as_deref(),
         ));
         Ok(t)
     })?;
@@ -418,6 +419,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
                 &f.effect,
                 &f.params,
                 &f.standard_errors,
+                f.standard_errors_note.as_deref(),
             ));
         }
         if let Some(why) = &ex.stopped {
