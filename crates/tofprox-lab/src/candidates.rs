@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::error::LabError;
 use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
-use crate::signatures::{ImageMemo, Signature};
+use crate::signatures::{FixedMemo, ImageMemo, Signature};
 use tofprox_core::lsq::{Normal, Stop, levenberg_marquardt, solve_sym};
 
 /// Result of fitting one signature.
@@ -163,13 +163,14 @@ fn accumulate(
             // one memo per parameter vector: nl and each finite-difference step
             let mut memo = ImageMemo::default();
             let mut memo_h = vec![ImageMemo::default(); nnl];
+            let mut memo_fixed = FixedMemo::default();
             for s in ch.iter().step_by(stride) {
                 let r = &s.rec(prep);
                 let cap = &prep.caps[r.cap as usize];
                 memo.basis(sig, nl, r, cap, &mut b);
                 let nu = nuisance(r);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                sig.fixed_all(&laws, r, cap, &mut fx);
+                memo_fixed.fixed_all(sig, &laws, r, cap, &mut fx);
                 let d: f64 = fx[0] + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);

@@ -25,7 +25,7 @@ use tofprox_model::ids::{self, EffectId};
 use crate::candidates::{SignatureFit, cv_refit, fit_signature};
 use crate::error::LabError;
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
-use crate::signatures::{Signature, make_signature, quantiles};
+use crate::signatures::{Signature, TermScope, make_signature, quantiles};
 use crate::waveform::Waveform;
 
 /// The knot counts the shape form is tried with.
@@ -174,8 +174,17 @@ impl Signature for AmpPhaseShape {
         )
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
-        let dphi = rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0]);
+    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        self.fixed_with(nl, r, cap, self.fixed_term(nl, r, cap))
+    }
+    /// Δφ(A): the same for every raw image of a pixel in a capture.
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Pixel)
+    }
+    fn fixed_term(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0])
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
         r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
     }
 }
@@ -219,7 +228,14 @@ impl Signature for DriftShape {
         )
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        let c = r.a * self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0;
+        self.basis_image(nl, r, cap, self.phase(nl, cap), out);
+    }
+    /// Δφ(T): the same for every sample of a capture.
+    fn image_term(&self, nl: &[f64], _: u16, cap: &CapInfo) -> Option<f64> {
+        Some(self.phase(nl, cap))
+    }
+    fn basis_image(&self, _: &[f64], r: &Rec, cap: &CapInfo, dphi: f64, out: &mut [f64]) {
+        let c = r.a * self.waveform.eval(r.phi - r.theta + dphi).0;
         match temperatures(cap) {
             Some((t, t_ref)) => rel_weights(&self.knots, t, t_ref, out),
             None => out.iter_mut().for_each(|x| *x = 0.0),
@@ -227,7 +243,16 @@ impl Signature for DriftShape {
         out.iter_mut().for_each(|o| *o *= c);
     }
     fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0 - r.c)
+        self.fixed_with(nl, r, cap, self.fixed_term(nl, r, cap))
+    }
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Image)
+    }
+    fn fixed_term(&self, nl: &[f64], _: &Rec, cap: &CapInfo) -> f64 {
+        self.phase(nl, cap)
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
+        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
     }
 }
 

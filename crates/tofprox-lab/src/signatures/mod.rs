@@ -84,6 +84,22 @@ pub trait Signature: Send + Sync {
             *o = self.fixed(law, r, cap);
         }
     }
+    /// Where [`Signature::fixed`] has a term that is the same for many samples:
+    /// [`FixedMemo`] then computes it ([`Signature::fixed_term`]) once per raw
+    /// image or per pixel of a capture; `None` (the default): no such term.
+    fn fixed_scope(&self) -> Option<TermScope> {
+        None
+    }
+    /// The term of [`Signature::fixed`] at `law` shared within
+    /// [`Signature::fixed_scope`] (e.g. the phase shift a capture's temperature
+    /// or a pixel's amplitude sets). Only called when that scope is `Some`.
+    fn fixed_term(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
+        0.0
+    }
+    /// [`Signature::fixed`] given `fixed_term(law, r, cap)`: the same value.
+    fn fixed_with(&self, law: &[f64], r: &Rec, cap: &CapInfo, _term: f64) -> f64 {
+        self.fixed(law, r, cap)
+    }
     /// The part of the basis that is the same for every pixel of raw image
     /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
     /// the basis has none. [`ImageMemo`] computes it once per raw image where
@@ -130,6 +146,64 @@ impl ImageMemo {
         match self.term {
             Some(t) => sig.basis_image(nl, r, cap, t, out),
             None => sig.basis(nl, r, cap, out),
+        }
+    }
+}
+
+/// What a [`Signature::fixed_term`] is shared by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TermScope {
+    /// Every pixel of one raw image of a capture.
+    Image,
+    /// Every raw image of one pixel in a capture (at its modelled amplitude).
+    Pixel,
+}
+
+/// Evaluates a signature's [`Signature::fixed_all`] sample by sample with its
+/// shared term ([`Signature::fixed_term`]) computed once per raw image or per
+/// pixel of a capture and law: the residual tables run in capture, raw image,
+/// pixel order, so a per-image term is reused by the next sample and a
+/// per-pixel one by the pixel's next raw image. The same values as
+/// [`Signature::fixed_all`]. One memo serves one list of laws.
+#[derive(Debug, Default, Clone)]
+pub struct FixedMemo {
+    /// Per slot (0 for [`TermScope::Image`], the pixel for [`TermScope::Pixel`]):
+    /// the capture, raw image or pixel, and amplitude bits its terms are for.
+    keys: Vec<Option<(u32, u32, u64)>>,
+    /// The terms of each law, slot by slot.
+    terms: Vec<f64>,
+}
+
+impl FixedMemo {
+    /// [`Signature::fixed`] of `sig` at each of `laws` at sample `r`, into `out`.
+    #[inline]
+    pub fn fixed_all(
+        &mut self,
+        sig: &dyn Signature,
+        laws: &[&[f64]],
+        r: &Rec,
+        cap: &CapInfo,
+        out: &mut [f64],
+    ) {
+        let (slot, key) = match sig.fixed_scope() {
+            None => return sig.fixed_all(laws, r, cap, out),
+            Some(TermScope::Image) => (0, (r.cap, u32::from(r.k), 0)),
+            Some(TermScope::Pixel) => (r.pix as usize, (r.cap, r.pix, r.a.to_bits())),
+        };
+        let n = laws.len();
+        if self.keys.len() <= slot {
+            self.keys.resize(slot + 1, None);
+            self.terms.resize((slot + 1) * n, 0.0);
+        }
+        let terms = &mut self.terms[slot * n..(slot + 1) * n];
+        if self.keys[slot] != Some(key) {
+            for (t, law) in terms.iter_mut().zip(laws) {
+                *t = sig.fixed_term(law, r, cap);
+            }
+            self.keys[slot] = Some(key);
+        }
+        for ((o, law), t) in out.iter_mut().zip(laws).zip(terms.iter()) {
+            *o = sig.fixed_with(law, r, cap, *t);
         }
     }
 }
