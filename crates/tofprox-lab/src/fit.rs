@@ -1394,7 +1394,7 @@ fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Res
         let recs = tmp.records_of(prep, step)?;
         let sig = make_signature(&this.id, prep, &model.spec, &model.waveform)?;
         let start = if warm { Some(&this) } else { None };
-        let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, start)?;
+        let fitted = crate::candidates::fit_values(sig.as_ref(), &recs, prep, start)?;
         model.effects[i] = EffectFit {
             id: this.id.clone(),
             lin: fitted.lin,

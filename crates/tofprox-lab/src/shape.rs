@@ -22,7 +22,7 @@ use std::collections::BTreeMap;
 use tofprox_model::effects::shape as law;
 use tofprox_model::ids::{self, EffectId};
 
-use crate::candidates::{SignatureFit, cv_refit, fit_signature};
+use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
 use crate::error::LabError;
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::signatures::{Signature, TermScope, make_signature, quantiles};
@@ -375,7 +375,7 @@ pub fn choose_form(
     let mut plain = spec.clone();
     plain.shapes.remove(id);
     let sig = make_signature(id, prep, &plain, waveform)?;
-    let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
+    let mut fit = fit_values(sig.as_ref(), recs, prep, None)?;
     // an effect whose physical form explains little of the excess is not the
     // one missing: its forms are not compared (the screening's cost)
     let excess = fit.chi2_before - recs.len() as f64;
@@ -383,6 +383,7 @@ pub fn choose_form(
         || spec.held.iter().any(|h| h.id == id)
         || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
     {
+        add_standard_errors(sig.as_ref(), recs, prep, &mut fit);
         return Ok(FormChoice {
             knots: None,
             fit,
@@ -400,14 +401,17 @@ pub fn choose_form(
             cv_chi2: cv,
         }],
     };
-    Ok(best_shape(
+    let mut best = best_shape(
         id,
         prep,
         waveform,
         recs,
         physical,
         (cv_before - cv).max(0.0),
-    ))
+    );
+    // the standard errors of the chosen form only
+    add_standard_errors(best.signature.as_ref(), recs, prep, &mut best.fit);
+    Ok(best)
 }
 
 /// `physical` (scored, explaining `gain` of the held-out χ²) against the
@@ -468,7 +472,7 @@ fn try_shape(
     recs: &[Sample],
 ) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
     let s = make_shape_signature(id, knots, waveform)?;
-    let f = fit_signature(s.as_ref(), recs, prep, None).ok()?;
+    let f = fit_values(s.as_ref(), recs, prep, None).ok()?;
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
     Some((f, s, c))
 }
