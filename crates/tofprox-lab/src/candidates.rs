@@ -194,7 +194,10 @@ fn accumulate(
             for s in ch.iter().step_by(stride) {
                 let r = &s.rec(prep);
                 let cap = &prep.caps[r.cap as usize];
-                memo.basis(sig, nl, r, cap, &mut b);
+                // (a signature without linear terms has no basis to evaluate)
+                if nsig > 0 {
+                    memo.basis(sig, nl, r, cap, &mut b);
+                }
                 let nu = nuisance(r);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
                 memo_fixed.fixed_all(sig, &laws, r, cap, &mut fx);
@@ -206,7 +209,9 @@ fn accumulate(
                         j[nlin + i] = 0.0;
                         continue;
                     };
-                    memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                    if nsig > 0 {
+                        memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                    }
                     let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
                 }

@@ -202,6 +202,19 @@ impl Signature for AmpPhase {
     fn fixed_term(&self, law: &[f64], r: &Rec, _: &CapInfo) -> f64 {
         Self::phase_rad(law, r.a)
     }
+    /// The step of φ0 shares the shape s − 1 (the `powf`s) with the law
+    /// before it.
+    fn fixed_terms(&self, laws: &[&[f64]], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+        let mut prev: Option<(&[f64], f64)> = None;
+        for (o, &law) in out.iter_mut().zip(laws) {
+            let s = match prev {
+                Some((p, s)) if p[1..] == law[1..] => s,
+                _ => Self::shape(law, r.a),
+            };
+            prev = Some((law, s));
+            *o = law[0] * s;
+        }
+    }
     fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
         r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
     }

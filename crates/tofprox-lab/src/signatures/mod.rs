@@ -96,6 +96,13 @@ pub trait Signature: Send + Sync {
     fn fixed_term(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
         0.0
     }
+    /// [`Signature::fixed_term`] at each of `laws` into `out`: a signature whose
+    /// laws share parts of their terms computes those once.
+    fn fixed_terms(&self, laws: &[&[f64]], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        for (t, law) in out.iter_mut().zip(laws) {
+            *t = self.fixed_term(law, r, cap);
+        }
+    }
     /// [`Signature::fixed`] given `fixed_term(law, r, cap)`: the same value.
     fn fixed_with(&self, law: &[f64], r: &Rec, cap: &CapInfo, _term: f64) -> f64 {
         self.fixed(law, r, cap)
@@ -197,9 +204,7 @@ impl FixedMemo {
         }
         let terms = &mut self.terms[slot * n..(slot + 1) * n];
         if self.keys[slot] != Some(key) {
-            for (t, law) in terms.iter_mut().zip(laws) {
-                *t = sig.fixed_term(law, r, cap);
-            }
+            sig.fixed_terms(laws, r, cap, terms);
             self.keys[slot] = Some(key);
         }
         for ((o, law), t) in out.iter_mut().zip(laws).zip(terms.iter()) {
