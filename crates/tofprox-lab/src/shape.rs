@@ -25,7 +25,7 @@ use tofprox_model::ids::{self, EffectId};
 use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
 use crate::error::LabError;
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
-use crate::signatures::{Signature, TermScope, make_signature, quantiles};
+use crate::signatures::{Signature, TermScope, make_signature, phase_shift_code, quantiles};
 use crate::waveform::Waveform;
 
 /// The knot counts the shape form is tried with.
@@ -174,9 +174,6 @@ impl Signature for AmpPhaseShape {
         )
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        self.fixed_with(nl, r, cap, self.fixed_term(nl, r, cap))
-    }
     /// Δφ(A): the same for every raw image of a pixel in a capture.
     fn fixed_scope(&self) -> Option<TermScope> {
         Some(TermScope::Pixel)
@@ -185,7 +182,7 @@ impl Signature for AmpPhaseShape {
         rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0])
     }
     fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 
@@ -242,9 +239,6 @@ impl Signature for DriftShape {
         }
         out.iter_mut().for_each(|o| *o *= c);
     }
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        self.fixed_with(nl, r, cap, self.fixed_term(nl, r, cap))
-    }
     fn fixed_scope(&self) -> Option<TermScope> {
         Some(TermScope::Image)
     }
@@ -252,7 +246,7 @@ impl Signature for DriftShape {
         self.phase(nl, cap)
     }
     fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 

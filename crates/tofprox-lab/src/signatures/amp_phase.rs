@@ -6,7 +6,10 @@ use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
 use tofprox_model::ids::amplitude_phase_error as p;
 
-use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, code_per_e, quantiles};
+use super::{
+    Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, code_per_e, phase_shift_code,
+    quantiles,
+};
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -191,9 +194,6 @@ impl Signature for AmpPhase {
     fn prepare(&self, nl: &[f64]) -> Vec<f64> {
         Self::law(nl)
     }
-    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        self.fixed_with(law, r, cap, self.fixed_term(law, r, cap))
-    }
     /// Δφ depends on the pixel's amplitude only: its `powf`s once per pixel
     /// and capture ([`super::FixedMemo`]).
     fn fixed_scope(&self) -> Option<TermScope> {
@@ -216,7 +216,7 @@ impl Signature for AmpPhase {
         }
     }
     fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 

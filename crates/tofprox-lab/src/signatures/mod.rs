@@ -64,10 +64,15 @@ pub trait Signature: Send + Sync {
     /// Basis values b_j at one sample.
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
     /// The part of Δcode no linear coefficient scales: a full law whose size
-    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j; 0 by default),
-    /// given `law = prepare(nl)`.
-    fn fixed(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
-        0.0
+    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j), given
+    /// `law = prepare(nl)`: [`Signature::fixed_with`] its
+    /// [`Signature::fixed_term`] where the signature has a
+    /// [`Signature::fixed_scope`], 0 otherwise.
+    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        match self.fixed_scope() {
+            Some(_) => self.fixed_with(law, r, cap, self.fixed_term(law, r, cap)),
+            None => 0.0,
+        }
     }
     /// The terms of [`Signature::fixed`] that depend on `nl` alone (clamps
     /// and exponentials of the parameters), computed once per parameter
@@ -103,9 +108,9 @@ pub trait Signature: Send + Sync {
             *t = self.fixed_term(law, r, cap);
         }
     }
-    /// [`Signature::fixed`] given `fixed_term(law, r, cap)`: the same value.
-    fn fixed_with(&self, law: &[f64], r: &Rec, cap: &CapInfo, _term: f64) -> f64 {
-        self.fixed(law, r, cap)
+    /// [`Signature::fixed`] given `fixed_term(law, r, cap)` (0: no full law).
+    fn fixed_with(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo, _term: f64) -> f64 {
+        0.0
     }
     /// The part of the basis that is the same for every pixel of raw image
     /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
@@ -155,6 +160,14 @@ impl ImageMemo {
             None => sig.basis(nl, r, cap, out),
         }
     }
+}
+
+/// Δcode of the phasor rotated by Δφ (rad), the full law of the effects on
+/// the phase: A·[C(φ − θ + Δφ) − C(φ − θ)] (C the correlation waveform,
+/// thesis 3.2.2; A and C(φ − θ) the sample's).
+#[inline]
+pub(crate) fn phase_shift_code(waveform: &Waveform, r: &Rec, dphi_rad: f64) -> f64 {
+    r.a * (waveform.eval(r.phi - r.theta + dphi_rad).0 - r.c)
 }
 
 /// What a [`Signature::fixed_term`] is shared by.

@@ -5,7 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::effects::pixel::{temperature_drift, temperature_drift_terms};
 use tofprox_model::ids::temperature_drift as p;
 
-use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer};
+use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, phase_shift_code};
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -199,9 +199,6 @@ impl Signature for TempDrift {
             *o = c * ti;
         }
     }
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        self.fixed_with(nl, r, cap, self.fixed_term(nl, r, cap))
-    }
     fn fixed_scope(&self) -> Option<TermScope> {
         Some(TermScope::Image)
     }
@@ -209,6 +206,6 @@ impl Signature for TempDrift {
         self.phase(nl, cap)
     }
     fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
