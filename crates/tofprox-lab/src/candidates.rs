@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::error::LabError;
 use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
-use crate::signatures::{ImageMemo, Signature};
+use crate::signatures::{FixedMemo, ImageMemo, Signature};
 use tofprox_core::lsq::{Normal, Stop, levenberg_marquardt, solve_sym};
 
 /// Result of fitting one signature.
@@ -27,7 +27,8 @@ pub struct SignatureFit {
     pub n_params: usize,
     /// Fitted global shifts of offset (LSB), relative gain and phase (rad).
     pub nuisance: [f64; NUISANCE],
-    /// Standard errors of `lin` and of `nl` (`standard_errors`; NaN for a discrete one).
+    /// Standard errors of `lin` and of `nl` (`standard_errors`; NaN for a discrete one,
+    /// and all NaN from [`fit_values`] until [`add_standard_errors`]).
     pub lin_se: Vec<f64>,
     /// (see `lin_se`)
     pub nl_se: Vec<f64>,
@@ -70,12 +71,38 @@ pub fn effect_standard_errors(
     let mut p = fit.lin.clone();
     p.extend([0.0; NUISANCE]);
     p.extend_from_slice(&fit.nl);
-    let free: Vec<usize> = (0..p.len())
-        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
-        .collect();
-    let mut se = standard_errors(sig, recs, prep, &p, &free);
+    let mut se = standard_errors(sig, recs, prep, &p, &free_params(sig));
     se.drain(sig.n_lin()..nlin);
     se
+}
+
+/// The parameters Levenberg–Marquardt refines and [`standard_errors`] covers, in the
+/// layout of [`accumulate`]: every linear one and nuisance shift, and the non-linear
+/// ones but the discrete ones (held at their grid value: a zero Jacobian column would
+/// make JᵀJ singular).
+fn free_params(sig: &dyn Signature) -> Vec<usize> {
+    let nlin = sig.n_lin() + NUISANCE;
+    (0..nlin + sig.nl_start().len())
+        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+        .collect()
+}
+
+/// The standard errors of `f` (a [`fit_values`] of `sig` to `recs`) into its
+/// `lin_se` and `nl_se`: what [`fit_signature`] adds to the fitted values — one pass
+/// over every sample with the Jacobian, which only a reported fit needs.
+pub fn add_standard_errors(
+    sig: &dyn Signature,
+    recs: &[Sample],
+    prep: &Prepared,
+    f: &mut SignatureFit,
+) {
+    let nsig = f.lin.len();
+    let mut p = f.lin.clone();
+    p.extend_from_slice(&f.nuisance);
+    p.extend_from_slice(&f.nl);
+    let se = standard_errors(sig, recs, prep, &p, &free_params(sig));
+    f.lin_se = se[..nsig].to_vec();
+    f.nl_se = se[nsig + NUISANCE..].to_vec();
 }
 
 /// Global nuisance directions refitted with every candidate: the shifts of
@@ -163,13 +190,17 @@ fn accumulate(
             // one memo per parameter vector: nl and each finite-difference step
             let mut memo = ImageMemo::default();
             let mut memo_h = vec![ImageMemo::default(); nnl];
+            let mut memo_fixed = FixedMemo::default();
             for s in ch.iter().step_by(stride) {
                 let r = &s.rec(prep);
                 let cap = &prep.caps[r.cap as usize];
-                memo.basis(sig, nl, r, cap, &mut b);
+                // (a signature without linear terms has no basis to evaluate)
+                if nsig > 0 {
+                    memo.basis(sig, nl, r, cap, &mut b);
+                }
                 let nu = nuisance(r);
                 let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                sig.fixed_all(&laws, r, cap, &mut fx);
+                memo_fixed.fixed_all(sig, &laws, r, cap, &mut fx);
                 let d: f64 = fx[0] + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                 j[..nsig].copy_from_slice(&b);
                 j[nsig..nlin].copy_from_slice(&nu);
@@ -178,7 +209,9 @@ fn accumulate(
                         j[nlin + i] = 0.0;
                         continue;
                     };
-                    memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                    if nsig > 0 {
+                        memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                    }
                     let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
                 }
@@ -259,7 +292,7 @@ pub fn cv_refit(
         if held.is_empty() || train.is_empty() {
             continue;
         }
-        let t = fit_signature(sig, &train, prep, Some(&start))?;
+        let t = fit_values(sig, &train, prep, Some(&start))?;
         let mut p = t.lin;
         p.extend_from_slice(&t.nuisance);
         p.extend_from_slice(&t.nl);
@@ -269,8 +302,23 @@ pub fn cv_refit(
     Ok((cv, before))
 }
 
-/// Fit `sig` to the residuals in `recs` (r = measured − current model).
+/// Fit `sig` to the residuals in `recs` (r = measured − current model), with the
+/// standard errors of its parameters.
 pub fn fit_signature(
+    sig: &dyn Signature,
+    recs: &[Sample],
+    prep: &Prepared,
+    start: Option<&EffectFit>,
+) -> Result<SignatureFit, LabError> {
+    let mut f = fit_values(sig, recs, prep, start)?;
+    add_standard_errors(sig, recs, prep, &mut f);
+    Ok(f)
+}
+
+/// [`fit_signature`] without the standard errors (`lin_se` and `nl_se` NaN; see
+/// [`add_standard_errors`]): for fits whose values alone are used (cross-validation,
+/// the model's enabled effects, forms compared).
+pub fn fit_values(
     sig: &dyn Signature,
     recs: &[Sample],
     prep: &Prepared,
@@ -328,11 +376,7 @@ pub fn fit_signature(
         )));
     }
     let mut p = best[0].2.clone();
-    // The parameters LM refines: a discrete one stays at its grid value (its zero Jacobian
-    // column would make JᵀJ singular).
-    let free: Vec<usize> = (0..nlin + n_nl)
-        .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
-        .collect();
+    let free = free_params(sig);
     if n_nl > 0 {
         // LM on a subsample (the non-linear parameters are few and smooth) …
         let mut refined: Option<(f64, Vec<f64>)> = None;
@@ -392,13 +436,12 @@ pub fn fit_signature(
         v
     };
     let chi2_before: f64 = before.iter().sum();
-    let se = standard_errors(sig, recs, prep, &p, &free);
     let nl = p[nlin..].to_vec();
     let nuisance = [p[nlin - 3], p[nlin - 2], p[nlin - 1]];
     p.truncate(nlin - NUISANCE);
     Ok(SignatureFit {
-        lin_se: se[..nlin - NUISANCE].to_vec(),
-        nl_se: se[nlin..].to_vec(),
+        lin_se: vec![f64::NAN; p.len()],
+        nl_se: vec![f64::NAN; nl.len()],
         n_params: p.len() + nl.len(),
         lin: p,
         nl,

@@ -5,7 +5,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tofprox_model::catalogue::Driver;
 
-use crate::candidates::{effect_standard_errors, fit_signature};
+use crate::candidates::{effect_standard_errors, fit_signature, fit_values};
 use crate::error::{ErrorKind, LabError};
 use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
 use crate::noise::NoiseSource;
@@ -801,7 +801,7 @@ fn refit_cv_gain(
     let mut without = c2.model.clone();
     let e = without.effects.remove(i);
     let recs = without.records(prep)?;
-    let f = fit_signature(sig.as_ref(), &recs, prep, Some(&e))?;
+    let f = fit_values(sig.as_ref(), &recs, prep, Some(&e))?;
     let ex = f.chi2_before - c2.dof;
     // never credited beyond what the refit explains of the baseline excess
     Ok((ex > 0.0).then(|| ((f.cv_chi2_before - f.cv_chi2) / ex).min(c.explained_excess)))

@@ -1206,23 +1206,29 @@ fn per_pixel_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
 }
 
 /// Gauss–Newton step of the global harmonics γ_2..γ_H on all data.
+///
+/// The Jacobian of harmonic m at a sample is A·(cos mx, −sin mx), x = φ − θ_k
+/// (`crate::waveform`), so JᵀWJ holds only products cos mx·cos nx, sin mx·sin nx
+/// and cos mx·sin nx: halves of cos and sin of (m ± n)x. It follows from the moments
+/// S_j = Σ w·A²·e^{ijx}, j = 0..2H ([`HarmonicMoments`]), and those of a pixel's raw
+/// images from e^{ijφ} times the capture's Σ_k e^{−ijθ_k}: once per pixel and capture
+/// instead of a 2(H−1)-parameter update per sample. JᵀWr stays a sum over samples.
 fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
     let npix = prep.npix;
-    let nh = model.waveform.order() - 1;
-    let n = 2 * nh;
+    let order = model.waveform.order();
     let m = &*model;
     // one partial sum per capture, merged in order (deterministic, unlike a
     // rayon fold whose splits depend on thread scheduling)
-    let parts: Vec<Normal> = (0..prep.caps.len())
+    let parts: Vec<HarmonicMoments> = (0..prep.caps.len())
         .into_par_iter()
         .map(|c| {
-            let mut acc = Normal::zeros(n);
+            let mut acc = HarmonicMoments::zeros(order);
             let cap = &prep.caps[c];
             if !cap.used || !cap.illum {
                 return acc;
             }
-            let mut j = vec![0.0; n];
             let rot = theta_rotation(cap);
+            let theta_sums = phasor_power_sums(&rot, 2 * order);
             for p in 0..npix {
                 if m.sat[c * npix + p] {
                     continue;
@@ -1230,34 +1236,126 @@ fn waveform_step(prep: &Prepared, model: &mut LabModel, delta: &[f64]) {
                 let (a, phi, var) = m.amp_phase_var(cap, p);
                 let w = 1.0 / var;
                 let (s, co) = phi.sin_cos();
+                acc.add_pixel(w * a * a, (co, s), &theta_sums);
                 for (k, et) in rot.iter().enumerate() {
                     let i = prep.idx(c, k, p);
                     let (c1, s1) = rotate((co, s), *et);
                     let (cv, _) = m.waveform.eval_at(c1, s1);
                     let r = prep.meas[i] - delta[i] - prep.mid - m.offset[p] - a * cv;
-                    // e^{i h x} for h = 2.. by complex multiplication
-                    let (mut zr, mut zi) = rotate((c1, s1), (c1, s1));
-                    for h in 0..nh {
-                        j[2 * h] = a * zr;
-                        j[2 * h + 1] = -a * zi;
-                        (zr, zi) = (zr * c1 - zi * s1, zr * s1 + zi * c1);
-                    }
-                    acc.add(&j, r, w);
+                    acc.add_residual(w, a, r, (c1, s1));
                 }
             }
             acc
         })
         .collect();
-    let mut nrm = Normal::zeros(n);
+    let mut total = HarmonicMoments::zeros(order);
     for part in &parts {
-        nrm.merge(part);
+        total.merge(part);
     }
-    nrm.symmetrize();
+    let nrm = total.normal();
     if let Some(s) = solve_sym(&nrm.jtj, &nrm.jtr) {
-        for h in 0..nh {
+        for h in 0..order - 1 {
             model.waveform.gamma[h + 1][0] += s[2 * h];
             model.waveform.gamma[h + 1][1] += s[2 * h + 1];
         }
+    }
+}
+
+/// Σ_k z_kʲ for j = 0..=`top` of the unit phasors `z` (complex powers).
+fn phasor_power_sums(z: &[Phasor], top: usize) -> Vec<Phasor> {
+    let mut sums = vec![(0.0, 0.0); top + 1];
+    for &zk in z {
+        let mut p = (1.0, 0.0);
+        for s in &mut sums {
+            s.0 += p.0;
+            s.1 += p.1;
+            p = rotate(p, zk);
+        }
+    }
+    sums
+}
+
+/// The normal equations of the harmonics γ_2..γ_H ([`waveform_step`]) as the moments
+/// S_j = Σ w·A²·e^{ijx} (j = 0..2H) and JᵀWr, χ².
+struct HarmonicMoments {
+    /// S_j, j = 0..=2H.
+    moments: Vec<Phasor>,
+    /// JᵀWr: (Σ w·r·A·cos mx, −Σ w·r·A·sin mx) for m = 2..=H.
+    jtr: Vec<f64>,
+    chi2: f64,
+    count: usize,
+}
+
+impl HarmonicMoments {
+    fn zeros(order: usize) -> Self {
+        Self {
+            moments: vec![(0.0, 0.0); 2 * order + 1],
+            jtr: vec![0.0; 2 * order.saturating_sub(1)],
+            chi2: 0.0,
+            count: 0,
+        }
+    }
+    /// The moments of a pixel's raw images: w·A²·e^{ijφ}·Σ_k e^{−ijθ_k}
+    /// (`theta_sums` from [`phasor_power_sums`] of the e^{−iθ_k}).
+    fn add_pixel(&mut self, wa2: f64, e_phi: Phasor, theta_sums: &[Phasor]) {
+        let mut p = (wa2, 0.0);
+        for (s, t) in self.moments.iter_mut().zip(theta_sums) {
+            let v = rotate(p, *t);
+            s.0 += v.0;
+            s.1 += v.1;
+            p = rotate(p, e_phi);
+        }
+    }
+    /// One sample's residual `r` (weight `w`, amplitude `a`, e^{ix} = `z`).
+    fn add_residual(&mut self, w: f64, a: f64, r: f64, z: Phasor) {
+        let war = w * a * r;
+        let mut zm = rotate(z, z);
+        for j in self.jtr.chunks_exact_mut(2) {
+            j[0] += war * zm.0;
+            j[1] -= war * zm.1;
+            zm = rotate(zm, z);
+        }
+        self.chi2 += w * r * r;
+        self.count += 1;
+    }
+    fn merge(&mut self, o: &Self) {
+        for (a, b) in self.moments.iter_mut().zip(&o.moments) {
+            a.0 += b.0;
+            a.1 += b.1;
+        }
+        for (a, b) in self.jtr.iter_mut().zip(&o.jtr) {
+            *a += b;
+        }
+        self.chi2 += o.chi2;
+        self.count += o.count;
+    }
+    /// JᵀWJ from the moments: with S_{−j} = conj S_j,
+    /// Σ w A² cos mx cos nx = ½ Re(S_{m+n} + S_{m−n}),
+    /// Σ w A² sin mx sin nx = ½ Re(S_{m−n} − S_{m+n}),
+    /// Σ w A² cos mx sin nx = ½ Im(S_{m+n} − S_{m−n}).
+    fn normal(&self) -> Normal {
+        let n = self.jtr.len();
+        let s = |j: i64| {
+            let v = self.moments[j.unsigned_abs() as usize];
+            if j < 0 { (v.0, -v.1) } else { v }
+        };
+        let cos_sin = |m: i64, q: i64| 0.5 * (s(m + q).1 - s(m - q).1);
+        let mut nrm = Normal::zeros(n);
+        for h in 0..n / 2 {
+            for g in 0..n / 2 {
+                let (mh, mg) = (h as i64 + 2, g as i64 + 2);
+                let (sum, diff) = (s(mh + mg).0, s(mh - mg).0);
+                nrm.jtj[2 * h * n + 2 * g] = 0.5 * (sum + diff);
+                nrm.jtj[(2 * h + 1) * n + 2 * g + 1] = 0.5 * (diff - sum);
+                // columns (A cos, −A sin): the mixed products change sign
+                nrm.jtj[2 * h * n + 2 * g + 1] = -cos_sin(mh, mg);
+                nrm.jtj[(2 * h + 1) * n + 2 * g] = -cos_sin(mg, mh);
+            }
+        }
+        nrm.jtr.copy_from_slice(&self.jtr);
+        nrm.chi2 = self.chi2;
+        nrm.count = self.count;
+        nrm
     }
 }
 
@@ -1296,7 +1394,7 @@ fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Res
         let recs = tmp.records_of(prep, step)?;
         let sig = make_signature(&this.id, prep, &model.spec, &model.waveform)?;
         let start = if warm { Some(&this) } else { None };
-        let fitted = crate::candidates::fit_signature(sig.as_ref(), &recs, prep, start)?;
+        let fitted = crate::candidates::fit_values(sig.as_ref(), &recs, prep, start)?;
         model.effects[i] = EffectFit {
             id: this.id.clone(),
             lin: fitted.lin,
@@ -1309,4 +1407,48 @@ fn fit_enabled_effects(prep: &Prepared, model: &mut LabModel, warm: bool) -> Res
         model.phase.iter_mut().for_each(|p| *p += nu[2]);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The harmonics' normal equations from the moments are those of the Jacobian
+    /// rows A·(cos mx, −sin mx) summed sample by sample (written here with `cos`
+    /// and `sin` of m·x), for raw-image phases that are not evenly spaced.
+    #[test]
+    fn harmonic_moments_give_the_sampled_normal_equations() {
+        let order = 5;
+        let thetas = [0.0, 1.1, 2.0, 4.4];
+        let rot: Vec<Phasor> = thetas.iter().map(|t: &f64| (t.cos(), -t.sin())).collect();
+        let sums = phasor_power_sums(&rot, 2 * order);
+        let (mut moments, mut direct) = (HarmonicMoments::zeros(order), Normal::zeros(8));
+        for p in 0..7 {
+            let (a, phi, w) = (
+                50.0 + 30.0 * p as f64,
+                0.9 * p as f64 - 2.0,
+                0.5 + 0.1 * p as f64,
+            );
+            moments.add_pixel(w * a * a, (phi.cos(), phi.sin()), &sums);
+            for (k, t) in thetas.iter().enumerate() {
+                let (x, r) = (phi - t, (p * 4 + k) as f64 * 0.37 - 3.0);
+                moments.add_residual(w, a, r, (x.cos(), x.sin()));
+                let j: Vec<f64> = (2..=order)
+                    .flat_map(|m| [a * (m as f64 * x).cos(), -a * (m as f64 * x).sin()])
+                    .collect();
+                direct.add(&j, r, w);
+            }
+        }
+        direct.symmetrize();
+        let got = moments.normal();
+        let scale = direct.jtj.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (g, d) in got.jtj.iter().zip(&direct.jtj) {
+            assert!((g - d).abs() < 1e-12 * scale, "{g} vs {d}");
+        }
+        for (g, d) in got.jtr.iter().zip(&direct.jtr) {
+            assert!((g - d).abs() < 1e-9 * d.abs().max(1.0), "{g} vs {d}");
+        }
+        assert!((got.chi2 - direct.chi2).abs() < 1e-12 * direct.chi2);
+        assert_eq!(got.count, 28);
+    }
 }

@@ -22,10 +22,10 @@ use std::collections::BTreeMap;
 use tofprox_model::effects::shape as law;
 use tofprox_model::ids::{self, EffectId};
 
-use crate::candidates::{SignatureFit, cv_refit, fit_signature};
+use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
 use crate::error::LabError;
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
-use crate::signatures::{Signature, make_signature, quantiles};
+use crate::signatures::{Signature, TermScope, make_signature, phase_shift_code, quantiles};
 use crate::waveform::Waveform;
 
 /// The knot counts the shape form is tried with.
@@ -174,9 +174,15 @@ impl Signature for AmpPhaseShape {
         )
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
-        let dphi = rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0]);
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    /// Δφ(A): the same for every raw image of a pixel in a capture.
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Pixel)
+    }
+    fn fixed_term(&self, nl: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        rel_shape(&self.knots, nl, r.a.max(0.0), self.knots[0])
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 
@@ -219,15 +225,28 @@ impl Signature for DriftShape {
         )
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        let c = r.a * self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0;
+        self.basis_image(nl, r, cap, self.phase(nl, cap), out);
+    }
+    /// Δφ(T): the same for every sample of a capture.
+    fn image_term(&self, nl: &[f64], _: u16, cap: &CapInfo) -> Option<f64> {
+        Some(self.phase(nl, cap))
+    }
+    fn basis_image(&self, _: &[f64], r: &Rec, cap: &CapInfo, dphi: f64, out: &mut [f64]) {
+        let c = r.a * self.waveform.eval(r.phi - r.theta + dphi).0;
         match temperatures(cap) {
             Some((t, t_ref)) => rel_weights(&self.knots, t, t_ref, out),
             None => out.iter_mut().for_each(|x| *x = 0.0),
         }
         out.iter_mut().for_each(|o| *o *= c);
     }
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        r.a * (self.waveform.eval(r.phi - r.theta + self.phase(nl, cap)).0 - r.c)
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Image)
+    }
+    fn fixed_term(&self, nl: &[f64], _: &Rec, cap: &CapInfo) -> f64 {
+        self.phase(nl, cap)
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 
@@ -350,7 +369,7 @@ pub fn choose_form(
     let mut plain = spec.clone();
     plain.shapes.remove(id);
     let sig = make_signature(id, prep, &plain, waveform)?;
-    let fit = fit_signature(sig.as_ref(), recs, prep, None)?;
+    let mut fit = fit_values(sig.as_ref(), recs, prep, None)?;
     // an effect whose physical form explains little of the excess is not the
     // one missing: its forms are not compared (the screening's cost)
     let excess = fit.chi2_before - recs.len() as f64;
@@ -358,6 +377,7 @@ pub fn choose_form(
         || spec.held.iter().any(|h| h.id == id)
         || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
     {
+        add_standard_errors(sig.as_ref(), recs, prep, &mut fit);
         return Ok(FormChoice {
             knots: None,
             fit,
@@ -375,14 +395,17 @@ pub fn choose_form(
             cv_chi2: cv,
         }],
     };
-    Ok(best_shape(
+    let mut best = best_shape(
         id,
         prep,
         waveform,
         recs,
         physical,
         (cv_before - cv).max(0.0),
-    ))
+    );
+    // the standard errors of the chosen form only
+    add_standard_errors(best.signature.as_ref(), recs, prep, &mut best.fit);
+    Ok(best)
 }
 
 /// `physical` (scored, explaining `gain` of the held-out χ²) against the
@@ -443,7 +466,7 @@ fn try_shape(
     recs: &[Sample],
 ) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
     let s = make_shape_signature(id, knots, waveform)?;
-    let f = fit_signature(s.as_ref(), recs, prep, None).ok()?;
+    let f = fit_values(s.as_ref(), recs, prep, None).ok()?;
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
     Some((f, s, c))
 }

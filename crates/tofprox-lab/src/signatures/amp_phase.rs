@@ -6,7 +6,10 @@ use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
 use tofprox_model::ids::amplitude_phase_error as p;
 
-use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles};
+use super::{
+    Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, code_per_e, phase_shift_code,
+    quantiles,
+};
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -191,14 +194,17 @@ impl Signature for AmpPhase {
     fn prepare(&self, nl: &[f64]) -> Vec<f64> {
         Self::law(nl)
     }
-    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        let mut out = [0.0];
-        self.fixed_all(&[law], r, cap, &mut out);
-        out[0]
+    /// Δφ depends on the pixel's amplitude only: its `powf`s once per pixel
+    /// and capture ([`super::FixedMemo`]).
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Pixel)
+    }
+    fn fixed_term(&self, law: &[f64], r: &Rec, _: &CapInfo) -> f64 {
+        Self::phase_rad(law, r.a)
     }
     /// The step of φ0 shares the shape s − 1 (the `powf`s) with the law
     /// before it.
-    fn fixed_all(&self, laws: &[&[f64]], r: &Rec, _: &CapInfo, out: &mut [f64]) {
+    fn fixed_terms(&self, laws: &[&[f64]], r: &Rec, _: &CapInfo, out: &mut [f64]) {
         let mut prev: Option<(&[f64], f64)> = None;
         for (o, &law) in out.iter_mut().zip(laws) {
             let s = match prev {
@@ -206,8 +212,11 @@ impl Signature for AmpPhase {
                 _ => Self::shape(law, r.a),
             };
             prev = Some((law, s));
-            *o = r.a * (self.waveform.eval(r.phi - r.theta + law[0] * s).0 - r.c);
+            *o = law[0] * s;
         }
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
 
@@ -216,9 +225,10 @@ mod tests {
     use super::*;
 
     /// The prepared laws of a parameter vector and of its finite-difference
-    /// steps, evaluated together (the φ0 step sharing the shape), give the
-    /// Δcode of Δφ = φ0·(s − 1) with s written as 1 − (1 + x⁻ⁿ)^(−1/n) and
-    /// C = cos, each the same to the last bit as the law evaluated alone.
+    /// steps, evaluated together through the memo (the shape once per pixel),
+    /// give the Δcode of Δφ = φ0·(s − 1) with s written as 1 − (1 + x⁻ⁿ)^(−1/n)
+    /// and C = cos, each the same to the last bit as the law evaluated alone,
+    /// also for the pixel's next raw image (the memo's term reused).
     #[test]
     fn laws_evaluated_together_are_the_phasor_law() {
         let ds = crate::synth::generate(&crate::synth::SynthSpec {
@@ -229,22 +239,6 @@ mod tests {
         let prep = Prepared::new(&ds).unwrap();
         let sig = AmpPhase {
             waveform: Waveform::sinusoid(),
-        };
-        let (a, phi, theta) = (1000.0, 0.7, 1.2);
-        let r = Rec {
-            r: 0.0,
-            w: 1.0,
-            a,
-            phi,
-            theta,
-            c: (phi - theta).cos(),
-            cd: -(phi - theta).sin(),
-            x: 0.0,
-            gain_rel: 1.0,
-            cap: 0,
-            pix: 0,
-            k: 0,
-            fold: 0,
         };
         let (lo, hi) = AmpPhase::phase0_range();
         for phi0 in [0.1, 5.0] {
@@ -257,16 +251,35 @@ mod tests {
             }
             let laws: Vec<Vec<f64>> = vecs.iter().map(|v| sig.prepare(v)).collect();
             let refs: Vec<&[f64]> = laws.iter().map(Vec::as_slice).collect();
-            let mut out = [0.0; 4];
-            sig.fixed_all(&refs, &r, &prep.caps[0], &mut out);
-            for (v, (law, o)) in vecs.iter().zip(laws.iter().zip(out)) {
-                let (x, n) = (a / v[1].exp(), v[2].exp());
-                let s = 1.0 - (1.0 + x.powf(-n)).powf(-1.0 / n);
-                let dphi = v[0].clamp(lo, hi) * (s - 1.0);
-                let want = a * ((phi - theta + dphi).cos() - (phi - theta).cos());
-                assert!((o - want).abs() < 1e-9, "{v:?}: {o} vs {want}");
-                assert!(want.abs() > 1.0, "{v:?}: {want}");
-                assert_eq!(o.to_bits(), sig.fixed(law, &r, &prep.caps[0]).to_bits());
+            let mut memo = super::super::FixedMemo::default();
+            for (k, theta) in [1.2, 2.77].into_iter().enumerate() {
+                let (a, phi) = (1000.0, 0.7);
+                let r = Rec {
+                    r: 0.0,
+                    w: 1.0,
+                    a,
+                    phi,
+                    theta,
+                    c: (phi - theta).cos(),
+                    cd: -(phi - theta).sin(),
+                    x: 0.0,
+                    gain_rel: 1.0,
+                    cap: 0,
+                    pix: 0,
+                    k: k as u16,
+                    fold: 0,
+                };
+                let mut out = [0.0; 4];
+                memo.fixed_all(&sig, &refs, &r, &prep.caps[0], &mut out);
+                for (v, (law, o)) in vecs.iter().zip(laws.iter().zip(out)) {
+                    let (x, n) = (a / v[1].exp(), v[2].exp());
+                    let s = 1.0 - (1.0 + x.powf(-n)).powf(-1.0 / n);
+                    let dphi = v[0].clamp(lo, hi) * (s - 1.0);
+                    let want = a * ((phi - theta + dphi).cos() - (phi - theta).cos());
+                    assert!((o - want).abs() < 1e-9, "{v:?}: {o} vs {want}");
+                    assert!(want.abs() > 1.0, "{v:?}: {want}");
+                    assert_eq!(o.to_bits(), sig.fixed(law, &r, &prep.caps[0]).to_bits());
+                }
             }
         }
     }

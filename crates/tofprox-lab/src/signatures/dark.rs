@@ -52,12 +52,23 @@ impl Signature for Dark {
     fn lin_names(&self) -> Vec<String> {
         vec![RATE.into()]
     }
-    fn basis(&self, _: &[f64], _: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        out[0] = cap.exposure_us
-            * 1e-3
-            * tofprox_model::effects::pixel::dark_current_temperature_factor(
-                cap.temp_rel,
-                self.doubling_k,
-            );
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let t = self.image_term(nl, r.k, cap).unwrap_or(0.0);
+        self.basis_image(nl, r, cap, t, out);
+    }
+    /// The exposure (ms) times the temperature factor: the same for every
+    /// sample of a capture (its `powf` once per raw image).
+    fn image_term(&self, _: &[f64], _: u16, cap: &CapInfo) -> Option<f64> {
+        Some(
+            cap.exposure_us
+                * 1e-3
+                * tofprox_model::effects::pixel::dark_current_temperature_factor(
+                    cap.temp_rel,
+                    self.doubling_k,
+                ),
+        )
+    }
+    fn basis_image(&self, _: &[f64], _: &Rec, _: &CapInfo, image: f64, out: &mut [f64]) {
+        out[0] = image;
     }
 }

@@ -64,10 +64,15 @@ pub trait Signature: Send + Sync {
     /// Basis values b_j at one sample.
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]);
     /// The part of Δcode no linear coefficient scales: a full law whose size
-    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j; 0 by default),
-    /// given `law = prepare(nl)`.
-    fn fixed(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
-        0.0
+    /// the non-linear parameters set (Δ = fixed + Σ lin_j·b_j), given
+    /// `law = prepare(nl)`: [`Signature::fixed_with`] its
+    /// [`Signature::fixed_term`] where the signature has a
+    /// [`Signature::fixed_scope`], 0 otherwise.
+    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        match self.fixed_scope() {
+            Some(_) => self.fixed_with(law, r, cap, self.fixed_term(law, r, cap)),
+            None => 0.0,
+        }
     }
     /// The terms of [`Signature::fixed`] that depend on `nl` alone (clamps
     /// and exponentials of the parameters), computed once per parameter
@@ -83,6 +88,29 @@ pub trait Signature: Send + Sync {
         for (o, law) in out.iter_mut().zip(laws) {
             *o = self.fixed(law, r, cap);
         }
+    }
+    /// Where [`Signature::fixed`] has a term that is the same for many samples:
+    /// [`FixedMemo`] then computes it ([`Signature::fixed_term`]) once per raw
+    /// image or per pixel of a capture; `None` (the default): no such term.
+    fn fixed_scope(&self) -> Option<TermScope> {
+        None
+    }
+    /// The term of [`Signature::fixed`] at `law` shared within
+    /// [`Signature::fixed_scope`] (e.g. the phase shift a capture's temperature
+    /// or a pixel's amplitude sets). Only called when that scope is `Some`.
+    fn fixed_term(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo) -> f64 {
+        0.0
+    }
+    /// [`Signature::fixed_term`] at each of `laws` into `out`: a signature whose
+    /// laws share parts of their terms computes those once.
+    fn fixed_terms(&self, laws: &[&[f64]], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        for (t, law) in out.iter_mut().zip(laws) {
+            *t = self.fixed_term(law, r, cap);
+        }
+    }
+    /// [`Signature::fixed`] given `fixed_term(law, r, cap)` (0: no full law).
+    fn fixed_with(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo, _term: f64) -> f64 {
+        0.0
     }
     /// The part of the basis that is the same for every pixel of raw image
     /// `k` of a capture (given `nl`), e.g. the droop of image k; `None` when
@@ -130,6 +158,70 @@ impl ImageMemo {
         match self.term {
             Some(t) => sig.basis_image(nl, r, cap, t, out),
             None => sig.basis(nl, r, cap, out),
+        }
+    }
+}
+
+/// Δcode of the phasor rotated by Δφ (rad), the full law of the effects on
+/// the phase: A·[C(φ − θ + Δφ) − C(φ − θ)] (C the correlation waveform,
+/// thesis 3.2.2; A and C(φ − θ) the sample's).
+#[inline]
+pub(crate) fn phase_shift_code(waveform: &Waveform, r: &Rec, dphi_rad: f64) -> f64 {
+    r.a * (waveform.eval(r.phi - r.theta + dphi_rad).0 - r.c)
+}
+
+/// What a [`Signature::fixed_term`] is shared by.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TermScope {
+    /// Every pixel of one raw image of a capture.
+    Image,
+    /// Every raw image of one pixel in a capture (at its modelled amplitude).
+    Pixel,
+}
+
+/// Evaluates a signature's [`Signature::fixed_all`] sample by sample with its
+/// shared term ([`Signature::fixed_term`]) computed once per raw image or per
+/// pixel of a capture and law: the residual tables run in capture, raw image,
+/// pixel order, so a per-image term is reused by the next sample and a
+/// per-pixel one by the pixel's next raw image. The same values as
+/// [`Signature::fixed_all`]. One memo serves one list of laws.
+#[derive(Debug, Default, Clone)]
+pub struct FixedMemo {
+    /// Per slot (0 for [`TermScope::Image`], the pixel for [`TermScope::Pixel`]):
+    /// the capture, raw image or pixel, and amplitude bits its terms are for.
+    keys: Vec<Option<(u32, u32, u64)>>,
+    /// The terms of each law, slot by slot.
+    terms: Vec<f64>,
+}
+
+impl FixedMemo {
+    /// [`Signature::fixed`] of `sig` at each of `laws` at sample `r`, into `out`.
+    #[inline]
+    pub fn fixed_all(
+        &mut self,
+        sig: &dyn Signature,
+        laws: &[&[f64]],
+        r: &Rec,
+        cap: &CapInfo,
+        out: &mut [f64],
+    ) {
+        let (slot, key) = match sig.fixed_scope() {
+            None => return sig.fixed_all(laws, r, cap, out),
+            Some(TermScope::Image) => (0, (r.cap, u32::from(r.k), 0)),
+            Some(TermScope::Pixel) => (r.pix as usize, (r.cap, r.pix, r.a.to_bits())),
+        };
+        let n = laws.len();
+        if self.keys.len() <= slot {
+            self.keys.resize(slot + 1, None);
+            self.terms.resize((slot + 1) * n, 0.0);
+        }
+        let terms = &mut self.terms[slot * n..(slot + 1) * n];
+        if self.keys[slot] != Some(key) {
+            sig.fixed_terms(laws, r, cap, terms);
+            self.keys[slot] = Some(key);
+        }
+        for ((o, law), t) in out.iter_mut().zip(laws).zip(terms.iter()) {
+            *o = sig.fixed_with(law, r, cap, *t);
         }
     }
 }

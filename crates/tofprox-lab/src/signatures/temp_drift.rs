@@ -5,7 +5,7 @@ use tofprox_model::ModelConfig;
 use tofprox_model::effects::pixel::{temperature_drift, temperature_drift_terms};
 use tofprox_model::ids::temperature_drift as p;
 
-use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
+use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, phase_shift_code};
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
 use crate::waveform::Waveform;
 
@@ -125,12 +125,10 @@ impl TempDrift {
     fn n_terms(&self) -> usize {
         if self.second_order { 2 } else { 1 }
     }
-    /// Δφ(ΔT) and the powers of ΔT, by the model's law.
-    fn phase_and_terms(&self, nl: &[f64], cap: &CapInfo) -> (f64, [f64; 2]) {
+    /// Δφ(ΔT), by the model's law.
+    fn phase(&self, nl: &[f64], cap: &CapInfo) -> f64 {
         let k = [nl[0], nl.get(1).copied().unwrap_or(0.0)];
-        let (dphi, _) = temperature_drift(cap.temp_rel, k, [0.0; 2]);
-        let t = temperature_drift_terms(cap.temp_rel);
-        (dphi, t)
+        temperature_drift(cap.temp_rel, k, [0.0; 2]).0
     }
     /// The fast screening: the first-order law A·C′·Δφ + A·C·G (linear in
     /// every coefficient, with the global nuisance shifts) solved by least
@@ -189,14 +187,25 @@ impl Signature for TempDrift {
         g
     }
     fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        let (dphi, t) = self.phase_and_terms(nl, cap);
+        self.basis_image(nl, r, cap, self.phase(nl, cap), out);
+    }
+    /// Δφ(ΔT): the same for every sample of a capture.
+    fn image_term(&self, nl: &[f64], _: u16, cap: &CapInfo) -> Option<f64> {
+        Some(self.phase(nl, cap))
+    }
+    fn basis_image(&self, _: &[f64], r: &Rec, cap: &CapInfo, dphi: f64, out: &mut [f64]) {
         let c = r.a * self.waveform.eval(r.phi - r.theta + dphi).0;
-        for (o, ti) in out.iter_mut().zip(t) {
+        for (o, ti) in out.iter_mut().zip(temperature_drift_terms(cap.temp_rel)) {
             *o = c * ti;
         }
     }
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        let (dphi, _) = self.phase_and_terms(nl, cap);
-        r.a * (self.waveform.eval(r.phi - r.theta + dphi).0 - r.c)
+    fn fixed_scope(&self) -> Option<TermScope> {
+        Some(TermScope::Image)
+    }
+    fn fixed_term(&self, nl: &[f64], _: &Rec, cap: &CapInfo) -> f64 {
+        self.phase(nl, cap)
+    }
+    fn fixed_with(&self, _: &[f64], r: &Rec, _: &CapInfo, dphi: f64) -> f64 {
+        phase_shift_code(&self.waveform, r, dphi)
     }
 }
