@@ -1,15 +1,23 @@
 //! The shape form of the effects whose law physics does not fix (issue 20,
-//! item 3): the amplitude-phase error Δφ(A) and the temperature drift
-//! Δφ(T), G(T) as the model's monotone piecewise-linear shape
+//! item 3): the amplitude-phase error Δφ(A), the temperature drift
+//! Δφ(T), G(T), the SBI's removed charge R(N_max) and the VCSEL droop's
+//! loss L(t_on) as the model's monotone piecewise-linear shape
 //! (`tofprox_model::effects::shape`: f(x) = Σ_j v_j·h_j(x), flat outside the
 //! knots) — the same evaluation the simulator runs, so what `add` writes is
 //! what was fitted.
 //!
 //! Knots sit at quantiles of the driver in the recording (K ∈
 //! [`KNOT_COUNTS`]): the amplitude of the illuminated samples (LSB), the
-//! captures' temperatures (°C). The value at the first knot is held at 0 (a
-//! constant phase or gain is the per-pixel phase and gain's), so the fitted
-//! coefficients are the K − 1 others. Fitting: the first-order law (A·C′·Δφ
+//! captures' temperatures (°C), the fuller tap's charge (the SBI's lab units,
+//! `signatures::sbi`; only where the ambient light does not vary, else its
+//! unit is a fitted parameter), the VCSEL's on-time before each raw image
+//! (µs). The value at the first knot is held at 0 (a constant phase or gain
+//! is the per-pixel phase and gain's; the SBI starts there; the first raw
+//! image is the droop's reference), so the fitted coefficients are the
+//! K − 1 others. The droop's loss enters linearly (−A·C·L); the SBI's
+//! removed charge is capped by the emptier tap, so its values are
+//! non-linear parameters beside the mismatch (their common scale is pinned
+//! only where the cap binds; it starts at the clamp R = N_max − N_first). Fitting: the first-order law (A·C′·Δφ
 //! for the phase, linear in the hat basis) by least squares as the start,
 //! then the full law — the phasor rotated by Δφ, scaled by 1 + G — refined
 //! by the candidates' Levenberg–Marquardt path, like the parametric forms.
@@ -19,12 +27,14 @@
 
 use std::collections::BTreeMap;
 
+use tofprox_model::effects::optical::droop_on_time_us;
 use tofprox_model::effects::shape as law;
 use tofprox_model::ids::{self, EffectId};
 
 use crate::candidates::{SignatureFit, cv_refit, fit_signature};
 use crate::error::LabError;
 use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
+use crate::signatures::sbi::{self, Sbi};
 use crate::signatures::{Signature, make_signature, quantiles};
 use crate::waveform::Waveform;
 
@@ -118,14 +128,27 @@ fn screen_phase(
     prep: &Prepared,
     weights: &dyn Fn(&Rec, &mut [f64]),
 ) -> Option<Vec<f64>> {
+    let cols = |r: &Rec, o: &mut [f64]| {
+        weights(r, o);
+        o.iter_mut().for_each(|x| *x *= r.a * r.cd);
+    };
+    screen(n, recs, prep, &cols)
+}
+
+/// Least squares of r = Σ_j v_j·b_j + nuisance (offset, gain, phase) on a
+/// subsample, `cols` the n columns b_j of a sample: a shape's first-order
+/// start.
+fn screen(
+    n: usize,
+    recs: &[Sample],
+    prep: &Prepared,
+    cols: &dyn Fn(&Rec, &mut [f64]),
+) -> Option<Vec<f64>> {
     let mut acc = tofprox_core::lsq::Normal::zeros(n + 3);
-    let (mut w, mut j) = (vec![0.0; n], vec![0.0; n + 3]);
+    let mut j = vec![0.0; n + 3];
     for s in recs.iter().step_by((recs.len() / 60_000).max(1)) {
         let r = s.rec(prep);
-        weights(&r, &mut w);
-        for i in 0..n {
-            j[i] = r.a * r.cd * w[i];
-        }
+        cols(&r, &mut j[..n]);
         j[n..].copy_from_slice(&[1.0, r.a * r.c, r.a * r.cd]);
         acc.add(&j, r.r, r.w);
     }
@@ -231,31 +254,147 @@ impl Signature for DriftShape {
     }
 }
 
+/// The SBI as a shape of the fuller tap's charge N_max (lab units, κ = 1,
+/// `signatures::sbi`): Δ = m·R(N_a, N_b) with R the model's
+/// [`law::sbi_removed_e`] (the curve at N_max, at most N_min); lin = [m]
+/// (LSB per unit of removed charge), nl = R at knots 1.. (units).
+struct SbiShape {
+    knots: Vec<f64>,
+    taps: Sbi,
+}
+
+impl SbiShape {
+    /// R of sample `r` for the values `nl` at knots 1.. (0 at the first).
+    fn removed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        let n = self.knots.len().min(MAX_KNOTS);
+        let mut v = [0.0; MAX_KNOTS];
+        v[1..n].copy_from_slice(&nl[..n - 1]);
+        let (na, nb) = self.taps.taps(&[], r, cap);
+        law::sbi_removed_e(&self.knots[..n], &v[..n], na, nb)
+    }
+    /// The clamp R = N_max − N_first at the knots 1.. (the parametric
+    /// family's clamp end with its threshold at the first knot).
+    fn clamp(&self) -> Vec<f64> {
+        self.knots[1..].iter().map(|k| k - self.knots[0]).collect()
+    }
+}
+
+impl Signature for SbiShape {
+    fn id(&self) -> &'static str {
+        ids::sbi_asymmetry::ID.as_str()
+    }
+    fn n_lin(&self) -> usize {
+        1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        vec![sbi::MISMATCH.into()]
+    }
+    fn nl_names(&self) -> Vec<String> {
+        self.knots[1..]
+            .iter()
+            .map(|k| format!("removed_at_{k:.1}_units"))
+            .collect()
+    }
+    fn nl_start(&self) -> Vec<f64> {
+        self.clamp()
+    }
+    /// The clamp, and the first-order screening of m·R (R at the fuller
+    /// tap, uncapped) scaled to the clamp's size and to half of it.
+    fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
+        let n = self.knots.len() - 1;
+        let cols = |r: &Rec, o: &mut [f64]| {
+            let (na, nb) = self.taps.taps(&[], r, &prep.caps[r.cap as usize]);
+            rel_weights(&self.knots, na.max(nb), self.knots[0], o);
+        };
+        let mut g = vec![self.clamp()];
+        let Some(c) = screen(n, recs, prep, &cols) else {
+            return g;
+        };
+        let ext = c.iter().fold(0.0f64, |m, x| if x.abs() > m.abs() { *x } else { m });
+        if ext != 0.0 {
+            let top = self.knots[n] - self.knots[0];
+            let unit = law::monotone_projection(&c.iter().map(|x| x / ext).collect::<Vec<_>>());
+            for f in [1.0, 0.5] {
+                g.push(unit.iter().map(|u| f * top * u.max(0.0)).collect());
+            }
+        }
+        g
+    }
+    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        out[0] = self.removed(nl, r, cap);
+    }
+}
+
+/// The VCSEL droop as a shape of the on-time before raw image k,
+/// t_on = k·t_exp (µs, `optical::droop_on_time_us`): Δ = −A·C·L(t_on),
+/// lin = L at knots 1.. (the first raw image is the reference).
+struct DroopShape {
+    knots: Vec<f64>,
+}
+
+impl Signature for DroopShape {
+    fn id(&self) -> &'static str {
+        ids::vcsel_droop::ID.as_str()
+    }
+    fn n_lin(&self) -> usize {
+        self.knots.len() - 1
+    }
+    fn lin_names(&self) -> Vec<String> {
+        self.knots[1..]
+            .iter()
+            .map(|k| format!("loss_rel_at_{k:.0}_us"))
+            .collect()
+    }
+    fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let t_on = droop_on_time_us(f64::from(r.k), cap.exposure_us);
+        rel_weights(&self.knots, t_on, self.knots[0], out);
+        out.iter_mut().for_each(|o| *o *= -r.a * r.c);
+    }
+}
+
 /// The shape-form signature of effect `id` with `knots` in the lab's driver
-/// units (amplitude: LSB; temperature: °C); `None` when it has no shape form.
+/// units (amplitude: LSB; temperature: °C; tap charge: the SBI's units;
+/// on-time: µs); `None` when it has no shape form here (the SBI's where the
+/// ambient light varies: its tap charges' unit is then a fitted parameter).
 pub fn make_shape_signature(
     id: &str,
     knots: &[f64],
+    prep: &Prepared,
     waveform: &Waveform,
 ) -> Option<Box<dyn Signature>> {
-    let (knots, waveform) = (knots.to_vec(), waveform.clone());
+    let knots = knots.to_vec();
+    let waveform_ = || waveform.clone();
     match EffectId::parse(id)? {
-        ids::amplitude_phase_error::ID => Some(Box::new(AmpPhaseShape { knots, waveform })),
-        ids::temperature_drift::ID => Some(Box::new(DriftShape { knots, waveform })),
+        ids::amplitude_phase_error::ID => Some(Box::new(AmpPhaseShape {
+            knots,
+            waveform: waveform_(),
+        })),
+        ids::temperature_drift::ID => Some(Box::new(DriftShape {
+            knots,
+            waveform: waveform_(),
+        })),
+        ids::sbi_asymmetry::ID if !prep.ambient_varies => Some(Box::new(SbiShape {
+            knots,
+            taps: Sbi::new(prep, waveform),
+        })),
+        ids::vcsel_droop::ID => Some(Box::new(DroopShape { knots })),
         _ => None,
     }
 }
 
 /// `k` knots of effect `id`'s driver in the recording, or `None` when it has
 /// fewer than `k` distinct values: the amplitude at evenly spaced quantiles
-/// (2 % … 98 %) of its phase information w·A²; the temperature at evenly
-/// spaced ranks of the illuminated captures' distinct temperatures, the
-/// coldest and the warmest included (at most as many knots as temperatures).
+/// (2 % … 98 %) of its phase information w·A²; the temperature and the
+/// on-time at evenly spaced ranks of the illuminated captures' distinct
+/// values, the extremes included (at most as many knots as values); the
+/// fuller tap's charge at evenly spaced quantiles (2 % … 98 %) of the
+/// illuminated samples' (none where the ambient light varies).
 pub fn knots_at_quantiles(
     id: &str,
     k: usize,
     recs: &[Sample],
     prep: &Prepared,
+    waveform: &Waveform,
 ) -> Option<Vec<f64>> {
     let qs: Vec<f64> = (0..k)
         .map(|i| 0.02 + 0.96 * i as f64 / (k - 1).max(1) as f64)
@@ -285,24 +424,55 @@ pub fn knots_at_quantiles(
             }
             strictly_increasing(q, k)
         }
-        ids::temperature_drift::ID => {
-            let mut t: Vec<f64> = prep
-                .caps
+        ids::temperature_drift::ID => ranked(
+            prep.caps
                 .iter()
                 .filter(|c| c.illum && c.used)
                 .filter_map(|c| c.temperature_c)
+                .collect(),
+            k,
+        ),
+        ids::vcsel_droop::ID => ranked(
+            prep.caps
+                .iter()
+                .filter(|c| c.illum && c.used)
+                .flat_map(|c| {
+                    (0..c.phases_deg.len()).map(|i| droop_on_time_us(i as f64, c.exposure_us))
+                })
+                .collect(),
+            k,
+        ),
+        ids::sbi_asymmetry::ID if !prep.ambient_varies => {
+            let taps = Sbi::new(prep, waveform);
+            let n_max: Vec<f64> = recs
+                .iter()
+                .step_by((recs.len() / 20_000).max(1))
+                .map(|s| s.rec(prep))
+                .filter(|r| r.a > 0.0)
+                .map(|r| {
+                    let (a, b) = taps.taps(&[], &r, &prep.caps[r.cap as usize]);
+                    a.max(b)
+                })
                 .collect();
-            t.sort_by(f64::total_cmp);
-            t.dedup();
-            // few recorded temperatures: the extremes are knots (the law is
-            // flat beyond them), the others at evenly spaced ranks; at most
-            // one knot per temperature (then the shape is any monotone law)
-            let k = k.min(t.len());
-            let ranks: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64).collect();
-            strictly_increasing(quantiles(t, &ranks), k)
+            strictly_increasing(quantiles(n_max, &qs), k)
         }
         _ => None,
     }
+}
+
+/// `k` knots at evenly spaced ranks of the distinct values `v`: few
+/// recorded values make the extremes knots (the law is flat beyond them),
+/// the others at evenly spaced ranks; at most one knot per value (then the
+/// shape is any monotone law).
+fn ranked(mut v: Vec<f64>, k: usize) -> Option<Vec<f64>> {
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    let k = k.min(v.len());
+    if k < 2 {
+        return None;
+    }
+    let ranks: Vec<f64> = (0..k).map(|i| i as f64 / (k - 1) as f64).collect();
+    strictly_increasing(quantiles(v, &ranks), k)
 }
 
 fn strictly_increasing(mut q: Vec<f64>, k: usize) -> Option<Vec<f64>> {
@@ -401,7 +571,7 @@ fn best_shape(
     let mut best = physical;
     for &k in KNOT_COUNTS {
         // (fewer knots where the driver has fewer values: each K once)
-        let Some(knots) = knots_at_quantiles(id, k, recs, prep)
+        let Some(knots) = knots_at_quantiles(id, k, recs, prep, waveform)
             .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
         else {
             continue;
@@ -442,7 +612,7 @@ fn try_shape(
     waveform: &Waveform,
     recs: &[Sample],
 ) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
-    let s = make_shape_signature(id, knots, waveform)?;
+    let s = make_shape_signature(id, knots, prep, waveform)?;
     let f = fit_signature(s.as_ref(), recs, prep, None).ok()?;
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
     Some((f, s, c))
@@ -459,9 +629,13 @@ pub fn form_name(knots: Option<&Vec<f64>>) -> String {
 
 /// The model file's shape of effect `id` (`fit` in the lab's form with
 /// `knots`): knots in the model's units (amplitude: LSB ÷ `code_per_e` =
-/// electrons; temperature: °C) and the values relative to the lab's
-/// reference `temp_ref_c` (drift) — each curve projected onto the nearest
-/// monotone one (`law::monotone_projection`), as the model requires.
+/// electrons; temperature: °C; tap charge: SBI units × e⁻ per unit; on-time:
+/// µs) and the values relative to the lab's reference `temp_ref_c` (drift)
+/// — each curve projected onto the nearest monotone one
+/// (`law::monotone_projection`), as the model requires; the SBI's removed
+/// charge non-negative, its sign carried by the mismatch
+/// ([`shape_mismatch_rel`]), the droop's loss below 1. `None` where `fit`
+/// is not of the shape form.
 pub fn model_shape(
     id: &str,
     knots: &[f64],
@@ -470,6 +644,10 @@ pub fn model_shape(
     temp_ref_c: f64,
 ) -> Option<law::EffectShape> {
     let with0 = |c: &[f64]| -> Vec<f64> { std::iter::once(0.0).chain(c.iter().copied()).collect() };
+    let one = |key, values| law::EffectShape {
+        knots: knots.to_vec(),
+        curves: vec![(key, values)],
+    };
     match EffectId::parse(id)? {
         ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some(law::EffectShape {
             knots: knots.iter().map(|k| k / code_per_e).collect(),
@@ -493,20 +671,60 @@ pub fn model_shape(
                 ],
             })
         }
+        ids::sbi_asymmetry::ID if code_per_e > 0.0 && fit.nl.len() + 1 == knots.len() => {
+            let u = sbi::signal_e_per_unit(code_per_e);
+            let sign = sbi_sign(&fit.nl);
+            let r: Vec<f64> = with0(&fit.nl).iter().map(|v| sign * v * u).collect();
+            let r = law::monotone_projection(&r);
+            Some(law::EffectShape {
+                knots: knots.iter().map(|k| k * u).collect(),
+                curves: vec![(law::SBI_REMOVED_E, r.iter().map(|v| v.max(0.0)).collect())],
+            })
+        }
+        ids::vcsel_droop::ID if fit.lin.len() + 1 == knots.len() => {
+            let l = law::monotone_projection(&with0(&fit.lin));
+            Some(one(
+                law::DROOP_LOSS_REL,
+                l.iter().map(|v| v.min(MAX_LOSS_REL)).collect(),
+            ))
+        }
         _ => None,
     }
 }
 
-/// The lab's knots and (lin, nl) of the model file's shape `s` of effect
-/// `id` (the inverse of [`model_shape`]): values relative to the first
-/// knot's; the drift's gain divided by the file's 1 + G(T_ref) (the lab's
-/// factor is relative to its reference temperature `temp_ref_c`).
+/// The largest power loss a written droop shape keeps (the model refuses
+/// L ≥ 1: no power left).
+const MAX_LOSS_REL: f64 = 0.99;
+
+/// The direction of the SBI shape's removed charge: the lab's values and
+/// mismatch are determined up to a common sign (R·m); the file's R does not
+/// decrease, so a fit whose values fall is written with both signs flipped.
+fn sbi_sign(nl: &[f64]) -> f64 {
+    if nl.iter().sum::<f64>() < 0.0 { -1.0 } else { 1.0 }
+}
+
+/// The model's `mismatch_rel` of the SBI's shape form fitted as `fit`
+/// (lab: Δcode = m_lab·R[units]; model: −m·R[e⁻]·code_per_e with
+/// R[e⁻] = R[units]·u, so m = −m_lab/(u·code_per_e), sign as [`sbi_sign`]).
+pub fn shape_mismatch_rel(fit: &EffectFit, code_per_e: f64) -> Option<f64> {
+    let m_lab = *fit.lin.first()?;
+    let u = sbi::signal_e_per_unit(code_per_e);
+    (code_per_e > 0.0).then(|| -sbi_sign(&fit.nl) * m_lab / (u * code_per_e))
+}
+
+/// The lab's knots and (lin, nl) of model file `m`'s shape of effect `id`
+/// (the inverse of [`model_shape`]): values relative to the first knot's;
+/// the drift's gain divided by the file's 1 + G(T_ref) (the lab's factor is
+/// relative to its reference temperature `temp_ref_c`); the droop's loss
+/// relative to the first raw image's power, 1 − L(0); the SBI's values in
+/// its units, its mismatch from the file's `mismatch_rel`.
 pub fn held_shape(
     id: EffectId,
-    s: &law::EffectShape,
+    m: &tofprox_model::ModelConfig,
     code_per_e: f64,
     temp_ref_c: f64,
 ) -> Option<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+    let s = m.shape(id)?;
     let curve = |key: &str| -> Vec<f64> {
         s.curves
             .iter()
@@ -533,6 +751,19 @@ pub fn held_shape(
                 rel(&curve(law::DRIFT_PHASE_RAD), 1.0),
             ))
         }
+        ids::sbi_asymmetry::ID if code_per_e > 0.0 => {
+            let u = sbi::signal_e_per_unit(code_per_e);
+            let r = curve(law::SBI_REMOVED_E);
+            Some((
+                s.knots.iter().map(|k| k / u).collect(),
+                vec![-m.get(ids::sbi_asymmetry::MISMATCH_REL) * u * code_per_e],
+                r[1..].iter().map(|v| v / u).collect(),
+            ))
+        }
+        ids::vcsel_droop::ID => {
+            let l = curve(law::DROOP_LOSS_REL);
+            Some((s.knots.clone(), rel(&l, 1.0 - l[0]), Vec::new()))
+        }
         _ => None,
     }
 }
@@ -544,8 +775,7 @@ pub fn spec_shapes(m: &tofprox_model::ModelConfig, code_per_e: f64) -> BTreeMap<
         .iter()
         .filter(|l| m.is_enabled(l.effect))
         .filter_map(|l| {
-            let s = m.shape(l.effect)?;
-            let (knots, _, _) = held_shape(l.effect, s, code_per_e, 0.0)?;
+            let (knots, _, _) = held_shape(l.effect, m, code_per_e, 0.0)?;
             Some((l.effect.as_str().to_string(), knots))
         })
         .collect()
