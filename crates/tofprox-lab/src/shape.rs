@@ -432,16 +432,7 @@ pub fn knots_at_quantiles(
                 .collect(),
             k,
         ),
-        ids::vcsel_droop::ID => ranked(
-            prep.caps
-                .iter()
-                .filter(|c| c.illum && c.used)
-                .flat_map(|c| {
-                    (0..c.phases_deg.len()).map(|i| droop_on_time_us(i as f64, c.exposure_us))
-                })
-                .collect(),
-            k,
-        ),
+        ids::vcsel_droop::ID => on_time_knots(prep, k),
         ids::sbi_asymmetry::ID if !prep.ambient_varies => {
             let taps = Sbi::new(prep, waveform);
             let n_max: Vec<f64> = recs
@@ -458,6 +449,41 @@ pub fn knots_at_quantiles(
         }
         _ => None,
     }
+}
+
+/// Up to `k` knots of the droop's on-time from the illuminated raw images
+/// of `prep`: the shortest (the first raw image: the reference), then evenly
+/// spaced ranks of the longer ones up to the longest — ranks of the raw
+/// images, so the knots sit where the images are; only on-times recorded in
+/// at least two captures (one that a single capture holds, like a long
+/// correlation capture's, has no held-out block to score it: the shape is
+/// flat there); fewer knots where on-times repeat.
+fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
+    let per_cap: Vec<Vec<f64>> = prep
+        .caps
+        .iter()
+        .filter(|c| c.illum && c.used)
+        .map(|c| {
+            (0..c.phases_deg.len())
+                .map(|i| droop_on_time_us(i as f64, c.exposure_us))
+                .collect()
+        })
+        .collect();
+    let captures_with = |t: f64| per_cap.iter().filter(|c| c.contains(&t)).count();
+    let mut v: Vec<f64> = per_cap
+        .iter()
+        .flatten()
+        .copied()
+        .filter(|t| captures_with(*t) >= 2)
+        .collect();
+    v.sort_by(f64::total_cmp);
+    let first = *v.first()?;
+    let longer: Vec<f64> = v.into_iter().filter(|t| *t > first).collect();
+    let ranks: Vec<f64> = (1..k).map(|i| i as f64 / (k - 1) as f64).collect();
+    let mut q = vec![first];
+    q.extend(quantiles(longer, &ranks));
+    q.dedup();
+    (q.len() >= 2 && law::check_knots(&q).is_ok()).then_some(q)
 }
 
 /// `k` knots at evenly spaced ranks of the distinct values `v`: few
