@@ -255,27 +255,33 @@ impl Signature for DriftShape {
 }
 
 /// The SBI as a shape of the fuller tap's charge N_max (lab units, κ = 1,
-/// `signatures::sbi`): Δ = m·R(N_a, N_b) with R the model's
-/// [`law::sbi_removed_e`] (the curve at N_max, at most N_min); lin = [m]
-/// (LSB per unit of removed charge), nl = R at knots 1.. (units).
+/// `signatures::sbi`): Δ = −m·[`sbi::LSB_PER_UNIT`]·R(N_a, N_b) with R the
+/// model's [`law::sbi_removed_e`] (the curve at N_max, at most N_min) and m
+/// the model's `mismatch_rel`, held inside its range; nl = [R at knots 1..
+/// (units), m]. Only m·R is pinned where no tap empties: the fit starts at
+/// the largest |m| (the least charge removed) and moves from there only
+/// where the cap of the emptier tap tells.
 struct SbiShape {
     knots: Vec<f64>,
     taps: Sbi,
 }
 
+/// The bound of the SBI's mismatch |m| (the model's range).
+fn sbi_mismatch_bound() -> f64 {
+    tofprox_model::catalogue::param_info(ids::sbi_asymmetry::MISMATCH_REL)
+        .map_or(1.0, |p| p.max.abs().min(p.min.abs()))
+}
+
 impl SbiShape {
-    /// R of sample `r` for the values `nl` at knots 1.. (0 at the first).
-    fn removed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+    /// Δcode of sample `r` for `nl` (values at knots 1.., then m).
+    fn delta(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
         let n = self.knots.len().min(MAX_KNOTS);
         let mut v = [0.0; MAX_KNOTS];
         v[1..n].copy_from_slice(&nl[..n - 1]);
+        let b = sbi_mismatch_bound();
+        let m = nl.get(n - 1).copied().unwrap_or(0.0).clamp(-b, b);
         let (na, nb) = self.taps.taps(&[], r, cap);
-        law::sbi_removed_e(&self.knots[..n], &v[..n], na, nb)
-    }
-    /// The clamp R = N_max − N_first at the knots 1.. (the parametric
-    /// family's clamp end with its threshold at the first knot).
-    fn clamp(&self) -> Vec<f64> {
-        self.knots[1..].iter().map(|k| k - self.knots[0]).collect()
+        -m * sbi::LSB_PER_UNIT * law::sbi_removed_e(&self.knots[..n], &v[..n], na, nb)
     }
 }
 
@@ -284,44 +290,59 @@ impl Signature for SbiShape {
         ids::sbi_asymmetry::ID.as_str()
     }
     fn n_lin(&self) -> usize {
-        1
+        0
     }
     fn lin_names(&self) -> Vec<String> {
-        vec![sbi::MISMATCH.into()]
+        Vec::new()
     }
     fn nl_names(&self) -> Vec<String> {
-        self.knots[1..]
+        let mut v: Vec<String> = self.knots[1..]
             .iter()
             .map(|k| format!("removed_at_{k:.1}_units"))
-            .collect()
+            .collect();
+        v.push(ids::sbi_asymmetry::MISMATCH_REL.name().into());
+        v
     }
+    /// The clamp R = N_max − N_first (the parametric family's clamp end with
+    /// its threshold at the first knot) and the typical mismatch.
     fn nl_start(&self) -> Vec<f64> {
-        self.clamp()
+        let mut v: Vec<f64> = self.knots[1..].iter().map(|k| k - self.knots[0]).collect();
+        v.push(tofprox_model::catalogue::typical(ids::sbi_asymmetry::MISMATCH_REL));
+        v
     }
-    /// The clamp, and the first-order screening of m·R (R at the fuller
-    /// tap, uncapped) scaled to the clamp's size and to half of it.
+    /// The clamp, and the first-order screening of the product m·R (R at
+    /// the fuller tap, uncapped) split at |m| = the bound, a third and a
+    /// tenth of it.
     fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let n = self.knots.len() - 1;
         let cols = |r: &Rec, o: &mut [f64]| {
             let (na, nb) = self.taps.taps(&[], r, &prep.caps[r.cap as usize]);
             rel_weights(&self.knots, na.max(nb), self.knots[0], o);
         };
-        let mut g = vec![self.clamp()];
+        let mut g = vec![self.nl_start()];
         let Some(c) = screen(n, recs, prep, &cols) else {
             return g;
         };
+        // c = −m·LSB_PER_UNIT·R: R ≥ 0 rising takes the sign of the largest
         let ext = c.iter().fold(0.0f64, |m, x| if x.abs() > m.abs() { *x } else { m });
         if ext != 0.0 {
-            let top = self.knots[n] - self.knots[0];
-            let unit = law::monotone_projection(&c.iter().map(|x| x / ext).collect::<Vec<_>>());
-            for f in [1.0, 0.5] {
-                g.push(unit.iter().map(|u| f * top * u.max(0.0)).collect());
+            let r_at_bound =
+                law::monotone_projection(&c.iter().map(|x| x / ext).collect::<Vec<_>>());
+            let b = sbi_mismatch_bound();
+            let m = -ext.signum() * b;
+            for f in [1.05, 3.0, 10.0] {
+                // R at |m| = b/f: |c|/(b/f·LSB_PER_UNIT)
+                let scale = f * ext.abs() / (b * sbi::LSB_PER_UNIT);
+                let mut v: Vec<f64> = r_at_bound.iter().map(|u| scale * u.max(0.0)).collect();
+                v.push(m / f);
+                g.push(v);
             }
         }
         g
     }
-    fn basis(&self, nl: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        out[0] = self.removed(nl, r, cap);
+    fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
+    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        self.delta(nl, r, cap)
     }
 }
 
@@ -385,10 +406,11 @@ pub fn make_shape_signature(
 /// `k` knots of effect `id`'s driver in the recording, or `None` when it has
 /// fewer than `k` distinct values: the amplitude at evenly spaced quantiles
 /// (2 % … 98 %) of its phase information w·A²; the temperature and the
-/// on-time at evenly spaced ranks of the illuminated captures' distinct
-/// values, the extremes included (at most as many knots as values); the
-/// fuller tap's charge at evenly spaced quantiles (2 % … 98 %) of the
-/// illuminated samples' (none where the ambient light varies).
+/// on-time at evenly spaced ranks of the illuminated captures' values (the
+/// temperature: distinct values, the extremes included, at most as many
+/// knots as values; the on-time: [`on_time_knots`]); the fuller tap's
+/// charge like the amplitude, weighted by w·N_max² (none where the ambient
+/// light varies).
 pub fn knots_at_quantiles(
     id: &str,
     k: usize,
@@ -404,25 +426,13 @@ pub fn knots_at_quantiles(
             // where the data pin a phase law: its information per sample is
             // w·(A·C′)² ∝ w·A², so the knots sit at quantiles of the
             // amplitude weighted by w·A² (dense where the bright samples are)
-            let mut a: Vec<(f64, f64)> = recs
+            let a: Vec<(f64, f64)> = recs
                 .iter()
                 .step_by((recs.len() / 20_000).max(1))
                 .filter(|r| r.a > 0.0)
                 .map(|r| (f64::from(r.a), f64::from(r.w) * f64::from(r.a).powi(2)))
                 .collect();
-            a.sort_by(|x, y| x.0.total_cmp(&y.0));
-            let total: f64 = a.iter().map(|x| x.1).sum();
-            let mut q = Vec::with_capacity(k);
-            let mut acc = 0.0;
-            let mut next = qs.iter().peekable();
-            for (v, w) in a {
-                acc += w;
-                while next.peek().is_some_and(|&&l| acc >= l * total) {
-                    q.push(v);
-                    next.next();
-                }
-            }
-            strictly_increasing(q, k)
+            strictly_increasing(weighted_quantiles(a, &qs), k)
         }
         ids::temperature_drift::ID => ranked(
             prep.caps
@@ -434,21 +444,43 @@ pub fn knots_at_quantiles(
         ),
         ids::vcsel_droop::ID => on_time_knots(prep, k),
         ids::sbi_asymmetry::ID if !prep.ambient_varies => {
+            // the circuit acts on the fuller taps: the knots sit at quantiles
+            // of N_max weighted by w·N_max² (dense where the full taps are,
+            // as the amplitude's)
             let taps = Sbi::new(prep, waveform);
-            let n_max: Vec<f64> = recs
+            let n_max: Vec<(f64, f64)> = recs
                 .iter()
                 .step_by((recs.len() / 20_000).max(1))
                 .map(|s| s.rec(prep))
                 .filter(|r| r.a > 0.0)
                 .map(|r| {
                     let (a, b) = taps.taps(&[], &r, &prep.caps[r.cap as usize]);
-                    a.max(b)
+                    let n = a.max(b);
+                    (n, r.w * n * n)
                 })
                 .collect();
-            strictly_increasing(quantiles(n_max, &qs), k)
+            strictly_increasing(weighted_quantiles(n_max, &qs), k)
         }
         _ => None,
     }
+}
+
+/// The `qs` quantiles (increasing) of the values of (value, weight) pairs
+/// `a`, each counted by its weight.
+fn weighted_quantiles(mut a: Vec<(f64, f64)>, qs: &[f64]) -> Vec<f64> {
+    a.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let total: f64 = a.iter().map(|x| x.1).sum();
+    let mut q = Vec::with_capacity(qs.len());
+    let mut acc = 0.0;
+    let mut next = qs.iter().peekable();
+    for (v, w) in a {
+        acc += w;
+        while next.peek().is_some_and(|&&l| acc >= l * total) {
+            q.push(v);
+            next.next();
+        }
+    }
+    q
 }
 
 /// Up to `k` knots of the droop's on-time from the illuminated raw images
@@ -659,8 +691,8 @@ pub fn form_name(knots: Option<&Vec<f64>>) -> String {
 /// µs) and the values relative to the lab's reference `temp_ref_c` (drift)
 /// — each curve projected onto the nearest monotone one
 /// (`law::monotone_projection`), as the model requires; the SBI's removed
-/// charge non-negative, its sign carried by the mismatch
-/// ([`shape_mismatch_rel`]), the droop's loss below 1. `None` where `fit`
+/// charge non-negative, its sign carried by the mismatch ([`sbi_split`]),
+/// the droop's loss below 1. `None` where `fit`
 /// is not of the shape form.
 pub fn model_shape(
     id: &str,
@@ -697,14 +729,16 @@ pub fn model_shape(
                 ],
             })
         }
-        ids::sbi_asymmetry::ID if code_per_e > 0.0 && fit.nl.len() + 1 == knots.len() => {
+        ids::sbi_asymmetry::ID if code_per_e > 0.0 && fit.nl.len() == knots.len() => {
             let u = sbi::signal_e_per_unit(code_per_e);
-            let sign = sbi_sign(&fit.nl);
-            let r: Vec<f64> = with0(&fit.nl).iter().map(|v| sign * v * u).collect();
-            let r = law::monotone_projection(&r);
+            let (v, _) = sbi_split(&fit.nl);
+            let r = law::monotone_projection(&with0(&v));
             Some(law::EffectShape {
                 knots: knots.iter().map(|k| k * u).collect(),
-                curves: vec![(law::SBI_REMOVED_E, r.iter().map(|v| v.max(0.0)).collect())],
+                curves: vec![(
+                    law::SBI_REMOVED_E,
+                    r.iter().map(|x| (x * u).max(0.0)).collect(),
+                )],
             })
         }
         ids::vcsel_droop::ID if fit.lin.len() + 1 == knots.len() => {
@@ -722,20 +756,24 @@ pub fn model_shape(
 /// L ≥ 1: no power left).
 const MAX_LOSS_REL: f64 = 0.99;
 
-/// The direction of the SBI shape's removed charge: the lab's values and
-/// mismatch are determined up to a common sign (R·m); the file's R does not
-/// decrease, so a fit whose values fall is written with both signs flipped.
-fn sbi_sign(nl: &[f64]) -> f64 {
-    if nl.iter().sum::<f64>() < 0.0 { -1.0 } else { 1.0 }
+/// The SBI shape's removed charge at knots 1.. (lab units) and mismatch m
+/// from its `nl`: m held in its range, and R non-decreasing — a fit whose
+/// values fall is the same law with both signs flipped (only m·R counts).
+fn sbi_split(nl: &[f64]) -> (Vec<f64>, f64) {
+    let (v, m) = nl.split_at(nl.len().saturating_sub(1));
+    let b = sbi_mismatch_bound();
+    let m = m.first().copied().unwrap_or(0.0).clamp(-b, b);
+    if v.iter().sum::<f64>() < 0.0 {
+        (v.iter().map(|x| -x).collect(), -m)
+    } else {
+        (v.to_vec(), m)
+    }
 }
 
 /// The model's `mismatch_rel` of the SBI's shape form fitted as `fit`
-/// (lab: Δcode = m_lab·R[units]; model: −m·R[e⁻]·code_per_e with
-/// R[e⁻] = R[units]·u, so m = −m_lab/(u·code_per_e), sign as [`sbi_sign`]).
-pub fn shape_mismatch_rel(fit: &EffectFit, code_per_e: f64) -> Option<f64> {
-    let m_lab = *fit.lin.first()?;
-    let u = sbi::signal_e_per_unit(code_per_e);
-    (code_per_e > 0.0).then(|| -sbi_sign(&fit.nl) * m_lab / (u * code_per_e))
+/// ([`sbi_split`]).
+pub fn shape_mismatch_rel(fit: &EffectFit) -> Option<f64> {
+    (!fit.nl.is_empty()).then(|| sbi_split(&fit.nl).1)
 }
 
 /// The lab's knots and (lin, nl) of model file `m`'s shape of effect `id`
@@ -780,10 +818,11 @@ pub fn held_shape(
         ids::sbi_asymmetry::ID if code_per_e > 0.0 => {
             let u = sbi::signal_e_per_unit(code_per_e);
             let r = curve(law::SBI_REMOVED_E);
+            let m_rel = m.get(ids::sbi_asymmetry::MISMATCH_REL);
             Some((
                 s.knots.iter().map(|k| k / u).collect(),
-                vec![-m.get(ids::sbi_asymmetry::MISMATCH_REL) * u * code_per_e],
-                r[1..].iter().map(|v| v / u).collect(),
+                Vec::new(),
+                r[1..].iter().map(|v| v / u).chain([m_rel]).collect(),
             ))
         }
         ids::vcsel_droop::ID => {

@@ -274,6 +274,7 @@ fn written_file_reproduces(prep: &Prepared, out: &AddOutcome, effect: &str) -> M
     assert!(notes.is_empty(), "{notes:?}");
     let text = update_model_text(&base.to_toml_string(), &m, &[effect.to_string()]).unwrap();
     let written = ModelConfig::from_toml_str(&text).unwrap();
+    eprintln!("{effect}: written {:?}", written.effect(effect));
     // the file, read as the user's model, asks the lab for the same form
     let from_file = spec_from_model(&written);
     assert_eq!(
@@ -357,7 +358,7 @@ fn the_physical_form_is_kept_when_it_is_the_truth() {
 
 #[test]
 fn saturating_sbi_is_fitted_as_a_shape() {
-    let (r_max, q, w, m) = (6000.0, 10_000.0, 2500.0, 0.1);
+    let (r_max, q, w, m) = (12_000.0, 10_000.0, 2500.0, 0.05);
     let law = Law::LogisticSbi {
         r_max_e: r_max,
         q_e: q,

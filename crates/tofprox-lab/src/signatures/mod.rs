@@ -349,7 +349,7 @@ fn write_shape(
     }
     // the SBI's shape form keeps the parametric mismatch
     if let (Some(_), Some(f), ids::sbi_asymmetry::ID) = (&shape, fit, id)
-        && let Some(v) = crate::shape::shape_mismatch_rel(f, code_per_e(w.m))
+        && let Some(v) = crate::shape::shape_mismatch_rel(f)
     {
         w.set(ids::sbi_asymmetry::MISMATCH_REL, v);
     }

@@ -292,5 +292,9 @@ impl SbiUnits {
 /// vary (κ = 1: a unit is 100 LSB of fundamental amplitude, [`SbiUnits`]),
 /// for `lsb_per_e` codes per electron.
 pub(crate) fn signal_e_per_unit(lsb_per_e: f64) -> f64 {
-    100.0 / lsb_per_e
+    LSB_PER_UNIT / lsb_per_e
 }
+
+/// LSB of fundamental amplitude per lab unit of signal tap charge (κ = 1):
+/// the 100 of N = κ·A(g ± C)/100.
+pub(crate) const LSB_PER_UNIT: f64 = 100.0;
