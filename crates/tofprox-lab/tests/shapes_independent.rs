@@ -73,7 +73,8 @@ impl Law {
     }
 
     /// The SBI's error in the tap difference for the tap difference `diff_e`
-    /// and sum `sum_e` (0 without SBI).
+    /// and sum `sum_e` (0 without SBI). (This sensor's taps sum to S/2 — its
+    /// shot noise is twice Poisson's — so the modulation D/(A + B) is K·C.)
     fn sbi_error_e(&self, diff_e: f64, sum_e: f64) -> f64 {
         match *self {
             Law::LogisticSbi { r_max_e, q_e, w_e, m } => {
@@ -127,7 +128,7 @@ fn capture(
             let x = phi - th.to_radians();
             let s_k = s_e * law.map_or(1.0, |l| l.power(k, exposure_us));
             let mut diff_e = 0.5 * CONTRAST * s_k * (x.cos() + 0.03 * (3.0 * x - 0.5).cos());
-            diff_e += law.map_or(0.0, |l| l.sbi_error_e(diff_e, s_k));
+            diff_e += law.map_or(0.0, |l| l.sbi_error_e(diff_e, 0.5 * s_k));
             let var_lsb2 = (LSB_PER_E * LSB_PER_E * s_k + 3.0) / 8.0;
             let code = 2048.0 + offset + LSB_PER_E * diff_e + var_lsb2.sqrt() * n(rng);
             frames[[k, p / SIDE, p % SIDE]] = code.clamp(0.0, 4095.0);
@@ -358,7 +359,7 @@ fn the_physical_form_is_kept_when_it_is_the_truth() {
 
 #[test]
 fn saturating_sbi_is_fitted_as_a_shape() {
-    let (r_max, q, w, m) = (12_000.0, 10_000.0, 2500.0, 0.05);
+    let (r_max, q, w, m) = (3000.0, 5000.0, 1200.0, 0.1);
     let law = Law::LogisticSbi {
         r_max_e: r_max,
         q_e: q,
