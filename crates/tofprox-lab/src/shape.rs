@@ -307,7 +307,9 @@ impl Signature for SbiShape {
     /// its threshold at the first knot) and the typical mismatch.
     fn nl_start(&self) -> Vec<f64> {
         let mut v: Vec<f64> = self.knots[1..].iter().map(|k| k - self.knots[0]).collect();
-        v.push(tofprox_model::catalogue::typical(ids::sbi_asymmetry::MISMATCH_REL));
+        v.push(tofprox_model::catalogue::typical(
+            ids::sbi_asymmetry::MISMATCH_REL,
+        ));
         v
     }
     /// The clamp, and the first-order screening of the product m·R (R at
@@ -324,7 +326,9 @@ impl Signature for SbiShape {
             return g;
         };
         // c = −m·LSB_PER_UNIT·R: R ≥ 0 rising takes the sign of the largest
-        let ext = c.iter().fold(0.0f64, |m, x| if x.abs() > m.abs() { *x } else { m });
+        let ext = c
+            .iter()
+            .fold(0.0f64, |m, x| if x.abs() > m.abs() { *x } else { m });
         if ext != 0.0 {
             let r_at_bound =
                 law::monotone_projection(&c.iter().map(|x| x / ext).collect::<Vec<_>>());
@@ -489,7 +493,8 @@ fn weighted_quantiles(mut a: Vec<(f64, f64)>, qs: &[f64]) -> Vec<f64> {
 /// images, so the knots sit where the images are; only on-times recorded in
 /// at least two captures (one that a single capture holds, like a long
 /// correlation capture's, has no held-out block to score it: the shape is
-/// flat there); fewer knots where on-times repeat.
+/// flat there); at most half as many knots as such on-times, fewer where
+/// on-times repeat.
 fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     let per_cap: Vec<Vec<f64>> = prep
         .caps
@@ -501,15 +506,30 @@ fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
                 .collect()
         })
         .collect();
-    let captures_with = |t: f64| per_cap.iter().filter(|c| c.contains(&t)).count();
+    // captures recording each on-time (each capture counted once)
+    let mut captures_with: BTreeMap<u64, usize> = BTreeMap::new();
+    for c in &per_cap {
+        let mut bits: Vec<u64> = c.iter().map(|t| t.to_bits()).collect();
+        bits.sort_unstable();
+        bits.dedup();
+        bits.into_iter()
+            .for_each(|b| *captures_with.entry(b).or_default() += 1);
+    }
     let mut v: Vec<f64> = per_cap
         .iter()
         .flatten()
         .copied()
-        .filter(|t| captures_with(*t) >= 2)
+        .filter(|t| captures_with.get(&t.to_bits()).is_some_and(|n| *n >= 2))
         .collect();
     v.sort_by(f64::total_cmp);
     let first = *v.first()?;
+    // at most one knot per two recorded on-times: with few exposures and raw
+    // images a knot per on-time would follow each image of each exposure on
+    // its own — any residual that differs between raw images, not a droop
+    let k = k.min(captures_with.values().filter(|n| **n >= 2).count().div_ceil(2));
+    if k < 2 {
+        return None;
+    }
     let longer: Vec<f64> = v.into_iter().filter(|t| *t > first).collect();
     let ranks: Vec<f64> = (1..k).map(|i| i as f64 / (k - 1) as f64).collect();
     let mut q = vec![first];

@@ -53,7 +53,12 @@ enum Law {
     /// An SBI whose removal saturates: R = R_max/(1 + e^{−(N_max − q)/w})
     /// from each tap (at most the emptier tap's charge), mismatch m leaving
     /// −m·R in the tap difference.
-    LogisticSbi { r_max_e: f64, q_e: f64, w_e: f64, m: f64 },
+    LogisticSbi {
+        r_max_e: f64,
+        q_e: f64,
+        w_e: f64,
+        m: f64,
+    },
     /// VCSEL power 1 − a·xⁿ/(1 + xⁿ), x = t/t_c, after the on-time
     /// t = k·t_exp of raw images before image k: a loss that sets in late
     /// (the junction heats before the power rolls over), saturating.
@@ -83,7 +88,12 @@ impl Law {
     /// shot noise is twice Poisson's — so the modulation D/(A + B) is K·C.)
     fn sbi_error_e(&self, diff_e: f64, sum_e: f64) -> f64 {
         match *self {
-            Law::LogisticSbi { r_max_e, q_e, w_e, m } => {
+            Law::LogisticSbi {
+                r_max_e,
+                q_e,
+                w_e,
+                m,
+            } => {
                 let (a, b) = (0.5 * (sum_e + diff_e), 0.5 * (sum_e - diff_e));
                 let r = r_max_e / (1.0 + (-(a.max(b) - q_e) / w_e).exp());
                 -m * r.min(a.min(b).max(0.0))
@@ -128,7 +138,8 @@ fn capture(
                 s_e *= 1.0 + g * dt;
             }
             Some(Law::LinearDrift { k }) => phi += k * dt,
-            Some(Law::LogisticSbi { .. } | Law::RolloverDroop { .. } | Law::ExpDroop { .. }) | None => {}
+            Some(Law::LogisticSbi { .. } | Law::RolloverDroop { .. } | Law::ExpDroop { .. })
+            | None => {}
         }
         for (k, th) in phases_deg.iter().enumerate() {
             let x = phi - th.to_radians();
@@ -403,7 +414,11 @@ fn rollover_droop_is_fitted_as_a_shape() {
     let loss = |t: f64| 1.0 - law.power(1, t);
     for (t, l) in s.knots.iter().zip(&s.curves[0].1) {
         eprintln!("on-time {t:7.0} us: loss {l:.4}, law {:.4}", loss(*t));
-        assert!((l - loss(*t)).abs() < 0.006, "at {t} us: {l} vs {}", loss(*t));
+        assert!(
+            (l - loss(*t)).abs() < 0.006,
+            "at {t} us: {l} vs {}",
+            loss(*t)
+        );
     }
 }
 

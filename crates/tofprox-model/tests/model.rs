@@ -604,7 +604,12 @@ fn sbi_and_droop_shapes_are_what_the_simulator_evaluates() {
     assert!((px.sbi_error_e(90_000.0, 5000.0) + 120.0).abs() < 1e-9);
     assert!((px.sbi_error_e(90_000.0, 700.0) + 28.0).abs() < 1e-9);
     // the droop by on-time k·t_exp: image 2 at 500 µs is at 1000 µs
-    for (k, t, p) in [(0, 500.0, 1.0), (2, 500.0, 0.96), (1, 2000.0, 0.95), (9, 900.0, 0.94)] {
+    for (k, t, p) in [
+        (0, 500.0, 1.0),
+        (2, 500.0, 0.96),
+        (1, 2000.0, 0.95),
+        (9, 900.0, 0.94),
+    ] {
         let f = droop_factor(&m, k, t);
         assert!((f - p).abs() < 1e-12, "image {k} at {t} us: {f}, want {p}");
     }

@@ -217,8 +217,12 @@ impl PixelParams {
     /// Constants for one capture at `exposure_us` and `temperature_c`.
     pub fn new(model: &ModelConfig, exposure_us: f64, temperature_c: f64) -> Self {
         let on = |id: ids::EffectId| model.is_enabled(id);
-        let sbi = on(ids::sbi_asymmetry::ID)
-            .then(|| (model.get(ids::sbi_asymmetry::MISMATCH_REL), SbiLaw::of(model)));
+        let sbi = on(ids::sbi_asymmetry::ID).then(|| {
+            (
+                model.get(ids::sbi_asymmetry::MISMATCH_REL),
+                SbiLaw::of(model),
+            )
+        });
         let amp_phase = on(ids::amplitude_phase_error::ID).then(|| AmpPhaseLaw::of(model));
         let (drift_rad, drift_gain) = if on(ids::temperature_drift::ID) {
             let (phase, gain) = temperature_drift_of(model, temperature_c);
