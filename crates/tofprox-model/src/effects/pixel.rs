@@ -94,12 +94,7 @@ impl AmpPhaseLaw {
     pub fn of(model: &ModelConfig) -> Self {
         use crate::effects::shape::AMPLITUDE_PHASE_RAD;
         if let Some(s) = model.shape(ids::amplitude_phase_error::ID) {
-            let v = s
-                .curves
-                .iter()
-                .find(|(k, _)| *k == AMPLITUDE_PHASE_RAD)
-                .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone());
-            return Self::Shape(s.knots.clone(), v);
+            return Self::Shape(s.knots.clone(), s.values(AMPLITUDE_PHASE_RAD));
         }
         Self::Saturating(
             model.get(ids::amplitude_phase_error::MAX_RAD),
@@ -164,12 +159,7 @@ impl SbiLaw {
     pub fn of(model: &ModelConfig) -> Self {
         use crate::effects::shape::SBI_REMOVED_E;
         if let Some(s) = model.shape(ids::sbi_asymmetry::ID) {
-            let v = s
-                .curves
-                .iter()
-                .find(|(k, _)| *k == SBI_REMOVED_E)
-                .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone());
-            return Self::Shape(s.knots.clone(), v);
+            return Self::Shape(s.knots.clone(), s.values(SBI_REMOVED_E));
         }
         Self::Circuit(
             model.get(ids::sbi_asymmetry::THRESHOLD_E),

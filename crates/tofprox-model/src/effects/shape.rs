@@ -242,6 +242,14 @@ pub struct EffectShape {
 }
 
 impl EffectShape {
+    /// Curve `key`'s values, one per knot (0s when the shape has no such curve).
+    pub fn values(&self, key: &str) -> Vec<f64> {
+        self.curves
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map_or_else(|| vec![0.0; self.knots.len()], |(_, v)| v.clone())
+    }
+
     /// Curve `key` at driver value `x` (0 when the shape has no such curve).
     pub fn eval(&self, key: &str, x: f64) -> f64 {
         self.curves
