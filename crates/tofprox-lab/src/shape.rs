@@ -516,7 +516,13 @@ fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     // at most one knot per two recorded on-times: with few exposures and raw
     // images a knot per on-time would follow each image of each exposure on
     // its own — any residual that differs between raw images, not a droop
-    let k = k.min(captures_with.values().filter(|n| **n >= 2).count().div_ceil(2));
+    let k = k.min(
+        captures_with
+            .values()
+            .filter(|n| **n >= 2)
+            .count()
+            .div_ceil(2),
+    );
     if k < 2 {
         return None;
     }
@@ -573,8 +579,9 @@ pub struct FormChoice {
 /// Fit effect `id`'s parametric form and (when it has one) its shape form
 /// with each of [`KNOT_COUNTS`] knots to the residuals `recs`, and keep the
 /// one that predicts held-out blocks best (only where the physical form
-/// explains at least `MIN_SHARE_FOR_FORMS` of the excess χ²: else it is
-/// not the effect missing, and `scores` stays empty). The parametric form is kept
+/// explains at least `MIN_SHARE_FOR_FORMS` of the excess χ² — else it is
+/// not the effect missing — and the recording has at least
+/// `MIN_CAPTURES_FOR_FORMS` illuminated captures; else `scores` stays empty). The parametric form is kept
 /// unless a shape's held-out χ² is lower by more than 1 % of what the
 /// parametric form explains there, 2 per extra parameter and
 /// [`MIN_REL_GAIN_OVER_PHYSICAL`] of the parametric form's own held-out χ²:
@@ -596,8 +603,12 @@ pub fn choose_form(
     // an effect whose physical form explains little of the excess is not the
     // one missing: its forms are not compared (the screening's cost)
     let excess = fit.chi2_before - recs.len() as f64;
+    // few captures: a held-out block is one capture or none, which scores
+    // how a shape of K free values follows that capture, not the law
+    let illuminated = prep.caps.iter().filter(|c| c.illum && c.used).count();
     if !has_shape_form(id)
         || spec.held.iter().any(|h| h.id == id)
+        || illuminated < MIN_CAPTURES_FOR_FORMS
         || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
     {
         return Ok(FormChoice {
@@ -691,6 +702,11 @@ fn try_shape(
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
     Some((f, s, c))
 }
+
+/// The fewest illuminated captures on which the forms are compared (two per
+/// held-out block; `examples/recording`'s 7 fit a 4-knot SBI shape to a
+/// recording without SBI).
+const MIN_CAPTURES_FOR_FORMS: usize = 10;
 
 /// The least share of the physical form's held-out χ² a shape must predict
 /// better to replace it (the thesis' own droop law on docs/lab.md's
