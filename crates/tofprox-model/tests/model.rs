@@ -579,6 +579,61 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
     assert!((rot - 0.3).abs() < 1e-6, "rotated {rot}");
 }
 
+/// The SBI's and the droop's shape forms: loaded, checked (errors name the
+/// dotted key), and what the simulator's per-capture constants evaluate
+/// (`PixelParams::sbi_error_e`, `droop_factor`) — numbers written here from
+/// the knots.
+#[test]
+fn sbi_and_droop_shapes_are_what_the_simulator_evaluates() {
+    use tofprox_model::effects::optical::droop_factor;
+    use tofprox_model::effects::pixel::PixelParams;
+    let text = "[effects.sbi_asymmetry]\nenabled = true\nmismatch_rel = 0.04\n\
+                shape_tap_charge_e = [10000.0, 20000.0, 40000.0]\n\
+                shape_removed_e = [0.0, 2000.0, 3000.0]\n\
+                [effects.vcsel_droop]\nenabled = true\n\
+                shape_on_time_us = [0.0, 1000.0, 3000.0]\n\
+                shape_loss_rel = [0.0, 0.04, 0.06]\n";
+    let m = ModelConfig::from_toml_str(text).unwrap();
+    assert_eq!(ModelConfig::from_toml_str(&m.to_toml_string()).unwrap(), m);
+    let px = PixelParams::new(&m, 1000.0, 25.0);
+    // below the first knot nothing; halfway 1000 e⁻ removed: −0.04·1000
+    assert_eq!(px.sbi_error_e(9000.0, 500.0), 0.0);
+    assert!((px.sbi_error_e(15_000.0, 8000.0) + 40.0).abs() < 1e-9);
+    assert!((px.sbi_error_e(8000.0, 15_000.0) + 40.0).abs() < 1e-9);
+    // flat above the last knot, and never more than the emptier tap holds
+    assert!((px.sbi_error_e(90_000.0, 5000.0) + 120.0).abs() < 1e-9);
+    assert!((px.sbi_error_e(90_000.0, 700.0) + 28.0).abs() < 1e-9);
+    // the droop by on-time k·t_exp: image 2 at 500 µs is at 1000 µs
+    for (k, t, p) in [
+        (0, 500.0, 1.0),
+        (2, 500.0, 0.96),
+        (1, 2000.0, 0.95),
+        (9, 900.0, 0.94),
+    ] {
+        let f = droop_factor(&m, k, t);
+        assert!((f - p).abs() < 1e-12, "image {k} at {t} us: {f}, want {p}");
+    }
+    let bad = |body: &str, key: &str, why: &str| {
+        let e = ModelConfig::from_toml_str(body).unwrap_err().to_string();
+        assert!(e.contains(key) && e.contains(why), "{body}: {e}");
+    };
+    bad(
+        "[effects.sbi_asymmetry]\nshape_tap_charge_e = [1.0, 2.0]\nshape_removed_e = [5.0, 9.0]\n",
+        "effects.sbi_asymmetry.shape_removed_e",
+        "start at 0",
+    );
+    bad(
+        "[effects.sbi_asymmetry]\nshape_removed_e = [0.0, 9.0]\n",
+        "effects.sbi_asymmetry.shape_tap_charge_e",
+        "knots",
+    );
+    bad(
+        "[effects.vcsel_droop]\nshape_on_time_us = [0.0, 2.0]\nshape_loss_rel = [0.0, 1.5]\n",
+        "effects.vcsel_droop.shape_loss_rel",
+        "1 − L ≤ 0",
+    );
+}
+
 #[test]
 fn bad_shapes_name_their_key() {
     let bad = |body: &str, key: &str, why: &str| {
@@ -647,4 +702,8 @@ fn docs_shape_example_loads() {
     let td = m.shape(ids::temperature_drift::ID).unwrap();
     assert_eq!(td.curves.len(), 2);
     assert!((td.eval("shape_phase_rad", 55.0) - 0.43).abs() < 1e-12);
+    let sbi = m.shape(ids::sbi_asymmetry::ID).unwrap();
+    assert_eq!(sbi.eval("shape_removed_e", 50_000.0), 3000.0);
+    let droop = m.shape(ids::vcsel_droop::ID).unwrap();
+    assert_eq!(droop.eval("shape_loss_rel", 300.0), 0.03);
 }

@@ -29,7 +29,7 @@ mod droop;
 mod harmonics;
 mod inl;
 mod multipath;
-mod sbi;
+pub(crate) mod sbi;
 mod tap_gain;
 mod temp_drift;
 
@@ -380,7 +380,7 @@ pub fn make_signature(
     if let Some(sig) = spec
         .shapes
         .get(id)
-        .and_then(|k| crate::shape::make_shape_signature(id, k, waveform))
+        .and_then(|k| crate::shape::make_shape_signature(id, k, prep, waveform))
     {
         return Ok(sig);
     }
@@ -431,15 +431,21 @@ fn write_shape(
 ) -> Option<Vec<String>> {
     let id = EffectId::parse(effect)
         .filter(|id| tofprox_model::effects::shape::shape_law(id.as_str()).is_some())?;
+    let fit = model.effects.iter().find(|e| e.id == effect);
     let shape = model.spec.shapes.get(effect).and_then(|knots| {
-        let fit = model.effects.iter().find(|e| e.id == effect)?;
-        crate::shape::model_shape(effect, knots, fit, code_per_e(m), prep.temp_ref)
+        crate::shape::model_shape(effect, knots, fit?, code_per_e(m), prep.temp_ref)
     });
-    let mut notes = Vec::new();
-    if let Err(e) = m.set_shape(id, shape.clone()) {
-        notes.push(format!("{effect}: shape not written ({e})"));
+    let mut w = Writer::new(m);
+    if let Err(e) = w.m.set_shape(id, shape.clone()) {
+        w.notes.push(format!("{effect}: shape not written ({e})"));
     }
-    shape.is_some().then_some(notes)
+    // the SBI's shape form keeps the parametric mismatch
+    if let (Some(_), Some(f), ids::sbi_asymmetry::ID) = (&shape, fit, id)
+        && let Some(v) = crate::shape::shape_mismatch_rel(f)
+    {
+        w.set(ids::sbi_asymmetry::MISMATCH_REL, v);
+    }
+    shape.is_some().then_some(w.notes)
 }
 
 /// The lab's (lin, nl) of effect `id` at model file `m`'s values
@@ -447,8 +453,8 @@ fn write_shape(
 pub fn held_params(id: &str, m: &ModelConfig, prep: &Prepared) -> Option<(Vec<f64>, Vec<f64>)> {
     let effect = lab_effect(id)?;
     // a file's shape form is held as the lab's shape (crate::shape)
-    if let Some((e, s)) = EffectId::parse(id).and_then(|e| Some((e, m.shape(e)?))) {
-        return crate::shape::held_shape(e, s, code_per_e(m).max(0.0), prep.temp_ref)
+    if let Some(e) = EffectId::parse(id).filter(|e| m.shape(*e).is_some()) {
+        return crate::shape::held_shape(e, m, code_per_e(m).max(0.0), prep.temp_ref)
             .map(|(_, lin, nl)| (lin, nl));
     }
     effect.held(m, prep)

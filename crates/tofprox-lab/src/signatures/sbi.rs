@@ -11,7 +11,7 @@ use crate::waveform::Waveform;
 
 /// The linear coefficient m: LSB of differential code per lab unit of
 /// injected charge.
-const MISMATCH: &str = "mismatch_lsb_per_unit";
+pub(crate) const MISMATCH: &str = "mismatch_lsb_per_unit";
 /// ln q0: the threshold in lab units of tap charge.
 const LN_THRESHOLD: &str = "ln_threshold";
 /// ln κ: signal charge per unit of fundamental amplitude (ambient light varying).
@@ -24,13 +24,7 @@ pub(super) struct Effect;
 
 impl LabEffect for Effect {
     fn signature(&self, prep: &Prepared, _: &LabSpec, waveform: &Waveform) -> Box<dyn Signature> {
-        // total signal charge relative to the fundamental amplitude: the
-        // correlation's peak over its fundamental, over the registry's
-        // typical demodulation contrast (0.8)
-        Box::new(Sbi {
-            ambient_varies: prep.ambient_varies,
-            g: waveform.peak() / catalogue::typical(ids::demodulation_contrast::CONTRAST),
-        })
+        Box::new(Sbi::new(prep, waveform))
     }
 
     /// The lab's tap charges are in its own unit (see [`SbiUnits`]); in
@@ -94,17 +88,29 @@ impl LabEffect for Effect {
 /// injects the smaller tap current (subtracts), s = 1 the larger one (clamps
 /// the fuller tap at q0). lin = [m], nl = [ln q0, (ln κ), s] (q0 and κ
 /// scale-free: their units depend on the sensor over many decades).
-struct Sbi {
+pub(crate) struct Sbi {
     ambient_varies: bool,
     /// Total signal charge per unit of fundamental amplitude (1/contrast for a sinusoid).
     g: f64,
 }
 impl Sbi {
+    /// The signature for `prep` with the correlation `waveform`.
+    pub(crate) fn new(prep: &Prepared, waveform: &Waveform) -> Self {
+        // total signal charge relative to the fundamental amplitude: the
+        // correlation's peak over its fundamental, over the registry's
+        // typical demodulation contrast (0.8)
+        Self {
+            ambient_varies: prep.ambient_varies,
+            g: waveform.peak() / catalogue::typical(ids::demodulation_contrast::CONTRAST),
+        }
+    }
     /// Index of the clamp share in `nl`.
     fn clamp_index(&self) -> usize {
         if self.ambient_varies { 2 } else { 1 }
     }
-    fn taps(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> (f64, f64) {
+    /// The tap charges N_a, N_b of sample `r` in lab units (`nl[1]` = ln κ
+    /// when the ambient light varies; κ = 1 otherwise).
+    pub(crate) fn taps(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> (f64, f64) {
         let kappa = if self.ambient_varies {
             nl.get(1).copied().unwrap_or(0.0).clamp(-20.0, 20.0).exp()
         } else {
@@ -231,7 +237,7 @@ impl SbiUnits {
             })
         } else {
             Some(Self {
-                e_per_unit: 100.0 / lsb_per_e,
+                e_per_unit: signal_e_per_unit(lsb_per_e),
                 lsb_per_e,
                 ambient: false,
             })
@@ -248,7 +254,7 @@ impl SbiUnits {
             }
             1000.0 * m.get(ids::ambient_light::E_PER_US_PER_KLUX)
         } else {
-            100.0 / lsb_per_e
+            signal_e_per_unit(lsb_per_e)
         };
         (u.is_finite() && u > 0.0).then_some(Self {
             e_per_unit: u,
@@ -266,3 +272,14 @@ impl SbiUnits {
         100.0 / (self.lsb_per_e * self.e_per_unit)
     }
 }
+
+/// Electrons per lab unit of tap charge where the ambient light does not
+/// vary (κ = 1: a unit is 100 LSB of fundamental amplitude, [`SbiUnits`]),
+/// for `lsb_per_e` codes per electron.
+pub(crate) fn signal_e_per_unit(lsb_per_e: f64) -> f64 {
+    LSB_PER_UNIT / lsb_per_e
+}
+
+/// LSB of fundamental amplitude per lab unit of signal tap charge (κ = 1):
+/// the 100 of N = κ·A(g ± C)/100.
+pub(crate) const LSB_PER_UNIT: f64 = 100.0;

@@ -6,8 +6,9 @@
 //! - [`fixed_pattern`]: `prnu`, `fpn_offset`, `fppn` (per-pixel patterns drawn once)
 //! - [`pixel`]: `sbi_asymmetry`, `amplitude_phase_error`, `temperature_drift`,
 //!   `dark_current`, `shot_noise`, `ktc_noise`, `read_noise`
-//! - [`shape`]: the monotone shape form of `amplitude_phase_error` and
-//!   `temperature_drift` (knots of the driver, values of the effect)
+//! - [`shape`]: the monotone shape form of `amplitude_phase_error`,
+//!   `temperature_drift`, `sbi_asymmetry` and `vcsel_droop` (knots of the
+//!   driver, values of the effect)
 //! - [`adc`]: `adc_gain`, `adc_offset`, `adc_inl`, `adc_dnl`, `quantization`
 
 pub mod adc;

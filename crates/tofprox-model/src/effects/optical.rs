@@ -227,10 +227,17 @@ pub fn multipath_phase_offset_rad(phase_rad_per_m: f64, extra_path_m: f64) -> f6
     phase_rad_per_m * extra_path_m / 2.0
 }
 
-/// Relative optical power of raw image `k` (acquisition order) under `vcsel_droop`.
+/// Relative optical power of raw image `k` (acquisition order) under
+/// `vcsel_droop`: 1 − L(t_on) by the file's shape of the on-time
+/// t_on = k·t_exp when it gives one ([`crate::effects::shape::VCSEL_DROOP`]),
+/// else 1 − D·[`droop_loss`].
 pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
     if !model.is_enabled(ids::vcsel_droop::ID) {
         return 1.0;
+    }
+    if let Some(s) = model.shape(ids::vcsel_droop::ID) {
+        let t_on = droop_on_time_us(k as f64, exposure_us);
+        return 1.0 - s.eval(crate::effects::shape::DROOP_LOSS_REL, t_on);
     }
     let d = model.get(ids::vcsel_droop::DROOP_REL);
     1.0 - d * droop_loss(
@@ -240,6 +247,14 @@ pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
         model.get(ids::vcsel_droop::EXPOSURE_POWER),
         model.get(ids::vcsel_droop::FIRST_IMAGE_INDEX),
     )
+}
+
+/// The driver of the droop's shape form (3.3.7.2: the VCSEL heats while it
+/// emits): its on-time before raw image `k`, k·t_exp in µs. The simulator
+/// and the lab's fit both use it.
+#[inline]
+pub fn droop_on_time_us(k: f64, exposure_us: f64) -> f64 {
+    k * exposure_us
 }
 
 /// The droop law's shape (3.3.7.2): the share 1 − exp(−(k + k₀)·s/τ) of the

@@ -94,12 +94,7 @@ impl AmpPhaseLaw {
     pub fn of(model: &ModelConfig) -> Self {
         use crate::effects::shape::AMPLITUDE_PHASE_RAD;
         if let Some(s) = model.shape(ids::amplitude_phase_error::ID) {
-            let v = s
-                .curves
-                .iter()
-                .find(|(k, _)| *k == AMPLITUDE_PHASE_RAD)
-                .map_or_else(|| vec![0.0; s.knots.len()], |(_, v)| v.clone());
-            return Self::Shape(s.knots.clone(), v);
+            return Self::Shape(s.knots.clone(), s.values(AMPLITUDE_PHASE_RAD));
         }
         Self::Saturating(
             model.get(ids::amplitude_phase_error::MAX_RAD),
@@ -147,11 +142,49 @@ pub fn temperature_drift_of(model: &ModelConfig, temperature_c: f64) -> (f64, f6
     )
 }
 
+/// The SBI's law (2.2.2.1, 5.1.2.3) in one of its two forms: the charge it
+/// removes from each tap; the mismatch m leaves −m times it in the
+/// differential charge.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SbiLaw {
+    /// The circuit of [`sbi_injected_e`]: (threshold Q_th in e⁻, clamp share s).
+    Circuit(f64, f64),
+    /// The removed charge as a monotone shape of the fuller tap's charge
+    /// ([`crate::effects::shape::SBI_ASYMMETRY`]): knots (e⁻) and values (e⁻).
+    Shape(Vec<f64>, Vec<f64>),
+}
+
+impl SbiLaw {
+    /// The law of `model`'s `sbi_asymmetry` (its shape when the file gives one).
+    pub fn of(model: &ModelConfig) -> Self {
+        use crate::effects::shape::SBI_REMOVED_E;
+        if let Some(s) = model.shape(ids::sbi_asymmetry::ID) {
+            return Self::Shape(s.knots.clone(), s.values(SBI_REMOVED_E));
+        }
+        Self::Circuit(
+            model.get(ids::sbi_asymmetry::THRESHOLD_E),
+            model.get(ids::sbi_asymmetry::CLAMP_SHARE),
+        )
+    }
+
+    /// The charge removed from each tap (e⁻) for tap charges `n_a`, `n_b`:
+    /// never more than the emptier tap holds, in either form.
+    #[inline]
+    pub fn removed_e(&self, n_a: f64, n_b: f64) -> f64 {
+        match self {
+            Self::Circuit(q_th, s) => sbi_injected_e(n_a, n_b, *q_th, *s),
+            Self::Shape(knots, values) => {
+                crate::effects::shape::sbi_removed_e(knots, values, n_a, n_b)
+            }
+        }
+    }
+}
+
 /// Per-capture constants of the pixel effects.
 #[derive(Debug, Clone)]
 pub struct PixelParams {
-    /// SBI on: threshold in electrons, mismatch and clamp share.
-    pub sbi: Option<(f64, f64, f64)>,
+    /// SBI on: the mismatch m and the law of the removed charge.
+    pub sbi: Option<(f64, SbiLaw)>,
     /// Amplitude-phase error, when on.
     pub amp_phase: Option<AmpPhaseLaw>,
     /// Phase drift in rad for this temperature.
@@ -176,9 +209,8 @@ impl PixelParams {
         let on = |id: ids::EffectId| model.is_enabled(id);
         let sbi = on(ids::sbi_asymmetry::ID).then(|| {
             (
-                model.get(ids::sbi_asymmetry::THRESHOLD_E),
                 model.get(ids::sbi_asymmetry::MISMATCH_REL),
-                model.get(ids::sbi_asymmetry::CLAMP_SHARE),
+                SbiLaw::of(model),
             )
         });
         let amp_phase = on(ids::amplitude_phase_error::ID).then(|| AmpPhaseLaw::of(model));
@@ -239,11 +271,11 @@ impl PixelParams {
     }
 
     /// SBI differential error in electrons for tap charges `n_a`, `n_b`
-    /// (2.2.2.1, 5.1.2.3): −m · [`sbi_injected_e`].
+    /// (2.2.2.1, 5.1.2.3): −m · [`SbiLaw::removed_e`].
     #[inline]
     pub fn sbi_error_e(&self, n_a: f64, n_b: f64) -> f64 {
-        match self.sbi {
-            Some((q_th, m, s)) => -m * sbi_injected_e(n_a, n_b, q_th, s),
+        match &self.sbi {
+            Some((m, law)) => -m * law.removed_e(n_a, n_b),
             None => 0.0,
         }
     }

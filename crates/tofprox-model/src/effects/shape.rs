@@ -63,8 +63,59 @@ pub const DRIFT_PHASE_RAD: &str = "shape_phase_rad";
 /// `temperature_drift`'s gain curve G (gain ×(1 + G), G > −1).
 pub const DRIFT_GAIN_REL: &str = "shape_gain_rel";
 
+/// `sbi_asymmetry`: the charge R(N_max) in electrons the SBI circuit removes
+/// from each tap (2.2.2.1, 5.1.2.3) as a function of the fuller tap's charge
+/// N_max in electrons — a clamp with a knee of any shape (the clamp end of
+/// the parametric family is R = N_max − Q_th). The first knot is where the
+/// circuit starts: its value is 0 and the curve does not decrease, so
+/// nothing is removed below it. As in the parametric law the removal is
+/// common to both taps and never more than the emptier tap holds
+/// ([`sbi_removed_e`]); the mismatch `mismatch_rel` leaves −m·R in the
+/// differential charge (`threshold_e` and `clamp_share` are unused).
+pub const SBI_ASYMMETRY: ShapeLaw = ShapeLaw {
+    effect: ids::sbi_asymmetry::ID,
+    driver: "shape_tap_charge_e",
+    driver_doc: "the fuller tap's charge N_max in electrons",
+    curves: &[SBI_REMOVED_E],
+};
+/// `sbi_asymmetry`'s curve: the charge removed from each tap, e⁻.
+pub const SBI_REMOVED_E: &str = "shape_removed_e";
+
+/// `vcsel_droop`: the relative power loss L of the VCSEL (P_k = P·(1 − L))
+/// as a function of its on-time before raw image k, t_on = k·t_exp in µs
+/// (3.3.7.2: the VCSEL heats *while it emits*, so the heat — and the loss —
+/// follows the accumulated on-time; the parametric law with β = 1, k₀ = 0
+/// has the same driver). Not the image index: one curve of t_on serves
+/// every exposure of a recording, where a curve of k would need one per
+/// exposure; a droop per image whatever the exposure (β = 0) stays the
+/// parametric form's.
+pub const VCSEL_DROOP: ShapeLaw = ShapeLaw {
+    effect: ids::vcsel_droop::ID,
+    driver: "shape_on_time_us",
+    driver_doc: "the VCSEL's on-time before raw image k, k·t_exp in µs",
+    curves: &[DROOP_LOSS_REL],
+};
+/// `vcsel_droop`'s curve: the relative power loss L (< 1).
+pub const DROOP_LOSS_REL: &str = "shape_loss_rel";
+
 /// Every effect with a shape form.
-pub const SHAPE_LAWS: &[ShapeLaw] = &[AMPLITUDE_PHASE, TEMPERATURE_DRIFT];
+pub const SHAPE_LAWS: &[ShapeLaw] = &[
+    SBI_ASYMMETRY,
+    VCSEL_DROOP,
+    AMPLITUDE_PHASE,
+    TEMPERATURE_DRIFT,
+];
+
+/// The charge the SBI removes from each tap by the shape `knots` →
+/// `removed_e` ([`SBI_ASYMMETRY`]) for tap charges `n_a`, `n_b` (e⁻): the
+/// curve at the fuller tap's charge, never more than the emptier tap holds
+/// (the invariant of `pixel::sbi_injected_e`). The simulator and the lab's
+/// fit both use it.
+#[inline]
+pub fn sbi_removed_e(knots: &[f64], removed_e: &[f64], n_a: f64, n_b: f64) -> f64 {
+    let lo = n_a.min(n_b).max(0.0);
+    eval(knots, removed_e, n_a.max(n_b)).clamp(0.0, lo)
+}
 
 /// The shape form of effect `id`, if it has one.
 pub fn shape_law(id: &str) -> Option<&'static ShapeLaw> {
@@ -191,6 +242,14 @@ pub struct EffectShape {
 }
 
 impl EffectShape {
+    /// Curve `key`'s values, one per knot (0s when the shape has no such curve).
+    pub fn values(&self, key: &str) -> Vec<f64> {
+        self.curves
+            .iter()
+            .find(|(k, _)| *k == key)
+            .map_or_else(|| vec![0.0; self.knots.len()], |(_, v)| v.clone())
+    }
+
     /// Curve `key` at driver value `x` (0 when the shape has no such curve).
     pub fn eval(&self, key: &str, x: f64) -> f64 {
         self.curves
@@ -215,16 +274,33 @@ impl EffectShape {
                 return Err((key.to_string(), format!("not a curve of {}", law.effect)));
             }
             check_values(v, self.knots.len()).map_err(|e| (key.to_string(), e))?;
-            if *key == DRIFT_GAIN_REL
-                && let Some(g) = v.iter().find(|g| **g <= -1.0)
-            {
-                return Err((
-                    key.to_string(),
-                    format!("gain change {g} would make the gain 1 + G ≤ 0"),
-                ));
-            }
+            check_curve(key, v).map_err(|e| (key.to_string(), e))?;
         }
         Ok(())
+    }
+}
+
+/// The physical bounds of one curve (beyond monotone): a gain change above
+/// −1, a power loss below 1, a removed charge that starts at 0 on the first
+/// knot and does not decrease.
+fn check_curve(key: &str, v: &[f64]) -> Result<(), String> {
+    match key {
+        DRIFT_GAIN_REL => match v.iter().find(|g| **g <= -1.0) {
+            Some(g) => Err(format!("gain change {g} would make the gain 1 + G ≤ 0")),
+            None => Ok(()),
+        },
+        DROOP_LOSS_REL => match v.iter().find(|l| **l >= 1.0) {
+            Some(l) => Err(format!("power loss {l} would make the power 1 − L ≤ 0")),
+            None => Ok(()),
+        },
+        SBI_REMOVED_E if v.first().is_some_and(|r| *r != 0.0) => Err(format!(
+            "must start at 0 on the first knot (where the circuit starts), found {}",
+            v[0]
+        )),
+        SBI_REMOVED_E if v.windows(2).any(|w| w[1] < w[0]) => {
+            Err("must not decrease: the circuit removes more from a fuller tap".into())
+        }
+        _ => Ok(()),
     }
 }
 
@@ -275,6 +351,45 @@ mod tests {
             curves: vec![(DRIFT_GAIN_REL, vec![0.0, -1.5])],
         };
         assert_eq!(s.check(&TEMPERATURE_DRIFT).unwrap_err().0, DRIFT_GAIN_REL);
+    }
+
+    #[test]
+    fn sbi_shape_removes_from_the_threshold_on_and_never_empties_a_tap() {
+        let (k, r) = ([1000.0, 3000.0, 5000.0], [0.0, 400.0, 2400.0]);
+        // below and at the first knot nothing is removed
+        assert_eq!(sbi_removed_e(&k, &r, 800.0, 500.0), 0.0);
+        assert_eq!(sbi_removed_e(&k, &r, 300.0, 1000.0), 0.0);
+        // the curve at the fuller tap, whichever it is
+        assert!((sbi_removed_e(&k, &r, 2000.0, 900.0) - 200.0).abs() < 1e-9);
+        assert!((sbi_removed_e(&k, &r, 900.0, 2000.0) - 200.0).abs() < 1e-9);
+        // never more than the emptier tap holds, never below 0
+        assert!((sbi_removed_e(&k, &r, 4000.0, 600.0) - 600.0).abs() < 1e-9);
+        assert_eq!(sbi_removed_e(&k, &r, 9000.0, -5.0), 0.0);
+        let ok = |v: Vec<f64>| EffectShape {
+            knots: k.to_vec(),
+            curves: vec![(SBI_REMOVED_E, v)],
+        };
+        assert!(ok(r.to_vec()).check(&SBI_ASYMMETRY).is_ok());
+        let e = ok(vec![10.0, 400.0, 2400.0])
+            .check(&SBI_ASYMMETRY)
+            .unwrap_err();
+        assert!(e.0 == SBI_REMOVED_E && e.1.contains("start at 0"), "{e:?}");
+        let e = ok(vec![0.0, -4.0, -9.0]).check(&SBI_ASYMMETRY).unwrap_err();
+        assert!(e.1.contains("not decrease"), "{e:?}");
+    }
+
+    #[test]
+    fn droop_shape_keeps_the_power_positive() {
+        let s = |v: Vec<f64>| EffectShape {
+            knots: vec![0.0, 1000.0, 3000.0],
+            curves: vec![(DROOP_LOSS_REL, v)],
+        };
+        assert!(s(vec![0.0, 0.02, 0.05]).check(&VCSEL_DROOP).is_ok());
+        let e = s(vec![0.0, 0.5, 1.0]).check(&VCSEL_DROOP).unwrap_err();
+        assert!(e.0 == DROOP_LOSS_REL && e.1.contains("1 − L ≤ 0"), "{e:?}");
+        assert!((s(vec![0.0, 0.02, 0.05]).eval(DROOP_LOSS_REL, 2000.0) - 0.035).abs() < 1e-12);
+        assert_eq!(shape_law("vcsel_droop"), Some(&VCSEL_DROOP));
+        assert_eq!(shape_law("sbi_asymmetry"), Some(&SBI_ASYMMETRY));
     }
 
     #[test]
