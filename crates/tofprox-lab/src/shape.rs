@@ -421,7 +421,7 @@ pub fn make_shape_signature(
 /// (2 % … 98 %) of its phase information w·A²; the temperature and the
 /// on-time at evenly spaced ranks of the illuminated captures' values (the
 /// temperature: distinct values, the extremes included, at most as many
-/// knots as values; the on-time: [`on_time_knots`]); the fuller tap's
+/// knots as values; the on-time: `on_time_knots`); the fuller tap's
 /// charge like the amplitude, weighted by w·N_max² (none where the ambient
 /// light varies).
 pub fn knots_at_quantiles(
@@ -603,7 +603,7 @@ pub struct FormChoice {
 /// `MIN_CAPTURES_FOR_FORMS` illuminated captures; else `scores` stays empty). The parametric form is kept
 /// unless a shape's held-out χ² is lower by more than 1 % of what the
 /// parametric form explains there, 2 per extra parameter and
-/// [`MIN_REL_GAIN_OVER_PHYSICAL`] of the parametric form's own held-out χ²:
+/// `MIN_REL_GAIN_OVER_PHYSICAL` of the parametric form's own held-out χ²:
 /// a law the physics fixes is not traded for a look-alike within the noise,
 /// nor for one that absorbs a little of a residual that is not this
 /// effect's (the candidates are fitted before the per-pixel parameters are
@@ -752,7 +752,7 @@ pub fn form_name(knots: Option<&Vec<f64>>) -> String {
 /// µs) and the values relative to the lab's reference `temp_ref_c` (drift)
 /// — each curve projected onto the nearest monotone one
 /// (`law::monotone_projection`), as the model requires; the SBI's removed
-/// charge non-negative, its sign carried by the mismatch ([`sbi_split`]),
+/// charge non-negative, its sign carried by the mismatch (`sbi_split`),
 /// the droop's loss below 1. `None` where `fit`
 /// is not of the shape form.
 pub fn model_shape(
@@ -832,7 +832,7 @@ fn sbi_split(nl: &[f64]) -> (Vec<f64>, f64) {
 }
 
 /// The model's `mismatch_rel` of the SBI's shape form fitted as `fit`
-/// ([`sbi_split`]).
+/// (`sbi_split`).
 pub fn shape_mismatch_rel(fit: &EffectFit) -> Option<f64> {
     (!fit.nl.is_empty()).then(|| sbi_split(&fit.nl).1)
 }
