@@ -1912,17 +1912,21 @@ pub(crate) mod tests {
     /// a small share or unmeasured noise add nothing.
     #[test]
     fn a_clear_partial_leader_is_added_on_trial() {
-        let drift = cand("temperature_drift", 0.29, 0.29, 9000.0, -1e5);
+        let (drift_id, droop_id) = (
+            ids::temperature_drift::ID.as_str(),
+            ids::vcsel_droop::ID.as_str(),
+        );
+        let drift = cand(drift_id, 0.29, 0.29, 9000.0, -1e5);
         let mut d = unexplained(
-            vec![drift.clone(), cand("multipath", 0.04, 0.03, 9500.0, -10.0)],
+            vec![
+                drift.clone(),
+                cand(ids::multipath::ID.as_str(), 0.04, 0.03, 9500.0, -10.0),
+            ],
             true,
         );
         let mut trials = Vec::new();
-        assert_eq!(
-            next_effect(&mut d, &mut trials).as_deref(),
-            Some("temperature_drift")
-        );
-        assert_eq!(trials, ["temperature_drift"]);
+        assert_eq!(next_effect(&mut d, &mut trials).as_deref(), Some(drift_id));
+        assert_eq!(trials, [drift_id]);
         assert!(d.reason.ends_with("adds temperature_drift on trial (29% of the excess, 29% on held-out blocks) and diagnoses the rest"));
         trial_failed(&mut d.reason, "taken back");
         assert_eq!(
@@ -1934,17 +1938,14 @@ pub(crate) mod tests {
             next_effect(&mut unexplained(cands, measured), &mut t).is_none() && t.is_empty()
         };
         assert!(none(
-            vec![drift.clone(), cand("adc_inl", 0.25, 0.24, 9100.0, -1e5)],
+            vec![
+                drift.clone(),
+                cand(ids::adc_inl::ID.as_str(), 0.25, 0.24, 9100.0, -1e5)
+            ],
             true
         ));
-        assert!(none(
-            vec![cand("vcsel_droop", 0.30, 0.10, 9000.0, -1e5)],
-            true
-        ));
-        assert!(none(
-            vec![cand("vcsel_droop", 0.12, 0.12, 9000.0, -1e5)],
-            true
-        ));
+        assert!(none(vec![cand(droop_id, 0.30, 0.10, 9000.0, -1e5)], true));
+        assert!(none(vec![cand(droop_id, 0.12, 0.12, 9000.0, -1e5)], true));
         assert!(none(vec![drift], false));
     }
 }

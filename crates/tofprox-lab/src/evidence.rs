@@ -159,6 +159,7 @@ mod tests {
     use super::*;
     use crate::diagnose::{FitStats, Rms, Size};
     use crate::noise::NoiseSource;
+    use tofprox_model::ids;
 
     fn candidate(effect: &str, share: f64, mm: f64, z_after: f64) -> CandidateScore {
         let mut c = crate::diagnose::tests::cand(effect, share, share, z_after, -100.0);
@@ -170,12 +171,12 @@ mod tests {
     fn ambiguous() -> Diagnosis {
         Diagnosis {
             verdict: Verdict::Ambiguous,
-            effect: Some("adc_inl".into()),
-            runner_up: Some("tap_gain_mismatch".into()),
+            effect: Some(ids::adc_inl::ID.as_str().into()),
+            runner_up: Some(ids::tap_gain_mismatch::ID.as_str().into()),
             separate_by: Some("exposure_us".into()),
             candidates: vec![
-                candidate("adc_inl", 0.81, 0.52, 30.5),
-                candidate("tap_gain_mismatch", 0.77, 0.49, 35.25),
+                candidate(ids::adc_inl::ID.as_str(), 0.81, 0.52, 30.5),
+                candidate(ids::tap_gain_mismatch::ID.as_str(), 0.77, 0.49, 35.25),
             ],
             skipped: Vec::new(),
             fit: FitStats {
