@@ -1,8 +1,11 @@
-//! `cover_window_crosstalk`: Cover-window crosstalk (thesis not treated in the thesis (extension: phone proximity sensors sit behind a cover glass, 2.4.2); an extra return adds its phasor (2.2.1, eq. 2.2/2.3); the stray-light correction step of fig. 3.1 (3.1)).
+//! `cover_window_crosstalk`: Cover-window crosstalk (thesis not treated in the
+//! thesis (extension: phone proximity sensors sit behind a cover glass, 2.4.2); an
+//! extra return adds its phasor (2.2.1, eq. 2.2/2.3); the stray-light correction
+//! step of fig. 3.1 (3.1)).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law is evaluated
-//! inline by the simulator ([`crate::sim`]), where the signal chain combines it.
+//! its drivers) and its registry entry; its law is evaluated inline by the
+//! simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::effects::Effect;

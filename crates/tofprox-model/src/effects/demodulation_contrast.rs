@@ -1,8 +1,8 @@
 //! `demodulation_contrast`: Demodulation contrast (thesis 2.2.2.2, eq. 2.10-2.11).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law scales
-//! the correlation waveform ([`crate::effects::correlation::Correlation`]).
+//! its drivers) and its registry entry; its law, the
+//! correlation scaled by K, is evaluated inline by the simulator ([`crate::sim`]).
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::effects::Effect;

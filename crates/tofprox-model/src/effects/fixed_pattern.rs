@@ -1,9 +1,10 @@
-//! Fixed per-pixel patterns, one module for three effects because they are
-//! drawn together, once per sensor, from one seed ([`FixedPatterns`]):
+//! Fixed per-pixel patterns, one module for three effects because they are drawn
+//! together, once per sensor, from one seed ([`FixedPatterns`]):
 //!
 //! - `prnu`: Photo-response non-uniformity incl. vignetting (thesis 2.3.1.3 (PRNU))
 //! - `fppn`: Fixed-pattern phase noise and global delay (thesis 2.3.1.4)
-//! - `fpn_offset`: Fixed-pattern offset (FPN) of the read-out (thesis 2.3.1.3, 3.3.3, 3.3.7.1 (fig. 3.12-3.16))
+//! - `fpn_offset`: Fixed-pattern offset (FPN) of the read-out (thesis 2.3.1.3,
+//!   3.3.3, 3.3.7.1 (fig. 3.12-3.16))
 //!
 //! Every random draw is a pure function of (seed, effect tag, full-array position),
 //! so a read-out window sees exactly the same pixels as the full array.

@@ -1,9 +1,9 @@
-//! `multipath`: Multipath return (thesis not treated in the thesis (extension; standard iToF error)).
+//! `multipath`: Multipath return (thesis not treated in the thesis (extension;
+//! standard iToF error)).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law:
-//! the second return's phase offset ([`multipath_phase_offset_rad`]), which the
-//! simulator and the lab's fit call.
+//! its drivers) and its registry entry; its law: the second return's phase offset
+//! ([`multipath_phase_offset_rad`]), which the simulator and the lab's fit call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::effects::Effect;

@@ -1,8 +1,9 @@
-//! `signal_falloff`: Reflected signal vs distance (thesis 2.2.1, 3.3.3 (fig. 3.7: signal loss with distance)).
+//! `signal_falloff`: Reflected signal vs distance (thesis 2.2.1, 3.3.3 (fig. 3.7:
+//! signal loss with distance)).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law is evaluated
-//! inline by the simulator ([`crate::sim`]), where the signal chain combines it.
+//! its drivers) and its registry entry; its law is evaluated inline by the
+//! simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::effects::Effect;

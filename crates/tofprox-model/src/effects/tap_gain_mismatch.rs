@@ -1,9 +1,10 @@
-//! `tap_gain_mismatch`: Tap gain mismatch (A/B) (thesis 2.2.2 (two-tap pixel, eq. 2.1), 3.3.3 eq. 3.4).
+//! `tap_gain_mismatch`: Tap gain mismatch (A/B) (thesis 2.2.2 (two-tap pixel, eq.
+//! 2.1), 3.3.3 eq. 3.4).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law:
-//! the differential charge the mismatch leaks ([`tap_gain_leak_e`]), which the
-//! simulator and the lab's fit call.
+//! its drivers) and its registry entry; its law: the differential charge the
+//! mismatch leaks ([`tap_gain_leak_e`]), which the simulator and the lab's fit
+//! call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::effects::Effect;

@@ -1,10 +1,10 @@
-//! `temperature_drift`: Temperature drift of phase and gain (thesis 3.1 (temperature compensation step of fig. 3.1)).
+//! `temperature_drift`: Temperature drift of phase and gain (thesis 3.1
+//! (temperature compensation step of fig. 3.1)).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law:
-//! the phase and gain drift with temperature ([`temperature_drift`],
-//! [`temperature_drift_of`] with the file's shape), which the simulator and the
-//! lab's fit call.
+//! its drivers) and its registry entry; its law: the phase and gain drift with
+//! temperature ([`temperature_drift`], [`temperature_drift_of`] with the file's
+//! shape), which the simulator and the lab's fit call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;

@@ -1,10 +1,10 @@
-//! `vcsel_droop`: VCSEL power droop over successive raw images (thesis 3.3.7.2, 5.1.2.1 ('varying emission power during exposure of several raw images')).
+//! `vcsel_droop`: VCSEL power droop over successive raw images (thesis 3.3.7.2,
+//! 5.1.2.1 ('varying emission power during exposure of several raw images')).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law:
-//! the relative optical power of a raw image ([`droop_factor`], [`droop_loss`],
-//! the shape form's driver [`droop_on_time_us`]), which the simulator and the
-//! lab's fit call.
+//! its drivers) and its registry entry; its law: the relative optical power of a
+//! raw image ([`droop_factor`], [`droop_loss`], the shape form's driver
+//! [`droop_on_time_us`]), which the simulator and the lab's fit call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;

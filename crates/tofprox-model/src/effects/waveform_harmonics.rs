@@ -1,9 +1,10 @@
-//! `waveform_harmonics`: Non-sinusoidal correlation (wiggling) (thesis 2.3.1.1, 3.2.2, 3.3.6, 5.1.2.1 (fig. 3.10, 3.11, 5.1)).
+//! `waveform_harmonics`: Non-sinusoidal correlation (wiggling) (thesis 2.3.1.1,
+//! 3.2.2, 3.3.6, 5.1.2.1 (fig. 3.10, 3.11, 5.1)).
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
-//! its drivers) and its registry entry; its law is the
-//! correlation waveform's shape ([`crate::effects::correlation::Correlation`]);
-//! its parameters ([`HARMONIC_PARAMS`]) and optional waveform files are here.
+//! its drivers) and its registry entry; its law is the correlation waveform's shape
+//! ([`crate::effects::correlation::Correlation`]); its parameters
+//! ([`HARMONIC_PARAMS`]) and optional waveform files are here.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, ParamInfo, param as p};
 use crate::effects::Effect;
