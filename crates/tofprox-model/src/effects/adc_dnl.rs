@@ -5,8 +5,7 @@
 //! by the converter the ADC effects make up together ([`crate::effects::adc::Adc`]).
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `adc_dnl`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -29,14 +28,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `adc_dnl` in the registry.
-pub struct AdcDnl;
-
-impl Effect for AdcDnl {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::adc_dnl::ID
-    }
-}
+effect!(AdcDnl, INFO, adc_dnl);

@@ -7,8 +7,7 @@
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The converter's slope factor k = 1/(1 + e_gain) (eq. 3.2, `adc_gain`; 1
 /// when the effect is off): output codes per LSB of input, so a charge of N
@@ -42,14 +41,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `adc_gain` in the registry.
-pub struct AdcGain;
-
-impl Effect for AdcGain {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::adc_gain::ID
-    }
-}
+effect!(AdcGain, INFO, adc_gain);

@@ -8,8 +8,7 @@
 use std::f64::consts::TAU;
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The shape of the differential converter's INL (`adc_inl`, 3.2.1, fig. 3.4):
 /// INL(x) = I · inl_shape(x), inl_shape(x) = sin(2π x / 2^N) for x the input in LSB
@@ -42,14 +41,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `adc_inl` in the registry.
-pub struct AdcInl;
-
-impl Effect for AdcInl {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::adc_inl::ID
-    }
-}
+effect!(AdcInl, INFO, adc_inl);

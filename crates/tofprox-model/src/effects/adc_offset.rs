@@ -5,8 +5,7 @@
 //! by the converter the ADC effects make up together ([`crate::effects::adc::Adc`]).
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `adc_offset`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -29,14 +28,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-/// `adc_offset` in the registry.
-pub struct AdcOffset;
-
-impl Effect for AdcOffset {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::adc_offset::ID
-    }
-}
+effect!(AdcOffset, INFO, adc_offset);

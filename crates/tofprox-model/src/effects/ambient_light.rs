@@ -5,8 +5,7 @@
 //! inline by the simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `ambient_light`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -29,14 +28,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `ambient_light` in the registry.
-pub struct AmbientLight;
-
-impl Effect for AmbientLight {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::ambient_light::ID
-    }
-}
+effect!(AmbientLight, INFO, ambient_light);

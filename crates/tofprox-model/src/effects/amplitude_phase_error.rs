@@ -7,8 +7,7 @@
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The saturating law of `amplitude_phase_error` (2.3.1.2, fig. 2.9) as the
 /// share of φ_max left at x = A/A_ref: 1 − x/(1 + xⁿ)^(1/n). n = 1 is the
@@ -98,14 +97,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `amplitude_phase_error` in the registry.
-pub struct AmplitudePhaseError;
-
-impl Effect for AmplitudePhaseError {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::amplitude_phase_error::ID
-    }
-}
+effect!(AmplitudePhaseError, INFO, amplitude_phase_error);

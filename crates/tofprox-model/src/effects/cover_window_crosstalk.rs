@@ -8,8 +8,7 @@
 //! simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `cover_window_crosstalk`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -58,14 +57,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `cover_window_crosstalk` in the registry.
-pub struct CoverWindowCrosstalk;
-
-impl Effect for CoverWindowCrosstalk {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::cover_window_crosstalk::ID
-    }
-}
+effect!(CoverWindowCrosstalk, INFO, cover_window_crosstalk);

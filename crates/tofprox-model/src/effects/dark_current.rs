@@ -6,8 +6,7 @@
 //! which the simulator and the lab's fit call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The temperature factor of the dark current (`dark_current`, eq. 2.17 with
 /// i_d(T) = i_d,ref · 2^(ΔT/ΔT₂)): 2^(ΔT/ΔT₂) for ΔT = T − T_ref kelvin and the
@@ -48,14 +47,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-/// `dark_current` in the registry.
-pub struct DarkCurrent;
-
-impl Effect for DarkCurrent {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::dark_current::ID
-    }
-}
+effect!(DarkCurrent, INFO, dark_current);

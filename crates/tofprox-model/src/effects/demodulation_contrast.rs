@@ -5,8 +5,7 @@
 //! correlation scaled by K, is evaluated inline by the simulator ([`crate::sim`]).
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `demodulation_contrast`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -29,14 +28,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `demodulation_contrast` in the registry.
-pub struct DemodulationContrast;
-
-impl Effect for DemodulationContrast {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::demodulation_contrast::ID
-    }
-}
+effect!(DemodulationContrast, INFO, demodulation_contrast);

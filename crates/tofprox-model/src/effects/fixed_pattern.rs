@@ -11,9 +11,8 @@
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
 use crate::geometry::SensorGeometry;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// SplitMix64 step: a well-mixed 64-bit hash.
 pub(crate) fn mix64(mut z: u64) -> u64 {
@@ -170,17 +169,7 @@ pub static PRNU: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `prnu` in the registry.
-pub struct Prnu;
-
-impl Effect for Prnu {
-    fn info(&self) -> &'static EffectInfo {
-        &PRNU
-    }
-    fn id(&self) -> EffectId {
-        ids::prnu::ID
-    }
-}
+effect!(Prnu, PRNU, prnu);
 
 /// The catalogue entry of `fppn`.
 pub static FPPN: EffectInfo = EffectInfo {
@@ -221,17 +210,7 @@ pub static FPPN: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `fppn` in the registry.
-pub struct Fppn;
-
-impl Effect for Fppn {
-    fn info(&self) -> &'static EffectInfo {
-        &FPPN
-    }
-    fn id(&self) -> EffectId {
-        ids::fppn::ID
-    }
-}
+effect!(Fppn, FPPN, fppn);
 
 /// The catalogue entry of `fpn_offset`.
 pub static FPN_OFFSET: EffectInfo = EffectInfo {
@@ -288,14 +267,4 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-/// `fpn_offset` in the registry.
-pub struct FpnOffset;
-
-impl Effect for FpnOffset {
-    fn info(&self) -> &'static EffectInfo {
-        &FPN_OFFSET
-    }
-    fn id(&self) -> EffectId {
-        ids::fpn_offset::ID
-    }
-}
+effect!(FpnOffset, FPN_OFFSET, fpn_offset);

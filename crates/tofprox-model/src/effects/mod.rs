@@ -19,6 +19,25 @@
 use crate::catalogue::EffectInfo;
 use crate::ids::EffectId;
 
+/// An effect module's registry entry: the unit struct `$name` implementing
+/// [`Effect`] with the module's catalogue entry `$info` and the id
+/// `ids::$id::ID`.
+macro_rules! effect {
+    ($name:ident, $info:ident, $id:ident) => {
+        #[doc = concat!("The effect `", stringify!($id), "` in [`crate::effects::REGISTRY`].")]
+        pub struct $name;
+
+        impl $crate::effects::Effect for $name {
+            fn info(&self) -> &'static $crate::catalogue::EffectInfo {
+                &$info
+            }
+            fn id(&self) -> $crate::ids::EffectId {
+                $crate::ids::$id::ID
+            }
+        }
+    };
+}
+
 pub mod adc;
 pub mod adc_dnl;
 pub mod adc_gain;

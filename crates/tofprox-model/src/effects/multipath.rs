@@ -6,8 +6,7 @@
 //! ([`multipath_phase_offset_rad`]), which the simulator and the lab's fit call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The phase offset of the multipath's second return (`multipath`): an extra
 /// round-trip path L arrives like an extra distance L/2 (eq. 2.6 inverted),
@@ -50,14 +49,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `multipath` in the registry.
-pub struct Multipath;
-
-impl Effect for Multipath {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::multipath::ID
-    }
-}
+effect!(Multipath, INFO, multipath);

@@ -6,8 +6,7 @@
 //! - `ktc_noise`: Reset (kTC) noise (thesis 2.3.2.1 eq. 2.14-2.15)
 
 use crate::catalogue::{ActsOn, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `shot_noise`.
 pub static SHOT_NOISE: EffectInfo = EffectInfo {
@@ -30,17 +29,7 @@ pub static SHOT_NOISE: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `shot_noise` in the registry.
-pub struct ShotNoise;
-
-impl Effect for ShotNoise {
-    fn info(&self) -> &'static EffectInfo {
-        &SHOT_NOISE
-    }
-    fn id(&self) -> EffectId {
-        ids::shot_noise::ID
-    }
-}
+effect!(ShotNoise, SHOT_NOISE, shot_noise);
 
 /// The catalogue entry of `read_noise`.
 pub static READ_NOISE: EffectInfo = EffectInfo {
@@ -63,17 +52,7 @@ pub static READ_NOISE: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `read_noise` in the registry.
-pub struct ReadNoise;
-
-impl Effect for ReadNoise {
-    fn info(&self) -> &'static EffectInfo {
-        &READ_NOISE
-    }
-    fn id(&self) -> EffectId {
-        ids::read_noise::ID
-    }
-}
+effect!(ReadNoise, READ_NOISE, read_noise);
 
 /// The catalogue entry of `ktc_noise`.
 pub static KTC_NOISE: EffectInfo = EffectInfo {
@@ -96,14 +75,4 @@ pub static KTC_NOISE: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `ktc_noise` in the registry.
-pub struct KtcNoise;
-
-impl Effect for KtcNoise {
-    fn info(&self) -> &'static EffectInfo {
-        &KTC_NOISE
-    }
-    fn id(&self) -> EffectId {
-        ids::ktc_noise::ID
-    }
-}
+effect!(KtcNoise, KTC_NOISE, ktc_noise);

@@ -5,8 +5,7 @@
 //! by the converter the ADC effects make up together ([`crate::effects::adc::Adc`]).
 
 use crate::catalogue::{ActsOn, EffectInfo};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `quantization`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -22,14 +21,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `quantization` in the registry.
-pub struct Quantization;
-
-impl Effect for Quantization {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::quantization::ID
-    }
-}
+effect!(Quantization, INFO, quantization);

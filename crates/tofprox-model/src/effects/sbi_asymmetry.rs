@@ -7,8 +7,7 @@
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// Charge the SBI circuit injects into each tap (2.2.2.1, fig. 2.7, 5.1.2.3),
 /// for tap charges `n_a`, `n_b` collected at constant rates: the fuller tap
@@ -111,17 +110,7 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-/// `sbi_asymmetry` in the registry.
-pub struct SbiAsymmetry;
-
-impl Effect for SbiAsymmetry {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::sbi_asymmetry::ID
-    }
-}
+effect!(SbiAsymmetry, INFO, sbi_asymmetry);
 
 #[cfg(test)]
 mod tests {

@@ -6,8 +6,7 @@
 //! simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The catalogue entry of `signal_falloff`.
 pub static INFO: EffectInfo = EffectInfo {
@@ -30,14 +29,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `signal_falloff` in the registry.
-pub struct SignalFalloff;
-
-impl Effect for SignalFalloff {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::signal_falloff::ID
-    }
-}
+effect!(SignalFalloff, INFO, signal_falloff);

@@ -7,8 +7,7 @@
 //! call.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The differential charge a tap gain mismatch ε leaks from the total charge
 /// (`tap_gain_mismatch`, eq. 2.1): D = (1 + ε/2)·N_A − (1 − ε/2)·N_B adds
@@ -39,14 +38,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-/// `tap_gain_mismatch` in the registry.
-pub struct TapGainMismatch;
-
-impl Effect for TapGainMismatch {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::tap_gain_mismatch::ID
-    }
-}
+effect!(TapGainMismatch, INFO, tap_gain_mismatch);

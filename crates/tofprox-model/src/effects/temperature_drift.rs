@@ -8,8 +8,7 @@
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// The powers of ΔT = T − T_ref the temperature drift is a polynomial in:
 /// [ΔT, ΔT²] (catalogue `temperature_drift`).
@@ -110,14 +109,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `temperature_drift` in the registry.
-pub struct TemperatureDrift;
-
-impl Effect for TemperatureDrift {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::temperature_drift::ID
-    }
-}
+effect!(TemperatureDrift, INFO, temperature_drift);

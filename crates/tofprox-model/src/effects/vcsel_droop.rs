@@ -8,8 +8,7 @@
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// Relative optical power of raw image `k` (acquisition order) under
 /// `vcsel_droop`: 1 − L(t_on) by the file's shape of the on-time
@@ -104,14 +103,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `vcsel_droop` in the registry.
-pub struct VcselDroop;
-
-impl Effect for VcselDroop {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::vcsel_droop::ID
-    }
-}
+effect!(VcselDroop, INFO, vcsel_droop);

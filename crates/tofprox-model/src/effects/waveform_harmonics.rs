@@ -7,8 +7,7 @@
 //! ([`HARMONIC_PARAMS`]) and optional waveform files are here.
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, ParamInfo, param as p};
-use crate::effects::Effect;
-use crate::ids::{self, EffectId};
+use crate::ids;
 
 /// Harmonic parameters `h2_rel … h9_rel`, `h2_phase_deg … h9_phase_deg`.
 /// Typical values: the odd harmonics of the measured-like VCSEL/pulse correlation
@@ -162,14 +161,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-/// `waveform_harmonics` in the registry.
-pub struct WaveformHarmonics;
-
-impl Effect for WaveformHarmonics {
-    fn info(&self) -> &'static EffectInfo {
-        &INFO
-    }
-    fn id(&self) -> EffectId {
-        ids::waveform_harmonics::ID
-    }
-}
+effect!(WaveformHarmonics, INFO, waveform_harmonics);
