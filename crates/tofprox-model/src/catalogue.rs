@@ -15,7 +15,6 @@ use std::sync::LazyLock;
 use serde::Serialize;
 
 use crate::effects;
-
 use crate::ids::{self, ParamId};
 
 /// What an effect changes in the signal chain (2.2–3.2).
