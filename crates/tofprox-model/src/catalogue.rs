@@ -187,8 +187,6 @@ pub static SENSOR_PARAMS: &[ParamInfo] = &[
     ),
 ];
 
-/// The catalogue, in signal-chain order.
-
 /// Look up an effect by id.
 pub fn effect(id: &str) -> Option<&'static EffectInfo> {
     catalogue().iter().find(|e| e.id == id)
