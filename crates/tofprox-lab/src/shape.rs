@@ -27,8 +27,8 @@
 
 use std::collections::BTreeMap;
 
-use tofprox_model::effects::optical::droop_on_time_us;
 use tofprox_model::effects::shape as law;
+use tofprox_model::effects::vcsel_droop::droop_on_time_us;
 use tofprox_model::ids::{self, EffectId};
 
 use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
@@ -363,7 +363,7 @@ impl Signature for SbiShape {
 }
 
 /// The VCSEL droop as a shape of the on-time before raw image k,
-/// t_on = k·t_exp (µs, `optical::droop_on_time_us`): Δ = −A·C·L(t_on),
+/// t_on = k·t_exp (µs, `vcsel_droop::droop_on_time_us`): Δ = −A·C·L(t_on),
 /// lin = L at knots 1.. (the first raw image is the reference).
 struct DroopShape {
     knots: Vec<f64>,

@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use crate::catalogue::{self, CATALOGUE, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
+use crate::catalogue::{self, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::effects::shape::{self, EffectShape, ShapeLaw};
 use crate::error::{ErrorKind, ModelError};
 use crate::ids::{self, EffectId, ParamId};
@@ -149,7 +149,7 @@ impl ModelConfig {
         Self {
             description: None,
             sensor: typical_params(SENSOR_PARAMS),
-            effects: CATALOGUE
+            effects: catalogue::catalogue()
                 .iter()
                 .map(|e| {
                     (
@@ -451,7 +451,7 @@ impl ModelConfig {
             let v = self.sensor.get(p.name).copied().unwrap_or(p.typical);
             let _ = writeln!(out, "{} = {:?}  # {}", p.name, v, p.unit);
         }
-        for e in CATALOGUE {
+        for e in catalogue::catalogue() {
             let Some(s) = self.effects.get(e.id) else {
                 continue;
             };
@@ -578,7 +578,7 @@ impl ModelConfig {
 
     /// Ids of the enabled effects, in catalogue order.
     pub fn enabled_effects(&self) -> Vec<&'static str> {
-        CATALOGUE
+        catalogue::catalogue()
             .iter()
             .filter(|e| self.effects.get(e.id).is_some_and(|s| s.enabled))
             .map(|e| e.id)
@@ -647,7 +647,7 @@ fn write_wave(out: &mut String, name: &str, samples: &[f64], file: Option<&Path>
 }
 
 fn unknown_effect(id: &str) -> ModelError {
-    let known: Vec<&str> = CATALOGUE.iter().map(|e| e.id).collect();
+    let known: Vec<&str> = catalogue::catalogue().iter().map(|e| e.id).collect();
     ModelError::new(
         ErrorKind::UnknownEffect,
         match catalogue::closest(id, known.iter().copied()) {

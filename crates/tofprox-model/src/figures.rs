@@ -10,7 +10,7 @@ use rand::SeedableRng;
 use rand::rngs::SmallRng;
 
 use crate::ModelConfig;
-use crate::effects::optical::measured_like_waveforms;
+use crate::effects::correlation::measured_like_waveforms;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::ids;

@@ -3,7 +3,7 @@
 //! The model's code names an effect or a parameter through these constants
 //! (`m.get(adc_gain::GAIN_ERROR_PCT_FSR)`, `m.is_enabled(vcsel_droop::ID)`), so a misspelt
 //! identifier does not compile; a test checks that every constant names an entry of
-//! [`crate::catalogue::CATALOGUE`] (or of [`crate::catalogue::SENSOR_PARAMS`]) and that every
+//! [`crate::catalogue::catalogue()`] (the registry [`crate::effects::REGISTRY`]) (or of [`crate::catalogue::SENSOR_PARAMS`]) and that every
 //! catalogue entry has a constant. Strings from outside (model files, the command line) are
 //! checked against the catalogue when they are read (`ModelConfig::set_param`, model loading).
 
@@ -193,12 +193,12 @@ effect_ids! {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::catalogue::{CATALOGUE, SENSOR_PARAMS, effect};
+    use crate::catalogue::{SENSOR_PARAMS, catalogue, effect};
 
     #[test]
     fn every_constant_names_a_catalogue_entry_and_back() {
         let ids: Vec<&str> = ALL_EFFECTS.iter().map(|e| e.as_str()).collect();
-        let cat: Vec<&str> = CATALOGUE.iter().map(|e| e.id).collect();
+        let cat: Vec<&str> = catalogue().iter().map(|e| e.id).collect();
         assert_eq!(ids, cat, "ids.rs and the catalogue list different effects");
         let mut named = ALL_EFFECT_PARAMS.to_vec();
         named.extend((2..=9).flat_map(|n| {
@@ -209,7 +209,7 @@ mod tests {
             let info = effect(p.section()).unwrap_or_else(|| panic!("{p}: no such effect"));
             assert!(info.param(p.name()).is_some(), "{p}: not in the catalogue");
         }
-        let n_cat: usize = CATALOGUE.iter().map(|e| e.params.len()).sum();
+        let n_cat: usize = catalogue().iter().map(|e| e.params.len()).sum();
         assert_eq!(named.len(), n_cat, "a catalogue parameter has no constant");
         let sensor: Vec<&str> = sensor::ALL.iter().map(|p| p.name()).collect();
         let sensor_cat: Vec<&str> = SENSOR_PARAMS.iter().map(|p| p.name).collect();

@@ -6,9 +6,12 @@ use rand_distr::StandardNormal;
 
 use crate::config::ModelConfig;
 use crate::effects::adc::Adc;
+use crate::effects::correlation::Correlation;
 use crate::effects::fixed_pattern::FixedPatterns;
-use crate::effects::optical::{Correlation, droop_factor, multipath_phase_offset_rad};
-use crate::effects::pixel::{PixelParams, tap_gain_leak_e};
+use crate::effects::multipath::multipath_phase_offset_rad;
+use crate::effects::pixel::PixelParams;
+use crate::effects::tap_gain_mismatch::tap_gain_leak_e;
+use crate::effects::vcsel_droop::droop_factor;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::ids;

@@ -1,6 +1,6 @@
 //! Measured waveforms (thesis 5.1.2.1): one period of the illumination and of the modulation
 //! gate, read from CSV or `.npy` files and checked. Below both `config` (which reads the files a
-//! model names) and `effects::optical` (which builds the correlation from them), so neither
+//! model names) and `effects::correlation` (which builds the correlation from them), so neither
 //! imports the other for it.
 
 use std::f64::consts::TAU;

@@ -121,7 +121,7 @@ fn shipped_measured_like_waveform_model_loads_csv_files() {
     let m = ModelConfig::load(&repo_file("config/model/measured_like.toml")).unwrap();
     let w = m.waveforms().expect("waveforms loaded from the CSV files");
     assert_eq!(w.illumination.len(), 500);
-    let c = tofprox_model::effects::optical::Correlation::from_model(&m);
+    let c = tofprox_model::effects::correlation::Correlation::from_model(&m);
     let h = c.harmonics_rel(5);
     // odd harmonics of a 50 % duty pulse pair; no even ones
     assert!(
@@ -141,7 +141,7 @@ fn toml_round_trip_and_waveforms_inline() {
     let mut m = ModelConfig::full();
     m.set_param("adc_inl", "inl_lsb", -123.5).unwrap();
     m.set_param("sensor", "signal_e_per_us", 17.25).unwrap();
-    let (i, w) = tofprox_model::effects::optical::measured_like_waveforms(80e6, 64);
+    let (i, w) = tofprox_model::effects::correlation::measured_like_waveforms(80e6, 64);
     m.set_waveforms(i, w).unwrap();
     let back = ModelConfig::from_toml_str(&m.to_toml_string()).unwrap();
     assert_eq!(back, m);
@@ -585,8 +585,8 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
 /// the knots.
 #[test]
 fn sbi_and_droop_shapes_are_what_the_simulator_evaluates() {
-    use tofprox_model::effects::optical::droop_factor;
     use tofprox_model::effects::pixel::PixelParams;
+    use tofprox_model::effects::vcsel_droop::droop_factor;
     let text = "[effects.sbi_asymmetry]\nenabled = true\nmismatch_rel = 0.04\n\
                 shape_tap_charge_e = [10000.0, 20000.0, 40000.0]\n\
                 shape_removed_e = [0.0, 2000.0, 3000.0]\n\

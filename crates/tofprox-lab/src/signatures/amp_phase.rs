@@ -78,7 +78,7 @@ pub(super) fn phase_at(e: &EffectFit, cap: &CapInfo, a_lsb: f64) -> f64 {
 }
 
 /// Amplitude-dependent phase error (2.3.1.2) with the model's own saturating
-/// law (`tofprox_model::effects::pixel::amplitude_phase_shape`), applied
+/// law (`tofprox_model::effects::amplitude_phase_error::amplitude_phase_shape`), applied
 /// exactly (the phasor rotated): Δφ = φ0·(s(A/A_ref; n) − 1),
 /// s(x; n) = 1 − x/(1 + xⁿ)^(1/n) (n = 1: 1/(1 + x); large A_ref: linear in
 /// A, −φ0·A/A_ref). The model's law is φ0·s; the constant −φ0 is a phase
@@ -110,7 +110,10 @@ impl AmpPhase {
     }
     /// s(A/A_ref; n) − 1 for `law` = [φ0, A_ref, n] ([`AmpPhase::law`]).
     fn shape(law: &[f64], a: f64) -> f64 {
-        tofprox_model::effects::pixel::amplitude_phase_shape(a.max(0.0) / law[1], law[2]) - 1.0
+        tofprox_model::effects::amplitude_phase_error::amplitude_phase_shape(
+            a.max(0.0) / law[1],
+            law[2],
+        ) - 1.0
     }
     /// The model file's range of φ0 (`amplitude_phase_error.max_rad`).
     fn phase0_range() -> (f64, f64) {

@@ -34,7 +34,7 @@ impl LabEffect for Effect {
 }
 
 /// Dark current (2.3.2, eq. 2.17) with the model's law: charge ∝ exposure,
-/// doubling every ΔT₂ kelvin (`tofprox_model::effects::pixel::
+/// doubling every ΔT₂ kelvin (`tofprox_model::effects::dark_current::
 /// dark_current_temperature_factor`, ΔT₂ the model's `doubling_c`), whose tap
 /// mismatch shifts the differential offset. lin = [LSB per ms at the lab's
 /// reference temperature].
@@ -62,7 +62,7 @@ impl Signature for Dark {
         Some(
             cap.exposure_us
                 * 1e-3
-                * tofprox_model::effects::pixel::dark_current_temperature_factor(
+                * tofprox_model::effects::dark_current::dark_current_temperature_factor(
                     cap.temp_rel,
                     self.doubling_k,
                 ),

@@ -55,7 +55,7 @@ impl LabEffect for Effect {
 }
 
 /// VCSEL droop (3.3.7.2) with the model's law
-/// (`tofprox_model::effects::optical::droop_loss`): A_k = A·(1 − D·L_k),
+/// (`tofprox_model::effects::vcsel_droop::droop_loss`): A_k = A·(1 − D·L_k),
 /// L_k = 1 − e^{−(k + k₀)·s/τ}, s = t[ms]^β (τ here in ms^β; β = 1: heating by
 /// on-time, β = 0: per image; k₀ = 1: the first image is already drooped).
 /// lin = [D/τ], nl = [ln τ, β, k₀].
@@ -96,7 +96,7 @@ impl Signature for Droop {
         let tau = nl[0].clamp(-5.0, 9.0).exp();
         let beta = nl[1].clamp(0.0, 2.0);
         let k0 = nl.get(2).copied().unwrap_or(0.0).clamp(0.0, 8.0);
-        let loss = tofprox_model::effects::optical::droop_loss(
+        let loss = tofprox_model::effects::vcsel_droop::droop_loss(
             f64::from(k),
             cap.exposure_us,
             1000.0 * tau,

@@ -34,7 +34,7 @@ impl LabEffect for Effect {
 }
 
 /// ADC integral non-linearity of a differential converter with the model's
-/// law (`tofprox_model::effects::adc::inl_shape`, 3.2.1, fig. 3.4): zero at
+/// law (`tofprox_model::effects::adc_inl::inl_shape`, 3.2.1, fig. 3.4): zero at
 /// mid and both ends, opposite sign on the two half ranges. lin = [I].
 struct Inl {
     mid: f64,
@@ -51,6 +51,6 @@ impl Signature for Inl {
     }
     fn basis(&self, _: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
         let x = r.x.clamp(-self.mid, self.mid);
-        out[0] = tofprox_model::effects::adc::inl_shape(x, 2.0 * self.mid);
+        out[0] = tofprox_model::effects::adc_inl::inl_shape(x, 2.0 * self.mid);
     }
 }

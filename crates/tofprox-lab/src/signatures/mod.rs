@@ -548,10 +548,10 @@ impl<'a> Writer<'a> {
 
 /// Output codes per electron of differential charge — the unit the lab's
 /// "LSB" are in: the conversion gain (`sensor.lsb_per_ke` / 1000) times the
-/// converter's slope (eq. 3.2, [`tofprox_model::effects::adc::gain_factor`]).
+/// converter's slope (eq. 3.2, [`tofprox_model::effects::adc_gain::gain_factor`]).
 /// NaN when the file has no conversion gain.
 pub(crate) fn code_per_e(m: &ModelConfig) -> f64 {
-    m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc::gain_factor(m)
+    m.get(ids::sensor::LSB_PER_KE) * 1e-3 * tofprox_model::effects::adc_gain::gain_factor(m)
 }
 
 /// A fit that measured the background charge per klux·ms (SBI, tap-gain

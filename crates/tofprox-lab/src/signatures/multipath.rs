@@ -39,7 +39,7 @@ impl LabEffect for Effect {
 
 /// Multipath with the model's law: a second return of a·A at the phase
 /// offset of an extra round-trip path L
-/// (`tofprox_model::effects::optical::multipath_phase_offset_rad`),
+/// (`tofprox_model::effects::multipath::multipath_phase_offset_rad`),
 /// Δ = a·A·C(φ + Δφ₂(L) − θ) with the fitted correlation C. In the model
 /// file's units: lin = [relative_amplitude a], nl = [extra_path_m L].
 struct Multipath {
@@ -71,7 +71,7 @@ impl Signature for Multipath {
             .collect()
     }
     fn basis(&self, nl: &[f64], r: &Rec, _: &CapInfo, out: &mut [f64]) {
-        let dphi = tofprox_model::effects::optical::multipath_phase_offset_rad(
+        let dphi = tofprox_model::effects::multipath::multipath_phase_offset_rad(
             self.phase_rad_per_m,
             nl[0].abs(),
         );

@@ -84,7 +84,7 @@ impl LabEffect for Effect {
 /// smaller current into both with mismatch, leaving m·N_min·(1 − q0/N_max) in
 /// the differential code — nearly the same in every raw image, so 4-phase
 /// cancels it and 2-phase does not. The injected charge is the model's family
-/// (`tofprox_model::effects::pixel::sbi_injected_e`): clamp share s = 0
+/// (`tofprox_model::effects::sbi_asymmetry::sbi_injected_e`): clamp share s = 0
 /// injects the smaller tap current (subtracts), s = 1 the larger one (clamps
 /// the fuller tap at q0). lin = [m], nl = [ln q0, (ln κ), s] (q0 and κ
 /// scale-free: their units depend on the sensor over many decades).
@@ -199,7 +199,7 @@ impl Signature for Sbi {
         let (na, nb) = self.taps(nl, r, cap);
         let q0 = nl.first().copied().unwrap_or(0.0).clamp(-60.0, 60.0).exp();
         let share = nl.get(self.clamp_index()).copied().unwrap_or(0.0);
-        out[0] = tofprox_model::effects::pixel::sbi_injected_e(na, nb, q0, share);
+        out[0] = tofprox_model::effects::sbi_asymmetry::sbi_injected_e(na, nb, q0, share);
     }
 }
 /// The unit of the lab's SBI tap charges in the model's electrons (the

@@ -2,7 +2,7 @@
 //! `[effects.tap_gain_mismatch]` of a model file.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::effects::optical::Correlation;
+use tofprox_model::effects::correlation::Correlation;
 use tofprox_model::ids::{self, tap_gain_mismatch as p};
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient};

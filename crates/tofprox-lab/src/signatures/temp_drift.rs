@@ -2,7 +2,7 @@
 //! model, and its mapping onto `[effects.temperature_drift]` of a model file.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::effects::pixel::{temperature_drift, temperature_drift_terms};
+use tofprox_model::effects::temperature_drift::{temperature_drift, temperature_drift_terms};
 use tofprox_model::ids::temperature_drift as p;
 
 use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, phase_shift_code};
@@ -81,7 +81,7 @@ impl LabEffect for Effect {
 
 /// The signal gain factor 1 + G (floored at 0 as the simulator does) and the
 /// phase shift Δφ (rad) the fitted drift `e` gives capture `cap`, by the
-/// model's law (`tofprox_model::effects::pixel::temperature_drift`; lin =
+/// model's law (`tofprox_model::effects::temperature_drift::temperature_drift`; lin =
 /// gain, nl = phase coefficients).
 pub(super) fn gain_phase(e: &EffectFit, cap: &CapInfo) -> (f64, f64) {
     let at = |v: &[f64], i: usize| v.get(i).copied().unwrap_or(0.0);
@@ -108,7 +108,7 @@ fn distinct_temperatures(prep: &Prepared) -> usize {
 }
 
 /// Temperature drift (thesis 3.1) with the model's full law
-/// (`tofprox_model::effects::pixel::temperature_drift`): the phase shifted by
+/// (`tofprox_model::effects::temperature_drift::temperature_drift`): the phase shifted by
 /// Δφ(ΔT) = k_φ·ΔT (+ k_φ2·ΔT²) and the signal scaled by 1 + G(ΔT),
 /// G = k_g·ΔT (+ k_g2·ΔT²), applied exactly — the phasor rotated, not its
 /// first-order term A·C′·Δφ (a drift of 0.5 rad leaves A·(1 − cos 0.5) ≈ 0.12·A

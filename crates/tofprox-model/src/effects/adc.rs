@@ -1,10 +1,12 @@
-//! The ADC model of 3.2.1/4.2.1: `adc_gain`, `adc_offset`, `adc_inl`, `adc_dnl`,
-//! `quantization`, and saturation at the rails (always).
+//! The ADC transfer of 3.2.1/4.2.1 the effects `adc_gain`, `adc_offset`,
+//! `adc_inl`, `adc_dnl` and `quantization` make up together, and saturation at the
+//! rails (always): one converter built from the model, its DNL table drawn once.
+//! Each effect's entry and its own law are in its module.
 
-use std::f64::consts::TAU;
-
+use super::adc_gain::gain_factor;
+use super::adc_inl::inl_shape;
+use super::correlation::fast_floor;
 use super::fixed_pattern::{TAG_DNL, hashed_normal};
-use super::optical::fast_floor;
 use crate::config::ModelConfig;
 use crate::ids;
 
@@ -13,27 +15,6 @@ const PAD: usize = 3;
 
 /// INL table spacing in LSB.
 const INL_STEP: usize = 4;
-
-/// The shape of the differential converter's INL (`adc_inl`, 3.2.1, fig. 3.4):
-/// INL(x) = I · inl_shape(x), inl_shape(x) = sin(2π x / 2^N) for x the input in LSB
-/// around mid and `full_codes` = 2^N: zero at mid and at the rails, extremes at half
-/// of each half-range, opposite sign on the two halves. The simulator and the
-/// lab's fit both use this one function.
-#[inline]
-pub fn inl_shape(x_lsb: f64, full_codes: f64) -> f64 {
-    (TAU * x_lsb / full_codes).sin()
-}
-
-/// The converter's slope factor k = 1/(1 + e_gain) (eq. 3.2, `adc_gain`; 1
-/// when the effect is off): output codes per LSB of input, so a charge of N
-/// electrons reads as N·lsb_per_e·k codes.
-pub fn gain_factor(model: &ModelConfig) -> f64 {
-    if model.is_enabled(ids::adc_gain::ID) {
-        1.0 / (1.0 + model.get(ids::adc_gain::GAIN_ERROR_PCT_FSR) / 100.0)
-    } else {
-        1.0
-    }
-}
 
 /// A differential N-bit converter with mid code 2^(N−1) for zero input.
 #[derive(Debug, Clone)]

@@ -1,8 +1,15 @@
-//! Fixed per-pixel patterns: `prnu`, `fpn_offset`, `fppn`.
+//! Fixed per-pixel patterns, one module for three effects because they are drawn
+//! together, once per sensor, from one seed ([`FixedPatterns`]):
+//!
+//! - `prnu`: Photo-response non-uniformity incl. vignetting (thesis 2.3.1.3 (PRNU))
+//! - `fppn`: Fixed-pattern phase noise and global delay (thesis 2.3.1.4)
+//! - `fpn_offset`: Fixed-pattern offset (FPN) of the read-out (thesis 2.3.1.3,
+//!   3.3.3, 3.3.7.1 (fig. 3.12-3.16))
 //!
 //! Every random draw is a pure function of (seed, effect tag, full-array position),
 //! so a read-out window sees exactly the same pixels as the full array.
 
+use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::config::ModelConfig;
 use crate::geometry::SensorGeometry;
 use crate::ids;
@@ -130,3 +137,134 @@ impl FixedPatterns {
         }
     }
 }
+
+/// The catalogue entry of `prnu`.
+pub static PRNU: EffectInfo = EffectInfo {
+    id: ids::prnu::ID.as_str(),
+    title: "Photo-response non-uniformity incl. vignetting",
+    explanation: "Each pixel converts light with its own gain g_p ~ N(1, σ) (fill factor, micro-lens, QE variation) and the lens and illumination profile fall off towards the corners: g_p · (1 − v · r²) with r the distance from the optical centre normalised to the corner. Multiplies signal and background electrons of both taps; never changes the phase.",
+    thesis_ref: "2.3.1.3 (PRNU)",
+    signature: "per-pixel amplitude ratio fixed over all captures, radial falloff; no depth effect",
+    params: &[
+        p(
+            ids::prnu::SIGMA_REL,
+            "",
+            0.01,
+            0.0,
+            0.3,
+            "per-pixel gain standard deviation",
+        ),
+        p(
+            ids::prnu::VIGNETTING_REL,
+            "",
+            0.25,
+            0.0,
+            0.9,
+            "relative response loss at the array corner (quadratic in radius)",
+        ),
+    ],
+    in_baseline: true,
+    acts_on: ActsOn::Signal,
+    drivers: &[],
+    cancels_in_four_phase: false,
+};
+
+effect!(Prnu, PRNU, prnu);
+
+/// The catalogue entry of `fppn`.
+pub static FPPN: EffectInfo = EffectInfo {
+    id: ids::fppn::ID.as_str(),
+    title: "Fixed-pattern phase noise and global delay",
+    explanation: "The modulation signal reaches each pixel with its own delay: a global delay τ_g of driver and cabling, a delay growing along the distributed RC line of the column, τ(x) = τ_c · x (2 − x) (Elmore delay of a distributed line driven at x = 0, x = row/(rows − 1)), and a per-pixel random part. The phase offset is φ_delay = 2π f τ, added to φ_tof.",
+    thesis_ref: "2.3.1.4",
+    signature: "constant depth offset per pixel, growing down the columns; independent of distance",
+    params: &[
+        p(
+            ids::fppn::GLOBAL_DELAY_NS,
+            "ns",
+            1.5,
+            -20.0,
+            20.0,
+            "global delay of driver and cabling",
+        ),
+        p(
+            ids::fppn::COLUMN_DELAY_PS,
+            "ps",
+            120.0,
+            0.0,
+            5000.0,
+            "extra delay at the far end of the column RC line",
+        ),
+        p(
+            ids::fppn::PIXEL_SIGMA_PS,
+            "ps",
+            15.0,
+            0.0,
+            1000.0,
+            "per-pixel random delay standard deviation",
+        ),
+    ],
+    in_baseline: true,
+    acts_on: ActsOn::Phasor,
+    drivers: &[],
+    cancels_in_four_phase: false,
+};
+
+effect!(Fppn, FPPN, fppn);
+
+/// The catalogue entry of `fpn_offset`.
+pub static FPN_OFFSET: EffectInfo = EffectInfo {
+    id: ids::fpn_offset::ID.as_str(),
+    title: "Fixed-pattern offset (FPN) of the read-out",
+    explanation: "Every pixel's differential code carries a fixed offset from its read-out path (fig. 3.12): 16 ADCs with even/odd ping-pong channels (column c maps to ADC channel by the 32-column mirrored pattern of 3.3.7.1: col 0 → ADC0 odd, col 15 → ADC0 even, col 31 ≡ col 0), the column source follower/amplifier, a term growing along the column line, and the pixel's reset transistor. offset = ch(c) + col(c) + line · row/(rows−1) + pix(r, c); overall σ ≈ 34 LSB (fig. 3.13). It is what a dark frame measures and what the offset calibration subtracts.",
+    thesis_ref: "2.3.1.3, 3.3.3, 3.3.7.1 (fig. 3.12-3.16)",
+    signature: "constant per-pixel code offset, present in dark frames; column stripes; 2-phase depth error growing with distance",
+    params: &[
+        p(
+            ids::fpn_offset::ADC_CHANNEL_SIGMA_LSB,
+            "LSB",
+            8.0,
+            0.0,
+            500.0,
+            "offset standard deviation between ADC channels",
+        ),
+        p(
+            ids::fpn_offset::COLUMN_SIGMA_LSB,
+            "LSB",
+            15.0,
+            0.0,
+            500.0,
+            "offset standard deviation between column amplifiers",
+        ),
+        p(
+            ids::fpn_offset::PIXEL_SIGMA_LSB,
+            "LSB",
+            29.0,
+            0.0,
+            500.0,
+            "per-pixel offset standard deviation",
+        ),
+        p(
+            ids::fpn_offset::COLUMN_LINE_LSB,
+            "LSB",
+            4.0,
+            -500.0,
+            500.0,
+            "offset change from the top to the bottom of a column line",
+        ),
+        p(
+            ids::fpn_offset::MEAN_LSB,
+            "LSB",
+            0.0,
+            -1000.0,
+            1000.0,
+            "mean offset over the array",
+        ),
+    ],
+    in_baseline: true,
+    acts_on: ActsOn::Offset,
+    drivers: &[],
+    cancels_in_four_phase: true,
+};
+
+effect!(FpnOffset, FPN_OFFSET, fpn_offset);

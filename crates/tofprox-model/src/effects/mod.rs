@@ -1,18 +1,114 @@
-//! Implementations of the effect families. Each module documents the effects it
-//! implements by catalogue id; [`crate::catalogue`](mod@crate::catalogue) holds their descriptions.
+//! One module per physical effect, each implementing [`Effect`], listed once in
+//! [`REGISTRY`] (the way a board-support registry lists its targets): the
+//! effect's catalogue entry (typed parameters with units and ranges, what it
+//! acts on, which conditions drive it, its physics and thesis reference) beside
+//! the forward law(s) the simulator and the lab call.
 //!
-//! - [`optical`]: `signal_falloff`, `demodulation_contrast`, `waveform_harmonics`,
-//!   `multipath`, `vcsel_droop`, `ambient_light`
-//! - [`fixed_pattern`]: `prnu`, `fpn_offset`, `fppn` (per-pixel patterns drawn once)
-//! - [`pixel`]: `sbi_asymmetry`, `amplitude_phase_error`, `temperature_drift`,
-//!   `dark_current`, `shot_noise`, `ktc_noise`, `read_noise`
-//! - [`shape`]: the monotone shape form of `amplitude_phase_error`,
-//!   `temperature_drift`, `sbi_asymmetry` and `vcsel_droop` (knots of the
-//!   driver, values of the effect)
-//! - [`adc`]: `adc_gain`, `adc_offset`, `adc_inl`, `adc_dnl`, `quantization`
+//! Effects drawn or applied together share a module where splitting would be
+//! artificial: [`fixed_pattern`] (`prnu`, `fppn`, `fpn_offset`: per-pixel
+//! patterns drawn once from one seed) and [`noise`] (`shot_noise`, `read_noise`,
+//! `ktc_noise`: no law on expected codes, only variances the simulator sums).
+//!
+//! Shared machinery of several effects: [`correlation`] (the correlation
+//! waveform of `demodulation_contrast` and `waveform_harmonics`), [`pixel`] (a
+//! pixel's parameters resolved from the model), [`adc`] (the ADC transfer the
+//! `adc_*` effects and `quantization` make up) and [`shape`] (the monotone shape
+//! form of `amplitude_phase_error`, `temperature_drift`, `sbi_asymmetry` and
+//! `vcsel_droop`).
+
+use crate::catalogue::EffectInfo;
+use crate::ids::EffectId;
+
+/// An effect module's registry entry: the unit struct `$name` implementing
+/// [`Effect`] with the module's catalogue entry `$info` and the id
+/// `ids::$id::ID`.
+macro_rules! effect {
+    ($name:ident, $info:ident, $id:ident) => {
+        #[doc = concat!("The effect `", stringify!($id), "` in [`crate::effects::REGISTRY`].")]
+        pub struct $name;
+
+        impl $crate::effects::Effect for $name {
+            fn info(&self) -> &'static $crate::catalogue::EffectInfo {
+                &$info
+            }
+            fn id(&self) -> $crate::ids::EffectId {
+                $crate::ids::$id::ID
+            }
+        }
+    };
+}
 
 pub mod adc;
+pub mod adc_dnl;
+pub mod adc_gain;
+pub mod adc_inl;
+pub mod adc_offset;
+pub mod ambient_light;
+pub mod amplitude_phase_error;
+pub mod correlation;
+pub mod cover_window_crosstalk;
+pub mod dark_current;
+pub mod demodulation_contrast;
 pub mod fixed_pattern;
-pub mod optical;
+pub mod multipath;
+pub mod noise;
 pub mod pixel;
+pub mod quantization;
+pub mod sbi_asymmetry;
 pub mod shape;
+pub mod signal_falloff;
+pub mod tap_gain_mismatch;
+pub mod temperature_drift;
+pub mod vcsel_droop;
+pub mod waveform_harmonics;
+
+/// A physical effect of the model: its id and its catalogue entry.
+pub trait Effect: Sync {
+    /// Its catalogue entry: physics, thesis reference, residual signature,
+    /// parameters (units, typical value, range), what it acts on, its drivers.
+    fn info(&self) -> &'static EffectInfo;
+    /// Its id (`[effects.<id>]` in a model file).
+    fn id(&self) -> EffectId;
+}
+
+/// Every effect of the model, in signal-chain order (the order of
+/// `tofprox model effects`, model files and [`crate::catalogue()`]).
+pub static REGISTRY: &[&dyn Effect] = &[
+    &signal_falloff::SignalFalloff,
+    &demodulation_contrast::DemodulationContrast,
+    &waveform_harmonics::WaveformHarmonics,
+    &multipath::Multipath,
+    &cover_window_crosstalk::CoverWindowCrosstalk,
+    &vcsel_droop::VcselDroop,
+    &fixed_pattern::Prnu,
+    &fixed_pattern::Fppn,
+    &amplitude_phase_error::AmplitudePhaseError,
+    &temperature_drift::TemperatureDrift,
+    &ambient_light::AmbientLight,
+    &dark_current::DarkCurrent,
+    &sbi_asymmetry::SbiAsymmetry,
+    &tap_gain_mismatch::TapGainMismatch,
+    &fixed_pattern::FpnOffset,
+    &adc_gain::AdcGain,
+    &adc_offset::AdcOffset,
+    &adc_inl::AdcInl,
+    &adc_dnl::AdcDnl,
+    &quantization::Quantization,
+    &noise::ShotNoise,
+    &noise::ReadNoise,
+    &noise::KtcNoise,
+];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_registry_entry_is_its_id_once_in_ids_order() {
+        let ids: Vec<EffectId> = REGISTRY.iter().map(|e| e.id()).collect();
+        assert_eq!(ids, crate::ids::ALL_EFFECTS);
+        for e in REGISTRY {
+            assert_eq!(e.info().id, e.id().as_str());
+        }
+    }
+}

@@ -109,7 +109,7 @@ pub const SHAPE_LAWS: &[ShapeLaw] = &[
 /// The charge the SBI removes from each tap by the shape `knots` →
 /// `removed_e` ([`SBI_ASYMMETRY`]) for tap charges `n_a`, `n_b` (e⁻): the
 /// curve at the fuller tap's charge, never more than the emptier tap holds
-/// (the invariant of `pixel::sbi_injected_e`). The simulator and the lab's
+/// (the invariant of `sbi_asymmetry::sbi_injected_e`). The simulator and the lab's
 /// fit both use it.
 #[inline]
 pub fn sbi_removed_e(knots: &[f64], removed_e: &[f64], n_a: f64, n_b: f64) -> f64 {

@@ -1,5 +1,7 @@
-//! Optical effects: `signal_falloff`, `demodulation_contrast`, `waveform_harmonics`,
-//! `multipath`, `vcsel_droop`, `ambient_light`.
+//! The correlation waveform C(φ − θ) (2.2.2.2, 2.3.1.1, 5.1.2.1): the shared law
+//! of `demodulation_contrast` (its scale) and `waveform_harmonics` (its shape,
+//! from harmonics or from measured illumination and modulation waveforms), which
+//! the simulator and the lab's fit evaluate.
 
 use std::f64::consts::TAU;
 
@@ -216,62 +218,6 @@ const RISE_NS: f64 = 1.4;
 const FALL_NS: f64 = 1.8;
 /// Modulation gate edge time constant.
 const GATE_EDGE_NS: f64 = 2.4;
-
-/// The phase offset of the multipath's second return (`multipath`): an extra
-/// round-trip path L arrives like an extra distance L/2 (eq. 2.6 inverted),
-/// Δφ₂ = (4π f / c) · L/2 with `phase_rad_per_m` = 4π f / c. The second return
-/// adds a·N electrons at φ + Δφ₂, its taps N/2·(1 ± K·C(φ + Δφ₂ − θ)) like the
-/// direct one's. The simulator and the lab's fit both use it.
-#[inline]
-pub fn multipath_phase_offset_rad(phase_rad_per_m: f64, extra_path_m: f64) -> f64 {
-    phase_rad_per_m * extra_path_m / 2.0
-}
-
-/// Relative optical power of raw image `k` (acquisition order) under
-/// `vcsel_droop`: 1 − L(t_on) by the file's shape of the on-time
-/// t_on = k·t_exp when it gives one ([`crate::effects::shape::VCSEL_DROOP`]),
-/// else 1 − D·[`droop_loss`].
-pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
-    if !model.is_enabled(ids::vcsel_droop::ID) {
-        return 1.0;
-    }
-    if let Some(s) = model.shape(ids::vcsel_droop::ID) {
-        let t_on = droop_on_time_us(k as f64, exposure_us);
-        return 1.0 - s.eval(crate::effects::shape::DROOP_LOSS_REL, t_on);
-    }
-    let d = model.get(ids::vcsel_droop::DROOP_REL);
-    1.0 - d * droop_loss(
-        k as f64,
-        exposure_us,
-        model.get(ids::vcsel_droop::TAU_US),
-        model.get(ids::vcsel_droop::EXPOSURE_POWER),
-        model.get(ids::vcsel_droop::FIRST_IMAGE_INDEX),
-    )
-}
-
-/// The driver of the droop's shape form (3.3.7.2: the VCSEL heats while it
-/// emits): its on-time before raw image `k`, k·t_exp in µs. The simulator
-/// and the lab's fit both use it.
-#[inline]
-pub fn droop_on_time_us(k: f64, exposure_us: f64) -> f64 {
-    k * exposure_us
-}
-
-/// The droop law's shape (3.3.7.2): the share 1 − exp(−(k + k₀)·s/τ) of the
-/// asymptotic loss D reached at raw image `k`, s = 1 ms·(t_exp/1 ms)^β the
-/// heating per image. P_k = P·(1 − D·droop_loss). The simulator and the lab's
-/// fit both use this one function.
-#[inline]
-pub fn droop_loss(
-    k: f64,
-    exposure_us: f64,
-    tau_us: f64,
-    exposure_power: f64,
-    first_image_index: f64,
-) -> f64 {
-    let s_us = 1000.0 * (exposure_us * 1e-3).powf(exposure_power);
-    1.0 - (-(k + first_image_index) * s_us / tau_us.max(1e-9)).exp()
-}
 
 #[cfg(test)]
 mod tests {

@@ -1,0 +1,112 @@
+//! `temperature_drift`: Temperature drift of phase and gain (thesis 3.1
+//! (temperature compensation step of fig. 3.1)).
+//!
+//! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
+//! its drivers) and its registry entry; its law: the phase and gain drift with
+//! temperature ([`temperature_drift`], [`temperature_drift_of`] with the file's
+//! shape), which the simulator and the lab's fit call.
+
+use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::config::ModelConfig;
+use crate::ids;
+
+/// The powers of ΔT = T − T_ref the temperature drift is a polynomial in:
+/// [ΔT, ΔT²] (catalogue `temperature_drift`).
+pub fn temperature_drift_terms(dt: f64) -> [f64; 2] {
+    [dt, dt * dt]
+}
+
+/// Temperature drift (catalogue `temperature_drift`, thesis 3.1):
+/// Δφ = k_φ·ΔT + k_φ2·ΔT² (rad) and the relative gain change
+/// k_g·ΔT + k_g2·ΔT², from the coefficients per K and per K²
+/// (`phase_rad_per_k` = [k_φ, k_φ2], `gain_per_k` = [k_g, k_g2]).
+pub fn temperature_drift(dt: f64, phase_rad_per_k: [f64; 2], gain_per_k: [f64; 2]) -> (f64, f64) {
+    let t = temperature_drift_terms(dt);
+    (
+        phase_rad_per_k[0] * t[0] + phase_rad_per_k[1] * t[1],
+        gain_per_k[0] * t[0] + gain_per_k[1] * t[1],
+    )
+}
+
+/// Temperature drift (catalogue `temperature_drift`, thesis 3.1) of `model`
+/// at `temperature_c`: (Δφ in rad, relative gain change G), by the file's
+/// shape of T when it gives one ([`crate::effects::shape::TEMPERATURE_DRIFT`]),
+/// else by the polynomial in ΔT = T − T_ref ([`temperature_drift`]).
+pub fn temperature_drift_of(model: &ModelConfig, temperature_c: f64) -> (f64, f64) {
+    use crate::effects::shape::{DRIFT_GAIN_REL, DRIFT_PHASE_RAD};
+    use ids::temperature_drift as td;
+    if let Some(s) = model.shape(td::ID) {
+        return (
+            s.eval(DRIFT_PHASE_RAD, temperature_c),
+            s.eval(DRIFT_GAIN_REL, temperature_c),
+        );
+    }
+    temperature_drift(
+        temperature_c - model.get(td::REFERENCE_C),
+        [
+            model.get(td::PHASE_MRAD_PER_K) * 1e-3,
+            model.get(td::PHASE_MRAD_PER_K2) * 1e-3,
+        ],
+        [
+            model.get(td::GAIN_REL_PER_K),
+            model.get(td::GAIN_REL_PER_K2),
+        ],
+    )
+}
+
+/// The catalogue entry of `temperature_drift`.
+pub static INFO: EffectInfo = EffectInfo {
+    id: ids::temperature_drift::ID.as_str(),
+    title: "Temperature drift of phase and gain",
+    explanation: "Driver and VCSEL delays and the responsivity change with temperature: Δφ = k_φ·ΔT + k_φ2·ΔT², gain ×(1 + k_g·ΔT + k_g2·ΔT²), ΔT = T − T_ref. The second-order terms describe a drift that bends (delays and responsivity that change faster when hot); 0 gives the linear law. T is the capture's temperature_c. Second form: monotone shapes of T itself given by `shape_temperature_c` (knots, °C) with `shape_phase_rad` (Δφ) and `shape_gain_rel` (G), linear between the knots and flat outside them; they replace the polynomial (and its reference_c).",
+    thesis_ref: "3.1 (temperature compensation step of fig. 3.1)",
+    signature: "depth offset and amplitude change with temperature_c (linear, or bending with the second-order terms)",
+    params: &[
+        p(
+            ids::temperature_drift::PHASE_MRAD_PER_K,
+            "mrad/K",
+            1.5,
+            -100.0,
+            100.0,
+            "phase drift k_φ",
+        ),
+        p(
+            ids::temperature_drift::GAIN_REL_PER_K,
+            "1/K",
+            -0.002,
+            -0.05,
+            0.05,
+            "relative signal drift k_g",
+        ),
+        p(
+            ids::temperature_drift::PHASE_MRAD_PER_K2,
+            "mrad/K^2",
+            0.0,
+            -5.0,
+            5.0,
+            "second-order phase drift k_φ2",
+        ),
+        p(
+            ids::temperature_drift::GAIN_REL_PER_K2,
+            "1/K^2",
+            0.0,
+            -0.002,
+            0.002,
+            "second-order relative signal drift k_g2",
+        ),
+        p(
+            ids::temperature_drift::REFERENCE_C,
+            "degC",
+            25.0,
+            -40.0,
+            125.0,
+            "temperature T_ref without drift",
+        ),
+    ],
+    in_baseline: false,
+    acts_on: ActsOn::Phasor,
+    drivers: &[Driver::TemperatureC],
+    cancels_in_four_phase: false,
+};
+
+effect!(TemperatureDrift, INFO, temperature_drift);
