@@ -210,7 +210,7 @@ fn accumulate(
                         continue;
                     };
                     if nsig > 0 {
-                        memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                        memo_h[i].basis_sharing(sig, nlh, r, cap, (&memo, &b), &mut b2);
                     }
                     let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
