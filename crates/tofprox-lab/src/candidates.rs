@@ -210,7 +210,7 @@ fn accumulate(
                         continue;
                     };
                     if nsig > 0 {
-                        memo_h[i].basis(sig, nlh, r, cap, &mut b2);
+                        memo_h[i].basis_sharing(sig, nlh, r, cap, (&memo, &b), &mut b2);
                     }
                     let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
                     j[nlin + i] = (d2 - d) / h;
@@ -275,29 +275,37 @@ pub fn cv_refit(
         lin: f.lin.clone(),
         nl: f.nl.clone(),
     };
+    // the blocks in parallel, summed in block order
+    let per_block: Vec<Option<(f64, f64)>> = (0..FOLDS)
+        .into_par_iter()
+        .map(|fold| {
+            let held: Vec<Sample> = recs
+                .iter()
+                .step_by(stride)
+                .filter(|r| form_block(r.cap) == fold)
+                .copied()
+                .collect();
+            let train: Vec<Sample> = recs
+                .iter()
+                .step_by(stride)
+                .filter(|r| form_block(r.cap) != fold)
+                .copied()
+                .collect();
+            if held.is_empty() || train.is_empty() {
+                return Ok(None);
+            }
+            let t = fit_values(sig, &train, prep, Some(&start))?;
+            let mut p = t.lin;
+            p.extend_from_slice(&t.nuisance);
+            p.extend_from_slice(&t.nl);
+            let cv = total(&accumulate(sig, &held, prep, &p, false, 1)).chi2;
+            Ok(Some((cv, held.iter().map(Sample::chi2).sum::<f64>())))
+        })
+        .collect::<Result<_, LabError>>()?;
     let (mut cv, mut before) = (0.0, 0.0);
-    for fold in 0..FOLDS {
-        let held: Vec<Sample> = recs
-            .iter()
-            .step_by(stride)
-            .filter(|r| form_block(r.cap) == fold)
-            .copied()
-            .collect();
-        let train: Vec<Sample> = recs
-            .iter()
-            .step_by(stride)
-            .filter(|r| form_block(r.cap) != fold)
-            .copied()
-            .collect();
-        if held.is_empty() || train.is_empty() {
-            continue;
-        }
-        let t = fit_values(sig, &train, prep, Some(&start))?;
-        let mut p = t.lin;
-        p.extend_from_slice(&t.nuisance);
-        p.extend_from_slice(&t.nl);
-        cv += total(&accumulate(sig, &held, prep, &p, false, 1)).chi2;
-        before += held.iter().map(Sample::chi2).sum::<f64>();
+    for (c, b) in per_block.into_iter().flatten() {
+        cv += c;
+        before += b;
     }
     Ok((cv, before))
 }

@@ -1,5 +1,5 @@
 //! compare → diagnose → add: the lab's workflow on a prepared recording.
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -947,24 +947,25 @@ pub const MIN_SIGNAL_SHARE: f64 = 0.25;
 /// noise estimate, so a residual-based one inflated by a missing effect
 /// cannot trip it.
 fn no_signal(prep: &Prepared, cmp: &Comparison) -> Option<String> {
-    // per (capture, pixel): n, Σy, Σy², Σr, Σr²
-    let mut groups: HashMap<(u32, u32), [f64; 5]> = HashMap::new();
+    // per (capture, pixel), indexed c·npix + p: n, Σy, Σy², Σr, Σr²
+    let mut groups = vec![[0.0f64; 5]; prep.caps.len() * prep.npix];
     for r in cmp.recs.iter().filter(|r| prep.caps[r.cap as usize].illum) {
         let y = prep.meas[prep.idx(r.cap as usize, usize::from(r.k), r.pix as usize)];
         let res = f64::from(r.r);
-        let g = groups.entry((r.cap, r.pix)).or_default();
+        let g = &mut groups[r.cap as usize * prep.npix + r.pix as usize];
         for (s, v) in g.iter_mut().zip([1.0, y, y * y, res, res * res]) {
             *s += v;
         }
     }
-    if groups.is_empty() {
-        return Some("no valid illuminated sample (all saturated or dark)".into());
-    }
     let centred = |n: f64, s: f64, s2: f64| (s2 - s * s / n).max(0.0);
-    let (mut var_y, mut var_r) = (0.0, 0.0);
-    for [n, sy, sy2, sr, sr2] in groups.into_values() {
+    let (mut var_y, mut var_r, mut any) = (0.0, 0.0, false);
+    for [n, sy, sy2, sr, sr2] in groups.into_iter().filter(|g| g[0] > 0.0) {
         var_y += centred(n, sy, sy2);
         var_r += centred(n, sr, sr2);
+        any = true;
+    }
+    if !any {
+        return Some("no valid illuminated sample (all saturated or dark)".into());
     }
     let share = if var_y > 0.0 {
         1.0 - var_r / var_y

@@ -608,7 +608,13 @@ impl LabModel {
             k: 0,
             fold: 0,
         };
-        let mut out = vec![blank; counts.iter().sum()];
+        // (written in parallel: 40 MB for 900 captures of 16×16, the main
+        // thread's longest serial step when filled alone)
+        let mut out = Vec::new();
+        (0..counts.iter().sum())
+            .into_par_iter()
+            .map(|_| blank)
+            .collect_into_vec(&mut out);
         let mut parts: Vec<(usize, &mut [Sample])> = Vec::with_capacity(counts.len());
         let mut rest = out.as_mut_slice();
         for (c, &n) in counts.iter().enumerate() {

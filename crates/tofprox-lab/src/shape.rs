@@ -27,6 +27,8 @@
 
 use std::collections::BTreeMap;
 
+use rayon::prelude::*;
+
 use tofprox_model::effects::shape as law;
 use tofprox_model::effects::vcsel_droop::droop_on_time_us;
 use tofprox_model::ids::{self, EffectId};
@@ -675,14 +677,34 @@ fn best_shape(
     let mut scores = physical.scores.clone();
     let mut best_cv = scores[0].cv_chi2;
     let mut best = physical;
-    for &k in KNOT_COUNTS {
+    let knot_sets: Vec<Option<Vec<f64>>> = KNOT_COUNTS
+        .iter()
+        .map(|&k| knots_at_quantiles(id, k, recs, prep, waveform))
+        .collect();
+    // the shapes fitted in parallel (the first set of each length: the
+    // others are tried below only if it failed), then chosen in order
+    let first_of_len =
+        |i: usize, q: &[f64]| !knot_sets[..i].iter().flatten().any(|p| p.len() == q.len());
+    // (outer `None`: not fitted yet)
+    let mut fitted: Vec<Option<Option<ShapeTry>>> = knot_sets
+        .par_iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let q = q.as_ref().filter(|q| first_of_len(i, q))?;
+            Some(try_shape(id, q, prep, waveform, recs))
+        })
+        .collect();
+    for (i, knots) in knot_sets.into_iter().enumerate() {
         // (fewer knots where the driver has fewer values: each K once)
-        let Some(knots) = knots_at_quantiles(id, k, recs, prep, waveform)
-            .filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
+        let Some(knots) =
+            knots.filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
         else {
             continue;
         };
-        let Some((f, s, c)) = try_shape(id, &knots, prep, waveform, recs) else {
+        let Some((f, s, c)) = fitted[i]
+            .take()
+            .unwrap_or_else(|| try_shape(id, &knots, prep, waveform, recs))
+        else {
             continue;
         };
         scores.push(FormScore {
@@ -713,13 +735,16 @@ fn best_shape(
 
 /// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
 /// signature and held-out χ² ([`cv_refit`]); `None` when it cannot be fitted.
+/// A fitted shape form: its fit, signature and held-out χ².
+type ShapeTry = (SignatureFit, Box<dyn Signature>, f64);
+
 fn try_shape(
     id: &str,
     knots: &[f64],
     prep: &Prepared,
     waveform: &Waveform,
     recs: &[Sample],
-) -> Option<(SignatureFit, Box<dyn Signature>, f64)> {
+) -> Option<ShapeTry> {
     let s = make_shape_signature(id, knots, prep, waveform)?;
     let f = fit_values(s.as_ref(), recs, prep, None).ok()?;
     let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;

@@ -108,7 +108,9 @@ pub trait Signature: Send + Sync {
             *t = self.fixed_term(law, r, cap);
         }
     }
-    /// [`Signature::fixed`] given `fixed_term(law, r, cap)` (0: no full law).
+    /// [`Signature::fixed`] given `fixed_term(law, r, cap)` (0: no full law):
+    /// a function of the sample and the term, the law entering through the
+    /// term only ([`FixedMemo`] reuses the value of equal terms).
     fn fixed_with(&self, _law: &[f64], _r: &Rec, _cap: &CapInfo, _term: f64) -> f64 {
         0.0
     }
@@ -120,7 +122,10 @@ pub trait Signature: Send + Sync {
         None
     }
     /// [`Signature::basis`] given `image_term(nl, r.k, cap)` (only called
-    /// when that is `Some`).
+    /// when that is `Some`): a signature that has an image term overrides it
+    /// with a function of the sample, capture and term, `nl` entering through
+    /// the term only ([`ImageMemo::basis_sharing`] reuses the basis of equal
+    /// terms).
     fn basis_image(&self, nl: &[f64], r: &Rec, cap: &CapInfo, _image: f64, out: &mut [f64]) {
         self.basis(nl, r, cap, out);
     }
@@ -149,16 +154,44 @@ impl ImageMemo {
         cap: &CapInfo,
         out: &mut [f64],
     ) {
+        match self.term(sig, nl, r, cap) {
+            Some(t) => sig.basis_image(nl, r, cap, t, out),
+            None => sig.basis(nl, r, cap, out),
+        }
+    }
+
+    /// [`ImageMemo::basis`], or `base_out` (the basis `base` gave for this
+    /// sample) where the image terms are equal: a finite-difference step of
+    /// one parameter that leaves this image's term unchanged (a shape's knot
+    /// away from the image's driver) has the same basis.
+    #[inline]
+    pub fn basis_sharing(
+        &mut self,
+        sig: &dyn Signature,
+        nl: &[f64],
+        r: &Rec,
+        cap: &CapInfo,
+        (base, base_out): (&ImageMemo, &[f64]),
+        out: &mut [f64],
+    ) {
+        match (self.term(sig, nl, r, cap), base.term) {
+            (Some(t), Some(u)) if t.to_bits() == u.to_bits() => out.copy_from_slice(base_out),
+            (Some(t), _) => sig.basis_image(nl, r, cap, t, out),
+            (None, _) => sig.basis(nl, r, cap, out),
+        }
+    }
+
+    /// The image term of `sig` at `nl` for sample `r`'s raw image (computed
+    /// when the raw image or `nl` changed).
+    #[inline]
+    fn term(&mut self, sig: &dyn Signature, nl: &[f64], r: &Rec, cap: &CapInfo) -> Option<f64> {
         if self.key != Some((r.cap, r.k)) || self.nl != nl {
             self.term = sig.image_term(nl, r.k, cap);
             self.key = Some((r.cap, r.k));
             self.nl.clear();
             self.nl.extend_from_slice(nl);
         }
-        match self.term {
-            Some(t) => sig.basis_image(nl, r, cap, t, out),
-            None => sig.basis(nl, r, cap, out),
-        }
+        self.term
     }
 }
 
@@ -220,8 +253,14 @@ impl FixedMemo {
             sig.fixed_terms(laws, r, cap, terms);
             self.keys[slot] = Some(key);
         }
-        for ((o, law), t) in out.iter_mut().zip(laws).zip(terms.iter()) {
-            *o = sig.fixed_with(law, r, cap, *t);
+        for (i, (law, t)) in laws.iter().zip(terms.iter()).enumerate() {
+            // a law whose term equals an earlier one's (a finite-difference
+            // step of a shape's knot away from this image's driver) has its
+            // value: `fixed_with` depends on the law through its term only
+            out[i] = match terms[..i].iter().position(|u| u.to_bits() == t.to_bits()) {
+                Some(j) => out[j],
+                None => sig.fixed_with(law, r, cap, *t),
+            };
         }
     }
 }
