@@ -128,7 +128,7 @@ pub fn fitted_text(
     note: Option<&str>,
 ) -> String {
     let mut s = format!(
-        "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise):\n"
+        "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise with the per-pixel parameters held):\n"
     );
     for (k, v) in params {
         let se = standard_errors.get(k).copied().unwrap_or(f64::NAN);
