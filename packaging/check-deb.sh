@@ -81,6 +81,11 @@ scenes="$("$root/usr/bin/tofprox" scenes --only no-such-scene --json 2>&1)" || f
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q '^\.TH tofproxd 8' || fail "tofproxd.8 is no man page"
 zcat "$root/usr/share/man/man1/tofprox.1.gz" | grep -q '^\.TH tofprox 1' || fail "tofprox.1 is no man page"
 zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'check\\-config' || fail "tofproxd.8 lacks --check-config"
+# a system daemon's page: its configuration keys, interface, files, signals, exit status
+for sec in CONFIGURATION "D-BUS INTERFACE" FILES SIGNALS "EXIT STATUS" "SEE ALSO"; do
+  zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -qx "\.SH $sec" || fail "tofproxd.8 lacks the section $sec"
+done
+zcat "$root/usr/share/man/man8/tofproxd.8.gz" | grep -q 'proximity\.near_mm' || fail "tofproxd.8 lacks proximity.near_mm"
 for page in man8/tofproxd.8 man1/tofprox.1 man1/tofprox-lab-add.1; do # NAME: "prog - what it is"
   name="$(zcat "$root/usr/share/man/$page.gz" | sed -n '/^\.SH NAME/{n;s/\\-/-/g;p;q}')"
   prog="$(basename "$page" | sed 's/\.[0-9]$//')"

@@ -22,7 +22,7 @@ struct Cli {
 enum Command {
     /// Summarise a recording (captures by mode/exposure/conditions, saturation share).
     Info(cmd::info::InfoArgs),
-    /// Extract a calibration (fpn, wiggling, fppn) from a recording.
+    /// Extract a calibration part from a recording (intrinsics, fpn, wiggling, fppn, crosstalk).
     Calibrate(cmd::calibrate::CalibrateArgs),
     /// Process a recording's captures to depth and amplitude.
     Process(cmd::process::ProcessArgs),

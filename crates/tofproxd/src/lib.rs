@@ -19,6 +19,7 @@ pub mod energy;
 pub mod hub;
 pub mod input;
 pub mod logging;
+pub mod man;
 pub mod policy;
 pub mod publisher;
 pub mod run;

@@ -76,12 +76,16 @@ fn main() -> ExitCode {
     }
 }
 
-/// The manual page (section 8: a system daemon) from the clap definitions.
+/// The manual page (section 8: a system daemon): the clap definitions and `tofproxd::man`'s
+/// sections (configuration keys, D-Bus interface, files, signals, exit status, see also).
 fn write_man_page(dir: &Path) -> ExitCode {
     use clap::CommandFactory as _;
-    let page = clap_mangen::Man::new(Args::command()).section("8");
-    match std::fs::create_dir_all(dir).and_then(|()| page.generate_to(dir)) {
-        Ok(path) => {
+    let path = dir.join("tofproxd.8");
+    let written = std::fs::create_dir_all(dir)
+        .and_then(|()| tofproxd::man::render(Args::command()))
+        .and_then(|page| std::fs::write(&path, page));
+    match written {
+        Ok(()) => {
             println!("{}", path.display());
             ExitCode::SUCCESS
         }
