@@ -3,9 +3,14 @@
 #
 #   packaging/build-deb.sh [PROFILE_DIR]      # default target/release
 #
-# PROFILE_DIR holds `tofprox` and `tofproxd`. For a device build first run
-#   cargo build --release --no-default-features -p tofprox -p tofproxd
-# (CI packages target/debug, the default build its tests just built).
+# PROFILE_DIR holds `tofprox` and `tofproxd`. For a device build first run, as two commands
+# (one `cargo build -p tofprox -p tofproxd` unifies features: the CLI's emulated device would
+# be compiled into the daemon too):
+#   cargo build --release --no-default-features -p tofproxd
+#   cargo build --release -p tofprox
+# The daemon must be a production build (`tofproxd --version` says so): a daemon linking the
+# emulated device and the physical model is refused. (CI packages target/debug after building
+# the production daemon there.)
 # Output: target/debian/tofprox_<version>_<arch>.deb (path printed on stdout).
 # Layout: docs/daemon.md, "Install". The man pages come from the binaries' clap
 # definitions (`tofprox man --out DIR`, `tofproxd --man DIR`).
@@ -16,6 +21,11 @@ out_dir="$repo/target/debian"
 for b in tofprox tofproxd; do
   [ -x "$profile/$b" ] || { echo "error: $profile/$b not found: build it first (cargo build -p tofprox -p tofproxd)" >&2; exit 2; }
 done
+if ! "$profile/tofproxd" --version | grep -q 'production build'; then
+  echo "error: $profile/tofproxd links the emulated device (feature emulated): build the daemon alone with" >&2
+  echo "  cargo build --release --no-default-features -p tofproxd" >&2
+  exit 2
+fi
 command -v dpkg-deb >/dev/null || { echo "error: dpkg-deb not found (package dpkg)" >&2; exit 2; }
 
 version="$(sed -n 's/^version = "\(.*\)"/\1/p' "$repo/Cargo.toml" | head -1)"

@@ -16,6 +16,17 @@ pub enum CalibrationError {
     /// The set could not be loaded.
     #[error("{0}")]
     Format(#[from] tofprox_format::FormatError),
+    /// The configured directory holds no calibration set (a module not yet calibrated).
+    #[error(
+        "calibration {dir}: no calibration set there (no calibration.toml): this module has not \
+         been calibrated. Calibrate it on the line (`tofprox calibrate station`, docs/calibration.md \
+         \"Production line\") or part by part (`tofprox calibrate fpn|crosstalk|wiggling|fppn REC \
+         --out {dir}`), or point processing.calibration at its set"
+    )]
+    NotCalibrated {
+        /// The configured directory.
+        dir: String,
+    },
     /// The set does not fit the sensor or the mode.
     #[error("calibration {dir}: {message}")]
     Mismatch {
@@ -32,8 +43,20 @@ pub fn load_for(
     source: &dyn FrameSource,
 ) -> Result<ModeCalibrations, CalibrationError> {
     let Some(dir) = &cfg.processing.calibration else {
+        // README, step 1: uncalibrated 2-phase depth is off by 16–21 cm (thesis fig. 3.7), more
+        // than the near/far thresholds; say so at every start rather than run silently.
+        tracing::warn!(
+            "no calibration set (processing.calibration unset): depth is uncalibrated, 2-phase \
+             readings can be off by ~20 cm (set processing.calibration and \
+             require_calibration = true; docs/calibration.md)"
+        );
         return Ok(ModeCalibrations::default());
     };
+    if !dir.join("calibration.toml").exists() {
+        return Err(CalibrationError::NotCalibrated {
+            dir: dir.display().to_string(),
+        });
+    }
     let set = CalibrationSet::load(dir)?;
     let mismatch = |message: String| CalibrationError::Mismatch {
         dir: dir.display().to_string(),

@@ -866,10 +866,14 @@ mod tests {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../config/tofproxd.toml");
         let text = std::fs::read_to_string(&path).expect("config/tofproxd.toml is shipped");
         let cfg = Config::parse(&text, &path).expect("shipped config parses");
-        let expected = Config {
+        // the installed file differs from the defaults only in its backend and in requiring
+        // the module's factory calibration where the package keeps it
+        let mut expected = Config {
             backend: cfg.backend,
             ..Config::default()
         };
+        expected.processing.calibration = Some(PathBuf::from("/var/lib/tofprox/calib"));
+        expected.processing.require_calibration = true;
         assert_eq!(cfg, expected, "config/tofproxd.toml must list the defaults");
     }
 

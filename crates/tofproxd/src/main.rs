@@ -13,9 +13,22 @@ use clap::Parser;
 use tofproxd::config::Config;
 use tofproxd::run::{BusChoice, Daemon, notify};
 
+/// `tofproxd --version`: whether this binary links the test machinery (the emulated device and
+/// the physical model, cargo feature `emulated`) — what `packaging/build-deb.sh` refuses to ship.
+#[cfg(feature = "emulated")]
+const LONG_VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (test build: emulated device and physical model linked, feature `emulated`)"
+);
+#[cfg(not(feature = "emulated"))]
+const LONG_VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (production build: usb, v4l2 and replay backends)"
+);
+
 /// The low-power ToF proximity daemon.
 #[derive(Parser, Debug)]
-#[command(name = "tofproxd", version, about)]
+#[command(name = "tofproxd", version, long_version = LONG_VERSION, about)]
 struct Args {
     /// Configuration file.
     #[arg(long, default_value = "/etc/tofprox/tofproxd.toml")]

@@ -72,7 +72,7 @@ pub enum RunError {
     },
     /// Compatibility mode asked for where iio-sensor-proxy is installed or running.
     #[error(
-        "iio-sensor-proxy is {found}: the compatibility mode would take net.hadess.SensorProxy from it, and with it the accelerometer and light sensor it serves. Use the input publisher instead (`publisher = \"input\"`, `[dbus] iio_sensor_proxy_compat = false`): iio-sensor-proxy then reads our proximity from a uinput switch (docs/daemon.md, \"Beside iio-sensor-proxy\")"
+        "iio-sensor-proxy is {found}: the compatibility mode would take net.hadess.SensorProxy from it, and with it the accelerometer and light sensor it serves. Use the input publisher instead (`publisher = \"input\"`, `[dbus] iio_sensor_proxy_compat = false`): iio-sensor-proxy then reads our proximity from a uinput switch (docs/daemon.md, \"Beside iio-sensor-proxy\"). Installed means one of `[dbus] iio_sensor_proxy_paths` exists"
     )]
     BesideIioSensorProxy {
         /// "installed (`<path>`)" or "running (it owns net.hadess.SensorProxy)".
@@ -152,9 +152,13 @@ pub enum StartError {
     /// The controller refused the config (ROI outside the sensor, calibration of the other mode).
     #[error("{0}")]
     Controller(#[source] crate::controller::ControllerError),
+    /// The compatibility mode asked for where iio-sensor-proxy is installed.
+    #[error("{0}")]
+    Compat(#[source] RunError),
 }
 
-/// Everything the start does before touching the bus: build the frame source (a USB
+/// Everything the start does before touching the bus: refuse the compatibility mode beside an
+/// installed iio-sensor-proxy, build the frame source (a USB
 /// device is opened only at the first cycle), load and check the calibration against the
 /// sensor, build the controller. `tofproxd --check-config` runs exactly this, so a config it
 /// accepts is one the daemon starts with. `base`: the config file's directory.
@@ -162,6 +166,7 @@ pub fn prepare(
     cfg: &Config,
     base: &std::path::Path,
 ) -> Result<Controller<Box<dyn FrameSource>>, StartError> {
+    refuse_compat_beside_iio_sensor_proxy(&cfg.dbus).map_err(StartError::Compat)?;
     let source = crate::backends::build_source(cfg, base).map_err(StartError::Source)?;
     let calib = crate::calibration::load_for(cfg, &*source).map_err(StartError::Calibration)?;
     Controller::new(cfg.clone(), source, calib).map_err(StartError::Controller)

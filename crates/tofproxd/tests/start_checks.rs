@@ -214,3 +214,79 @@ fn calibration_for_another_modulation_frequency_is_refused() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// The installed configuration (`config/tofproxd.toml` → `/etc/tofprox/tofproxd.toml`) requires
+/// the module's factory calibration: with its directory empty (a module not yet calibrated) the
+/// start refuses, naming the directory and saying how to calibrate; with the emulated sensor's
+/// set there (same array) it passes.
+#[test]
+fn shipped_configuration_refuses_an_uncalibrated_module_saying_how_to_calibrate() {
+    let shipped = std::fs::read_to_string(repo().join("config/tofproxd.toml")).expect("shipped");
+    let line = "calibration = \"/var/lib/tofprox/calib\"";
+    assert!(
+        shipped.contains(line),
+        "the shipped file points at /var/lib/tofprox/calib"
+    );
+    assert!(shipped.contains("require_calibration = true"));
+    let text = shipped.replace(line, "calibration = \"calib\"");
+    let (dir, out) = check(&text, &[]);
+    std::fs::create_dir_all(dir.path().join("cfg/calib")).expect("mkdir");
+    let out_empty = check_path(&dir.path().join("cfg/x.toml"));
+    refused(
+        &out_empty,
+        &["cfg/calib", "has not been calibrated", "tofprox calibrate"],
+    );
+    // (before the directory existed: refused too, the same way)
+    refused(&out, &["has not been calibrated"]);
+    for entry in std::fs::read_dir(repo().join("calib/emulated")).expect("calib/emulated") {
+        let p = entry.expect("entry").path();
+        if p.extension().is_some_and(|e| e == "npy") || p.ends_with("calibration.toml") {
+            std::fs::copy(
+                &p,
+                dir.path().join("cfg/calib").join(p.file_name().unwrap()),
+            )
+            .expect("copy the set");
+        }
+    }
+    let ok = check_path(&dir.path().join("cfg/x.toml"));
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+}
+
+/// `--check-config` runs the start's refusal of the compatibility mode beside an installed
+/// iio-sensor-proxy too (a configuration it accepts is one the daemon starts with), and the
+/// refusal names the key that decides "installed".
+#[test]
+fn check_config_refuses_compat_beside_an_installed_iio_sensor_proxy() {
+    let root = tempfile::tempdir().expect("tempdir");
+    let binary = root.path().join("usr/libexec/iio-sensor-proxy");
+    std::fs::create_dir_all(binary.parent().unwrap()).expect("mkdir");
+    std::fs::write(&binary, b"").expect("write");
+    let cfg = format!(
+        "{EMULATED}[dbus]\niio_sensor_proxy_compat = true\niio_sensor_proxy_paths = [{:?}]\n",
+        binary.display().to_string()
+    );
+    let (_d, out) = check(&cfg, &[]);
+    refused(
+        &out,
+        &[
+            &format!("iio-sensor-proxy is installed ({})", binary.display()),
+            "iio_sensor_proxy_paths",
+            "publisher = \"input\"",
+        ],
+    );
+    // the same file with nothing installed at those paths passes
+    let cfg = cfg.replace(
+        &binary.display().to_string(),
+        "/nonexistent/iio-sensor-proxy",
+    );
+    let (_d, out) = check(&cfg, &[]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -111,4 +111,26 @@ mod tests {
             assert_eq!(e.info().id, e.id().as_str());
         }
     }
+
+    /// The README's effect count is the registry's (issue 37: a newcomer read 22 where
+    /// `tofprox model effects` listed 23).
+    #[test]
+    fn the_readme_states_the_registry_s_effect_count() {
+        let readme =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md"))
+                .expect("README.md");
+        let at = readme
+            .find(" switchable")
+            .expect("README.md states \"N switchable effects\"");
+        let digits: String = readme[..at]
+            .chars()
+            .rev()
+            .take_while(char::is_ascii_digit)
+            .collect::<Vec<_>>()
+            .into_iter()
+            .rev()
+            .collect();
+        let count: usize = digits.parse().expect("a number before \"switchable\"");
+        assert_eq!(count, REGISTRY.len(), "README.md's effect count");
+    }
 }
