@@ -535,12 +535,17 @@ impl ModelConfig {
         if catalogue::effect(&e.name).is_some() {
             return Err(ModelError::new(
                 ErrorKind::InvalidInput,
-                format!("user effect `{}`: the name is a catalogue effect id", e.name),
+                format!(
+                    "user effect `{}`: the name is a catalogue effect id",
+                    e.name
+                ),
             ));
         }
-        if let Some(o) = self.user_effects.iter().find(|o| {
-            o.name != e.name && o.condition == e.condition && o.acts_on == e.acts_on
-        }) {
+        if let Some(o) = self
+            .user_effects
+            .iter()
+            .find(|o| o.name != e.name && o.condition == e.condition && o.acts_on == e.acts_on)
+        {
             return Err(ModelError::new(
                 ErrorKind::InvalidInput,
                 format!(

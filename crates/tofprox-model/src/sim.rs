@@ -282,7 +282,11 @@ impl Simulator {
         req.validate()?;
         scene.validate()?;
         let view = self.scene_view(scene)?;
-        let user = capture_response(self.model.user_effects(), &req.conditions, &req.quantities())?;
+        let user = capture_response(
+            self.model.user_effects(),
+            &req.conditions,
+            &req.quantities(),
+        )?;
         let cc = self.consts(req, user);
         let terms = self.pixel_pass(&view, &cc)?;
         let (rows, cols) = (self.geometry.rows, self.geometry.cols);

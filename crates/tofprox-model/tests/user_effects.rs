@@ -43,7 +43,11 @@ fn iq(sim: &Simulator, d_m: f64, conditions: &[(&str, f64)]) -> (f64, f64, f64) 
 const SHAPE: &str = "[[user_effects]]\nname = \"bias_r\"\ncondition = \"vcsel_bias_ma\"\nacts_on = \"ACTS\"\nknots_x = [10.0, 30.0]\nknots_y = [0.0, VALUE]\n";
 
 fn with(acts: &str, value: f64) -> Simulator {
-    let m = model(&SHAPE.replace("ACTS", acts).replace("VALUE", &format!("{value:?}")));
+    let m = model(
+        &SHAPE
+            .replace("ACTS", acts)
+            .replace("VALUE", &format!("{value:?}")),
+    );
     Simulator::new(&m, geometry(), 1).unwrap()
 }
 
@@ -57,7 +61,10 @@ fn a_phase_response_reads_as_its_depth() {
     let at_ref = iq(&sim, 1.0, &[("vcsel_bias_ma", 10.0)]);
     let none = iq(&sim, 1.0, &[]);
     let ang = |p: (f64, f64, f64)| p.1.atan2(p.0);
-    assert!((ang(shifted) - ang(moved)).abs() < 2e-3, "{shifted:?} vs {moved:?}");
+    assert!(
+        (ang(shifted) - ang(moved)).abs() < 2e-3,
+        "{shifted:?} vs {moved:?}"
+    );
     assert!((ang(at_ref) - ang(none)).abs() < 1e-9);
     assert!((ang(shifted) - ang(none)).abs() > 0.03);
 }
@@ -94,5 +101,8 @@ fn an_expression_is_evaluated_per_capture_and_checked_at_load() {
     .unwrap_err()
     .to_string();
     assert!(bad.contains("unknown variable `supply_volts`"), "{bad}");
-    assert!(bad.contains("supply_v, exposure_us, temperature_c, ambient_klux, k"), "{bad}");
+    assert!(
+        bad.contains("supply_v, exposure_us, temperature_c, ambient_klux, k"),
+        "{bad}"
+    );
 }

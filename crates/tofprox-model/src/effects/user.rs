@@ -281,7 +281,10 @@ fn parse_param(at: &str, v: &toml::Value) -> Result<UserParam, ModelError> {
     only_keys(at, t, &["name", "value", "min", "max"])?;
     let name = text(at, t, "name")?.to_string();
     if !is_identifier(&name) {
-        return Err(bad(&format!("{at}.name"), "must be a lower-case identifier"));
+        return Err(bad(
+            &format!("{at}.name"),
+            "must be a lower-case identifier",
+        ));
     }
     let p = UserParam {
         value: num(&format!("{at}.value"), t.get("value"))?,
@@ -342,7 +345,10 @@ fn parse_law(at: &str, t: &toml::Table, condition: &str) -> Result<UserLaw, Mode
             allowed.extend(QUANTITIES.iter().filter(|q| **q != condition));
             for p in &params {
                 if allowed.contains(&p.name.as_str()) {
-                    return Err(bad(&format!("{at}.params"), format!("`{}` named twice", p.name)));
+                    return Err(bad(
+                        &format!("{at}.params"),
+                        format!("`{}` named twice", p.name),
+                    ));
                 }
                 allowed.push(&p.name);
             }
@@ -493,9 +499,17 @@ impl UserEffect {
                 for k in QUANTITIES.iter().filter(|k| **k != self.condition) {
                     vars.push((k, q.get(k).unwrap_or(0.0)));
                 }
-                vars.extend(params.iter().zip(values).map(|(p, v)| (p.name.as_str(), *v)));
+                vars.extend(
+                    params
+                        .iter()
+                        .zip(values)
+                        .map(|(p, v)| (p.name.as_str(), *v)),
+                );
                 let v = expression.eval(&vars).map_err(|e| {
-                    ModelError::new(ErrorKind::InvalidInput, format!("user effect `{}`: {e}", self.name))
+                    ModelError::new(
+                        ErrorKind::InvalidInput,
+                        format!("user effect `{}`: {e}", self.name),
+                    )
                 })?;
                 if v.is_finite() {
                     Ok(v)
@@ -618,7 +632,10 @@ mod tests {
                 "outside its range",
             ),
             ("knots_x = [1, 2]", "either"),
-            ("knots_x = [1, 2]\nknots_y = [0, 1]\ncolour = 1", "unknown key"),
+            (
+                "knots_x = [1, 2]\nknots_y = [0, 1]\ncolour = 1",
+                "unknown key",
+            ),
         ] {
             let err = parse(&format!("{base}{extra}")).unwrap_err().to_string();
             assert!(err.contains(needle), "{extra}: {err}");
