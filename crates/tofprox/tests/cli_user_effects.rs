@@ -13,30 +13,43 @@ use common::{run, text};
 
 const BIAS_MA: [f64; 5] = [10.0, 15.0, 20.0, 25.0, 30.0];
 
-/// `rec`'s recording.toml with `vcsel_bias_ma` stated by every capture: one value per
-/// (distance, exposure), so that repeats share it.
+/// `rec` with `vcsel_bias_ma` stated by every capture: the darks and the correlation
+/// capture at 20 mA, the illuminated sweep repeated at each of [`BIAS_MA`] (its frames
+/// copied; `sim sweep --like` simulates them anew), so that the bias is independent of
+/// distance and exposure and repeats share it.
 fn state_bias(rec: &Path) {
     let p = rec.join("recording.toml");
     let mut doc: toml::Table = toml::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
-    let caps = doc["capture"].as_array_mut().unwrap();
-    let mut n = 0;
-    for c in caps.iter_mut() {
-        let c = c.as_table_mut().unwrap();
-        let t = c["exposure_us"].as_float().unwrap();
+    let caps = doc["capture"].as_array().unwrap().clone();
+    let with_bias = |c: &toml::Value, b: f64, frames: Option<String>| {
+        let mut c = c.as_table().unwrap().clone();
+        if let Some(f) = frames {
+            std::fs::copy(rec.join(c["frames"].as_str().unwrap()), rec.join(&f)).unwrap();
+            c.insert("frames".into(), toml::Value::String(f));
+        }
         let cond = c
             .entry("conditions")
             .or_insert(toml::Value::Table(toml::Table::new()))
             .as_table_mut()
             .unwrap();
-        let d = cond
-            .get("distance_m")
-            .and_then(toml::Value::as_float)
-            .unwrap_or(0.0);
-        let i = (d / 0.15).round() as usize + usize::from(t > 500.0) * 2;
-        cond.insert("vcsel_bias_ma".into(), toml::Value::Float(BIAS_MA[i % 5]));
-        n += 1;
+        cond.insert("vcsel_bias_ma".into(), toml::Value::Float(b));
+        toml::Value::Table(c)
+    };
+    let sweep = |c: &toml::Value| {
+        c["illumination"].as_bool() == Some(true) && c["phases_deg"].as_array().unwrap().len() < 8
+    };
+    let mut out: Vec<toml::Value> = caps
+        .iter()
+        .filter(|c| !sweep(c))
+        .map(|c| with_bias(c, 20.0, None))
+        .collect();
+    for (j, b) in BIAS_MA.iter().enumerate() {
+        for (i, c) in caps.iter().enumerate().filter(|(_, c)| sweep(c)) {
+            out.push(with_bias(c, *b, Some(format!("frames/bias{j}_{i:04}.npy"))));
+        }
     }
-    assert!(n > 40);
+    assert!(out.len() > 200, "{}", out.len());
+    doc.insert("capture".into(), toml::Value::Array(out));
     std::fs::write(&p, toml::to_string(&doc).unwrap()).unwrap();
 }
 
