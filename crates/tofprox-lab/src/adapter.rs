@@ -96,6 +96,12 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
     let mut spec = spec_from_model(m);
     let mut notes = Vec::new();
     for id in spec.effects.clone() {
+        // a user effect is held at the file's values (crate::user)
+        if let Some(u) = spec.user_effects.iter().find(|u| u.name == id) {
+            let held = crate::user::held_user(u);
+            spec.held.push(held);
+            continue;
+        }
         match held_params(&id, m, prep) {
             Some((lin, nl)) => spec.held.push(EffectFit {
                 id: id.clone(),

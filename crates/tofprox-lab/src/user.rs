@@ -555,6 +555,27 @@ pub fn write_user_effect(
     Ok(notes)
 }
 
+/// The lab's fit of user effect `u` at the file's values (`compare --hold-effects`): a
+/// shape's values relative to its first knot (the constant is the per-pixel parameters'),
+/// an expression's parameters.
+pub fn held_user(u: &UserEffect) -> EffectFit {
+    let values = match &u.law {
+        UserLaw::Shape { knots_y, .. } => knots_y.iter().skip(1).map(|y| y - knots_y[0]).collect(),
+        UserLaw::Expression { .. } => u.param_values(),
+    };
+    let on_nl = matches!(u.law, UserLaw::Expression { .. }) || u.acts_on == UserActsOn::Phase;
+    let (lin, nl) = if on_nl {
+        (Vec::new(), values)
+    } else {
+        (values, Vec::new())
+    };
+    EffectFit {
+        id: u.name.clone(),
+        lin,
+        nl,
+    }
+}
+
 /// A model file's text with its `[[user_effects]]` replaced by `m`'s
 /// (the rest as given; comments inside the old user effects are not kept).
 pub fn with_user_effects(text: &str, m: &ModelConfig) -> Result<String, LabError> {

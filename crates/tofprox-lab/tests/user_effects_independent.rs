@@ -20,7 +20,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use tofprox_core::SensorGeometry;
-use tofprox_lab::adapter::spec_from_model;
+use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
 use tofprox_lab::diagnose::{Comparison, Verdict, compare, diagnose};
 use tofprox_lab::fit::Prepared;
 use tofprox_lab::user::proposal;
@@ -313,6 +313,16 @@ fn a_bias_current_delay_becomes_a_user_effect_on_the_phase() {
     );
     // 0.06 rad spans ±50 mm of depth at 60 MHz; the fit within 3 mrad (1.2 mm)
     shape_matches(&m, "vcsel_bias_ma_phase", |x| h.at(x, 3.3).0, 0.003);
+    // held at the written values (`compare --hold-effects`) it fits as well as free
+    let (held, notes) = spec_holding_model(&m, &prep);
+    assert!(notes.is_empty(), "{notes:?}");
+    assert_eq!(held.held.len(), 1);
+    let h = compare(&prep, &held, &|_, _| {}).unwrap();
+    eprintln!(
+        "held χ²/dof {:.4}, free {:.4}",
+        h.fit.chi2_per_dof, res.after.fit.chi2_per_dof
+    );
+    assert!(h.fit.chi2_per_dof <= 1.02 * res.after.fit.chi2_per_dof);
     // the file round-trips and the next diagnose closes
     let m = ModelConfig::from_toml_str(&m.to_toml_string()).unwrap();
     closes(&prep, &m, Vary::Bias, seed);
