@@ -79,10 +79,12 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .filter_map(|id| EffectId::parse(id))
             .filter(|id| waveform_effect(id.as_str()).is_none() && m.is_enabled(*id))
             .map(|id| id.as_str().to_string())
+            .chain(m.user_effects().iter().map(|u| u.name.clone()))
             .collect(),
         held: Vec::new(),
         dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
         shapes: crate::shape::spec_shapes(m, crate::signatures::code_per_e(m)),
+        user_effects: m.user_effects().to_vec(),
     }
 }
 
@@ -94,6 +96,12 @@ pub fn spec_holding_model(m: &ModelConfig, prep: &Prepared) -> (LabSpec, Vec<Str
     let mut spec = spec_from_model(m);
     let mut notes = Vec::new();
     for id in spec.effects.clone() {
+        // a user effect is held at the file's values (crate::user)
+        if let Some(u) = spec.user_effects.iter().find(|u| u.name == id) {
+            let held = crate::user::held_user(u);
+            spec.held.push(held);
+            continue;
+        }
         match held_params(&id, m, prep) {
             Some((lin, nl)) => spec.held.push(EffectFit {
                 id: id.clone(),

@@ -50,6 +50,9 @@ pub struct LabSpec {
     /// Effects whose law is the shape form (`crate::shape`): their knots in
     /// the lab's driver units (amplitude: LSB; temperature: °C).
     pub shapes: std::collections::BTreeMap<String, Vec<f64>>,
+    /// The model's user effects (`crate::user`), fitted like the enabled
+    /// effects: their names are in `effects`.
+    pub user_effects: Vec<tofprox_model::effects::user::UserEffect>,
 }
 
 impl Default for LabSpec {
@@ -65,6 +68,7 @@ impl Default for LabSpec {
                 tofprox_model::ids::dark_current::DOUBLING_C,
             ),
             shapes: std::collections::BTreeMap::new(),
+            user_effects: Vec::new(),
         }
     }
 }

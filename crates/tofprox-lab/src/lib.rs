@@ -24,6 +24,7 @@ pub mod structure;
 #[cfg(any(test, feature = "testing"))]
 #[doc(hidden)]
 pub mod synth;
+pub mod user;
 pub mod waveform;
 pub mod workflow;
 

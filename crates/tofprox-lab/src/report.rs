@@ -62,6 +62,10 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
         })).collect::<Vec<_>>(),
         "skipped": d.skipped.iter().map(|(e, why)| json!({"effect": e, "reason": why})).collect::<Vec<_>>(),
         "structure": d.structure_remaining.iter().map(structure_json).collect::<Vec<_>>(),
+        "proposal": crate::user::proposal(d).map(|p| json!({
+            "add": p.add, "condition": p.condition, "acts_on": p.acts_on, "name": p.name,
+            "size_mm": num(p.size_mm), "z": num(p.z), "sentence": p.sentence,
+        })),
     })
 }
 
@@ -105,6 +109,7 @@ fn summary_json(s: &ErrorSummary) -> Value {
 pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
     json!({
         "effect": effect,
+        "name": out.effect.id,
         "before": summary_json(&ErrorSummary::of(&out.before)),
         "after": summary_json(&ErrorSummary::of(&out.after)),
         "params": named(&out.params),
@@ -225,6 +230,9 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     let _ = writeln!(s, "verdict: {verdict}");
     let _ = writeln!(s, "         {}", d.reason);
     let _ = writeln!(s, "evidence: {}", d.evidence());
+    if let Some(p) = crate::user::proposal(d) {
+        let _ = writeln!(s, "proposal: {}", p.sentence);
+    }
     let _ = writeln!(
         s,
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
@@ -544,6 +552,13 @@ fn verdict_html(h: &mut String, d: &Diagnosis) {
     );
     if let Some(sep) = &d.separate_by {
         let _ = write!(h, "<p>To separate the two, vary <b>{}</b>.</p>", esc(sep));
+    }
+    if let Some(p) = crate::user::proposal(d) {
+        let _ = write!(
+            h,
+            "<p class=\"proposal\"><b>Proposal:</b> {}</p>",
+            esc(&p.sentence)
+        );
     }
     let _ = write!(
         h,

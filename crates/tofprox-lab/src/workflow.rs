@@ -12,6 +12,7 @@ use crate::error::{ErrorKind, LabError};
 use crate::fit::{Prepared, Progress};
 use crate::model_file::update_model_text;
 use crate::signatures::{SIGNATURE_IDS, write_effect};
+use crate::user;
 
 /// The recording at `rec`, prepared for fitting, and the model file at `model`.
 pub fn load(rec: &Path, model: &Path) -> Result<(Prepared, ModelConfig), LabError> {
@@ -23,11 +24,27 @@ pub fn load(rec: &Path, model: &Path) -> Result<(Prepared, ModelConfig), LabErro
     Ok((prep, m))
 }
 
-/// `Ok` when the lab can add `effect` (it has a signature for it); otherwise an
-/// [`ErrorKind::UnknownEffect`] naming the closest id and every addable one.
+/// `Ok` when the lab can add `effect`: a catalogue effect it has a signature for, a
+/// condition response `condition:<KEY>` or a declared user effect `user:<NAME>`
+/// ([`crate::user`]); otherwise an [`ErrorKind::UnknownEffect`] naming the closest id and
+/// every addable one.
 pub fn check_addable(effect: &str) -> Result<(), LabError> {
     if SIGNATURE_IDS.contains(&effect) {
         return Ok(());
+    }
+    for prefix in [user::CONDITION_PREFIX, user::USER_PREFIX] {
+        if let Some(key) = effect.strip_prefix(prefix) {
+            return if tofprox_model::effects::user::is_identifier(key) {
+                Ok(())
+            } else {
+                Err(LabError::new(
+                    ErrorKind::UnknownEffect,
+                    format!(
+                        "`{effect}`: `{key}` must be a lower-case identifier (`{prefix}<KEY>`)"
+                    ),
+                ))
+            };
+        }
     }
     let hint = tofprox_model::catalogue::closest(effect, SIGNATURE_IDS.iter().copied())
         .map(|c| format!(" (did you mean `{c}`?)"))
@@ -35,7 +52,7 @@ pub fn check_addable(effect: &str) -> Result<(), LabError> {
     Err(LabError::new(
         ErrorKind::UnknownEffect,
         format!(
-            "the lab cannot add `{effect}`{hint}; it can add: {}",
+            "the lab cannot add `{effect}`{hint}; it can add: {}, condition:<KEY> (a response to a condition of the recording) and user:<NAME> (a user effect the model file declares)",
             SIGNATURE_IDS.join(", ")
         ),
     ))
@@ -69,15 +86,31 @@ pub fn check_out(out: Option<&Path>, force: bool) -> Result<(), LabError> {
     }
 }
 
-/// Enable `effect` in `m`, fit it on `prep` and write the fitted values into `m`: the outcome
-/// (before/after) and notes on what did not map onto the model file's parameters.
+/// Enable `effect` in `m`, fit it on `prep` (the recording at `recording`) and write the
+/// fitted values into `m`: the outcome (before/after) and notes on what did not map onto the
+/// model file's parameters. `condition:<KEY>` and `user:<NAME>` add a user effect
+/// ([`crate::user`]), written with its provenance.
 pub fn add_to_model(
     prep: &Prepared,
     m: &mut ModelConfig,
     effect: &str,
+    recording: &Path,
     progress: Progress<'_>,
 ) -> Result<(AddOutcome, Vec<String>), LabError> {
     check_addable(effect)?;
+    let spec = spec_from_model(m);
+    let res = if let Some(key) = effect.strip_prefix(user::CONDITION_PREFIX) {
+        Some(user::add_condition(prep, &spec, key, progress)?)
+    } else if let Some(name) = effect.strip_prefix(user::USER_PREFIX) {
+        Some(user::add_declared(prep, &spec, name, progress)?)
+    } else {
+        None
+    };
+    if let Some(res) = res {
+        let name = res.effect.id.clone();
+        let notes = user::write_user_effect(m, &res, &name, recording)?;
+        return Ok((res, notes));
+    }
     let res = add_effect(prep, &spec_from_model(m), effect, progress)?;
     let notes = write_effect(m, effect, &res.params, &res.after.model, prep)?;
     Ok((res, notes))
@@ -111,7 +144,14 @@ pub fn write_model(
     let text =
         tofprox_format::limits::read_text_bounded(from, tofprox_format::limits::MAX_TOML_BYTES)
             .map_err(|e| LabError::format(format!("reading model {}", from.display()), e))?;
-    let updated = update_model_text(&text, m, changed)
+    // user effects (`condition:<KEY>`, `user:<NAME>`) are the file's `[[user_effects]]`
+    let catalogue: Vec<String> = changed
+        .iter()
+        .filter(|e| tofprox_model::catalogue::effect(e).is_some())
+        .cloned()
+        .collect();
+    let updated = update_model_text(&text, m, &catalogue)
+        .and_then(|t| user::with_user_effects(&t, m))
         .map_err(|e| LabError::new(e.kind(), format!("model file {}: {e}", from.display())))?;
     tofprox_format::write_atomic(out, updated.as_bytes())
         .map_err(|e| LabError::format(format!("writing model {}", out.display()), e))

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use crate::catalogue::{self, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::effects::shape::{self, EffectShape, ShapeLaw};
+use crate::effects::user::{self, UserEffect};
 use crate::error::{ErrorKind, ModelError};
 use crate::ids::{self, EffectId, ParamId};
 use tofprox_core::camera::Intrinsics;
@@ -50,6 +51,7 @@ pub struct ModelConfig {
     effects: BTreeMap<&'static str, EffectSettings>,
     waveforms: Option<MeasuredWaveforms>,
     camera: Option<Intrinsics>,
+    user_effects: Vec<UserEffect>,
 }
 
 fn typical_params(params: &'static [ParamInfo]) -> BTreeMap<&'static str, f64> {
@@ -164,6 +166,7 @@ impl ModelConfig {
                 .collect(),
             waveforms: None,
             camera: None,
+            user_effects: Vec::new(),
         }
     }
 
@@ -256,11 +259,29 @@ impl ModelConfig {
                         m.parse_effect(id, v, base)?;
                     }
                 }
+                user::SECTION => {
+                    let a = value.as_array().ok_or_else(|| {
+                        ModelError::new(
+                            ErrorKind::Parse,
+                            "`user_effects` must be an array of tables ([[user_effects]])",
+                        )
+                    })?;
+                    for (i, v) in a.iter().enumerate() {
+                        let e = UserEffect::parse(i, v)?;
+                        if m.user_effects.iter().any(|o| o.name == e.name) {
+                            return Err(ModelError::new(
+                                ErrorKind::InvalidInput,
+                                format!("`user_effects[{i}]`: the name `{}` is used twice", e.name),
+                            ));
+                        }
+                        m.set_user_effect(e)?;
+                    }
+                }
                 other => {
                     return Err(ModelError::new(
                         ErrorKind::UnknownParam,
                         format!(
-                            "unknown top-level key `{other}` (allowed: description, sensor, camera, effects)"
+                            "unknown top-level key `{other}` (allowed: description, sensor, camera, effects, user_effects)"
                         ),
                     ));
                 }
@@ -495,7 +516,59 @@ impl ModelConfig {
                 );
             }
         }
+        for u in &self.user_effects {
+            out.push('\n');
+            out.push_str(&u.to_toml());
+        }
         out
+    }
+
+    /// The user effects (`[[user_effects]]`, [`crate::effects::user`]), in file order.
+    pub fn user_effects(&self) -> &[UserEffect] {
+        &self.user_effects
+    }
+
+    /// Add `e`, or replace the user effect of its name; refused when its name
+    /// is a catalogue effect id or another user effect has a different name
+    /// for the same condition and quantity (one response per pair).
+    pub fn set_user_effect(&mut self, e: UserEffect) -> Result<(), ModelError> {
+        if catalogue::effect(&e.name).is_some() {
+            return Err(ModelError::new(
+                ErrorKind::InvalidInput,
+                format!(
+                    "user effect `{}`: the name is a catalogue effect id",
+                    e.name
+                ),
+            ));
+        }
+        if let Some(o) = self
+            .user_effects
+            .iter()
+            .find(|o| o.name != e.name && o.condition == e.condition && o.acts_on == e.acts_on)
+        {
+            return Err(ModelError::new(
+                ErrorKind::InvalidInput,
+                format!(
+                    "user effect `{}`: `{}` already responds to `{}` on the {}",
+                    e.name,
+                    o.name,
+                    e.condition,
+                    e.acts_on.as_str()
+                ),
+            ));
+        }
+        match self.user_effects.iter_mut().find(|o| o.name == e.name) {
+            Some(o) => *o = e,
+            None => self.user_effects.push(e),
+        }
+        Ok(())
+    }
+
+    /// Remove the user effect `name` (whether it was there).
+    pub fn remove_user_effect(&mut self, name: &str) -> bool {
+        let n = self.user_effects.len();
+        self.user_effects.retain(|e| e.name != name);
+        n != self.user_effects.len()
     }
 
     /// Whether an effect is enabled.

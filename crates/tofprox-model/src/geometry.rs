@@ -1,5 +1,7 @@
 //! Capture requests; the simulated array is the shared [`SensorGeometry`] of `tofprox-core`.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 pub use tofprox_core::SensorGeometry;
 
@@ -21,6 +23,11 @@ pub struct CaptureRequest {
     pub ambient_klux: f64,
     /// Sensor/illumination temperature.
     pub temperature_c: f64,
+    /// The capture's other conditions by key (a recording's `[capture.conditions]`
+    /// beyond the model inputs, e.g. `vcsel_bias_ma`): what the model's user
+    /// effects read ([`crate::effects::user`]); empty by default.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub conditions: BTreeMap<String, f64>,
 }
 
 impl CaptureRequest {
@@ -52,6 +59,7 @@ impl CaptureRequest {
             averaged: 1,
             ambient_klux: 0.0,
             temperature_c: 25.0,
+            conditions: BTreeMap::new(),
         }
     }
 
@@ -92,6 +100,20 @@ impl CaptureRequest {
                 self.temperature_c
             )));
         }
+        if let Some((k, v)) = self.conditions.iter().find(|(_, v)| !v.is_finite()) {
+            return Err(ModelError::invalid(format!(
+                "capture: condition {k} = {v} is not finite"
+            )));
+        }
         Ok(())
+    }
+
+    /// The quantities a user effect's expression reads ([`crate::effects::user::QUANTITIES`]).
+    pub fn quantities(&self) -> crate::effects::user::CaptureQuantities {
+        crate::effects::user::CaptureQuantities {
+            exposure_us: self.exposure_us,
+            temperature_c: self.temperature_c,
+            ambient_klux: self.ambient_klux,
+        }
     }
 }

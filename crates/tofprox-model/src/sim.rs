@@ -11,6 +11,7 @@ use crate::effects::fixed_pattern::FixedPatterns;
 use crate::effects::multipath::multipath_phase_offset_rad;
 use crate::effects::pixel::PixelParams;
 use crate::effects::tap_gain_mismatch::tap_gain_leak_e;
+use crate::effects::user::{UserResponse, capture_response};
 use crate::effects::vcsel_droop::droop_factor;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
@@ -51,6 +52,8 @@ struct CaptureConsts {
     var_const_lsb2: f64,
     /// tap_gain_mismatch: D = (1 + ε/2) N_A − (1 − ε/2) N_B (0 when off).
     tap_eps: f64,
+    /// The user effects' response to the capture's conditions (`effects::user`).
+    user: UserResponse,
 }
 
 /// The scene as seen by the pixels: a flat wall or depth/reflectivity maps
@@ -191,7 +194,7 @@ impl Simulator {
         self.run::<rand::rngs::SmallRng>(scene, req, None)
     }
 
-    fn consts(&self, req: &CaptureRequest) -> CaptureConsts {
+    fn consts(&self, req: &CaptureRequest, user: UserResponse) -> CaptureConsts {
         let m = &self.model;
         let t = req.exposure_us;
         let px = PixelParams::new(m, t, req.temperature_c);
@@ -203,8 +206,9 @@ impl Simulator {
             droop: (0..req.phases_deg.len())
                 .map(|k| droop_factor(m, k, t))
                 .collect(),
+            // a user effect on the gain scales the signal charge (effects::user)
             signal_e: if illum {
-                m.get(ids::sensor::SIGNAL_E_PER_US) * t * px.drift_gain
+                m.get(ids::sensor::SIGNAL_E_PER_US) * t * px.drift_gain * user.gain_factor
             } else {
                 0.0
             },
@@ -240,6 +244,7 @@ impl Simulator {
                 )
             }),
             var_const_lsb2,
+            user,
             tap_eps: if m.is_enabled(ids::tap_gain_mismatch::ID) {
                 m.get(ids::tap_gain_mismatch::MISMATCH_REL)
             } else {
@@ -277,7 +282,12 @@ impl Simulator {
         req.validate()?;
         scene.validate()?;
         let view = self.scene_view(scene)?;
-        let cc = self.consts(req);
+        let user = capture_response(
+            self.model.user_effects(),
+            &req.conditions,
+            &req.quantities(),
+        )?;
+        let cc = self.consts(req, user);
         let terms = self.pixel_pass(&view, &cc)?;
         let (rows, cols) = (self.geometry.rows, self.geometry.cols);
         let mut out = Array3::<f64>::zeros((cc.thetas.len(), rows, cols));
@@ -401,8 +411,12 @@ impl Simulator {
         let s = cc.signal_e * refl * falloff * gain;
         let amb = cc.ambient_e * gain;
         // eq. 2.6 inverted + FPPN/global delay + drift + amplitude-dependent error
-        let phi =
-            cc.tof_rad_per_m * d + delay + px.drift_rad + px.amplitude_phase_rad(s * cc.contrast);
+        // (+ the user effects' phase, effects::user)
+        let phi = cc.tof_rad_per_m * d
+            + delay
+            + px.drift_rad
+            + px.amplitude_phase_rad(s * cc.contrast)
+            + cc.user.phase_rad;
         // the window return: w(c) g_p N_xt at 4π f d_w / c + the pixel's delay
         let col_span = (self.geometry.full_cols.max(2) - 1) as f64;
         let crosstalk = cc.crosstalk.map(|(n_xt, phi_w, grad)| {
@@ -470,7 +484,8 @@ impl Simulator {
             let xt = t.xt_e.get(i).copied().zip(t.xt_phi.get(i).copied());
             let diff =
                 self.differential_e(cc, s * dr, phi, theta, amb, xt.map(|(x, xp)| (x * dr, xp)));
-            let mut u = diff * cc.lsb_per_e + offset;
+            // the user effects' offset at the ADC input (effects::user)
+            let mut u = diff * cc.lsb_per_e + offset + cc.user.offset_lsb;
             if let Some(rng) = rng.as_deref_mut() {
                 let var = va * dr + vb;
                 if var > 0.0 {

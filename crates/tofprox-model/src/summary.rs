@@ -29,6 +29,8 @@ pub struct ModelSummary {
     pub measured_waveforms: bool,
     /// `[sensor]` parameter → value, for those the file sets.
     pub sensor: BTreeMap<String, f64>,
+    /// The file's user effects (`[[user_effects]]`, `effects::user`), in file order.
+    pub user_effects: Vec<crate::effects::user::UserEffect>,
 }
 
 impl ModelSummary {
@@ -55,6 +57,7 @@ impl ModelSummary {
             effects,
             measured_waveforms: m.waveforms().is_some(),
             sensor,
+            user_effects: m.user_effects().to_vec(),
         }
     }
 }

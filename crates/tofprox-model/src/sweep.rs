@@ -49,6 +49,7 @@ impl PlannedCapture {
             conditions: conditions
                 .iter()
                 .map(|(k, v)| (k.to_string(), *v))
+                .chain(request.conditions.iter().map(|(k, v)| (k.clone(), *v)))
                 .collect(),
             request,
         }
@@ -154,6 +155,7 @@ impl SweepPlan {
                 averaged: self.averaged,
                 ambient_klux: amb,
                 temperature_c: temp,
+                conditions: BTreeMap::new(),
             };
         let (refl, corr_m) = (self.reflectivity, self.correlation_distance_m);
         let mut plan = Vec::new();
@@ -256,6 +258,12 @@ pub fn plan_like(rec: &Recording) -> Result<LikePlan, ModelError> {
             averaged: meta.averaged,
             ambient_klux: cond("ambient_klux").unwrap_or(0.0),
             temperature_c: cond("temperature_c").unwrap_or(25.0),
+            // the other conditions, for the model's user effects
+            conditions: meta
+                .physical_conditions()
+                .filter(|(k, _)| !MODEL_INPUTS.contains(k))
+                .map(|(k, v)| (k.to_string(), v))
+                .collect(),
         };
         // a dark capture sees no target; the wall only sets the geometry
         let scene = Scene::wall(distance.unwrap_or(1.0), cond("reflectivity").unwrap_or(1.0));

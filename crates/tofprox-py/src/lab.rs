@@ -125,7 +125,9 @@ fn write_out(
     }
 }
 
-/// Enable the catalogue effect `effect` in the model file `model`, fit it on the recording in
+/// Enable the catalogue effect `effect` (or add the condition response `"condition:KEY"`, or
+/// fit the user effect `"user:NAME"` the file declares: docs/lab.md, "An effect the catalogue
+/// lacks") in the model file `model`, fit it on the recording in
 /// `data` and return the dict `tofprox lab add --json` prints (errors before and after, the
 /// fitted parameters). With `out`, the model with the effect is written there (the file's
 /// comments kept); an existing `out` is replaced only with `force=True`.
@@ -143,7 +145,7 @@ fn add<'py>(
         check_addable(&effect)?;
         check_out(out.as_deref(), force)?;
         let (prep, mut m) = load(&data, &model)?;
-        let (res, _notes) = add_to_model(&prep, &mut m, &effect, &quiet)?;
+        let (res, _notes) = add_to_model(&prep, &mut m, &effect, &data, &quiet)?;
         write_out(&model, &m, std::slice::from_ref(&effect), out.as_deref())?;
         Ok(report::add_json(&effect, &res))
     })

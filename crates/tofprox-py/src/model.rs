@@ -53,6 +53,14 @@ impl Model {
         to_py(py, &ModelSummary::of(&self.model).effects)
     }
 
+    /// The file's user effects (`[[user_effects]]`): a list of dicts with `name`, `condition`,
+    /// `acts_on`, `law` (`{"form": "shape", "knots_x", "knots_y"}` or `{"form": "expression",
+    /// "expression", "params"}`) and `provenance`.
+    #[getter]
+    fn user_effects<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        to_py(py, &ModelSummary::of(&self.model).user_effects)
+    }
+
     /// The `[sensor]` parameters the file sets: name → value.
     #[getter]
     fn sensor<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -60,7 +68,7 @@ impl Model {
     }
 
     /// The dict `tofprox model show --json` prints (`description`, `sensor`, `effects`,
-    /// `measured_waveforms`).
+    /// `measured_waveforms`, `user_effects`).
     fn summary<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         to_py(py, &ModelSummary::of(&self.model))
     }

@@ -60,10 +60,13 @@ fn stacked<'py, T: numpy::Element + Clone>(
 /// `reflectivity`, `ambient_klux`, `temperature_c`, `averaged` acquisitions per capture,
 /// `illumination=False` for dark frames, `window` `(row, col, height, width)` on the 172×224
 /// array (None: the full array), `seed` the sensor's fixed patterns and the noise (capture `i`
-/// draws its noise as capture `i` of a `tofprox sim sweep` with that seed).
+/// draws its noise as capture `i` of a `tofprox sim sweep` with that seed), `conditions` the
+/// capture's other conditions by key (what the model's user effects read, e.g.
+/// `{"vcsel_bias_ma": 25.0}`).
 #[pyfunction]
 #[pyo3(signature = (model, distances_m, exposure_us=1000.0, phases=4, reflectivity=0.9,
-    ambient_klux=0.0, temperature_c=25.0, averaged=1, illumination=true, window=None, seed=1))]
+    ambient_klux=0.0, temperature_c=25.0, averaged=1, illumination=true, window=None, seed=1,
+    conditions=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn simulate<'py>(
     py: Python<'py>,
@@ -78,6 +81,7 @@ pub fn simulate<'py>(
     illumination: bool,
     window: Option<(usize, usize, usize, usize)>,
     seed: u64,
+    conditions: Option<std::collections::BTreeMap<String, f64>>,
 ) -> PyResult<Bound<'py, PyAny>> {
     if distances_m.is_empty() {
         return Err(PyValueError::new_err("distances_m: at least one distance"));
@@ -90,6 +94,7 @@ pub fn simulate<'py>(
         averaged,
         ambient_klux,
         temperature_c,
+        conditions: conditions.unwrap_or_default(),
     };
     let plan: Vec<PlannedCapture> = distances_m
         .iter()

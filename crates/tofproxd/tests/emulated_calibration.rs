@@ -93,6 +93,7 @@ fn shipped_offset_matches_the_emulated_dark_frame() {
                 averaged: 1,
                 ambient_klux: 0.0,
                 temperature_c: 25.0,
+                conditions: Default::default(),
             },
         )
         .expect("expected dark frame");
@@ -164,6 +165,7 @@ fn shipped_calibration_reads_the_emulated_wall_right() {
                     averaged: 1,
                     ambient_klux: 0.0,
                     temperature_c: 25.0,
+                    conditions: Default::default(),
                 },
             )
             .expect("expected wall capture");

@@ -153,6 +153,7 @@ impl FrameSynth for ModelSynth {
                 averaged: 1,
                 ambient_klux: amb,
                 temperature_c: temp,
+                conditions: Default::default(),
             };
             let codes = sim.capture_u16(&scene, &req, &mut rng).map_err(model_err)?;
             for (k, img) in codes.outer_iter().enumerate() {

@@ -38,8 +38,8 @@ pub use harmonics::{MAX_HARMONIC, harmonic_order};
 /// The residual an effect leaves in the raw codes, as a basis in which it is
 /// linear (`lin`) given a few non-linear parameters (`nl`).
 pub trait Signature: Send + Sync {
-    /// The catalogue id of the effect.
-    fn id(&self) -> &'static str;
+    /// The catalogue id of the effect (a user effect's name, `crate::user`).
+    fn id(&self) -> &str;
     /// Number of linear coefficients (basis functions).
     fn n_lin(&self) -> usize;
     /// Names of the linear coefficients, in basis order.
@@ -406,6 +406,9 @@ pub fn make_signature(
     spec: &LabSpec,
     waveform: &Waveform,
 ) -> Result<Box<dyn Signature>, LabError> {
+    if let Some(u) = spec.user_effects.iter().find(|u| u.name == id) {
+        return Ok(crate::user::user_signature(u, prep, waveform));
+    }
     let effect = lab_effect(id).ok_or_else(|| {
         LabError::new(
             ErrorKind::UnknownEffect,

@@ -59,6 +59,7 @@ pub mod shape;
 pub mod signal_falloff;
 pub mod tap_gain_mismatch;
 pub mod temperature_drift;
+pub mod user;
 pub mod vcsel_droop;
 pub mod waveform_harmonics;
 

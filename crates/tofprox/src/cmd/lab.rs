@@ -315,7 +315,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     let (prep, mut m) = load(&a.data, &a.model)?;
     let pb = progress_bar();
     let cb = on_progress(&pb);
-    let (res, notes) = add_to_model(&prep, &mut m, &a.effect, &cb)?;
+    let (res, notes) = add_to_model(&prep, &mut m, &a.effect, &a.data, &cb)?;
     pb.finish_and_clear();
     if let Some(p) = &a.out {
         write_model(&a.model, &m, std::slice::from_ref(&a.effect), p)?;
@@ -339,6 +339,20 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
         }
         // what the model file holds (the file's names and units), not the
         // lab's internal fit parameters
+        if let Some(u) = m.user_effects().iter().find(|u| u.name == res.effect.id) {
+            t.push_str(&match &a.out {
+                Some(p) => format!("user effect as written to {}:\n", p.display()),
+                None => "user effect (not written: pass --out FILE):\n".to_string(),
+            });
+            t.push_str(&u.to_toml());
+            t.push_str(&report::fitted_text(
+                &res.effect.id,
+                &res.params,
+                &res.standard_errors,
+                res.standard_errors_note.as_deref(),
+            ));
+            return Ok(t);
+        }
         let info = tofprox_model::catalogue().iter().find(|e| e.id == a.effect);
         t.push_str(&match &a.out {
             Some(p) => format!("[effects.{}] as written to {}:\n", a.effect, p.display()),

@@ -538,5 +538,31 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
             }
         }
     }
+    for u in m.user_effects() {
+        println!(
+            "[x] {} (user effect: {} response to {}, {})",
+            u.name,
+            u.acts_on.as_str(),
+            u.condition,
+            u.acts_on.unit()
+        );
+        match &u.law {
+            tofprox_model::effects::user::UserLaw::Shape { knots_x, knots_y } => {
+                println!("      knots_x {knots_x:?}\n      knots_y {knots_y:?}");
+            }
+            tofprox_model::effects::user::UserLaw::Expression { expression, params } => {
+                println!("      {}", expression.text());
+                for p in params {
+                    println!("      {:<22} {} [{}, {}]", p.name, p.value, p.min, p.max);
+                }
+            }
+        }
+        if let Some(p) = &u.provenance {
+            println!(
+                "      fitted on {} ({}): χ²/dof {:.3} → {:.3}",
+                p.recording, p.date, p.chi2_per_dof_before, p.chi2_per_dof_after
+            );
+        }
+    }
     Ok(ExitCode::SUCCESS)
 }
