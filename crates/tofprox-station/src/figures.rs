@@ -40,9 +40,8 @@ impl PartCheck {
         (min, max): (Option<f64>, Option<f64>),
         meaning: &str,
     ) -> Self {
-        let passed = value.is_finite()
-            && min.is_none_or(|m| value >= m)
-            && max.is_none_or(|m| value <= m);
+        let passed =
+            value.is_finite() && min.is_none_or(|m| value >= m) && max.is_none_or(|m| value <= m);
         PartCheck {
             part: part.into(),
             figure: figure.into(),
@@ -106,7 +105,10 @@ fn sigma(v: &[f64]) -> f64 {
 pub(crate) fn offset_checks(dir: &Path, l: &Limits) -> Result<Vec<PartCheck>, StationError> {
     let v = read_part(dir, CalibPart::Offset)?;
     let m = median(&v);
-    let hot = v.iter().filter(|x| (*x - m).abs() > l.hot_pixel_lsb).count();
+    let hot = v
+        .iter()
+        .filter(|x| (*x - m).abs() > l.hot_pixel_lsb)
+        .count();
     Ok(vec![
         PartCheck::new(
             "offset",
@@ -135,7 +137,9 @@ pub(crate) fn wiggling_check(
     let v = read_part(dir, part)?;
     let (lo, hi) = v
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
     let mm = phase_to_distance_m(hi - lo, modulation_hz) * 1e3;
     Ok(PartCheck::new(
         part.name(),
@@ -170,7 +174,7 @@ pub(crate) fn amplitude_checks(dir: &Path, l: &Limits) -> Result<Vec<PartCheck>,
     let m = median(&v);
     let dead = v
         .iter()
-        .filter(|x| !(**x >= l.dead_pixel_fraction * m))
+        .filter(|x| x.is_nan() || **x < l.dead_pixel_fraction * m)
         .count();
     Ok(vec![
         PartCheck::new(

@@ -199,16 +199,20 @@ pub struct Limits {
 impl Station {
     /// Read and validate a station file.
     pub fn load(path: &Path) -> Result<Self, StationError> {
-        let meta = std::fs::metadata(path).map_err(|e| StationError::file(path, "", e.to_string()))?;
+        let meta =
+            std::fs::metadata(path).map_err(|e| StationError::file(path, "", e.to_string()))?;
         if meta.len() > MAX_FILE_BYTES {
             return Err(StationError::file(
                 path,
                 "",
-                format!("{} bytes: a station file is at most {MAX_FILE_BYTES}", meta.len()),
+                format!(
+                    "{} bytes: a station file is at most {MAX_FILE_BYTES}",
+                    meta.len()
+                ),
             ));
         }
-        let text =
-            std::fs::read_to_string(path).map_err(|e| StationError::file(path, "", e.to_string()))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| StationError::file(path, "", e.to_string()))?;
         Self::parse(&text, path)
     }
 
@@ -230,14 +234,20 @@ impl Station {
         let bad = |key: &str, msg: String| Err(StationError::file(path, key, msg));
         let [h, v] = self.module.fov_deg;
         if !(h > 0.0 && h < 180.0 && v > 0.0 && v < 180.0) {
-            return bad("module.fov_deg", format!("[{h}, {v}]: each must be in (0, 180) degrees"));
+            return bad(
+                "module.fov_deg",
+                format!("[{h}, {v}]: each must be in (0, 180) degrees"),
+            );
         }
         if let Some([_, 0]) = self.module.rows {
             return bad("module.rows", "the row count must be at least 1".into());
         }
         let max = self.exposure.max_us;
         if !(max.is_finite() && max > 0.0 && max <= 10_000.0) {
-            return bad("exposure.max_us", format!("{max}: must be in (0, 10000] µs (eye safety)"));
+            return bad(
+                "exposure.max_us",
+                format!("{max}: must be in (0, 10000] µs (eye safety)"),
+            );
         }
         self.validate_targets(path)?;
         self.validate_captures(path)?;
@@ -261,13 +271,22 @@ impl Station {
         for (name, t) in targets {
             let key = |k: &str| format!("targets.{name}.{k}");
             if !(t.distance_m.is_finite() && t.distance_m > 0.0 && t.distance_m <= 100.0) {
-                return bad(key("distance_m"), format!("{}: must be in (0, 100] m", t.distance_m));
+                return bad(
+                    key("distance_m"),
+                    format!("{}: must be in (0, 100] m", t.distance_m),
+                );
             }
             if !(0.0..=1.0).contains(&t.reflectivity) {
-                return bad(key("reflectivity"), format!("{}: must be in [0, 1]", t.reflectivity));
+                return bad(
+                    key("reflectivity"),
+                    format!("{}: must be in [0, 1]", t.reflectivity),
+                );
             }
             if !(t.flatness_mm.is_finite() && t.flatness_mm >= 0.0) {
-                return bad(key("flatness_mm"), format!("{}: must be ≥ 0", t.flatness_mm));
+                return bad(
+                    key("flatness_mm"),
+                    format!("{}: must be ≥ 0", t.flatness_mm),
+                );
             }
             if name != "absorber" {
                 // a target less flat than half the check budget would eat it
@@ -281,7 +300,7 @@ impl Station {
                     );
                 }
                 let cov = t.field_coverage(self.module.fov_deg);
-                if !(cov >= 1.0) {
+                if cov.is_nan() || cov < 1.0 {
                     return bad(
                         key("size_m"),
                         format!(
@@ -356,11 +375,18 @@ impl Station {
             ("wiggling_p2p_mm", l.wiggling_p2p_mm),
             ("fppn_sigma_mm", l.fppn_sigma_mm),
             ("check_error_mm", l.check_error_mm),
-            ("crosstalk_lsb_per_us", l.crosstalk_lsb_per_us.unwrap_or(1.0)),
+            (
+                "crosstalk_lsb_per_us",
+                l.crosstalk_lsb_per_us.unwrap_or(1.0),
+            ),
         ];
         for (k, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return Err(StationError::file(path, &format!("limits.{k}"), format!("{v}: must be > 0")));
+                return Err(StationError::file(
+                    path,
+                    &format!("limits.{k}"),
+                    format!("{v}: must be > 0"),
+                ));
             }
         }
         let [lo, hi] = l.amplitude_k;

@@ -176,7 +176,7 @@ mod emulated {
                 self.driver = Some(d);
                 self.presented = Some(scene);
             }
-            self.driver.as_mut().ok_or_else(|| unreachable_driver())
+            self.driver.as_mut().ok_or_else(unreachable_driver)
         }
 
         fn conditions(&self) -> BTreeMap<String, f64> {

@@ -34,6 +34,5 @@ pub use fixture::EmulatedFixture;
 pub use fixture::{Fixture, OperatorFixture, Placement};
 pub use report::html;
 pub use run::{
-    CheckReading, RECORDINGS_DIR, REPORT_HTML, REPORT_JSON, Report, SET_DIR, StepTime,
-    run_station,
+    CheckReading, RECORDINGS_DIR, REPORT_HTML, REPORT_JSON, Report, SET_DIR, StepTime, run_station,
 };

@@ -103,7 +103,11 @@ pub fn html(r: &Report) -> String {
             escape(&fmt_limit(c)),
             if c.passed { "pass" } else { "fail" },
             if c.passed { "pass" } else { "FAIL" },
-            if c.passed { String::new() } else { escape(&c.meaning) },
+            if c.passed {
+                String::new()
+            } else {
+                escape(&c.meaning)
+            },
         );
     }
     o.push_str("</table>\n<h2>Steps</h2>\n<table><tr><th>step</th><th>frames</th><th>exposure</th><th>device time</th><th>wall time</th></tr>\n");

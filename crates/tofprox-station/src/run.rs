@@ -159,14 +159,42 @@ pub fn run_station<F: Fixture>(
     let t = &station.targets;
     let c = &station.captures;
     // docs/calibration.md: fpn → crosstalk (phone) → wiggling (+ amplitude) → fppn
-    cx.step("dark", Placement::Wall(&t.wall), SensorMode::FourPhaseGrey, c.dark, false, Extract::Offset)?;
+    cx.step(
+        "dark",
+        Placement::Wall(&t.wall),
+        SensorMode::FourPhaseGrey,
+        c.dark,
+        false,
+        Extract::Offset,
+    )?;
     if line == Line::Phone
         && let (Some(a), Some(x)) = (&t.absorber, c.crosstalk)
     {
-        cx.step("crosstalk", Placement::Absorber(a), SensorMode::Depth(Algorithm::FourPhase), x, true, Extract::Crosstalk)?;
+        cx.step(
+            "crosstalk",
+            Placement::Absorber(a),
+            SensorMode::Depth(Algorithm::FourPhase),
+            x,
+            true,
+            Extract::Crosstalk,
+        )?;
     }
-    cx.step("wiggling", Placement::Wall(&t.wall), SensorMode::Correlation24, c.wiggling, true, Extract::Wiggling)?;
-    cx.step("fppn", Placement::Wall(&t.wall), SensorMode::Depth(Algorithm::FourPhase), c.fppn, true, Extract::Fppn)?;
+    cx.step(
+        "wiggling",
+        Placement::Wall(&t.wall),
+        SensorMode::Correlation24,
+        c.wiggling,
+        true,
+        Extract::Wiggling,
+    )?;
+    cx.step(
+        "fppn",
+        Placement::Wall(&t.wall),
+        SensorMode::Depth(Algorithm::FourPhase),
+        c.fppn,
+        true,
+        Extract::Fppn,
+    )?;
     let readings = cx.check()?;
     let set = cx.set.take();
     let complete = set.as_ref().is_some_and(CalibrationSet::is_complete);
@@ -261,7 +289,8 @@ impl<F: Fixture> Ctx<'_, F> {
         set.description = Some(format!("calibration station: {}", self.station.description));
         set.save(&self.set_dir).map_err(fmt)?;
         self.notes.extend(notes);
-        self.notes.extend(done.report.into_iter().map(|r| format!("{step}: {r}")));
+        self.notes
+            .extend(done.report.into_iter().map(|r| format!("{step}: {r}")));
         self.steps.push(StepTime {
             step: step.into(),
             frames: spec.frames,

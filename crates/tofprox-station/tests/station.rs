@@ -58,7 +58,12 @@ fn dark_sigma_from_recording(out: &Path) -> f64 {
 #[test]
 fn emulated_module_passes_and_reads_the_check_wall() {
     let t = tempfile::tempdir().unwrap();
-    let r = run(Line::Module, "module.toml", EmulatedConfig::default(), t.path());
+    let r = run(
+        Line::Module,
+        "module.toml",
+        EmulatedConfig::default(),
+        t.path(),
+    );
     assert!(r.passed, "{:#?}", r.checks);
     assert!(r.complete && r.failed_parts().is_empty());
     let set = CalibrationSet::load(&t.path().join("calib")).unwrap();
@@ -75,7 +80,10 @@ fn emulated_module_passes_and_reads_the_check_wall() {
     // the FPN σ the station reports is that of the dark image it recorded (emulated: 34 LSB)
     let fpn = figure(&r, "offset", "FPN σ");
     let independent = dark_sigma_from_recording(t.path());
-    assert!((fpn - independent).abs() < 0.01 * independent, "{fpn} vs {independent}");
+    assert!(
+        (fpn - independent).abs() < 0.01 * independent,
+        "{fpn} vs {independent}"
+    );
     assert!((25.0..45.0).contains(&fpn), "{fpn}");
     assert!((5.0..30.0).contains(&figure(&r, "wiggling_2phase", "wiggling")));
     assert!((0.05..0.15).contains(&figure(&r, "amplitude", "median K")));
@@ -83,9 +91,17 @@ fn emulated_module_passes_and_reads_the_check_wall() {
     // steps in the documented order, each within the eye-safe exposure, device time counted
     let steps: Vec<&str> = r.steps.iter().map(|s| s.step.as_str()).collect();
     assert_eq!(steps, ["dark", "wiggling", "fppn", "check"]);
-    assert!(r.steps.iter().all(|s| s.exposure_us <= 500.0 && s.device_s > 0.0));
+    assert!(
+        r.steps
+            .iter()
+            .all(|s| s.exposure_us <= 500.0 && s.device_s > 0.0)
+    );
     let sum: f64 = r.steps.iter().map(|s| s.device_s).sum();
-    assert!(r.device_s >= sum - 1e-9 && r.device_s > 0.1, "{} {sum}", r.device_s);
+    assert!(
+        r.device_s >= sum - 1e-9 && r.device_s > 0.1,
+        "{} {sum}",
+        r.device_s
+    );
     // the reports
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(t.path().join("report.json")).unwrap())
@@ -99,7 +115,12 @@ fn emulated_module_passes_and_reads_the_check_wall() {
 #[test]
 fn phone_line_measures_the_window_and_a_window_three_times_the_limit_fails_crosstalk() {
     let t = tempfile::tempdir().unwrap();
-    let clean = run(Line::Phone, "phone.toml", phone_device(), &t.path().join("clean"));
+    let clean = run(
+        Line::Phone,
+        "phone.toml",
+        phone_device(),
+        &t.path().join("clean"),
+    );
     assert!(clean.passed, "{:#?}", clean.checks);
     let steps: Vec<&str> = clean.steps.iter().map(|s| s.step.as_str()).collect();
     assert_eq!(steps, ["dark", "crosstalk", "wiggling", "fppn", "check"]);
@@ -119,7 +140,10 @@ fn phone_line_measures_the_window_and_a_window_three_times_the_limit_fails_cross
     assert!(!bad.passed);
     assert_eq!(bad.failed_parts(), ["crosstalk"], "{:#?}", bad.checks);
     let xt_bad = figure(&bad, "crosstalk", "cover-window");
-    assert!((xt_bad / limit - 3.0).abs() < 0.15, "{xt_bad} vs limit {limit}");
+    assert!(
+        (xt_bad / limit - 3.0).abs() < 0.15,
+        "{xt_bad} vs limit {limit}"
+    );
     let html = std::fs::read_to_string(t.path().join("bad/report.html")).unwrap();
     assert!(html.contains("FAIL: crosstalk"));
 }
@@ -140,10 +164,16 @@ fn station_files_are_checked() {
         text[at..].replacen("exposure_us = 500.0", "exposure_us = 4000.0", 1)
     );
     let e = err(long);
-    assert!(e.contains("captures.fppn.exposure_us") && e.contains("eye safety"), "{e}");
+    assert!(
+        e.contains("captures.fppn.exposure_us") && e.contains("eye safety"),
+        "{e}"
+    );
     // a target that does not fill the field of view
     let e = err(text.replace("size_m = [1.5, 1.1]", "size_m = [1.0, 0.8]"));
-    assert!(e.contains("targets.wall.size_m") && e.contains("field of view"), "{e}");
+    assert!(
+        e.contains("targets.wall.size_m") && e.contains("field of view"),
+        "{e}"
+    );
     // the line asked must be the station's
     let s = Station::parse(&text, &path).unwrap();
     let t = tempfile::tempdir().unwrap();

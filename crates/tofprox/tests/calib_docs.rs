@@ -155,7 +155,10 @@ fn calibration_docs_blocks_run_as_written_and_leave_the_tree_clean() {
     }
     assert!(last.contains("complete         yes"), "{last}");
     assert!(last.contains("σ 33.7060 LSB"), "{last}");
-    assert!(last.contains("wiggling peak-to-peak") || last.contains("0.6204 rad (185.0 mm)"), "{last}");
+    assert!(
+        last.contains("wiggling peak-to-peak") || last.contains("0.6204 rad (185.0 mm)"),
+        "{last}"
+    );
     // it builds the shipped set: the same arrays
     let built = part_checksums(Path::new("/tmp/tofprox-calib/example"));
     assert_eq!(built, part_checksums(&repo().join("calib/example")));
@@ -205,13 +208,26 @@ fn station_on_the_emulated_module_passes_and_a_bad_window_fails_crosstalk() {
     let p = |x: &Path| x.to_str().unwrap().to_string();
     let module = t.path().join("module");
     let o = tofprox(&[
-        "calibrate", "station", "--line", "module", "--station", "config/station/module.toml",
-        "--out", &p(&module), "--emulated", "--rows", "78,16",
+        "calibrate",
+        "station",
+        "--line",
+        "module",
+        "--station",
+        "config/station/module.toml",
+        "--out",
+        &p(&module),
+        "--emulated",
+        "--rows",
+        "78,16",
     ]);
     assert_eq!(o.status.code(), Some(0), "{}", text(&o));
     assert!(text(&o).contains("\nPASS\n"), "{}", text(&o));
     let out = tofprox(&["info", &p(&module.join("calib"))]);
-    assert!(text(&out).contains("complete         yes"), "{}", text(&out));
+    assert!(
+        text(&out).contains("complete         yes"),
+        "{}",
+        text(&out)
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(module.join("report.json")).unwrap())
             .unwrap();
@@ -231,8 +247,19 @@ fn station_on_the_emulated_module_passes_and_a_bad_window_fails_crosstalk() {
     std::fs::write(&dev_path, dev).unwrap();
     let phone = t.path().join("phone");
     let o = tofprox(&[
-        "calibrate", "station", "--line", "phone", "--station", "config/station/phone.toml",
-        "--out", &p(&phone), "--emulated", "--config", &p(&dev_path), "--rows", "78,16",
+        "calibrate",
+        "station",
+        "--line",
+        "phone",
+        "--station",
+        "config/station/phone.toml",
+        "--out",
+        &p(&phone),
+        "--emulated",
+        "--config",
+        &p(&dev_path),
+        "--rows",
+        "78,16",
     ]);
     assert_eq!(o.status.code(), Some(1), "{}", text(&o));
     let s = String::from_utf8_lossy(&o.stderr);
@@ -245,9 +272,20 @@ fn station_on_the_emulated_module_passes_and_a_bad_window_fails_crosstalk() {
     assert!(line.trim_start().starts_with("FAIL"), "{line}");
     // the wrong line for the station file is an error (exit 2), not a failed module
     let o = tofprox(&[
-        "calibrate", "station", "--line", "phone", "--station", "config/station/module.toml",
-        "--out", &p(&t.path().join("x")), "--emulated",
+        "calibrate",
+        "station",
+        "--line",
+        "phone",
+        "--station",
+        "config/station/module.toml",
+        "--out",
+        &p(&t.path().join("x")),
+        "--emulated",
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", text(&o));
-    assert!(text(&o).contains("the station is for the module line"), "{}", text(&o));
+    assert!(
+        text(&o).contains("the station is for the module line"),
+        "{}",
+        text(&o)
+    );
 }

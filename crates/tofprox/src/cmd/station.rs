@@ -76,7 +76,9 @@ pub fn calibrate(c: CalibrateCli) -> anyhow::Result<ExitCode> {
     match (c.station, c.extract) {
         (Some(CalibrateCommand::Station(a)), _) => station(a),
         (None, Some(a)) => super::calibrate::calibrate(a),
-        (None, None) => anyhow::bail!("tofprox calibrate: give a part and a recording, or `station`"),
+        (None, None) => {
+            anyhow::bail!("tofprox calibrate: give a part and a recording, or `station`")
+        }
     }
 }
 
@@ -118,7 +120,10 @@ fn station(a: StationArgs) -> anyhow::Result<ExitCode> {
         if report.complete {
             eprintln!("error: the module failed: {}", failed.join(", "));
         } else {
-            eprintln!("error: the set is not complete; failed: {}", failed.join(", "));
+            eprintln!(
+                "error: the set is not complete; failed: {}",
+                failed.join(", ")
+            );
         }
         Ok(ExitCode::from(1))
     }
