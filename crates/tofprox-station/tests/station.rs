@@ -185,3 +185,29 @@ fn station_files_are_checked() {
     let cut = phone.replace("[targets.absorber]", "[unused]");
     assert!(err(cut).contains("unused"));
 }
+
+#[test]
+fn a_read_out_with_three_times_the_fixed_pattern_fails_the_offset() {
+    // the baseline model with the pixels' dark-level spread tripled (29 → 90 LSB)
+    let t = tempfile::tempdir().unwrap();
+    let model = std::fs::read_to_string(repo().join("config/model/baseline.toml"))
+        .unwrap()
+        .replace("pixel_sigma_lsb = 29.0", "pixel_sigma_lsb = 90.0");
+    let path = t.path().join("noisy-readout.toml");
+    std::fs::write(&path, model).unwrap();
+    let dev = EmulatedConfig {
+        model: Some(path),
+        ..EmulatedConfig::default()
+    };
+    let r = run(Line::Module, "module.toml", dev, &t.path().join("out"));
+    assert_eq!(r.failed_parts(), ["offset"], "{:#?}", r.checks);
+    let fpn = figure(&r, "offset", "FPN σ");
+    let independent = dark_sigma_from_recording(&t.path().join("out"));
+    assert!((fpn - independent).abs() < 0.01 * independent);
+    // √(8² + 15² + 90² + …) ≈ 92 LSB against the limit of 60
+    assert!((80.0..105.0).contains(&fpn), "{fpn}");
+    // the depth is still right: the offset is subtracted, the module is out of spec
+    for c in &r.check_readings {
+        assert!(c.error_mm.unwrap().abs() < 2.0, "{c:?}");
+    }
+}
