@@ -22,8 +22,9 @@ struct Cli {
 enum Command {
     /// Summarise a recording (captures by mode/exposure/conditions, saturation share).
     Info(cmd::info::InfoArgs),
-    /// Extract a calibration part from a recording (intrinsics, fpn, wiggling, fppn, crosstalk).
-    Calibrate(cmd::calibrate::CalibrateArgs),
+    /// Extract a calibration part (intrinsics, fpn, crosstalk, wiggling, fppn) from a recording,
+    /// or calibrate a module on the production line (`calibrate station`).
+    Calibrate(cmd::station::CalibrateCli),
     /// Process a recording's captures to depth and amplitude.
     Process(cmd::process::ProcessArgs),
     /// Simulate recordings with the physical model.
@@ -75,7 +76,7 @@ fn main() -> ExitCode {
     tofproxd::logging::init_logging(filter);
     let result = match cli.command {
         Command::Info(a) => cmd::info::info(a),
-        Command::Calibrate(a) => cmd::calibrate::calibrate(a),
+        Command::Calibrate(a) => cmd::station::calibrate(a),
         Command::Process(a) => cmd::process::process(a),
         Command::Sim(c) => cmd::sim::run_sim(c),
         Command::Model(c) => cmd::sim::run_model(c),

@@ -676,7 +676,9 @@ fn info_on_a_calibration_set() {
     );
     let v = info_json(&calib);
     assert_eq!(v["valid_for"]["adc_bits"], 12);
-    assert_eq!(v["parts"].as_object().unwrap().len(), 5);
+    // complete: offset, both wiggling tables, both FPPN maps and the amplitude scale
+    assert_eq!(v["parts"].as_object().unwrap().len(), 6);
+    assert_eq!(v["complete"], true);
     // the FPN of the example is σ ≈ 34 LSB around the mid code
     let sd = v["parts"]["offset"]["std"].as_f64().unwrap();
     assert!((25.0..45.0).contains(&sd), "{sd}");

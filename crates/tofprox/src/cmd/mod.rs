@@ -11,6 +11,7 @@ pub mod lab_export;
 pub mod live;
 pub mod process;
 pub mod sim;
+pub mod station;
 
 use std::path::Path;
 
