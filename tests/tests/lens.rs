@@ -13,7 +13,8 @@ use tofprox_core::Algorithm;
 use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
-use tofprox_core::camera::{Distortion, Intrinsics, Plane, SweepCapture, calibrate_intrinsics};
+use tofprox_core::camera::{Distortion, Intrinsics, Plane};
+use tofprox_core::lens_fit::{SweepCapture, calibrate_intrinsics};
 use tofprox_core::pipeline::{FLAG_INVALID, Pipeline, PipelineConfig};
 use tofprox_format::{CalibrationSet, PartSource, RawFrames, Recording, RecordingWriter};
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};

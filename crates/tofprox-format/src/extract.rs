@@ -16,11 +16,12 @@ use ndarray::{Array3, Axis};
 use tofprox_core::calib::{
     extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
 };
-use tofprox_core::camera::{
-    Intrinsics, IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+use tofprox_core::camera::Intrinsics;
+use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
+use tofprox_core::lens_fit::{
+    IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
     calibrate_intrinsics_with_wiggling,
 };
-use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::PipelineConfig;
 use tofprox_core::proximity::Roi;
