@@ -191,7 +191,7 @@ pub struct JointLensFit {
 
 /// The lens from 4-phase walls when correlation captures exist at fewer than 3 distances (issue
 /// 25): the wiggling table and the lens fitted jointly, by alternation. The 4-phase wiggling
-/// table ([`crate::calib::extract_wiggling_through_lens`], thesis 3.3.7.2) is extracted from the
+/// table ([`crate::calib::extract_wiggling`] with the rays, thesis 3.3.7.2) is extracted from the
 /// `correlation` capture, at first without a lens (the centre region's median: its pixels are
 /// nearly on-axis), and corrects the 4-phase phase of every capture of `sweep` (their images at
 /// 0°, 90°, 180°, 270°; the correlation capture may be one of them); the lens is fitted to those
@@ -221,16 +221,17 @@ pub fn calibrate_intrinsics_with_wiggling(
     let mut passes = 0;
     loop {
         passes += 1;
-        let wiggling = crate::calib::extract_wiggling_through_lens(
+        let wiggling = crate::calib::extract_wiggling(
             correlation.raw,
-            correlation.phases_deg,
-            None,
-            correlation.distance_m,
-            rays.as_ref(),
-            sensor.modulation_hz,
-            sensor.adc_bits,
-            crate::Algorithm::FourPhase,
-            JOINT_LENS_LUT_SIZE,
+            &crate::calib::ExtractionOptions::new(
+                crate::Algorithm::FourPhase,
+                correlation.phases_deg,
+                correlation.distance_m,
+                sensor.modulation_hz,
+                sensor.adc_bits,
+            )
+            .rays(rays.as_ref())
+            .lut_size(JOINT_LENS_LUT_SIZE),
         )?;
         let fit = fit_sweep(sweep, SweepPhase::WigglingCorrected(&wiggling), &fit_sensor)?;
         let last_change_se = previous.map_or(f64::INFINITY, |p| largest_change_se(&p, &fit));

@@ -953,6 +953,27 @@ mod tests {
     }
 
     #[test]
+    fn the_socket_table_is_checked_and_names_its_key() {
+        let ok = "publisher = \"socket\"\n[socket]\npath = \"/run/x.sock\"\nmode = 0o600\n";
+        let cfg = Config::parse(ok, Path::new("x.toml")).expect("valid");
+        assert_eq!(cfg.publisher, PublisherKind::Socket);
+        assert_eq!(cfg.socket.mode, 0o600);
+        assert_eq!(cfg.socket.path, Path::new("/run/x.sock"));
+        for (text, key) in [
+            ("[socket]\npaht = \"/x\"\n", "paht"),
+            ("[socket]\nmode = 0o1777\n", "socket.mode"),
+            ("[socket]\nmax_clients = 0\n", "socket.max_clients"),
+            ("[socket]\nmax_clients = 257\n", "socket.max_clients"),
+            ("[socket]\nqueue_lines = 0\n", "socket.queue_lines"),
+            ("[socket]\nqueue_lines = 65537\n", "socket.queue_lines"),
+            ("[socket]\npath = \"\"\n", "socket.path"),
+        ] {
+            let err = Config::parse(text, Path::new("x.toml")).unwrap_err();
+            assert!(err.to_string().contains(key), "{text}: {err}");
+        }
+    }
+
+    #[test]
     fn unknown_key_is_named() {
         let err = Config::parse("[loop]\nrate_hzz = 3.0\n", Path::new("x.toml")).unwrap_err();
         assert!(err.to_string().contains("rate_hzz"), "{err}");
