@@ -10,10 +10,9 @@ use ndarray::{Array2, s};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tofprox_core::Algorithm;
-use tofprox_core::calib::{
-    extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
-};
-use tofprox_core::camera::{Distortion, Intrinsics, Plane, SweepCapture, calibrate_intrinsics};
+use tofprox_core::calib::{ExtractionOptions, extract_fppn, extract_offset, extract_wiggling};
+use tofprox_core::camera::{Distortion, Intrinsics, Plane};
+use tofprox_core::lens_fit::{SweepCapture, calibrate_intrinsics};
 use tofprox_core::pipeline::{FLAG_INVALID, Pipeline, PipelineConfig};
 use tofprox_format::{CalibrationSet, PartSource, RawFrames, Recording, RecordingWriter};
 use tofprox_model::{CaptureRequest, ModelConfig, Scene, SensorGeometry, Simulator};
@@ -136,29 +135,21 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
         let flat = &rec.captures()[first_four];
         let flat_data = rec.load(first_four).unwrap().to_f64();
         for alg in Algorithm::ALL {
-            let lut = extract_wiggling_through_lens(
+            let lut = extract_wiggling(
                 data.view(),
-                &c.phases_deg,
-                set.offset.as_ref(),
-                FPPN_AT_M,
-                rays.as_ref(),
-                80e6,
-                12,
-                alg,
-                256,
+                &ExtractionOptions::new(alg, &c.phases_deg, FPPN_AT_M, 80e6, 12)
+                    .offset(set.offset.as_ref())
+                    .rays(rays.as_ref())
+                    .lut_size(256),
             )
             .unwrap();
             set.set_wiggling(lut, src()).unwrap();
-            let fppn = extract_fppn_through_lens(
+            let fppn = extract_fppn(
                 flat_data.view(),
-                &flat.phases_deg,
-                set.offset.as_ref(),
-                set.wiggling(alg),
-                FPPN_AT_M,
-                rays.as_ref(),
-                80e6,
-                12,
-                alg,
+                &ExtractionOptions::new(alg, &flat.phases_deg, FPPN_AT_M, 80e6, 12)
+                    .offset(set.offset.as_ref())
+                    .wiggling(set.wiggling(alg))
+                    .rays(rays.as_ref()),
             )
             .unwrap();
             set.set_fppn_for(alg, fppn, src()).unwrap();

@@ -5,7 +5,7 @@
 //! (includes the global delay) → FPPN (per-pixel residual after that LUT) → depth.
 //!
 //! The order of extraction (thesis 5.1.3, `docs/calibration.md`): lens ([`crate::camera`]) →
-//! offset → wiggling → FPPN. With the lens known, the `*_through_lens` extractions compare each
+//! offset → wiggling → FPPN. With the lens known ([`ExtractionOptions::rays`]), the extractions compare each
 //! pixel with its own ray length to the flat target, so the FPPN map is the electrical per-pixel
 //! delay only, not the lens geometry.
 
@@ -123,6 +123,111 @@ pub fn extract_offset(dark: ArrayView3<f64>) -> Result<OffsetCalibration, CoreEr
     })
 }
 
+/// What a wiggling or FPPN extraction knows besides the capture's raw codes: the evaluation it
+/// is for, the capture's phase shifts, the flat target's distance, the sensor's modulation and
+/// ADC — and, each optional, the corrections it is made through: the dark frame ([`offset`]),
+/// the wiggling table (FPPN only, [`wiggling`]), the lens ([`rays`], thesis 5.1.3), the sensor's
+/// 2-phase pair ([`quadrature`]) and the table's size (wiggling only, [`lut_size`]).
+///
+/// ```
+/// # use tofprox_core::{Algorithm, calib::ExtractionOptions};
+/// # let phases: Vec<f64> = (0..24).map(|i| 15.0 * f64::from(i)).collect();
+/// let options = ExtractionOptions::new(Algorithm::TwoPhase, &phases, 0.5, 80e6, 12).lut_size(256);
+/// # let _ = options;
+/// ```
+///
+/// [`offset`]: ExtractionOptions::offset
+/// [`wiggling`]: ExtractionOptions::wiggling
+/// [`rays`]: ExtractionOptions::rays
+/// [`quadrature`]: ExtractionOptions::quadrature
+/// [`lut_size`]: ExtractionOptions::lut_size
+#[derive(Debug, Clone, Copy)]
+pub struct ExtractionOptions<'a> {
+    algorithm: Algorithm,
+    phases_deg: &'a [f64],
+    distance_m: f64,
+    modulation_hz: f64,
+    adc_bits: u8,
+    offset: Option<&'a OffsetCalibration>,
+    wiggling: Option<&'a WigglingLut>,
+    rays: Option<&'a RayGrid>,
+    quadrature: Quadrature,
+    lut_size: usize,
+}
+
+/// Bins of a wiggling table unless [`ExtractionOptions::lut_size`] says otherwise.
+pub const DEFAULT_LUT_SIZE: usize = 256;
+
+impl<'a> ExtractionOptions<'a> {
+    /// For `algorithm`, a capture at `phases_deg` of a flat target at `distance_m`
+    /// (perpendicular to the optical axis), of a sensor at `modulation_hz` with `adc_bits`;
+    /// no dark frame (the mid code is subtracted), no wiggling table, no lens, the standard
+    /// 2-phase pair, [`DEFAULT_LUT_SIZE`] bins.
+    pub fn new(
+        algorithm: Algorithm,
+        phases_deg: &'a [f64],
+        distance_m: f64,
+        modulation_hz: f64,
+        adc_bits: u8,
+    ) -> Self {
+        Self {
+            algorithm,
+            phases_deg,
+            distance_m,
+            modulation_hz,
+            adc_bits,
+            offset: None,
+            wiggling: None,
+            rays: None,
+            quadrature: Quadrature::STANDARD,
+            lut_size: DEFAULT_LUT_SIZE,
+        }
+    }
+
+    /// The dark frame to subtract (`None`: the mid code `2^(adc_bits-1)`).
+    pub fn offset(mut self, offset: impl Into<Option<&'a OffsetCalibration>>) -> Self {
+        self.offset = offset.into();
+        self
+    }
+
+    /// FPPN: the wiggling table the phases are corrected with first (not used by the
+    /// wiggling extraction).
+    pub fn wiggling(mut self, wiggling: impl Into<Option<&'a WigglingLut>>) -> Self {
+        self.wiggling = wiggling.into();
+        self
+    }
+
+    /// After lens correction (thesis 5.1.3): the window's rays, so each pixel sees the flat
+    /// target at its ray length `d / cos θ` ([`RayGrid::ray_lengths_m`]), not at `d`.
+    /// Wiggling: each pixel's correlation is shifted back by its geometric phase excess
+    /// `Δφ = 4πf (len − d) / c` (Fourier coefficient `X_h · e^{i h Δφ}`) before the median
+    /// over the centre, so the table is the correlation of an on-axis pixel at `d` and holds
+    /// the global delay without the lens geometry. FPPN: each pixel's expected phase is that
+    /// of its own ray, `4πf · d / (c cos θ)`, so the map holds only the electrical per-pixel
+    /// delay — without rays it also stores the lens geometry (decimetres at the corners of a
+    /// wide lens) as if it were phase noise.
+    pub fn rays(mut self, rays: impl Into<Option<&'a RayGrid>>) -> Self {
+        self.rays = rays.into();
+        self
+    }
+
+    /// The sensor's 2-phase pair (e.g. `[0°, 270°]` for one that shifts its illumination,
+    /// [`crate::phasor::PhaseConvention`]): with harmonics in the correlation,
+    /// `g(φ − 270°) ≠ −g(φ − 90°)`, so the 2-phase wiggling depends on which pair the sensor
+    /// takes (eq. 2.2 with the signs of [`Quadrature`]); an FPPN capture must hold those
+    /// shifts. 4-phase is the same for every quadrature (eq. 2.3 uses all four).
+    pub fn quadrature(mut self, quadrature: Quadrature) -> Self {
+        self.quadrature = quadrature;
+        self
+    }
+
+    /// Wiggling: the number of bins over the measured phase (≥ 8).
+    pub fn lut_size(mut self, lut_size: usize) -> Self {
+        self.lut_size = lut_size;
+        self
+    }
+}
+
 /// Extracts a wiggling LUT from an N-phase correlation capture (thesis 3.3.6 / 3.3.7.2 / 4.3.2.2).
 ///
 /// * `correlation`: `(N, rows, cols)` raw codes, `N ≥ 4` images at equally spaced `phases_deg`
@@ -140,81 +245,24 @@ pub fn extract_offset(dark: ArrayView3<f64>) -> Result<OffsetCalibration, CoreEr
 /// `φ0 - s` with `φ0 = 4π f d0 / c`, and `correction = m - true` (continuous). The monotone map
 /// `s → m(s)` is inverted by linear interpolation to tabulate the correction over measured-phase
 /// bins. Anchoring to `φ0` puts the global delay of driver and cabling into the table.
-#[allow(clippy::too_many_arguments)]
+///
+/// The capture's phases, distance, sensor and corrections are `options`'s ([`ExtractionOptions`]).
 pub fn extract_wiggling(
     correlation: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    distance_m: f64,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
-    lut_size: usize,
+    options: &ExtractionOptions<'_>,
 ) -> Result<WigglingLut, CoreError> {
-    extract_wiggling_through_lens(
-        correlation,
+    let ExtractionOptions {
+        algorithm,
         phases_deg,
-        offset,
         distance_m,
-        None,
         modulation_hz,
         adc_bits,
-        algorithm,
-        lut_size,
-    )
-}
-
-/// [`extract_wiggling`] after lens correction (thesis 5.1.3): with the window's `rays`, the flat
-/// target at `distance_m` (perpendicular to the optical axis) is seen by each pixel at its ray
-/// length `d / cos θ` ([`RayGrid::ray_lengths_m`]), not at `d`. Each pixel's correlation is shifted
-/// back by its geometric phase excess `Δφ = 4πf (len − d) / c` (Fourier coefficient `X_h · e^{i h
-/// Δφ}`) before the median over the centre, so the table is the correlation of an on-axis pixel
-/// at `d` and holds the global delay without the lens geometry. Without `rays` it is
-/// [`extract_wiggling`].
-#[allow(clippy::too_many_arguments)]
-pub fn extract_wiggling_through_lens(
-    correlation: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    distance_m: f64,
-    rays: Option<&RayGrid>,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
-    lut_size: usize,
-) -> Result<WigglingLut, CoreError> {
-    extract_wiggling_for(
-        correlation,
-        phases_deg,
         offset,
-        distance_m,
         rays,
-        modulation_hz,
-        adc_bits,
-        algorithm,
-        Quadrature::STANDARD,
+        quadrature,
         lut_size,
-    )
-}
-
-/// [`extract_wiggling_through_lens`] for a sensor whose 2-phase pair has the canonical shifts
-/// of `quadrature` (e.g. `[0°, 270°]` for one that shifts its illumination,
-/// [`crate::phasor::PhaseConvention`]): with harmonics in the correlation, `g(φ − 270°) ≠
-/// −g(φ − 90°)`, so the 2-phase wiggling depends on which pair the sensor takes (eq. 2.2 with the
-/// signs of [`Quadrature`]). 4-phase is the same for every quadrature (eq. 2.3 uses all four).
-#[allow(clippy::too_many_arguments)]
-pub fn extract_wiggling_for(
-    correlation: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    distance_m: f64,
-    rays: Option<&RayGrid>,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
-    quadrature: Quadrature,
-    lut_size: usize,
-) -> Result<WigglingLut, CoreError> {
+        wiggling: _,
+    } = *options;
     let (_, rows, cols) = correlation.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
     let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;
@@ -442,77 +490,25 @@ fn tabulate_over_measured_phase(mu: &[f64], corr: &[f64], lut_size: usize) -> Ve
 /// are consistent for every pixel (re-centring on the whole-array median would re-introduce a
 /// global offset whenever the array median differs from the centre's). Pixels that are saturated,
 /// non-finite or without signal get 0.
-#[allow(clippy::too_many_arguments)]
+///
+/// The capture's phases, distance, sensor and corrections are `options`'s ([`ExtractionOptions`]; its
+/// `lut_size` is not used).
 pub fn extract_fppn(
     capture: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    wiggling: Option<&WigglingLut>,
-    distance_m: f64,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
+    options: &ExtractionOptions<'_>,
 ) -> Result<FppnMap, CoreError> {
-    extract_fppn_through_lens(
-        capture,
+    let ExtractionOptions {
+        algorithm,
         phases_deg,
-        offset,
-        wiggling,
         distance_m,
-        None,
         modulation_hz,
         adc_bits,
-        algorithm,
-    )
-}
-
-/// [`extract_fppn`] after lens correction (thesis 5.1.3: "it is necessary to apply FPPN
-/// compensation after lens-corrections"): with the window's `rays`, each pixel's expected phase is
-/// that of its own ray length to the flat target at `distance_m` (perpendicular to the optical
-/// axis), `4πf · d / (c cos θ)`, so the map holds only the electrical per-pixel delay. Without
-/// `rays` every pixel is compared with `4πf · d / c` and the map also stores the lens geometry
-/// (decimetres at the corners of a wide lens) as if it were phase noise.
-#[allow(clippy::too_many_arguments)]
-pub fn extract_fppn_through_lens(
-    capture: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    wiggling: Option<&WigglingLut>,
-    distance_m: f64,
-    rays: Option<&RayGrid>,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
-) -> Result<FppnMap, CoreError> {
-    extract_fppn_for(
-        capture,
-        phases_deg,
         offset,
         wiggling,
-        distance_m,
         rays,
-        modulation_hz,
-        adc_bits,
-        algorithm,
-        Quadrature::STANDARD,
-    )
-}
-
-/// [`extract_fppn_through_lens`] evaluating 2-phase with the pair of `quadrature` (the sensor's
-/// own 2-phase pair, as [`extract_wiggling_for`]); the capture must hold those shifts.
-#[allow(clippy::too_many_arguments)]
-pub fn extract_fppn_for(
-    capture: ArrayView3<f64>,
-    phases_deg: &[f64],
-    offset: Option<&OffsetCalibration>,
-    wiggling: Option<&WigglingLut>,
-    distance_m: f64,
-    rays: Option<&RayGrid>,
-    modulation_hz: f64,
-    adc_bits: u8,
-    algorithm: Algorithm,
-    quadrature: Quadrature,
-) -> Result<FppnMap, CoreError> {
+        quadrature,
+        lut_size: _,
+    } = *options;
     let (k, rows, cols) = capture.dim();
     check_common(distance_m, modulation_hz, adc_bits)?;
     let excess = geometric_excess_rad(rays, rows, cols, distance_m, modulation_hz)?;

@@ -5,7 +5,7 @@
 //! window's return does not depend on the scene and scales with exposure and illumination power,
 //! so per pixel and raw image it is a constant rate of ADC codes per µs of exposure. Measured once
 //! with nothing in range ([`extract_crosstalk`]), it is subtracted from the raw codes before phase
-//! and amplitude (the pipeline's offset stage, [`crate::pipeline::Calibration::crosstalk`]) — the
+//! and amplitude (the pipeline's offset stage, its `Calibration::crosstalk`) — the
 //! stray-light correction step of the thesis's processing chain (3.1, fig. 3.1).
 //!
 //! A smudge on the window changes the crosstalk after calibration. What is left after the
@@ -650,7 +650,7 @@ impl CrosstalkMonitor {
     }
 
     /// The crosstalk scale that would cancel the residual: `1 + average` (for
-    /// [`crate::pipeline::Pipeline::set_crosstalk_scale`] when the application chooses to
+    /// the pipeline's `Pipeline::set_crosstalk_scale` when the application chooses to
     /// tolerate a changed window instead of only reporting it); 1 before any reading.
     pub fn suggested_scale(&self) -> f32 {
         (1.0 + self.average).max(0.0)

@@ -13,6 +13,8 @@
 //!   amplitude, validity, depth), vectorised and allocation-free in the steady state.
 //! - [`camera`]: the lens (pinhole + Brown–Conrady distortion): pixel rays, ray length to a plane,
 //!   radial → Z depth, point clouds (thesis 5.1.3).
+//! - [`lens_fit`]: the lens calibration: intrinsics fitted to a flat-wall sweep (alone, or jointly
+//!   with a correlation capture's wiggling table), with standard errors.
 //! - [`lsq`]: least squares for small parameter vectors: normal equations, Cholesky and the one
 //!   Levenberg–Marquardt solver (the lens fit, the model lab's fits).
 //! - `simd` (private): the instruction sets of the pipeline's kernel ([`SimdLevel`]), the
@@ -36,6 +38,7 @@ pub mod camera;
 pub mod crosstalk;
 mod error;
 pub mod frame;
+pub mod lens_fit;
 pub mod lsq;
 pub mod phasor;
 pub mod pipeline;

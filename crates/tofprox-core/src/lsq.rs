@@ -1,5 +1,5 @@
 //! Least squares for small parameter vectors: normal equations, a Cholesky solve and the one
-//! Levenberg–Marquardt solver of the workspace (the lens fit in [`crate::camera`], the model
+//! Levenberg–Marquardt solver of the workspace (the lens fit, the model
 //! lab's fits).
 //!
 //! Every fit here has at most a few dozen parameters, and its data are reduced to the normal

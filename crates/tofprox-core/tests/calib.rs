@@ -60,7 +60,11 @@ fn sinusoidal_correlation_gives_constant_lut_equal_to_global_delay() {
     let phi0 = distance_to_phase_rad(d0, F);
     let corr = capture(8, 8, &phases24(), phi0 + delay, |_, _| 0.0, 0.0);
     for algo in Algorithm::ALL {
-        let lut = extract_wiggling(corr.view(), &phases24(), None, d0, F, 12, algo, 64).unwrap();
+        let lut = extract_wiggling(
+            corr.view(),
+            &ExtractionOptions::new(algo, &phases24(), d0, F, 12).lut_size(64),
+        )
+        .unwrap();
         assert_eq!(lut.len(), 64);
         assert_eq!(lut.algorithm, algo);
         for &c in lut.correction_rad.iter() {
@@ -86,8 +90,11 @@ fn lut_inverts_a_distorted_correlation_for_any_capture_distance() {
         let phi0 = distance_to_phase_rad(d0, F);
         let corr = capture(4, 4, &phases24(), phi0 + delay, |_, _| 0.0, 0.08);
         for algo in Algorithm::ALL {
-            let lut =
-                extract_wiggling(corr.view(), &phases24(), None, d0, F, 12, algo, 256).unwrap();
+            let lut = extract_wiggling(
+                corr.view(),
+                &ExtractionOptions::new(algo, &phases24(), d0, F, 12).lut_size(256),
+            )
+            .unwrap();
             for i in 0..97 {
                 let true_tof = TAU * i as f64 / 97.0;
                 let target = capture(1, 1, algo.phases_deg(), true_tof + delay, |_, _| 0.0, 0.08);
@@ -137,7 +144,10 @@ fn wiggling_rejects_bad_input() {
     let p = phases24();
     let corr = capture(4, 4, &p, 1.0, |_, _| 0.0, 0.0);
     let ok = |c: &Array3<f64>, ph: &[f64], d: f64, n: usize| {
-        extract_wiggling(c.view(), ph, None, d, F, 12, Algorithm::TwoPhase, n)
+        extract_wiggling(
+            c.view(),
+            &ExtractionOptions::new(Algorithm::TwoPhase, ph, d, F, 12).lut_size(n),
+        )
     };
     assert!(ok(&corr, &p, 0.5, 64).is_ok());
     assert!(matches!(
@@ -175,17 +185,19 @@ fn wiggling_rejects_bad_input() {
     assert!(
         extract_wiggling(
             corr.view(),
-            &p,
-            Some(&off),
-            0.5,
-            F,
-            12,
-            Algorithm::TwoPhase,
-            64
+            &ExtractionOptions::new(Algorithm::TwoPhase, &p, 0.5, F, 12)
+                .offset(&off)
+                .lut_size(64)
         )
         .is_err()
     );
-    assert!(extract_wiggling(corr.view(), &p, None, 0.5, F, 0, Algorithm::TwoPhase, 64).is_err());
+    assert!(
+        extract_wiggling(
+            corr.view(),
+            &ExtractionOptions::new(Algorithm::TwoPhase, &p, 0.5, F, 0).lut_size(64)
+        )
+        .is_err()
+    );
 }
 
 #[test]
@@ -200,7 +212,11 @@ fn fppn_is_per_pixel_residual_after_lut_and_pipeline_removes_it() {
     let phi0 = distance_to_phase_rad(d0, F);
     for algo in Algorithm::ALL {
         let corr = capture(rows, cols, &phases24(), phi0 + delay, delta, 0.05);
-        let lut = extract_wiggling(corr.view(), &phases24(), None, d0, F, 12, algo, 512).unwrap();
+        let lut = extract_wiggling(
+            corr.view(),
+            &ExtractionOptions::new(algo, &phases24(), d0, F, 12).lut_size(512),
+        )
+        .unwrap();
         let flat = capture(
             rows,
             cols,
@@ -211,13 +227,7 @@ fn fppn_is_per_pixel_residual_after_lut_and_pipeline_removes_it() {
         );
         let fppn = extract_fppn(
             flat.view(),
-            &[0.0, 90.0, 180.0, 270.0],
-            None,
-            Some(&lut),
-            d0,
-            F,
-            12,
-            algo,
+            &ExtractionOptions::new(algo, &[0.0, 90.0, 180.0, 270.0], d0, F, 12).wiggling(&lut),
         )
         .unwrap();
         for r in 0..rows {
@@ -283,13 +293,7 @@ fn fppn_is_per_pixel_residual_after_lut_and_pipeline_removes_it() {
     assert!(matches!(
         extract_fppn(
             flat.view(),
-            &[0.0, 180.0],
-            None,
-            None,
-            0.5,
-            F,
-            12,
-            Algorithm::TwoPhase
+            &ExtractionOptions::new(Algorithm::TwoPhase, &[0.0, 180.0], 0.5, F, 12)
         ),
         Err(CoreError::InvalidPhases { .. })
     ));
@@ -308,7 +312,11 @@ fn lut_from_any_equally_spaced_phase_count() {
             .collect();
         let corr = capture(4, 4, &phases, phi0 + delay, |_, _| 0.0, 0.06);
         for algo in Algorithm::ALL {
-            let lut = extract_wiggling(corr.view(), &phases, None, d0, F, 12, algo, 128).unwrap();
+            let lut = extract_wiggling(
+                corr.view(),
+                &ExtractionOptions::new(algo, &phases, d0, F, 12).lut_size(128),
+            )
+            .unwrap();
             for i in 0..41 {
                 let true_tof = TAU * i as f64 / 41.0;
                 let t = capture(1, 1, algo.phases_deg(), true_tof + delay, |_, _| 0.0, 0.06);
@@ -372,27 +380,14 @@ fn fppn_after_lens_correction_is_the_electrical_delay_only() {
         let x = distance_to_phase_rad(len[(r, c)], F) + delay(r, c) - phases[kk].to_radians();
         2048.0 + 600.0 * x.cos()
     });
-    let lens = extract_fppn_through_lens(
+    let lens = extract_fppn(
         cap.view(),
-        &phases,
-        None,
-        None,
-        d0,
-        Some(&rays),
-        F,
-        12,
-        Algorithm::FourPhase,
+        &ExtractionOptions::new(Algorithm::FourPhase, &phases, d0, F, 12).rays(&rays),
     )
     .unwrap();
     let plain = extract_fppn(
         cap.view(),
-        &phases,
-        None,
-        None,
-        d0,
-        F,
-        12,
-        Algorithm::FourPhase,
+        &ExtractionOptions::new(Algorithm::FourPhase, &phases, d0, F, 12),
     )
     .unwrap();
     let mm_per_rad = 1000.0 * tofprox_core::phasor::unambiguous_range_m(F) / TAU;
@@ -410,35 +405,23 @@ fn fppn_after_lens_correction_is_the_electrical_delay_only() {
     // Rays of another window are refused.
     let small = k.rays(0, 0, 10, 10).unwrap();
     assert!(
-        extract_fppn_through_lens(
+        extract_fppn(
             cap.view(),
-            &phases,
-            None,
-            None,
-            d0,
-            Some(&small),
-            F,
-            12,
-            Algorithm::FourPhase,
+            &ExtractionOptions::new(Algorithm::FourPhase, &phases, d0, F, 12).rays(&small)
         )
         .is_err()
     );
     // Wiggling through the lens: a pure sinusoid gives the constant global delay (here 0) even
     // though the centre pixels see the wall further away than d0.
-    let lut = extract_wiggling_through_lens(
+    let lut = extract_wiggling(
         Array3::from_shape_fn((24, rows, cols), |(kk, r, c)| {
             let x = distance_to_phase_rad(len[(r, c)], F) - (15.0 * kk as f64).to_radians();
             2048.0 + 600.0 * x.cos()
         })
         .view(),
-        &phases24(),
-        None,
-        d0,
-        Some(&rays),
-        F,
-        12,
-        Algorithm::FourPhase,
-        64,
+        &ExtractionOptions::new(Algorithm::FourPhase, &phases24(), d0, F, 12)
+            .rays(&rays)
+            .lut_size(64),
     )
     .unwrap();
     let max = lut
@@ -479,28 +462,16 @@ fn wiggling_is_extracted_for_the_sensors_own_two_phase_pair() {
             y_sign: 1,
         },
     ] {
-        let own = extract_wiggling_for(
+        let own = extract_wiggling(
             corr.view(),
-            &phases24(),
-            None,
-            d0,
-            None,
-            F,
-            12,
-            Algorithm::TwoPhase,
-            q,
-            256,
+            &ExtractionOptions::new(Algorithm::TwoPhase, &phases24(), d0, F, 12)
+                .quadrature(q)
+                .lut_size(256),
         )
         .unwrap();
         let standard = extract_wiggling(
             corr.view(),
-            &phases24(),
-            None,
-            d0,
-            F,
-            12,
-            Algorithm::TwoPhase,
-            256,
+            &ExtractionOptions::new(Algorithm::TwoPhase, &phases24(), d0, F, 12).lut_size(256),
         )
         .unwrap();
         let (a, b) = (

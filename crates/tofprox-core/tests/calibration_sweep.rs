@@ -12,7 +12,7 @@ use ndarray::{Array2, Array3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::f64::consts::TAU;
-use tofprox_core::calib::{extract_offset, extract_wiggling};
+use tofprox_core::calib::{ExtractionOptions, extract_offset, extract_wiggling};
 use tofprox_core::phasor::distance_to_phase_rad;
 use tofprox_core::pipeline::{Calibration, Pipeline, PipelineConfig};
 use tofprox_core::{Algorithm, SPEED_OF_LIGHT_M_PER_S};
@@ -173,13 +173,9 @@ fn run_sweep(noisy: bool) {
     let wiggling = |algorithm| {
         extract_wiggling(
             correlation.view(),
-            &phases24,
-            Some(&offset),
-            corr_distance_m,
-            F_MOD_HZ,
-            ADC_BITS,
-            algorithm,
-            360,
+            &ExtractionOptions::new(algorithm, &phases24, corr_distance_m, F_MOD_HZ, ADC_BITS)
+                .offset(&offset)
+                .lut_size(360),
         )
         .expect("wiggling LUT")
     };

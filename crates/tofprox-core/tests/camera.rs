@@ -178,7 +178,7 @@ fn intrinsics_are_recovered_from_a_flat_wall_sweep() {
     let sweep = wall_phases(&truth, &[0.3, 0.45, 0.6, 0.75, 0.9, 1.05], 2.5);
     let views: Vec<_> = sweep.iter().map(|(d, p)| (*d, p.view())).collect();
     let l = tofprox_core::camera::ray_factors_from_sweep(&views, 80e6).unwrap();
-    let fit = tofprox_core::camera::fit_intrinsics(l.view(), 0, 0).unwrap();
+    let fit = tofprox_core::lens_fit::fit_intrinsics(l.view(), 0, 0).unwrap();
     // What matters: every pixel's ray (and so its ray length) is right.
     let got = fit.intrinsics.rays(0, 0, 172, 224).unwrap();
     let want = truth.rays(0, 0, 172, 224).unwrap();

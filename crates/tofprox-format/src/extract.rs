@@ -13,14 +13,13 @@
 use std::path::{Path, PathBuf};
 
 use ndarray::{Array3, Axis};
-use tofprox_core::calib::{
-    extract_fppn_through_lens, extract_offset, extract_wiggling_through_lens,
-};
-use tofprox_core::camera::{
-    Intrinsics, IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
+use tofprox_core::calib::{ExtractionOptions, extract_fppn, extract_offset, extract_wiggling};
+use tofprox_core::camera::Intrinsics;
+use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
+use tofprox_core::lens_fit::{
+    IntrinsicsFit, MIN_HARMONIC_FREE_PHASES, SweepCapture, calibrate_intrinsics,
     calibrate_intrinsics_with_wiggling,
 };
-use tofprox_core::crosstalk::{CrosstalkCapture, extract_crosstalk};
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_core::pipeline::PipelineConfig;
 use tofprox_core::proximity::Roi;
@@ -393,16 +392,18 @@ impl<'a> Extractor<'a> {
         let mm_per_rad = mm_per_rad(sensor.modulation_hz);
         let mut dropped = Vec::new();
         for alg in Algorithm::ALL {
-            let lut = extract_wiggling_through_lens(
+            let lut = extract_wiggling(
                 data.view(),
-                &c.phases_deg,
-                set.offset.as_ref(),
-                d,
-                rays.as_ref(),
-                sensor.modulation_hz,
-                sensor.adc_bits,
-                alg,
-                self.opts.lut_size,
+                &ExtractionOptions::new(
+                    alg,
+                    &c.phases_deg,
+                    d,
+                    sensor.modulation_hz,
+                    sensor.adc_bits,
+                )
+                .offset(set.offset.as_ref())
+                .rays(rays.as_ref())
+                .lut_size(self.opts.lut_size),
             )
             .map_err(core(format!(
                 "extracting the {alg} wiggling table from capture {i}"
@@ -496,16 +497,18 @@ impl<'a> Extractor<'a> {
                     fmt_num(d)
                 ));
             }
-            let map = extract_fppn_through_lens(
+            let map = extract_fppn(
                 data.view(),
-                &c.phases_deg,
-                set.offset.as_ref(),
-                set.wiggling(alg),
-                d,
-                rays.as_ref(),
-                sensor.modulation_hz,
-                sensor.adc_bits,
-                alg,
+                &ExtractionOptions::new(
+                    alg,
+                    &c.phases_deg,
+                    d,
+                    sensor.modulation_hz,
+                    sensor.adc_bits,
+                )
+                .offset(set.offset.as_ref())
+                .wiggling(set.wiggling(alg))
+                .rays(rays.as_ref()),
             )
             .map_err(core(format!(
                 "extracting the {alg} FPPN map from capture {i}"

@@ -132,13 +132,13 @@ fn frame_to_properties_changed(b: Bencher) {
             .await
             .expect("name");
         let (tx, erx) = tokio::sync::mpsc::channel(tofproxd::hub::EVENT_CAPACITY);
-        tokio::spawn(tofproxd::publisher::run_publisher(
-            server.clone(),
+        let dbus =
+            tofproxd::publisher::dbus::DbusPublisher::new(server.clone(), hub.clone(), false);
+        tokio::spawn(tofproxd::publisher::run_publishers(
             hub.clone(),
             erx,
-            false,
+            vec![Box::new(dbus)],
             5.0,
-            None,
         ));
         let client = zbus::connection::Builder::address(addr.as_str())
             .build()

@@ -51,15 +51,20 @@ pub enum Backend {
     V4l2,
 }
 
-/// Where Near is published besides `org.tofprox.Proximity1` (always served: status, claims).
+/// Where the readings are published (`publisher =`; the publishers themselves: the crate's
+/// `publisher` module).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
-pub enum Publisher {
-    /// D-Bus only.
+pub enum PublisherKind {
+    /// D-Bus: `org.tofprox.Proximity1` (status, claims), and `net.hadess.SensorProxy` with
+    /// `[dbus] iio_sensor_proxy_compat`.
     Dbus,
-    /// Also a uinput device reporting `SW_FRONT_PROXIMITY` (iio-sensor-proxy reads it). No
-    /// claim reaches us through an input device, so the loop runs as with `loop.always_on`.
+    /// D-Bus, and a uinput device reporting `SW_FRONT_PROXIMITY` (iio-sensor-proxy reads it).
+    /// No claim reaches us through an input device, so the loop runs as with `loop.always_on`.
     Input,
+    /// JSON Lines on the Unix socket of `[socket]`, and no D-Bus at all: no bus connection is
+    /// made. A connected client is a proximity claim.
+    Socket,
 }
 
 /// Processing mode of a reading: the shared measurement mode [`tofprox_core::Algorithm`]
@@ -72,9 +77,10 @@ pub use tofprox_core::Algorithm as Mode;
 pub struct Config {
     /// `usb`, `emulated`, `replay` or `v4l2`.
     pub backend: Backend,
-    /// Where Near goes besides the native D-Bus interface: `dbus` (nowhere else) or `input`
-    /// (also the switch of a uinput device, for iio-sensor-proxy: [`crate::input`]).
-    pub publisher: Publisher,
+    /// Where the readings go: `dbus` (the native interface only), `input` (also the switch
+    /// of a uinput device, for iio-sensor-proxy) or `socket` (JSON Lines on `[socket] path`,
+    /// no D-Bus).
+    pub publisher: PublisherKind,
     /// Main loop settings.
     #[serde(rename = "loop")]
     pub loop_: LoopConfig,
@@ -92,6 +98,8 @@ pub struct Config {
     pub energy: EnergyConfig,
     /// D-Bus.
     pub dbus: DbusConfig,
+    /// The socket publisher (`publisher = "socket"`).
+    pub socket: SocketConfig,
     /// USB backend.
     pub usb: UsbConfig,
     /// Emulated backend.
@@ -107,7 +115,7 @@ impl Default for Config {
     fn default() -> Self {
         Self {
             backend: Backend::Emulated,
-            publisher: Publisher::Dbus,
+            publisher: PublisherKind::Dbus,
             loop_: LoopConfig::default(),
             processing: ProcessingConfig::default(),
             proximity: ProximityConfig::default(),
@@ -116,6 +124,7 @@ impl Default for Config {
             readout: ReadoutConfig::default(),
             energy: EnergyConfig::default(),
             dbus: DbusConfig::default(),
+            socket: SocketConfig::default(),
             usb: UsbConfig::default(),
             emulated: EmulatedConfig::default(),
             replay: ReplayConfig::default(),
@@ -433,6 +442,72 @@ impl Default for DbusConfig {
     }
 }
 
+/// `[socket]`: the socket publisher (`publisher = "socket"`, docs/daemon.md "The socket
+/// publisher").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SocketConfig {
+    /// The Unix stream socket's path (its directory must exist: systemd's
+    /// `RuntimeDirectory=tofprox` makes `/run/tofprox`).
+    pub path: PathBuf,
+    /// The socket file's permission bits (TOML octal, `0o660`: the daemon's user and group
+    /// may connect; `0o666`: anyone). At most `0o777`.
+    pub mode: u32,
+    /// Most clients connected at once (1–256).
+    pub max_clients: usize,
+    /// Lines queued per client before a client that does not read is disconnected
+    /// (1–65536).
+    pub queue_lines: usize,
+}
+
+impl Default for SocketConfig {
+    fn default() -> Self {
+        Self {
+            path: PathBuf::from("/run/tofprox/proximity.sock"),
+            mode: 0o660,
+            max_clients: 16,
+            queue_lines: 256,
+        }
+    }
+}
+
+/// Most clients `[socket] max_clients` allows.
+pub const SOCKET_MAX_CLIENTS: usize = 256;
+/// Most lines `[socket] queue_lines` allows per client.
+pub const SOCKET_MAX_QUEUE_LINES: usize = 65_536;
+
+impl SocketConfig {
+    /// Range-check the `[socket]` table; the error names the key.
+    fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "socket.path",
+            !self.path.as_os_str().is_empty(),
+            "must not be empty",
+        )?;
+        range(
+            "socket.mode",
+            self.mode <= 0o777,
+            format!("must be permission bits within 0o777, got {:#o}", self.mode),
+        )?;
+        range(
+            "socket.max_clients",
+            (1..=SOCKET_MAX_CLIENTS).contains(&self.max_clients),
+            format!(
+                "must be within 1..={SOCKET_MAX_CLIENTS}, got {}",
+                self.max_clients
+            ),
+        )?;
+        range(
+            "socket.queue_lines",
+            (1..=SOCKET_MAX_QUEUE_LINES).contains(&self.queue_lines),
+            format!(
+                "must be within 1..={SOCKET_MAX_QUEUE_LINES}, got {}",
+                self.queue_lines
+            ),
+        )
+    }
+}
+
 /// `[usb]`
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -586,6 +661,9 @@ impl Config {
             *p = base.join(&*p);
         }
         fix(&mut self.replay.recording);
+        if self.socket.path.is_relative() {
+            self.socket.path = base.join(&self.socket.path);
+        }
     }
 
     /// Range-check every value; the error names the key.
@@ -597,6 +675,7 @@ impl Config {
         self.exposure.validate()?;
         self.energy.validate()?;
         self.dbus.validate()?;
+        self.socket.validate()?;
         if self.backend == Backend::Replay {
             range(
                 "replay.recording",
@@ -875,6 +954,27 @@ mod tests {
         expected.processing.calibration = Some(PathBuf::from("/var/lib/tofprox/calib"));
         expected.processing.require_calibration = true;
         assert_eq!(cfg, expected, "config/tofproxd.toml must list the defaults");
+    }
+
+    #[test]
+    fn the_socket_table_is_checked_and_names_its_key() {
+        let ok = "publisher = \"socket\"\n[socket]\npath = \"/run/x.sock\"\nmode = 0o600\n";
+        let cfg = Config::parse(ok, Path::new("x.toml")).expect("valid");
+        assert_eq!(cfg.publisher, PublisherKind::Socket);
+        assert_eq!(cfg.socket.mode, 0o600);
+        assert_eq!(cfg.socket.path, Path::new("/run/x.sock"));
+        for (text, key) in [
+            ("[socket]\npaht = \"/x\"\n", "paht"),
+            ("[socket]\nmode = 0o1777\n", "socket.mode"),
+            ("[socket]\nmax_clients = 0\n", "socket.max_clients"),
+            ("[socket]\nmax_clients = 257\n", "socket.max_clients"),
+            ("[socket]\nqueue_lines = 0\n", "socket.queue_lines"),
+            ("[socket]\nqueue_lines = 65537\n", "socket.queue_lines"),
+            ("[socket]\npath = \"\"\n", "socket.path"),
+        ] {
+            let err = Config::parse(text, Path::new("x.toml")).unwrap_err();
+            assert!(err.to_string().contains(key), "{text}: {err}");
+        }
     }
 
     #[test]

@@ -20,7 +20,6 @@ use std::fs::File;
 use std::io::Write;
 use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 
 /// `EV_SYN` (linux/input-event-codes.h).
 pub const EV_SYN: u16 = 0x00;
@@ -146,11 +145,30 @@ impl InputPublisher {
     }
 }
 
-/// A [`SwitchDevice`] that keeps what it is sent: the stand-in for uinput where there is none
-/// (the tests; clones share the record).
-#[derive(Debug, Clone, Default)]
-pub struct RecordingDevice(Arc<Mutex<Vec<InputEvent>>>);
+#[async_trait::async_trait]
+impl crate::publisher::Publisher for InputPublisher {
+    fn name(&self) -> &'static str {
+        "input"
+    }
 
+    async fn status(
+        &mut self,
+        change: crate::publisher::StatusChange<'_>,
+    ) -> Result<(), crate::publisher::PublishError> {
+        self.publish(change.after.near).map_err(|e| {
+            crate::publisher::PublishError::new("input (writing Near to the uinput device)", e)
+        })
+    }
+}
+
+/// A [`SwitchDevice`] that keeps what it is sent: the stand-in for uinput where there is none
+/// (the tests; clones share the record). Test machinery: only in the crate's own tests and
+/// with the feature `testing`.
+#[cfg(any(test, feature = "testing"))]
+#[derive(Debug, Clone, Default)]
+pub struct RecordingDevice(std::sync::Arc<std::sync::Mutex<Vec<InputEvent>>>);
+
+#[cfg(any(test, feature = "testing"))]
 impl RecordingDevice {
     /// Every event written so far, in order.
     pub fn events(&self) -> Vec<InputEvent> {
@@ -158,6 +176,7 @@ impl RecordingDevice {
     }
 }
 
+#[cfg(any(test, feature = "testing"))]
 impl SwitchDevice for RecordingDevice {
     fn write_events(&mut self, events: &[InputEvent]) -> std::io::Result<()> {
         self.0

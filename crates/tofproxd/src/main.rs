@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::Parser;
-use tofproxd::config::Config;
+use tofproxd::config::{Config, PublisherKind};
 use tofproxd::run::{BusChoice, Daemon, notify};
 
 /// `tofproxd --version`: whether this binary links the test machinery (the emulated device and
@@ -149,14 +149,23 @@ async fn build_daemon(cfg: &Config, base: &Path, conn: zbus::Connection) -> anyh
 }
 
 async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
-    let conn = tofproxd::run::connect(&bus).await?;
-    let daemon = build_daemon(&cfg, base, conn).await?;
-    tracing::info!(
-        "serving {} on the {:?} bus (compat: {})",
-        tofproxd::service::BUS_NAME,
-        bus,
-        cfg.dbus.iio_sensor_proxy_compat
-    );
+    let daemon = if cfg.publisher == PublisherKind::Socket {
+        // no D-Bus at all: no bus connection is attempted
+        let ctl = tofproxd::run::prepare(&cfg, base)?;
+        let daemon = Daemon::start_without_bus(&cfg, ctl).await?;
+        tracing::info!("serving on {} (no D-Bus)", cfg.socket.path.display());
+        daemon
+    } else {
+        let conn = tofproxd::run::connect(&bus).await?;
+        let daemon = build_daemon(&cfg, base, conn).await?;
+        tracing::info!(
+            "serving {} on the {:?} bus (compat: {})",
+            tofproxd::service::BUS_NAME,
+            bus,
+            cfg.dbus.iio_sensor_proxy_compat
+        );
+        daemon
+    };
     notify::ready("idle: sensor in reset, waiting for a claim");
     let mut stop = StopSignals::new()?;
     let watchdog = notify::watchdog_interval().map(|d| d / 2);

@@ -12,10 +12,13 @@ use tokio::sync::watch;
 use zbus::Connection;
 use zbus::fdo::{RequestNameFlags, RequestNameReply};
 
-use crate::config::{Config, DbusConfig, Publisher};
+use crate::config::{Config, DbusConfig, PublisherKind};
 use crate::controller::Controller;
 use crate::hub::{Demand, EventSender, Hub, State, StatusUpdate, event_channel};
 use crate::input::{DeviceDescription, InputError, InputPublisher, SwitchDevice, UinputDevice};
+use crate::publisher::dbus::DbusPublisher;
+use crate::publisher::socket::{SocketError, SocketPublisher};
+use crate::publisher::{Publisher, Publishers, run_publishers};
 use crate::service::{
     self, COMPAT_BUS_NAME, COMPAT_COMPASS_PATH, COMPAT_PATH, OBJECT_PATH, Proximity,
     ReadOnlyProperties, SensorProxyCompass, SensorProxyCompat,
@@ -78,6 +81,14 @@ pub enum RunError {
         /// "installed (`<path>`)" or "running (it owns net.hadess.SensorProxy)".
         found: String,
     },
+    /// `publisher = "socket"`: the socket cannot be served.
+    #[error("socket publisher: {0}")]
+    Socket(#[from] SocketError),
+    /// Started without a bus, but the configured publisher is D-Bus.
+    #[error(
+        "publisher = \"dbus\" and \"input\" publish on D-Bus: only publisher = \"socket\" runs without a bus"
+    )]
+    NeedsBus,
     /// The input publisher's uinput device could not be made.
     #[error("input publisher: {0}")]
     Input(#[from] InputError),
@@ -298,13 +309,14 @@ impl LoopHealth {
 
 /// A running daemon (for tests and the binary).
 pub struct Daemon {
-    conn: Connection,
+    /// The bus connection (none with [`Daemon::start_without_bus`]).
+    conn: Option<Connection>,
     hub: Arc<Hub>,
     cmd_tx: stdmpsc::Sender<LoopCmd>,
     thread: Option<std::thread::JoinHandle<()>>,
     health: Arc<LoopHealth>,
-    /// The publisher: ends once the loop thread (the only event sender) has ended and every
-    /// event it sent is published.
+    /// The publishing task: ends once the loop thread (the only event sender) has ended and
+    /// every event it sent is published.
     publisher: Option<tokio::task::JoinHandle<()>>,
     tasks: Vec<tokio::task::JoinHandle<()>>,
     compat: bool,
@@ -312,7 +324,9 @@ pub struct Daemon {
 
 impl Daemon {
     /// Serve on `conn`: export the objects, take the names, start the loop; with
-    /// `publisher = "input"` on a uinput device made here ([`crate::input`]).
+    /// `publisher = "input"` also on a uinput device made here ([`crate::input`]), with
+    /// `publisher = "socket"` also on the socket of `[socket]` (the binary starts that one with
+    /// [`Daemon::start_without_bus`] instead: no bus at all).
     pub async fn start<S: FrameSource + 'static>(
         conn: Connection,
         cfg: &Config,
@@ -320,8 +334,8 @@ impl Daemon {
     ) -> Result<Self, RunError> {
         refuse_compat_beside_iio_sensor_proxy(&cfg.dbus)?;
         let input: Option<Box<dyn SwitchDevice>> = match cfg.publisher {
-            Publisher::Dbus => None,
-            Publisher::Input => Some(Box::new(UinputDevice::create(
+            PublisherKind::Dbus | PublisherKind::Socket => None,
+            PublisherKind::Input => Some(Box::new(UinputDevice::create(
                 Path::new(crate::input::UINPUT_PATH),
                 &DeviceDescription::proximity(),
             )?)),
@@ -338,19 +352,58 @@ impl Daemon {
         input: Option<Box<dyn SwitchDevice>>,
     ) -> Result<Self, RunError> {
         refuse_compat_beside_iio_sensor_proxy(&cfg.dbus)?;
+        let input = input.map(|d| Box::new(InputPublisher::new(d)) as Box<dyn Publisher>);
+        Self::launch(Some(conn), cfg, ctl, input).await
+    }
+
+    /// `publisher = "socket"` with no D-Bus at all: no bus connection is made, the readings
+    /// go to the socket's clients only, and a connected client is the proximity claim.
+    pub async fn start_without_bus<S: FrameSource + 'static>(
+        cfg: &Config,
+        ctl: Controller<S>,
+    ) -> Result<Self, RunError> {
+        if cfg.publisher != PublisherKind::Socket {
+            return Err(RunError::NeedsBus);
+        }
+        Self::launch(None, cfg, ctl, None).await
+    }
+
+    /// Build the publishers (D-Bus on `conn`, then `extra` — the input switch, which claims
+    /// for itself: the loop always runs —, then the socket with `publisher = "socket"`) and
+    /// start the publishing task and the loop thread.
+    async fn launch<S: FrameSource + 'static>(
+        conn: Option<Connection>,
+        cfg: &Config,
+        ctl: Controller<S>,
+        extra: Option<Box<dyn Publisher>>,
+    ) -> Result<Self, RunError> {
         let backend = ctl.source().describe();
         let (hub, demand_rx) = Hub::new(cfg, backend);
         let compat = cfg.dbus.iio_sensor_proxy_compat;
-        let mut tasks = serve_objects(&conn, &hub, compat).await?;
+        // the socket first: a path in use fails the start before any bus name is taken
+        let socket = match cfg.publisher {
+            PublisherKind::Socket => Some(SocketPublisher::bind(&cfg.socket, hub.clone())?),
+            PublisherKind::Dbus | PublisherKind::Input => None,
+        };
+        let mut publishers: Publishers = Vec::new();
+        let mut tasks = Vec::new();
+        if let Some(conn) = &conn {
+            tasks = serve_objects(conn, &hub, compat).await?;
+            publishers.push(Box::new(DbusPublisher::new(
+                conn.clone(),
+                hub.clone(),
+                compat,
+            )));
+        }
+        let always_on = cfg.loop_.always_on || extra.is_some();
+        publishers.extend(extra);
+        publishers.extend(socket.map(|s| Box::new(s) as Box<dyn Publisher>));
         let (ev_tx, ev_rx) = event_channel();
-        let always_on = cfg.loop_.always_on || input.is_some();
-        let publisher = Some(tokio::spawn(crate::publisher::run_publisher(
-            conn.clone(),
+        let publisher = Some(tokio::spawn(run_publishers(
             hub.clone(),
             ev_rx,
-            compat,
+            publishers,
             cfg.dbus.depth_max_hz,
-            input.map(InputPublisher::new),
         )));
         let (cmd_tx, cmd_rx) = stdmpsc::channel();
         let health = Arc::new(LoopHealth::new());
@@ -385,9 +438,9 @@ impl Daemon {
         &self.hub
     }
 
-    /// The connection.
-    pub fn connection(&self) -> &Connection {
-        &self.conn
+    /// The bus connection (`None`: started without a bus).
+    pub fn connection(&self) -> Option<&Connection> {
+        self.conn.as_ref()
     }
 
     /// Stop the loop (sensor reset low), release the names.
@@ -405,10 +458,10 @@ impl Daemon {
         {
             p.abort();
         }
-        if self.conn.is_bus() {
-            let _ = self.conn.release_name(service::BUS_NAME).await;
+        if let Some(conn) = self.conn.as_ref().filter(|c| c.is_bus()) {
+            let _ = conn.release_name(service::BUS_NAME).await;
             if self.compat {
-                let _ = self.conn.release_name(COMPAT_BUS_NAME).await;
+                let _ = conn.release_name(COMPAT_BUS_NAME).await;
             }
         }
         for t in self.tasks.drain(..) {

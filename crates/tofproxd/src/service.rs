@@ -1,7 +1,7 @@
 //! The D-Bus adapter: `org.tofprox.Proximity1` (and the iio-sensor-proxy compatible
 //! `net.hadess.SensorProxy` with its absent compass) as thin zbus interfaces over the
 //! [`Hub`], plus tracking of clients that leave the bus. Claims, demand and status live in
-//! [`crate::hub`]; the publisher in [`crate::publisher`].
+//! [`crate::hub`]; the D-Bus publisher (the signals) is `publisher::dbus`.
 
 use std::collections::HashMap;
 use std::pin::Pin;

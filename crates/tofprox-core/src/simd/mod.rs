@@ -12,7 +12,7 @@
 //! `proximity`) take their token as an argument, so the one `unsafe` call into each names the
 //! proof it relies on.
 //!
-//! [`crate::pipeline`]'s kernel is one generic function over [`Simd`] ([`Portable`] with plain
+//! The pipeline's kernel is one generic function over [`Simd`] ([`Portable`] with plain
 //! arrays, `Avx2` with `__m256`, `Neon` with two `float32x4_t`). Every operation is the IEEE-754
 //! single-precision operation of its name — no fused multiply-add, no reciprocal estimates — so
 //! all levels give **bit-identical** results on finite input (the equivalence tests assert exact
@@ -54,7 +54,7 @@ pub(crate) const ROUND_MAGIC: f32 = 12_582_912.0;
 pub(crate) const ROUND_MASK: u32 = 0x3F_FFFF;
 
 /// Instruction set of the per-pixel kernel. [`SimdLevel::detect`] picks the best one the CPU
-/// supports at run time; [`crate::pipeline::Pipeline::set_simd_level`] can force another
+/// supports at run time; the pipeline's `Pipeline::set_simd_level` can force another
 /// supported one (benchmarks, equivalence tests). Serialised as `"generic"`, `"avx2"`,
 /// `"avx512"`, `"neon"`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -2,8 +2,8 @@
 //! transfer-level emulated device — frames from the physical model — behind the real
 //! driver, as a [`FrameSource`](crate::source::FrameSource). A child of [`crate::backends`]
 //! (it wraps the parent's [`BridgeSource`]; the parent's `build_source` dispatches here).
-//! With [`crate::scenes`] and [`crate::soak`] this is the daemon's test machinery; the production build
-//! (`--no-default-features`) leaves all three out and links neither the emulator nor
+//! The daemon's test machinery (the scene bench and the soak run on it); the production
+//! build (`--no-default-features`) leaves it out and links neither the emulator nor
 //! `tofprox-model`.
 
 use std::path::Path;
