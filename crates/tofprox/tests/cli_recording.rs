@@ -1034,6 +1034,7 @@ fn a_depth_recording_is_read_as_depth_and_refused_by_raw_commands() {
         w.append(Some(1_000_000_000 + 100_000_000 * i as u64), &d, Some(&amp))
             .unwrap();
     }
+    w.finish().unwrap();
     let o = run(&["info", p(&rec), "--json"]);
     assert_ok(&o);
     let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
