@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Build the fuzz targets on STABLE Rust and run each for SECONDS (default 8; .ci/run: 6
-# targets × 8 s ≤ 60 s) on a scratch copy of its corpus (the kept corpus is read, never
+# Build the fuzz targets on STABLE Rust and run each for SECONDS (default 7; .ci/run: 6
+# targets × (7 s + ~1.5 s of start-up) ≤ 60 s) on a scratch copy of its corpus (the kept corpus is read, never
 # written). A crash, a panic, a timeout (> 10 s for one input) or an RSS above 1 GiB fails
 # the run; the input is saved as fuzz/artifacts/<target>-crash-… and reproduced with
 # `fuzz/target/<host>/release/<target> fuzz/artifacts/<file>`.
@@ -11,7 +11,7 @@
 # CI does not have. Memory safety is Rust's own here (no unsafe in the code under test); what
 # the fuzzers find are panics, overflows (debug assertions on), hangs and runaway allocation.
 set -euo pipefail
-secs="${1:-8}"
+secs="${1:-7}"
 here="$(cd "$(dirname "$0")" && pwd)"
 host="$(rustc -vV | sed -n 's/^host: //p')"
 # --target keeps the flags off build scripts and proc macros (as cargo-fuzz does)

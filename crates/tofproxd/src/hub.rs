@@ -387,8 +387,9 @@ impl Hub {
 
     /// Take one of the bounded waiting slots for `client`, if one is free.
     fn wait_slot<'a>(&'a self, client: &'a str) -> Option<WaitSlot<'a>> {
+        // `then`, not `then_some`: a slot not taken must never exist (its drop gives one back)
         self.take_slot(client)
-            .then_some(WaitSlot { hub: self, client })
+            .then(|| WaitSlot { hub: self, client })
     }
 
     /// [`Hub::wait_first_reading`]'s slot for a task of its own (taken here, before the task

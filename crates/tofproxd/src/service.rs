@@ -136,7 +136,7 @@ fn claim_for_caller(
 
 /// A proximity claim (native or compat) as the interface method (p2p and introspection):
 /// held at once, answered at once. On a bus the call is taken before the interface by
-/// [`ReadOnlyProperties`] ([`claim_proximity_deferred`]), which waits for the first reading
+/// [`ReadOnlyProperties`] (`claim_proximity_deferred`), which waits for the first reading
 /// off the dispatcher.
 fn claim_proximity_for_caller(
     hub: &Arc<Hub>,
@@ -187,7 +187,7 @@ async fn claim_proximity_deferred(
 }
 
 /// The interfaces whose `ClaimProximity` [`ReadOnlyProperties`] takes before them
-/// ([`claim_proximity_deferred`]).
+/// (`claim_proximity_deferred`).
 pub trait ClaimWaits {
     /// The hub and the claim `ClaimProximity` sets; `None`: the interface has none.
     fn proximity_claim(&self) -> Option<(&Arc<Hub>, Claim)> {
@@ -535,7 +535,7 @@ impl SensorProxyCompass {
 /// A zbus interface whose properties are all read-only, answering a write with
 /// `org.freedesktop.DBus.Error.PropertyReadOnly` (zbus alone answers `UnknownProperty` for a
 /// property without a setter, which tells the caller the wrong thing), and whose
-/// `ClaimProximity` is answered without queuing ([`claim_proximity_deferred`]). Everything
+/// `ClaimProximity` is answered without queuing (`claim_proximity_deferred`). Everything
 /// else is the wrapped interface's.
 pub struct ReadOnlyProperties<I>(pub I);
 
