@@ -49,6 +49,8 @@ inst 0644 "$repo/systemd/org.tofprox.Proximity1.xml" usr/share/dbus-1/interfaces
 inst 0644 "$repo/systemd/70-tofprox.rules" usr/lib/udev/rules.d/70-tofprox.rules
 inst 0644 "$repo/systemd/tofproxd.sysusers.conf" usr/lib/sysusers.d/tofprox.conf
 inst 0644 "$repo/systemd/tofproxd.tmpfiles.conf" usr/lib/tmpfiles.d/tofprox.conf
+# the V4L2 backend's drop-in (/dev/videoN), shipped inactive: docs/daemon.md, V4L2 step 0
+inst 0644 "$repo/systemd/tofproxd.service.d/v4l2.conf" usr/share/tofprox/systemd/tofproxd.service.d/v4l2.conf
 # the default configuration (USB backend), a conffile
 inst 0644 "$repo/config/tofproxd.toml" etc/tofprox/tofproxd.toml
 # shipped data, laid out as in the repository (tofproxd::data): the demo configuration,

@@ -33,6 +33,7 @@ for f in /usr/bin/tofprox /usr/bin/tofproxd \
   /usr/share/dbus-1/interfaces/org.tofprox.Proximity1.xml \
   /usr/lib/udev/rules.d/70-tofprox.rules \
   /usr/lib/sysusers.d/tofprox.conf /usr/lib/tmpfiles.d/tofprox.conf \
+  /usr/share/tofprox/systemd/tofproxd.service.d/v4l2.conf \
   /etc/tofprox/tofproxd.toml \
   /usr/share/tofprox/config/tofproxd-emulated.toml \
   /usr/share/tofprox/calib/emulated/calibration.toml \

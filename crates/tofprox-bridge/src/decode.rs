@@ -96,6 +96,9 @@ pub enum DecodeError {
 /// Decode the transfers of a capture file into raw captures.
 pub fn decode_stream(transfers: &[BulkIn], spec: &StreamSpec) -> Result<Decoded, DecodeError> {
     let l = &spec.layout;
+    let buffer_bytes = l
+        .validate()
+        .map_err(|source| DecodeError::Pixels { frame: 0, source })?;
     if spec.images_per_capture == 0 || (l.images > 1 && l.images != spec.images_per_capture) {
         return Err(DecodeError::Spec(
             "a stacked buffer must hold exactly the images of one capture",
@@ -112,7 +115,7 @@ pub fn decode_stream(transfers: &[BulkIn], spec: &StreamSpec) -> Result<Decoded,
     };
     let head = if spec.status_line { l.cols * 2 } else { 0 };
     let mut r = Reassembler::new(FrameSpec {
-        frame_bytes: head + l.buffer_bytes(),
+        frame_bytes: head + buffer_bytes,
         pad_align: 1,
     });
     let mut images = Vec::new(); // (time, raw index if known, image)
@@ -281,6 +284,30 @@ mod tests {
             endpoint,
         };
         (truth, frames, spec)
+    }
+
+    /// Issue 35 N5: the layout is checked before the reassembler sizes its buffer from it.
+    #[test]
+    fn a_huge_layout_is_refused_before_reassembly() {
+        let (_, frames, mut spec) = unindexed(PixelPacking::Raw16, 1, 1, None);
+        let s = stream(&frames, 40);
+        spec.layout.cols = 4_611_686_018_427_387_904;
+        assert!(matches!(
+            decode_stream(&s, &spec),
+            Err(DecodeError::Pixels {
+                source: PixelError::Layout(_),
+                ..
+            })
+        ));
+        spec.layout.cols = 12;
+        spec.layout.stride_bytes = Some(usize::MAX);
+        assert!(matches!(
+            decode_stream(&s, &spec),
+            Err(DecodeError::Pixels {
+                source: PixelError::Layout(_),
+                ..
+            })
+        ));
     }
 
     #[test]

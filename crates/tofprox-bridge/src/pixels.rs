@@ -14,6 +14,7 @@
 
 use ndarray::Array3;
 use serde::{Deserialize, Serialize};
+use tofprox_format::limits::{MAX_PIXELS, MAX_SIDE_PIXELS};
 
 /// How pixel codes are packed in a line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -63,15 +64,68 @@ pub struct BufferLayout {
     pub adc_bits: u8,
 }
 
+/// Most raw images stacked in one buffer (a 4-phase capture at two frequencies holds 8).
+pub const MAX_STACKED_IMAGES: usize = 64;
+/// Longest line stride, bytes (a 4096-pixel RAW16 line is 8 KiB; V4L2 strides stay near it).
+pub const MAX_STRIDE_BYTES: usize = 1 << 16;
+/// Largest buffer a layout may describe, bytes: every size is checked against it before any
+/// allocation is made from it.
+pub const MAX_BUFFER_BYTES: usize = 1 << 28;
+
 impl BufferLayout {
     fn stride(&self) -> usize {
         self.stride_bytes
             .unwrap_or_else(|| self.packing.line_bytes(self.cols))
     }
 
-    /// Bytes of the whole buffer.
+    /// Bytes of the whole buffer (saturating: a layout that [`BufferLayout::validate`] refuses
+    /// may give `usize::MAX`, never an overflow).
     pub fn buffer_bytes(&self) -> usize {
-        self.stride() * self.rows * self.images
+        self.validate().unwrap_or(usize::MAX)
+    }
+
+    /// Check the layout on its own, before anything is sized from it: non-zero sides of at most
+    /// [`MAX_SIDE_PIXELS`] and [`MAX_PIXELS`] per image, at most [`MAX_STACKED_IMAGES`], a
+    /// stride of a whole line and at most [`MAX_STRIDE_BYTES`], an ADC of 1–16 bits, and a
+    /// buffer of at most [`MAX_BUFFER_BYTES`]. Returns the buffer's size in bytes.
+    pub fn validate(&self) -> Result<usize, PixelError> {
+        if self.cols == 0 || self.rows == 0 || self.images == 0 {
+            return Err(PixelError::Layout("zero rows, columns or images"));
+        }
+        if self.cols > MAX_SIDE_PIXELS || self.rows > MAX_SIDE_PIXELS {
+            return Err(PixelError::Layout(
+                "rows and columns are at most 4096 (limits::MAX_SIDE_PIXELS)",
+            ));
+        }
+        if self.rows * self.cols > MAX_PIXELS {
+            return Err(PixelError::Layout(
+                "an image holds at most 2^20 pixels (limits::MAX_PIXELS)",
+            ));
+        }
+        if self.images > MAX_STACKED_IMAGES {
+            return Err(PixelError::Layout("at most 64 stacked images"));
+        }
+        if self.packing == PixelPacking::Raw12 && !self.cols.is_multiple_of(2) {
+            return Err(PixelError::Layout(
+                "RAW12 lines hold an even number of pixels",
+            ));
+        }
+        if !(1..=16).contains(&self.adc_bits) {
+            return Err(PixelError::Layout("adc_bits must be 1..=16"));
+        }
+        let stride = self.stride();
+        if stride < self.packing.line_bytes(self.cols) {
+            return Err(PixelError::Layout("stride shorter than a line"));
+        }
+        if stride > MAX_STRIDE_BYTES {
+            return Err(PixelError::Layout("stride above 65536 bytes"));
+        }
+        // each factor is bounded above, so the product fits; checked all the same
+        stride
+            .checked_mul(self.rows)
+            .and_then(|b| b.checked_mul(self.images))
+            .filter(|&b| b <= MAX_BUFFER_BYTES)
+            .ok_or(PixelError::Layout("a buffer of more than 256 MiB"))
     }
 }
 
@@ -102,25 +156,9 @@ pub enum PixelError {
 }
 
 fn check_layout(l: &BufferLayout, got: usize) -> Result<(), PixelError> {
-    if l.cols == 0 || l.rows == 0 || l.images == 0 {
-        return Err(PixelError::Layout("zero rows, columns or images"));
-    }
-    if l.packing == PixelPacking::Raw12 && !l.cols.is_multiple_of(2) {
-        return Err(PixelError::Layout(
-            "RAW12 lines hold an even number of pixels",
-        ));
-    }
-    if !(1..=16).contains(&l.adc_bits) {
-        return Err(PixelError::Layout("adc_bits must be 1..=16"));
-    }
-    if l.stride() < l.packing.line_bytes(l.cols) {
-        return Err(PixelError::Layout("stride shorter than a line"));
-    }
-    if got != l.buffer_bytes() {
-        return Err(PixelError::Size {
-            expected: l.buffer_bytes(),
-            got,
-        });
+    let expected = l.validate()?;
+    if got != expected {
+        return Err(PixelError::Size { expected, got });
     }
     Ok(())
 }
@@ -185,8 +223,7 @@ pub fn encode_buffer(codes: &Array3<u16>, layout: &BufferLayout) -> Result<Vec<u
     if (k, rows, cols) != (layout.images, layout.rows, layout.cols) {
         return Err(PixelError::Layout("codes' shape differs from the layout"));
     }
-    let mut buf = vec![0u8; layout.buffer_bytes()];
-    check_layout(layout, buf.len())?;
+    let mut buf = vec![0u8; layout.validate()?];
     let stride = layout.stride();
     for (r, line) in codes.rows().into_iter().enumerate() {
         let dst = &mut buf[r * stride..];
@@ -257,6 +294,31 @@ mod tests {
         // image 2, row 1 starts at line 2·3 + 1 = 7: pixel 0 = (2000 + 37) % 4096 = 0x7F5
         assert_eq!(buf[7 * 16], 0x7F);
         assert_eq!(decode_buffer(&buf, &l).unwrap(), codes);
+    }
+
+    /// Issue 35 N5: a huge side or stride was multiplied unchecked and sized an allocation
+    /// ("capacity overflow"); every such layout is now refused before anything is allocated.
+    #[test]
+    fn huge_layouts_are_refused_before_any_allocation() {
+        let mut huge_cols = layout(PixelPacking::Raw16, 4_611_686_018_427_387_904, 4, 1);
+        let mut huge_stride = layout(PixelPacking::Raw16, 6, 4, 1);
+        huge_stride.stride_bytes = Some(usize::MAX);
+        let mut too_many = layout(PixelPacking::Raw12, 4096, 4096, 1);
+        let stacked = layout(PixelPacking::Raw16, 1024, 1024, 65);
+        for l in [huge_cols, huge_stride, too_many, stacked] {
+            assert!(matches!(l.validate(), Err(PixelError::Layout(_))), "{l:?}");
+            assert!(matches!(
+                decode_buffer(&[0; 64], &l),
+                Err(PixelError::Layout(_))
+            ));
+            let codes = Array3::<u16>::zeros((1, 1, 2));
+            assert!(encode_buffer(&codes, &l).is_err());
+            assert_eq!(l.buffer_bytes(), usize::MAX);
+        }
+        huge_cols.cols = 6;
+        assert_eq!(huge_cols.validate(), Ok(6 * 2 * 4));
+        too_many.rows = 256; // 4096 × 256 = 2^20 pixels, RAW12: 6144 bytes a line
+        assert_eq!(too_many.validate(), Ok(6144 * 256));
     }
 
     #[test]

@@ -70,6 +70,10 @@ pub enum CaptureError {
     },
 }
 
+/// Largest capture file read, bytes (`tofprox device decode` reads it through the bounded
+/// reader, `tofprox_format::limits::read_bounded`).
+pub const MAX_CAPTURE_BYTES: u64 = 1 << 30;
+
 const LINKTYPE_USB_LINUX: u32 = 189;
 const LINKTYPE_USB_LINUX_MMAPPED: u32 = 220;
 const XFER_BULK: u8 = 3;
@@ -169,7 +173,9 @@ fn parse_usbmon(record: usize, link: u32, b: &[u8]) -> Result<Option<BulkIn>, Ca
         });
     }
     Ok(Some(BulkIn {
-        time_ns: secs.saturating_mul(1_000_000_000) + usecs * 1000,
+        time_ns: secs
+            .saturating_mul(1_000_000_000)
+            .saturating_add(usecs.saturating_mul(1000)),
         bus,
         device,
         endpoint: ep,
@@ -225,26 +231,38 @@ fn parse_text_line(line: &str) -> Result<Option<(BulkIn, usize)>, String> {
     let mut data = Vec::with_capacity(length.min(32));
     if w.get(6) == Some(&"=") {
         for word in &w[7..] {
-            if word.len() % 2 != 0 {
-                return Err(format!("data word {word:?}"));
-            }
-            for i in (0..word.len()).step_by(2) {
-                let byte = u8::from_str_radix(&word[i..i + 2], 16)
-                    .map_err(|_| format!("data word {word:?}"))?;
-                data.push(byte);
-            }
+            parse_hex_word(word, &mut data).ok_or_else(|| format!("data word {word:?}"))?;
         }
     }
     let endpoint = u8::try_from(ep).map_err(|_| format!("endpoint {ep}"))? | 0x80;
     let device = u8::try_from(device).map_err(|_| format!("device {device}"))?;
     let transfer = BulkIn {
-        time_ns: time_us * 1000,
+        time_ns: time_us.saturating_mul(1000),
         bus,
         device,
         endpoint,
         data,
     };
     Ok(Some((transfer, length)))
+}
+
+/// One data word of hex digit pairs (`0c8d0102`) appended to `out`; `None` for an odd count or
+/// any byte that is not an ASCII hex digit (worked on bytes: a multi-byte character is refused,
+/// never sliced through).
+fn parse_hex_word(word: &str, out: &mut Vec<u8>) -> Option<()> {
+    let b = word.as_bytes();
+    if !b.len().is_multiple_of(2) {
+        return None;
+    }
+    let digit = |c: u8| {
+        char::from(c)
+            .to_digit(16)
+            .and_then(|d| u8::try_from(d).ok())
+    };
+    for pair in b.chunks_exact(2) {
+        out.push(digit(pair[0])? << 4 | digit(pair[1])?);
+    }
+    Some(())
 }
 
 /// The bulk-IN endpoint `(bus, device, endpoint)` that carried the most bytes: the video stream.
@@ -350,6 +368,41 @@ ffff9a0c 3575914570 C Bo:2:005:2 0 4 >
             read_capture(cut.as_bytes()),
             Err(CaptureError::Truncated { length: 1024, .. })
         ));
+    }
+
+    /// Issue 35 N1: a non-ASCII byte inside a data word was sliced through (a panic); every
+    /// malformed word is now a record error naming the line.
+    #[test]
+    fn text_data_words_that_are_not_hex_are_record_errors() {
+        for line in [
+            "ffff 1 C Bi:3:007:2 0 2 = a\u{e9}b\n",
+            "ffff 1 C Bi:3:007:2 0 2 = \u{e9}\u{e9}\n",
+            "ffff 1 C Bi:3:007:2 0 1 = 0\n",
+            "ffff 1 C Bi:3:007:2 0 1 = +1\n",
+            "ffff 1 C Bi:3:007:2 0 1 = 0x\n",
+        ] {
+            let e = read_capture(line.as_bytes()).unwrap_err();
+            assert!(
+                matches!(&e, CaptureError::Record { record: 0, reason } if reason.starts_with("data word")),
+                "{line:?}: {e}"
+            );
+        }
+        // the exact bytes of the reproduction (0xc3 0xa9 = 'é' in UTF-8)
+        let repro = b"ffff 1 C Bi:3:007:2 0 2 = a\xc3\xa9b\n";
+        assert!(matches!(
+            read_capture(repro),
+            Err(CaptureError::Record { record: 0, .. })
+        ));
+        // upper-case hex is hex
+        let t = read_capture(b"ffff 1 C Bi:3:007:2 0 2 = ABcd\n").unwrap();
+        assert_eq!(t[0].data, vec![0xab, 0xcd]);
+    }
+
+    /// Timestamps at the top of their range saturate instead of overflowing.
+    #[test]
+    fn huge_timestamps_saturate() {
+        let t = read_capture(b"ffff 18446744073709551615 C Bi:3:007:2 0 1 = 01\n").unwrap();
+        assert_eq!(t[0].time_ns, u64::MAX);
     }
 
     #[test]

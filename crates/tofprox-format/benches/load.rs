@@ -50,6 +50,7 @@ fn load_full_frame(b: Bencher, dtype: &str) {
         _ => RawFrames::F32(frames_u16().mapv(f32::from)),
     };
     w.append(spec(), &f).expect("append");
+    w.finish().expect("finish");
     let rec = Recording::open(t.path()).expect("open");
     b.bench(|| rec.load(divan::black_box(0)));
 }

@@ -198,5 +198,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &RawFrames::U16(x.mapv(|v| v as u16)),
     )?;
     println!("wrote {} captures to {}", w.len(), dir.display());
+    w.finish()?;
     Ok(())
 }

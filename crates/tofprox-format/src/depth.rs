@@ -108,6 +108,7 @@ pub struct DepthRecording {
     size: DepthImageSize,
     description: Option<String>,
     captures: Vec<DepthCaptureMeta>,
+    complete: bool,
 }
 
 impl DepthRecording {
@@ -137,7 +138,14 @@ impl DepthRecording {
             size,
             description,
             captures,
+            complete: crate::completion::is_complete(dir),
         })
+    }
+
+    /// Whether the recording's writer finished ([`crate::completion`]); a depth recording is
+    /// only summarised (`tofprox info`), which flags one that is not.
+    pub fn is_complete(&self) -> bool {
+        self.complete
     }
 
     /// The recording directory.
@@ -220,7 +228,7 @@ fn check_image(dtype: Dtype, shape: &[usize], size: &DepthImageSize) -> Result<(
 
 /// Appends depth images to a depth recording, crash-safely in the same way as
 /// [`crate::RecordingWriter`]: image files first (temporary file, fsync, rename), then
-/// `recording.toml`.
+/// `recording.toml`; marked incomplete until [`DepthRecordingWriter::finish`].
 #[derive(Debug)]
 pub struct DepthRecordingWriter {
     dir: PathBuf,
@@ -244,6 +252,7 @@ impl DepthRecordingWriter {
             check_header_limits(&dir.join(RECORDING_TOML), Some(d), 0)?;
         }
         prepare_new_recording(dir, replace)?;
+        crate::completion::mark_incomplete(dir)?;
         let w = DepthRecordingWriter {
             dir: dir.to_path_buf(),
             size,
@@ -258,6 +267,12 @@ impl DepthRecordingWriter {
     /// The image size.
     pub fn size(&self) -> DepthImageSize {
         self.size
+    }
+
+    /// The recording is complete: remove its incomplete mark ([`crate::completion`]; without
+    /// this call it stays marked incomplete).
+    pub fn finish(self) -> Result<(), FormatError> {
+        crate::completion::mark_complete(&self.dir)
     }
 
     /// Number of complete captures.

@@ -33,6 +33,9 @@ pub enum ErrorKind {
     /// ([`crate::limits`]), or a path is not a regular file inside the
     /// recording or calibration set.
     Limit,
+    /// A recording whose writer did not finish (`recording.incomplete` present): killed or
+    /// failed part-way ([`crate::completion`]).
+    Incomplete,
 }
 
 /// An error reading, validating or writing a recording or a calibration set.

@@ -17,6 +17,7 @@
 //! Every error is a [`FormatError`] naming the file and the key.
 
 mod calibration;
+pub mod completion;
 mod depth;
 mod error;
 mod extract;
@@ -32,6 +33,7 @@ pub use calibration::{
     CALIBRATION_FORMAT, CALIBRATION_TOML, CALIBRATION_VERSION, CalibPart, CalibrationSet,
     ChainEntry, Dropped, PartSource, PartState, now_rfc3339, rfc3339_from_unix,
 };
+pub use completion::{INCOMPLETE_MARKER, is_complete};
 pub use depth::{
     DepthCaptureMeta, DepthImageSize, DepthRecording, DepthRecordingWriter, validate_recording_toml,
 };

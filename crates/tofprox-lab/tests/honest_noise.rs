@@ -119,6 +119,7 @@ fn example_copy(
                 .unwrap();
         }
     }
+    w.finish().unwrap();
 }
 
 fn diagnosed(dir: &Path) -> Result<Diagnosis, LabError> {

@@ -78,7 +78,8 @@ impl Recording {
         py.detach(|| {
             let mut w = new_writer(&path, sensor, description, force)?;
             todo.into_iter()
-                .try_for_each(|(spec, raw)| w.append(spec, &raw).map(drop))
+                .try_for_each(|(spec, raw)| w.append(spec, &raw).map(drop))?;
+            w.finish()
         })
         .map_err(to_py_err)?;
         Self::open(py, path)

@@ -233,7 +233,8 @@ pub fn sweep<'py>(
     );
     py.detach(|| {
         let mut writer = new_writer(&out, geometry, Some(description), force)?;
-        plans::write_plan(&sim, &captures, seed, &mut writer, || {})
+        plans::write_plan(&sim, &captures, seed, &mut writer, || {})?;
+        writer.finish().map_err(SweepError::from)
     })
     .map_err(|e: SweepError| to_py_err(e))?;
     let rec = Recording::open(py, out)?;

@@ -249,7 +249,7 @@ fn sim_sweep_like_simulates_the_recordings_conditions() {
     // illuminated without ground truth: cannot be simulated
     w.append(spec(true, &[("supply_voltage_v", 3.2)]), &frames)
         .unwrap();
-    drop(w);
+    w.finish().unwrap();
     let model = tmp.path().join("m.toml");
     std::fs::write(&model, ModelConfig::baseline().to_toml_string()).unwrap();
     let like = |extra: &[&str], out: &Path| {

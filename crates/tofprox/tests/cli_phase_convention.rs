@@ -48,6 +48,7 @@ fn record(dir: &Path, conv: PhaseConvention) {
             .unwrap();
         }
     }
+    w.finish().unwrap();
 }
 
 /// `tofprox process --json`: median depth per capture, in file order (dropping the ones the

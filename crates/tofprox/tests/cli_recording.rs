@@ -1036,6 +1036,7 @@ fn a_depth_recording_is_read_as_depth_and_refused_by_raw_commands() {
         w.append(Some(1_000_000_000 + 100_000_000 * i as u64), &d, Some(&amp))
             .unwrap();
     }
+    w.finish().unwrap();
     let o = run(&["info", p(&rec), "--json"]);
     assert_ok(&o);
     let v: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
@@ -1065,4 +1066,83 @@ fn a_depth_recording_is_read_as_depth_and_refused_by_raw_commands() {
         "config/model/baseline.toml",
     ]);
     assert_bad(&o, &[&toml, "kind", "depth recording"]);
+}
+
+/// A raw recording of 2×3 pixels: one 2-phase capture of mid codes, with second-frequency
+/// images at 60 MHz, written and finished (`finish: false` leaves it as a writer killed
+/// part-way does).
+fn second_frequency_rec(dir: &Path, finish: bool) {
+    use tofprox_core::SensorGeometry;
+    use tofprox_format::{CaptureSpec, RawFrames, RecordingWriter, SecondFrequencyFrames};
+    let mut w = RecordingWriter::create(dir, SensorGeometry::full(2, 3, 12, 80e6), None).unwrap();
+    let spec = CaptureSpec {
+        phases_deg: vec![0.0, 90.0],
+        exposure_us: 500.0,
+        illumination: true,
+        averaged: 4,
+        timestamp_ns: None,
+        conditions: Default::default(),
+    };
+    let f = RawFrames::F32(Array3::from_elem((2, 2, 3), 2048.5f32));
+    let second = SecondFrequencyFrames {
+        modulation_hz: 60e6,
+        phases_deg: vec![0.0, 90.0],
+        frames: f.clone(),
+    };
+    w.append_with_second(spec, &f, Some(&second)).unwrap();
+    if finish {
+        w.finish().unwrap();
+    }
+}
+
+/// Issue 35 W5: `tofprox info` checks the second-frequency images as the daemon's replay
+/// does: NaN, an infinity or a code above the ADC's range there is refused, naming the file
+/// and the key (it was accepted).
+#[test]
+fn info_refuses_bad_second_frequency_images() {
+    let t = tempfile::tempdir().unwrap();
+    for (name, bad) in [("nan", f32::NAN), ("inf", f32::INFINITY), ("range", 5000.0)] {
+        let rec = t.path().join(name);
+        second_frequency_rec(&rec, true);
+        assert_ok(&run(&["info", p(&rec)]));
+        let second = Recording::open(&rec).unwrap().captures()[0]
+            .second_frequency
+            .clone()
+            .unwrap();
+        let mut a = Array3::from_elem((2, 2, 3), 2048.5f32);
+        a[[1, 1, 2]] = bad;
+        fs::write(rec.join(&second.frames), npy::encode_f32(&a)).unwrap();
+        let o = run(&["info", p(&rec)]);
+        assert_bad(&o, &["capture[0].second_frequency.frames"]);
+        assert!(
+            stderr(&o).contains(&second.frames),
+            "{name}: {}",
+            stderr(&o)
+        );
+    }
+}
+
+/// Issue 35 W1: a recording whose writer did not finish is flagged by `tofprox info` (text,
+/// JSON, stderr) and refused by processing with a clear error; finished, it is complete.
+#[test]
+fn an_unfinished_recording_is_flagged_by_info_and_refused_by_process() {
+    let t = tempfile::tempdir().unwrap();
+    let rec = t.path().join("killed");
+    second_frequency_rec(&rec, false);
+    let o = run(&["info", p(&rec)]);
+    assert_ok(&o);
+    assert!(stdout(&o).contains("complete    NO"), "{}", stdout(&o));
+    assert!(
+        stderr(&o).contains("INCOMPLETE recording"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(info_json(&rec)["complete"], false);
+    let out = t.path().join("out");
+    let o = run(&["process", p(&rec), "--algo", "2phase", "--out", p(&out)]);
+    assert_bad(&o, &["is incomplete", "1 capture(s) written whole"]);
+    let done = t.path().join("done");
+    second_frequency_rec(&done, true);
+    assert_eq!(info_json(&done)["complete"], true);
+    assert!(stdout(&run(&["info", p(&done)])).contains("complete    yes"));
 }

@@ -200,3 +200,108 @@ fn pcap_and_pcapng_captures_decode_to_the_frames_that_made_them() {
         assert!(!wrong.join("recording.toml").exists());
     }
 }
+
+/// `device decode CAPTURE` with the reproduction's arguments and extra ones; killed after 20 s
+/// (a FIFO once hung it), so a regression fails instead of hanging the suite.
+fn decode_with(capture: &str, out: &std::path::Path, extra: &[&str]) -> std::process::Output {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_tofprox"));
+    cmd.args(["device", "decode", capture, "--mode", "4phase"])
+        .args(["--modulation-hz", "80e6", "--exposure-us", "250"])
+        .arg("--out")
+        .arg(out)
+        .args(extra)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    let mut child = cmd.spawn().unwrap();
+    let t0 = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > std::time::Duration::from_secs(20) {
+            child.kill().unwrap();
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Issue 35 N1: a non-ASCII byte in a text capture's data word panicked (exit 101); it is a
+/// clear error naming the record.
+#[test]
+fn a_non_ascii_data_word_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let cap = dir.path().join("x.txt");
+    std::fs::write(&cap, b"ffff 1 C Bi:3:007:2 0 2 = a\xc3\xa9b\n").unwrap();
+    let out = dir.path().join("o");
+    let o = decode_with(cap.to_str().unwrap(), &out, &["--rows", "4", "--cols", "6"]);
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o.stderr));
+    assert!(
+        text(&o.stderr).contains("record 0: data word"),
+        "{}",
+        text(&o.stderr)
+    );
+    assert!(!out.join("recording.toml").exists());
+}
+
+/// Issue 35 N2: the capture goes through the bounded reader: a FIFO, `/dev/zero` and
+/// `/dev/urandom` are refused at once (they hung or were read until out of memory).
+#[test]
+fn special_files_are_refused_without_reading_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("cap.fifo");
+    let st = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    for (cap, what) in [
+        (fifo.to_str().unwrap(), "a FIFO"),
+        ("/dev/zero", "a character device"),
+        ("/dev/urandom", "a character device"),
+    ] {
+        let t0 = std::time::Instant::now();
+        let o = decode_with(cap, &dir.path().join("o"), &["--rows", "4", "--cols", "6"]);
+        assert!(t0.elapsed() < std::time::Duration::from_secs(10), "{cap}");
+        assert_eq!(o.status.code(), Some(2), "{cap}: {}", text(&o.stderr));
+        assert!(text(&o.stderr).contains(what), "{cap}: {}", text(&o.stderr));
+    }
+}
+
+/// Issue 35 N5: `--cols 2^62` and `--stride-bytes 2^64−1` panicked with "capacity overflow";
+/// the geometry and layout are refused before anything is read or allocated.
+#[test]
+fn huge_geometry_and_stride_are_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let cap = dir.path().join("cap.pcap");
+    std::fs::write(&cap, pcap()).unwrap();
+    let c = cap.to_str().unwrap();
+    for (extra, says) in [
+        (
+            &["--rows", "4", "--cols", "4611686018427387904"][..],
+            "array has more than",
+        ),
+        (
+            &["--rows", "4611686018427387904", "--cols", "6"][..],
+            "array has more than",
+        ),
+        (
+            &[
+                "--rows",
+                "4",
+                "--cols",
+                "6",
+                "--stride-bytes",
+                "18446744073709551615",
+            ][..],
+            "stride above",
+        ),
+    ] {
+        let o = decode_with(c, &dir.path().join("o"), extra);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", text(&o.stderr));
+        assert!(
+            text(&o.stderr).contains(says),
+            "{extra:?}: {}",
+            text(&o.stderr)
+        );
+    }
+}

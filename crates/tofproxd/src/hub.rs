@@ -177,13 +177,36 @@ struct WaitSlot<'a> {
 
 impl Drop for WaitSlot<'_> {
     fn drop(&mut self) {
-        let mut g = self.hub.lock();
-        g.waiting_total -= 1;
-        if let Some(n) = g.waiting.get_mut(self.client) {
-            *n -= 1;
-            if *n == 0 {
-                g.waiting.remove(self.client);
-            }
+        self.hub.give_back_slot(self.client);
+    }
+}
+
+/// A waiting slot held by a task of its own: the deferred reply of a claim call
+/// (`service::ClaimWaits`), which waits off the dispatcher. Given back when dropped.
+pub struct OwnedWaitSlot {
+    hub: Arc<Hub>,
+    client: String,
+}
+
+impl Drop for OwnedWaitSlot {
+    fn drop(&mut self) {
+        self.hub.give_back_slot(&self.client);
+    }
+}
+
+impl OwnedWaitSlot {
+    /// Wait (bounded by `loop.first_reading_timeout_ms`) until a valid reading exists since
+    /// the loop started, holding this slot; then give it back.
+    pub async fn wait_first_reading(self) -> FirstReading {
+        let mut rx = self.hub.reading_tx.subscribe();
+        if self.hub.lock().have_reading {
+            return FirstReading::Ready;
+        }
+        let start = *rx.borrow_and_update();
+        let timeout = self.hub.first_reading_timeout;
+        match tokio::time::timeout(timeout, rx.wait_for(|n| *n != start)).await {
+            Ok(_) => FirstReading::Ready,
+            Err(_) => FirstReading::TimedOut,
         }
     }
 }
@@ -364,14 +387,41 @@ impl Hub {
 
     /// Take one of the bounded waiting slots for `client`, if one is free.
     fn wait_slot<'a>(&'a self, client: &'a str) -> Option<WaitSlot<'a>> {
+        // `then`, not `then_some`: a slot not taken must never exist (its drop gives one back)
+        self.take_slot(client)
+            .then(|| WaitSlot { hub: self, client })
+    }
+
+    /// [`Hub::wait_first_reading`]'s slot for a task of its own (taken here, before the task
+    /// exists, so no more tasks than slots ever wait); `None` when the caller's or everyone's
+    /// waiting claims are at their bound.
+    pub fn take_wait_slot(self: &Arc<Self>, client: &str) -> Option<OwnedWaitSlot> {
+        self.take_slot(client).then(|| OwnedWaitSlot {
+            hub: self.clone(),
+            client: client.to_string(),
+        })
+    }
+
+    fn take_slot(&self, client: &str) -> bool {
         let mut g = self.lock();
         let mine = g.waiting.get(client).copied().unwrap_or(0);
         if g.waiting_total >= MAX_WAITING || mine >= MAX_WAITING_PER_CLIENT {
-            return None;
+            return false;
         }
         g.waiting_total += 1;
         *g.waiting.entry(client.to_string()).or_default() += 1;
-        Some(WaitSlot { hub: self, client })
+        true
+    }
+
+    fn give_back_slot(&self, client: &str) {
+        let mut g = self.lock();
+        g.waiting_total -= 1;
+        if let Some(n) = g.waiting.get_mut(client) {
+            *n -= 1;
+            if *n == 0 {
+                g.waiting.remove(client);
+            }
+        }
     }
 
     /// Claim calls parked waiting for a first reading (all clients).

@@ -26,6 +26,7 @@ pub mod run;
 #[cfg(feature = "emulated")]
 pub mod scenes;
 pub mod service;
+pub mod signals;
 #[cfg(feature = "emulated")]
 pub mod soak;
 pub mod source;

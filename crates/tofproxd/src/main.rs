@@ -12,6 +12,7 @@ use anyhow::{Context, bail};
 use clap::Parser;
 use tofproxd::config::{Config, PublisherKind};
 use tofproxd::run::{BusChoice, Daemon, notify};
+use tofproxd::signals::StopSignals;
 
 /// `tofproxd --version`: whether this binary links the test machinery (the emulated device and
 /// the physical model, cargo feature `emulated`) — what `packaging/build-deb.sh` refuses to ship.
@@ -58,6 +59,16 @@ struct Args {
 }
 
 fn main() -> ExitCode {
+    // First of all, before any other thread exists: the stop signals are blocked (every
+    // later thread inherits the mask) and taken by one waiting thread, so a signal at any
+    // moment from here on stops the daemon cleanly, never by its default action (W6).
+    let mut stop = match StopSignals::block() {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("error: blocking the stop signals: {e}");
+            return ExitCode::from(2);
+        }
+    };
     let args = Args::parse();
     if let Some(dir) = &args.man {
         return write_man_page(dir);
@@ -78,7 +89,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    match rt.block_on(run(args)) {
+    match rt.block_on(run(args, &mut stop)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             let line = tofproxd::logging::error_line(e.as_ref());
@@ -109,7 +120,7 @@ fn write_man_page(dir: &Path) -> ExitCode {
     }
 }
 
-async fn run(mut args: Args) -> anyhow::Result<()> {
+async fn run(mut args: Args, stop: &mut StopSignals) -> anyhow::Result<()> {
     if args.demo && args.config == Path::new("/etc/tofprox/tofproxd.toml") {
         args.config = demo_config_path()?;
     }
@@ -131,10 +142,10 @@ async fn run(mut args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     if args.demo {
-        return demo(cfg, &base, args.demo_seconds).await;
+        return demo(cfg, &base, args.demo_seconds, stop).await;
     }
     let bus: BusChoice = args.bus.parse().map_err(anyhow::Error::msg)?;
-    serve(cfg, &base, bus).await
+    serve(cfg, &base, bus, stop).await
 }
 
 /// The demo configuration from the installed data or the source tree (`tofproxd::data`).
@@ -148,26 +159,40 @@ async fn build_daemon(cfg: &Config, base: &Path, conn: zbus::Connection) -> anyh
     Ok(Daemon::start(conn, cfg, ctl).await?)
 }
 
-async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
-    let daemon = if cfg.publisher == PublisherKind::Socket {
-        // no D-Bus at all: no bus connection is attempted
-        let ctl = tofproxd::run::prepare(&cfg, base)?;
-        let daemon = Daemon::start_without_bus(&cfg, ctl).await?;
-        tracing::info!("serving on {} (no D-Bus)", cfg.socket.path.display());
-        daemon
-    } else {
-        let conn = tofproxd::run::connect(&bus).await?;
-        let daemon = build_daemon(&cfg, base, conn).await?;
-        tracing::info!(
-            "serving {} on the {:?} bus (compat: {})",
-            tofproxd::service::BUS_NAME,
-            bus,
-            cfg.dbus.iio_sensor_proxy_compat
-        );
-        daemon
+async fn serve(
+    cfg: Config,
+    base: &Path,
+    bus: BusChoice,
+    stop: &mut StopSignals,
+) -> anyhow::Result<()> {
+    let start = async {
+        if cfg.publisher == PublisherKind::Socket {
+            // no D-Bus at all: no bus connection is attempted
+            let ctl = tofproxd::run::prepare(&cfg, base)?;
+            let daemon = Daemon::start_without_bus(&cfg, ctl).await?;
+            tracing::info!("serving on {} (no D-Bus)", cfg.socket.path.display());
+            anyhow::Ok(daemon)
+        } else {
+            let conn = tofproxd::run::connect(&bus).await?;
+            let daemon = build_daemon(&cfg, base, conn).await?;
+            tracing::info!(
+                "serving {} on the {:?} bus (compat: {})",
+                tofproxd::service::BUS_NAME,
+                bus,
+                cfg.dbus.iio_sensor_proxy_compat
+            );
+            Ok(daemon)
+        }
+    };
+    // a stop signal while starting (a bus that does not answer) ends the start, cleanly
+    let daemon = tokio::select! {
+        d = start => d?,
+        name = stop.recv() => {
+            tracing::info!("{name} received while starting: not started");
+            return Ok(());
+        }
     };
     notify::ready("idle: sensor in reset, waiting for a claim");
-    let mut stop = StopSignals::new()?;
     let watchdog = notify::watchdog_interval().map(|d| d / 2);
     let mut last_state = String::new();
     loop {
@@ -204,50 +229,6 @@ async fn serve(cfg: Config, base: &Path, bus: BusChoice) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Every signal whose default action would end the daemon without the clean stop (sensor to
-/// reset, names released) and that systemd or an administrator may send: SIGTERM (the unit's
-/// `KillSignal`), SIGINT, SIGHUP (also sent by systemd with `SendSIGHUP=`; no reload: the
-/// daemon stops cleanly and systemd restarts it with the new configuration), SIGQUIT,
-/// SIGUSR1, SIGUSR2, SIGALRM. SIGKILL cannot be caught; the watchdog's SIGABRT is left to
-/// dump the hung process.
-struct StopSignals(Vec<(&'static str, tokio::signal::unix::Signal)>);
-
-impl StopSignals {
-    fn new() -> anyhow::Result<Self> {
-        use tokio::signal::unix::{SignalKind, signal};
-        let kinds = [
-            ("SIGTERM", SignalKind::terminate()),
-            ("SIGINT", SignalKind::interrupt()),
-            ("SIGHUP", SignalKind::hangup()),
-            ("SIGQUIT", SignalKind::quit()),
-            ("SIGUSR1", SignalKind::user_defined1()),
-            ("SIGUSR2", SignalKind::user_defined2()),
-            ("SIGALRM", SignalKind::alarm()),
-        ];
-        let mut v = Vec::new();
-        for (name, kind) in kinds {
-            v.push((
-                name,
-                signal(kind).with_context(|| format!("{name} handler"))?,
-            ));
-        }
-        Ok(Self(v))
-    }
-
-    /// The name of the next stop signal received.
-    async fn recv(&mut self) -> &'static str {
-        std::future::poll_fn(|cx| {
-            for (name, s) in &mut self.0 {
-                if s.poll_recv(cx).is_ready() {
-                    return std::task::Poll::Ready(*name);
-                }
-            }
-            std::task::Poll::Pending
-        })
-        .await
-    }
-}
-
 /// A private dbus-daemon for the demo, listening in a directory of its own;
 /// on drop the daemon is killed and the directory with its socket removed
 /// (no stale socket files left behind).
@@ -267,8 +248,13 @@ impl Drop for PrivateBus {
 
 fn start_private_bus() -> anyhow::Result<PrivateBus> {
     use std::io::BufRead;
+    use std::os::unix::fs::DirBuilderExt;
     let dir = std::env::temp_dir().join(format!("tofproxd-demo-bus-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)
+    // a leftover of an earlier process of the same id goes (a link as a name, never followed)
+    let _ = std::fs::remove_dir_all(&dir).or_else(|_| std::fs::remove_file(&dir));
+    std::fs::DirBuilder::new()
+        .mode(0o700)
+        .create(&dir)
         .with_context(|| format!("creating {} for the private bus socket", dir.display()))?;
     let mut child = std::process::Command::new("dbus-daemon")
         .args(["--session", "--print-address", "--nofork"])
@@ -285,6 +271,8 @@ fn start_private_bus() -> anyhow::Result<PrivateBus> {
     let address = line.trim().to_string();
     if address.is_empty() {
         let _ = child.kill();
+        let _ = child.wait();
+        let _ = std::fs::remove_dir_all(&dir);
         bail!("dbus-daemon printed no address");
     }
     Ok(PrivateBus {
@@ -294,34 +282,49 @@ fn start_private_bus() -> anyhow::Result<PrivateBus> {
     })
 }
 
-async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
+/// The demo's bus: the session bus, or a private dbus-daemon when none runs (kept in
+/// `private`, so that it ends with the demo however the demo ends).
+async fn demo_bus(
+    private: &mut Option<PrivateBus>,
+) -> anyhow::Result<(zbus::Connection, BusChoice)> {
+    if let Ok(c) = tofproxd::run::connect(&BusChoice::Session).await {
+        eprintln!("demo: using the session bus");
+        return Ok((c, BusChoice::Session));
+    }
+    let pb = private.insert(start_private_bus()?);
+    eprintln!(
+        "demo: no session bus; started a private dbus-daemon at {}",
+        pb.address
+    );
+    let bus = BusChoice::Address(pb.address.clone());
+    Ok((tofproxd::run::connect(&bus).await?, bus))
+}
+
+async fn demo(
+    cfg: Config,
+    base: &Path,
+    seconds: u64,
+    stop: &mut StopSignals,
+) -> anyhow::Result<()> {
     use tofproxd::client::ProximityProxy;
-    let mut _private = None;
-    let session = match tofproxd::run::connect(&BusChoice::Session).await {
-        Ok(c) => {
-            eprintln!("demo: using the session bus");
-            Some((c, BusChoice::Session))
-        }
-        Err(_) => None,
+    // dropped last, on every way out of this function: the private bus and its directory go
+    let mut private: Option<PrivateBus> = None;
+    let start = async {
+        let (conn, bus) = demo_bus(&mut private).await?;
+        let daemon = build_daemon(&cfg, base, conn).await?;
+        // An independent client connection, like `tofprox monitor`.
+        let client = tofproxd::run::connect(&bus).await?;
+        let proxy = ProximityProxy::new(&client).await?;
+        let near_changes = proxy.receive_near_changed().await;
+        anyhow::Ok((daemon, client, proxy, near_changes))
     };
-    let (conn, bus) = match session {
-        Some(x) => x,
-        None => {
-            let pb = start_private_bus()?;
-            eprintln!(
-                "demo: no session bus; started a private dbus-daemon at {}",
-                pb.address
-            );
-            let bus = BusChoice::Address(pb.address.clone());
-            _private = Some(pb);
-            (tofproxd::run::connect(&bus).await?, bus)
+    let (daemon, _client, proxy, mut near_changes) = tokio::select! {
+        r = start => r?,
+        name = stop.recv() => {
+            eprintln!("demo: {name} received while starting: stopped");
+            return Ok(());
         }
     };
-    let daemon = build_daemon(&cfg, base, conn).await?;
-    // An independent client connection, like `tofprox monitor`.
-    let client = tofproxd::run::connect(&bus).await?;
-    let proxy = ProximityProxy::new(&client).await?;
-    let mut near_changes = proxy.receive_near_changed().await;
     let t0 = std::time::Instant::now();
     eprintln!(
         "demo: emulated sensor, hand approaching and leaving in front of a wall; near ≤ {} mm, far ≥ {} mm",
@@ -338,6 +341,29 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
                 .to_string()
         )
     );
+    if let Err(e) = demo_events(&proxy, &mut near_changes, t0, seconds, stop).await {
+        daemon.shutdown().await;
+        return Err(e);
+    }
+    let _ = proxy.release_proximity().await;
+    let s = daemon.hub().status();
+    println!(
+        "demo: {} cycles, {} valid readings, {} errors, modelled average {:.2} mW",
+        s.cycles, s.valid_readings, s.errors, s.power_mw
+    );
+    daemon.shutdown().await;
+    drop(private);
+    Ok(())
+}
+
+/// Claim, then print near/far changes until the deadline or a stop signal.
+async fn demo_events(
+    proxy: &tofproxd::client::ProximityProxy<'_>,
+    near_changes: &mut zbus::proxy::PropertyStream<'_, bool>,
+    t0: std::time::Instant,
+    seconds: u64,
+    stop: &mut StopSignals,
+) -> anyhow::Result<()> {
     proxy.claim_proximity().await?;
     println!(
         "{:7.2}s  claimed: near={} distance={} mm state={}",
@@ -349,10 +375,13 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(seconds);
     loop {
         tokio::select! {
-            _ = tokio::time::sleep_until(deadline) => break,
-            _ = tokio::signal::ctrl_c() => break,
-            ch = tofproxd::service::next_item(&mut near_changes) => {
-                let Some(ch) = ch else { break };
+            _ = tokio::time::sleep_until(deadline) => return Ok(()),
+            name = stop.recv() => {
+                eprintln!("demo: {name} received: stopping");
+                return Ok(());
+            }
+            ch = tofproxd::service::next_item(near_changes) => {
+                let Some(ch) = ch else { return Ok(()) };
                 let near = ch.get().await.unwrap_or(false);
                 let d = proxy.distance_mm().await.unwrap_or(0);
                 let p = proxy.power_estimate_mw().await.unwrap_or(0.0);
@@ -365,12 +394,4 @@ async fn demo(cfg: Config, base: &Path, seconds: u64) -> anyhow::Result<()> {
             }
         }
     }
-    let _ = proxy.release_proximity().await;
-    let s = daemon.hub().status();
-    println!(
-        "demo: {} cycles, {} valid readings, {} errors, modelled average {:.2} mW",
-        s.cycles, s.valid_readings, s.errors, s.power_mw
-    );
-    daemon.shutdown().await;
-    Ok(())
 }

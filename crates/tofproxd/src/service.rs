@@ -116,42 +116,98 @@ async fn drop_if_gone(conn: &Connection, hub: &Hub, client: &str) {
     }
 }
 
-/// Set one of the calling client's claims (dropped again at once if the caller has
-/// already left the bus: checked once per client, when its first claim arrives, so a flood
-/// of claims from one connection costs no bus round trips). Returns the client's name.
-async fn claim_for_caller(
-    hub: &Hub,
+/// Set one of the calling client's claims (dropped again if the caller has already left the
+/// bus: checked once per client, when its first claim arrives, by a task of its own so the
+/// dispatcher never waits on the bus; a flood of claims from one connection costs no bus
+/// round trips). Returns the client's name.
+fn claim_for_caller(
+    hub: &Arc<Hub>,
     hdr: &Header<'_>,
     conn: &Connection,
     claim: Claim,
 ) -> fdo::Result<String> {
     let client = caller(hdr)?;
-    if hub.set_claim(&client, claim, true) {
-        drop_if_gone(conn, hub, &client).await;
+    if hub.set_claim(&client, claim, true) && conn.is_bus() {
+        let (conn, hub, name) = (conn.clone(), hub.clone(), client.clone());
+        tokio::spawn(async move { drop_if_gone(&conn, &hub, &name).await });
     }
     Ok(client)
 }
 
-/// A proximity claim (native or compat): held at once; the reply waits for the first valid
-/// reading only if the caller wants a reply and a waiting slot is free (the hub bounds them
-/// per client and in total) — a flood of claims never parks more than that.
-async fn claim_proximity_for_caller(
-    hub: &Hub,
+/// A proximity claim (native or compat) as the interface method (p2p and introspection):
+/// held at once, answered at once. On a bus the call is taken before the interface by
+/// [`ReadOnlyProperties`] (`claim_proximity_deferred`), which waits for the first reading
+/// off the dispatcher.
+fn claim_proximity_for_caller(
+    hub: &Arc<Hub>,
     hdr: &Header<'_>,
     conn: &Connection,
     claim: Claim,
 ) -> fdo::Result<()> {
-    let client = claim_for_caller(hub, hdr, conn, claim).await?;
+    claim_for_caller(hub, hdr, conn, claim).map(drop)
+}
+
+/// `ClaimProximity` (native or compat) without queuing (issue 35, memory under pending
+/// calls): the claim is held at once; if the caller wants a reply and one of the hub's
+/// bounded waiting slots is free (per client and in total), a task of its own holds the slot
+/// and sends the reply once the first valid reading exists (bounded wait); otherwise the
+/// reply goes at once. The interfaces are dispatched one call at a time
+/// (`spawn = false`), so no call of any client ever waits in a task of its own beyond these
+/// bounded slots: a flood of calls is held back in the bus (its per-connection limits), not
+/// in this process, and `GetStatus` is answered between them.
+async fn claim_proximity_deferred(
+    hub: Arc<Hub>,
+    claim: Claim,
+    conn: Connection,
+    msg: Message,
+) -> Result<(), BoxDBusError> {
+    let hdr = msg.header();
+    let client =
+        claim_for_caller(&hub, &hdr, &conn, claim).map_err(|e| Box::new(e) as BoxDBusError)?;
     if hdr.primary().flags().contains(Flags::NO_REPLY_EXPECTED) {
         return Ok(());
     }
-    if hub.wait_first_reading(&client).await == FirstReading::NotWaited {
+    let Some(slot) = hub.take_wait_slot(&client) else {
         tracing::debug!(
             "{client}: claim held, answered without waiting (waiting claims at their bound)"
         );
-    }
+        conn.reply(&hdr, &()).await?;
+        return Ok(());
+    };
+    tokio::spawn(async move {
+        let hdr = msg.header();
+        if slot.wait_first_reading().await != FirstReading::Ready {
+            tracing::debug!("claim answered without a first reading (timed out)");
+        }
+        if let Err(e) = conn.reply(&hdr, &()).await {
+            tracing::debug!("reply to a claim: {e}");
+        }
+    });
     Ok(())
 }
+
+/// The interfaces whose `ClaimProximity` [`ReadOnlyProperties`] takes before them
+/// (`claim_proximity_deferred`).
+pub trait ClaimWaits {
+    /// The hub and the claim `ClaimProximity` sets; `None`: the interface has none.
+    fn proximity_claim(&self) -> Option<(&Arc<Hub>, Claim)> {
+        None
+    }
+}
+
+impl ClaimWaits for Proximity {
+    fn proximity_claim(&self) -> Option<(&Arc<Hub>, Claim)> {
+        Some((&self.hub, Claim::Proximity))
+    }
+}
+
+impl ClaimWaits for SensorProxyCompat {
+    fn proximity_claim(&self) -> Option<(&Arc<Hub>, Claim)> {
+        Some((&self.hub, Claim::CompatProximity))
+    }
+}
+
+impl ClaimWaits for SensorProxyCompass {}
 
 /// Clear one of the calling client's claims (no-op without one).
 fn release_for_caller(hub: &Hub, hdr: &Header<'_>, claim: Claim) -> fdo::Result<()> {
@@ -175,7 +231,7 @@ fn variant_str(s: &str) -> OwnedVariant {
     OwnedVariant::from(Str::from(s.to_string()))
 }
 
-#[interface(name = "org.tofprox.Proximity1")]
+#[interface(name = "org.tofprox.Proximity1", spawn = false)]
 impl Proximity {
     /// Claim proximity readings: starts the loop; returns once the first valid reading
     /// exists (bounded wait, `loop.first_reading_timeout_ms`; at once when too many claims
@@ -185,7 +241,7 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::Proximity).await
+        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::Proximity)
     }
 
     /// Release the caller's proximity claim (no-op without one).
@@ -199,9 +255,7 @@ impl Proximity {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_for_caller(&self.hub, &hdr, conn, Claim::Depth)
-            .await
-            .map(drop)
+        claim_for_caller(&self.hub, &hdr, conn, Claim::Depth).map(drop)
     }
 
     /// Release the caller's depth claim.
@@ -380,7 +434,7 @@ impl SensorProxyCompat {
     }
 }
 
-#[interface(name = "net.hadess.SensorProxy")]
+#[interface(name = "net.hadess.SensorProxy", spawn = false)]
 impl SensorProxyCompat {
     /// No accelerometer here.
     #[zbus(property)]
@@ -445,7 +499,7 @@ impl SensorProxyCompat {
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> fdo::Result<()> {
-        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::CompatProximity).await
+        claim_proximity_for_caller(&self.hub, &hdr, conn, Claim::CompatProximity)
     }
     /// Releases it.
     async fn release_proximity(&self, #[zbus(header)] hdr: Header<'_>) -> fdo::Result<()> {
@@ -456,7 +510,7 @@ impl SensorProxyCompat {
 /// `net.hadess.SensorProxy.Compass` at `/net/hadess/SensorProxy/Compass` (absent compass).
 pub struct SensorProxyCompass;
 
-#[interface(name = "net.hadess.SensorProxy.Compass")]
+#[interface(name = "net.hadess.SensorProxy.Compass", spawn = false)]
 impl SensorProxyCompass {
     /// No compass.
     #[zbus(property)]
@@ -480,12 +534,13 @@ impl SensorProxyCompass {
 
 /// A zbus interface whose properties are all read-only, answering a write with
 /// `org.freedesktop.DBus.Error.PropertyReadOnly` (zbus alone answers `UnknownProperty` for a
-/// property without a setter, which tells the caller the wrong thing). Everything else is
-/// the wrapped interface's.
+/// property without a setter, which tells the caller the wrong thing), and whose
+/// `ClaimProximity` is answered without queuing (`claim_proximity_deferred`). Everything
+/// else is the wrapped interface's.
 pub struct ReadOnlyProperties<I>(pub I);
 
 #[async_trait::async_trait]
-impl<I: Interface> Interface for ReadOnlyProperties<I> {
+impl<I: Interface + ClaimWaits> Interface for ReadOnlyProperties<I> {
     fn name() -> InterfaceName<'static>
     where
         Self: Sized,
@@ -565,6 +620,15 @@ impl<I: Interface> Interface for ReadOnlyProperties<I> {
         msg: &'call Message,
         name: MemberName<'call>,
     ) -> DispatchResult<'call> {
+        // a call with arguments goes to the interface, which refuses it as zbus does
+        // ("Signature mismatch") before any claim is made
+        if name.as_str() == "ClaimProximity"
+            && msg.header().signature().to_string().is_empty()
+            && let Some((hub, claim)) = self.0.proximity_claim()
+        {
+            let fut = claim_proximity_deferred(hub.clone(), claim, connection.clone(), msg.clone());
+            return DispatchResult::Async(Box::pin(fut));
+        }
         self.0.call(server, connection, msg, name)
     }
 

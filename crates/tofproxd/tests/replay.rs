@@ -58,6 +58,7 @@ fn write_recording(dir: &Path) {
         )
         .expect("append");
     }
+    w.finish().expect("finish recording");
 }
 
 fn run_once(rec: &Path) -> Vec<(bool, Option<u32>)> {
@@ -225,7 +226,7 @@ fn replay_of_an_averaged_recording_keeps_the_floats() {
         &RawFrames::F32(frames.clone()),
     )
     .expect("append");
-    drop(w);
+    w.finish().expect("finish recording");
     let cfg = Config::replay_as_fast_as_possible(&rec);
     let pcfg = PipelineConfig {
         algorithm: Algorithm::TwoPhase,

@@ -109,6 +109,7 @@ fn write(dir: &Path, scene: impl Fn(usize, usize) -> (f64, f64), second: bool, n
         w.append_with_second(spec, &RawFrames::U16(f1), second.then_some(&f2))
             .expect("append");
     }
+    w.finish().expect("finish");
 }
 
 /// Near of every reading of the replay.

@@ -144,3 +144,72 @@ fn shipped_configs_load() {
         }
     }
 }
+
+/// Issue 35 W3: the V4L2 backend's needs are a drop-in shipped beside the unit: the video4linux
+/// character devices and the `video` group, added to the USB-only unit (policy still closed).
+/// The unit with the drop-in verifies and stays at an exposure of at most 2.
+#[test]
+fn the_v4l2_drop_in_allows_video_nodes_and_verifies() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let drop_in = std::fs::read_to_string(root.join("systemd/tofproxd.service.d/v4l2.conf"))
+        .expect("the V4L2 drop-in");
+    let lines: Vec<&str> = drop_in
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+        .collect();
+    assert_eq!(
+        lines,
+        [
+            "[Service]",
+            "DeviceAllow=char-video4linux rw",
+            "SupplementaryGroups=video"
+        ]
+    );
+    let unit = std::fs::read_to_string(root.join("systemd/tofproxd.service")).expect("unit");
+    assert!(
+        unit.contains("DevicePolicy=closed") && unit.contains("DeviceAllow=char-usb_device rw")
+    );
+    let build = std::fs::read_to_string(root.join("packaging/build-deb.sh")).unwrap();
+    assert!(build.contains("usr/share/tofprox/systemd/tofproxd.service.d/v4l2.conf"));
+    let docs = std::fs::read_to_string(root.join("docs/daemon.md")).unwrap();
+    assert!(docs.contains("/etc/systemd/system/tofproxd.service.d/v4l2.conf"));
+    if !systemd_analyze() {
+        return;
+    }
+    // the unit as systemd merges it: the drop-in's [Service] lines after the unit's own
+    let service_lines = lines[1..].join("\n");
+    let merged = unit
+        .replace("/usr/bin/tofproxd", env!("CARGO_BIN_EXE_tofproxd"))
+        .replace("[Install]", &format!("{service_lines}\n\n[Install]"));
+    let dir = tempfile::tempdir().unwrap();
+    let tmp = dir.path().join("tofproxd.service");
+    std::fs::write(&tmp, &merged).unwrap();
+    let out = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&tmp)
+        .output()
+        .expect("verify");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && !err.contains("tofproxd.service:"),
+        "verify: {err}"
+    );
+    let out = Command::new("systemd-analyze")
+        .args(["security", "--offline=yes", "--no-pager"])
+        .arg(&tmp)
+        .output()
+        .expect("security");
+    let s = String::from_utf8_lossy(&out.stdout);
+    let line = s
+        .lines()
+        .find(|l| l.contains("Overall exposure level"))
+        .unwrap_or_else(|| panic!("{s}"));
+    let score: f64 = line
+        .split(':')
+        .nth(1)
+        .and_then(|x| x.split_whitespace().next())
+        .and_then(|x| x.parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    assert!(score <= 2.0, "with the V4L2 drop-in: {line}");
+}

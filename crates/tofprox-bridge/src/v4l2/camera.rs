@@ -101,6 +101,7 @@ impl V4l2Settings {
         if self.width == 0 || self.rows == 0 || self.images == 0 {
             return bad("width/rows/images", "must be at least 1".into());
         }
+        self.validate_bounds()?;
         let n = self.phases_deg.len();
         if !(n == 2 || n == 4) || self.first_phase_image as usize + n > self.images as usize {
             return bad(
@@ -129,6 +130,61 @@ impl V4l2Settings {
         }
         if self.frame_timeout_ms == 0 {
             return bad("frame_timeout_ms", "must be at least 1".into());
+        }
+        Ok(())
+    }
+
+    /// Every key's upper bound (issue 35 W4): the sides and stack of the buffer layout's
+    /// limits ([`crate::pixels::BufferLayout::validate`]: 4096 pixels a side, 2^20 a image, 64
+    /// images, 256 MiB a buffer), exposure within the daemon's eye-safe 10 ms, the control
+    /// names as V4L2 holds them (31 bytes, at most 16 exposure controls), a path of at most
+    /// 4096 bytes, phases finite, a frame timeout of at most 60 s.
+    fn validate_bounds(&self) -> Result<(), BridgeError> {
+        let bad = |key: &str, m: String| Err(BridgeError::config(format!("v4l2.{key}: {m}")));
+        if let Err(e) = self.layout(None).validate() {
+            return bad("width/rows/images", e.to_string());
+        }
+        if self.first_phase_image >= self.images {
+            return bad("first_phase_image", "must be within the stack".into());
+        }
+        if self.device.as_os_str().len() > 4096 {
+            return bad("device", "a path of at most 4096 bytes".into());
+        }
+        if let Some(p) = self.phases_deg.iter().find(|p| !p.is_finite()) {
+            return bad("phases_deg", format!("{p} is not a finite angle"));
+        }
+        if self.fixed_exposure_us > 10_000.0 {
+            return bad(
+                "fixed_exposure_us",
+                "must be at most 10000 µs (eye safety)".into(),
+            );
+        }
+        for (key, v, max) in [
+            ("exposure_us_per_unit", self.exposure_us_per_unit, 1e6),
+            ("modulation_hz_per_unit", self.modulation_hz_per_unit, 1e9),
+        ] {
+            if v > max {
+                return bad(key, format!("must be at most {max:e}, got {v}"));
+            }
+        }
+        if self.exposure_controls.len() > 16 {
+            return bad("exposure_controls", "at most 16 controls".into());
+        }
+        let names = self
+            .exposure_controls
+            .iter()
+            .map(|n| ("exposure_controls", n));
+        for (key, name) in names.chain([("modulation_control", &self.modulation_control)]) {
+            // struct v4l2_queryctrl's name: 32 bytes with the terminating NUL
+            if name.len() > 31 || name.contains('\0') {
+                return bad(
+                    key,
+                    format!("{name:?}: a V4L2 control name of at most 31 bytes"),
+                );
+            }
+        }
+        if self.frame_timeout_ms > 60_000 {
+            return bad("frame_timeout_ms", "must be at most 60000".into());
         }
         Ok(())
     }
@@ -476,5 +532,54 @@ mod tests {
         let e = s.validate().unwrap_err();
         assert!(e.to_string().contains("v4l2.exposure_us_per_unit"), "{e}");
         assert_eq!(e.kind(), ErrorKind::Config);
+    }
+
+    /// Issue 35 W4: `width` and `rows` had no upper bound (nor had the other keys); every key
+    /// is bounded and the error names it.
+    #[test]
+    fn every_key_is_bounded() {
+        type Edit = fn(&mut V4l2Settings);
+        let cases: [(Edit, &str); 12] = [
+            (|s| s.width = u32::MAX, "v4l2.width/rows/images"),
+            (|s| s.rows = 4097, "v4l2.width/rows/images"),
+            (
+                |s| (s.width, s.rows) = (4096, 4096),
+                "v4l2.width/rows/images",
+            ),
+            (|s| s.images = 65, "v4l2.width/rows/images"),
+            (|s| s.first_phase_image = 9, "v4l2.first_phase_image"),
+            (|s| s.phases_deg = vec![0.0, f64::NAN], "v4l2.phases_deg"),
+            (|s| s.fixed_exposure_us = 1e9, "v4l2.fixed_exposure_us"),
+            (
+                |s| s.exposure_us_per_unit = 1e300,
+                "v4l2.exposure_us_per_unit",
+            ),
+            (
+                |s| s.exposure_controls = vec![String::new(); 17],
+                "v4l2.exposure_controls",
+            ),
+            (
+                |s| s.modulation_control = "x".repeat(32),
+                "v4l2.modulation_control",
+            ),
+            (|s| s.frame_timeout_ms = u64::MAX, "v4l2.frame_timeout_ms"),
+            (
+                |s| s.device = PathBuf::from("/".repeat(5000)),
+                "v4l2.device",
+            ),
+        ];
+        for (edit, key) in cases {
+            let mut s = V4l2Settings::default();
+            edit(&mut s);
+            let e = s.validate().unwrap_err();
+            assert!(e.to_string().contains(key), "{key}: {e}");
+        }
+        // the largest accepted: a 4096 × 256 RAW16 image, four stacked (8 MiB)
+        let s = V4l2Settings {
+            width: 4096,
+            rows: 256,
+            ..V4l2Settings::default()
+        };
+        s.validate().unwrap();
     }
 }

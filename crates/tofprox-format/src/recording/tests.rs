@@ -50,6 +50,7 @@ fn make_rec(dir: &Path) -> Recording {
     let d = Array3::from_elem((4, 4, 5), 2047.5f64);
     w.append(spec(&[0.0, 90.0, 180.0, 270.0], false), &RawFrames::F64(d))
         .unwrap();
+    w.finish().unwrap();
     Recording::open(dir).unwrap()
 }
 
@@ -323,6 +324,8 @@ fn writer_validates_before_touching_disk() {
     let e = w.append(s, &RawFrames::F32(frames_f32(2, 0))).unwrap_err();
     assert_eq!(e.key_name(), Some("capture[0].exposure_us"));
     assert!(w.is_empty());
+    assert_eq!(Recording::inspect(t.path()).unwrap().captures().len(), 0);
+    w.finish().unwrap();
     assert_eq!(Recording::open(t.path()).unwrap().captures().len(), 0);
     assert_eq!(fs::read_dir(t.path().join("frames")).unwrap().count(), 0);
     // a second create on the same directory is refused
@@ -369,6 +372,12 @@ fn leftovers_of_a_crash_are_ignored_and_cleaned() {
         )
         .unwrap();
     assert_eq!(i, 3);
+    // appending: incomplete until finished
+    assert_eq!(
+        Recording::open(t.path()).unwrap_err().kind(),
+        ErrorKind::Incomplete
+    );
+    w.finish().unwrap();
     let rec = Recording::open(t.path()).unwrap();
     assert_eq!(rec.captures().len(), 4);
     assert_eq!(rec.load(3).unwrap(), RawFrames::F32(frames_f32(4, 3)));
@@ -445,7 +454,11 @@ fn writer_killed_at_random_moments() {
         std::thread::sleep(Duration::from_millis(5 + rng % 60));
         child.kill().unwrap();
         child.wait().unwrap();
-        let rec = Recording::open(&dir).unwrap_or_else(|e| panic!("round {round}: {e}"));
+        // killed part-way: refused by `open`, flagged by `inspect`, every capture it lists whole
+        let e = Recording::open(&dir).unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::Incomplete, "round {round}: {e}");
+        let rec = Recording::inspect(&dir).unwrap_or_else(|e| panic!("round {round}: {e}"));
+        assert!(!rec.is_complete());
         let n = rec.captures().len();
         assert!(n >= last, "round {round}: captures went from {last} to {n}");
         for i in 0..n {
@@ -550,4 +563,47 @@ fn phase_convention_keys_are_checked() {
     }
     let e = open_err_after(|t| format!("phase_sign = -1\n{t}"));
     assert_eq!(e.kind(), ErrorKind::UnknownKey, "{e}");
+}
+
+/// Issue 35 W1: a recording is complete only once its writer finished; one killed, failed or
+/// dropped part-way is refused by `open` with a clear error and flagged by `inspect`, and an
+/// old recording (no mark: versions 1–3 as written before the mark existed) is complete.
+#[test]
+fn only_a_finished_recording_is_complete() {
+    let t = tempfile::tempdir().unwrap();
+    let dir = t.path().join("rec");
+    let mut w = RecordingWriter::create(&dir, sensor(), None).unwrap();
+    assert!(dir.join(crate::INCOMPLETE_MARKER).is_file());
+    w.append(spec(&[0.0, 90.0], true), &RawFrames::F32(frames_f32(2, 0)))
+        .unwrap();
+    drop(w);
+    let e = Recording::open(&dir).unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::Incomplete);
+    let msg = e.to_string();
+    assert!(
+        msg.contains("is incomplete") && msg.contains("1 capture(s)"),
+        "{msg}"
+    );
+    let rec = Recording::inspect(&dir).unwrap();
+    assert!(!rec.is_complete());
+    assert_eq!(rec.load(0).unwrap(), RawFrames::F32(frames_f32(2, 0)));
+    // continuing and finishing makes it complete
+    let mut w = RecordingWriter::open_append(&dir).unwrap();
+    w.append(spec(&[0.0, 90.0], true), &RawFrames::F32(frames_f32(2, 1)))
+        .unwrap();
+    w.finish().unwrap();
+    let rec = Recording::open(&dir).unwrap();
+    assert!(rec.is_complete());
+    assert_eq!(rec.captures().len(), 2);
+    assert!(!dir.join(crate::INCOMPLETE_MARKER).exists());
+    // a mark of any file type counts (a directory of that name too)
+    fs::create_dir(dir.join(crate::INCOMPLETE_MARKER)).unwrap();
+    assert_eq!(
+        Recording::open(&dir).unwrap_err().kind(),
+        ErrorKind::Incomplete
+    );
+    fs::remove_dir(dir.join(crate::INCOMPLETE_MARKER)).unwrap();
+    // the shipped example (a version 1 recording without the mark) is complete
+    let ex = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/recording");
+    assert!(Recording::open(&ex).unwrap().is_complete());
 }

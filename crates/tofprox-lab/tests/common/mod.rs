@@ -53,6 +53,7 @@ pub fn write_recording(
         w.append(spec, &tofprox_format::RawFrames::F64(c.frames.clone()))
             .unwrap();
     }
+    w.finish().unwrap();
 }
 
 /// The diagnosis' one sentence of evidence (`Diagnosis::evidence`, docs/lab-json.md) quotes its

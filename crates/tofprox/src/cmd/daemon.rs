@@ -638,6 +638,10 @@ pub fn record(a: RecordArgs) -> anyhow::Result<ExitCode> {
         if n == 0 {
             bail!("no DepthFrame received within {} s", a.timeout_s);
         }
+        // the recording ends here, whole; a killed `daemon record` leaves it marked incomplete
+        if let Some(w) = writer {
+            w.finish().map_err(|e| super::output_error(&a.out, e))?;
+        }
         eprintln!(
             "recorded {n} depth frames to {} (a depth recording: `tofprox info` summarises it)",
             a.out.display()

@@ -519,6 +519,10 @@ fn run_capture<T: UsbTransport>(
         );
     }
     let _ = driver.power_off();
+    if let Some(w) = writer {
+        w.finish()
+            .with_context(|| format!("writing {}", a.out.display()))?;
+    }
     eprintln!("wrote {} capture(s) to {}", a.count, a.out.display());
     Ok(ExitCode::SUCCESS)
 }

@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use tofprox_bridge::decode::{Decoded, StreamSpec, decode_stream};
 use tofprox_bridge::pixels::{BufferLayout, PixelPacking};
-use tofprox_bridge::usbcap::read_capture;
+use tofprox_bridge::usbcap::{MAX_CAPTURE_BYTES, read_capture};
 use tofprox_core::{Algorithm, SensorGeometry};
 use tofprox_format::{CaptureSpec, RawFrames};
 
@@ -81,8 +81,12 @@ fn parse_endpoint(s: &str) -> Result<(u16, u8, u8), String> {
 }
 
 pub fn decode(a: DecodeArgs) -> anyhow::Result<ExitCode> {
-    let bytes =
-        std::fs::read(&a.capture).with_context(|| format!("reading {}", a.capture.display()))?;
+    // the geometry first: nothing is read or sized from an impossible one
+    let sensor = SensorGeometry::full(a.rows, a.cols, a.adc_bits, a.modulation_hz);
+    sensor.validate()?;
+    // the bounded reader: regular files only (a FIFO or device is refused, never waited on)
+    let bytes = tofprox_format::limits::read_bounded(&a.capture, MAX_CAPTURE_BYTES, None)
+        .with_context(|| format!("reading {}", a.capture.display()))?;
     let transfers =
         read_capture(&bytes).with_context(|| format!("reading {}", a.capture.display()))?;
     let per = a.mode.raw_images();
@@ -101,14 +105,12 @@ pub fn decode(a: DecodeArgs) -> anyhow::Result<ExitCode> {
     };
     let d = decode_stream(&transfers, &spec)
         .with_context(|| format!("decoding {}", a.capture.display()))?;
-    write(&a, &d)?;
+    write(&a, sensor, &d)?;
     summary(&a, &d);
     Ok(ExitCode::SUCCESS)
 }
 
-fn write(a: &DecodeArgs, d: &Decoded) -> anyhow::Result<()> {
-    let sensor = SensorGeometry::full(a.rows, a.cols, a.adc_bits, a.modulation_hz);
-    sensor.validate()?;
+fn write(a: &DecodeArgs, sensor: SensorGeometry, d: &Decoded) -> anyhow::Result<()> {
     let (bus, dev, ep) = d.endpoint;
     let description = format!(
         "decoded by tofprox device decode from {} (bus {bus} device {dev} endpoint {ep:#04x}), {} mode",
@@ -128,7 +130,7 @@ fn write(a: &DecodeArgs, d: &Decoded) -> anyhow::Result<()> {
         w.append(spec, &RawFrames::U16(c.frames.clone()))
             .map_err(|e| super::output_error(&a.out, e))?;
     }
-    Ok(())
+    w.finish().map_err(|e| super::output_error(&a.out, e))
 }
 
 fn summary(a: &DecodeArgs, d: &Decoded) {

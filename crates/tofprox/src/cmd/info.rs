@@ -34,7 +34,9 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
     if tofprox_format::recording_kind(&a.recording).ok() == Some(RecordingKind::Depth) {
         return depth_info(&a);
     }
-    let rec = Recording::open(&a.recording)?;
+    // an incomplete recording (writer killed part-way) is shown, and flagged as such
+    let rec = Recording::inspect(&a.recording)?;
+    warn_if_incomplete(&a.recording, rec.is_complete(), rec.captures().len());
     let sat = saturation_per_capture(&rec)?;
     let tally = Tally::of(&rec);
     if a.json {
@@ -45,12 +47,36 @@ pub fn info(a: InfoArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Per capture, the fraction of pixels with a raw image at a rail.
+/// On stderr: the recording's writer did not finish (`tofprox_format::completion`).
+fn warn_if_incomplete(dir: &std::path::Path, complete: bool, captures: usize) {
+    if !complete {
+        eprintln!(
+            "warning: {}: INCOMPLETE recording: its writer did not finish (killed or failed \
+             part-way); the {captures} capture(s) shown are whole, processing refuses it",
+            dir.display()
+        );
+    }
+}
+
+/// The `complete` line of the text summary.
+fn completeness_line(complete: bool) -> &'static str {
+    if complete {
+        "complete    yes\n"
+    } else {
+        "complete    NO: its writer did not finish (killed or failed part-way; recording.incomplete present)\n"
+    }
+}
+
+/// Per capture, the fraction of pixels with a raw image at a rail. Every image is read and
+/// checked as the daemon's replay reads it (`Recording::load`, `load_second_frequency`: NaN,
+/// infinities and codes outside the ADC's range are refused), the second-frequency images
+/// included.
 fn saturation_per_capture(rec: &Recording) -> anyhow::Result<Vec<f64>> {
     let n = rec.captures().len();
     let pb = progress(n, "reading");
     let mut sat = Vec::with_capacity(n);
     for i in 0..n {
+        rec.load_second_frequency(i)?;
         let f = rec.load(i)?;
         sat.push(f.saturated_fraction(rec.sensor().adc_bits));
         pb.inc(1);
@@ -155,6 +181,7 @@ fn recording_json(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> serd
         .collect();
     json!({
         "recording": a.recording.display().to_string(),
+        "complete": rec.is_complete(),
         "description": rec.description(),
         "sensor": {
             "rows": s.rows, "cols": s.cols, "roi_origin": s.roi_origin,
@@ -178,6 +205,7 @@ fn recording_text(a: &InfoArgs, rec: &Recording, t: &Tally, sat: &[f64]) -> Stri
     let s = *rec.sensor();
     let mut o = String::new();
     let _ = writeln!(o, "recording   {}", a.recording.display());
+    o.push_str(completeness_line(rec.is_complete()));
     if let Some(d) = rec.description() {
         let _ = writeln!(o, "description {d}");
     }
@@ -518,6 +546,7 @@ fn chain_state(s: &PartState) -> String {
 /// images, time span and rate, valid share and median depth per image.
 fn depth_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
     let rec = DepthRecording::open(&a.recording)?;
+    warn_if_incomplete(&a.recording, rec.is_complete(), rec.captures().len());
     let size = rec.size();
     let caps = rec.captures();
     let pb = progress(caps.len(), "reading");
@@ -562,6 +591,7 @@ fn depth_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
         let out = json!({
             "recording": a.recording.display().to_string(),
             "kind": RecordingKind::Depth.name(),
+            "complete": rec.is_complete(),
             "description": rec.description(),
             "depth": {"rows": size.rows, "cols": size.cols},
             "captures": caps.len(),
@@ -575,6 +605,7 @@ fn depth_info(a: &InfoArgs) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     println!("recording   {} (depth images, mm)", a.recording.display());
+    print!("{}", completeness_line(rec.is_complete()));
     if let Some(d) = rec.description() {
         println!("description {d}");
     }

@@ -240,7 +240,10 @@ fn write_recording(
     let pb = progress(plan.len(), what);
     sweep::write_plan(sim, plan, seed, &mut writer, || pb.inc(1))?;
     pb.finish_and_clear();
-    Ok(writer.len())
+    let n = writer.len();
+    // only a sweep written to its end is complete (a killed one stays marked incomplete)
+    writer.finish().map_err(|e| super::output_error(out, e))?;
+    Ok(n)
 }
 
 fn load_model(path: &Path) -> anyhow::Result<ModelConfig> {
