@@ -99,7 +99,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
         )
         .unwrap();
     }
-    drop(w);
+    w.finish().unwrap();
     let rec = Recording::open(&dir).unwrap();
 
     // --- calibrate: lens → offset → wiggling → FPPN (thesis 5.1.3) ---------------------------

@@ -262,7 +262,7 @@ fn record(dir: &std::path::Path, sensor: &Sensor, layout: &Layout, seed: u64) ->
     for &d in layout.walls_m {
         add(Some(d), &four);
     }
-    drop(w);
+    w.finish().unwrap();
     Recording::open(dir).unwrap()
 }
 

@@ -65,7 +65,7 @@ fn model_sweep_through_files_calibrates_below_1_cm() {
         )
         .unwrap();
     }
-    drop(w);
+    w.finish().unwrap();
 
     // --- read back and calibrate -------------------------------------------
     let rec = Recording::open(&dir).unwrap();

@@ -68,6 +68,8 @@ pub(crate) fn capture_step<T: UsbTransport>(
     );
     let mut w = RecordingWriter::create(dir, first.geometry, Some(desc)).map_err(fmt)?;
     append_averaged(&mut w, &first, &mean, req).map_err(fmt)?;
+    // complete only now (docs/recording-format.md, "Completeness")
+    w.finish().map_err(fmt)?;
     Ok(first.exposure_us)
 }
 
