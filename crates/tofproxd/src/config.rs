@@ -330,6 +330,8 @@ pub struct ReadoutConfig {
     pub partial: bool,
     /// Extra rows above and below the ROI.
     pub margin_rows: u16,
+    /// Extra columns left and right of the ROI, where the sensor reads a column window too.
+    pub margin_cols: u16,
 }
 
 impl Default for ReadoutConfig {
@@ -337,6 +339,7 @@ impl Default for ReadoutConfig {
         Self {
             partial: true,
             margin_rows: 2,
+            margin_cols: 0,
         }
     }
 }
@@ -366,6 +369,13 @@ pub struct EnergyConfig {
     pub flash_load_mw: f64,
     /// Power while writing the SPI flash (mW) — assumption (rare: first run only).
     pub flash_write_mw: f64,
+    /// Power during the imager bring-up's waits (PLL settling, imager enable), mW — ours: the
+    /// sensor powered but not measuring, table 3.1's idle level.
+    pub bring_up_mw: f64,
+    /// Power of one CPU core running the loop's processing (mW) — ours, of the order of a
+    /// phone CPU core at a moderate clock; the loop's measured CPU time per reading is
+    /// accounted at it.
+    pub cpu_mw_per_core: f64,
     /// Running-average window (cycles).
     pub average_cycles: u32,
 }
@@ -395,6 +405,8 @@ impl Default for EnergyConfig {
             startup_mw: 9.9,
             flash_load_mw: 15.0,
             flash_write_mw: 30.0,
+            bring_up_mw: 9.9,
+            cpu_mw_per_core: 250.0,
             average_cycles: 16,
         }
     }
@@ -835,6 +847,8 @@ impl EnergyConfig {
         non_neg("energy.startup_mw", self.startup_mw)?;
         non_neg("energy.flash_load_mw", self.flash_load_mw)?;
         non_neg("energy.flash_write_mw", self.flash_write_mw)?;
+        non_neg("energy.bring_up_mw", self.bring_up_mw)?;
+        non_neg("energy.cpu_mw_per_core", self.cpu_mw_per_core)?;
         range(
             "energy.average_cycles",
             (1..=10_000).contains(&self.average_cycles),

@@ -26,6 +26,7 @@ use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausibl
 
 use crate::boottime::boottime_ns;
 use crate::config::{Config, Mode};
+use crate::cputime::thread_cpu;
 use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
 use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
@@ -34,8 +35,8 @@ use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
     CycleObservation, EnergyAccount, EnergyDecision, ExposureObservation, Pacing, RailsDecision,
     RailsObservation, RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck,
-    SecondFrequency, WindowObservation, WindowTracker, rails_point_at_zero_distance,
-    saturating_fraction_at,
+    SecondFrequency, WindowObservation, WindowTracker, decision_exposure_us,
+    rails_point_at_zero_distance, saturating_fraction_at,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -90,6 +91,29 @@ impl SinceValid {
         }
     }
 }
+
+/// The longest of the last few cycles (each from its start to its end, failing ones too): what
+/// the next attempt may take before it can release a held Near, so the release never comes
+/// after `loop.near_hold_ms` (issue 34: 1,018 ms were seen on the daemon's own clock).
+#[derive(Debug, Default)]
+struct RecentCycles {
+    took: [Duration; 8],
+    next: usize,
+}
+
+impl RecentCycles {
+    fn note(&mut self, d: Duration) {
+        self.took[self.next] = d;
+        self.next = (self.next + 1) % self.took.len();
+    }
+    fn longest(&self) -> Duration {
+        self.took.iter().copied().max().unwrap_or_default()
+    }
+}
+
+/// Time from the hold decision to the release being published (the status event, the
+/// publisher, the bus): our margin, so the release is on the bus within `loop.near_hold_ms`.
+const HOLD_PUBLISH_MARGIN: Duration = Duration::from_millis(20);
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -197,6 +221,12 @@ pub struct Controller<S: FrameSource> {
     since_valid: SinceValid,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
+    /// How long the last cycles took (the hold bound allows for the next one).
+    recent: RecentCycles,
+    /// The loop thread's CPU time when this cycle's frames were in, and the part of it spent
+    /// since inside the source (a second capture: the bridge's, not the reading's work).
+    cpu_at_capture: Duration,
+    source_cpu: Duration,
     near: bool,
     running: bool,
     last_error: String,
@@ -220,6 +250,46 @@ pub fn full_roi(cfg: &Config, full_rows: usize, full_cols: usize) -> Roi {
         .resolve(full_rows, full_cols),
         None => Roi::centered(full_rows, full_cols, 0.5),
     }
+}
+
+/// The exposure the near/far decision needs ([`decision_exposure_us`]) with the sensor's `K`
+/// at the weak end of the ROI (its 10th percentile; the config's nominal scale without an
+/// amplitude part).
+fn decision_exposure(
+    cfg: &Config,
+    calib: &ModeCalibrations,
+    (full_rows, full_cols): (usize, usize),
+) -> Option<f64> {
+    let p = &cfg.proximity;
+    let k = match &calib.amplitude {
+        Some(a) if full_rows > 0 && full_cols > 0 => {
+            let roi = full_roi(cfg, full_rows, full_cols);
+            let k = &a.lsb_m2_per_us;
+            let (r1, c1) = (
+                (roi.row0 + roi.rows).min(k.nrows()),
+                (roi.col0 + roi.cols).min(k.ncols()),
+            );
+            let mut v: Vec<f32> = k
+                .slice(s![roi.row0.min(r1)..r1, roi.col0.min(c1)..c1])
+                .iter()
+                .copied()
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .collect();
+            if v.is_empty() {
+                return None;
+            }
+            let i = v.len() / 10;
+            let (_, k10, _) = v.select_nth_unstable_by(i, f32::total_cmp);
+            f64::from(*k10)
+        }
+        _ => p.nominal_amplitude_scale,
+    };
+    decision_exposure_us(
+        k,
+        p.reflectivity_floor,
+        f64::from(p.far_mm) / 1e3,
+        f64::from(cfg.processing.min_amplitude_lsb),
+    )
 }
 
 /// The configured ROI in the coordinates of a frame of window `g` (clipped to it).
@@ -267,13 +337,15 @@ impl<S: FrameSource> Controller<S> {
         }
         // Validate detector parameters once up front.
         NearFarDetector::new(detector_config(&cfg, Roi::default()))?;
+        let mut exposure = AutoExposure::new(cfg.exposure.clone());
+        exposure.set_decision_us(decision_exposure(&cfg, &calib, source.full_size()));
         Ok(Self {
             ambient: AmbientSwitch::new(
                 cfg.ambient.clone(),
                 cfg.processing.mode,
                 source.supports_mode_switch(),
             ),
-            exposure: AutoExposure::new(cfg.exposure.clone()),
+            exposure,
             rate: AdaptiveRate::new(cfg.loop_.clone()),
             readout: ReadoutWindow::new(cfg.readout.clone()),
             energy: EnergyAccount::new(cfg.energy.clone(), Pacing::of(&cfg)),
@@ -292,6 +364,9 @@ impl<S: FrameSource> Controller<S> {
             consecutive_failures: 0,
             since_valid: SinceValid::default(),
             last_sleep: Duration::ZERO,
+            recent: RecentCycles::default(),
+            cpu_at_capture: Duration::ZERO,
+            source_cpu: Duration::ZERO,
             near: false,
             running: false,
             last_error: String::new(),
@@ -378,6 +453,8 @@ impl<S: FrameSource> Controller<S> {
             roi: full_roi(&self.cfg, full_rows, full_cols),
             source_supports: self.source.supports_row_window(),
             align_rows: self.source.row_window_align(),
+            full_cols,
+            align_cols: self.source.column_window_align(),
         });
         CycleRequest {
             mode: if probe {
@@ -448,7 +525,9 @@ impl<S: FrameSource> Controller<S> {
     fn no_reading(&mut self, next_sleep: Duration) -> Option<bool> {
         let since = self.since_valid.elapsed(self.source.now());
         let bound = Duration::from_millis(self.cfg.loop_.near_hold_ms);
-        if self.near && since + next_sleep >= bound {
+        // the next attempt ends after the sleep and a cycle as long as the recent ones
+        let next_attempt = next_sleep + self.recent.longest() + HOLD_PUBLISH_MARGIN;
+        if self.near && since + next_attempt >= bound {
             tracing::info!(
                 "no valid reading for {} ms (next attempt after {} ms more): Near released",
                 since.as_millis(),
@@ -477,7 +556,13 @@ impl<S: FrameSource> Controller<S> {
             req.exposure_us = self.cfg.exposure.min_us;
         }
         self.since_valid.count(self.last_sleep);
-        let cycle = match self.source.cycle(&req) {
+        let (started, started_wall) = (self.source.now(), std::time::Instant::now());
+        let result = self.source.cycle(&req);
+        self.recent.note(match (started, self.source.now()) {
+            (Some(a), Some(b)) => b.saturating_sub(a),
+            _ => started_wall.elapsed(),
+        });
+        let cycle = match result {
             Ok(c) => {
                 self.since_valid.count(c.timings().active());
                 c
@@ -494,6 +579,8 @@ impl<S: FrameSource> Controller<S> {
         };
         // The capture's time: its frames are in (published with Near and the reading).
         let captured_ns = boottime_ns();
+        self.cpu_at_capture = thread_cpu();
+        self.source_cpu = Duration::ZERO;
         let mut out = self.after_capture(&cycle, &req, probe, want_depth, captured_ns);
         out.update.timestamp_ns = Some(captured_ns);
         out
@@ -815,10 +902,11 @@ impl<S: FrameSource> Controller<S> {
         self.rate.next(RateObservation {
             near: m.reading.near,
             distance_mm: m.reading.distance_mm,
+            no_target: m.valid && m.reading.no_target,
         });
         let rate_hz = self.rate.rate_hz();
         self.energy.next_with(
-            CycleObservation::of(cycle, rate_hz),
+            CycleObservation::of(cycle, rate_hz).with_cpu(self.reading_cpu()),
             m.second
                 .as_ref()
                 .map(|c2| CycleObservation::of(c2, rate_hz)),
@@ -928,7 +1016,10 @@ impl<S: FrameSource> Controller<S> {
             modulation_hz: Some(f2_hz),
             ..*req
         };
-        let c2 = match self.source.cycle(&req2) {
+        let cpu_before = thread_cpu();
+        let captured2 = self.source.cycle(&req2);
+        self.source_cpu += thread_cpu().saturating_sub(cpu_before);
+        let c2 = match captured2 {
             Ok(c) => c,
             Err(e) if e.kind() == SourceErrorKind::Unsupported => {
                 self.second.refused(&e.to_string());
@@ -972,9 +1063,9 @@ impl<S: FrameSource> Controller<S> {
     /// shortened so a real target becomes measurable in the next cycle.
     fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
         self.exposure.next(ExposureObservation::Rails);
-        let energy = self
-            .energy
-            .next(CycleObservation::of(cycle, self.rate.rate_hz()));
+        let energy = self.energy.next(
+            CycleObservation::of(cycle, self.rate.rate_hz()).with_cpu(self.reading_cpu()),
+        );
         let sleep = energy.sleep;
         let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;
@@ -991,6 +1082,14 @@ impl<S: FrameSource> Controller<S> {
             near: self.near,
             ..StepOutcome::default()
         }
+    }
+
+    /// The loop thread's CPU time for this cycle's reading so far: from its frames being in
+    /// to now, without the time spent inside the source.
+    fn reading_cpu(&self) -> Duration {
+        thread_cpu()
+            .saturating_sub(self.cpu_at_capture)
+            .saturating_sub(self.source_cpu)
     }
 
     fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
@@ -1583,7 +1682,19 @@ mod tests {
         for _ in 0..20 {
             c.step(false);
         }
-        assert_eq!(c.exposure_us(), 500.0, "lengthened up to the eye-safe max");
+        // the decision's need: a 2 % target at far_mm (150 mm) returns min_amplitude_lsb (8)
+        // with the nominal K 0.09 LSB·m²/µs after 8 · 0.15² / (0.09 · 0.02) = 100 µs
+        let need_us = 8.0 * 0.15 * 0.15 / (0.09 * 0.02);
+        assert!(
+            (c.exposure_us() - need_us).abs() < 1e-6,
+            "lengthened up to the decision's need, not the eye-safe max: {}",
+            c.exposure_us()
+        );
+        c.exposure.set_decision_us(None);
+        for _ in 0..20 {
+            c.step(false);
+        }
+        assert_eq!(c.exposure_us(), 500.0, "without it: up to the eye-safe max");
         let hot = Step::Target {
             distance_mm: 800.0,
             amplitude_lsb: 4000.0,

@@ -199,6 +199,18 @@ pub fn loop_thread<S: FrameSource>(
                 Ok(LoopCmd::Demand(d)) => demand = d,
                 Ok(LoopCmd::Shutdown) | Err(_) => break,
             }
+            match latest_demand(&cmds, demand) {
+                Some(d) => demand = d,
+                None => break,
+            }
+            continue;
+        }
+        // no cycle without a claim: the demand may have gone while the last one ran
+        match latest_demand(&cmds, demand) {
+            Some(d) => demand = d,
+            None => break,
+        }
+        if !(always_on || demand.any()) {
             continue;
         }
         if !active {
@@ -237,6 +249,10 @@ pub fn loop_thread<S: FrameSource>(
             }
             match cmds.recv_timeout(left) {
                 Ok(LoopCmd::Demand(d)) => {
+                    let Some(d) = latest_demand(&cmds, d) else {
+                        events.status(ctl.stop());
+                        return;
+                    };
                     demand = d;
                     if !(always_on || demand.any()) {
                         break;
@@ -251,6 +267,21 @@ pub fn loop_thread<S: FrameSource>(
         }
     }
     events.status(ctl.stop());
+}
+
+/// The latest demand: every command already queued behind `current` is taken at once, so a
+/// churn of claims and releases costs the loop nothing but this drain — it acts on the last
+/// demand only, and never runs a cycle for a claim that is already gone (issue 34). `None`:
+/// shut down.
+fn latest_demand(cmds: &stdmpsc::Receiver<LoopCmd>, current: Demand) -> Option<Demand> {
+    let mut demand = current;
+    loop {
+        match cmds.try_recv() {
+            Ok(LoopCmd::Demand(d)) => demand = d,
+            Ok(LoopCmd::Shutdown) | Err(stdmpsc::TryRecvError::Disconnected) => return None,
+            Err(stdmpsc::TryRecvError::Empty) => return Some(demand),
+        }
+    }
 }
 
 /// Progress of the loop thread (for the watchdog).

@@ -193,7 +193,7 @@ fn parse_window(s: &str) -> Result<RowWindow, String> {
     if rows == 0 {
         return Err("window rows must be > 0".into());
     }
-    Ok(RowWindow { row0, rows })
+    Ok(RowWindow::rows_only(row0, rows))
 }
 
 fn parse_condition(s: &str) -> Result<(String, f64), String> {
