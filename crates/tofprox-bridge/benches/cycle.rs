@@ -100,6 +100,7 @@ fn req(row_window: Option<RowWindow>) -> CycleRequest {
         exposure_us: 300.0,
         row_window,
         modulation_hz: None,
+        single_image: None,
     }
 }
 

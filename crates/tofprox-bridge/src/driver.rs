@@ -254,7 +254,15 @@ impl<T: UsbTransport> SensorDriver<T> {
     /// Check a request against the map without touching the device.
     pub fn check_request(&self, req: &CycleRequest) -> Result<(), BridgeError> {
         let m = &self.cfg.map;
-        m.use_case(req.mode.use_case_name())?;
+        let uc = m.use_case(req.mode.use_case_name())?;
+        if let Some(i) = req.single_image
+            && uc.only_image(usize::from(i)).is_none()
+        {
+            return Err(BridgeError::config(format!(
+                "use case {} has no raw image {i}",
+                req.mode.use_case_name()
+            )));
+        }
         m.exposure_to_reg(req.exposure_us)?;
         m.modulation_write(req.modulation_hz)?;
         if let Some(w) = req.row_window {
@@ -534,7 +542,16 @@ impl<T: UsbTransport> SensorDriver<T> {
 
         // 4. use case, exposure (overwritten by the flash image: thesis 3.5.3), window
         let map = &self.cfg.map;
-        let uc = map.use_case(req.mode.use_case_name())?.clone();
+        let uc = map.use_case(req.mode.use_case_name())?;
+        let uc = match req.single_image {
+            None => uc.clone(),
+            Some(i) => uc.only_image(usize::from(i)).ok_or_else(|| {
+                BridgeError::config(format!(
+                    "use case {} has no raw image {i}",
+                    req.mode.use_case_name()
+                ))
+            })?,
+        };
         let k = uc.phases_deg.len();
         let exp_reg = map.exposure_to_reg(req.exposure_us)?;
         let exposure_us = f64::from(exp_reg) * map.raw.exposure_lsb_us;

@@ -234,6 +234,17 @@ pub struct UseCase {
 }
 
 impl UseCase {
+    /// The use case reduced to its raw image `k` alone (a presence probe), `None` when it has
+    /// no such image.
+    pub fn only_image(&self, k: usize) -> Option<UseCase> {
+        let phase = *self.phases_deg.get(k)?;
+        Some(UseCase {
+            phases_deg: vec![phase],
+            illumination: Some(vec![self.illuminated(k)]),
+            registers: self.registers.clone(),
+        })
+    }
+
     /// Illumination of raw image `k`.
     pub fn illuminated(&self, k: usize) -> bool {
         self.illumination

@@ -31,6 +31,7 @@ fn req(mode: SensorMode, exposure_us: f64) -> CycleRequest {
         exposure_us,
         row_window: None,
         modulation_hz: None,
+        single_image: None,
     }
 }
 
@@ -250,6 +251,7 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
                 exposure_us: 100.0 + f64::from(i % 5) * 50.0,
                 row_window: (i % 4 == 0).then_some(RowWindow::rows_only(40, 60)),
                 modulation_hz: None,
+                single_image: None,
             };
             match d.cycle(&r) {
                 Ok(o) => {

@@ -319,6 +319,10 @@ pub struct CycleRequest<M = Algorithm> {
     /// Modulation frequency (Hz) of this capture; `None`: the sensor's configured one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulation_hz: Option<f64>,
+    /// Capture only raw image `i` of the mode's sequence (a presence probe: one raw image);
+    /// `None`: every raw image of the mode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_image: Option<u16>,
 }
 
 impl<M> CycleRequest<M> {
@@ -329,6 +333,7 @@ impl<M> CycleRequest<M> {
             exposure_us: self.exposure_us,
             row_window: self.row_window,
             modulation_hz: self.modulation_hz,
+            single_image: self.single_image,
         }
     }
 }

@@ -34,6 +34,9 @@ impl FrameSource for Box<dyn FrameSource> {
     fn column_window_align(&self) -> Option<u16> {
         (**self).column_window_align()
     }
+    fn supports_single_image(&self) -> bool {
+        (**self).supports_single_image()
+    }
     fn supports_mode_switch(&self) -> bool {
         (**self).supports_mode_switch()
     }
@@ -134,6 +137,10 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
 
     fn column_window_align(&self) -> Option<u16> {
         column_align(&self.driver.config().map)
+    }
+
+    fn supports_single_image(&self) -> bool {
+        true
     }
 
     fn sensor(&self) -> SensorGeometry {
@@ -443,6 +450,9 @@ impl FrameSource for UsbSource {
     }
     fn column_window_align(&self) -> Option<u16> {
         column_align(&self.dcfg.map)
+    }
+    fn supports_single_image(&self) -> bool {
+        true
     }
     fn sensor(&self) -> SensorGeometry {
         self.dcfg.map.sensor.geometry()

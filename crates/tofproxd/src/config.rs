@@ -88,6 +88,8 @@ pub struct Config {
     pub exposure: ExposureConfig,
     /// Partial read-out.
     pub readout: ReadoutConfig,
+    /// The presence probe while far and still.
+    pub probe: ProbeConfig,
     /// Energy model (thesis table 3.1).
     pub energy: EnergyConfig,
     /// D-Bus.
@@ -114,6 +116,7 @@ impl Default for Config {
             ambient: AmbientConfig::default(),
             exposure: ExposureConfig::default(),
             readout: ReadoutConfig::default(),
+            probe: ProbeConfig::default(),
             energy: EnergyConfig::default(),
             dbus: DbusConfig::default(),
             usb: UsbConfig::default(),
@@ -341,6 +344,48 @@ impl Default for ReadoutConfig {
             margin_rows: 2,
             margin_cols: 0,
         }
+    }
+}
+
+/// `[probe]` — the presence probe (`policy::probe`): while far and still one raw image at
+/// `exposure.min_us` decides whether anything changed; the full reading runs only if it did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ProbeConfig {
+    /// Probe while far and still (where the source captures single raw images).
+    pub enabled: bool,
+    /// Still readings (`loop.still_tolerance_mm`) before probing.
+    pub after_still_readings: u32,
+    /// Probes before a full reading is taken anyway (refreshes the reference and the cover
+    /// window's estimate).
+    pub full_every: u32,
+    /// Side of the square tiles whose mean code is compared (pixels).
+    pub tile_px: u16,
+}
+
+impl Default for ProbeConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            after_still_readings: 1,
+            full_every: 8,
+            tile_px: 16,
+        }
+    }
+}
+
+impl ProbeConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "probe.full_every",
+            self.full_every >= 1,
+            format!("must be >= 1, got {}", self.full_every),
+        )?;
+        range(
+            "probe.tile_px",
+            (1..=64).contains(&self.tile_px),
+            format!("must be within 1..=64, got {}", self.tile_px),
+        )
     }
 }
 
@@ -607,6 +652,7 @@ impl Config {
         self.proximity.validate()?;
         self.ambient.validate()?;
         self.exposure.validate()?;
+        self.probe.validate()?;
         self.energy.validate()?;
         self.dbus.validate()?;
         if self.backend == Backend::Replay {

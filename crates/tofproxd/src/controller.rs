@@ -29,6 +29,9 @@ use crate::config::{Config, Mode};
 use crate::cputime::thread_cpu;
 use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, State, StatusUpdate};
+use crate::policy::probe::{
+    PresenceProbe, ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
+};
 use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
 use crate::policy::window::WINDOW_CHANGE_BOUND;
 use crate::policy::{
@@ -114,6 +117,17 @@ impl RecentCycles {
 /// Time from the hold decision to the release being published (the status event, the
 /// publisher, the bus): our margin, so the release is on the bus within `loop.near_hold_ms`.
 const HOLD_PUBLISH_MARGIN: Duration = Duration::from_millis(20);
+
+/// What a probe that saw no change publishes again: the last full reading.
+#[derive(Debug, Clone, Copy)]
+struct LastFull {
+    /// `DistanceMm` shown.
+    shown_mm: u32,
+    /// The detector's distance.
+    distance_mm: Option<u32>,
+    /// Nothing in range.
+    no_target: bool,
+}
 
 /// Errors building a controller.
 #[derive(Debug, thiserror::Error)]
@@ -223,6 +237,14 @@ pub struct Controller<S: FrameSource> {
     last_sleep: Duration,
     /// How long the last cycles took (the hold bound allows for the next one).
     recent: RecentCycles,
+    /// The presence probe while far and still (`policy::probe`).
+    probe: PresenceProbe,
+    /// `K` at the weak end of the ROI (LSB·m²/µs): the probe's threshold.
+    k_floor: f64,
+    /// The measured phase of targets from zero distance to `near_mm` (rad): the probe image.
+    near_phase_rad: (f64, f64),
+    /// The last full reading, as a probe that saw no change publishes it again.
+    last_full: Option<LastFull>,
     /// The loop thread's CPU time when this cycle's frames were in, and the part of it spent
     /// since inside the source (a second capture: the bridge's, not the reading's work).
     cpu_at_capture: Duration,
@@ -252,44 +274,52 @@ pub fn full_roi(cfg: &Config, full_rows: usize, full_cols: usize) -> Roi {
     }
 }
 
-/// The exposure the near/far decision needs ([`decision_exposure_us`]) with the sensor's `K`
-/// at the weak end of the ROI (its 10th percentile; the config's nominal scale without an
-/// amplitude part).
-fn decision_exposure(
+/// The sensor's `K` at the weak end of the ROI (its 10th percentile; the config's nominal
+/// scale without an amplitude part), LSB·m²/µs: the decision's exposure and the probe's
+/// threshold rest on it.
+fn roi_k_floor(
     cfg: &Config,
     calib: &ModeCalibrations,
     (full_rows, full_cols): (usize, usize),
-) -> Option<f64> {
-    let p = &cfg.proximity;
-    let k = match &calib.amplitude {
-        Some(a) if full_rows > 0 && full_cols > 0 => {
-            let roi = full_roi(cfg, full_rows, full_cols);
-            let k = &a.lsb_m2_per_us;
-            let (r1, c1) = (
-                (roi.row0 + roi.rows).min(k.nrows()),
-                (roi.col0 + roi.cols).min(k.ncols()),
-            );
-            let mut v: Vec<f32> = k
-                .slice(s![roi.row0.min(r1)..r1, roi.col0.min(c1)..c1])
-                .iter()
-                .copied()
-                .filter(|x| x.is_finite() && *x > 0.0)
-                .collect();
-            if v.is_empty() {
-                return None;
-            }
-            let i = v.len() / 10;
-            let (_, k10, _) = v.select_nth_unstable_by(i, f32::total_cmp);
-            f64::from(*k10)
-        }
-        _ => p.nominal_amplitude_scale,
+) -> f64 {
+    let nominal = cfg.proximity.nominal_amplitude_scale;
+    let Some(a) = calib.amplitude.as_ref().filter(|_| full_rows > 0 && full_cols > 0) else {
+        return nominal;
     };
-    decision_exposure_us(
-        k,
-        p.reflectivity_floor,
-        f64::from(p.far_mm) / 1e3,
-        f64::from(cfg.processing.min_amplitude_lsb),
-    )
+    let roi = full_roi(cfg, full_rows, full_cols);
+    let k = &a.lsb_m2_per_us;
+    let (r1, c1) = (
+        (roi.row0 + roi.rows).min(k.nrows()),
+        (roi.col0 + roi.cols).min(k.ncols()),
+    );
+    let mut v: Vec<f32> = k
+        .slice(s![roi.row0.min(r1)..r1, roi.col0.min(c1)..c1])
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    if v.is_empty() {
+        return nominal;
+    }
+    let i = v.len() / 10;
+    let (_, k10, _) = v.select_nth_unstable_by(i, f32::total_cmp);
+    f64::from(*k10)
+}
+
+/// The measured 2-phase phase of a target from zero distance to `near_mm` (rad): the global
+/// delay — the mean of the 2-phase wiggling table's correction, which holds it — plus
+/// `4π·f·d/c` (eq. 2.6).
+fn near_phase_rad(cfg: &Config, calib: &ModeCalibrations, modulation_hz: f64) -> (f64, f64) {
+    let delay = calib.two_phase.wiggling.as_ref().map_or(0.0, |w| {
+        let c = &w.correction_rad;
+        if c.is_empty() {
+            0.0
+        } else {
+            c.iter().map(|&x| f64::from(x)).sum::<f64>() / c.len() as f64
+        }
+    });
+    let near_m = f64::from(cfg.proximity.near_mm) / 1e3;
+    (delay, delay + distance_to_phase_rad(near_m, modulation_hz))
 }
 
 /// The configured ROI in the coordinates of a frame of window `g` (clipped to it).
@@ -338,7 +368,15 @@ impl<S: FrameSource> Controller<S> {
         // Validate detector parameters once up front.
         NearFarDetector::new(detector_config(&cfg, Roi::default()))?;
         let mut exposure = AutoExposure::new(cfg.exposure.clone());
-        exposure.set_decision_us(decision_exposure(&cfg, &calib, source.full_size()));
+        let k_floor = roi_k_floor(&cfg, &calib, source.full_size());
+        exposure.set_decision_us(decision_exposure_us(
+            k_floor,
+            cfg.proximity.reflectivity_floor,
+            f64::from(cfg.proximity.far_mm) / 1e3,
+            f64::from(cfg.processing.min_amplitude_lsb),
+        ));
+        let near_phase_rad = near_phase_rad(&cfg, &calib, source.sensor().modulation_hz);
+        let probe = PresenceProbe::new(cfg.probe.clone());
         Ok(Self {
             ambient: AmbientSwitch::new(
                 cfg.ambient.clone(),
@@ -365,6 +403,10 @@ impl<S: FrameSource> Controller<S> {
             since_valid: SinceValid::default(),
             last_sleep: Duration::ZERO,
             recent: RecentCycles::default(),
+            probe,
+            k_floor,
+            near_phase_rad,
+            last_full: None,
             cpu_at_capture: Duration::ZERO,
             source_cpu: Duration::ZERO,
             near: false,
@@ -465,6 +507,7 @@ impl<S: FrameSource> Controller<S> {
             exposure_us: self.exposure.exposure_us(),
             row_window,
             modulation_hz: None,
+            single_image: None,
         }
     }
 
@@ -548,6 +591,11 @@ impl<S: FrameSource> Controller<S> {
             self.running = true;
             self.state = State::Starting;
         }
+        if !want_depth
+            && let Some(out) = self.presence_probe()
+        {
+            return out;
+        }
         let probe = self.ambient.probe_due();
         let confirm = self.saturation.confirm_due();
         let mut req = self.request(probe || confirm);
@@ -584,6 +632,156 @@ impl<S: FrameSource> Controller<S> {
         let mut out = self.after_capture(&cycle, &req, probe, want_depth, captured_ns);
         out.update.timestamp_ns = Some(captured_ns);
         out
+    }
+
+    /// The presence probe (`policy::probe`), when due: one raw image at `exposure.min_us`.
+    /// `Some`: the cycle's outcome (no change: the last reading again; or the failure);
+    /// `None`: no probe, or it saw a change — the full reading runs now, with the probe's
+    /// energy in it.
+    fn presence_probe(&mut self) -> Option<StepOutcome> {
+        if self.ambient.mode() != Mode::TwoPhase
+            || self.ambient.probe_due()
+            || self.saturation.confirm_due()
+            || !self.source.supports_single_image()
+        {
+            return None;
+        }
+        let last = self.last_full?;
+        let image = self.probe.due(self.near, self.rate.still_readings())?.image;
+        let mut req = self.request(false);
+        req.exposure_us = self.cfg.exposure.min_us;
+        req.single_image = Some(image);
+        self.since_valid.count(self.last_sleep);
+        let result = self.source.cycle(&req);
+        let cycle = match result {
+            Ok(c) => c,
+            Err(e) if e.kind() == SourceErrorKind::Unsupported => {
+                tracing::warn!("presence probe refused by the source ({e}): full readings");
+                self.probe.refused();
+                self.last_sleep = Duration::ZERO;
+                return None;
+            }
+            Err(e) => return Some(self.fail(e)),
+        };
+        self.since_valid.count(cycle.timings().active());
+        let captured_ns = boottime_ns();
+        self.cpu_at_capture = thread_cpu();
+        self.source_cpu = Duration::ZERO;
+        let verdict = self.judge_probe(&cycle);
+        tracing::debug!("presence probe: {verdict:?}");
+        let rate_hz = self.rate.rate_hz();
+        let obs = CycleObservation::of(&cycle, rate_hz).with_cpu(self.reading_cpu());
+        if let ProbeVerdict::Changed { .. } = verdict {
+            self.energy.carry(obs);
+            self.last_sleep = Duration::ZERO;
+            return None;
+        }
+        // nothing changed: the last reading stands, as a reading of its own (still)
+        self.rate.next(RateObservation {
+            near: false,
+            distance_mm: last.distance_mm,
+            no_target: last.no_target,
+        });
+        let energy = self.energy.next(obs);
+        self.last_sleep = energy.sleep;
+        self.consecutive_failures = 0;
+        self.since_valid.reading(self.source.now());
+        self.state = State::Running;
+        Some(StepOutcome {
+            update: StatusUpdate {
+                state: Some(self.state),
+                near: Some(false),
+                timestamp_ns: Some(captured_ns),
+                distance_mm: Some(last.shown_mm),
+                rate_hz: Some(self.rate.rate_hz()),
+                power_mw: Some(energy.average_mw),
+                valid_reading: true,
+                cycle: true,
+                ..StatusUpdate::default()
+            },
+            sleep: energy.sleep,
+            near: false,
+            distance_mm: last.distance_mm,
+            valid: true,
+            captured_mode: Some(Mode::TwoPhase),
+            ..StepOutcome::default()
+        })
+    }
+
+    /// The probe image against the reference: a change when the window differs or any tile
+    /// moved by more than half the weakest near return ([`change_threshold_lsb`]).
+    fn judge_probe(&mut self, cycle: &RawCycle) -> ProbeVerdict {
+        let same_window = self.probe_reference_geometry() == Some(cycle.geometry);
+        let cos_min = self.probe_cos_min();
+        let tiles = self.tiles_of(cycle, 0);
+        let (Some(tiles), true) = (tiles, same_window) else {
+            return self.probe.judge(&[], cycle.exposure_us, 0.0);
+        };
+        let threshold = change_threshold_lsb(
+            self.k_floor,
+            self.cfg.proximity.reflectivity_floor,
+            f64::from(self.cfg.proximity.near_mm) / 1e3,
+            cycle.exposure_us,
+            cos_min,
+        );
+        self.probe.judge(&tiles, cycle.exposure_us, threshold)
+    }
+
+    fn probe_reference_geometry(&self) -> Option<SensorGeometry> {
+        self.probe.reference().map(|r| r.geometry)
+    }
+
+    fn probe_cos_min(&self) -> f64 {
+        self.probe.reference().map_or(0.0, |r| r.cos_min)
+    }
+
+    /// Tile means of raw image `image` of `cycle` above the dark level, over the ROI.
+    fn tiles_of(&self, cycle: &RawCycle, image: usize) -> Option<Vec<f32>> {
+        let g = cycle.geometry;
+        let roi = frame_roi(&self.cfg, g);
+        let dark = self
+            .calib
+            .two_phase
+            .offset
+            .as_ref()
+            .and_then(|o| crop_map(&o.dark_lsb, g, "offset").ok());
+        let dark = dark.as_ref().map(|d| d.view());
+        let (mid, tile) = (g.mid_code() as f32, self.probe.tile_px());
+        Some(match &cycle.frames {
+            RawImages::U16(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            RawImages::F32(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            _ => return None,
+        })
+    }
+
+    /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
+    /// probe image's tile means per µs) and what a probe that sees no change publishes again;
+    /// any other reading leaves none.
+    fn remember_for_probe(&mut self, cycle: &RawCycle, captured: Mode, m: &Measurement) {
+        let far = m.valid && !m.reading.near && !self.near && !m.aliased_far;
+        let reference = (far && captured == Mode::TwoPhase && self.cfg.probe.enabled)
+            .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
+            .flatten()
+            .and_then(|(image, cos_min)| {
+                let tiles = self.tiles_of(cycle, usize::from(image))?;
+                let t = cycle.exposure_us as f32;
+                Some(ProbeReference {
+                    geometry: cycle.geometry,
+                    image,
+                    per_us: tiles.iter().map(|v| v / t).collect(),
+                    cos_min,
+                })
+            });
+        self.last_full = far.then(|| LastFull {
+            shown_mm: shown_distance_mm(&m.reading, self.cfg.proximity.far_mm),
+            distance_mm: m.reading.distance_mm,
+            no_target: m.reading.no_target,
+        });
+        self.probe.full_reading(reference);
     }
 
     /// Everything a cycle's capture (its frames in at `captured_ns`) leads to: a rails
@@ -627,6 +825,7 @@ impl<S: FrameSource> Controller<S> {
     ) -> Result<StepOutcome, SourceError> {
         let m = self.measure(cycle, req, captured, depth_at_ns)?;
         self.monitor_window(cycle, captured, &m);
+        self.remember_for_probe(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
         Ok(self.report(m, energy, captured))
     }
@@ -1488,6 +1687,7 @@ mod tests {
             exposure_us: 100.0,
             row_window: None,
             modulation_hz: None,
+            single_image: None,
         };
         let mut c = src.cycle(&req).unwrap();
         assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);

@@ -472,6 +472,7 @@ fn run_capture<T: UsbTransport>(
         exposure_us: a.exposure_us,
         row_window: a.window,
         modulation_hz: None,
+        single_image: None,
     };
     driver.check_request(&req)?;
     let mut writer: Option<RecordingWriter> = None;

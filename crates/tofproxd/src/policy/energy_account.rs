@@ -94,6 +94,8 @@ pub struct EnergyAccount {
     cfg: EnergyConfig,
     meter: EnergyMeter,
     pacing: Pacing,
+    /// Captures whose reading is the next one's (a probe that saw a change).
+    carried: Option<CycleObservation>,
 }
 
 impl EnergyAccount {
@@ -103,7 +105,14 @@ impl EnergyAccount {
             meter: EnergyMeter::new(cfg.clone()),
             cfg,
             pacing,
+            carried: None,
         }
+    }
+
+    /// A capture that belongs to the next reading (a presence probe that saw a change: the
+    /// full reading follows at once): its energy and time are that reading's.
+    pub fn carry(&mut self, obs: CycleObservation) {
+        self.carried = Some(obs);
     }
 
     /// The meter (totals since start).
@@ -124,7 +133,14 @@ impl EnergyAccount {
         obs: CycleObservation,
         second: Option<CycleObservation>,
     ) -> EnergyDecision {
-        let extra = second.map(|s| (self.energy_of(&s), s.timings.active()));
+        let carried = self.carried.take();
+        let extra = [second, carried]
+            .into_iter()
+            .flatten()
+            .map(|s| (self.energy_of(&s), s.timings.active()))
+            .fold(None, |acc: Option<(crate::energy::CycleEnergy, Duration)>, (e, t)| {
+                Some(acc.map_or((e, t), |(ae, at)| (ae.plus(&e), at + t)))
+            });
         let (extra_e, extra_active) = extra.unwrap_or_default();
         let active = obs.timings.active() + extra_active;
         let sleep = match self.pacing {
@@ -233,6 +249,36 @@ mod tests {
             "sleep after both"
         );
         assert_eq!(two.meter().cycles(), 1, "one reading");
+    }
+
+    /// A probe that saw a change is part of the full reading that follows: one reading with
+    /// both captures' energy, the sleep after both.
+    #[test]
+    fn a_carried_probe_is_accounted_in_the_next_reading() {
+        let mut a = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let probe = CycleObservation {
+            raw_images: 1,
+            exposure_us: 20.0,
+            ..obs(120)
+        };
+        a.carry(probe);
+        let d = a.next(obs(120));
+        let w = |o: &CycleObservation| CycleWork {
+            raw_images: o.raw_images,
+            exposure_us: o.exposure_us,
+            readout_fraction: 1.0,
+            cpu: Duration::ZERO,
+        };
+        let cfg = EnergyConfig::default();
+        let want = cycle_energy(&cfg, &probe.timings, &w(&probe)).total_mj()
+            + cycle_energy(&cfg, &obs(120).timings, &w(&obs(120))).total_mj()
+            + cfg.off_mw * d.sleep.as_secs_f64();
+        assert!((a.meter().total_mj() - want).abs() < 1e-12);
+        assert_eq!(a.meter().cycles(), 1);
+        assert_eq!(
+            d.sleep,
+            Duration::from_millis(500) - 2 * obs(120).timings.active()
+        );
     }
 
     #[test]

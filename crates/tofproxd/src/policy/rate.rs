@@ -48,6 +48,12 @@ impl AdaptiveRate {
         self.rate_hz
     }
 
+    /// Readings in a row that moved less than `loop.still_tolerance_mm` (nothing in range
+    /// after nothing in range included).
+    pub fn still_readings(&self) -> u32 {
+        self.still_count
+    }
+
     /// Forget the motion history (the loop stopped); the rate is kept.
     pub fn reset(&mut self) {
         self.still_count = 0;
