@@ -28,7 +28,7 @@ use crate::boottime::boottime_ns;
 use crate::config::{Config, Mode};
 use crate::cputime::thread_cpu;
 use crate::energy::EnergyMeter;
-use crate::hub::{DepthMessage, State, StatusUpdate};
+use crate::hub::{DepthMessage, Reason, State, StatusUpdate};
 use crate::policy::probe::{
     PresenceProbe, ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
 };
@@ -216,6 +216,8 @@ pub struct Controller<S: FrameSource> {
     calib: ModeCalibrations,
     pipe2: Option<(SensorGeometry, Pipeline)>,
     pipe4: Option<(SensorGeometry, Pipeline)>,
+    /// The second frequency's pipelines (2-phase, 4-phase).
+    pipes_f2: [Option<(SensorGeometry, Pipeline)>; 2],
     detector: Option<(SensorGeometry, NearFarDetector)>,
     /// Amplitude scale cropped to the current read-out window.
     amp_scale: Option<(SensorGeometry, ndarray::Array2<f32>)>,
@@ -397,6 +399,7 @@ impl<S: FrameSource> Controller<S> {
             calib,
             pipe2: None,
             pipe4: None,
+            pipes_f2: [None, None],
             detector: None,
             amp_scale: None,
             consecutive_failures: 0,
@@ -484,6 +487,7 @@ impl<S: FrameSource> Controller<S> {
             timestamp_ns: Some(boottime_ns()),
             distance_mm: Some(0),
             rate_hz: Some(0.0),
+            reason: Some(Reason::Stopped),
             ..StatusUpdate::default()
         }
     }
@@ -548,6 +552,7 @@ impl<S: FrameSource> Controller<S> {
                 timestamp_ns: Some(boottime_ns()),
                 last_error: Some(self.last_error.clone()),
                 has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
+                reason: near_update.map(|_| Reason::HoldExpired),
                 cycle: true,
                 error: true,
                 ..StatusUpdate::default()
@@ -695,6 +700,7 @@ impl<S: FrameSource> Controller<S> {
                 distance_mm: Some(last.shown_mm),
                 rate_hz: Some(self.rate.rate_hz()),
                 power_mw: Some(energy.average_mw),
+                reason: Some(Reason::Probe),
                 valid_reading: true,
                 cycle: true,
                 ..StatusUpdate::default()
@@ -1147,6 +1153,7 @@ impl<S: FrameSource> Controller<S> {
                 } else {
                     "nominal"
                 }),
+                reason: m.valid.then(|| reading_reason(&m)),
                 valid_reading: m.valid,
                 cycle: true,
                 error: false,
@@ -1245,11 +1252,23 @@ impl<S: FrameSource> Controller<S> {
             Mode::TwoPhase => &self.calib.two_phase,
             Mode::FourPhase => &self.calib.four_phase,
         };
-        let calib = at_second_frequency(full, f2_hz / g.modulation_hz);
-        let mut slot = None;
+        // one pipeline per mode at the second frequency, kept while the window is the same
+        // (building one is the costly part: its CPU time is the reading's energy too)
+        let slot = match mode2 {
+            Mode::TwoPhase => &mut self.pipes_f2[0],
+            Mode::FourPhase => &mut self.pipes_f2[1],
+        };
+        if slot.as_ref().is_none_or(|(geo, _)| *geo != g2) {
+            *slot = None;
+        }
+        let calib = if slot.is_none() {
+            at_second_frequency(full, f2_hz / g.modulation_hz)
+        } else {
+            Calibration::default()
+        };
         let min_amp = self.cfg.processing.min_amplitude_lsb;
         let exposure = (c2.exposure_us, self.window.scale());
-        let p = pipeline_slot(&mut slot, &calib, min_amp, mode2, g2, exposure)?;
+        let p = pipeline_slot(slot, &calib, min_amp, mode2, g2, exposure)?;
         let k = c2.frames.dim().0;
         let f2 = process_images(p, &c2.frames, &c2.phases_deg, k)?.clone();
         Ok(Some((c2, f2)))
@@ -1274,6 +1293,7 @@ impl<S: FrameSource> Controller<S> {
                 near: near_update,
                 exposure_us: Some(self.exposure.exposure_us()),
                 power_mw: Some(energy.average_mw),
+                reason: near_update.map(|_| Reason::HoldExpired),
                 cycle: true,
                 ..StatusUpdate::default()
             },
@@ -1309,6 +1329,19 @@ impl<S: FrameSource> Controller<S> {
             }
             None => mid,
         }
+    }
+}
+
+/// The rule that decided a valid reading.
+fn reading_reason(m: &Measurement) -> Reason {
+    if m.reading.near && m.stats.saturated_fraction >= 0.5 {
+        Reason::Saturated
+    } else if m.reading.no_target {
+        Reason::NothingInRange
+    } else if m.aliased_far && !m.reading.near {
+        Reason::SecondFrequency
+    } else {
+        Reason::Distance
     }
 }
 
