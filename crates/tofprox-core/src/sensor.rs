@@ -401,9 +401,7 @@ mod tests {
             ([0, 0], w.full_rows, w.full_cols)
         );
         assert!(g.window(170, 0, 4, 4).is_err());
-        let r = g
-            .row_window(Some(RowWindow::rows_only(40, 20)))
-            .unwrap();
+        let r = g.row_window(Some(RowWindow::rows_only(40, 20))).unwrap();
         assert_eq!((r.roi_origin, r.rows, r.cols), ([40, 0], 20, 224));
         assert_eq!(w.row_window(None).unwrap(), g);
     }

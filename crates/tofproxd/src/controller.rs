@@ -285,7 +285,11 @@ fn roi_k_floor(
     (full_rows, full_cols): (usize, usize),
 ) -> f64 {
     let nominal = cfg.proximity.nominal_amplitude_scale;
-    let Some(a) = calib.amplitude.as_ref().filter(|_| full_rows > 0 && full_cols > 0) else {
+    let Some(a) = calib
+        .amplitude
+        .as_ref()
+        .filter(|_| full_rows > 0 && full_cols > 0)
+    else {
         return nominal;
     };
     let roi = full_roi(cfg, full_rows, full_cols);
@@ -596,9 +600,7 @@ impl<S: FrameSource> Controller<S> {
             self.running = true;
             self.state = State::Starting;
         }
-        if !want_depth
-            && let Some(out) = self.presence_probe()
-        {
+        if !want_depth && let Some(out) = self.presence_probe() {
             return out;
         }
         let probe = self.ambient.probe_due();
@@ -1281,9 +1283,9 @@ impl<S: FrameSource> Controller<S> {
     /// shortened so a real target becomes measurable in the next cycle.
     fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
         self.exposure.next(ExposureObservation::Rails);
-        let energy = self.energy.next(
-            CycleObservation::of(cycle, self.rate.rate_hz()).with_cpu(self.reading_cpu()),
-        );
+        let energy = self
+            .energy
+            .next(CycleObservation::of(cycle, self.rate.rate_hz()).with_cpu(self.reading_cpu()));
         let sleep = energy.sleep;
         let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;

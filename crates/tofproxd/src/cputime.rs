@@ -38,11 +38,17 @@ mod tests {
         // the wall clock, never less)
         let start = std::time::Instant::now();
         let mut x = 0u64;
-        while thread_cpu() - b < Duration::from_millis(5) && start.elapsed() < Duration::from_secs(5) {
+        while thread_cpu() - b < Duration::from_millis(5)
+            && start.elapsed() < Duration::from_secs(5)
+        {
             x = std::hint::black_box(x.wrapping_mul(31).wrapping_add(7));
         }
         let (c, wall) = (thread_cpu(), start.elapsed());
         assert!(c - b >= Duration::from_millis(5), "work: {:?} ({x})", c - b);
-        assert!(c - b <= wall + Duration::from_millis(2), "{:?} > {wall:?}", c - b);
+        assert!(
+            c - b <= wall + Duration::from_millis(2),
+            "{:?} > {wall:?}",
+            c - b
+        );
     }
 }

@@ -493,7 +493,10 @@ mod tests {
         let e = cycle_energy(&cfg, &t, &w);
         let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(close(e.cpu_mj, cfg.cpu_mw_per_core * 0.2e-3), "{e:?}");
-        assert!(close(e.readout_mj, 2.0 * cfg.readout_mj_per_image * 0.25), "{e:?}");
+        assert!(
+            close(e.readout_mj, 2.0 * cfg.readout_mj_per_image * 0.25),
+            "{e:?}"
+        );
         assert!(
             close(
                 e.startup_mj,

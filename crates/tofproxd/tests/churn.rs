@@ -9,12 +9,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
+use tofprox_core::SensorGeometry;
 use tofprox_testkit::bus::PrivateBus;
 use tofproxd::client::ProximityProxy;
 use tofproxd::config::Config;
 use tofproxd::controller::{Controller, ModeCalibrations};
 use tofproxd::run::{BusChoice, Daemon, connect};
-use tofprox_core::SensorGeometry;
 use tofproxd::source::{CycleRequest, FrameSource, RawCycle, ScriptedSource, SourceError, Step};
 
 /// A scripted source that counts the readings' captures it is asked for.
@@ -171,7 +171,10 @@ fn a_churn_of_claims_settles_within_one_cycle_and_a_real_claim_gets_near() {
             n_off,
             "no cycle runs without a claim"
         );
-        assert!(steady_hz > 0.5 * RATE_HZ, "the steady claim ran: {steady_hz}");
+        assert!(
+            steady_hz > 0.5 * RATE_HZ,
+            "the steady claim ran: {steady_hz}"
+        );
         // the loop sleeps the period less the cycle's modelled time (the scripted source's
         // 1 + 10 ms start-up and flash, 2 × 2.5 ms read-out, 2 × ≤ 0.1 ms exposure)
         let min_sleep_s = 1.0 / RATE_HZ - 16.2e-3;
@@ -182,7 +185,9 @@ fn a_churn_of_claims_settles_within_one_cycle_and_a_real_claim_gets_near() {
             off_at - t0
         );
         let status = p.get_status().await.unwrap();
-        let clients = status.get("Clients").map(|v| u32::try_from(v).unwrap_or(99));
+        let clients = status
+            .get("Clients")
+            .map(|v| u32::try_from(v).unwrap_or(99));
         assert_eq!(clients, Some(0), "the leaving connection holds no claim");
 
         // 2. a client claims during a second churn: it gets the right Near, and keeps it
@@ -196,7 +201,11 @@ fn a_churn_of_claims_settles_within_one_cycle_and_a_real_claim_gets_near() {
         assert!(c.near().await.unwrap(), "the hand at 50 mm is near");
         second.await.unwrap();
         tokio::time::sleep(5 * period).await;
-        assert_eq!(c.state().await.unwrap(), "running", "the real claim is held");
+        assert_eq!(
+            c.state().await.unwrap(),
+            "running",
+            "the real claim is held"
+        );
         assert!(c.near().await.unwrap(), "still near after the churn left");
 
         // 3. released: off within one cycle

@@ -632,7 +632,11 @@ impl EmulatedDevice {
             None => (0, full),
         };
         let full_cols = usize::from(self.map.sensor.cols);
-        let columns = self.map.row_window.as_ref().and_then(|w| w.column_registers());
+        let columns = self
+            .map
+            .row_window
+            .as_ref()
+            .and_then(|w| w.column_registers());
         let (col0, cols) = match columns {
             Some((c0_reg, n_reg)) => {
                 let n = usize::from(self.regs[usize::from(n_reg)]);

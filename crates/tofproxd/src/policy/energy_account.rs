@@ -138,9 +138,12 @@ impl EnergyAccount {
             .into_iter()
             .flatten()
             .map(|s| (self.energy_of(&s), s.timings.active()))
-            .fold(None, |acc: Option<(crate::energy::CycleEnergy, Duration)>, (e, t)| {
-                Some(acc.map_or((e, t), |(ae, at)| (ae.plus(&e), at + t)))
-            });
+            .fold(
+                None,
+                |acc: Option<(crate::energy::CycleEnergy, Duration)>, (e, t)| {
+                    Some(acc.map_or((e, t), |(ae, at)| (ae.plus(&e), at + t)))
+                },
+            );
         let (extra_e, extra_active) = extra.unwrap_or_default();
         let active = obs.timings.active() + extra_active;
         let sleep = match self.pacing {

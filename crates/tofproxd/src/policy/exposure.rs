@@ -238,7 +238,11 @@ mod tests {
         });
         a.set_decision_us(Some(t));
         assert_eq!(a.next(roi(0.0, 1.0)), 60.0);
-        assert_eq!(a.next(roi(0.0, 1.0)), 100.0, "capped at the decision's need");
+        assert_eq!(
+            a.next(roi(0.0, 1.0)),
+            100.0,
+            "capped at the decision's need"
+        );
         assert_eq!(a.next(roi(0.0, 1.0)), 100.0, "and kept there");
         assert_eq!(a.next(roi(0.2, 1.0)), 50.0, "saturation still shortens");
         assert_eq!(decision_exposure_us(0.0, rho, far_m, need), None);

@@ -27,7 +27,9 @@ pub mod window;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
-pub use exposure::{AutoExposure, ExposureObservation, decision_exposure_us, saturating_fraction_at};
+pub use exposure::{
+    AutoExposure, ExposureObservation, decision_exposure_us, saturating_fraction_at,
+};
 pub use rate::{AdaptiveRate, RateObservation};
 pub use readout::{ReadoutObservation, ReadoutWindow};
 pub use saturation::{

@@ -116,10 +116,14 @@ impl PresenceProbe {
     pub fn judge(&mut self, tiles: &[f32], exposure_us: f64, threshold_lsb: f64) -> ProbeVerdict {
         self.probes_since_full += 1;
         let Some(r) = &self.reference else {
-            return ProbeVerdict::Changed { worst_lsb: f32::NAN };
+            return ProbeVerdict::Changed {
+                worst_lsb: f32::NAN,
+            };
         };
         if tiles.len() != r.per_us.len() || tiles.is_empty() {
-            return ProbeVerdict::Changed { worst_lsb: f32::NAN };
+            return ProbeVerdict::Changed {
+                worst_lsb: f32::NAN,
+            };
         }
         let t = exposure_us as f32;
         let worst_lsb = tiles
@@ -156,7 +160,10 @@ pub fn tile_means<T: RawSample>(
     let mut out = Vec::with_capacity(r.rows.div_ceil(tile) * r.cols.div_ceil(tile));
     for tr in (r.row0..r.row0 + r.rows).step_by(tile) {
         for tc in (r.col0..r.col0 + r.cols).step_by(tile) {
-            let (re, ce) = ((tr + tile).min(r.row0 + r.rows), (tc + tile).min(r.col0 + r.cols));
+            let (re, ce) = (
+                (tr + tile).min(r.row0 + r.rows),
+                (tc + tile).min(r.col0 + r.cols),
+            );
             let mut sum = 0.0f64;
             for y in tr..re {
                 for x in tc..ce {
@@ -250,7 +257,11 @@ mod tests {
         let t = tile_means(img.view(), Some(dark.view()), 2048.0, roi, 4);
         assert_eq!(t, vec![50.0, 10.0, 10.0, 10.0]);
         let t = tile_means(img.view(), None, 100.0, roi, 4);
-        assert_eq!(t, vec![50.0, 10.0, 10.0, 10.0], "mid code without a dark frame");
+        assert_eq!(
+            t,
+            vec![50.0, 10.0, 10.0, 10.0],
+            "mid code without a dark frame"
+        );
     }
 
     /// An unchanged scene at a shorter exposure is unchanged (the reference scales with t); a
@@ -266,19 +277,37 @@ mod tests {
         assert!(p.due(false, 1).is_some());
         // at 20 µs the reference predicts 10, 2, 0, 4 LSB
         let v = p.judge(&[10.3, 1.9, 0.2, 4.1], 20.0, 1.0);
-        assert!(matches!(v, ProbeVerdict::Unchanged { worst_lsb } if (worst_lsb - 0.3).abs() < 1e-5), "{v:?}");
+        assert!(
+            matches!(v, ProbeVerdict::Unchanged { worst_lsb } if (worst_lsb - 0.3).abs() < 1e-5),
+            "{v:?}"
+        );
         p.judge(&[10.0, 2.0, 0.0, 4.0], 20.0, 1.0);
         p.judge(&[10.0, 2.0, 0.0, 4.0], 20.0, 1.0);
-        assert!(p.due(false, 9).is_none(), "three probes: a full reading is due");
+        assert!(
+            p.due(false, 9).is_none(),
+            "three probes: a full reading is due"
+        );
         p.full_reading(Some(reference(vec![0.5, 0.1, 0.0, 0.2])));
         let v = p.judge(&[10.0, 2.0, 3.5, 4.0], 20.0, 1.0);
-        assert!(matches!(v, ProbeVerdict::Changed { worst_lsb } if (worst_lsb - 3.5).abs() < 1e-5), "{v:?}");
-        assert!(p.due(false, 9).is_none(), "a change: no reference until the next full reading");
+        assert!(
+            matches!(v, ProbeVerdict::Changed { worst_lsb } if (worst_lsb - 3.5).abs() < 1e-5),
+            "{v:?}"
+        );
+        assert!(
+            p.due(false, 9).is_none(),
+            "a change: no reference until the next full reading"
+        );
         p.full_reading(None);
-        assert!(p.due(false, 9).is_none(), "a near or unclear reading leaves none");
+        assert!(
+            p.due(false, 9).is_none(),
+            "a near or unclear reading leaves none"
+        );
         p.full_reading(Some(reference(vec![0.0; 4])));
         p.refused();
-        assert!(p.due(false, 9).is_none(), "a source without single images: never");
+        assert!(
+            p.due(false, 9).is_none(),
+            "a source without single images: never"
+        );
     }
 
     /// The threshold is half of what a 2 % target at near_mm returns in the image, computed

@@ -64,9 +64,7 @@ impl AdaptiveRate {
     pub fn next(&mut self, obs: RateObservation) -> f64 {
         let l = &self.cfg;
         let period_s = 1.0 / self.rate_hz;
-        let distance_mm = obs
-            .distance_mm
-            .or(obs.no_target.then_some(BEYOND_RANGE_MM));
+        let distance_mm = obs.distance_mm.or(obs.no_target.then_some(BEYOND_RANGE_MM));
         let new_rate = if obs.near {
             self.still_count = 0;
             l.fast_rate_hz
@@ -173,7 +171,11 @@ mod tests {
         assert_eq!(r.next(nothing), 2.0);
         assert_eq!(r.next(nothing), 1.0, "three still readings: slow");
         assert_eq!(r.next(nothing), 1.0, "and it stays slow");
-        assert_eq!(r.next(at(400)), 10.0, "a target out of nothing in range: approach");
+        assert_eq!(
+            r.next(at(400)),
+            10.0,
+            "a target out of nothing in range: approach"
+        );
         assert_eq!(r.next(nothing), 2.0, "it left: moving, nominal");
     }
 }

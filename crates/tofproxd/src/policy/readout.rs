@@ -30,7 +30,11 @@ pub struct ReadoutObservation {
 fn span(first: usize, len: usize, margin: usize, align: usize, full: usize) -> (usize, usize) {
     let start = first.saturating_sub(margin) / align * align;
     let end = (first + len + margin).div_ceil(align) * align;
-    let end = if end > full { full / align * align } else { end };
+    let end = if end > full {
+        full / align * align
+    } else {
+        end
+    };
     (start, end.saturating_sub(start))
 }
 
