@@ -799,7 +799,7 @@ fn check_columns(
         )));
     }
     let align = wr.col_align.max(1);
-    if col0 % align != 0 || cols % align != 0 {
+    if !col0.is_multiple_of(align) || !cols.is_multiple_of(align) {
         return Err(BridgeError::config(format!(
             "column window {col0}+{cols} not aligned to {align} columns"
         )));

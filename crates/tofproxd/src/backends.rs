@@ -468,6 +468,12 @@ impl FrameSource for UsbSource {
     }
 }
 
+/// The column alignment of a map whose sequencer reads column windows (`None`: whole rows).
+fn column_align(map: &tofprox_bridge::SensorMap) -> Option<u16> {
+    let w = map.row_window.as_ref()?;
+    w.column_registers().map(|_| w.col_align.max(1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -551,10 +557,4 @@ mod tests {
         );
         assert!(src.describe().contains("USB"), "{}", src.describe());
     }
-}
-
-/// The column alignment of a map whose sequencer reads column windows (`None`: whole rows).
-fn column_align(map: &tofprox_bridge::SensorMap) -> Option<u16> {
-    let w = map.row_window.as_ref()?;
-    w.column_registers().map(|_| w.col_align.max(1))
 }
