@@ -46,7 +46,7 @@ fn model_synth() -> ModelSynth {
 }
 
 /// The partial read-out window measured next to the full frame.
-const WINDOW_40_ROWS: RowWindow = RowWindow { row0: 66, rows: 40 };
+const WINDOW_40_ROWS: RowWindow = RowWindow::rows_only(66, 40);
 
 /// Pre-rendered frames: isolates the driver stack from synthesis.
 struct Replay(Vec<Vec<u16>>);
@@ -100,6 +100,7 @@ fn req(row_window: Option<RowWindow>) -> CycleRequest {
         exposure_us: 300.0,
         row_window,
         modulation_hz: None,
+        single_image: None,
     }
 }
 

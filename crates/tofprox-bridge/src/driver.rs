@@ -113,8 +113,12 @@ pub type CycleRequest = tofprox_core::CycleRequest<SensorMode>;
 pub struct StateTimings {
     /// Reset release until the sensor answered (start-up).
     pub startup: Duration,
-    /// Minimum configuration + flash load(s) + exposure/use-case registers.
+    /// Minimum configuration + flash load(s) + exposure/use-case registers (the bring-up
+    /// included).
     pub config_load: Duration,
+    /// The part of `config_load` that is the minimum configuration and the imager bring-up's
+    /// waits (PLL settling, imager enable): the sensor powered, not yet loading or measuring.
+    pub bring_up: Duration,
     /// Writing the flash (0 unless the image was missing or corrupt).
     pub flash_write: Duration,
     /// Illuminated integration: K × programmed exposure (bounded by the
@@ -250,7 +254,15 @@ impl<T: UsbTransport> SensorDriver<T> {
     /// Check a request against the map without touching the device.
     pub fn check_request(&self, req: &CycleRequest) -> Result<(), BridgeError> {
         let m = &self.cfg.map;
-        m.use_case(req.mode.use_case_name())?;
+        let uc = m.use_case(req.mode.use_case_name())?;
+        if let Some(i) = req.single_image
+            && uc.only_image(usize::from(i)).is_none()
+        {
+            return Err(BridgeError::config(format!(
+                "use case {} has no raw image {i}",
+                req.mode.use_case_name()
+            )));
+        }
         m.exposure_to_reg(req.exposure_us)?;
         m.modulation_write(req.modulation_hz)?;
         if let Some(w) = req.row_window {
@@ -272,6 +284,9 @@ impl<T: UsbTransport> SensorDriver<T> {
                     "row window {}+{} not aligned to {} rows",
                     w.row0, w.rows, wr.align
                 )));
+            }
+            if w.cols > 0 {
+                check_columns(wr, w.col0, w.cols, m.sensor.cols, &m.sensor.name)?;
             }
         }
         Ok(())
@@ -504,6 +519,7 @@ impl<T: UsbTransport> SensorDriver<T> {
 
         // 2. minimum configuration (PLL), the imager enabled
         self.configure_imager()?;
+        timings.bring_up = clock.now() - t1;
 
         // 3. load from flash, write it if missing
         let mut flash_written = false;
@@ -526,7 +542,16 @@ impl<T: UsbTransport> SensorDriver<T> {
 
         // 4. use case, exposure (overwritten by the flash image: thesis 3.5.3), window
         let map = &self.cfg.map;
-        let uc = map.use_case(req.mode.use_case_name())?.clone();
+        let uc = map.use_case(req.mode.use_case_name())?;
+        let uc = match req.single_image {
+            None => uc.clone(),
+            Some(i) => uc.only_image(usize::from(i)).ok_or_else(|| {
+                BridgeError::config(format!(
+                    "use case {} has no raw image {i}",
+                    req.mode.use_case_name()
+                ))
+            })?,
+        };
         let k = uc.phases_deg.len();
         let exp_reg = map.exposure_to_reg(req.exposure_us)?;
         let exposure_us = f64::from(exp_reg) * map.raw.exposure_lsb_us;
@@ -544,18 +569,25 @@ impl<T: UsbTransport> SensorDriver<T> {
             regs.push([raw.illumination_base + i16, u16::from(uc.illuminated(i))]);
         }
         let full_rows = usize::from(map.sensor.rows);
-        let cols = usize::from(map.sensor.cols);
+        let full_cols = usize::from(map.sensor.cols);
         let (row0, rows) = match req.row_window {
             Some(w) => (usize::from(w.row0), usize::from(w.rows)),
             None => (0, full_rows),
         };
+        let (col0, cols) = req
+            .row_window
+            .map_or((0, full_cols), |w| w.columns(full_cols));
         if let Some(wr) = &map.row_window {
-            let (r0, n) = match req.row_window {
-                Some(w) => (w.row0, w.rows),
-                None => (0, 0),
+            let (r0, n, c0, nc) = match req.row_window {
+                Some(w) => (w.row0, w.rows, w.col0, w.cols),
+                None => (0, 0, 0, 0),
             };
             regs.push([wr.row0_register, r0]);
             regs.push([wr.rows_register, n]);
+            if let Some((c0_reg, cols_reg)) = wr.column_registers() {
+                regs.push([c0_reg, if nc == 0 { 0 } else { c0 }]);
+                regs.push([cols_reg, nc]);
+            }
         }
         // registers grouped by address so consecutive ones become bursts
         regs.sort_by_key(|r| r[0]);
@@ -566,7 +598,7 @@ impl<T: UsbTransport> SensorDriver<T> {
 
         // 5. start
         let spec = FrameSpec {
-            frame_bytes: self.cfg.map.frame_bytes(rows),
+            frame_bytes: self.cfg.map.frame_bytes_of(rows, cols),
             pad_align: self.cfg.map.sensor.pad_align,
         };
         self.reasm.reset(spec);
@@ -609,7 +641,8 @@ impl<T: UsbTransport> SensorDriver<T> {
             exposure_us,
             geometry: SensorGeometry {
                 rows,
-                roi_origin: [row0, 0],
+                cols,
+                roi_origin: [row0, col0],
                 modulation_hz,
                 ..map.sensor.geometry()
             },
@@ -745,4 +778,31 @@ impl<T: UsbTransport> SensorDriver<T> {
             format!("measurement incomplete: {next} of {k} raw frames before the deadline"),
         ))
     }
+}
+
+/// A column window must lie inside the array, aligned, and the map must have its registers.
+fn check_columns(
+    wr: &crate::regmap::RowWindowRegs,
+    col0: u16,
+    cols: u16,
+    full_cols: u16,
+    sensor: &str,
+) -> Result<(), BridgeError> {
+    if wr.column_registers().is_none() {
+        return Err(BridgeError::config(format!(
+            "sensor map {sensor} has no column window registers"
+        )));
+    }
+    if u32::from(col0) + u32::from(cols) > u32::from(full_cols) {
+        return Err(BridgeError::config(format!(
+            "column window {col0}+{cols} outside the array's {full_cols} columns"
+        )));
+    }
+    let align = wr.col_align.max(1);
+    if !col0.is_multiple_of(align) || !cols.is_multiple_of(align) {
+        return Err(BridgeError::config(format!(
+            "column window {col0}+{cols} not aligned to {align} columns"
+        )));
+    }
+    Ok(())
 }

@@ -142,6 +142,23 @@ pub struct RowWindowRegs {
     pub rows_register: u16,
     /// Window start and size must be multiples of this.
     pub align: u16,
+    /// First column register, where the sequencer reads a column window too (absent: whole
+    /// rows only).
+    #[serde(default)]
+    pub col0_register: Option<u16>,
+    /// Column count register (0 = every column).
+    #[serde(default)]
+    pub cols_register: Option<u16>,
+    /// Column window start and size must be multiples of this (0 is taken as 1).
+    #[serde(default)]
+    pub col_align: u16,
+}
+
+impl RowWindowRegs {
+    /// The column registers, when the sequencer reads column windows.
+    pub fn column_registers(&self) -> Option<(u16, u16)> {
+        self.col0_register.zip(self.cols_register)
+    }
 }
 
 /// Optional modulation-frequency select: the sensor's PLL offers a few frequencies; a second
@@ -217,6 +234,17 @@ pub struct UseCase {
 }
 
 impl UseCase {
+    /// The use case reduced to its raw image `k` alone (a presence probe), `None` when it has
+    /// no such image.
+    pub fn only_image(&self, k: usize) -> Option<UseCase> {
+        let phase = *self.phases_deg.get(k)?;
+        Some(UseCase {
+            phases_deg: vec![phase],
+            illumination: Some(vec![self.illuminated(k)]),
+            registers: self.registers.clone(),
+        })
+    }
+
     /// Illumination of raw image `k`.
     pub fn illuminated(&self, k: usize) -> bool {
         self.illumination
@@ -551,7 +579,13 @@ impl SensorMap {
 
     /// Bytes of one frame with `rows` pixel rows (status line included).
     pub fn frame_bytes(&self, rows: usize) -> usize {
-        (rows + usize::from(self.sensor.status_line)) * usize::from(self.sensor.cols) * 2
+        self.frame_bytes_of(rows, usize::from(self.sensor.cols))
+    }
+
+    /// Bytes of one raw frame of `rows` × `cols` (a column window; the status line is as wide
+    /// as the rows).
+    pub fn frame_bytes_of(&self, rows: usize, cols: usize) -> usize {
+        (rows + usize::from(self.sensor.status_line)) * cols * 2
     }
 
     /// Exposure register value for `exposure_us` (rounded to the LSB).

@@ -31,6 +31,7 @@ fn req(mode: SensorMode, exposure_us: f64) -> CycleRequest {
         exposure_us,
         row_window: None,
         modulation_hz: None,
+        single_image: None,
     }
 }
 
@@ -114,7 +115,7 @@ fn row_window_reduces_frame_size() {
         .cycle(&req(SensorMode::Depth(Algorithm::TwoPhase), 200.0))
         .unwrap();
     let r = CycleRequest {
-        row_window: Some(RowWindow { row0: 60, rows: 40 }),
+        row_window: Some(RowWindow::rows_only(60, 40)),
         ..req(SensorMode::Depth(Algorithm::TwoPhase), 200.0)
     };
     let win = d.cycle(&r).unwrap();
@@ -123,10 +124,7 @@ fn row_window_reduces_frame_size() {
     assert!(win.timings.readout < full.timings.readout);
     // misaligned / out of range windows are config errors, device untouched
     let bad = CycleRequest {
-        row_window: Some(RowWindow {
-            row0: 161,
-            rows: 40,
-        }),
+        row_window: Some(RowWindow::rows_only(161, 40)),
         ..r
     };
     assert_eq!(d.cycle(&bad).unwrap_err().kind(), ErrorKind::Config);
@@ -251,8 +249,9 @@ fn soak_no_corrupt_frame_reaches_the_caller() {
                     SensorMode::Depth(Algorithm::TwoPhase)
                 },
                 exposure_us: 100.0 + f64::from(i % 5) * 50.0,
-                row_window: (i % 4 == 0).then_some(RowWindow { row0: 40, rows: 60 }),
+                row_window: (i % 4 == 0).then_some(RowWindow::rows_only(40, 60)),
                 modulation_hz: None,
+                single_image: None,
             };
             match d.cycle(&r) {
                 Ok(o) => {

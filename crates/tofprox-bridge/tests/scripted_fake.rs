@@ -252,6 +252,7 @@ const TWO_PHASE_250US: CycleRequest = CycleRequest {
     exposure_us: 250.0,
     row_window: None,
     modulation_hz: None,
+    single_image: None,
 };
 
 fn driver(ops: Vec<Op>) -> (SensorDriver<Scripted>, Arc<VirtualClock>) {

@@ -257,8 +257,10 @@ fn window_fits(key: &'static str, origin: usize, len: usize, full: usize) -> Res
     Ok(())
 }
 
-/// A window of whole rows for a partial read-out (the sensor reads fewer rows, so less data and
-/// read-out time per raw image: thesis 3.5.2).
+/// A window for a partial read-out: whole rows (the sensor reads fewer rows, so less data and
+/// read-out time per raw image: thesis 3.5.2) and, where the sensor's sequencer can, fewer
+/// columns of them (`cols` = 0: every column; fewer conversions, column current sources and
+/// MIPI data, thesis 3.1.2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RowWindow {
@@ -266,12 +268,37 @@ pub struct RowWindow {
     pub row0: u16,
     /// Number of rows.
     pub rows: u16,
+    /// First column (full-array coordinates; with `cols` = 0 ignored).
+    #[serde(default)]
+    pub col0: u16,
+    /// Number of columns; 0 = the full width.
+    #[serde(default)]
+    pub cols: u16,
 }
 
 impl RowWindow {
+    /// Rows `row0..row0 + rows`, every column.
+    pub const fn rows_only(row0: u16, rows: u16) -> Self {
+        Self {
+            row0,
+            rows,
+            col0: 0,
+            cols: 0,
+        }
+    }
+
     /// One past the last row.
     pub fn end(&self) -> u32 {
         u32::from(self.row0) + u32::from(self.rows)
+    }
+
+    /// The columns read of an array `full_cols` wide: `(first, count)`.
+    pub fn columns(&self, full_cols: usize) -> (usize, usize) {
+        if self.cols == 0 {
+            (0, full_cols)
+        } else {
+            (usize::from(self.col0), usize::from(self.cols))
+        }
     }
 }
 
@@ -292,6 +319,10 @@ pub struct CycleRequest<M = Algorithm> {
     /// Modulation frequency (Hz) of this capture; `None`: the sensor's configured one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulation_hz: Option<f64>,
+    /// Capture only raw image `i` of the mode's sequence (a presence probe: one raw image);
+    /// `None`: every raw image of the mode.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_image: Option<u16>,
 }
 
 impl<M> CycleRequest<M> {
@@ -302,6 +333,7 @@ impl<M> CycleRequest<M> {
             exposure_us: self.exposure_us,
             row_window: self.row_window,
             modulation_hz: self.modulation_hz,
+            single_image: self.single_image,
         }
     }
 }
@@ -369,9 +401,7 @@ mod tests {
             ([0, 0], w.full_rows, w.full_cols)
         );
         assert!(g.window(170, 0, 4, 4).is_err());
-        let r = g
-            .row_window(Some(RowWindow { row0: 40, rows: 20 }))
-            .unwrap();
+        let r = g.row_window(Some(RowWindow::rows_only(40, 20))).unwrap();
         assert_eq!((r.roi_origin, r.rows, r.cols), ([40, 0], 20, 224));
         assert_eq!(w.row_window(None).unwrap(), g);
     }

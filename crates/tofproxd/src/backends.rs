@@ -31,6 +31,12 @@ impl FrameSource for Box<dyn FrameSource> {
     fn row_window_align(&self) -> u16 {
         (**self).row_window_align()
     }
+    fn column_window_align(&self) -> Option<u16> {
+        (**self).column_window_align()
+    }
+    fn supports_single_image(&self) -> bool {
+        (**self).supports_single_image()
+    }
     fn supports_mode_switch(&self) -> bool {
         (**self).supports_mode_switch()
     }
@@ -127,6 +133,14 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
             .row_window
             .as_ref()
             .map_or(1, |w| w.align.max(1))
+    }
+
+    fn column_window_align(&self) -> Option<u16> {
+        column_align(&self.driver.config().map)
+    }
+
+    fn supports_single_image(&self) -> bool {
+        true
     }
 
     fn sensor(&self) -> SensorGeometry {
@@ -434,6 +448,12 @@ impl FrameSource for UsbSource {
             .as_ref()
             .map_or(1, |w| w.align.max(1))
     }
+    fn column_window_align(&self) -> Option<u16> {
+        column_align(&self.dcfg.map)
+    }
+    fn supports_single_image(&self) -> bool {
+        true
+    }
     fn sensor(&self) -> SensorGeometry {
         self.dcfg.map.sensor.geometry()
     }
@@ -446,6 +466,12 @@ impl FrameSource for UsbSource {
             self.sel.vendor_id, self.sel.product_id
         )
     }
+}
+
+/// The column alignment of a map whose sequencer reads column windows (`None`: whole rows).
+fn column_align(map: &tofprox_bridge::SensorMap) -> Option<u16> {
+    let w = map.row_window.as_ref()?;
+    w.column_registers().map(|_| w.col_align.max(1))
 }
 
 #[cfg(test)]

@@ -26,16 +26,20 @@ use tofprox_core::radiometry::{AmplitudeScale, NearPlausibility, flag_implausibl
 
 use crate::boottime::boottime_ns;
 use crate::config::{Config, Mode};
+use crate::cputime::thread_cpu;
 use crate::energy::EnergyMeter;
-use crate::hub::{DepthMessage, State, StatusUpdate};
+use crate::hub::{DepthMessage, Reason, State, StatusUpdate};
+use crate::policy::probe::{
+    PresenceProbe, ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
+};
 use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
 use crate::policy::window::WINDOW_CHANGE_BOUND;
 use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
     CycleObservation, EnergyAccount, EnergyDecision, ExposureObservation, Pacing, RailsDecision,
     RailsObservation, RateObservation, ReadoutObservation, ReadoutWindow, SaturationCheck,
-    SecondFrequency, WindowObservation, WindowTracker, rails_point_at_zero_distance,
-    saturating_fraction_at,
+    SecondFrequency, WindowObservation, WindowTracker, decision_exposure_us,
+    rails_point_at_zero_distance, saturating_fraction_at,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
@@ -89,6 +93,40 @@ impl SinceValid {
             _ => self.counted,
         }
     }
+}
+
+/// The longest of the last few cycles (each from its start to its end, failing ones too): what
+/// the next attempt may take before it can release a held Near, so the release never comes
+/// after `loop.near_hold_ms` (issue 34: 1,018 ms were seen on the daemon's own clock).
+#[derive(Debug, Default)]
+struct RecentCycles {
+    took: [Duration; 8],
+    next: usize,
+}
+
+impl RecentCycles {
+    fn note(&mut self, d: Duration) {
+        self.took[self.next] = d;
+        self.next = (self.next + 1) % self.took.len();
+    }
+    fn longest(&self) -> Duration {
+        self.took.iter().copied().max().unwrap_or_default()
+    }
+}
+
+/// Time from the hold decision to the release being published (the status event, the
+/// publisher, the bus): our margin, so the release is on the bus within `loop.near_hold_ms`.
+const HOLD_PUBLISH_MARGIN: Duration = Duration::from_millis(20);
+
+/// What a probe that saw no change publishes again: the last full reading.
+#[derive(Debug, Clone, Copy)]
+struct LastFull {
+    /// `DistanceMm` shown.
+    shown_mm: u32,
+    /// The detector's distance.
+    distance_mm: Option<u32>,
+    /// Nothing in range.
+    no_target: bool,
 }
 
 /// Errors building a controller.
@@ -178,6 +216,8 @@ pub struct Controller<S: FrameSource> {
     calib: ModeCalibrations,
     pipe2: Option<(SensorGeometry, Pipeline)>,
     pipe4: Option<(SensorGeometry, Pipeline)>,
+    /// The second frequency's pipelines (2-phase, 4-phase).
+    pipes_f2: [Option<(SensorGeometry, Pipeline)>; 2],
     detector: Option<(SensorGeometry, NearFarDetector)>,
     /// Amplitude scale cropped to the current read-out window.
     amp_scale: Option<(SensorGeometry, ndarray::Array2<f32>)>,
@@ -197,6 +237,20 @@ pub struct Controller<S: FrameSource> {
     since_valid: SinceValid,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
+    /// How long the last cycles took (the hold bound allows for the next one).
+    recent: RecentCycles,
+    /// The presence probe while far and still (`policy::probe`).
+    probe: PresenceProbe,
+    /// `K` at the weak end of the ROI (LSB·m²/µs): the probe's threshold.
+    k_floor: f64,
+    /// The measured phase of targets from zero distance to `near_mm` (rad): the probe image.
+    near_phase_rad: (f64, f64),
+    /// The last full reading, as a probe that saw no change publishes it again.
+    last_full: Option<LastFull>,
+    /// The loop thread's CPU time when this cycle's frames were in, and the part of it spent
+    /// since inside the source (a second capture: the bridge's, not the reading's work).
+    cpu_at_capture: Duration,
+    source_cpu: Duration,
     near: bool,
     running: bool,
     last_error: String,
@@ -220,6 +274,58 @@ pub fn full_roi(cfg: &Config, full_rows: usize, full_cols: usize) -> Roi {
         .resolve(full_rows, full_cols),
         None => Roi::centered(full_rows, full_cols, 0.5),
     }
+}
+
+/// The sensor's `K` at the weak end of the ROI (its 10th percentile; the config's nominal
+/// scale without an amplitude part), LSB·m²/µs: the decision's exposure and the probe's
+/// threshold rest on it.
+fn roi_k_floor(
+    cfg: &Config,
+    calib: &ModeCalibrations,
+    (full_rows, full_cols): (usize, usize),
+) -> f64 {
+    let nominal = cfg.proximity.nominal_amplitude_scale;
+    let Some(a) = calib
+        .amplitude
+        .as_ref()
+        .filter(|_| full_rows > 0 && full_cols > 0)
+    else {
+        return nominal;
+    };
+    let roi = full_roi(cfg, full_rows, full_cols);
+    let k = &a.lsb_m2_per_us;
+    let (r1, c1) = (
+        (roi.row0 + roi.rows).min(k.nrows()),
+        (roi.col0 + roi.cols).min(k.ncols()),
+    );
+    let mut v: Vec<f32> = k
+        .slice(s![roi.row0.min(r1)..r1, roi.col0.min(c1)..c1])
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    if v.is_empty() {
+        return nominal;
+    }
+    let i = v.len() / 10;
+    let (_, k10, _) = v.select_nth_unstable_by(i, f32::total_cmp);
+    f64::from(*k10)
+}
+
+/// The measured 2-phase phase of a target from zero distance to `near_mm` (rad): the global
+/// delay — the mean of the 2-phase wiggling table's correction, which holds it — plus
+/// `4π·f·d/c` (eq. 2.6).
+fn near_phase_rad(cfg: &Config, calib: &ModeCalibrations, modulation_hz: f64) -> (f64, f64) {
+    let delay = calib.two_phase.wiggling.as_ref().map_or(0.0, |w| {
+        let c = &w.correction_rad;
+        if c.is_empty() {
+            0.0
+        } else {
+            c.iter().map(|&x| f64::from(x)).sum::<f64>() / c.len() as f64
+        }
+    });
+    let near_m = f64::from(cfg.proximity.near_mm) / 1e3;
+    (delay, delay + distance_to_phase_rad(near_m, modulation_hz))
 }
 
 /// The configured ROI in the coordinates of a frame of window `g` (clipped to it).
@@ -267,13 +373,23 @@ impl<S: FrameSource> Controller<S> {
         }
         // Validate detector parameters once up front.
         NearFarDetector::new(detector_config(&cfg, Roi::default()))?;
+        let mut exposure = AutoExposure::new(cfg.exposure.clone());
+        let k_floor = roi_k_floor(&cfg, &calib, source.full_size());
+        exposure.set_decision_us(decision_exposure_us(
+            k_floor,
+            cfg.proximity.reflectivity_floor,
+            f64::from(cfg.proximity.far_mm) / 1e3,
+            f64::from(cfg.processing.min_amplitude_lsb),
+        ));
+        let near_phase_rad = near_phase_rad(&cfg, &calib, source.sensor().modulation_hz);
+        let probe = PresenceProbe::new(cfg.probe.clone());
         Ok(Self {
             ambient: AmbientSwitch::new(
                 cfg.ambient.clone(),
                 cfg.processing.mode,
                 source.supports_mode_switch(),
             ),
-            exposure: AutoExposure::new(cfg.exposure.clone()),
+            exposure,
             rate: AdaptiveRate::new(cfg.loop_.clone()),
             readout: ReadoutWindow::new(cfg.readout.clone()),
             energy: EnergyAccount::new(cfg.energy.clone(), Pacing::of(&cfg)),
@@ -287,11 +403,19 @@ impl<S: FrameSource> Controller<S> {
             calib,
             pipe2: None,
             pipe4: None,
+            pipes_f2: [None, None],
             detector: None,
             amp_scale: None,
             consecutive_failures: 0,
             since_valid: SinceValid::default(),
             last_sleep: Duration::ZERO,
+            recent: RecentCycles::default(),
+            probe,
+            k_floor,
+            near_phase_rad,
+            last_full: None,
+            cpu_at_capture: Duration::ZERO,
+            source_cpu: Duration::ZERO,
             near: false,
             running: false,
             last_error: String::new(),
@@ -367,6 +491,7 @@ impl<S: FrameSource> Controller<S> {
             timestamp_ns: Some(boottime_ns()),
             distance_mm: Some(0),
             rate_hz: Some(0.0),
+            reason: Some(Reason::Stopped),
             ..StatusUpdate::default()
         }
     }
@@ -378,6 +503,8 @@ impl<S: FrameSource> Controller<S> {
             roi: full_roi(&self.cfg, full_rows, full_cols),
             source_supports: self.source.supports_row_window(),
             align_rows: self.source.row_window_align(),
+            full_cols,
+            align_cols: self.source.column_window_align(),
         });
         CycleRequest {
             mode: if probe {
@@ -388,6 +515,7 @@ impl<S: FrameSource> Controller<S> {
             exposure_us: self.exposure.exposure_us(),
             row_window,
             modulation_hz: None,
+            single_image: None,
         }
     }
 
@@ -428,6 +556,7 @@ impl<S: FrameSource> Controller<S> {
                 timestamp_ns: Some(boottime_ns()),
                 last_error: Some(self.last_error.clone()),
                 has_sensor: Some(err.kind() != SourceErrorKind::Disconnected),
+                reason: near_update.map(|_| Reason::HoldExpired),
                 cycle: true,
                 error: true,
                 ..StatusUpdate::default()
@@ -448,7 +577,9 @@ impl<S: FrameSource> Controller<S> {
     fn no_reading(&mut self, next_sleep: Duration) -> Option<bool> {
         let since = self.since_valid.elapsed(self.source.now());
         let bound = Duration::from_millis(self.cfg.loop_.near_hold_ms);
-        if self.near && since + next_sleep >= bound {
+        // the next attempt ends after the sleep and a cycle as long as the recent ones
+        let next_attempt = next_sleep + self.recent.longest() + HOLD_PUBLISH_MARGIN;
+        if self.near && since + next_attempt >= bound {
             tracing::info!(
                 "no valid reading for {} ms (next attempt after {} ms more): Near released",
                 since.as_millis(),
@@ -469,6 +600,9 @@ impl<S: FrameSource> Controller<S> {
             self.running = true;
             self.state = State::Starting;
         }
+        if !want_depth && let Some(out) = self.presence_probe() {
+            return out;
+        }
         let probe = self.ambient.probe_due();
         let confirm = self.saturation.confirm_due();
         let mut req = self.request(probe || confirm);
@@ -477,7 +611,13 @@ impl<S: FrameSource> Controller<S> {
             req.exposure_us = self.cfg.exposure.min_us;
         }
         self.since_valid.count(self.last_sleep);
-        let cycle = match self.source.cycle(&req) {
+        let (started, started_wall) = (self.source.now(), std::time::Instant::now());
+        let result = self.source.cycle(&req);
+        self.recent.note(match (started, self.source.now()) {
+            (Some(a), Some(b)) => b.saturating_sub(a),
+            _ => started_wall.elapsed(),
+        });
+        let cycle = match result {
             Ok(c) => {
                 self.since_valid.count(c.timings().active());
                 c
@@ -494,9 +634,162 @@ impl<S: FrameSource> Controller<S> {
         };
         // The capture's time: its frames are in (published with Near and the reading).
         let captured_ns = boottime_ns();
+        self.cpu_at_capture = thread_cpu();
+        self.source_cpu = Duration::ZERO;
         let mut out = self.after_capture(&cycle, &req, probe, want_depth, captured_ns);
         out.update.timestamp_ns = Some(captured_ns);
         out
+    }
+
+    /// The presence probe (`policy::probe`), when due: one raw image at `exposure.min_us`.
+    /// `Some`: the cycle's outcome (no change: the last reading again; or the failure);
+    /// `None`: no probe, or it saw a change — the full reading runs now, with the probe's
+    /// energy in it.
+    fn presence_probe(&mut self) -> Option<StepOutcome> {
+        if self.ambient.mode() != Mode::TwoPhase
+            || self.ambient.probe_due()
+            || self.saturation.confirm_due()
+            || !self.source.supports_single_image()
+        {
+            return None;
+        }
+        let last = self.last_full?;
+        let image = self.probe.due(self.near, self.rate.still_readings())?.image;
+        let mut req = self.request(false);
+        req.exposure_us = self.cfg.exposure.min_us;
+        req.single_image = Some(image);
+        self.since_valid.count(self.last_sleep);
+        let result = self.source.cycle(&req);
+        let cycle = match result {
+            Ok(c) => c,
+            Err(e) if e.kind() == SourceErrorKind::Unsupported => {
+                tracing::warn!("presence probe refused by the source ({e}): full readings");
+                self.probe.refused();
+                self.last_sleep = Duration::ZERO;
+                return None;
+            }
+            Err(e) => return Some(self.fail(e)),
+        };
+        self.since_valid.count(cycle.timings().active());
+        let captured_ns = boottime_ns();
+        self.cpu_at_capture = thread_cpu();
+        self.source_cpu = Duration::ZERO;
+        let verdict = self.judge_probe(&cycle);
+        tracing::debug!("presence probe: {verdict:?}");
+        let rate_hz = self.rate.rate_hz();
+        let obs = CycleObservation::of(&cycle, rate_hz).with_cpu(self.reading_cpu());
+        if let ProbeVerdict::Changed { .. } = verdict {
+            self.energy.carry(obs);
+            self.last_sleep = Duration::ZERO;
+            return None;
+        }
+        // nothing changed: the last reading stands, as a reading of its own (still)
+        self.rate.next(RateObservation {
+            near: false,
+            distance_mm: last.distance_mm,
+            no_target: last.no_target,
+        });
+        let energy = self.energy.next(obs);
+        self.last_sleep = energy.sleep;
+        self.consecutive_failures = 0;
+        self.since_valid.reading(self.source.now());
+        self.state = State::Running;
+        Some(StepOutcome {
+            update: StatusUpdate {
+                state: Some(self.state),
+                near: Some(false),
+                timestamp_ns: Some(captured_ns),
+                distance_mm: Some(last.shown_mm),
+                rate_hz: Some(self.rate.rate_hz()),
+                power_mw: Some(energy.average_mw),
+                reason: Some(Reason::Probe),
+                valid_reading: true,
+                cycle: true,
+                ..StatusUpdate::default()
+            },
+            sleep: energy.sleep,
+            near: false,
+            distance_mm: last.distance_mm,
+            valid: true,
+            captured_mode: Some(Mode::TwoPhase),
+            ..StepOutcome::default()
+        })
+    }
+
+    /// The probe image against the reference: a change when the window differs or any tile
+    /// moved by more than half the weakest near return ([`change_threshold_lsb`]).
+    fn judge_probe(&mut self, cycle: &RawCycle) -> ProbeVerdict {
+        let same_window = self.probe_reference_geometry() == Some(cycle.geometry);
+        let cos_min = self.probe_cos_min();
+        let tiles = self.tiles_of(cycle, 0);
+        let (Some(tiles), true) = (tiles, same_window) else {
+            return self.probe.judge(&[], cycle.exposure_us, 0.0);
+        };
+        let threshold = change_threshold_lsb(
+            self.k_floor,
+            self.cfg.proximity.reflectivity_floor,
+            f64::from(self.cfg.proximity.near_mm) / 1e3,
+            cycle.exposure_us,
+            cos_min,
+        );
+        self.probe.judge(&tiles, cycle.exposure_us, threshold)
+    }
+
+    fn probe_reference_geometry(&self) -> Option<SensorGeometry> {
+        self.probe.reference().map(|r| r.geometry)
+    }
+
+    fn probe_cos_min(&self) -> f64 {
+        self.probe.reference().map_or(0.0, |r| r.cos_min)
+    }
+
+    /// Tile means of raw image `image` of `cycle` above the dark level, over the ROI.
+    fn tiles_of(&self, cycle: &RawCycle, image: usize) -> Option<Vec<f32>> {
+        let g = cycle.geometry;
+        let roi = frame_roi(&self.cfg, g);
+        let dark = self
+            .calib
+            .two_phase
+            .offset
+            .as_ref()
+            .and_then(|o| crop_map(&o.dark_lsb, g, "offset").ok());
+        let dark = dark.as_ref().map(|d| d.view());
+        let (mid, tile) = (g.mid_code() as f32, self.probe.tile_px());
+        Some(match &cycle.frames {
+            RawImages::U16(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            RawImages::F32(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            _ => return None,
+        })
+    }
+
+    /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
+    /// probe image's tile means per µs) and what a probe that sees no change publishes again;
+    /// any other reading leaves none.
+    fn remember_for_probe(&mut self, cycle: &RawCycle, captured: Mode, m: &Measurement) {
+        let far = m.valid && !m.reading.near && !self.near && !m.aliased_far;
+        let reference = (far && captured == Mode::TwoPhase && self.cfg.probe.enabled)
+            .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
+            .flatten()
+            .and_then(|(image, cos_min)| {
+                let tiles = self.tiles_of(cycle, usize::from(image))?;
+                let t = cycle.exposure_us as f32;
+                Some(ProbeReference {
+                    geometry: cycle.geometry,
+                    image,
+                    per_us: tiles.iter().map(|v| v / t).collect(),
+                    cos_min,
+                })
+            });
+        self.last_full = far.then(|| LastFull {
+            shown_mm: shown_distance_mm(&m.reading, self.cfg.proximity.far_mm),
+            distance_mm: m.reading.distance_mm,
+            no_target: m.reading.no_target,
+        });
+        self.probe.full_reading(reference);
     }
 
     /// Everything a cycle's capture (its frames in at `captured_ns`) leads to: a rails
@@ -540,6 +833,7 @@ impl<S: FrameSource> Controller<S> {
     ) -> Result<StepOutcome, SourceError> {
         let m = self.measure(cycle, req, captured, depth_at_ns)?;
         self.monitor_window(cycle, captured, &m);
+        self.remember_for_probe(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
         Ok(self.report(m, energy, captured))
     }
@@ -815,10 +1109,11 @@ impl<S: FrameSource> Controller<S> {
         self.rate.next(RateObservation {
             near: m.reading.near,
             distance_mm: m.reading.distance_mm,
+            no_target: m.valid && m.reading.no_target,
         });
         let rate_hz = self.rate.rate_hz();
         self.energy.next_with(
-            CycleObservation::of(cycle, rate_hz),
+            CycleObservation::of(cycle, rate_hz).with_cpu(self.reading_cpu()),
             m.second
                 .as_ref()
                 .map(|c2| CycleObservation::of(c2, rate_hz)),
@@ -860,6 +1155,7 @@ impl<S: FrameSource> Controller<S> {
                 } else {
                     "nominal"
                 }),
+                reason: m.valid.then(|| reading_reason(&m)),
                 valid_reading: m.valid,
                 cycle: true,
                 error: false,
@@ -928,7 +1224,10 @@ impl<S: FrameSource> Controller<S> {
             modulation_hz: Some(f2_hz),
             ..*req
         };
-        let c2 = match self.source.cycle(&req2) {
+        let cpu_before = thread_cpu();
+        let captured2 = self.source.cycle(&req2);
+        self.source_cpu += thread_cpu().saturating_sub(cpu_before);
+        let c2 = match captured2 {
             Ok(c) => c,
             Err(e) if e.kind() == SourceErrorKind::Unsupported => {
                 self.second.refused(&e.to_string());
@@ -955,11 +1254,23 @@ impl<S: FrameSource> Controller<S> {
             Mode::TwoPhase => &self.calib.two_phase,
             Mode::FourPhase => &self.calib.four_phase,
         };
-        let calib = at_second_frequency(full, f2_hz / g.modulation_hz);
-        let mut slot = None;
+        // one pipeline per mode at the second frequency, kept while the window is the same
+        // (building one is the costly part: its CPU time is the reading's energy too)
+        let slot = match mode2 {
+            Mode::TwoPhase => &mut self.pipes_f2[0],
+            Mode::FourPhase => &mut self.pipes_f2[1],
+        };
+        if slot.as_ref().is_none_or(|(geo, _)| *geo != g2) {
+            *slot = None;
+        }
+        let calib = if slot.is_none() {
+            at_second_frequency(full, f2_hz / g.modulation_hz)
+        } else {
+            Calibration::default()
+        };
         let min_amp = self.cfg.processing.min_amplitude_lsb;
         let exposure = (c2.exposure_us, self.window.scale());
-        let p = pipeline_slot(&mut slot, &calib, min_amp, mode2, g2, exposure)?;
+        let p = pipeline_slot(slot, &calib, min_amp, mode2, g2, exposure)?;
         let k = c2.frames.dim().0;
         let f2 = process_images(p, &c2.frames, &c2.phases_deg, k)?.clone();
         Ok(Some((c2, f2)))
@@ -974,7 +1285,7 @@ impl<S: FrameSource> Controller<S> {
         self.exposure.next(ExposureObservation::Rails);
         let energy = self
             .energy
-            .next(CycleObservation::of(cycle, self.rate.rate_hz()));
+            .next(CycleObservation::of(cycle, self.rate.rate_hz()).with_cpu(self.reading_cpu()));
         let sleep = energy.sleep;
         let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;
@@ -984,6 +1295,7 @@ impl<S: FrameSource> Controller<S> {
                 near: near_update,
                 exposure_us: Some(self.exposure.exposure_us()),
                 power_mw: Some(energy.average_mw),
+                reason: near_update.map(|_| Reason::HoldExpired),
                 cycle: true,
                 ..StatusUpdate::default()
             },
@@ -991,6 +1303,14 @@ impl<S: FrameSource> Controller<S> {
             near: self.near,
             ..StepOutcome::default()
         }
+    }
+
+    /// The loop thread's CPU time for this cycle's reading so far: from its frames being in
+    /// to now, without the time spent inside the source.
+    fn reading_cpu(&self) -> Duration {
+        thread_cpu()
+            .saturating_sub(self.cpu_at_capture)
+            .saturating_sub(self.source_cpu)
     }
 
     fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
@@ -1011,6 +1331,19 @@ impl<S: FrameSource> Controller<S> {
             }
             None => mid,
         }
+    }
+}
+
+/// The rule that decided a valid reading.
+fn reading_reason(m: &Measurement) -> Reason {
+    if m.reading.near && m.stats.saturated_fraction >= 0.5 {
+        Reason::Saturated
+    } else if m.reading.no_target {
+        Reason::NothingInRange
+    } else if m.aliased_far && !m.reading.near {
+        Reason::SecondFrequency
+    } else {
+        Reason::Distance
     }
 }
 
@@ -1389,6 +1722,7 @@ mod tests {
             exposure_us: 100.0,
             row_window: None,
             modulation_hz: None,
+            single_image: None,
         };
         let mut c = src.cycle(&req).unwrap();
         assert_eq!(check_cycle(&c).unwrap(), Mode::FourPhase);
@@ -1583,7 +1917,19 @@ mod tests {
         for _ in 0..20 {
             c.step(false);
         }
-        assert_eq!(c.exposure_us(), 500.0, "lengthened up to the eye-safe max");
+        // the decision's need: a 2 % target at far_mm (150 mm) returns min_amplitude_lsb (8)
+        // with the nominal K 0.09 LSB·m²/µs after 8 · 0.15² / (0.09 · 0.02) = 100 µs
+        let need_us = 8.0 * 0.15 * 0.15 / (0.09 * 0.02);
+        assert!(
+            (c.exposure_us() - need_us).abs() < 1e-6,
+            "lengthened up to the decision's need, not the eye-safe max: {}",
+            c.exposure_us()
+        );
+        c.exposure.set_decision_us(None);
+        for _ in 0..20 {
+            c.step(false);
+        }
+        assert_eq!(c.exposure_us(), 500.0, "without it: up to the eye-safe max");
         let hot = Step::Target {
             distance_mm: 800.0,
             amplitude_lsb: 4000.0,

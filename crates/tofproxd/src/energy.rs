@@ -1,10 +1,12 @@
 //! Energy model of the low-power loop (thesis 3.1.2, table 3.1; 3.5.3; 5.x "1 mW").
 //!
-//! One reading costs: start-up after reset release + loading the configuration
-//! from SPI flash (+ rarely writing it) + exposing K raw images + reading them
-//! out; between readings the sensor is held in reset (or idles powered when the
-//! loop does not reset it). Durations come from the driver's measured state
-//! timings of every cycle; powers/energies from [`EnergyConfig`].
+//! One reading costs: start-up after reset release and the imager bring-up's waits +
+//! loading the configuration from SPI flash (+ rarely writing it) + exposing K raw images +
+//! reading out the pixels read + the CPU time the daemon spent on the reading; between readings
+//! the sensor is held in reset (or idles powered when the loop does not reset it). Durations
+//! come from the driver's measured state timings of every cycle and the loop's measured CPU
+//! time; powers/energies from [`EnergyConfig`] (every figure's source or "ours" in
+//! docs/daemon.md, "Energy model").
 
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -18,7 +20,9 @@ use crate::config::EnergyConfig;
 pub struct CycleTimings {
     /// Reset release until the sensor answers.
     pub startup: Duration,
-    /// Minimum configuration + load from flash.
+    /// The minimum configuration and the imager bring-up's waits (PLL, enable).
+    pub bring_up: Duration,
+    /// Load from flash and the use-case/exposure registers.
     pub config_load: Duration,
     /// Writing the flash (first run / corrupted flash only).
     pub flash_write: Duration,
@@ -33,7 +37,8 @@ impl From<&StateTimings> for CycleTimings {
     fn from(t: &StateTimings) -> Self {
         CycleTimings {
             startup: t.startup,
-            config_load: t.config_load,
+            bring_up: t.bring_up,
+            config_load: t.config_load.saturating_sub(t.bring_up),
             flash_write: t.flash_write,
             exposure: t.exposure,
             readout: t.readout + t.shutdown,
@@ -44,14 +49,19 @@ impl From<&StateTimings> for CycleTimings {
 impl CycleTimings {
     /// Sum of all active states.
     pub fn active(&self) -> Duration {
-        self.startup + self.config_load + self.flash_write + self.exposure + self.readout
+        self.startup
+            + self.bring_up
+            + self.config_load
+            + self.flash_write
+            + self.exposure
+            + self.readout
     }
 }
 
-/// Energy of one reading, split by state (mJ).
+/// Energy of one reading, split by part (mJ).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct CycleEnergy {
-    /// Start-up (mJ).
+    /// Start-up: reset release and the imager bring-up's waits (mJ).
     pub startup_mj: f64,
     /// Flash load + write (mJ).
     pub flash_mj: f64,
@@ -59,36 +69,57 @@ pub struct CycleEnergy {
     pub capture_mj: f64,
     /// Read-out (mJ).
     pub readout_mj: f64,
+    /// The daemon's CPU time for the reading at `energy.cpu_mw_per_core` (mJ).
+    pub cpu_mj: f64,
 }
 
 impl CycleEnergy {
     /// Total (mJ).
     pub fn total_mj(&self) -> f64 {
-        self.startup_mj + self.flash_mj + self.capture_mj + self.readout_mj
+        self.startup_mj + self.flash_mj + self.capture_mj + self.readout_mj + self.cpu_mj
+    }
+
+    /// Part by part sum of two readings' energies (a reading with a second capture).
+    pub fn plus(&self, o: &CycleEnergy) -> CycleEnergy {
+        CycleEnergy {
+            startup_mj: self.startup_mj + o.startup_mj,
+            flash_mj: self.flash_mj + o.flash_mj,
+            capture_mj: self.capture_mj + o.capture_mj,
+            readout_mj: self.readout_mj + o.readout_mj,
+            cpu_mj: self.cpu_mj + o.cpu_mj,
+        }
     }
 }
 
-/// Energy of one cycle from its state durations.
-/// `raw_images` = K, `exposure_us` = per raw image; `rows_fraction` scales the
-/// read-out energy for a partial read-out (fewer active ADC rows, less MIPI data, thesis 3.1.2).
-pub fn cycle_energy(
-    cfg: &EnergyConfig,
-    t: &CycleTimings,
-    raw_images: u32,
-    exposure_us: f64,
-    rows_fraction: f64,
-) -> CycleEnergy {
+/// What of a cycle the energy depends on besides its state durations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CycleWork {
+    /// Raw images K.
+    pub raw_images: u32,
+    /// Exposure per raw image (µs).
+    pub exposure_us: f64,
+    /// Share of the array's pixels read out (1 = the full array): the read-out energy is the
+    /// conversions and the MIPI data of the pixels read (thesis 3.1.2: "fewer active ADCs and
+    /// current sources ... less data", linear in the raw images; linear in the pixels is ours).
+    pub readout_fraction: f64,
+    /// The daemon's CPU time for the reading (measured on the loop thread).
+    pub cpu: Duration,
+}
+
+/// Energy of one cycle from its state durations and its work.
+pub fn cycle_energy(cfg: &EnergyConfig, t: &CycleTimings, w: &CycleWork) -> CycleEnergy {
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
-    let k = f64::from(raw_images);
+    let k = f64::from(w.raw_images);
     CycleEnergy {
         // mW × ms = µJ → /1000 mJ
-        startup_mj: cfg.startup_mw * ms(t.startup) / 1e3,
+        startup_mj: (cfg.startup_mw * ms(t.startup) + cfg.bring_up_mw * ms(t.bring_up)) / 1e3,
         flash_mj: (cfg.flash_load_mw * ms(t.config_load) + cfg.flash_write_mw * ms(t.flash_write))
             / 1e3,
         // table 3.1: capture energy ∝ images × exposure, at the power of the mode's row
-        capture_mj: cfg.capture_mw(raw_images) * k * exposure_us.max(0.0) / 1e6,
-        // table 3.1: read-out energy ∝ number of raw images (linear, 3.1.2)
-        readout_mj: cfg.readout_mj_per_image * k * rows_fraction.clamp(0.0, 1.0),
+        capture_mj: cfg.capture_mw(w.raw_images) * k * w.exposure_us.max(0.0) / 1e6,
+        // table 3.1: read-out energy ∝ number of raw images (linear, 3.1.2), × pixels read
+        readout_mj: cfg.readout_mj_per_image * k * w.readout_fraction.clamp(0.0, 1.0),
+        cpu_mj: cfg.cpu_mw_per_core * ms(w.cpu) / 1e3,
     }
 }
 
@@ -149,37 +180,71 @@ impl EnergyMeter {
     }
 }
 
-/// Nominal durations for the modelled (not measured) figure of `tofprox power`.
+/// Nominal durations for the modelled (not measured) figure of `tofprox power`: the emulated
+/// IRS1645-class sensor's timing model, where the public record has none (docs/daemon.md,
+/// "Energy model", says which figure is whose).
 #[derive(Debug, Clone, Copy)]
 pub struct Nominal {
-    /// Start-up after reset (ms).
+    /// Start-up after reset (ms): ours (the emulated sensor's `startup_us`).
     pub startup_ms: f64,
     /// The imager bring-up's waits after the PLL registers (ms): the PLL's 2 ms and the 2 ms
-    /// after `EN`, from the public record (`docs/bridge.md`), spent at the configuration power.
+    /// after `EN`, from the public record (`docs/bridge.md`), at `energy.bring_up_mw`.
     pub bring_up_ms: f64,
-    /// Config load from flash (ms).
+    /// Config load from flash (ms): the image's registers over the sensor's SPI (ours: the
+    /// emulated sensor's 0.3 ms + 2 µs per register of the shipped image).
     pub flash_load_ms: f64,
-    /// Read-out time per raw image (ms).
+    /// Read-out time per raw image of the full array (ms).
     pub readout_ms_per_image: f64,
+    /// Share of the array's pixels read (the shipped ROI's read-out window).
+    pub readout_fraction: f64,
+    /// The daemon's CPU time per reading (ms; `cargo bench -p tofproxd --bench daemon`).
+    pub cpu_ms: f64,
 }
 
 impl Default for Nominal {
     fn default() -> Self {
-        // Assumptions (documented in docs/daemon.md): IRS1645-class start-up ≈ 1 ms,
-        // flash configuration load ≈ 10 ms over SPI, ~2.5 ms read-out per raw image; the
-        // bring-up's 2 + 2 ms waits are public (docs/bridge.md).
         Self {
-            startup_ms: 1.0,
+            startup_ms: 0.8,
             bring_up_ms: 4.0,
-            flash_load_ms: 10.0,
-            readout_ms_per_image: 2.5,
+            flash_load_ms: 0.5,
+            readout_ms_per_image: 1.4,
+            readout_fraction: 1.0,
+            cpu_ms: 0.1,
         }
     }
 }
 
+/// The modelled energy of one reading of K raw images at `exposure_us` (the low-power loop:
+/// restarted, configured from flash, read out, in reset again), part by part.
+pub fn modelled_reading(
+    cfg: &EnergyConfig,
+    nominal: &Nominal,
+    raw_images: u32,
+    exposure_us: f64,
+) -> (CycleEnergy, CycleTimings) {
+    let ms = |v: f64| Duration::from_secs_f64(v.max(0.0) / 1e3);
+    let k = f64::from(raw_images);
+    let t = CycleTimings {
+        startup: ms(nominal.startup_ms),
+        bring_up: ms(nominal.bring_up_ms),
+        config_load: ms(nominal.flash_load_ms),
+        flash_write: Duration::ZERO,
+        exposure: ms(k * exposure_us / 1e3),
+        readout: ms(k * nominal.readout_ms_per_image * nominal.readout_fraction),
+    };
+    let w = CycleWork {
+        raw_images,
+        exposure_us,
+        readout_fraction: nominal.readout_fraction,
+        cpu: ms(nominal.cpu_ms),
+    };
+    (cycle_energy(cfg, &t, &w), t)
+}
+
 /// Modelled average power (mW) of the loop at `rate_hz` with K raw images.
 /// `reset_between` = the low-power loop (sensor off between readings, 3.5.3);
-/// `false` = sensor idling powered between readings (table 3.1's setting).
+/// `false` = sensor idling powered between readings (table 3.1's setting: no start-up, no
+/// flash load, no CPU counted).
 pub fn modelled_average_mw(
     cfg: &EnergyConfig,
     nominal: &Nominal,
@@ -188,31 +253,26 @@ pub fn modelled_average_mw(
     rate_hz: f64,
     reset_between: bool,
 ) -> f64 {
-    let k = f64::from(raw_images);
     let period_s = 1.0 / rate_hz;
-    let t = CycleTimings {
-        startup: if reset_between {
-            Duration::from_secs_f64(nominal.startup_ms / 1e3)
-        } else {
-            Duration::ZERO
-        },
-        config_load: if reset_between {
-            Duration::from_secs_f64((nominal.bring_up_ms + nominal.flash_load_ms) / 1e3)
-        } else {
-            Duration::ZERO
-        },
-        flash_write: Duration::ZERO,
-        exposure: Duration::from_secs_f64(k * exposure_us / 1e6),
-        readout: Duration::from_secs_f64(k * nominal.readout_ms_per_image / 1e3),
+    let n = if reset_between {
+        *nominal
+    } else {
+        Nominal {
+            startup_ms: 0.0,
+            bring_up_ms: 0.0,
+            flash_load_ms: 0.0,
+            cpu_ms: 0.0,
+            ..*nominal
+        }
     };
-    let e = cycle_energy(cfg, &t, raw_images, exposure_us, 1.0).total_mj();
+    let (e, t) = modelled_reading(cfg, &n, raw_images, exposure_us);
     let rest_s = (period_s - t.active().as_secs_f64()).max(0.0);
     let rest_mw = if reset_between {
         cfg.off_mw
     } else {
         cfg.idle_mw
     };
-    (e + rest_mw * rest_s) / period_s
+    (e.total_mj() + rest_mw * rest_s) / period_s
 }
 
 /// A commercial proximity sensor of thesis table 2.1.
@@ -336,14 +396,12 @@ mod tests {
     fn reproduces_every_row_of_table_3_1() {
         let cfg = EnergyConfig::default();
         let nominal = Nominal {
-            startup_ms: 0.0,
-            bring_up_ms: 0.0,
-            flash_load_ms: 0.0,
             readout_ms_per_image: 0.65,
+            ..Nominal::default()
         };
         for (k, fps, texp_ms, capture_mj, want) in TABLE_3_1 {
             let t = CycleTimings::default();
-            let e = cycle_energy(&cfg, &t, k, texp_ms * 1e3, 1.0).capture_mj;
+            let e = cycle_energy(&cfg, &t, &work(k, texp_ms * 1e3)).capture_mj;
             assert!(
                 (e - capture_mj).abs() / capture_mj < 0.01,
                 "mode {k} t_exp {texp_ms} ms: capture {e} mJ vs table {capture_mj}"
@@ -358,12 +416,21 @@ mod tests {
 
     /// 4-phase (4 images at mode 5's power) costs 384/290 per image-exposure more than the
     /// 2-phase rate: at 1 ms the old single 290 mW figure was 23 % low.
+    fn work(raw_images: u32, exposure_us: f64) -> CycleWork {
+        CycleWork {
+            raw_images,
+            exposure_us,
+            readout_fraction: 1.0,
+            cpu: Duration::ZERO,
+        }
+    }
+
     #[test]
     fn four_phase_exposes_at_mode_5_power() {
         let cfg = EnergyConfig::default();
         let t = CycleTimings::default();
-        let two = cycle_energy(&cfg, &t, 2, 1000.0, 1.0).capture_mj;
-        let four = cycle_energy(&cfg, &t, 4, 1000.0, 1.0).capture_mj;
+        let two = cycle_energy(&cfg, &t, &work(2, 1000.0)).capture_mj;
+        let four = cycle_energy(&cfg, &t, &work(4, 1000.0)).capture_mj;
         assert!((two - 0.58).abs() < 1e-9, "{two}");
         assert!((four - 4.0 * 0.384).abs() < 1e-9, "{four}");
         let old = 4.0 * 0.290;
@@ -372,28 +439,24 @@ mod tests {
 
     #[test]
     fn low_power_loop_is_about_one_milliwatt() {
-        // thesis 5.x: "the overall power-consumption reduces to 1mW" (without start-up/flash);
-        // with our documented start-up and flash costs it stays in the low-mW range.
-        let cfg = EnergyConfig {
-            startup_mw: 0.0,
-            flash_load_mw: 0.0,
-            ..EnergyConfig::default()
+        // thesis 5.x: "the overall power-consumption reduces to 1mW" (without start-up/flash,
+        // the full array read out); with our start-up, flash and CPU costs it stays low-mW.
+        let bare = Nominal {
+            startup_ms: 0.0,
+            bring_up_ms: 0.0,
+            flash_load_ms: 0.0,
+            cpu_ms: 0.0,
+            ..Nominal::default()
         };
-        let got = modelled_average_mw(&cfg, &Nominal::default(), 2, 100.0, 1.0, true);
+        let cfg = EnergyConfig::default();
+        let got = modelled_average_mw(&cfg, &bare, 2, 100.0, 1.0, true);
         assert!((0.7..1.0).contains(&got), "{got}");
-        let with_costs = modelled_average_mw(
-            &EnergyConfig::default(),
-            &Nominal::default(),
-            2,
-            100.0,
-            1.0,
-            true,
-        );
+        let with_costs = modelled_average_mw(&cfg, &Nominal::default(), 2, 100.0, 1.0, true);
         assert!(with_costs > got && with_costs < 2.0, "{with_costs}");
-        // the bring-up's 4 ms of waits per reading cost the configuration power instead of
-        // 4 ms off in reset: at 1 Hz, (flash_load_mw − off_mw) × 4 ms / 1 s
+        // the bring-up's 4 ms of waits per reading cost the bring-up power instead of 4 ms
+        // off in reset: at 1 Hz, (bring_up_mw − off_mw) × 4 ms / 1 s
         let without_bring_up = modelled_average_mw(
-            &EnergyConfig::default(),
+            &cfg,
             &Nominal {
                 bring_up_ms: 0.0,
                 ..Nominal::default()
@@ -403,12 +466,48 @@ mod tests {
             1.0,
             true,
         );
-        let e = EnergyConfig::default();
-        let want_mw = (e.flash_load_mw - e.off_mw) * 4e-3;
+        let want_mw = (cfg.bring_up_mw - cfg.off_mw) * 4e-3;
         assert!(
             (with_costs - without_bring_up - want_mw).abs() < 1e-9,
             "{with_costs} - {without_bring_up}"
         );
+    }
+
+    /// Each part of a reading as its law says: the CPU at the per-core power, the read-out
+    /// scaled by the pixels read, start-up and bring-up at their powers.
+    #[test]
+    fn every_part_of_a_reading_follows_its_law() {
+        let cfg = EnergyConfig::default();
+        let t = CycleTimings {
+            startup: Duration::from_micros(800),
+            bring_up: Duration::from_millis(4),
+            config_load: Duration::from_micros(500),
+            ..CycleTimings::default()
+        };
+        let w = CycleWork {
+            raw_images: 2,
+            exposure_us: 100.0,
+            readout_fraction: 0.25,
+            cpu: Duration::from_micros(200),
+        };
+        let e = cycle_energy(&cfg, &t, &w);
+        let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(close(e.cpu_mj, cfg.cpu_mw_per_core * 0.2e-3), "{e:?}");
+        assert!(
+            close(e.readout_mj, 2.0 * cfg.readout_mj_per_image * 0.25),
+            "{e:?}"
+        );
+        assert!(
+            close(
+                e.startup_mj,
+                (cfg.startup_mw * 0.8 + cfg.bring_up_mw * 4.0) / 1e3
+            ),
+            "{e:?}"
+        );
+        assert!(close(e.flash_mj, cfg.flash_load_mw * 0.5 / 1e3), "{e:?}");
+        assert!(close(e.capture_mj, 0.058), "{e:?}");
+        let sum = e.startup_mj + e.flash_mj + e.capture_mj + e.readout_mj + e.cpu_mj;
+        assert!(close(e.total_mj(), sum));
     }
 
     #[test]

@@ -99,6 +99,50 @@ pub struct Status {
     /// calibration's amplitude scale), `"nominal"` (no amplitude calibration: the config's
     /// nominal scale), `""` before the first cycle.
     pub amplitude_check: &'static str,
+    /// The rule that decided the last reading (or released a held Near).
+    pub reason: Reason,
+}
+
+/// Which rule decided a reading (`GetStatus()["Reason"]`; issue 34, for issue 37's
+/// `tofprox monitor --json` rows).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Reason {
+    /// No reading yet.
+    #[default]
+    None,
+    /// The ROI statistic against the thresholds (near at once, far after the debounce).
+    Distance,
+    /// Nothing in range: no pixel returned enough light for a target (far).
+    NothingInRange,
+    /// Every code on a rail from the sensor's own return: something too close to measure.
+    Saturated,
+    /// A dim near candidate unwrapped beyond `far_mm` at the second frequency (far).
+    SecondFrequency,
+    /// A presence probe saw no change: the last reading stands.
+    Probe,
+    /// Something pressed on the cover window (its return jumped while near): near.
+    OnTheWindow,
+    /// Near released: no valid reading for `loop.near_hold_ms`.
+    HoldExpired,
+    /// The loop stopped (no claim).
+    Stopped,
+}
+
+impl Reason {
+    /// The name published.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Reason::None => "",
+            Reason::Distance => "distance",
+            Reason::NothingInRange => "nothing_in_range",
+            Reason::Saturated => "saturated",
+            Reason::SecondFrequency => "second_frequency",
+            Reason::Probe => "probe_unchanged",
+            Reason::OnTheWindow => "on_the_window",
+            Reason::HoldExpired => "hold_expired",
+            Reason::Stopped => "stopped",
+        }
+    }
 }
 
 /// What a client can claim (each held per unique bus name).
@@ -259,6 +303,7 @@ impl Hub {
             errors: 0,
             backend,
             amplitude_check: "",
+            reason: Reason::None,
         };
         let hub = Arc::new(Self {
             inner: Mutex::new(HubInner {
@@ -516,6 +561,9 @@ impl Hub {
             if let Some(v) = u.amplitude_check {
                 s.amplitude_check = v;
             }
+            if let Some(v) = u.reason {
+                s.reason = v;
+            }
             if u.cycle {
                 s.cycles += 1;
             }
@@ -585,6 +633,8 @@ pub struct StatusUpdate {
     pub has_sensor: Option<bool>,
     /// How near readings are checked (see [`Status::amplitude_check`]).
     pub amplitude_check: Option<&'static str>,
+    /// The rule that decided this update's reading.
+    pub reason: Option<Reason>,
     /// This update carries a valid reading.
     pub valid_reading: bool,
     /// This update is one completed cycle (counts).

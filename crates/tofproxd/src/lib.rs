@@ -14,6 +14,7 @@ pub mod calibration;
 pub mod client;
 pub mod config;
 pub mod controller;
+pub mod cputime;
 pub mod data;
 pub mod energy;
 pub mod hub;

@@ -203,6 +203,7 @@ pub fn loop_thread<S: FrameSource>(
 ) {
     let mut demand = Demand::default();
     let mut active = false;
+    let mut next_at = std::time::Instant::now();
     loop {
         let want = always_on || demand.any();
         if !want {
@@ -215,7 +216,27 @@ pub fn loop_thread<S: FrameSource>(
                 Ok(LoopCmd::Demand(d)) => demand = d,
                 Ok(LoopCmd::Shutdown) | Err(_) => break,
             }
+            match latest_demand(&cmds, demand) {
+                Some(d) => demand = d,
+                None => break,
+            }
             continue;
+        }
+        // no cycle without a claim: the demand may have gone while the last one ran
+        match latest_demand(&cmds, demand) {
+            Some(d) => demand = d,
+            None => break,
+        }
+        if !(always_on || demand.any()) {
+            continue;
+        }
+        // Sleep until the cycle's time: one timed wait; a demand change wakes us early only
+        // when it stops the loop. A claim right after a release waits for the time too, so a
+        // churn of claims never runs the loop faster than its rate.
+        match wait_until(&cmds, next_at, &mut demand, always_on) {
+            Waited::Due => {}
+            Waited::DemandGone => continue,
+            Waited::Shutdown => break,
         }
         if !active {
             active = true;
@@ -242,31 +263,65 @@ pub fn loop_thread<S: FrameSource>(
                 }
             }
         }
-        // Sleep until the next cycle: one timed wait; a demand change wakes us early only
-        // when it stops the loop.
-        let deadline = std::time::Instant::now() + out.sleep;
-        loop {
-            let now = std::time::Instant::now();
-            let left = deadline.saturating_duration_since(now);
-            if left.is_zero() {
-                break;
-            }
-            match cmds.recv_timeout(left) {
-                Ok(LoopCmd::Demand(d)) => {
-                    demand = d;
-                    if !(always_on || demand.any()) {
-                        break;
-                    }
-                }
-                Ok(LoopCmd::Shutdown) | Err(stdmpsc::RecvTimeoutError::Disconnected) => {
-                    events.status(ctl.stop());
-                    return;
-                }
-                Err(stdmpsc::RecvTimeoutError::Timeout) => break,
-            }
-        }
+        // the next cycle's time: waited for at the top, also after a stop and a new claim
+        next_at = std::time::Instant::now() + out.sleep;
     }
     events.status(ctl.stop());
+}
+
+/// How a wait for the next cycle ended.
+enum Waited {
+    /// The cycle's time came with a claim held.
+    Due,
+    /// The last claim went.
+    DemandGone,
+    /// Shut down.
+    Shutdown,
+}
+
+/// Wait until `deadline` (one timed wait), following the latest demand on the way.
+fn wait_until(
+    cmds: &stdmpsc::Receiver<LoopCmd>,
+    deadline: std::time::Instant,
+    demand: &mut Demand,
+    always_on: bool,
+) -> Waited {
+    loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return Waited::Due;
+        }
+        match cmds.recv_timeout(left) {
+            Ok(LoopCmd::Demand(d)) => {
+                let Some(d) = latest_demand(cmds, d) else {
+                    return Waited::Shutdown;
+                };
+                *demand = d;
+                if !(always_on || demand.any()) {
+                    return Waited::DemandGone;
+                }
+            }
+            Ok(LoopCmd::Shutdown) | Err(stdmpsc::RecvTimeoutError::Disconnected) => {
+                return Waited::Shutdown;
+            }
+            Err(stdmpsc::RecvTimeoutError::Timeout) => return Waited::Due,
+        }
+    }
+}
+
+/// The latest demand: every command already queued behind `current` is taken at once, so a
+/// churn of claims and releases costs the loop nothing but this drain — it acts on the last
+/// demand only, and never runs a cycle for a claim that is already gone (issue 34). `None`:
+/// shut down.
+fn latest_demand(cmds: &stdmpsc::Receiver<LoopCmd>, current: Demand) -> Option<Demand> {
+    let mut demand = current;
+    loop {
+        match cmds.try_recv() {
+            Ok(LoopCmd::Demand(d)) => demand = d,
+            Ok(LoopCmd::Shutdown) | Err(stdmpsc::TryRecvError::Disconnected) => return None,
+            Err(stdmpsc::TryRecvError::Empty) => return Some(demand),
+        }
+    }
 }
 
 /// Progress of the loop thread (for the watchdog).

@@ -238,6 +238,7 @@ fn calibrate_crosstalk_behind(
         exposure_us,
         row_window: None,
         modulation_hz: None,
+        single_image: None,
     };
     let mut outs = Vec::with_capacity(count);
     for _ in 0..count {

@@ -312,6 +312,7 @@ impl Proximity {
         m.insert("Errors".into(), OwnedVariant::from(s.errors));
         m.insert("Backend".into(), variant_str(&s.backend));
         m.insert("AmplitudeCheck".into(), variant_str(s.amplitude_check));
+        m.insert("Reason".into(), variant_str(s.reason.as_str()));
         m.insert("Clients".into(), OwnedVariant::from(c.proximity_clients));
         m.insert(
             "ProximityClaims".into(),

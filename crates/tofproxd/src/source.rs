@@ -163,6 +163,16 @@ pub trait FrameSource: Send {
     fn row_window_align(&self) -> u16 {
         1
     }
+    /// The column alignment of a column window, where the source reads one (`None`: the
+    /// window is whole rows).
+    fn column_window_align(&self) -> Option<u16> {
+        None
+    }
+    /// Whether the source captures a single raw image of a mode on request
+    /// (`CycleRequest::single_image`: the presence probe).
+    fn supports_single_image(&self) -> bool {
+        false
+    }
     /// Whether the source can capture 4-phase on request (replay cannot choose).
     fn supports_mode_switch(&self) -> bool {
         true

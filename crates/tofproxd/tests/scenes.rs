@@ -74,10 +74,13 @@ fn nothing_in_range_is_a_reading_even_with_a_high_amplitude_floor() {
 #[test]
 fn a_smudged_cover_window_is_reported_and_a_clean_one_is_not() {
     let b = shipped();
-    // long enough for the monitor's 8 readings at the slow rate (1 Hz when nothing changes)
+    // long enough for the monitor's 8 full readings at the slow rate (1 Hz when nothing
+    // changes): while far and still the presence probe takes one full reading every
+    // `probe.full_every` + 1 readings, and only full readings see the window
+    let every = f64::from(b.config.probe.full_every + 1);
     let long = |name: &str| {
         let mut s = scene(&b, name);
-        s.duration_s = 12.0;
+        s.duration_s = 8.0 * every / b.config.loop_.slow_rate_hz + 8.0;
         s
     };
     let clean = run_scene(&b, &long("nothing_in_range"), 1).expect("runs");

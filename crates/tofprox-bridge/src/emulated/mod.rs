@@ -71,6 +71,9 @@ struct Measurement {
     regs: Vec<(u16, u16, bool)>, // exposure reg, phase reg, illumination
     row0: usize,
     rows: usize,
+    /// The column window: first column and count (every column: 0 and the array's width).
+    col0: usize,
+    cols: usize,
     /// Modulation frequency of this measurement (Hz).
     modulation_hz: f64,
     next_raw: usize,
@@ -628,6 +631,26 @@ impl EmulatedDevice {
             }
             None => (0, full),
         };
+        let full_cols = usize::from(self.map.sensor.cols);
+        let columns = self
+            .map
+            .row_window
+            .as_ref()
+            .and_then(|w| w.column_registers());
+        let (col0, cols) = match columns {
+            Some((c0_reg, n_reg)) => {
+                let n = usize::from(self.regs[usize::from(n_reg)]);
+                let c0 = usize::from(self.regs[usize::from(c0_reg)]);
+                if n == 0 {
+                    (0, full_cols)
+                } else if c0 + n > full_cols {
+                    return;
+                } else {
+                    (c0, n)
+                }
+            }
+            None => (0, full_cols),
+        };
         let mut raws = Vec::with_capacity(k);
         let mut regs = Vec::with_capacity(k);
         for i in 0..k as u16 {
@@ -653,6 +676,8 @@ impl EmulatedDevice {
             regs,
             row0,
             rows,
+            col0,
+            cols,
             modulation_hz,
             next_raw: 0,
             frame_counter: 0,
@@ -666,14 +691,16 @@ impl EmulatedDevice {
     /// time on the clock).
     fn produce_frame(&mut self) -> Result<(), BridgeError> {
         let t = self.cfg.timing.clone();
-        let cols = usize::from(self.map.sensor.cols);
+        let full_cols = usize::from(self.map.sensor.cols);
         let status_line = self.map.sensor.status_line;
         let Some(m) = self.meas.as_mut() else {
             return Ok(());
         };
         let i = m.next_raw;
         let raw = m.raws[i];
-        let mut wait_us = raw.exposure_us + t.readout_per_row_us * m.rows as f64;
+        // a row's conversions are its columns read (ours: time ∝ columns)
+        let row_us = t.readout_per_row_us * m.cols as f64 / full_cols.max(1) as f64;
+        let mut wait_us = raw.exposure_us + row_us * m.rows as f64;
         if m.first {
             wait_us += t.measurement_start_us;
             m.first = false;
@@ -701,7 +728,15 @@ impl EmulatedDevice {
             illumination: il,
             crc32: 0,
         });
-        let mut bytes = encode_frame(&m.superframe[i], cols, st);
+        let mut bytes = if m.cols == full_cols {
+            encode_frame(&m.superframe[i], full_cols, st)
+        } else {
+            let window: Vec<u16> = m.superframe[i]
+                .chunks_exact(full_cols)
+                .flat_map(|row| row[m.col0..m.col0 + m.cols].iter().copied())
+                .collect();
+            encode_frame(&window, m.cols, st)
+        };
         let align = self.map.sensor.pad_align;
         bytes.resize(bytes.len().div_ceil(align) * align, 0);
         m.frame_counter = m.frame_counter.wrapping_add(1);

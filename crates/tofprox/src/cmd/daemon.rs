@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use tofproxd::client::ProximityProxy;
 use tofproxd::config::{Config, Mode};
-use tofproxd::energy::{Nominal, TABLE_2_1, modelled_average_mw};
+use tofproxd::energy::{CycleEnergy, Nominal, TABLE_2_1, modelled_average_mw, modelled_reading};
 use tofproxd::run::BusChoice;
 use tofproxd::service::next_item;
 
@@ -154,8 +154,13 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
     if !(exposure.is_finite() && exposure > 0.0 && exposure <= 10_000.0) {
         bail!("--exposure-us must be within (0, 10000], got {exposure}");
     }
-    let nominal = Nominal::default();
+    let nominal = Nominal {
+        readout_fraction: shipped_readout_fraction(&cfg),
+        ..Nominal::default()
+    };
     let k = mode.raw_images() as u32;
+    let (full, _) = modelled_reading(&cfg.energy, &nominal, k, exposure);
+    let (probe, _) = modelled_reading(&cfg.energy, &nominal, 1, cfg.exposure.min_us);
     let low = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, true);
     let powered = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, false);
     let slow = modelled_average_mw(
@@ -189,6 +194,8 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
             "powered_idle_average_mw": powered,
             "slow_rate_hz": cfg.loop_.slow_rate_hz, "slow_average_mw": slow,
             "fast_rate_hz": cfg.loop_.fast_rate_hz, "fast_average_mw": fast,
+            "reading_parts_mj": parts_json(&full), "probe_parts_mj": parts_json(&probe),
+            "readout_fraction": nominal.readout_fraction,
             "table_2_1": refs,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
@@ -212,12 +219,28 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         cfg.loop_.slow_rate_hz, cfg.loop_.fast_rate_hz
     );
     println!(
-        "  assumptions: start-up {:.1} ms at {} mW, flash load {:.1} ms at {} mW, read-out {:.1} ms/image, reset {} mW",
+        "  one reading         {:.3} mJ: {}",
+        full.total_mj(),
+        parts_line(&full)
+    );
+    println!(
+        "  one presence probe  {:.3} mJ: {} (1 raw image at {:.0} µs, while far and still)",
+        probe.total_mj(),
+        parts_line(&probe),
+        cfg.exposure.min_us
+    );
+    println!(
+        "  assumptions: start-up {:.1} ms at {} mW + bring-up {:.1} ms at {} mW, flash load {:.1} ms at {} mW, read-out {:.1} ms/image of {:.0} % of the pixels, CPU {:.2} ms at {} mW, reset {} mW",
         nominal.startup_ms,
         cfg.energy.startup_mw,
+        nominal.bring_up_ms,
+        cfg.energy.bring_up_mw,
         nominal.flash_load_ms,
         cfg.energy.flash_load_mw,
         nominal.readout_ms_per_image,
+        nominal.readout_fraction * 100.0,
+        nominal.cpu_ms,
+        cfg.energy.cpu_mw_per_core,
         cfg.energy.off_mw
     );
     println!();
@@ -245,6 +268,43 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         1.87
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// Share of the array the shipped ROI's read-out window reads on the shipped (emulated
+/// IRS1645-class) sensor map: the ROI's rows ± `readout.margin_rows` and, where the map reads a
+/// column window, its columns ± `readout.margin_cols`, aligned as the map requires.
+fn shipped_readout_fraction(cfg: &Config) -> f64 {
+    use tofproxd::policy::{ReadoutObservation, ReadoutWindow};
+    let map = tofprox_bridge::SensorMap::emulated();
+    let (rows, cols) = (usize::from(map.sensor.rows), usize::from(map.sensor.cols));
+    let window = map.row_window.as_ref();
+    let w = ReadoutWindow::new(cfg.readout.clone()).next(ReadoutObservation {
+        full_rows: rows,
+        roi: tofproxd::controller::full_roi(cfg, rows, cols),
+        source_supports: window.is_some(),
+        align_rows: window.map_or(1, |w| w.align),
+        full_cols: cols,
+        align_cols: window.and_then(|w| w.column_registers().map(|_| w.col_align.max(1))),
+    });
+    match w {
+        Some(w) => {
+            let (_, n) = w.columns(cols);
+            f64::from(w.rows) * n as f64 / (rows * cols) as f64
+        }
+        None => 1.0,
+    }
+}
+
+fn parts_line(e: &CycleEnergy) -> String {
+    format!(
+        "start-up {:.3} + flash {:.3} + capture {:.3} + read-out {:.3} + CPU {:.3}",
+        e.startup_mj, e.flash_mj, e.capture_mj, e.readout_mj, e.cpu_mj
+    )
+}
+
+fn parts_json(e: &CycleEnergy) -> serde_json::Value {
+    serde_json::json!({"startup": e.startup_mj, "flash": e.flash_mj, "capture": e.capture_mj,
+        "readout": e.readout_mj, "cpu": e.cpu_mj, "total": e.total_mj()})
 }
 
 fn rt() -> anyhow::Result<tokio::runtime::Runtime> {

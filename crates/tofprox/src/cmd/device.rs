@@ -193,7 +193,7 @@ fn parse_window(s: &str) -> Result<RowWindow, String> {
     if rows == 0 {
         return Err("window rows must be > 0".into());
     }
-    Ok(RowWindow { row0, rows })
+    Ok(RowWindow::rows_only(row0, rows))
 }
 
 fn parse_condition(s: &str) -> Result<(String, f64), String> {
@@ -472,6 +472,7 @@ fn run_capture<T: UsbTransport>(
         exposure_us: a.exposure_us,
         row_window: a.window,
         modulation_hz: None,
+        single_image: None,
     };
     driver.check_request(&req)?;
     let mut writer: Option<RecordingWriter> = None;

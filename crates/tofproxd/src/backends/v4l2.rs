@@ -91,6 +91,7 @@ fn cycle_timings(c: &V4l2Capture, opened: Duration) -> CycleTimings {
     let exposure = Duration::from_secs_f64(k * c.exposure_us / 1e6).min(c.timings.to_frame);
     CycleTimings {
         startup: opened + c.timings.stream_on,
+        bring_up: Duration::ZERO,
         config_load: c.timings.controls,
         flash_write: Duration::ZERO,
         exposure,

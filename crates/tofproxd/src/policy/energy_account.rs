@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use crate::config::{Backend, Config, EnergyConfig};
-use crate::energy::{CycleEnergy, CycleTimings, EnergyMeter, cycle_energy};
+use crate::energy::{CycleTimings, CycleWork, EnergyMeter, cycle_energy};
 use crate::source::RawCycle;
 
 /// Whether cycles are paced at the reading rate.
@@ -40,12 +40,14 @@ pub struct CycleObservation {
     pub raw_images: u32,
     /// Exposure per raw image (µs).
     pub exposure_us: f64,
-    /// Rows read out.
-    pub rows_read: usize,
-    /// Rows of the full array (0: unknown, taken as a full read-out).
-    pub full_rows: usize,
+    /// Pixels read out (rows × columns of the window).
+    pub pixels_read: usize,
+    /// Pixels of the full array (0: unknown, taken as a full read-out).
+    pub full_pixels: usize,
     /// The reading rate the period follows (Hz).
     pub rate_hz: f64,
+    /// The loop's CPU time for this capture's reading (processing and decisions).
+    pub cpu: Duration,
 }
 
 impl CycleObservation {
@@ -55,16 +57,22 @@ impl CycleObservation {
             timings: cycle.timings(),
             raw_images: u32::try_from(cycle.frames.dim().0).unwrap_or(u32::MAX),
             exposure_us: cycle.exposure_us,
-            rows_read: cycle.geometry.rows,
-            full_rows: cycle.geometry.full_rows,
+            pixels_read: cycle.geometry.rows * cycle.geometry.cols,
+            full_pixels: cycle.geometry.full_rows * cycle.geometry.full_cols,
             rate_hz,
+            cpu: Duration::ZERO,
         }
     }
 
-    /// Fraction of the array read out (scales the read-out energy).
-    fn rows_fraction(&self) -> f64 {
-        if self.full_rows > 0 {
-            self.rows_read as f64 / self.full_rows as f64
+    /// The same with the loop's measured CPU time for the reading.
+    pub fn with_cpu(self, cpu: Duration) -> Self {
+        Self { cpu, ..self }
+    }
+
+    /// Fraction of the array's pixels read out (scales the read-out energy).
+    fn readout_fraction(&self) -> f64 {
+        if self.full_pixels > 0 {
+            self.pixels_read as f64 / self.full_pixels as f64
         } else {
             1.0
         }
@@ -86,6 +94,8 @@ pub struct EnergyAccount {
     cfg: EnergyConfig,
     meter: EnergyMeter,
     pacing: Pacing,
+    /// Captures whose reading is the next one's (a probe that saw a change).
+    carried: Option<CycleObservation>,
 }
 
 impl EnergyAccount {
@@ -95,7 +105,14 @@ impl EnergyAccount {
             meter: EnergyMeter::new(cfg.clone()),
             cfg,
             pacing,
+            carried: None,
         }
+    }
+
+    /// A capture that belongs to the next reading (a presence probe that saw a change: the
+    /// full reading follows at once): its energy and time are that reading's.
+    pub fn carry(&mut self, obs: CycleObservation) {
+        self.carried = Some(obs);
     }
 
     /// The meter (totals since start).
@@ -116,20 +133,24 @@ impl EnergyAccount {
         obs: CycleObservation,
         second: Option<CycleObservation>,
     ) -> EnergyDecision {
-        let extra = second.map(|s| (self.energy_of(&s), s.timings.active()));
+        let carried = self.carried.take();
+        let extra = [second, carried]
+            .into_iter()
+            .flatten()
+            .map(|s| (self.energy_of(&s), s.timings.active()))
+            .fold(
+                None,
+                |acc: Option<(crate::energy::CycleEnergy, Duration)>, (e, t)| {
+                    Some(acc.map_or((e, t), |(ae, at)| (ae.plus(&e), at + t)))
+                },
+            );
         let (extra_e, extra_active) = extra.unwrap_or_default();
         let active = obs.timings.active() + extra_active;
         let sleep = match self.pacing {
             Pacing::AsFastAsPossible => Duration::ZERO,
             Pacing::RealTime => Duration::from_secs_f64(1.0 / obs.rate_hz).saturating_sub(active),
         };
-        let one = self.energy_of(&obs);
-        let e = CycleEnergy {
-            startup_mj: one.startup_mj + extra_e.startup_mj,
-            flash_mj: one.flash_mj + extra_e.flash_mj,
-            capture_mj: one.capture_mj + extra_e.capture_mj,
-            readout_mj: one.readout_mj + extra_e.readout_mj,
-        };
+        let e = self.energy_of(&obs).plus(&extra_e);
         self.meter.record(&e, active, sleep);
         EnergyDecision {
             sleep,
@@ -137,14 +158,14 @@ impl EnergyAccount {
         }
     }
 
-    fn energy_of(&self, obs: &CycleObservation) -> CycleEnergy {
-        cycle_energy(
-            &self.cfg,
-            &obs.timings,
-            obs.raw_images,
-            obs.exposure_us,
-            obs.rows_fraction(),
-        )
+    fn energy_of(&self, obs: &CycleObservation) -> crate::energy::CycleEnergy {
+        let work = CycleWork {
+            raw_images: obs.raw_images,
+            exposure_us: obs.exposure_us,
+            readout_fraction: obs.readout_fraction(),
+            cpu: obs.cpu,
+        };
+        cycle_energy(&self.cfg, &obs.timings, &work)
     }
 }
 
@@ -157,15 +178,25 @@ mod tests {
             timings: CycleTimings {
                 startup: Duration::from_millis(1),
                 config_load: Duration::from_millis(10),
-                flash_write: Duration::ZERO,
                 exposure: Duration::from_micros(200),
                 readout: Duration::from_millis(5),
+                ..CycleTimings::default()
             },
             raw_images: 2,
             exposure_us: 100.0,
-            rows_read,
-            full_rows: 120,
+            pixels_read: rows_read * 160,
+            full_pixels: 120 * 160,
             rate_hz: 2.0,
+            cpu: Duration::ZERO,
+        }
+    }
+
+    fn full_work() -> CycleWork {
+        CycleWork {
+            raw_images: 2,
+            exposure_us: 100.0,
+            readout_fraction: 1.0,
+            cpu: Duration::ZERO,
         }
     }
 
@@ -175,7 +206,7 @@ mod tests {
         let d = a.next(obs(120));
         let active = obs(120).timings.active();
         assert_eq!(d.sleep, Duration::from_millis(500) - active);
-        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, 2, 100.0, 1.0);
+        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, &full_work());
         let off_mj = EnergyConfig::default().off_mw * d.sleep.as_secs_f64();
         let want_mw = (e.total_mj() + off_mj) / 0.5;
         assert!(
@@ -208,7 +239,7 @@ mod tests {
         let mut two = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
         let d1 = one.next(obs(120));
         let d2 = two.next_with(obs(120), Some(obs(120)));
-        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, 2, 100.0, 1.0);
+        let e = cycle_energy(&EnergyConfig::default(), &obs(120).timings, &full_work());
         let off_mj = |d: &EnergyDecision| EnergyConfig::default().off_mw * d.sleep.as_secs_f64();
         assert!(
             (two.meter().total_mj() - (2.0 * e.total_mj() + off_mj(&d2))).abs() < 1e-9,
@@ -223,6 +254,36 @@ mod tests {
         assert_eq!(two.meter().cycles(), 1, "one reading");
     }
 
+    /// A probe that saw a change is part of the full reading that follows: one reading with
+    /// both captures' energy, the sleep after both.
+    #[test]
+    fn a_carried_probe_is_accounted_in_the_next_reading() {
+        let mut a = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
+        let probe = CycleObservation {
+            raw_images: 1,
+            exposure_us: 20.0,
+            ..obs(120)
+        };
+        a.carry(probe);
+        let d = a.next(obs(120));
+        let w = |o: &CycleObservation| CycleWork {
+            raw_images: o.raw_images,
+            exposure_us: o.exposure_us,
+            readout_fraction: 1.0,
+            cpu: Duration::ZERO,
+        };
+        let cfg = EnergyConfig::default();
+        let want = cycle_energy(&cfg, &probe.timings, &w(&probe)).total_mj()
+            + cycle_energy(&cfg, &obs(120).timings, &w(&obs(120))).total_mj()
+            + cfg.off_mw * d.sleep.as_secs_f64();
+        assert!((a.meter().total_mj() - want).abs() < 1e-12);
+        assert_eq!(a.meter().cycles(), 1);
+        assert_eq!(
+            d.sleep,
+            Duration::from_millis(500) - 2 * obs(120).timings.active()
+        );
+    }
+
     #[test]
     fn partial_readout_costs_less() {
         let mut full = EnergyAccount::new(EnergyConfig::default(), Pacing::RealTime);
@@ -230,5 +291,25 @@ mod tests {
         let f = full.next(obs(120)).average_mw;
         let p = part.next(obs(30)).average_mw;
         assert!(p < f, "a quarter of the rows: {p} < {f} mW");
+    }
+
+    /// The read-out is the pixels read (a window in rows and columns), and the reading's CPU
+    /// time is accounted at the per-core power.
+    #[test]
+    fn readout_follows_the_pixels_read_and_cpu_is_accounted() {
+        let cfg = EnergyConfig::default();
+        let mut a = EnergyAccount::new(cfg.clone(), Pacing::AsFastAsPossible);
+        let quarter = CycleObservation {
+            pixels_read: 60 * 80,
+            ..obs(120)
+        };
+        a.next(quarter.with_cpu(Duration::from_millis(1)));
+        let e = cycle_energy(&cfg, &obs(120).timings, &full_work());
+        let want = e.total_mj() - 0.75 * e.readout_mj + cfg.cpu_mw_per_core * 1e-3;
+        assert!(
+            (a.meter().total_mj() - want).abs() < 1e-12,
+            "{} vs {want}",
+            a.meter().total_mj()
+        );
     }
 }

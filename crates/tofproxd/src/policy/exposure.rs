@@ -2,7 +2,9 @@
 //! longest exposure `exposure.max_us` is the eye-safety bound, the shortest `min_us` the
 //! sensor's): shorten by `exposure.step` while too much of the ROI saturates, lengthen while
 //! too much of it is below the amplitude floor; a frame with every code on a rail is taken
-//! as too bright.
+//! as too bright. It never lengthens beyond what the near/far decision needs
+//! ([`decision_exposure_us`], issue 34): an image-quality exposure costs capture energy
+//! the decision does not use.
 
 use ndarray::{ArrayView3, Axis, s};
 use tofprox_core::pipeline::RawSample;
@@ -32,6 +34,27 @@ pub enum ExposureObservation {
 pub struct AutoExposure {
     cfg: ExposureConfig,
     exposure_us: f64,
+    /// The longest exposure lengthening may reach ([`decision_exposure_us`]); `None`: `max_us`.
+    decision_us: Option<f64>,
+}
+
+/// The exposure the near/far decision needs: the shortest at which a target of
+/// `reflectivity` (the documented minimum, `proximity.reflectivity_floor`) at `far_m` returns
+/// `required_lsb` of amplitude, the amplitude a pixel needs to count
+/// (`processing.min_amplitude_lsb`). Thesis 2.2.1: `A = K·ρ·t/d²`, so `t = A·d²/(K·ρ)`;
+/// 2.3.2.6: in low light the read-out noise dominates the photon transfer curve, a constant,
+/// so the SNR a pixel's phase needs is an amplitude floor above that noise — which is what
+/// `min_amplitude_lsb` is. A nearer or brighter target returns more (`∝ ρ/d²`), so every
+/// target that must count does at this exposure. `k_lsb_m2_per_us` is the sensor's `K` (the
+/// weak end of the ROI's: its 10th percentile).
+pub fn decision_exposure_us(
+    k_lsb_m2_per_us: f64,
+    reflectivity: f64,
+    far_m: f64,
+    required_lsb: f64,
+) -> Option<f64> {
+    let t = required_lsb * far_m * far_m / (k_lsb_m2_per_us * reflectivity);
+    (t.is_finite() && t > 0.0).then_some(t)
 }
 
 impl AutoExposure {
@@ -40,7 +63,19 @@ impl AutoExposure {
         Self {
             exposure_us: cfg.initial_us,
             cfg,
+            decision_us: None,
         }
+    }
+
+    /// Cap lengthening at the exposure the decision needs ([`decision_exposure_us`]; never
+    /// below `min_us`, never above `max_us`).
+    pub fn set_decision_us(&mut self, decision_us: Option<f64>) {
+        self.decision_us = decision_us.map(|t| t.clamp(self.cfg.min_us, self.cfg.max_us));
+    }
+
+    /// The cap on lengthening (µs), when one is set.
+    pub fn decision_us(&self) -> Option<f64> {
+        self.decision_us
     }
 
     /// Exposure per raw image of the next capture (µs).
@@ -66,7 +101,9 @@ impl AutoExposure {
                 } else if low_amplitude_fraction > e.low_amplitude_fraction
                     && saturated_when_longer <= e.saturated_fraction
                 {
-                    self.exposure_us * e.step
+                    // never longer than the decision needs (nor shortened by this rule)
+                    let cap = self.decision_us.unwrap_or(e.max_us).max(self.exposure_us);
+                    (self.exposure_us * e.step).min(cap)
                 } else {
                     self.exposure_us
                 }
@@ -183,5 +220,31 @@ mod tests {
         });
         assert_eq!(m.next(ExposureObservation::Rails), 100.0);
         assert_eq!(m.next(roi(1.0, 0.0)), 100.0);
+    }
+
+    /// Issue 34: nothing returns (an empty hall), yet the exposure stops where a 2 % target
+    /// at `far_mm` returns the amplitude a pixel needs — computed independently here from the
+    /// law `A = K·ρ·t/d²` — instead of climbing to the eye-safe maximum.
+    #[test]
+    fn lengthens_only_as_far_as_the_decision_needs() {
+        let (k, rho, far_m, need) = (0.09, 0.02, 0.15, 8.0);
+        let t = decision_exposure_us(k, rho, far_m, need).expect("finite");
+        let amplitude_at_t = k * rho * t / (far_m * far_m);
+        assert!((amplitude_at_t - need).abs() < 1e-9, "{amplitude_at_t}");
+        assert!((t - 100.0).abs() < 1e-9, "{t}");
+        let mut a = AutoExposure::new(ExposureConfig {
+            initial_us: 30.0,
+            ..cfg()
+        });
+        a.set_decision_us(Some(t));
+        assert_eq!(a.next(roi(0.0, 1.0)), 60.0);
+        assert_eq!(
+            a.next(roi(0.0, 1.0)),
+            100.0,
+            "capped at the decision's need"
+        );
+        assert_eq!(a.next(roi(0.0, 1.0)), 100.0, "and kept there");
+        assert_eq!(a.next(roi(0.2, 1.0)), 50.0, "saturation still shortens");
+        assert_eq!(decision_exposure_us(0.0, rho, far_m, need), None);
     }
 }

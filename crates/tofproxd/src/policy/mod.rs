@@ -12,11 +12,13 @@
 //! | [`SecondFrequency`] | confirm dim near candidates at a second frequency | dim candidates, Near | 2.2.1, eqs. 2.7–2.9 |
 //! | [`EnergyAccount`] | sleep after the cycle, average power | state timings, K, exposure, rows | table 3.1 |
 //! | [`WindowTracker`] | the cover window's crosstalk estimate (compensated, bounded) and its verdict | readings that see only the window, near candidates | 3.1 (stray light), eq. 2.2/2.3 |
+//! | [`probe::PresenceProbe`] | a single raw image instead of the full reading while far and still | tile means vs the last far reading's | 2.2.1, eq. 2.2 |
 //! | [`SaturationCheck`] | an all-rails frame: near return, confirm (4-phase, `min_us`), or no data | the rails' phasor vs zero distance | 2.2.1, eq. 2.2/2.3 |
 
 mod ambient;
 mod energy_account;
 mod exposure;
+pub mod probe;
 mod rate;
 mod readout;
 mod saturation;
@@ -25,7 +27,9 @@ pub mod window;
 
 pub use ambient::{AmbientObservation, AmbientSwitch};
 pub use energy_account::{CycleObservation, EnergyAccount, EnergyDecision, Pacing};
-pub use exposure::{AutoExposure, ExposureObservation, saturating_fraction_at};
+pub use exposure::{
+    AutoExposure, ExposureObservation, decision_exposure_us, saturating_fraction_at,
+};
 pub use rate::{AdaptiveRate, RateObservation};
 pub use readout::{ReadoutObservation, ReadoutWindow};
 pub use saturation::{

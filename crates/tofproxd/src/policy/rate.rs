@@ -2,6 +2,9 @@
 //! power is set by the rate): fast while near or while a target approaches faster than
 //! `loop.approach_mm_per_s`, slow after `loop.still_readings` readings that moved less than
 //! `loop.still_tolerance_mm`, the nominal rate otherwise; always within [slow, fast].
+//! Nothing in range is a reading of its own: readings with nothing in range one after another
+//! are still (a far, still phone — an empty hall, the sky — drops to the slow rate), and a
+//! target appearing out of nothing in range is an approach.
 
 use crate::config::LoopConfig;
 
@@ -12,7 +15,13 @@ pub struct RateObservation {
     pub near: bool,
     /// The ROI distance (mm), when one was measured.
     pub distance_mm: Option<u32>,
+    /// A valid reading with nothing in range (no distance: no target returns).
+    pub no_target: bool,
 }
+
+/// Where "nothing in range" sits for the motion history: beyond every distance, so two such
+/// readings are still and a target appearing from it approaches at once.
+const BEYOND_RANGE_MM: u32 = u32::MAX;
 
 /// The rate controller.
 #[derive(Debug, Clone)]
@@ -39,6 +48,12 @@ impl AdaptiveRate {
         self.rate_hz
     }
 
+    /// Readings in a row that moved less than `loop.still_tolerance_mm` (nothing in range
+    /// after nothing in range included).
+    pub fn still_readings(&self) -> u32 {
+        self.still_count
+    }
+
     /// Forget the motion history (the loop stopped); the rate is kept.
     pub fn reset(&mut self) {
         self.still_count = 0;
@@ -49,10 +64,11 @@ impl AdaptiveRate {
     pub fn next(&mut self, obs: RateObservation) -> f64 {
         let l = &self.cfg;
         let period_s = 1.0 / self.rate_hz;
+        let distance_mm = obs.distance_mm.or(obs.no_target.then_some(BEYOND_RANGE_MM));
         let new_rate = if obs.near {
             self.still_count = 0;
             l.fast_rate_hz
-        } else if let (Some(d), Some(prev)) = (obs.distance_mm, self.last_distance_mm) {
+        } else if let (Some(d), Some(prev)) = (distance_mm, self.last_distance_mm) {
             let speed = (f64::from(prev) - f64::from(d)) / period_s; // + = approaching
             if speed > l.approach_mm_per_s {
                 self.still_count = 0;
@@ -72,8 +88,8 @@ impl AdaptiveRate {
             l.rate_hz
         };
         self.rate_hz = new_rate.clamp(l.slow_rate_hz, l.fast_rate_hz);
-        if obs.distance_mm.is_some() {
-            self.last_distance_mm = obs.distance_mm;
+        if distance_mm.is_some() {
+            self.last_distance_mm = distance_mm;
         }
         self.rate_hz
     }
@@ -87,6 +103,7 @@ mod tests {
         RateObservation {
             near: false,
             distance_mm: Some(d),
+            no_target: false,
         }
     }
 
@@ -111,6 +128,7 @@ mod tests {
         let near = RateObservation {
             near: true,
             distance_mm: Some(40),
+            no_target: false,
         };
         assert_eq!(r.next(near), 10.0);
     }
@@ -129,10 +147,35 @@ mod tests {
             2.0,
             "no history after a reset: no approach seen"
         );
+        let unknown = RateObservation {
+            near: false,
+            distance_mm: None,
+            no_target: false,
+        };
+        assert_eq!(r.next(unknown), 2.0);
+    }
+
+    /// Issue 34: a far, still phone (an empty hall, the sky: nothing in range, reading after
+    /// reading) drops to the slow rate; a hand appearing out of nothing in range is an
+    /// approach (fast at once).
+    #[test]
+    fn nothing_in_range_reading_after_reading_is_still() {
+        let mut r = AdaptiveRate::new(cfg());
         let nothing = RateObservation {
             near: false,
             distance_mm: None,
+            no_target: true,
         };
+        assert_eq!(r.next(nothing), 2.0, "first reading: nominal");
         assert_eq!(r.next(nothing), 2.0);
+        assert_eq!(r.next(nothing), 2.0);
+        assert_eq!(r.next(nothing), 1.0, "three still readings: slow");
+        assert_eq!(r.next(nothing), 1.0, "and it stays slow");
+        assert_eq!(
+            r.next(at(400)),
+            10.0,
+            "a target out of nothing in range: approach"
+        );
+        assert_eq!(r.next(nothing), 2.0, "it left: moving, nominal");
     }
 }

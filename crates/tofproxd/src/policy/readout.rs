@@ -1,5 +1,6 @@
-//! Partial read-out (thesis 3.1.2: the read-out energy is proportional to the rows read):
-//! read only the rows of the ROI plus `readout.margin_rows`, aligned to what the source
+//! Partial read-out (thesis 3.1.2: fewer active ADCs and current sources, less data): read
+//! only the rows of the ROI plus `readout.margin_rows` and, where the source's sequencer reads
+//! a column window, only its columns plus `readout.margin_cols`, aligned to what the source
 //! accepts; full frames when partial read-out is off, unsupported, or was refused once.
 
 use tofprox_core::proximity::Roi;
@@ -18,6 +19,23 @@ pub struct ReadoutObservation {
     pub source_supports: bool,
     /// Row alignment the source needs (row0 and rows multiples of it; 0 is taken as 1).
     pub align_rows: u16,
+    /// Columns of the full array.
+    pub full_cols: usize,
+    /// Column alignment of the source's column window (`None`: whole rows only).
+    pub align_cols: Option<u16>,
+}
+
+/// `first..first + len` widened by `margin`, aligned outwards to `align`, clipped to the last
+/// aligned index of `full`: `(first, len)`.
+fn span(first: usize, len: usize, margin: usize, align: usize, full: usize) -> (usize, usize) {
+    let start = first.saturating_sub(margin) / align * align;
+    let end = (first + len + margin).div_ceil(align) * align;
+    let end = if end > full {
+        full / align * align
+    } else {
+        end
+    };
+    (start, end.saturating_sub(start))
 }
 
 /// The read-out window policy.
@@ -47,18 +65,37 @@ impl ReadoutWindow {
             return None;
         }
         let roi = obs.roi;
-        let m = usize::from(self.cfg.margin_rows);
         let align = usize::from(obs.align_rows.max(1));
-        let row0 = roi.row0.saturating_sub(m) / align * align;
-        let end = (roi.row0 + roi.rows + m).div_ceil(align) * align;
-        let end = if end > obs.full_rows {
-            obs.full_rows / align * align
-        } else {
-            end
+        let m = usize::from(self.cfg.margin_rows);
+        let (row0, rows) = span(roi.row0, roi.rows, m, align, obs.full_rows);
+        let (col0, cols) = match obs.align_cols {
+            Some(a) if obs.full_cols > 0 => {
+                let mc = usize::from(self.cfg.margin_cols);
+                let (c0, n) = span(roi.col0, roi.cols, mc, usize::from(a.max(1)), obs.full_cols);
+                if n > 0 && n < obs.full_cols {
+                    (c0, n)
+                } else {
+                    (0, 0)
+                }
+            }
+            _ => (0, 0),
         };
-        match (u16::try_from(row0), u16::try_from(end.saturating_sub(row0))) {
-            (Ok(row0), Ok(rows)) if rows > 0 && usize::from(rows) < obs.full_rows => {
-                Some(RowWindow { row0, rows })
+        let fields = (
+            u16::try_from(row0),
+            u16::try_from(rows),
+            u16::try_from(col0),
+            u16::try_from(cols),
+        );
+        match fields {
+            (Ok(row0), Ok(rows), Ok(col0), Ok(cols))
+                if rows > 0 && (usize::from(rows) < obs.full_rows || cols > 0) =>
+            {
+                Some(RowWindow {
+                    row0,
+                    rows,
+                    col0,
+                    cols,
+                })
             }
             _ => None,
         }
@@ -80,6 +117,8 @@ mod tests {
             },
             source_supports: true,
             align_rows,
+            full_cols: 160,
+            align_cols: None,
         }
     }
 
@@ -92,6 +131,7 @@ mod tests {
         let mut r = ReadoutWindow::new(ReadoutConfig {
             partial: true,
             margin_rows: 2,
+            margin_cols: 0,
         });
         assert_eq!(window(r.next(obs(30, 60, 1))), Some((28, 64)));
         assert_eq!(
@@ -116,11 +156,13 @@ mod tests {
         let mut off = ReadoutWindow::new(ReadoutConfig {
             partial: false,
             margin_rows: 2,
+            margin_cols: 0,
         });
         assert_eq!(off.next(obs(30, 60, 1)), None);
         let mut r = ReadoutWindow::new(ReadoutConfig {
             partial: true,
             margin_rows: 2,
+            margin_cols: 0,
         });
         let unsupported = ReadoutObservation {
             source_supports: false,
@@ -134,5 +176,36 @@ mod tests {
             None,
             "refused once: full frames for good"
         );
+    }
+
+    /// Where the sequencer reads a column window, the window is the ROI's columns too (with
+    /// the margin, aligned outwards); whole rows where it cannot.
+    #[test]
+    fn columns_around_the_roi_where_the_source_reads_them() {
+        let mut r = ReadoutWindow::new(ReadoutConfig {
+            partial: true,
+            margin_rows: 2,
+            margin_cols: 3,
+        });
+        let with_cols = ReadoutObservation {
+            align_cols: Some(8),
+            ..obs(30, 60, 1)
+        };
+        // ROI columns 40..120, ±3 → 37..123, aligned to 8 → 32..128
+        let w = r.next(with_cols).expect("a window");
+        assert_eq!((w.row0, w.rows, w.col0, w.cols), (28, 64, 32, 96));
+        let full_width_roi = ReadoutObservation {
+            roi: Roi {
+                row0: 30,
+                col0: 0,
+                rows: 60,
+                cols: 160,
+            },
+            ..with_cols
+        };
+        let w = r.next(full_width_roi).expect("rows only");
+        assert_eq!((w.col0, w.cols), (0, 0), "every column: whole rows");
+        let w = r.next(obs(30, 60, 1)).expect("rows only");
+        assert_eq!(w.cols, 0, "no column window where the source has none");
     }
 }
