@@ -43,6 +43,7 @@ pub(crate) fn capture_step<T: UsbTransport>(
         exposure_us: req.spec.exposure_us,
         row_window: req.rows,
         modulation_hz: None,
+        single_image: None,
     };
     driver.check_request(&cycle).map_err(dev)?;
     let mut sum: Option<(Array3<f64>, CycleOutput)> = None;
