@@ -90,7 +90,8 @@ pub struct ModuleSpec {
 impl ModuleSpec {
     /// The read-out window, if any.
     pub fn row_window(&self) -> Option<RowWindow> {
-        self.rows.map(|[row0, rows]| RowWindow::rows_only(row0, rows))
+        self.rows
+            .map(|[row0, rows]| RowWindow::rows_only(row0, rows))
     }
 }
 

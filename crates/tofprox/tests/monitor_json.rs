@@ -49,6 +49,8 @@ fn monitor_json_lines_parse_and_follow_the_hand() {
         .expect("the wall is a distance");
     assert!((950..=1020).contains(&wall_mm), "wall at 1 m: {wall_mm}");
     assert_eq!(first["distance"], format!("distance {wall_mm} mm"));
+    // every row says which rule decided it: the wall by its distance
+    assert_eq!(first["reason"], "distance", "{first}");
     // demo thresholds: near ≤ 150 mm, far ≥ 200 mm
     let near = events
         .iter()
@@ -70,6 +72,17 @@ fn monitor_json_lines_parse_and_follow_the_hand() {
         Some(d) => assert!(d >= 200, "{far}"),
         None => assert_eq!(far["distance"], "nothing in range", "{far}"),
     }
+    // the hand near by its distance (or by a saturated frame at contact); far by its distance
+    // or by nothing in range
+    assert!(
+        ["distance", "saturated"].contains(&near["reason"].as_str().unwrap_or("")),
+        "{near}"
+    );
+    assert!(
+        ["distance", "nothing_in_range", "hold_expired"]
+            .contains(&far["reason"].as_str().unwrap_or("")),
+        "{far}"
+    );
     // times rise; nothing printed as a raw special value
     assert!(
         events

@@ -58,6 +58,9 @@ pub trait Proximity {
     /// LastError.
     #[zbus(property)]
     fn last_error(&self) -> zbus::Result<String>;
+    /// Reason: the rule that decided the last reading.
+    #[zbus(property)]
+    fn reason(&self) -> zbus::Result<String>;
     /// DepthFrame signal (radial depth in mm, amplitude).
     #[zbus(signal)]
     fn depth_frame(

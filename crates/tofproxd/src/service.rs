@@ -58,8 +58,10 @@ pub mod property {
     pub const POWER_ESTIMATE_MW: &str = "PowerEstimateMw";
     /// `org.tofprox.Proximity1.LastError`.
     pub const LAST_ERROR: &str = "LastError";
+    /// `org.tofprox.Proximity1.Reason`.
+    pub const REASON: &str = "Reason";
     /// Every property of `org.tofprox.Proximity1`.
-    pub const ALL: [&str; 12] = [
+    pub const ALL: [&str; 13] = [
         HAS_SENSOR,
         STATE,
         NEAR,
@@ -72,6 +74,7 @@ pub mod property {
         RATE_HZ,
         POWER_ESTIMATE_MW,
         LAST_ERROR,
+        REASON,
     ];
     /// `net.hadess.SensorProxy.HasProximity` (iio-sensor-proxy compatible).
     pub const COMPAT_HAS_PROXIMITY: &str = "HasProximity";
@@ -312,7 +315,7 @@ impl Proximity {
         m.insert("Errors".into(), OwnedVariant::from(s.errors));
         m.insert("Backend".into(), variant_str(&s.backend));
         m.insert("AmplitudeCheck".into(), variant_str(s.amplitude_check));
-        m.insert("Reason".into(), variant_str(s.reason.as_str()));
+        m.insert(property::REASON.into(), variant_str(s.reason.as_str()));
         m.insert("Clients".into(), OwnedVariant::from(c.proximity_clients));
         m.insert(
             "ProximityClaims".into(),
@@ -407,6 +410,14 @@ impl Proximity {
     #[zbus(property)]
     fn last_error(&self) -> String {
         self.hub.status().last_error
+    }
+
+    /// The rule that decided the last reading: distance, nothing_in_range, saturated,
+    /// second_frequency, probe_unchanged, on_the_window, hold_expired, stopped ("" before the
+    /// first reading; docs/daemon.md, "Why a reading").
+    #[zbus(property)]
+    fn reason(&self) -> String {
+        self.hub.status().reason.as_str().to_string()
     }
 
     // Radial depth (mm along each pixel's ray, eq. 2.6 — not Z) and amplitude. (A plain

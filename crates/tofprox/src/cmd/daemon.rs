@@ -48,7 +48,7 @@ pub struct MonitorArgs {
     #[arg(long)]
     seconds: Option<u64>,
     /// JSON Lines on stdout: one object per line (not one JSON document), for the first
-    /// reading and each near/far change: {"t_s", "event": "first_reading"|"near_changed",
+    /// reading and each near/far change: {"t_s", "event": "first_reading"|"near_changed", "reason" (the rule that decided it),
     /// "near", "distance_mm" (null when not a distance), "distance" (in words), "state"}.
     #[arg(long, conflicts_with = "depth")]
     json: bool,
@@ -419,9 +419,12 @@ impl Monitor {
         self.last_near = Some(near);
         let d = p.distance_mm().await.unwrap_or(0);
         let state = p.state().await.unwrap_or_default();
+        let reason = p.reason().await.unwrap_or_default();
         let t_s = self.t0.elapsed().as_secs_f64();
         match &mut self.out {
-            MonitorOut::Json => println!("{}", live::event_json(t_s, event, near, d, &state)),
+            MonitorOut::Json => {
+                println!("{}", live::event_json(t_s, event, near, d, &state, &reason))
+            }
             MonitorOut::Text => println!("{}", live::event_line(t_s, near, d, &state)),
             MonitorOut::Live(s) => {
                 s.view.set_distance(live::distance_words(d, near));

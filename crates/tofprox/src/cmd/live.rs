@@ -49,7 +49,14 @@ pub fn event_line(t_s: f64, near: bool, distance_mm: u32, state: &str) -> String
 /// One line of `tofprox monitor --json` (JSON Lines: one object per line). `event` is
 /// `"first_reading"` or `"near_changed"`; `distance_mm` is a number only when it is a
 /// distance (null for nothing in range, saturated or unknown), `distance` says it in words.
-pub fn event_json(t_s: f64, event: &str, near: bool, distance_mm: u32, state: &str) -> String {
+pub fn event_json(
+    t_s: f64,
+    event: &str,
+    near: bool,
+    distance_mm: u32,
+    state: &str,
+    reason: &str,
+) -> String {
     let is_distance = distance_mm != 0 && distance_mm != DISTANCE_BEYOND_RANGE_MM;
     serde_json::json!({
         "t_s": (t_s * 1e3).round() / 1e3,
@@ -58,6 +65,7 @@ pub fn event_json(t_s: f64, event: &str, near: bool, distance_mm: u32, state: &s
         "distance_mm": is_distance.then_some(distance_mm),
         "distance": distance_words(distance_mm, near),
         "state": state,
+        "reason": reason,
     })
     .to_string()
 }
@@ -238,16 +246,37 @@ mod tests {
     #[test]
     fn json_lines_carry_distances_only_when_they_are_distances() {
         let parse = |s: String| serde_json::from_str::<serde_json::Value>(&s).unwrap();
-        let v = parse(event_json(1.23456, "near_changed", true, 96, "running"));
+        let v = parse(event_json(
+            1.23456,
+            "near_changed",
+            true,
+            96,
+            "running",
+            "distance",
+        ));
         assert_eq!(v["t_s"], 1.235);
         assert_eq!(v["event"], "near_changed");
         assert_eq!(v["near"], true);
         assert_eq!(v["distance_mm"], 96);
         assert_eq!(v["distance"], "distance 96 mm");
-        let v = parse(event_json(0.0, "first_reading", false, u32::MAX, "running"));
+        let v = parse(event_json(
+            0.0,
+            "first_reading",
+            false,
+            u32::MAX,
+            "running",
+            "nothing_in_range",
+        ));
         assert!(v["distance_mm"].is_null());
         assert_eq!(v["distance"], "nothing in range");
-        let v = parse(event_json(0.0, "first_reading", true, 0, "running"));
+        let v = parse(event_json(
+            0.0,
+            "first_reading",
+            true,
+            0,
+            "running",
+            "saturated",
+        ));
         assert!(v["distance_mm"].is_null());
         assert!(v["distance"].as_str().unwrap().contains("saturated"));
     }

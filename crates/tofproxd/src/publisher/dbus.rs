@@ -151,6 +151,9 @@ fn native_changes<'a>(before: &Status, after: &'a Status) -> HashMap<&'static st
     if before.power_mw != after.power_mw {
         ch.insert(property::POWER_ESTIMATE_MW, Variant::from(after.power_mw));
     }
+    if before.reason != after.reason {
+        ch.insert(property::REASON, Variant::from(after.reason.as_str()));
+    }
     ch
 }
 

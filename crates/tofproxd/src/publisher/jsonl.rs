@@ -15,6 +15,7 @@
 //! | `mode` | string | `2phase` or `4phase` |
 //! | `has_sensor` | bool | a sensor is attached |
 //! | `last_error` | string | the last cycle's error, `""` when none |
+//! | `reason` | string | the rule that decided the last reading (`Reason` on D-Bus: `distance`, `nothing_in_range`, `saturated`, `second_frequency`, `probe_unchanged`, `hold_expired`, `stopped`; `""` before the first) |
 //!
 //! A reading that changes Near gives two lines with the same `timestamp_ns`: `near`, then
 //! `reading`.
@@ -89,6 +90,8 @@ pub struct Line<'a> {
     pub has_sensor: bool,
     /// The last error (`""`: none).
     pub last_error: &'a str,
+    /// The rule that decided the last reading (`""`: none yet).
+    pub reason: &'a str,
 }
 
 impl<'a> Line<'a> {
@@ -106,6 +109,7 @@ impl<'a> Line<'a> {
             mode: s.mode.as_str(),
             has_sensor: s.has_sensor,
             last_error: &s.last_error,
+            reason: s.reason.as_str(),
         }
     }
 

@@ -312,10 +312,15 @@ mod tests {
         let _stalled = std::os::unix::net::UnixStream::connect(&cfg.path).expect("connect");
         until("two claims", || hub.claim_counts().proximity == 2).await;
         assert!(hub.demand().proximity);
+        let read = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let counter = read.clone();
         let lines = std::thread::spawn(move || {
             BufReader::new(reader)
                 .lines()
-                .map(|l| l.expect("line"))
+                .map(|l| {
+                    counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    l.expect("line")
+                })
                 .collect::<Vec<_>>()
         });
 
@@ -338,6 +343,15 @@ mod tests {
                 .await
                 .expect("publishing never fails");
             tokio::task::yield_now().await;
+            // a reading client keeps up (on a loaded machine its thread may not run for a
+            // while: wait for it, so only the client that never reads falls behind)
+            let behind = |r: u64| sent.saturating_sub(r) > 64;
+            for _ in 0..2000 {
+                if !behind(read.load(std::sync::atomic::Ordering::Relaxed)) {
+                    break;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(1)).await;
+            }
         }
         // the stalled client's claim went with it; the reader's stays
         assert_eq!(hub.claim_counts().proximity, 1);
