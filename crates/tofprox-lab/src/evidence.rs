@@ -182,6 +182,7 @@ mod tests {
             fit: FitStats {
                 chi2_per_dof: 1.9,
                 z: 160.0,
+                ..FitStats::default()
             },
             strongest_condition: Some("adc_code".into()),
             rms: Rms::default(),
