@@ -1062,9 +1062,17 @@ pub fn refine(
         }
     }
     progress("per-pixel fit", 1.0);
+    model.n_params = param_count(model, npix);
+    Ok(())
+}
+
+/// The parameters `model` fits on a window of `npix` pixels: per pixel (or
+/// pooled) offset, gain and phase, the waveform's harmonics and the free
+/// effects' values.
+pub(crate) fn param_count(model: &LabModel, npix: usize) -> usize {
     let spec = &model.spec;
     let pp = |b: bool| if b { npix } else { 1 };
-    model.n_params = pp(spec.per_pixel_offset)
+    pp(spec.per_pixel_offset)
         + pp(spec.per_pixel_gain)
         + pp(spec.per_pixel_phase)
         + 2 * (model.waveform.order() - 1)
@@ -1073,8 +1081,7 @@ pub fn refine(
             .iter()
             .filter(|e| !spec.held.iter().any(|h| h.id == e.id))
             .map(|e| e.lin.len() + e.nl.len())
-            .sum::<usize>();
-    Ok(())
+            .sum::<usize>()
 }
 
 /// The model `base` with one more effect, started from a candidate fit on top

@@ -228,12 +228,10 @@ fn an_all_rail_recording_names_the_rails() {
     example_copy(&rails, 1, |s| {
         Array3::from_shape_simple_fn(s, || {
             i += 1;
-            if i % 3 == 0 { 0.0 } else { 4095.0 }
+            if i.is_multiple_of(3) { 0.0 } else { 4095.0 }
         })
     });
-    let err = diagnosed(&rails)
-        .err()
-        .expect("an all-rail recording is refused");
+    let err = diagnosed(&rails).expect_err("an all-rail recording is refused");
     let msg = err.to_string();
     eprintln!("{msg}");
     assert_eq!(err.kind(), tofprox_lab::ErrorKind::InvalidData);
@@ -254,14 +252,18 @@ fn an_all_rail_recording_names_the_rails() {
     );
 }
 
-/// A sparse recording: 11 captures of one exposure, one per distance, no
-/// repeats (what `sim sweep --repeats 1` over 11 distances writes), of a
-/// sensor with nothing hidden: nothing measured the noise, so whatever the
-/// residual looks like the verdict is `noise_not_measured`, never
-/// `nothing_missing` nor `unexplained` from a noise taken from the residuals.
+/// A sparse recording: 11 captures of 16×16 pixels — a dark, a correlation
+/// capture and 9 distances at one exposure, no repeats (what `sim sweep
+/// --distances 0.3:1.1:0.1 --exposures 500` writes) — of a sensor with
+/// nothing hidden: nothing measured the noise, so the verdict is
+/// `noise_not_measured`, not `unexplained` from a noise taken from the
+/// residuals (whose χ² was n, not n − p: χ²/dof 1.05, z 4.4 on `sim sweep`'s
+/// recording, from the per-pixel parameters alone).
 #[test]
 fn a_sparse_recording_without_repeats_is_noise_not_measured() {
     let ds = generate(&SynthSpec {
+        rows: 16,
+        cols: 16,
         seed: 13,
         repeats: 1,
         distances_m: (0..9).map(|i| 0.3 + 0.1 * f64::from(i)).collect(),
