@@ -246,6 +246,9 @@ fn form_block(cap: u32) -> usize {
     (cap / 2) as usize % FOLDS
 }
 
+/// The most samples [`cv_refit`] trains and scores on (a stride through larger tables).
+pub const CV_SUBSAMPLE: usize = 30_000;
+
 /// Block cross-validation of every parameter of a fitted signature (its
 /// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
 /// all blocks): per held-out block, the signature refitted on the other
@@ -269,7 +272,7 @@ pub fn cv_refit(
 ) -> Result<(f64, f64), LabError> {
     // large tables: a subsample of ≤ 30 000 samples for training and scoring
     // (a choice between forms, not the fit: ~6 000 samples per block)
-    let stride = (recs.len() / 30_000).max(1);
+    let stride = (recs.len() / CV_SUBSAMPLE).max(1);
     let start = EffectFit {
         id: sig.id().to_string(),
         lin: f.lin.clone(),

@@ -53,6 +53,25 @@ pub struct FitStats {
     pub chi2_per_dof: f64,
     /// Global misfit z = (χ² − dof)/√(2 dof).
     pub z: f64,
+    /// Akaike's information criterion χ² + 2k (k the model's fitted
+    /// parameters, per-pixel ones included; [`crate::stats::aic`]): only
+    /// differences between models of one recording mean anything.
+    pub aic: f64,
+    /// The Bayesian information criterion χ² + k ln n ([`crate::stats::bic`]).
+    pub bic: f64,
+}
+
+impl FitStats {
+    /// The statistics of χ² `chi2` over `n` samples with `k` fitted parameters.
+    pub fn of(chi2: f64, n: usize, k: usize) -> Self {
+        let dof = n.saturating_sub(k).max(1) as f64;
+        Self {
+            chi2_per_dof: chi2 / dof,
+            z: chi2_z(chi2, dof),
+            aic: crate::stats::aic(chi2, k),
+            bic: bic(chi2, k, n),
+        }
+    }
 }
 
 /// Per-capture depth residual means (for plots).
@@ -212,10 +231,7 @@ pub fn comparison_of(prep: &Prepared, model: LabModel) -> Result<Comparison, Lab
         size,
         noise_single,
         weight_sums: (sw, swa2),
-        fit: FitStats {
-            chi2_per_dof: chi2 / dof,
-            z: chi2_z(chi2, dof),
-        },
+        fit: FitStats::of(chi2, n, model.n_params),
         rms: Rms {
             raw_lsb: raw,
             depth_2phase_mm: d2,
@@ -364,6 +380,9 @@ pub struct CandidateScore {
     pub effect: String,
     /// BIC(with) − BIC(without); negative supports the effect.
     pub delta_bic: f64,
+    /// AIC(with) − AIC(without) ([`crate::stats::aic`]); negative supports
+    /// the effect.
+    pub delta_aic: f64,
     /// Share of the excess χ² (χ² − dof) the effect removes; NaN (no score,
     /// shown as "—") when the residual has no significant excess over the
     /// noise (z ≤ [`Z_NULL`] with the noise known from repeats): a share of a
@@ -386,6 +405,9 @@ pub struct CandidateScore {
     /// Why a reported value was clamped (a share above 100 %, a negative
     /// z after): the raw figure and what it means.
     pub flags: Vec<String>,
+    /// The parameters fitted at the bound of their range
+    /// ([`crate::signatures::at_bounds`]), one sentence each.
+    pub at_bound: Vec<String>,
     /// The fitted signature (None when the fit failed).
     #[serde(skip)]
     pub fit: Option<EffectFit>,
@@ -673,6 +695,7 @@ fn screen_candidate(
     Ok(CandidateScore {
         effect: id.to_string(),
         delta_bic: bic(chi_after, f.n_params, cmp.n) - bic(cmp.chi2, 0, cmp.n),
+        delta_aic: crate::stats::aic(chi_after, f.n_params) - crate::stats::aic(cmp.chi2, 0),
         explained_excess: share(dchi / excess),
         cv_gain: share((f.cv_chi2_before - f.cv_chi2) / excess),
         explained: cmp.size_of(dchi, prep),
@@ -680,6 +703,7 @@ fn screen_candidate(
         params,
         standard_errors,
         flags: Vec::new(),
+        at_bound: crate::signatures::at_bounds(sig.as_ref(), &f.nl),
         fit: Some(EffectFit {
             id: id.to_string(),
             lin: f.lin,
@@ -763,6 +787,8 @@ fn refit_leader(
     c.explained_excess = c.explained_excess.max((cmp.chi2 - c2.chi2) / excess);
     c.z_after = c2.fit.z;
     c.delta_bic = bic(c2.chi2, c2.model.n_params, cmp.n) - bic(cmp.chi2, cmp.model.n_params, cmp.n);
+    c.delta_aic = crate::stats::aic(c2.chi2, c2.model.n_params)
+        - crate::stats::aic(cmp.chi2, cmp.model.n_params);
     c.structure_after = Some(c2.structure.first().map(|s| s.z).unwrap_or(0.0));
     if let Some(gain) = refit_cv_gain(prep, &mut c2, c)? {
         c.cv_gain = c.cv_gain.max(gain);
@@ -1267,6 +1293,10 @@ pub struct ErrorSummary {
     pub depth_4phase_mm: f64,
     /// As [`FitStats::chi2_per_dof`].
     pub chi2_per_dof: f64,
+    /// As [`FitStats::aic`].
+    pub aic: f64,
+    /// As [`FitStats::bic`].
+    pub bic: f64,
 }
 
 impl ErrorSummary {
@@ -1277,6 +1307,8 @@ impl ErrorSummary {
             depth_2phase_mm: c.rms.depth_2phase_mm,
             depth_4phase_mm: c.rms.depth_4phase_mm,
             chi2_per_dof: c.fit.chi2_per_dof,
+            aic: c.fit.aic,
+            bic: c.fit.bic,
         }
     }
 }
@@ -1296,6 +1328,8 @@ pub struct AddOutcome {
     /// Why those errors understate how far the values may be off (None when
     /// the model with the effect fits to the noise: [`errors_note`]).
     pub standard_errors_note: Option<String>,
+    /// The parameters fitted at the bound of their range ([`FittedEffect::at_bound`]).
+    pub at_bound: Vec<String>,
 }
 
 /// Enable `effect` in the spec, refit everything, and compare before/after.
@@ -1390,6 +1424,7 @@ pub fn add_effect_to(
         params: f.params,
         standard_errors: f.standard_errors,
         standard_errors_note: f.standard_errors_note,
+        at_bound: f.at_bound,
     })
 }
 
@@ -1408,6 +1443,9 @@ pub struct FittedEffect {
     pub standard_errors: BTreeMap<String, f64>,
     /// Why those errors understate how far the values may be off ([`errors_note`]).
     pub standard_errors_note: Option<String>,
+    /// The parameters fitted at the bound of their range, one sentence each
+    /// ([`crate::signatures::at_bounds`]).
+    pub at_bound: Vec<String>,
 }
 
 /// The standard errors rest on the noise model alone: they say how far the
@@ -1448,17 +1486,20 @@ pub fn fitted_effect(
     let (fit, params) = effect_params(prep, &cmp.model, effect)?;
     let mut standard_errors: BTreeMap<String, f64> =
         params.keys().map(|k| (k.clone(), f64::NAN)).collect();
+    let mut at_bound = Vec::new();
     if effect != tofprox_model::ids::waveform_harmonics::ID.as_str() {
         let sig = make_signature(effect, prep, &cmp.model.spec, &cmp.model.waveform)?;
         let se = effect_standard_errors(sig.as_ref(), &cmp.recs, prep, &fit);
         let names = sig.lin_names().into_iter().chain(sig.nl_names());
         standard_errors.extend(names.zip(se));
+        at_bound = crate::signatures::at_bounds(sig.as_ref(), &fit.nl);
     }
     Ok(FittedEffect {
         effect: effect.to_string(),
         params,
         standard_errors,
         standard_errors_note: errors_note(cmp),
+        at_bound,
     })
 }
 
@@ -1768,6 +1809,7 @@ pub(crate) mod tests {
         CandidateScore {
             effect: effect.into(),
             delta_bic: dbic,
+            delta_aic: dbic,
             explained_excess: explained,
             cv_gain: cv,
             explained: Size::default(),
@@ -1775,6 +1817,7 @@ pub(crate) mod tests {
             params: BTreeMap::new(),
             standard_errors: BTreeMap::new(),
             flags: Vec::new(),
+            at_bound: Vec::new(),
             fit: None,
             nuisance: [0.0; 3],
             structure_after: Some(2.0),
@@ -1891,6 +1934,7 @@ pub(crate) mod tests {
             fit: FitStats {
                 chi2_per_dof: 138.0,
                 z: 9000.0,
+                ..FitStats::default()
             },
             strongest_condition: None,
             rms: Rms::default(),

@@ -28,11 +28,17 @@ impl Diagnosis {
     }
 }
 
-/// Why the residual counts as noise: below the tolerance though detectable, or as large as
-/// the noise predicts.
+/// Why the residual counts as noise: below the tolerance though detectable (by the global z
+/// or, where the noise was not measured and χ² is the residuals' own, by a structure), or as
+/// large as the noise predicts.
 fn quiet(d: &Diagnosis) -> String {
     let strongest = strongest_clause(d.structure_remaining.first());
-    if d.fit.z > Z_NULL && d.size.mm <= d.tolerance_mm {
+    let detectable = d.fit.z > Z_NULL
+        || (!d.noise.measured()
+            && d.structure_remaining
+                .first()
+                .is_some_and(|s| s.z > crate::diagnose::STRUCTURE_NULL));
+    if detectable && d.size.mm <= d.tolerance_mm {
         format!(
             "What remains is detectable (z = {:.1}{strongest}) but small: {:.2} mm \
              depth-equivalent, below the tolerance {:.2} mm",
@@ -182,6 +188,7 @@ mod tests {
             fit: FitStats {
                 chi2_per_dof: 1.9,
                 z: 160.0,
+                ..FitStats::default()
             },
             strongest_condition: Some("adc_code".into()),
             rms: Rms::default(),

@@ -270,6 +270,9 @@ impl Prepared {
                 "recording has no illuminated capture with a ground-truth distance_m; the lab needs a distance sweep",
             ));
         }
+        if let Some(e) = on_the_rails(&caps, (&meas, &base), &sat_meas, npix, (margin, max_code)) {
+            return Err(e);
+        }
         Ok(Self {
             rows: ds.sensor.rows,
             cols: ds.sensor.cols,
@@ -307,6 +310,47 @@ impl Prepared {
     pub fn margin(&self) -> f64 {
         (0.0075 * (self.max_code + 1.0)).max(2.0)
     }
+}
+
+/// Why nothing can be fitted when every illuminated sample of the used
+/// captures is on a rail of the ADC (a raw image within `margin` LSB of code
+/// 0 or of `max_code`: saturated or clipped, [`Prepared::sat_meas`]): the
+/// rails named, with the share of the illuminated codes at each. `None`
+/// when any sample is valid.
+fn on_the_rails(
+    caps: &[CapInfo],
+    (meas, base): (&[f64], &[usize]),
+    sat: &[bool],
+    npix: usize,
+    (margin, max_code): (f64, f64),
+) -> Option<LabError> {
+    let lit: Vec<usize> = (0..caps.len())
+        .filter(|&c| caps[c].illum && caps[c].used)
+        .collect();
+    if lit
+        .iter()
+        .any(|&c| sat[c * npix..(c + 1) * npix].iter().any(|s| !s))
+    {
+        return None;
+    }
+    let (mut low, mut high, mut n) = (0usize, 0usize, 0usize);
+    for &c in &lit {
+        let codes = &meas[base[c]..base[c] + caps[c].theta_rad.len() * npix];
+        n += codes.len();
+        low += codes.iter().filter(|v| **v <= margin).count();
+        high += codes.iter().filter(|v| **v >= max_code - margin).count();
+    }
+    let pct = |k: usize| 100.0 * k as f64 / n.max(1) as f64;
+    Some(LabError::data(format!(
+        "no valid samples to fit: every pixel of the {} illuminated captures is on a rail of the \
+         ADC in at least one raw image — {:.1} % of their codes at the low rail (0 to {margin:.0} \
+         LSB), {:.1} % at the high rail ({:.0} to {max_code:.0} LSB); too much signal or \
+         ambient light, a wrong offset, or frames that are not raw codes?",
+        lit.len(),
+        pct(low),
+        pct(high),
+        max_code - margin,
+    )))
 }
 
 pub(crate) fn median(v: &[f64]) -> Option<f64> {
@@ -1022,9 +1066,17 @@ pub fn refine(
         }
     }
     progress("per-pixel fit", 1.0);
+    model.n_params = param_count(model, npix);
+    Ok(())
+}
+
+/// The parameters `model` fits on a window of `npix` pixels: per pixel (or
+/// pooled) offset, gain and phase, the waveform's harmonics and the free
+/// effects' values.
+pub(crate) fn param_count(model: &LabModel, npix: usize) -> usize {
     let spec = &model.spec;
     let pp = |b: bool| if b { npix } else { 1 };
-    model.n_params = pp(spec.per_pixel_offset)
+    pp(spec.per_pixel_offset)
         + pp(spec.per_pixel_gain)
         + pp(spec.per_pixel_phase)
         + 2 * (model.waveform.order() - 1)
@@ -1033,8 +1085,7 @@ pub fn refine(
             .iter()
             .filter(|e| !spec.held.iter().any(|h| h.id == e.id))
             .map(|e| e.lin.len() + e.nl.len())
-            .sum::<usize>();
-    Ok(())
+            .sum::<usize>()
 }
 
 /// The model `base` with one more effect, started from a candidate fit on top

@@ -12,7 +12,9 @@ pub mod data;
 pub mod diagnose;
 pub mod error;
 mod evidence;
+
 pub mod fit;
+pub mod form;
 pub mod model_file;
 pub mod noise;
 pub mod report;

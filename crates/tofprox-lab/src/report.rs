@@ -27,6 +27,7 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
         "candidates": d.candidates.iter().map(|c| json!({
             "effect": c.effect,
             "delta_bic": num(c.delta_bic),
+            "delta_aic": num(c.delta_aic),
             "explained_excess": num(c.explained_excess),
             "cv_gain": num(c.cv_gain),
             "explained_mm": num(c.explained.mm),
@@ -35,13 +36,14 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
             "params": named(&c.params),
             "standard_errors": named(&c.standard_errors),
             "flags": c.flags,
+            "at_bound": c.at_bound,
             "form": c.form,
             "form_scores": c.form_scores.iter().map(|f| json!({"form": f.form, "cv_chi2": num(f.cv_chi2)})).collect::<Vec<_>>(),
         })).collect::<Vec<_>>(),
         "reason": d.reason,
         "evidence": d.evidence(),
         "noise": {"source": d.noise, "description": d.noise.describe()},
-        "fit": {"chi2_per_dof": num(d.fit.chi2_per_dof), "z": num(d.fit.z)},
+        "fit": fit_json(&d.fit),
         "strongest_condition": d.strongest_condition,
         "rms": {
             "raw_lsb": num(d.rms.raw_lsb),
@@ -69,6 +71,11 @@ pub fn diagnosis_json(d: &Diagnosis) -> Value {
     })
 }
 
+/// `fit` of every document: χ²/dof, z and the information criteria.
+fn fit_json(f: &crate::diagnose::FitStats) -> Value {
+    json!({"chi2_per_dof": num(f.chi2_per_dof), "z": num(f.z), "aic": num(f.aic), "bic": num(f.bic)})
+}
+
 fn structure_json(s: &crate::structure::ConditionScore) -> Value {
     json!({
         "condition": s.condition, "z": num(s.z), "dof": s.dof, "direction": s.direction,
@@ -87,6 +94,7 @@ pub fn explanation_json(ex: &Explanation) -> Value {
             "params": named(&f.params),
             "standard_errors": named(&f.standard_errors),
             "standard_errors_note": f.standard_errors_note,
+            "at_bound": f.at_bound,
         })).collect::<Vec<_>>(),
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
@@ -102,6 +110,8 @@ fn summary_json(s: &ErrorSummary) -> Value {
         "depth_2phase_mm": num(s.depth_2phase_mm),
         "depth_4phase_mm": num(s.depth_4phase_mm),
         "chi2_per_dof": num(s.chi2_per_dof),
+        "aic": num(s.aic),
+        "bic": num(s.bic),
     })
 }
 
@@ -115,6 +125,7 @@ pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
         "params": named(&out.params),
         "standard_errors": named(&out.standard_errors),
         "standard_errors_note": out.standard_errors_note,
+        "at_bound": out.at_bound,
     })
 }
 
@@ -123,14 +134,30 @@ fn named(m: &BTreeMap<String, f64>) -> Value {
     Value::Object(m.iter().map(|(k, v)| (k.clone(), num(*v))).collect())
 }
 
+/// The information criteria before and after `add`, one terminal line: the
+/// two changes (negative supports the effect).
+pub fn criteria_change_text(before: &ErrorSummary, after: &ErrorSummary) -> String {
+    format!(
+        "criteria: AIC {:.1} → {:.1} (Δ {:+.1}), BIC {:.1} → {:.1} (Δ {:+.1})\n",
+        before.aic,
+        after.aic,
+        after.aic - before.aic,
+        before.bic,
+        after.bic,
+        after.bic - before.bic
+    )
+}
+
 /// The fitted parameters with their standard errors, one `  name = value ± SE` line each
-/// ("± —" where there is none), under a heading saying what they are, and the
-/// note of why the errors understate, if any ([`crate::diagnose::errors_note`]).
+/// ("± —" where there is none), under a heading saying what they are, the
+/// note of why the errors understate, if any ([`crate::diagnose::errors_note`]),
+/// and a line per parameter fitted at its range's bound
+/// ([`crate::signatures::at_bounds`]).
 pub fn fitted_text(
     effect: &str,
     params: &BTreeMap<String, f64>,
     standard_errors: &BTreeMap<String, f64>,
-    note: Option<&str>,
+    (note, at_bound): (Option<&str>, &[String]),
 ) -> String {
     let mut s = format!(
         "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise with the per-pixel parameters held):\n"
@@ -147,13 +174,16 @@ pub fn fitted_text(
     if let Some(n) = note {
         let _ = writeln!(s, "  note: {n}");
     }
+    for b in at_bound {
+        let _ = writeln!(s, "  at bound: {b}");
+    }
     s
 }
 
 /// `compare --json`: fit statistics, RMS and the structure per condition.
 pub fn comparison_json(c: &Comparison) -> Value {
     json!({
-        "fit": {"chi2_per_dof": num(c.fit.chi2_per_dof), "z": num(c.fit.z)},
+        "fit": fit_json(&c.fit),
         "rms": {
             "raw_lsb": num(c.rms.raw_lsb),
             "depth_2phase_mm": num(c.rms.depth_2phase_mm),
@@ -168,6 +198,14 @@ pub fn comparison_json(c: &Comparison) -> Value {
     })
 }
 
+/// The information criteria of a fit, one terminal line.
+pub fn criteria_text(f: &crate::diagnose::FitStats) -> String {
+    format!(
+        "criteria: AIC = {:.1}, BIC = {:.1} (χ² + 2k, χ² + k·ln n; only differences between models of one recording count)",
+        f.aic, f.bic
+    )
+}
+
 /// The compact terminal table of `compare`.
 pub fn comparison_text(c: &Comparison) -> String {
     let mut s = String::new();
@@ -180,6 +218,7 @@ pub fn comparison_text(c: &Comparison) -> String {
         c.model.n_params,
         c.model.noise.source.describe()
     );
+    let _ = writeln!(s, "{}", criteria_text(&c.fit));
     let _ = writeln!(
         s,
         "rms: raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
@@ -238,6 +277,7 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
         "fit: χ²/dof = {:.3}, z = {:.1}; rms raw {:.3} LSB, depth 2-phase {:.2} mm, 4-phase {:.2} mm",
         d.fit.chi2_per_dof, d.fit.z, d.rms.raw_lsb, d.rms.depth_2phase_mm, d.rms.depth_4phase_mm
     );
+    let _ = writeln!(s, "{}", criteria_text(&d.fit));
     let _ = writeln!(s, "noise: {}", d.noise.describe());
     let _ = writeln!(
         s,
@@ -253,18 +293,19 @@ pub fn diagnosis_text(d: &Diagnosis) -> String {
     }
     let _ = writeln!(
         s,
-        "{:<24} {:>9} {:>8} {:>12} {:>10} {:>12}  4-phase cancels",
-        "candidate", "explained", "cv_gain", "removes [mm]", "z_after", "ΔBIC"
+        "{:<24} {:>9} {:>8} {:>12} {:>10} {:>12} {:>12}  4-phase cancels",
+        "candidate", "explained", "cv_gain", "removes [mm]", "z_after", "ΔAIC", "ΔBIC"
     );
     for c in &d.candidates {
         let _ = writeln!(
             s,
-            "{:<24} {:>9} {:>8} {:>12.3} {:>10.1} {:>12.1}  {}",
+            "{:<24} {:>9} {:>8} {:>12.3} {:>10.1} {:>12.1} {:>12.1}  {}",
             c.effect,
             percent(c.explained_excess),
             percent(c.cv_gain),
             c.explained.mm,
             c.z_after,
+            c.delta_aic,
             c.delta_bic,
             if cancels_in_4phase(&c.effect) {
                 "yes"
@@ -584,8 +625,8 @@ fn fit_html(h: &mut String, cmp: &Comparison) {
     let _ = write!(
         h,
         "<h2>How well the model explains the measurement</h2><table><tr><th>χ²/dof</th><th>z</th><th>raw RMS [LSB]</th>\
-         <th>2-phase depth RMS [mm]</th><th>4-phase depth RMS [mm]</th><th>samples</th></tr>\
-         <tr><td class=\"{}\">{:.3}</td><td>{:.1}</td>{}{}{}<td>{}</td></tr></table>\
+         <th>2-phase depth RMS [mm]</th><th>4-phase depth RMS [mm]</th><th>samples</th><th>AIC</th><th>BIC</th></tr>\
+         <tr><td class=\"{}\">{:.3}</td><td>{:.1}</td>{}{}{}<td>{}</td><td>{:.1}</td><td>{:.1}</td></tr></table>\
          <p>Noise model (pooled photon transfer, {}): var = ({:.3} + {:.4}·A + {:.2e}·ambient·t + {:.2e}·t)/averaged LSB².</p>",
         if cmp.fit.z > Z_NULL { "bad" } else { "ok" },
         cmp.fit.chi2_per_dof,
@@ -594,6 +635,8 @@ fn fit_html(h: &mut String, cmp: &Comparison) {
         cell(Some(cmp.rms.depth_2phase_mm), 2, NO_DATA),
         cell(Some(cmp.rms.depth_4phase_mm), 2, NO_DATA),
         cmp.n,
+        cmp.fit.aic,
+        cmp.fit.bic,
         esc(&cmp.model.noise.source.describe()),
         cmp.model.noise.a,
         cmp.model.noise.b,
@@ -689,7 +732,7 @@ fn model_charts_html(h: &mut String, cmp: &Comparison) {
 fn candidates_html(h: &mut String, d: &Diagnosis) {
     h.push_str(
         "<h2>Candidate effects</h2><table><tr><th>effect</th><th>explained excess</th><th>cv gain</th>\
-         <th>explained [mm]</th><th>z after</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
+         <th>explained [mm]</th><th>z after</th><th>ΔAIC</th><th>ΔBIC</th><th>2-phase after [mm]</th><th>4-phase after [mm]</th><th>4-phase cancels</th></tr>",
     );
     const NO_EXCESS: &str =
         "no share: the residual has no significant excess over the noise (see explained [mm])";
@@ -699,12 +742,13 @@ fn candidates_html(h: &mut String, d: &Diagnosis) {
         let after = c.rms_after;
         let _ = write!(
             h,
-            "<tr><th>{}</th>{}{}{}{}{}{}{}<td>{}</td></tr>",
+            "<tr><th>{}</th>{}{}{}{}{}{}{}{}<td>{}</td></tr>",
             esc(&c.effect),
             percent_cell(c.explained_excess, NO_EXCESS),
             percent_cell(c.cv_gain, NO_EXCESS),
             cell(Some(c.explained.mm), 3, "no screening fit"),
             cell(Some(c.z_after), 1, NOT_REFITTED),
+            cell(Some(c.delta_aic), 0, NOT_REFITTED),
             cell(Some(c.delta_bic), 0, NOT_REFITTED),
             cell(after.map(|r| r.depth_2phase_mm), 2, NOT_REFITTED),
             cell(after.map(|r| r.depth_4phase_mm), 2, NOT_REFITTED),
@@ -738,16 +782,20 @@ fn after_adding_html(h: &mut String, effect: &str, before: &Comparison, after: &
     let a = ErrorSummary::of(after);
     let _ = write!(
         h,
-        "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th></tr>\
-         <tr><th>before</th>{}{}{}{}</tr><tr><th>after</th>{}{}{}{}</tr></table>",
+        "<h2>After adding {e}</h2><table><tr><th></th><th>raw RMS [LSB]</th><th>2-phase [mm]</th><th>4-phase [mm]</th><th>χ²/dof</th><th>AIC</th><th>BIC</th></tr>\
+         <tr><th>before</th>{}{}{}{}{}{}</tr><tr><th>after</th>{}{}{}{}{}{}</tr></table>",
         cell(Some(b.raw_lsb), 3, NO_DATA),
         cell(Some(b.depth_2phase_mm), 2, NO_DATA),
         cell(Some(b.depth_4phase_mm), 2, NO_DATA),
         cell(Some(b.chi2_per_dof), 3, NO_DATA),
+        cell(Some(b.aic), 1, NO_DATA),
+        cell(Some(b.bic), 1, NO_DATA),
         cell(Some(a.raw_lsb), 3, NO_DATA),
         cell(Some(a.depth_2phase_mm), 2, NO_DATA),
         cell(Some(a.depth_4phase_mm), 2, NO_DATA),
         cell(Some(a.chi2_per_dof), 3, NO_DATA),
+        cell(Some(a.aic), 1, NO_DATA),
+        cell(Some(a.bic), 1, NO_DATA),
         e = esc(effect)
     );
     let (b2, b4) = depth_series(&before.depth);

@@ -22,23 +22,23 @@
 //! then the full law — the phasor rotated by Δφ, scaled by 1 + G — refined
 //! by the candidates' Levenberg–Marquardt path, like the parametric forms.
 //!
-//! The choice between the parametric form and the shapes (and of K) is made
-//! by cross-validation on held-out blocks of captures ([`choose_form`]).
+//! The choice between the parametric form and the shapes (and of K) is
+//! `crate::form`'s ([`choose_form`]).
 
 use std::collections::BTreeMap;
-
-use rayon::prelude::*;
 
 use tofprox_model::effects::shape as law;
 use tofprox_model::effects::vcsel_droop::droop_on_time_us;
 use tofprox_model::ids::{self, EffectId};
 
-use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
-use crate::error::LabError;
-use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
+use crate::fit::{CapInfo, EffectFit, Prepared, Rec, Sample};
 use crate::signatures::sbi::{self, Sbi};
-use crate::signatures::{Signature, TermScope, make_signature, phase_shift_code, quantiles};
+use crate::signatures::{Signature, TermScope, phase_shift_code, quantiles};
 use crate::waveform::Waveform;
+
+pub use crate::form::{
+    FORM_Z, FormChoice, FormScore, MIN_REL_GAIN_OVER_PHYSICAL, choose_form, form_margin, form_name,
+};
 
 /// The knot counts the shape form is tried with.
 pub const KNOT_COUNTS: &[usize] = &[3, 4, 6];
@@ -573,202 +573,6 @@ fn ranked(mut v: Vec<f64>, k: usize) -> Option<Vec<f64>> {
 fn strictly_increasing(mut q: Vec<f64>, k: usize) -> Option<Vec<f64>> {
     q.dedup();
     (q.len() == k && law::check_knots(&q).is_ok()).then_some(q)
-}
-
-/// One form's cross-validation score.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct FormScore {
-    /// `physical` or `shape_<K>_knots`.
-    pub form: String,
-    /// Σ over held-out blocks of χ² with every parameter of the form fitted
-    /// on the other blocks ([`cv_refit`]).
-    pub cv_chi2: f64,
-}
-
-/// The form chosen for one effect and what it was chosen from.
-pub struct FormChoice {
-    /// Knots of the chosen shape (`None`: the parametric form).
-    pub knots: Option<Vec<f64>>,
-    /// The chosen form's fit.
-    pub fit: SignatureFit,
-    /// Its signature.
-    pub signature: Box<dyn Signature>,
-    /// Every form tried, in order.
-    pub scores: Vec<FormScore>,
-}
-
-/// Fit effect `id`'s parametric form and (when it has one) its shape form
-/// with each of [`KNOT_COUNTS`] knots to the residuals `recs`, and keep the
-/// one that predicts held-out blocks best (only where the physical form
-/// explains at least `MIN_SHARE_FOR_FORMS` of the excess χ² — else it is
-/// not the effect missing — and the recording has at least
-/// `MIN_CAPTURES_FOR_FORMS` illuminated captures; else `scores` stays empty). The parametric form is kept
-/// unless a shape's held-out χ² is lower by more than 1 % of what the
-/// parametric form explains there, 2 per extra parameter and
-/// `MIN_REL_GAIN_OVER_PHYSICAL` of the parametric form's own held-out χ²:
-/// a law the physics fixes is not traded for a look-alike within the noise,
-/// nor for one that absorbs a little of a residual that is not this
-/// effect's (the candidates are fitted before the per-pixel parameters are
-/// refitted, so their residual holds more than the effect).
-pub fn choose_form(
-    id: &str,
-    prep: &Prepared,
-    spec: &LabSpec,
-    waveform: &Waveform,
-    recs: &[Sample],
-) -> Result<FormChoice, LabError> {
-    let mut plain = spec.clone();
-    plain.shapes.remove(id);
-    let sig = make_signature(id, prep, &plain, waveform)?;
-    let mut fit = fit_values(sig.as_ref(), recs, prep, None)?;
-    // an effect whose physical form explains little of the excess is not the
-    // one missing: its forms are not compared (the screening's cost)
-    let excess = fit.chi2_before - recs.len() as f64;
-    // few captures: a held-out block is one capture or none, which scores
-    // how a shape of K free values follows that capture, not the law
-    let illuminated = prep.caps.iter().filter(|c| c.illum && c.used).count();
-    if !has_shape_form(id)
-        || spec.held.iter().any(|h| h.id == id)
-        || illuminated < MIN_CAPTURES_FOR_FORMS
-        || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
-    {
-        add_standard_errors(sig.as_ref(), recs, prep, &mut fit);
-        return Ok(FormChoice {
-            knots: None,
-            fit,
-            signature: sig,
-            scores: Vec::new(),
-        });
-    }
-    let (cv, cv_before) = cv_refit(sig.as_ref(), recs, prep, &fit)?;
-    let physical = FormChoice {
-        knots: None,
-        fit,
-        signature: sig,
-        scores: vec![FormScore {
-            form: PHYSICAL_FORM.into(),
-            cv_chi2: cv,
-        }],
-    };
-    let mut best = best_shape(
-        id,
-        prep,
-        waveform,
-        recs,
-        physical,
-        (cv_before - cv).max(0.0),
-    );
-    // the standard errors of the chosen form only
-    add_standard_errors(best.signature.as_ref(), recs, prep, &mut best.fit);
-    Ok(best)
-}
-
-/// `physical` (scored, explaining `gain` of the held-out χ²) against the
-/// shapes with each of [`KNOT_COUNTS`] knots: the best by held-out χ² under
-/// the margins of [`choose_form`], every form's score in its `scores`.
-fn best_shape(
-    id: &str,
-    prep: &Prepared,
-    waveform: &Waveform,
-    recs: &[Sample],
-    physical: FormChoice,
-    gain: f64,
-) -> FormChoice {
-    let mut scores = physical.scores.clone();
-    let mut best_cv = scores[0].cv_chi2;
-    let mut best = physical;
-    let knot_sets: Vec<Option<Vec<f64>>> = KNOT_COUNTS
-        .iter()
-        .map(|&k| knots_at_quantiles(id, k, recs, prep, waveform))
-        .collect();
-    // the shapes fitted in parallel (the first set of each length: the
-    // others are tried below only if it failed), then chosen in order
-    let first_of_len =
-        |i: usize, q: &[f64]| !knot_sets[..i].iter().flatten().any(|p| p.len() == q.len());
-    // (outer `None`: not fitted yet)
-    let mut fitted: Vec<Option<Option<ShapeTry>>> = knot_sets
-        .par_iter()
-        .enumerate()
-        .map(|(i, q)| {
-            let q = q.as_ref().filter(|q| first_of_len(i, q))?;
-            Some(try_shape(id, q, prep, waveform, recs))
-        })
-        .collect();
-    for (i, knots) in knot_sets.into_iter().enumerate() {
-        // (fewer knots where the driver has fewer values: each K once)
-        let Some(knots) =
-            knots.filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
-        else {
-            continue;
-        };
-        let Some((f, s, c)) = fitted[i]
-            .take()
-            .unwrap_or_else(|| try_shape(id, &knots, prep, waveform, recs))
-        else {
-            continue;
-        };
-        scores.push(FormScore {
-            form: shape_form_name(knots.len()),
-            cv_chi2: c,
-        });
-        let extra = f.n_params.saturating_sub(best.fit.n_params) as f64;
-        let margin = if best.knots.is_none() {
-            (0.01 * gain)
-                .max(2.0 * extra)
-                .max(MIN_REL_GAIN_OVER_PHYSICAL * best_cv)
-        } else {
-            2.0 * extra
-        };
-        if c < best_cv - margin {
-            best_cv = c;
-            best = FormChoice {
-                knots: Some(knots),
-                fit: f,
-                signature: s,
-                scores: Vec::new(),
-            };
-        }
-    }
-    best.scores = scores;
-    best
-}
-
-/// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
-/// signature and held-out χ² ([`cv_refit`]); `None` when it cannot be fitted.
-/// A fitted shape form: its fit, signature and held-out χ².
-type ShapeTry = (SignatureFit, Box<dyn Signature>, f64);
-
-fn try_shape(
-    id: &str,
-    knots: &[f64],
-    prep: &Prepared,
-    waveform: &Waveform,
-    recs: &[Sample],
-) -> Option<ShapeTry> {
-    let s = make_shape_signature(id, knots, prep, waveform)?;
-    let f = fit_values(s.as_ref(), recs, prep, None).ok()?;
-    let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
-    Some((f, s, c))
-}
-
-/// The fewest illuminated captures on which the forms are compared (two per
-/// held-out block; `examples/recording`'s 7 fit a 4-knot SBI shape to a
-/// recording without SBI).
-const MIN_CAPTURES_FOR_FORMS: usize = 10;
-
-/// The least share of the physical form's held-out χ² a shape must predict
-/// better to replace it (the thesis' own droop law on docs/lab.md's
-/// recording: 2 % by a 3-knot shape; the shapes of laws outside the
-/// catalogue's families in `tests/shapes_independent.rs`: 6–70 %).
-const MIN_REL_GAIN_OVER_PHYSICAL: f64 = 0.05;
-
-/// The least share of the residual's excess χ² (χ² − samples) the physical
-/// form must explain for the forms to be compared.
-const MIN_SHARE_FOR_FORMS: f64 = 0.05;
-
-/// The name of the chosen form of `knots` (`physical` for none).
-pub fn form_name(knots: Option<&Vec<f64>>) -> String {
-    knots.map_or_else(|| PHYSICAL_FORM.to_string(), |k| shape_form_name(k.len()))
 }
 
 /// The model file's shape of effect `id` (`fit` in the lab's form with

@@ -1,8 +1,9 @@
 //! Honest noise (issue 20, docs/lab.md "Noise"): repeats are found by the
 //! physical conditions only — bookkeeping keys such as `repeat` or
 //! `timestamp_s` (docs/recording-format.md) never split them —, and a
-//! recording without signal (random codes, constant frames) is never
-//! `nothing_missing`.
+//! recording without signal (random codes, constant frames, every code on a
+//! rail) is never `nothing_missing`; a sparse one without repeats is
+//! `noise_not_measured`.
 use std::path::Path;
 
 use ndarray::Array3;
@@ -215,4 +216,72 @@ fn repeated_raw_images_measure_the_noise() {
     assert!(captures >= 40, "{captures}");
     let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
     assert_eq!(d.verdict, Verdict::NothingMissing, "{}", d.reason);
+}
+
+/// Every code on a rail of the ADC (each pixel at 0 or 4095, some of each):
+/// nothing to fit, and the error says why — it names the rails and the share
+/// of the codes at each — instead of "no valid samples to fit" alone.
+#[test]
+fn an_all_rail_recording_names_the_rails() {
+    let tmp = tempfile::tempdir().unwrap();
+    let rails = tmp.path().join("rails");
+    let mut i = 0usize;
+    example_copy(&rails, 1, |s| {
+        Array3::from_shape_simple_fn(s, || {
+            i += 1;
+            if i.is_multiple_of(3) { 0.0 } else { 4095.0 }
+        })
+    });
+    let err = diagnosed(&rails).expect_err("an all-rail recording is refused");
+    let msg = err.to_string();
+    eprintln!("{msg}");
+    assert_eq!(err.kind(), tofprox_lab::ErrorKind::InvalidData);
+    assert!(msg.contains("rail"), "{msg}");
+    // the two rails of the 12-bit ADC, with the share of the codes at each
+    let share = |after: &str| -> f64 {
+        let tail = &msg[msg.find(after).unwrap_or_else(|| panic!("{after}: {msg}"))..];
+        let pct = tail.find(" %").unwrap();
+        let start = tail[..pct].rfind(' ').unwrap();
+        tail[start + 1..pct].parse().unwrap()
+    };
+    assert!(msg.contains("4095 LSB") && msg.contains("(0 to"), "{msg}");
+    let (low, high) = (share("illuminated captures"), share("LSB), "));
+    assert!((low - 100.0 / 3.0).abs() < 1.0, "low rail {low} %: {msg}");
+    assert!(
+        (high - 200.0 / 3.0).abs() < 1.0,
+        "high rail {high} %: {msg}"
+    );
+}
+
+/// A sparse recording: 11 captures of 16×16 pixels — a dark, a correlation
+/// capture and 9 distances at one exposure, no repeats (what `sim sweep
+/// --distances 0.3:1.1:0.1 --exposures 500` writes) — of a sensor with
+/// nothing hidden: nothing measured the noise, so the verdict is
+/// `noise_not_measured`, not `unexplained` from a noise taken from the
+/// residuals (whose χ² was n, not n − p: χ²/dof 1.05, z 4.4 on `sim sweep`'s
+/// recording, from the per-pixel parameters alone).
+#[test]
+fn a_sparse_recording_without_repeats_is_noise_not_measured() {
+    let ds = generate(&SynthSpec {
+        rows: 16,
+        cols: 16,
+        seed: 13,
+        repeats: 1,
+        distances_m: (0..9).map(|i| 0.3 + 0.1 * f64::from(i)).collect(),
+        exposures_us: vec![500.0],
+        ..SynthSpec::default()
+    });
+    let prep = Prepared::new(&ds).unwrap();
+    let cmp = compare(&prep, &lab_spec(), &|_, _| {}).unwrap();
+    assert_eq!(cmp.model.noise.source, NoiseSource::NotMeasured);
+    let d = diagnose(&prep, &cmp, &|_, _| {}).unwrap();
+    eprintln!(
+        "{} captures: {:?}: {}",
+        ds.captures.len(),
+        d.verdict,
+        d.reason
+    );
+    assert_eq!(d.verdict, Verdict::NoiseNotMeasured, "{}", d.reason);
+    assert!(d.reason.contains("not measured"), "{}", d.reason);
+    reported_values_are_honest(&d);
 }

@@ -162,6 +162,14 @@ impl Signature for AmpPhase {
     fn nl_start(&self) -> Vec<f64> {
         vec![0.0, 5.0, 0.0]
     }
+    /// The clamps of [`AmpPhase::law`].
+    fn nl_bounds(&self) -> Vec<Option<(f64, f64)>> {
+        vec![
+            Some(Self::phase0_range()),
+            Some((-5.0, 18.0)),
+            Some((0.25f64.ln(), 10f64.ln())),
+        ]
+    }
     fn nl_grid(&self, recs: &[Sample], prep: &Prepared) -> Vec<Vec<f64>> {
         let a: Vec<f64> = recs
             .iter()

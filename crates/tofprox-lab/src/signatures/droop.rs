@@ -76,6 +76,10 @@ impl Signature for Droop {
     fn nl_start(&self) -> Vec<f64> {
         vec![5.0, 1.0, 0.0]
     }
+    /// The clamps of `image_term`.
+    fn nl_bounds(&self) -> Vec<Option<(f64, f64)>> {
+        vec![Some((-5.0, 9.0)), Some((0.0, 2.0)), Some((0.0, 8.0))]
+    }
     fn nl_grid(&self, _: &[Sample], _: &Prepared) -> Vec<Vec<f64>> {
         let mut g = Vec::new();
         for k0 in [0.0, 1.0] {

@@ -52,6 +52,14 @@ pub trait Signature: Send + Sync {
     fn nl_start(&self) -> Vec<f64> {
         Vec::new()
     }
+    /// The range the law holds each non-linear parameter in (its clamp), in
+    /// `nl`'s own units, `None` for an unbounded one; empty (the default):
+    /// none bounded. A fitted value at or beyond its bound is flagged
+    /// ([`at_bounds`]): the data push it there, and its standard error does
+    /// not describe how far it may be off.
+    fn nl_bounds(&self) -> Vec<Option<(f64, f64)>> {
+        Vec::new()
+    }
     /// Non-linear parameters chosen from the grid only, not refined (a
     /// choice between discrete forms of the law).
     fn nl_discrete(&self, _i: usize) -> bool {
@@ -263,6 +271,34 @@ impl FixedMemo {
             };
         }
     }
+}
+
+/// The fitted non-linear parameters of `sig` (`nl`) at or beyond the bound
+/// of their range ([`Signature::nl_bounds`]; within 10⁻⁶ of its width), one
+/// line each: name, value and range. Discrete parameters (a choice between
+/// forms, [`Signature::nl_discrete`]) are not flagged.
+pub fn at_bounds(sig: &dyn Signature, nl: &[f64]) -> Vec<String> {
+    let names = sig.nl_names();
+    sig.nl_bounds()
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !sig.nl_discrete(*i))
+        .filter_map(|(i, b)| {
+            let ((lo, hi), v) = ((*b)?, *nl.get(i)?);
+            let tol = 1e-6 * (hi - lo).abs().max(1e-12);
+            let side = if v <= lo + tol {
+                "lower"
+            } else if v >= hi - tol {
+                "upper"
+            } else {
+                return None;
+            };
+            Some(format!(
+                "{} = {v:.6} is at the {side} bound of its range [{lo}, {hi}]: the data push it there, and its standard error does not say how far it may be off",
+                names.get(i).map_or("?", String::as_str)
+            ))
+        })
+        .collect()
 }
 
 /// A fitted effect's parameters by name ([`Signature::lin_names`],

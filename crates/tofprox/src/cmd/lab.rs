@@ -367,11 +367,12 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 t.push_str(&format!("  {} = {v:.6}  {}\n", pi.name, pi.unit));
             }
         }
+        t.push_str(&report::criteria_change_text(&b, &f));
         t.push_str(&report::fitted_text(
             &a.effect,
             &res.params,
             &res.standard_errors,
-            res.standard_errors_note.as_deref(),
+            (res.standard_errors_note.as_deref(), &res.at_bound),
         ));
         Ok(t)
     })?;
@@ -433,7 +434,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
                 &f.effect,
                 &f.params,
                 &f.standard_errors,
-                f.standard_errors_note.as_deref(),
+                (f.standard_errors_note.as_deref(), &f.at_bound),
             ));
         }
         if let Some(why) = &ex.stopped {
