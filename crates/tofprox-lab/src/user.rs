@@ -480,6 +480,7 @@ pub fn add_user_to(
         params: f.params,
         standard_errors: f.standard_errors,
         standard_errors_note: f.standard_errors_note,
+        at_bound: f.at_bound,
     })
 }
 

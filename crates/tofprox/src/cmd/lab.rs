@@ -349,7 +349,7 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 &res.effect.id,
                 &res.params,
                 &res.standard_errors,
-                res.standard_errors_note.as_deref(),
+                (res.standard_errors_note.as_deref(), &res.at_bound),
             ));
             return Ok(t);
         }
