@@ -341,19 +341,57 @@ async fn demo(
                 .to_string()
         )
     );
-    if let Err(e) = demo_events(&proxy, &mut near_changes, t0, seconds, stop).await {
-        daemon.shutdown().await;
-        return Err(e);
-    }
+    let average_mw = match demo_events(&proxy, &mut near_changes, t0, seconds, stop).await {
+        Ok(power) => power.mean_mw(),
+        Err(e) => {
+            daemon.shutdown().await;
+            return Err(e);
+        }
+    };
     let _ = proxy.release_proximity().await;
     let s = daemon.hub().status();
     println!(
-        "demo: {} cycles, {} valid readings, {} errors, modelled average {:.2} mW",
-        s.cycles, s.valid_readings, s.errors, s.power_mw
+        "demo: {} cycles, {} valid readings, {} errors, modelled power {} over the run \
+         (PowerEstimateMw sampled every second)",
+        s.cycles,
+        s.valid_readings,
+        s.errors,
+        average_mw.map_or_else(|| "not sampled".to_string(), |p| format!("{p:.2} mW"))
     );
     daemon.shutdown().await;
     drop(private);
     Ok(())
+}
+
+/// The demo's own average of the modelled power over its run: `PowerEstimateMw` (a running
+/// value over the last cycles) sampled once a second, so runs of different lengths each print
+/// the average of their own run.
+#[derive(Default)]
+struct PowerSamples {
+    sum_mw: f64,
+    n: u32,
+}
+
+impl PowerSamples {
+    fn push(&mut self, mw: f64) {
+        if mw.is_finite() && mw > 0.0 {
+            self.sum_mw += mw;
+            self.n += 1;
+        }
+    }
+
+    fn mean_mw(&self) -> Option<f64> {
+        (self.n > 0).then(|| self.sum_mw / f64::from(self.n))
+    }
+}
+
+/// `DistanceMm` for a person: its special values in words.
+fn distance_words(distance_mm: u32) -> String {
+    match distance_mm {
+        0 => "unknown".to_string(),
+        u32::MAX => "nothing in range".to_string(),
+        d => format!("{d} mm"),
+    }
 }
 
 /// Claim, then print near/far changes until the deadline or a stop signal.
@@ -363,35 +401,62 @@ async fn demo_events(
     t0: std::time::Instant,
     seconds: u64,
     stop: &mut StopSignals,
-) -> anyhow::Result<()> {
+) -> anyhow::Result<PowerSamples> {
     proxy.claim_proximity().await?;
     println!(
-        "{:7.2}s  claimed: near={} distance={} mm state={}",
+        "{:7.2}s  claimed: near={} distance={} state={}",
         t0.elapsed().as_secs_f64(),
         proxy.near().await?,
-        proxy.distance_mm().await?,
+        distance_words(proxy.distance_mm().await?),
         proxy.state().await?
     );
     let deadline = tokio::time::Instant::now() + Duration::from_secs(seconds);
+    let mut power = PowerSamples::default();
+    let mut each_second = tokio::time::interval(Duration::from_secs(1));
     loop {
         tokio::select! {
-            _ = tokio::time::sleep_until(deadline) => return Ok(()),
+            _ = tokio::time::sleep_until(deadline) => return Ok(power),
             name = stop.recv() => {
                 eprintln!("demo: {name} received: stopping");
-                return Ok(());
+                return Ok(power);
             }
+            _ = each_second.tick() => power.push(proxy.power_estimate_mw().await.unwrap_or(0.0)),
             ch = tofproxd::service::next_item(near_changes) => {
-                let Some(ch) = ch else { return Ok(()) };
+                let Some(ch) = ch else { return Ok(power) };
                 let near = ch.get().await.unwrap_or(false);
-                let d = proxy.distance_mm().await.unwrap_or(0);
+                let d = distance_words(proxy.distance_mm().await.unwrap_or(0));
                 let p = proxy.power_estimate_mw().await.unwrap_or(0.0);
                 let rate = proxy.rate_hz().await.unwrap_or(0.0);
+                let why = proxy.reason().await.unwrap_or_default();
                 println!(
-                    "{:7.2}s  {}  distance={d} mm  rate={rate:.1} Hz  power≈{p:.2} mW",
+                    "{:7.2}s  {}  distance={d}  rate={rate:.1} Hz  power≈{p:.2} mW  ({why})",
                     t0.elapsed().as_secs_f64(),
                     if near { "NEAR" } else { "far " }
                 );
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_demo_says_special_distances_in_words() {
+        assert_eq!(distance_words(u32::MAX), "nothing in range");
+        assert_eq!(distance_words(0), "unknown");
+        assert_eq!(distance_words(982), "982 mm");
+    }
+
+    #[test]
+    fn the_demo_averages_its_own_run() {
+        let mut p = PowerSamples::default();
+        assert_eq!(p.mean_mw(), None);
+        for mw in [2.0, 4.0, f64::NAN, 0.0, 6.0] {
+            p.push(mw);
+        }
+        // NaN and 0 (no estimate yet) are not samples of the run
+        assert_eq!(p.mean_mw(), Some(4.0));
     }
 }
