@@ -179,15 +179,36 @@ fn from_py<T: serde::de::DeserializeOwned>(
     serde_json::from_str(&text).map_err(|e| PyValueError::new_err(format!("{what}: {e}")))
 }
 
+/// Capture `i`'s array is refused before it is copied when its `.npy` file could not be read
+/// back (over `tofprox_format::limits::MAX_NPY_BYTES`): a huge array — or a broadcast view of
+/// one value with a huge shape, which takes no memory in numpy — never reaches the copy, so it
+/// is a `tofprox.Error`, not an allocation failure that ends the interpreter.
+fn check_size(i: usize, shape: &[usize], value_bytes: usize) -> PyResult<()> {
+    let bytes = shape
+        .iter()
+        .try_fold(value_bytes, |acc, &n| acc.checked_mul(n));
+    match bytes {
+        Some(b) if b as u64 <= tofprox_format::limits::MAX_NPY_BYTES => Ok(()),
+        _ => Err(crate::errors::Error::new_err(format!(
+            "frames[{i}]: an array of shape {shape:?} is larger than a recording's frames may be \
+             ({} bytes at most)",
+            tofprox_format::limits::MAX_NPY_BYTES
+        ))),
+    }
+}
+
 /// Capture `i`'s numpy array as raw frames (copied out of Python's buffer).
 fn raw_frames(i: usize, a: &Bound<'_, PyAny>) -> PyResult<RawFrames> {
     if let Ok(v) = a.extract::<PyReadonlyArray3<'_, u16>>() {
+        check_size(i, v.shape(), 2)?;
         return Ok(RawFrames::U16(v.as_array().to_owned()));
     }
     if let Ok(v) = a.extract::<PyReadonlyArray3<'_, f32>>() {
+        check_size(i, v.shape(), 4)?;
         return Ok(RawFrames::F32(v.as_array().to_owned()));
     }
     if let Ok(v) = a.extract::<PyReadonlyArray3<'_, f64>>() {
+        check_size(i, v.shape(), 8)?;
         return Ok(RawFrames::F64(v.as_array().to_owned()));
     }
     let what = match a.cast::<numpy::PyUntypedArray>() {

@@ -29,6 +29,24 @@ fn load(model: &Path) -> PyResult<ModelConfig> {
     ModelConfig::load(model).map_err(to_py_err)
 }
 
+/// The stacked result (captures × images × pixels, 8 bytes a value at most) is refused before
+/// anything is simulated when it is larger than one recording array may be
+/// (`tofprox_format::limits::MAX_NPY_BYTES`): a huge `distances_m` is a `tofprox.Error`, not an
+/// allocation failure that ends the interpreter.
+fn check_result_size(captures: usize, images: usize, pixels: usize) -> PyResult<()> {
+    let bytes = [captures, images, pixels]
+        .iter()
+        .try_fold(8usize, |acc, &n| acc.checked_mul(n));
+    match bytes {
+        Some(b) if b as u64 <= tofprox_format::limits::MAX_NPY_BYTES => Ok(()),
+        _ => Err(crate::errors::Error::new_err(format!(
+            "distances_m: {captures} captures of {images} images of {pixels} pixels are more \
+             than one call returns ({} bytes at most): simulate fewer, or use `sweep(out=…)`",
+            tofprox_format::limits::MAX_NPY_BYTES
+        ))),
+    }
+}
+
 /// Every capture of `plan`, simulated, in order.
 fn simulate_all(
     sim: &Simulator,
@@ -101,7 +119,9 @@ pub fn simulate<'py>(
         .map(|&d| PlannedCapture::wall(request.clone(), d, reflectivity))
         .collect();
     plans::validate(&plan).map_err(to_py_err)?;
-    let sim = Simulator::new(&m, geometry(window)?, seed).map_err(to_py_err)?;
+    let g = geometry(window)?;
+    check_result_size(plan.len(), request.phases_deg.len(), g.rows * g.cols)?;
+    let sim = Simulator::new(&m, g, seed).map_err(to_py_err)?;
     let frames = py
         .detach(|| simulate_all(&sim, &plan, seed))
         .map_err(to_py_err)?;

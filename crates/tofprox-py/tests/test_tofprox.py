@@ -414,3 +414,86 @@ def test_docs_example(cli, tmp_path):
     assert printed[-1] in plot and shown[-1] in plot
     if printed[-1] == plot[0]:
         assert (tmp_path / "droop-example" / "error.png").stat().st_size > 10_000
+
+
+# ---- hostile inputs: a clear exception, never a crash or a hang of the interpreter ---------
+
+# Each attack runs in its own interpreter, so an abort (allocation failure, panic across the
+# FFI boundary), a segfault or a hang shows as that child's exit status or timeout instead of
+# taking the test run with it. Each must end in the Python exception named.
+_ATTACKS = {
+    # a broadcast view of one value: no memory in numpy, 8 TB if copied
+    "huge_broadcast_frames": ("tofprox.Error", """
+r = tofprox.Recording(EXAMPLE_REC)
+huge = np.broadcast_to(np.uint16(0), (4, 1 << 20, 1 << 20))
+tofprox.Recording.write(TMP / "huge", r.sensor, [r.captures[2]], [huge])
+"""),
+    "wrong_dtype_frames": ("TypeError", """
+r = tofprox.Recording(EXAMPLE_REC)
+tofprox.Recording.write(TMP / "c", r.sensor, [r.captures[2]], [r.frames(2).astype(np.complex64)])
+"""),
+    "nan_frames": ("tofprox.Error", """
+r = tofprox.Recording(EXAMPLE_REC)
+tofprox.Recording.write(TMP / "n", r.sensor, [r.captures[2]], [np.full((4, 16, 16), np.nan, np.float32)])
+"""),
+    "a_huge_window": ("tofprox.Error", """
+r = tofprox.Recording(EXAMPLE_REC)
+s = dict(r.sensor, rows=1 << 40, cols=1 << 40)
+tofprox.Recording.write(TMP / "w", s, [r.captures[2]], [r.frames(2)])
+"""),
+    "huge_simulation": ("tofprox.Error", """
+tofprox.simulate(BASELINE, [1.0] * 100000)
+"""),
+    "nan_distance": ("tofprox.Error", """
+tofprox.simulate(BASELINE, [float("nan")], window=(78, 104, 16, 16))
+"""),
+    "recording_toml_a_fifo": ("tofprox.Error", """
+d = TMP / "fifo"; d.mkdir(); os.mkfifo(d / "recording.toml")
+tofprox.Recording(d)
+"""),
+    "recording_is_dev_zero": ("tofprox.Error", """
+tofprox.Recording("/dev/zero")
+"""),
+    "model_is_dev_zero": ("tofprox.Error", """
+tofprox.Model("/dev/zero")
+"""),
+    "calibration_toml_is_dev_urandom": ("tofprox.Error", """
+d = TMP / "cal"; d.mkdir(); (d / "calibration.toml").symlink_to("/dev/urandom")
+tofprox.Calibration(d)
+"""),
+    "process_a_missing_recording": ("tofprox.Error", """
+tofprox.process(TMP / "nothing-here", algo="2phase")
+"""),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_ATTACKS))
+def test_hostile_inputs_are_clear_errors_not_crashes(name, tmp_path):
+    expected, body = _ATTACKS[name]
+    script = f"""
+import os, sys, pathlib
+import numpy as np
+import tofprox
+EXAMPLE_REC = pathlib.Path({str(EXAMPLE_REC)!r})
+BASELINE = pathlib.Path({str(BASELINE)!r})
+TMP = pathlib.Path({str(tmp_path)!r})
+try:
+{chr(10).join('    ' + l for l in body.strip().splitlines())}
+except tofprox.Error as e:
+    print("RAISED tofprox.Error", e.kind, "|", e)
+except Exception as e:
+    print("RAISED", type(e).__name__, "|", e)
+else:
+    print("NO ERROR")
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, f"{name}: the interpreter died ({out.returncode}): {out.stderr[-2000:]}"
+    line = out.stdout.strip().splitlines()[-1]
+    assert line.startswith(f"RAISED {expected}"), f"{name}: {line}\n{out.stderr[-2000:]}"
+    assert "panicked" not in out.stderr, out.stderr
+    # nothing half-written was left behind as a recording
+    for d in tmp_path.iterdir():
+        if d.is_dir() and (d / "recording.toml").is_file():
+            with pytest.raises(tofprox.Error):
+                tofprox.Recording(d)
