@@ -74,3 +74,20 @@ pub(crate) fn to_py_err(e: impl StdError + 'static) -> PyErr {
         }
     })
 }
+
+/// A `tofprox.Error` of kind `Invalid` about an argument (`key`, e.g. `frames[0]`) that the
+/// package refuses itself, before any Rust library sees it; `file` is None.
+pub(crate) fn invalid_argument(key: &str, message: String) -> PyErr {
+    let err = Error::new_err(message);
+    Python::attach(|py| {
+        let value = err.value(py);
+        let set = value
+            .setattr("kind", "Invalid")
+            .and_then(|_| value.setattr("file", py.None()))
+            .and_then(|_| value.setattr("key", key));
+        match set {
+            Ok(()) => err.clone_ref(py),
+            Err(other) => other,
+        }
+    })
+}

@@ -189,11 +189,14 @@ fn check_size(i: usize, shape: &[usize], value_bytes: usize) -> PyResult<()> {
         .try_fold(value_bytes, |acc, &n| acc.checked_mul(n));
     match bytes {
         Some(b) if b as u64 <= tofprox_format::limits::MAX_NPY_BYTES => Ok(()),
-        _ => Err(crate::errors::Error::new_err(format!(
-            "frames[{i}]: an array of shape {shape:?} is larger than a recording's frames may be \
-             ({} bytes at most)",
-            tofprox_format::limits::MAX_NPY_BYTES
-        ))),
+        _ => Err(crate::errors::invalid_argument(
+            &format!("frames[{i}]"),
+            format!(
+                "frames[{i}]: an array of shape {shape:?} is larger than a recording's frames \
+                 may be ({} bytes at most)",
+                tofprox_format::limits::MAX_NPY_BYTES
+            ),
+        )),
     }
 }
 

@@ -39,11 +39,15 @@ fn check_result_size(captures: usize, images: usize, pixels: usize) -> PyResult<
         .try_fold(8usize, |acc, &n| acc.checked_mul(n));
     match bytes {
         Some(b) if b as u64 <= tofprox_format::limits::MAX_NPY_BYTES => Ok(()),
-        _ => Err(crate::errors::Error::new_err(format!(
-            "distances_m: {captures} captures of {images} images of {pixels} pixels are more \
-             than one call returns ({} bytes at most): simulate fewer, or use `sweep(out=…)`",
-            tofprox_format::limits::MAX_NPY_BYTES
-        ))),
+        _ => Err(crate::errors::invalid_argument(
+            "distances_m",
+            format!(
+                "distances_m: {captures} captures of {images} images of {pixels} pixels are \
+                 more than one call returns ({} bytes at most): simulate fewer, or use \
+                 `sweep(out=…)`",
+                tofprox_format::limits::MAX_NPY_BYTES
+            ),
+        )),
     }
 }
 
