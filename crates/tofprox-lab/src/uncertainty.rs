@@ -271,7 +271,7 @@ pub struct ProfileInterval {
 const LEVELS: [f64; 2] = [1.0, 4.0];
 
 /// Secant steps per interval end (each a warm-started refit).
-const END_STEPS: usize = 3;
+const END_STEPS: usize = 4;
 
 /// Samples the profile refits use at most (a stride through larger tables;
 /// the χ² rise is scaled back by the stride).
@@ -313,7 +313,7 @@ impl Profile<'_> {
         let q0: Vec<f64> = self.others.iter().map(|&i| base[i]).collect();
         let (sig, recs, prep, stride) = (self.sig, self.recs, self.prep, self.stride);
         let stop = Stop {
-            max_iter: 10,
+            max_iter: 20,
             tol_chi2: 1e-3 / stride as f64,
             rel_chi2: 0.0,
         };
@@ -388,26 +388,38 @@ pub fn profile_intervals(
         for (side, sign) in [("lower", -1.0), ("upper", 1.0)] {
             prof.warm = prof.start.clone();
             let limit = bound.map(|(lo, hi)| if sign < 0.0 { lo } else { hi });
+            let mut inside: ProfilePoint = (0.0, 0.0);
             for (l, level) in LEVELS.iter().enumerate() {
-                let end = find_end(
+                let label = format!("{side}_{}sigma", l + 1);
+                let found = find_end(
                     &mut prof,
                     (fit.nl[i], free_se),
-                    sign,
-                    *level,
+                    (sign, *level, limit),
                     (chi0, factor),
-                    limit,
+                    inside,
                 );
-                let label = format!("{side}_{}sigma", l + 1);
-                if let Some((v, at_bound)) = end {
-                    if sign < 0.0 {
-                        iv.lower[l] = v;
-                    } else {
-                        iv.upper[l] = v;
-                    }
-                    if at_bound {
-                        iv.at_range_bound.push(label);
-                    }
+                let Some((v, at_bound, point)) = found else {
+                    break;
+                };
+                if sign < 0.0 {
+                    iv.lower[l] = v;
+                } else {
+                    iv.upper[l] = v;
                 }
+                if at_bound {
+                    iv.at_range_bound.push(label);
+                    // the wider levels stop at the bound too
+                    for (m, _) in LEVELS.iter().enumerate().skip(l + 1) {
+                        if sign < 0.0 {
+                            iv.lower[m] = v;
+                        } else {
+                            iv.upper[m] = v;
+                        }
+                        iv.at_range_bound.push(format!("{side}_{}sigma", m + 1));
+                    }
+                    break;
+                }
+                inside = point;
             }
         }
         iv.refits = prof.refits;
@@ -416,41 +428,60 @@ pub fn profile_intervals(
     out
 }
 
-/// Where the profile's Δχ² reaches `level` on the side `sign` of `value`:
-/// secant steps on √Δχ² (linear in θ where the profile is quadratic) from the
-/// standard error's guess. `Some((θ, true))` when the range's bound `limit`
-/// comes first; `None` when a refit fails or the steps do not settle.
+/// A point of a profile: the distance from the value and √Δχ² there.
+type ProfilePoint = (f64, f64);
+
+/// Where the profile's Δχ² reaches `level` on the side `sign` of `value`,
+/// from `inside` (a point below the level: the value itself, or the end of
+/// the lower level): steps on √Δχ² (linear in θ where the profile is
+/// quadratic) — extrapolated from the last point until one lies beyond the
+/// level, then interpolated within that bracket (regula falsi). The end and
+/// whether it is the range's bound `limit` (reached before the level), with
+/// the point found; `None` when a refit fails or no point beyond the level
+/// was found.
 fn find_end(
     prof: &mut Profile<'_>,
     (value, se): (f64, f64),
-    sign: f64,
-    level: f64,
+    (sign, level, limit): (f64, f64, Option<f64>),
     (chi0, factor): (f64, f64),
-    limit: Option<f64>,
-) -> Option<(f64, bool)> {
-    let beyond = |t: f64| limit.is_some_and(|b| sign * (t - b) >= 0.0);
-    let mut dist = se * level.sqrt();
+    inside: ProfilePoint,
+) -> Option<(f64, bool, ProfilePoint)> {
+    let target = level.sqrt();
+    let room = limit.map_or(f64::INFINITY, |b| sign * (b - value));
+    let (mut lo, mut hi) = (inside, None::<ProfilePoint>);
+    let mut dist = if lo.1 > 0.0 {
+        lo.0 * target / lo.1
+    } else {
+        se * target
+    };
     for _ in 0..END_STEPS {
-        let mut t = value + sign * dist;
-        let clipped = beyond(t);
-        if let (true, Some(b)) = (clipped, limit) {
-            t = b;
+        let clipped = dist >= room;
+        if clipped {
+            dist = room;
         }
-        let delta = ((prof.chi2_at(t)? - chi0) * factor).max(0.0);
-        if clipped && delta < level {
-            return Some((t, true));
+        let delta = ((prof.chi2_at(value + sign * dist)? - chi0) * factor).max(0.0);
+        let root = delta.sqrt();
+        if clipped && root < target {
+            return Some((value + sign * dist, true, (dist, root)));
         }
-        if (delta - level).abs() < 0.02 * level {
-            return Some((t, false));
+        if (root - target).abs() < 0.01 * target {
+            return Some((value + sign * dist, false, (dist, root)));
         }
-        if delta <= 0.0 {
-            // flat: double the step
-            dist *= 2.0;
-            continue;
+        if root < target {
+            lo = (dist, root);
+        } else {
+            hi = Some((dist, root));
         }
-        dist = (t - value).abs() * (level / delta).sqrt();
+        dist = match hi {
+            Some(h) => lo.0 + (target - lo.1) * (h.0 - lo.0) / (h.1 - lo.1),
+            // not yet beyond the level: extrapolate through the origin's line
+            None if root > 0.0 => (dist * target / root).max(1.2 * dist),
+            None => 2.0 * dist,
+        };
     }
-    Some((value + sign * dist, false)).filter(|_| !beyond(value + sign * dist))
+    let h = hi?;
+    let d = lo.0 + (target - lo.1) * (h.0 - lo.0) / (h.1 - lo.1);
+    Some((value + sign * d, false, (d, target)))
 }
 
 /// A fitted effect's uncertainty: [`profiled_standard_errors`] and

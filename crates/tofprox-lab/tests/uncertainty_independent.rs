@@ -146,7 +146,15 @@ fn errors_against_the_truth_match_the_reported_uncertainty() {
             let (v, se) = (f.params[name], f.standard_errors[name]);
             assert!(se.is_finite() && se > 0.0, "{name}: SE {se}");
             z.push((v - truth) / se);
-            if let Some(iv) = f.intervals.get(name) {
+            let iv = f.intervals.get(name);
+            if let Some(iv) =
+                iv.filter(|iv| !iv.lower.iter().chain(&iv.upper).all(|e| e.is_finite()))
+            {
+                eprintln!("seed {seed} {name}: an end not found {iv:?}");
+            }
+            if let Some(iv) =
+                iv.filter(|iv| iv.lower.iter().chain(&iv.upper).all(|e| e.is_finite()))
+            {
                 intervals += 1;
                 cover1 += usize::from(iv.lower[0] <= truth && truth <= iv.upper[0]);
                 cover2 += usize::from(iv.lower[1] <= truth && truth <= iv.upper[1]);
@@ -176,7 +184,12 @@ fn errors_against_the_truth_match_the_reported_uncertainty() {
     // 48 draws, of which 12 independent groups of 4: ±1 coverage 0.68 ± ~0.12
     assert!((0.45..=0.9).contains(&within), "±1σ coverage {within}");
     assert!((0.65..=1.5).contains(&rms), "RMS z {rms}");
-    assert!(intervals >= 40, "{intervals} intervals");
+    // every end found for most parameters (an end may need more refits than
+    // the bounded search makes)
+    assert!(
+        intervals >= 36,
+        "{intervals} of 48 intervals with every end"
+    );
     let c1 = cover1 as f64 / intervals as f64;
     let c2 = cover2 as f64 / intervals as f64;
     assert!((0.45..=0.9).contains(&c1), "profile 1σ coverage {c1}");
