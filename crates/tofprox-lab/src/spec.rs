@@ -54,8 +54,8 @@ impl Default for LabSpec {
 pub struct EffectFit {
     /// Catalogue id of the effect.
     pub id: String,
-    /// Linear coefficients (see [`Signature::lin_names`]).
+    /// Linear coefficients (see [`crate::signatures::Signature::lin_names`]).
     pub lin: Vec<f64>,
-    /// Non-linear parameters (see [`Signature::nl_names`]).
+    /// Non-linear parameters (see [`crate::signatures::Signature::nl_names`]).
     pub nl: Vec<f64>,
 }

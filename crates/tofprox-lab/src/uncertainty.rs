@@ -338,7 +338,7 @@ impl Profile<'_> {
 /// with the per-pixel parameters free (scaled by χ²/dof) and held (not
 /// scaled): their ratio turns the held profile's χ² rise into the scaled one
 /// with the per-pixel parameters free.
-/// Bounded work: per end and level at most [`END_STEPS`] refits.
+/// Bounded work: per end and level at most four refits (`END_STEPS`).
 pub fn profile_intervals(
     sig: &dyn Signature,
     recs: &[Sample],

@@ -15,7 +15,7 @@
 
 //!
 //! This module holds the model and its evaluation (samples, residuals, χ²,
-//! the effects' Δcode); [`solve`] the alternating fit. The lab's shared data
+//! the effects' Δcode); its child `solve` the alternating fit ([`fit_model`], [`refine`]). The lab's shared data
 //! types live in leaf modules ([`crate::prepared`], [`crate::spec`],
 //! [`crate::sample`]) and are re-exported here.
 
