@@ -578,14 +578,29 @@ mod tests {
             readout_mj: 1.0,
             ..CycleEnergy::default()
         };
-        m.record(ReadingKind::Full, &e, Duration::from_millis(0), Duration::from_secs(1));
+        m.record(
+            ReadingKind::Full,
+            &e,
+            Duration::from_millis(0),
+            Duration::from_secs(1),
+        );
         assert!((m.average_mw() - 1.0).abs() < 1e-9);
         let e2 = CycleEnergy {
             readout_mj: 3.0,
             ..CycleEnergy::default()
         };
-        m.record(ReadingKind::Probe, &e2, Duration::ZERO, Duration::from_secs(1));
-        m.record(ReadingKind::Probe, &e2, Duration::ZERO, Duration::from_secs(1));
+        m.record(
+            ReadingKind::Probe,
+            &e2,
+            Duration::ZERO,
+            Duration::from_secs(1),
+        );
+        m.record(
+            ReadingKind::Probe,
+            &e2,
+            Duration::ZERO,
+            Duration::from_secs(1),
+        );
         assert!(
             (m.average_mw() - 3.0).abs() < 1e-9,
             "window drops the first cycle"
