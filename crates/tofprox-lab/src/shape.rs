@@ -285,22 +285,24 @@ struct SbiShape {
     taps: Sbi,
 }
 
-/// The bound of the SBI's mismatch |m| (the model's range).
+/// The bound of the SBI's mismatch |m| (the model's range; looked up once:
+/// the fit asks for every parameter vector).
 fn sbi_mismatch_bound() -> f64 {
-    tofprox_model::catalogue::param_info(ids::sbi_asymmetry::MISMATCH_REL)
-        .map_or(1.0, |p| p.max.abs().min(p.min.abs()))
+    static BOUND: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
+    *BOUND.get_or_init(|| {
+        tofprox_model::catalogue::param_info(ids::sbi_asymmetry::MISMATCH_REL)
+            .map_or(1.0, |p| p.max.abs().min(p.min.abs()))
+    })
 }
 
 impl SbiShape {
-    /// Δcode of sample `r` for `nl` (values at knots 1.., then m).
-    fn delta(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+    /// Δcode at tap charges `taps` for `law` = [`Signature::prepare`] of the
+    /// parameters: the removed charge at knots 0.. (the first 0), then m held
+    /// in its range.
+    #[inline]
+    fn delta(&self, law: &[f64], (na, nb): (f64, f64)) -> f64 {
         let n = self.knots.len().min(MAX_KNOTS);
-        let mut v = [0.0; MAX_KNOTS];
-        v[1..n].copy_from_slice(&nl[..n - 1]);
-        let b = sbi_mismatch_bound();
-        let m = nl.get(n - 1).copied().unwrap_or(0.0).clamp(-b, b);
-        let (na, nb) = self.taps.taps(&[], r, cap);
-        -m * sbi::LSB_PER_UNIT * law::sbi_removed_e(&self.knots[..n], &v[..n], na, nb)
+        -law[n] * sbi::LSB_PER_UNIT * law::sbi_removed_e(&self.knots[..n], &law[..n], na, nb)
     }
 }
 
@@ -361,8 +363,25 @@ impl Signature for SbiShape {
         g
     }
     fn basis(&self, _: &[f64], _: &Rec, _: &CapInfo, _: &mut [f64]) {}
-    fn fixed(&self, nl: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
-        self.delta(nl, r, cap)
+    /// nl (values at knots 1.., then m) as [0, values…, m clamped into its
+    /// range]: once per parameter vector, not per sample.
+    fn prepare(&self, nl: &[f64]) -> Vec<f64> {
+        let n = self.knots.len().min(MAX_KNOTS);
+        let b = sbi_mismatch_bound();
+        let mut law = vec![0.0; n + 1];
+        law[1..n].copy_from_slice(&nl[..n - 1]);
+        law[n] = nl.get(n - 1).copied().unwrap_or(0.0).clamp(-b, b);
+        law
+    }
+    fn fixed(&self, law: &[f64], r: &Rec, cap: &CapInfo) -> f64 {
+        self.delta(law, self.taps.taps(&[], r, cap))
+    }
+    /// The tap charges once per sample for every law (they do not depend on it).
+    fn fixed_all(&self, laws: &[&[f64]], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
+        let taps = self.taps.taps(&[], r, cap);
+        for (o, law) in out.iter_mut().zip(laws) {
+            *o = self.delta(law, taps);
+        }
     }
 }
 
