@@ -1384,7 +1384,7 @@ pub fn add_effect_to(
     let spec = before.model.spec.clone();
     check_addable(prep, &spec, effect)?;
     let mut spec2 = spec_with(&spec, effect);
-    let mut warm = match start {
+    let warm = match start {
         Some(m) => m.clone(),
         None => {
             // the law's form by cross-validation (crate::shape), then its fit
@@ -1407,9 +1407,26 @@ pub fn add_effect_to(
     if let Some(k) = warm.spec.shapes.get(effect) {
         spec2.shapes.insert(effect.to_string(), k.clone());
     }
+    refit_and_report(prep, before, warm, &spec2, effect, progress)
+}
+
+/// The end of every `add` (a catalogue effect's here, a user effect's in
+/// `crate::user`): the model with `effect`, `warm` (its fit on top of
+/// `before`), refined with step control — so it never ends worse than that
+/// start — against a fit of `spec` (the model with the effect) from
+/// scratch, the lower χ²/dof kept, and the effect read back from it with
+/// its standard errors and bounds.
+pub fn refit_and_report(
+    prep: &Prepared,
+    before: Comparison,
+    mut warm: LabModel,
+    spec: &LabSpec,
+    effect: &str,
+    progress: Progress<'_>,
+) -> Result<AddOutcome, LabError> {
     crate::fit::refine(prep, &mut warm, 4, false, true, &|_, _| {})?;
     let warm = comparison_of(prep, warm)?;
-    let scratch = compare(prep, &spec2, progress)?;
+    let scratch = compare(prep, spec, progress)?;
     let after = if scratch.fit.chi2_per_dof < warm.fit.chi2_per_dof {
         scratch
     } else {
