@@ -510,8 +510,10 @@ fn weighted_quantiles(mut a: Vec<(f64, f64)>, qs: &[f64]) -> Vec<f64> {
 /// images of `prep`: the times since each earlier raw image switched on and
 /// off at the start of each raw image (`DutyCycle::for_each_step`; without
 /// gaps the on-times k·t_exp) — the shortest (0: the first raw image, the
-/// reference), then evenly spaced ranks of the longer ones up to the
-/// longest, so the knots sit where the recording samples Z; only times
+/// reference), then evenly spaced in ln τ from the shortest longer one to
+/// the longest (a step response is concave: dense where it rises fastest;
+/// on a power law τ^0.4 over 25 recorded times, 6 such knots leave 13×
+/// less than 6 at evenly spaced ranks); only times
 /// recorded in at least two captures (one that a single capture holds,
 /// like a long correlation capture's, has no held-out block to score it:
 /// the shape is flat there); at most half as many knots as such times,
@@ -564,10 +566,15 @@ fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     if k < 2 {
         return None;
     }
-    let longer: Vec<f64> = v.into_iter().filter(|t| *t > first).collect();
-    let ranks: Vec<f64> = (1..k).map(|i| i as f64 / (k - 1) as f64).collect();
+    // a heat path's step response rises fastest at first (a diffusive one
+    // as √τ, or slower: concave in τ): the knots after the first are
+    // evenly spaced in ln τ from the shortest longer time to the longest
+    let (lo, hi) = (*v.iter().find(|t| **t > first)?, *v.last()?);
     let mut q = vec![first];
-    q.extend(quantiles(longer, &ranks));
+    q.extend((1..k).map(|i| {
+        let f = if k > 2 { (i - 1) as f64 / (k - 2) as f64 } else { 1.0 };
+        (lo * (hi / lo).powf(f) * 1e3).round() / 1e3
+    }));
     q.dedup();
     (q.len() >= 2 && law::check_knots(&q).is_ok()).then_some(q)
 }

@@ -297,6 +297,9 @@ fn closes_in(laws: &[Law], plan: &Plan<'_>, seed: u64, expected: &[&str]) -> Exp
             "step {i}: {:?} {:?} ({}) remaining {:.3} mm tol {:.3} mm; χ²/dof {:.3} AIC {:.1}",
             d.verdict, d.effect, d.reason, d.size.mm, d.tolerance_mm, d.fit.chi2_per_dof, d.fit.aic
         );
+        for c in &st.comparison.structure {
+            eprintln!("   structure {:24} z {:8.1} {} {:.3} mm", c.condition, c.z, c.direction, c.size_mm);
+        }
         for c in d.candidates.iter().take(3) {
             eprintln!(
                 "   {:24} expl {:6.3} cv {:6.3} z_after {:8.1} form {} {:?}",
