@@ -67,6 +67,12 @@ enum Law {
     /// response of a power-law thermal step response Z(τ) = a·(τ/1 ms)^n
     /// (a diffusive heat path), discretised in steps of [`DT_US`].
     PowerLawThermal { a: f64, n: f64 },
+    /// Suppression of background illumination with a soft knee: each tap's
+    /// circuit removes R = w·ln(1 + e^{(N_max − q)/w}) electrons (a
+    /// softplus of the fuller tap's charge over the threshold q, never more
+    /// than the emptier tap holds), tap A's R·(1 + m/2) and tap B's
+    /// R·(1 − m/2).
+    SoftKneeSbi { q_e: f64, w_e: f64, m: f64 },
 }
 
 /// Time step of the discretised emission history, µs (the exposures and
@@ -151,7 +157,9 @@ fn capture(px: &Pixels, laws: &[Law], phases: &[f64], c: Cond, rng: &mut ChaCha8
                 Law::PowerLawThermal { a, n } => {
                     pw * (1.0 - thermal_rise(a, n, k, c.exposure_us, c.gap_us.unwrap_or(0.0)))
                 }
-                Law::LogisticDelay { .. } | Law::ChargeTapMismatch { .. } => pw,
+                Law::LogisticDelay { .. }
+                | Law::ChargeTapMismatch { .. }
+                | Law::SoftKneeSbi { .. } => pw,
             });
             let s = s_e * power;
             let corr = CONTRAST * correlation(phi - th.to_radians());
@@ -161,6 +169,10 @@ fn capture(px: &Pixels, laws: &[Law], phases: &[f64], c: Cond, rng: &mut ChaCha8
             let diff_e = laws.iter().fold(na - nb, |d, law| match *law {
                 Law::ChargeTapMismatch { eps0, kappa_per_e } => {
                     d + 0.5 * (eps0 + kappa_per_e * (na + nb)) * (na + nb)
+                }
+                Law::SoftKneeSbi { q_e, w_e, m } => {
+                    let r = (w_e * (1.0 + ((na.max(nb) - q_e) / w_e).exp()).ln()).min(na.min(nb));
+                    d - m * r
                 }
                 _ => d,
             });
@@ -426,4 +438,19 @@ fn duty_cycle_droop_and_logistic_delay_together_close() {
         gaps_us: &[0.0, 2000.0],
     };
     closes_in(&laws, &plan, 75, &["temperature_drift", "vcsel_droop"]);
+}
+
+/// An SBI with a soft knee, 5× a typical module's mismatch (5 %): the
+/// removal rises like a softplus of the fuller tap's charge over 15 000 e⁻
+/// (width 4000 e⁻), so it has begun well below the threshold — neither the
+/// parametric clamp nor its screening follows the knee. Named
+/// `sbi_asymmetry`, written as its shape, the loop closes.
+#[test]
+fn soft_knee_sbi_closes() {
+    let law = Law::SoftKneeSbi {
+        q_e: 15_000.0,
+        w_e: 4_000.0,
+        m: 0.05,
+    };
+    closes_at(&[law], &[25.0], 76, &["sbi_asymmetry"]);
 }
