@@ -440,7 +440,7 @@ fn duty_cycle_droop_and_logistic_delay_together_close() {
     closes_in(&laws, &plan, 75, &["temperature_drift", "vcsel_droop"]);
 }
 
-/// An SBI with a soft knee, 5× a typical module's mismatch (5 %): the
+/// An SBI with a soft knee, 5× a typical module's mismatch (15 %): the
 /// removal rises like a softplus of the fuller tap's charge over 15 000 e⁻
 /// (width 4000 e⁻), so it has begun well below the threshold — neither the
 /// parametric clamp nor its screening follows the knee. Named
@@ -450,7 +450,7 @@ fn soft_knee_sbi_closes() {
     let law = Law::SoftKneeSbi {
         q_e: 15_000.0,
         w_e: 4_000.0,
-        m: 0.05,
+        m: 0.15,
     };
     closes_at(&[law], &[25.0], 76, &["sbi_asymmetry"]);
 }
