@@ -572,7 +572,11 @@ fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     let (lo, hi) = (*v.iter().find(|t| **t > first)?, *v.last()?);
     let mut q = vec![first];
     q.extend((1..k).map(|i| {
-        let f = if k > 2 { (i - 1) as f64 / (k - 2) as f64 } else { 1.0 };
+        let f = if k > 2 {
+            (i - 1) as f64 / (k - 2) as f64
+        } else {
+            1.0
+        };
         (lo * (hi / lo).powf(f) * 1e3).round() / 1e3
     }));
     q.dedup();

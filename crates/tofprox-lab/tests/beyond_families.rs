@@ -310,7 +310,10 @@ fn closes_in(laws: &[Law], plan: &Plan<'_>, seed: u64, expected: &[&str]) -> Exp
             d.verdict, d.effect, d.reason, d.size.mm, d.tolerance_mm, d.fit.chi2_per_dof, d.fit.aic
         );
         for c in &st.comparison.structure {
-            eprintln!("   structure {:24} z {:8.1} {} {:.3} mm", c.condition, c.z, c.direction, c.size_mm);
+            eprintln!(
+                "   structure {:24} z {:8.1} {} {:.3} mm",
+                c.condition, c.z, c.direction, c.size_mm
+            );
         }
         for c in d.candidates.iter().take(3) {
             eprintln!(
