@@ -29,8 +29,11 @@ use tofprox_model::effects::user::{
 use crate::candidates::fit_signature;
 use crate::diagnose::{AddOutcome, Comparison, Diagnosis, Verdict, compare, refit_and_report};
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Progress, Rec, Sample};
+use crate::fit::Progress;
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
 use crate::signatures::{Signature, TermScope, phase_shift_code};
+use crate::spec::{EffectFit, LabSpec};
 use crate::structure::CONDITIONS;
 use crate::waveform::Waveform;
 

@@ -57,6 +57,8 @@ pub struct AddOutcome {
     pub standard_errors_note: Option<String>,
     /// The parameters fitted at the bound of their range ([`FittedEffect::at_bound`]).
     pub at_bound: Vec<String>,
+    /// Profile intervals of the non-linear parameters ([`FittedEffect::intervals`]).
+    pub intervals: BTreeMap<String, crate::uncertainty::ProfileInterval>,
 }
 
 /// Enable `effect` in the spec, refit everything, and compare before/after.
@@ -169,6 +171,7 @@ pub fn refit_and_report(
         standard_errors: f.standard_errors,
         standard_errors_note: f.standard_errors_note,
         at_bound: f.at_bound,
+        intervals: f.intervals,
     })
 }
 
@@ -179,17 +182,21 @@ pub struct FittedEffect {
     pub effect: String,
     /// Its parameters by the signature's names ([`effect_params`]).
     pub params: BTreeMap<String, f64>,
-    /// The standard error of each, same names: √diag((JᵀWJ)⁻¹) over the effect's parameters
-    /// and the global offset/gain/phase shifts at the fitted values, W = 1/σ² of the noise
-    /// model, the per-pixel parameters held (as [`CandidateScore::standard_errors`]); NaN for
-    /// a parameter held on a grid and for the waveform's harmonics (fitted inside the
-    /// waveform, not as a signature).
+    /// The standard error of each, same names: √diag((JᵀWJ)⁻¹) over all the model's
+    /// parameters at the fitted values, the per-pixel ones free (a Schur complement over
+    /// them), W = 1/σ² of the noise model, scaled by χ²/dof
+    /// ([`crate::uncertainty::profiled_standard_errors`]); NaN for a parameter held on a
+    /// grid and for the waveform's harmonics (fitted inside the waveform, not as a
+    /// signature).
     pub standard_errors: BTreeMap<String, f64>,
     /// Why those errors understate how far the values may be off ([`errors_note`]).
     pub standard_errors_note: Option<String>,
     /// The parameters fitted at the bound of their range, one sentence each
     /// ([`crate::signatures::at_bounds`]).
     pub at_bound: Vec<String>,
+    /// Profile-likelihood intervals of the non-linear parameters by name
+    /// ([`crate::uncertainty::profile_intervals`]).
+    pub intervals: BTreeMap<String, crate::uncertainty::ProfileInterval>,
 }
 
 /// The standard errors rest on the noise model alone: they say how far the
@@ -231,11 +238,18 @@ pub fn fitted_effect(
     let mut standard_errors: BTreeMap<String, f64> =
         params.keys().map(|k| (k.clone(), f64::NAN)).collect();
     let mut at_bound = Vec::new();
+    let mut intervals = BTreeMap::new();
     if effect != tofprox_model::ids::waveform_harmonics::ID.as_str() {
         let sig = make_signature(effect, prep, &cmp.model.spec, &cmp.model.waveform)?;
-        let se = effect_standard_errors(sig.as_ref(), &cmp.recs, prep, &fit);
+        let u = crate::uncertainty::effect_uncertainty(
+            sig.as_ref(),
+            prep,
+            (&cmp.model, cmp.fit.chi2_per_dof),
+            &fit,
+        )?;
         let names = sig.lin_names().into_iter().chain(sig.nl_names());
-        standard_errors.extend(names.zip(se));
+        standard_errors.extend(names.zip(u.standard_errors));
+        intervals = u.intervals;
         at_bound = crate::signatures::at_bounds(sig.as_ref(), &fit.nl);
     }
     Ok(FittedEffect {
@@ -244,6 +258,7 @@ pub fn fitted_effect(
         standard_errors,
         standard_errors_note: errors_note(cmp),
         at_bound,
+        intervals,
     })
 }
 

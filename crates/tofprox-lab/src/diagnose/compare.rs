@@ -245,7 +245,7 @@ pub fn depth_residuals(
 ) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
     let sigs = model.signatures(prep)?;
     let mm_per_rad = prep.mm_per_rad();
-    let find = |cap: &crate::fit::CapInfo, deg: f64| {
+    let find = |cap: &crate::prepared::CapInfo, deg: f64| {
         cap.phases_deg
             .iter()
             .position(|p| ((p - deg).rem_euclid(360.0)).min((deg - p).rem_euclid(360.0)) < 1e-6)

@@ -22,13 +22,16 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tofprox_model::catalogue::Driver;
 
-use crate::candidates::{effect_standard_errors, fit_signature, fit_values};
+use crate::candidates::{fit_signature, fit_values};
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
+use crate::fit::{LabModel, Progress, fit_model};
 use crate::noise::NoiseSource;
+use crate::prepared::Prepared;
+use crate::sample::Sample;
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
+use crate::spec::{EffectFit, LabSpec};
 use crate::stats::{bic, chi2_z};
 use crate::structure::{ConditionScore, score_all};
 
