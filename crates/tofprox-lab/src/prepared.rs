@@ -4,6 +4,7 @@
 //! the lab: it uses only the recording's types.
 
 use tofprox_core::phasor::distance_to_phase_rad;
+use tofprox_model::effects::vcsel_droop::DutyCycle;
 
 use crate::data::Dataset;
 use crate::error::LabError;
@@ -43,6 +44,10 @@ pub struct CapInfo {
     /// The recording's other numeric conditions, aligned with
     /// [`Prepared::extra_keys`] (NaN where this capture does not state one).
     pub extra: Vec<f64>,
+    /// When the VCSEL emits during the capture's acquisitions: its exposure
+    /// and the gap between raw images (the condition
+    /// `vcsel_droop::IMAGE_GAP_CONDITION`; the droop's shape form).
+    pub duty: DutyCycle,
 }
 
 /// A recording flattened for fitting: capture c, raw image k, pixel p lives at
@@ -184,6 +189,7 @@ impl Prepared {
                     .iter()
                     .map(|k| c.extra.get(k).copied().unwrap_or(f64::NAN))
                     .collect(),
+                duty: DutyCycle::of_capture(c.exposure_us, &c.extra),
             });
             base.push(total);
             total += c.phases_deg.len() * npix;

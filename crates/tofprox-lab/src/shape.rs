@@ -1,7 +1,7 @@
 //! The shape form of the effects whose law physics does not fix (issue 20,
 //! item 3): the amplitude-phase error Δφ(A), the temperature drift
 //! Δφ(T), G(T), the SBI's removed charge R(N_max) and the VCSEL droop's
-//! loss L(t_on) as the model's monotone piecewise-linear shape
+//! thermal step response Z(τ) (superposed over the duty cycle) as the model's monotone piecewise-linear shape
 //! (`tofprox_model::effects::shape`: f(x) = Σ_j v_j·h_j(x), flat outside the
 //! knots) — the same evaluation the simulator runs, so what `add` writes is
 //! what was fitted.
@@ -10,8 +10,8 @@
 //! [`KNOT_COUNTS`]): the amplitude of the illuminated samples (LSB), the
 //! captures' temperatures (°C), the fuller tap's charge (the SBI's lab units,
 //! `signatures::sbi`; only where the ambient light does not vary, else its
-//! unit is a fitted parameter), the VCSEL's on-time before each raw image
-//! (µs). The value at the first knot is held at 0 (a constant phase or gain
+//! unit is a fitted parameter), the times since the VCSEL's emission
+//! switched on or off before each raw image (µs). The value at the first knot is held at 0 (a constant phase or gain
 //! is the per-pixel phase and gain's; the SBI starts there; the first raw
 //! image is the droop's reference), so the fitted coefficients are the
 //! K − 1 others. The droop's loss enters linearly (−A·C·L); the SBI's
@@ -28,7 +28,6 @@
 use std::collections::BTreeMap;
 
 use tofprox_model::effects::shape as law;
-use tofprox_model::effects::vcsel_droop::droop_on_time_us;
 use tofprox_model::ids::{self, EffectId};
 
 use crate::prepared::{CapInfo, Prepared};
@@ -385,9 +384,11 @@ impl Signature for SbiShape {
     }
 }
 
-/// The VCSEL droop as a shape of the on-time before raw image k,
-/// t_on = k·t_exp (µs, `vcsel_droop::droop_on_time_us`): Δ = −A·C·L(t_on),
-/// lin = L at knots 1.. (the first raw image is the reference).
+/// The VCSEL droop as a shape of its thermal step response Z(τ) (µs)
+/// superposed over the capture's duty cycle (`vcsel_droop::DutyCycle`):
+/// Δ = −A·C·L_k, L_k = Σ sign·Z(τ) over the heating and cooling steps
+/// before raw image k — linear in Z's values, so lin = Z at knots 1.. (the
+/// first raw image is the reference).
 struct DroopShape {
     knots: Vec<f64>,
 }
@@ -403,8 +404,15 @@ impl Signature for DroopShape {
         per_knot(&self.knots, |k| format!("loss_rel_at_{k:.0}_us"))
     }
     fn basis(&self, _: &[f64], r: &Rec, cap: &CapInfo, out: &mut [f64]) {
-        let t_on = droop_on_time_us(f64::from(r.k), cap.exposure_us);
-        rel_weights(&self.knots, t_on, self.knots[0], out);
+        out.iter_mut().for_each(|o| *o = 0.0);
+        let mut w = [0.0; MAX_KNOTS];
+        let w = &mut w[..out.len()];
+        cap.duty.for_each_step(usize::from(r.k), |tau_us, sign| {
+            rel_weights(&self.knots, tau_us, self.knots[0], w);
+            out.iter_mut()
+                .zip(w.iter())
+                .for_each(|(o, x)| *o += sign * x);
+        });
         out.iter_mut().for_each(|o| *o *= -r.a * r.c);
     }
 }
@@ -519,26 +527,37 @@ fn weighted_quantiles(mut a: Vec<(f64, f64)>, qs: &[f64]) -> Vec<f64> {
     q
 }
 
-/// Up to `k` knots of the droop's on-time from the illuminated raw images
-/// of `prep`: the shortest (the first raw image: the reference), then evenly
-/// spaced ranks of the longer ones up to the longest — ranks of the raw
-/// images, so the knots sit where the images are; only on-times recorded in
-/// at least two captures (one that a single capture holds, like a long
-/// correlation capture's, has no held-out block to score it: the shape is
-/// flat there); at most half as many knots as such on-times, fewer where
-/// on-times repeat.
+/// Up to `k` knots of the droop's step response from the illuminated raw
+/// images of `prep`: the times since each earlier raw image switched on and
+/// off at the start of each raw image (`DutyCycle::for_each_step`; without
+/// gaps the on-times k·t_exp) — the shortest (0: the first raw image, the
+/// reference), then evenly spaced in ln τ from the shortest longer one to
+/// the longest (a step response is concave: dense where it rises fastest;
+/// on a power law τ^0.4 over 25 recorded times, 6 such knots leave 13×
+/// less than 6 at evenly spaced ranks); only times
+/// recorded in at least two captures (one that a single capture holds,
+/// like a long correlation capture's, has no held-out block to score it:
+/// the shape is flat there); at most half as many knots as such times,
+/// fewer where they repeat.
 fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     let per_cap: Vec<Vec<f64>> = prep
         .caps
         .iter()
         .filter(|c| c.illum && c.used)
         .map(|c| {
-            (0..c.phases_deg.len())
-                .map(|i| droop_on_time_us(i as f64, c.exposure_us))
-                .collect()
+            // each time once per capture, to the ns (t_k − t_j − t_exp and
+            // t_k − t_j' are the same time up to rounding)
+            let mut taus = Vec::new();
+            for i in 0..c.phases_deg.len() {
+                c.duty
+                    .for_each_step(i, |tau_us, _| taus.push((tau_us * 1e3).round() / 1e3));
+            }
+            taus.sort_by(f64::total_cmp);
+            taus.dedup();
+            taus
         })
         .collect();
-    // captures recording each on-time (each capture counted once)
+    // captures recording each time (each capture counted once)
     let mut captures_with: BTreeMap<u64, usize> = BTreeMap::new();
     for c in &per_cap {
         let mut bits: Vec<u64> = c.iter().map(|t| t.to_bits()).collect();
@@ -568,10 +587,19 @@ fn on_time_knots(prep: &Prepared, k: usize) -> Option<Vec<f64>> {
     if k < 2 {
         return None;
     }
-    let longer: Vec<f64> = v.into_iter().filter(|t| *t > first).collect();
-    let ranks: Vec<f64> = (1..k).map(|i| i as f64 / (k - 1) as f64).collect();
+    // a heat path's step response rises fastest at first (a diffusive one
+    // as √τ, or slower: concave in τ): the knots after the first are
+    // evenly spaced in ln τ from the shortest longer time to the longest
+    let (lo, hi) = (*v.iter().find(|t| **t > first)?, *v.last()?);
     let mut q = vec![first];
-    q.extend(quantiles(longer, &ranks));
+    q.extend((1..k).map(|i| {
+        let f = if k > 2 {
+            (i - 1) as f64 / (k - 2) as f64
+        } else {
+            1.0
+        };
+        (lo * (hi / lo).powf(f) * 1e3).round() / 1e3
+    }));
     q.dedup();
     (q.len() >= 2 && law::check_knots(&q).is_ok()).then_some(q)
 }

@@ -27,10 +27,7 @@ use tofprox_model::effects::user::{
 };
 
 use crate::candidates::fit_signature;
-use crate::diagnose::{
-    AddOutcome, Comparison, Diagnosis, Verdict, compare, comparison_of, effect_params,
-    fitted_effect,
-};
+use crate::diagnose::{AddOutcome, Comparison, Diagnosis, Verdict, compare, refit_and_report};
 use crate::error::{ErrorKind, LabError};
 use crate::fit::Progress;
 use crate::prepared::{CapInfo, Prepared};
@@ -465,27 +462,8 @@ pub fn add_user_to(
         lin: fit.lin,
         nl: fit.nl,
     };
-    let mut warm = crate::fit::refit_with(prep, &base, &effect, fit.nuisance, 3)?;
-    crate::fit::refine(prep, &mut warm, 4, false, true, &|_, _| {})?;
-    let warm = comparison_of(prep, warm)?;
-    let scratch = compare(prep, &spec2, progress)?;
-    let after = if scratch.fit.chi2_per_dof < warm.fit.chi2_per_dof {
-        scratch
-    } else {
-        warm
-    };
-    let f = fitted_effect(prep, &after, &name)?;
-    let (fitted, _) = effect_params(prep, &after.model, &name)?;
-    Ok(AddOutcome {
-        before,
-        after,
-        effect: fitted,
-        params: f.params,
-        standard_errors: f.standard_errors,
-        standard_errors_note: f.standard_errors_note,
-        at_bound: f.at_bound,
-        intervals: f.intervals,
-    })
+    let warm = crate::fit::refit_with(prep, &base, &effect, fit.nuisance, 3)?;
+    refit_and_report(prep, before, warm, &spec2, &name, progress)
 }
 
 /// The user effect `name` as fitted in `out` (its model's values: a shape's

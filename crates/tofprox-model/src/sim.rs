@@ -12,7 +12,7 @@ use crate::effects::multipath::multipath_phase_offset_rad;
 use crate::effects::pixel::PixelParams;
 use crate::effects::tap_gain_mismatch::tap_gain_leak_e;
 use crate::effects::user::{UserResponse, capture_response};
-use crate::effects::vcsel_droop::droop_factor;
+use crate::effects::vcsel_droop::{DutyCycle, droop_factor};
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
 use crate::ids;
@@ -204,7 +204,7 @@ impl Simulator {
         CaptureConsts {
             thetas: req.phases_deg.iter().map(|d| d.to_radians()).collect(),
             droop: (0..req.phases_deg.len())
-                .map(|k| droop_factor(m, k, t))
+                .map(|k| droop_factor(m, k, DutyCycle::of_capture(t, &req.conditions)))
                 .collect(),
             // a user effect on the gain scales the signal charge (effects::user)
             signal_e: if illum {

@@ -586,7 +586,7 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
 #[test]
 fn sbi_and_droop_shapes_are_what_the_simulator_evaluates() {
     use tofprox_model::effects::pixel::PixelParams;
-    use tofprox_model::effects::vcsel_droop::droop_factor;
+    use tofprox_model::effects::vcsel_droop::{DutyCycle, droop_factor};
     let text = "[effects.sbi_asymmetry]\nenabled = true\nmismatch_rel = 0.04\n\
                 shape_tap_charge_e = [10000.0, 20000.0, 40000.0]\n\
                 shape_removed_e = [0.0, 2000.0, 3000.0]\n\
@@ -610,9 +610,16 @@ fn sbi_and_droop_shapes_are_what_the_simulator_evaluates() {
         (1, 2000.0, 0.95),
         (9, 900.0, 0.94),
     ] {
-        let f = droop_factor(&m, k, t);
+        let f = droop_factor(&m, k, DutyCycle::new(t, 0.0));
         assert!((f - p).abs() < 1e-12, "image {k} at {t} us: {f}, want {p}");
     }
+    // with gaps the VCSEL cools between raw images: image 2 of 500 µs
+    // exposures with 500 µs gaps starts 2000 µs after image 0 switched on
+    // (Z = 0.05), 1500 µs after it switched off (Z = 0.045), 1000 µs after
+    // image 1 switched on (0.04) and 500 µs after it switched off (0.02):
+    // L = 0.05 − 0.045 + 0.04 − 0.02 = 0.025, less than the 0.04 without gaps
+    let f = droop_factor(&m, 2, DutyCycle::new(500.0, 500.0));
+    assert!((f - 0.975).abs() < 1e-12, "with gaps: {f}");
     let bad = |body: &str, key: &str, why: &str| {
         let e = ModelConfig::from_toml_str(body).unwrap_err().to_string();
         assert!(e.contains(key) && e.contains(why), "{body}: {e}");

@@ -81,18 +81,21 @@ pub const SBI_ASYMMETRY: ShapeLaw = ShapeLaw {
 /// `sbi_asymmetry`'s curve: the charge removed from each tap, e⁻.
 pub const SBI_REMOVED_E: &str = "shape_removed_e";
 
-/// `vcsel_droop`: the relative power loss L of the VCSEL (P_k = P·(1 − L))
-/// as a function of its on-time before raw image k, t_on = k·t_exp in µs
-/// (3.3.7.2: the VCSEL heats *while it emits*, so the heat — and the loss —
-/// follows the accumulated on-time; the parametric law with β = 1, k₀ = 0
-/// has the same driver). Not the image index: one curve of t_on serves
-/// every exposure of a recording, where a curve of k would need one per
-/// exposure; a droop per image whatever the exposure (β = 0) stays the
-/// parametric form's.
+/// `vcsel_droop`: the thermal step response Z(τ) of the VCSEL's power — the
+/// relative loss after τ µs of continuous emission from cold — superposed
+/// over the raw images' on- and off-times
+/// ([`crate::effects::vcsel_droop::DutyCycle`]; 3.3.7.2: the VCSEL heats
+/// *while it emits* and cools in the gaps between raw images): P_k =
+/// P·(1 − L_k), L_k = Z(0) + Σ_{j<k} [Z(t_k − t_j) − Z(t_k − t_j − t_exp)].
+/// Without gaps L_k = Z(k·t_exp), the on-time law (the parametric law with
+/// β = 1, k₀ = 0 has the same driver). Not the image index: one curve
+/// serves every exposure and gap of a recording, where a curve of k would
+/// need one per exposure; a droop per image whatever the exposure (β = 0)
+/// stays the parametric form's.
 pub const VCSEL_DROOP: ShapeLaw = ShapeLaw {
     effect: ids::vcsel_droop::ID,
     driver: "shape_on_time_us",
-    driver_doc: "the VCSEL's on-time before raw image k, k·t_exp in µs",
+    driver_doc: "the time τ in µs since a step of the VCSEL's emission (its thermal step response Z(τ))",
     curves: &[DROOP_LOSS_REL],
 };
 /// `vcsel_droop`'s curve: the relative power loss L (< 1).

@@ -3,41 +3,110 @@
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
 //! its drivers) and its registry entry; its law: the relative optical power of a
-//! raw image ([`droop_factor`], [`droop_loss`], the shape form's driver
-//! [`droop_on_time_us`]), which the simulator and the lab's fit call.
+//! raw image ([`droop_factor`], [`droop_loss`], the shape form's duty cycle
+//! [`DutyCycle`]: the thermal step response superposed over the raw images'
+//! on- and off-times), which the simulator and the lab's fit call.
+
+use std::collections::BTreeMap;
 
 use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
 use crate::ids;
 
+/// The capture condition (`[capture.conditions]`) that gives the VCSEL's
+/// off-time between two raw images of one acquisition in µs — read-out and
+/// set-up, where the VCSEL cools. A recording that does not state it has
+/// no gap (0 µs; our assumption: gaps short against the thermal response).
+pub const IMAGE_GAP_CONDITION: &str = "image_gap_us";
+
+/// When the VCSEL emits during one acquisition (3.3.7.2: it heats while it
+/// emits and cools while it does not): raw image j is lit during
+/// [j·(t_exp + g), j·(t_exp + g) + t_exp] µs. Our assumptions: equal gaps
+/// g between the raw images, and each acquisition starts cold (the pause
+/// between acquisitions is long against the thermal response).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DutyCycle {
+    /// On-time (exposure) of each raw image, µs.
+    pub exposure_us: f64,
+    /// Off-time between two raw images, µs (≥ 0).
+    pub gap_us: f64,
+}
+
+impl DutyCycle {
+    /// The duty cycle of raw images of `exposure_us` with gaps of `gap_us`
+    /// (a negative or non-finite gap counts as none).
+    pub fn new(exposure_us: f64, gap_us: f64) -> Self {
+        let gap_us = if gap_us.is_finite() {
+            gap_us.max(0.0)
+        } else {
+            0.0
+        };
+        Self {
+            exposure_us,
+            gap_us,
+        }
+    }
+
+    /// The duty cycle of a capture of `exposure_us` whose conditions give
+    /// the gap as [`IMAGE_GAP_CONDITION`] (none when they do not).
+    pub fn of_capture(exposure_us: f64, conditions: &BTreeMap<String, f64>) -> Self {
+        Self::new(
+            exposure_us,
+            conditions.get(IMAGE_GAP_CONDITION).copied().unwrap_or(0.0),
+        )
+    }
+
+    /// The heating and cooling steps of the power history at the start of
+    /// raw image `k`, for linear superposition of the thermal step response
+    /// Z(τ) (the loss after τ µs of continuous emission from cold): `f(τ,
+    /// +1)` for the loss already present at the first image (τ = 0) and
+    /// for each earlier image j switching on τ = t_k − t_j ago, `f(τ, −1)`
+    /// for it switching off τ = t_k − t_j − t_exp ago. L_k = Σ sign·Z(τ) —
+    /// without gaps it telescopes to Z(k·t_exp), the on-time law.
+    pub fn for_each_step(&self, k: usize, mut f: impl FnMut(f64, f64)) {
+        f(0.0, 1.0);
+        let period_us = self.exposure_us + self.gap_us;
+        for j in 0..k {
+            let on_us = (k - j) as f64 * period_us;
+            f(on_us, 1.0);
+            f(on_us - self.exposure_us, -1.0);
+        }
+    }
+
+    /// The loss at the start of raw image `k` under the thermal step
+    /// response `z`: Σ sign·Z(τ) over [`Self::for_each_step`].
+    pub fn superpose(&self, k: usize, mut z: impl FnMut(f64) -> f64) -> f64 {
+        let mut loss = 0.0;
+        self.for_each_step(k, |tau_us, sign| loss += sign * z(tau_us));
+        loss
+    }
+}
+
 /// Relative optical power of raw image `k` (acquisition order) under
-/// `vcsel_droop`: 1 − L(t_on) by the file's shape of the on-time
-/// t_on = k·t_exp when it gives one ([`crate::effects::shape::VCSEL_DROOP`]),
-/// else 1 − D·[`droop_loss`].
-pub fn droop_factor(model: &ModelConfig, k: usize, exposure_us: f64) -> f64 {
+/// `vcsel_droop` for the acquisition's `duty` cycle: 1 − L_k with the
+/// file's shape as the thermal step response Z(τ) of the on-time
+/// ([`crate::effects::shape::VCSEL_DROOP`]) superposed over the raw images'
+/// heating and cooling ([`DutyCycle::superpose`]) when it gives one, else
+/// 1 − D·[`droop_loss`] (the parametric law counts on-time only: it ignores
+/// the gaps).
+pub fn droop_factor(model: &ModelConfig, k: usize, duty: DutyCycle) -> f64 {
     if !model.is_enabled(ids::vcsel_droop::ID) {
         return 1.0;
     }
     if let Some(s) = model.shape(ids::vcsel_droop::ID) {
-        let t_on = droop_on_time_us(k as f64, exposure_us);
-        return 1.0 - s.eval(crate::effects::shape::DROOP_LOSS_REL, t_on);
+        return 1.0
+            - duty.superpose(k, |tau_us| {
+                s.eval(crate::effects::shape::DROOP_LOSS_REL, tau_us)
+            });
     }
     let d = model.get(ids::vcsel_droop::DROOP_REL);
     1.0 - d * droop_loss(
         k as f64,
-        exposure_us,
+        duty.exposure_us,
         model.get(ids::vcsel_droop::TAU_US),
         model.get(ids::vcsel_droop::EXPOSURE_POWER),
         model.get(ids::vcsel_droop::FIRST_IMAGE_INDEX),
     )
-}
-
-/// The driver of the droop's shape form (3.3.7.2: the VCSEL heats while it
-/// emits): its on-time before raw image `k`, k·t_exp in µs. The simulator
-/// and the lab's fit both use it.
-#[inline]
-pub fn droop_on_time_us(k: f64, exposure_us: f64) -> f64 {
-    k * exposure_us
 }
 
 /// The droop law's shape (3.3.7.2): the share 1 − exp(−(k + k₀)·s/τ) of the
@@ -60,7 +129,7 @@ pub fn droop_loss(
 pub static INFO: EffectInfo = EffectInfo {
     id: ids::vcsel_droop::ID.as_str(),
     title: "VCSEL power droop over successive raw images",
-    explanation: "The VCSEL heats while it emits; its optical power falls over successive raw images of one acquisition: P_k = P · (1 − D · (1 − exp(−(k + k₀) · s / τ))) for raw image k in acquisition order, with heating per image s = 1 ms · (t_exp / 1 ms)^β (β = 1: heating by on-time, s = t_exp; β = 0: by image count) and k₀ images of heating before the first one (k₀ = 1: the first image is already drooped). Unequal amplitudes of the images used together distort the phasor; 4-phase loses its 0/180 symmetry. Second form: a monotone shape of the VCSEL's on-time before image k, t_on = k·t_exp, given by `shape_on_time_us` (knots, µs) and `shape_loss_rel` (the loss L < 1, P_k = P·(1 − L(t_on))), linear between the knots and flat outside them; it replaces the parametric law.",
+    explanation: "The VCSEL heats while it emits; its optical power falls over successive raw images of one acquisition: P_k = P · (1 − D · (1 − exp(−(k + k₀) · s / τ))) for raw image k in acquisition order, with heating per image s = 1 ms · (t_exp / 1 ms)^β (β = 1: heating by on-time, s = t_exp; β = 0: by image count) and k₀ images of heating before the first one (k₀ = 1: the first image is already drooped). Unequal amplitudes of the images used together distort the phasor; 4-phase loses its 0/180 symmetry. Second form: the thermal step response Z(τ) — the loss after τ µs of continuous emission from cold — as a monotone shape, given by `shape_on_time_us` (knots, µs) and `shape_loss_rel` (values, Z < 1), linear between the knots and flat outside them; it replaces the parametric law. The loss of image k superposes the heating and cooling steps of the acquisition's duty cycle (each acquisition starting cold, raw image j lit during [j·(t_exp + g), j·(t_exp + g) + t_exp]): L_k = Z(0) + Σ_{j<k} [Z(t_k − t_j) − Z(t_k − t_j − t_exp)], P_k = P·(1 − L_k); the gap g is the capture condition `image_gap_us` (0 when the recording does not state it: then L_k = Z(k·t_exp), a shape of the on-time). The parametric law ignores the gaps.",
     thesis_ref: "3.3.7.2, 5.1.2.1 ('varying emission power during exposure of several raw images')",
     signature: "raw residual grows with raw-image index and with exposure; depth error with period 2π in phase",
     params: &[
