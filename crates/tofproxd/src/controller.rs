@@ -33,7 +33,9 @@ use crate::policy::probe::{
     PresenceProbe, ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
 };
 use crate::policy::second_frequency::{DimNearRule, dim_near_candidates, reject_aliased};
-use crate::policy::window::WINDOW_CHANGE_BOUND;
+use crate::policy::window::{
+    GlassObservation, WINDOW_CHANGE_BOUND, object_on_the_window,
+};
 use crate::policy::{
     AdaptiveRate, AmbientObservation, AmbientSwitch, AutoExposure, CandidateObservation,
     CycleObservation, EnergyAccount, EnergyDecision, ExposureObservation, Pacing, RailsDecision,
@@ -205,6 +207,8 @@ struct Measurement {
     saturated_when_longer: f32,
     /// Near pixels the cover window alone can explain (`flag_window_explained`).
     window_explained: usize,
+    /// An object pressed on the cover window made this reading near (`policy::window`).
+    on_the_window: bool,
     /// The depth message, when asked for.
     depth: Option<DepthMessage>,
 }
@@ -235,6 +239,9 @@ pub struct Controller<S: FrameSource> {
     /// Time since the last valid reading, for the bound on holding Near across cycles
     /// without one.
     since_valid: SinceValid,
+    /// Time from the last reading with a near candidate to the last valid reading (arms the
+    /// object-on-the-glass rule within `loop.near_hold_ms`).
+    candidate_age: Option<Duration>,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
     /// How long the last cycles took (the hold bound allows for the next one).
@@ -408,6 +415,7 @@ impl<S: FrameSource> Controller<S> {
             amp_scale: None,
             consecutive_failures: 0,
             since_valid: SinceValid::default(),
+            candidate_age: None,
             last_sleep: Duration::ZERO,
             recent: RecentCycles::default(),
             probe,
@@ -831,7 +839,8 @@ impl<S: FrameSource> Controller<S> {
         captured: Mode,
         depth_at_ns: Option<u64>,
     ) -> Result<StepOutcome, SourceError> {
-        let m = self.measure(cycle, req, captured, depth_at_ns)?;
+        let mut m = self.measure(cycle, req, captured, depth_at_ns)?;
+        self.judge_on_the_window(cycle, captured, &mut m);
         self.monitor_window(cycle, captured, &m);
         self.remember_for_probe(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
@@ -908,6 +917,7 @@ impl<S: FrameSource> Controller<S> {
             saturated_f2,
             saturated_when_longer,
             window_explained,
+            on_the_window: false,
             depth,
         })
     }
@@ -1060,6 +1070,53 @@ impl<S: FrameSource> Controller<S> {
     ) -> Result<ProximityReading, SourceError> {
         let frame = processed(&mut self.pipe2, &mut self.pipe4, captured)?.frame();
         Ok(detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame))
+    }
+
+    /// An object on the glass (`policy::window`, issue 34: the pocket): while armed — Near
+    /// published, or a near candidate within `loop.near_hold_ms` — a reading that is not near
+    /// but whose ROI light points at the window with a residual above the tracked estimate by
+    /// more than `ON_THE_WINDOW_BOUND` is near (`DistanceMm` 0: on the glass), so the window
+    /// tracker does not learn from it.
+    fn judge_on_the_window(&mut self, cycle: &RawCycle, captured: Mode, m: &mut Measurement) {
+        let now = self.source.now();
+        let hold = Duration::from_millis(self.cfg.loop_.near_hold_ms);
+        let since_reading = self.since_valid.elapsed(now);
+        let armed = self.near
+            || self
+                .candidate_age
+                .is_some_and(|a| a + since_reading <= hold);
+        if m.valid {
+            let far_mm = self.cfg.proximity.far_mm;
+            let candidate = m.reading.near || m.reading.distance_mm.is_some_and(|d| d < far_mm);
+            self.candidate_age = match candidate {
+                true => Some(Duration::ZERO),
+                false => self.candidate_age.map(|a| a + since_reading),
+            };
+        }
+        eprintln!("DBG0 scale={} valid={} near={} d={:?} nt={} armed={armed} exp={}", self.window.scale(), m.valid, m.reading.near, m.reading.distance_mm, m.reading.no_target, cycle.exposure_us);
+        if m.reading.near || !armed {
+            return;
+        }
+        let Ok(pipe) = processed(&mut self.pipe2, &mut self.pipe4, captured) else {
+            return;
+        };
+        let frame = pipe.frame();
+        let tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, cycle.geometry.modulation_hz);
+        let on = object_on_the_window(GlassObservation {
+            armed,
+            points_at_window: phasor_points_at_window(frame, m.roi, tolerance_rad),
+            aliased_far: m.aliased_far,
+            residual_ratio: (pipe.calibration().crosstalk.as_ref())
+                .and_then(|x| residual_ratio(frame, x, captured, m.roi, cycle.exposure_us)),
+        });
+        eprintln!("DBG al={} scale={} armed={armed} near={} cand={:?} pts={} rr={:?} on={on}", m.aliased_far, self.window.scale(), self.near, self.candidate_age, phasor_points_at_window(frame, m.roi, tolerance_rad), (pipe.calibration().crosstalk.as_ref()).and_then(|x| residual_ratio(frame, x, captured, m.roi, cycle.exposure_us)));
+        if on {
+            m.reading.near = true;
+            m.reading.no_target = false;
+            m.reading.distance_mm = None;
+            m.valid = true;
+            m.on_the_window = true;
+        }
     }
 
     /// Monitor: with nothing in range only the cover window returns light; what is left of it
@@ -1336,7 +1393,9 @@ impl<S: FrameSource> Controller<S> {
 
 /// The rule that decided a valid reading.
 fn reading_reason(m: &Measurement) -> Reason {
-    if m.reading.near && m.stats.saturated_fraction >= 0.5 {
+    if m.on_the_window {
+        Reason::OnTheWindow
+    } else if m.reading.near && m.stats.saturated_fraction >= 0.5 {
         Reason::Saturated
     } else if m.reading.no_target {
         Reason::NothingInRange
