@@ -9,8 +9,9 @@ use tofprox_model::ModelConfig;
 use crate::adapter::{load_recording, spec_from_model};
 use crate::diagnose::{AddOutcome, DiagnoseOptions, Explanation, add_effect, effect_params};
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{Prepared, Progress};
+use crate::fit::Progress;
 use crate::model_file::update_model_text;
+use crate::prepared::Prepared;
 use crate::signatures::{SIGNATURE_IDS, write_effect};
 use crate::user;
 

@@ -18,7 +18,10 @@ use tofproxd::source::{ScriptedSource, SourceErrorKind, Step};
 fn hold(fail: Duration) -> (Duration, Duration) {
     let clock = Arc::new(VirtualClock::new());
     let mut steps = vec![Step::target(50.0); 3];
-    steps.extend(std::iter::repeat_n(Step::Fail(SourceErrorKind::Timeout), 40));
+    steps.extend(std::iter::repeat_n(
+        Step::Fail(SourceErrorKind::Timeout),
+        40,
+    ));
     let source = ScriptedSource::new(24, 32, steps).with_clock(clock.clone(), fail);
     let mut cfg = Config::default();
     cfg.ambient.probe_every = 1000;

@@ -295,7 +295,11 @@ mod tests {
         }
         assert_eq!(w.scale(), 1.0, "not in a row: the count restarted");
         w.next(only_window(1.5));
-        assert!(w.scale() > 1.1, "a lasting change is learned: {}", w.scale());
+        assert!(
+            w.scale() > 1.1,
+            "a lasting change is learned: {}",
+            w.scale()
+        );
         // small steps are learned at once
         let mut w = WindowTracker::default();
         w.next(only_window(0.0));
