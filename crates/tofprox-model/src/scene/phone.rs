@@ -88,7 +88,7 @@ impl PhoneScene {
     }
 }
 
-/// Reflectivities at 850–940 nm used by [`phone_scenes`].
+/// Reflectivities at 850–940 nm used by [`phone_scenes`](super::phone_scenes).
 pub mod reflectivity {
     /// White wall or ceiling paint (the thesis's white wall, 5.1).
     pub const WHITE: f64 = 0.9;

@@ -14,9 +14,9 @@
 //! a rail?) → `rails` (saturation as evidence) or `measure` (the frame through the one
 //! pipeline of its mode, once, and everything read from it: implausible near, the second
 //! frequency, near/far; `slots` keeps the per-window pipelines and detector) → `window` (the
-//! cover window: an object pressed on it is near, else its online estimate) → `probe` (the reference for the next probe) → `decide`
-//! (the policy units: the next cycle) → `report` (the published status). `hold`: Near held
-//! over cycles without a reading, bounded.
+//! cover window: an object pressed on it is near, else its online estimate) → `probe` (the
+//! reference for the next probe) → `decide` (the policy units: the next cycle) → `report`
+//! (the published status). `hold`: Near held over cycles without a reading, bounded.
 
 use std::time::Duration;
 
