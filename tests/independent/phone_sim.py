@@ -21,8 +21,16 @@ built around (issue 10, "independent replay"). What differs from the model:
   the rails. Background light adds only shot noise (the SBI circuit removes
   its common mode) plus a small tap mismatch (0.4 % of it leaks into the
   differential code).
-* Cover window: a return at 2.5 mm of 4 e-/us (phone glass), never
-  calibrated (the calibration captures here are only dark + 24-phase).
+* Cover window: a return at 2.5 mm of 4 e-/us (phone glass), falling off
+  with cos(theta) across the field; calibrated from captures with nothing in
+  range (``conditions.no_target = 1``), as docs/calibration.md says a phone is.
+* Fabric pressed on the glass (a pocket): the glass (n = 1.52) reflects
+  R = ((n - 1)/(n + 1))^2 of the light at normal incidence (Fresnel); the
+  fabric behind it is lit through the glass (1 - R), scatters rho (a weave:
+  rho varies +-20 % from pixel to pixel) and its light goes back through the
+  glass (1 - R) along the path the window's own reflection takes to the
+  pixels, so it adds (1 - R)^2 rho / R times the window's electrons, at the
+  window's phase; nothing behind the fabric is seen.
 * Modulation 60 MHz (unambiguous range 2.498 m), 12-bit ADC, 224 x 172,
   offset-binary codes around 2048 with per-pixel offsets (row + column
   patterns + random, sigma ~ 25 LSB).
@@ -34,9 +42,11 @@ code_k = 2048 + offset + A * corr(phi - theta_k).
 Output (``OUT``):
 
 * ``OUT/calibration/``: dark captures (illumination off, 4 phases, 8 single
-  acquisitions) and one 24-phase (15 deg steps) correlation capture of a
+  acquisitions), one 24-phase (15 deg steps) correlation capture of a
   white wall (rho 0.9) at 0.6 m, ``conditions.distance_m`` and
-  ``reflectivity`` set: what ``tofprox calibrate fpn`` / ``wiggling`` take.
+  ``reflectivity`` set, and 8 illuminated 4-phase captures at 500 us facing
+  the sky (``conditions.no_target = 1``): what ``tofprox calibrate fpn`` /
+  ``crosstalk`` / ``wiggling`` take.
 * ``OUT/scenes/NAME/``: one recording per scene, 2-phase (0, 90 deg) single
   acquisitions at 10 Hz, exposure ``--exposure-us``; every capture has
   ``conditions.truth_near`` (1: at least half of the central half of the
@@ -78,6 +88,8 @@ TAP_MISMATCH = 0.004
 WINDOW_E_PER_US = 4.0
 WINDOW_M = 0.0025
 FOV_H_DEG = 64.0
+GLASS_N = 1.52
+GLASS_R = ((GLASS_N - 1.0) / (GLASS_N + 1.0)) ** 2  # Fresnel, normal incidence
 
 
 def correlation_harmonics(n_max=15):
@@ -114,18 +126,25 @@ class Sensor:
         self.ray_y = r / f + 0 * c
         norm = np.sqrt(1 + self.ray_x**2 + self.ray_y**2)
         self.cos_theta = 1.0 / norm
+        # a fabric's weave: its reflectivity varies +-20 % from pixel to pixel
+        self.weave = rng.uniform(-0.2, 0.2, size=(ROWS, COLS))
 
     def corr_at(self, x):
         """corr(x) = sum_n a_n cos(n x + lag_n), x = phi - theta (phi grows with range)."""
         return sum(a * np.cos(n * x + lag) for n, (a, lag) in zip(range(1, 99, 2), self.harmonics))
 
-    def capture(self, phases_deg, exposure_us, range_m, rho, ambient_klux, illum=True):
-        """Codes (K, ROWS, COLS) uint16 of one single acquisition."""
+    def capture(self, phases_deg, exposure_us, range_m, rho, ambient_klux, illum=True,
+                on_glass_rho=None):
+        """Codes (K, ROWS, COLS) uint16 of one single acquisition; ``on_glass_rho``: the
+        reflectivity per pixel of fabric pressed on the glass (None: nothing there)."""
         k_images = []
         if illum:
             sig_e = P_E_PER_US * rho * self.cos_theta**4 / np.maximum(range_m, 1e-3) ** 2
             sig_e = sig_e * self.gain * exposure_us
             win_e = WINDOW_E_PER_US * self.cos_theta * exposure_us * np.ones_like(sig_e)
+            if on_glass_rho is not None:
+                # through the glass and back along the window's path (module docstring)
+                win_e = win_e * (1.0 + (1.0 - GLASS_R) ** 2 * on_glass_rho / GLASS_R)
             phi = 4 * np.pi * F_MOD_HZ * range_m / C_M_PER_S + self.delay_rad
             phi_w = 4 * np.pi * F_MOD_HZ * WINDOW_M / C_M_PER_S + self.delay_rad
         else:
@@ -163,6 +182,20 @@ def approach(t, period, near, far=0.6):
     return near + (far - near) * s((u - 0.65) / 0.20)
 
 
+def pocket(t, period, near=0.02, far=0.6):
+    """Into a pocket: absent 10 %, the fabric comes far -> near (25 %), is pressed on
+    the glass (0.0, 40 %), lifted and gone near -> far (15 %), absent (10 %)."""
+    u = (t / period) % 1.0
+    s = lambda x: 0.5 - 0.5 * math.cos(math.pi * min(max(x, 0.0), 1.0))
+    if u < 0.10 or u >= 0.90:
+        return None
+    if u < 0.35:
+        return far + (near - far) * s((u - 0.10) / 0.25)
+    if u < 0.75:
+        return 0.0
+    return near + (far - near) * s((u - 0.75) / 0.15)
+
+
 class Scene:
     def __init__(self, name, desc, background_m, background_rho, ambient_klux=0.0,
                  obj=None, obj_rho=0.0, obj_half=(0.05, 0.05), motion=None):
@@ -171,17 +204,24 @@ class Scene:
         self.obj, self.obj_rho, self.obj_half, self.motion = obj, obj_rho, obj_half, motion
 
     def at(self, sensor, t):
-        """(range_m, rho) per pixel: a plane perpendicular to the axis at bg_m seen along
-        each ray (range = z / cos theta), and the object (an ellipse in a plane at z)."""
+        """(range_m, rho, on_glass_rho) per pixel: a plane perpendicular to the axis at bg_m
+        seen along each ray (range = z / cos theta), and the object (an ellipse in a plane at
+        z; ``obj_half`` None: it fills the view); at z = 0 the object is fabric pressed on the
+        glass (range 0 for the truth, no imaged return, its weave's rho on the glass)."""
         rng_m = self.bg_m / sensor.cos_theta
         rho = np.full((ROWS, COLS), self.bg_rho)
         z = self.motion(t) if self.motion else None
+        if z == 0.0:
+            weave = 1.0 + sensor.weave
+            return np.zeros((ROWS, COLS)), np.zeros((ROWS, COLS)), self.obj_rho * weave
+        if z is not None and self.obj_half is None:
+            return z / sensor.cos_theta, np.full((ROWS, COLS), self.obj_rho), None
         if z is not None:
             hx, hy = self.obj_half
             inside = (sensor.ray_x * z / hx) ** 2 + (sensor.ray_y * z / hy) ** 2 <= 1.0
             rng_m = np.where(inside, z / sensor.cos_theta, rng_m)
             rho = np.where(inside, self.obj_rho, rho)
-        return rng_m, rho
+        return rng_m, rho, None
 
 
 def scenes(seconds):
@@ -214,6 +254,12 @@ def scenes(seconds):
               lambda t: approach(t, p, 0.05)),
         Scene("hand_to_4cm_60klux", "a hand to 4 cm in 60 klux of sunlight", 1.5, 0.3, 60.0,
               "hand", 0.45, hand, lambda t: approach(t, p, 0.04)),
+        Scene("pocket_dark_lining", "into a pocket: a dark lining (3 %) over the view to 2 cm, "
+              "pressed on the glass, and out", 1.5, 0.5, 0.0, "fabric", 0.03, None,
+              lambda t: pocket(t, p)),
+        Scene("pocket_light_fabric", "into a pocket: light fabric (50 %) over the view to 2 cm, "
+              "pressed on the glass, and out", 1.5, 0.5, 0.0, "fabric", 0.5, None,
+              lambda t: pocket(t, p)),
     ]
 
 
@@ -294,14 +340,21 @@ def main():
                         conditions={"ambient_klux": 0.0}))
     # a flat white wall perpendicular to the axis at 0.6 m (pixels off the axis see it
     # farther, 0.6 m / cos theta: what a real calibration rig gives)
-    rng_m, rho = Scene("cal", "", 0.6, 0.9).at(sensor, 0.0)
+    rng_m, rho, _ = Scene("cal", "", 0.6, 0.9).at(sensor, 0.0)
     phases24 = [15.0 * k for k in range(24)]
     cal.append(dict(frames=sensor.capture(phases24, 1000.0, rng_m, rho, 0.0),
                     phases_deg=phases24, exposure_us=1000.0, illumination=True,
                     timestamp_ns=10 * 100_000_000,
                     conditions={"distance_m": 0.6, "reflectivity": 0.9, "ambient_klux": 0.0}))
+    # the cover window alone: the sky (nothing within 30 m, nothing returns), 4-phase
+    sky_m, sky_rho, _ = Scene("sky", "", 30.0, 0.0).at(sensor, 0.0)
+    for i in range(8):
+        cal.append(dict(frames=sensor.capture([0, 90, 180, 270], 500.0, sky_m, sky_rho, 0.0),
+                        phases_deg=[0.0, 90.0, 180.0, 270.0], exposure_us=500.0,
+                        illumination=True, timestamp_ns=(11 + i) * 100_000_000,
+                        conditions={"no_target": 1.0, "ambient_klux": 0.0}))
     write_recording(os.path.join(a.out, "calibration"),
-                    "independent phone ToF simulation (phone_sim.py): dark + 24-phase", cal)
+                    "independent phone ToF simulation (phone_sim.py): dark + 24-phase + sky", cal)
 
     listing = []
     n = int(round(a.seconds * RATE_HZ))
@@ -311,10 +364,10 @@ def main():
         caps = []
         for i in range(n):
             t = i / RATE_HZ
-            rng_m, rho = sc.at(sensor, t)
+            rng_m, rho, on_glass = sc.at(sensor, t)
             tn, med = truth(rng_m)
             caps.append(dict(frames=sensor.capture([0.0, 90.0], a.exposure_us, rng_m, rho,
-                                                   sc.ambient),
+                                                   sc.ambient, on_glass_rho=on_glass),
                              phases_deg=[0.0, 90.0], exposure_us=a.exposure_us,
                              illumination=True, timestamp_ns=int(t * 1e9),
                              conditions={"truth_near": tn, "distance_m": med,

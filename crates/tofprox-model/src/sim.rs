@@ -7,6 +7,7 @@ use rand_distr::StandardNormal;
 use crate::config::ModelConfig;
 use crate::effects::adc::Adc;
 use crate::effects::correlation::Correlation;
+use crate::effects::cover_window_crosstalk::on_glass_return_rel;
 use crate::effects::fixed_pattern::FixedPatterns;
 use crate::effects::multipath::multipath_phase_offset_rad;
 use crate::effects::pixel::PixelParams;
@@ -194,7 +195,9 @@ impl Simulator {
         self.run::<rand::rngs::SmallRng>(scene, req, None)
     }
 
-    fn consts(&self, req: &CaptureRequest, user: UserResponse) -> CaptureConsts {
+    /// The capture's constants; `on_glass_rel` is the return of a surface pressed on the cover
+    /// window relative to the clean window's crosstalk (0 when there is none).
+    fn consts(&self, req: &CaptureRequest, user: UserResponse, on_glass_rel: f64) -> CaptureConsts {
         let m = &self.model;
         let t = req.exposure_us;
         let px = PixelParams::new(m, t, req.temperature_c);
@@ -237,7 +240,11 @@ impl Simulator {
             crosstalk: (illum && m.is_enabled(ids::cover_window_crosstalk::ID)).then(|| {
                 use ids::cover_window_crosstalk as xt;
                 (
-                    m.get(xt::E_PER_US) * (1.0 + m.get(xt::SMUDGE_REL)) * t * px.drift_gain,
+                    // a surface on the glass returns by the window's path (its contact law)
+                    m.get(xt::E_PER_US)
+                        * (1.0 + m.get(xt::SMUDGE_REL) + on_glass_rel)
+                        * t
+                        * px.drift_gain,
                     // eq. 2.6 inverted at the window: 4π f d_w / c
                     self.geometry.phase_rad_per_m() * m.get(xt::WINDOW_DISTANCE_MM) * 1e-3,
                     m.get(xt::GRADIENT_REL),
@@ -287,7 +294,10 @@ impl Simulator {
             &req.conditions,
             &req.quantities(),
         )?;
-        let cc = self.consts(req, user);
+        let on_glass_rel = scene
+            .on_window_reflectivity()
+            .map_or(0.0, on_glass_return_rel);
+        let cc = self.consts(req, user, on_glass_rel);
         let terms = self.pixel_pass(&view, &cc)?;
         let (rows, cols) = (self.geometry.rows, self.geometry.cols);
         let mut out = Array3::<f64>::zeros((cc.thetas.len(), rows, cols));
@@ -343,6 +353,13 @@ impl Simulator {
                     wall_r: 1.0,
                 }
             }
+            // out of focus on the glass: no image, its light comes by the window's path
+            Scene::OnWindow { .. } => SceneView {
+                maps: None,
+                origin: [0, 0],
+                wall_d: 1.0,
+                wall_r: 0.0,
+            },
         })
     }
 

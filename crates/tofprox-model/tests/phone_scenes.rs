@@ -381,3 +381,78 @@ fn phone_scene_ground_truth_follows_the_true_distances() {
     let near = e.iter().filter(|x| **x == Expect::Near).count();
     assert!((1..=6).contains(&near), "{near}");
 }
+
+/// Fabric pressed on the window (the pocket, issue 34): no image of its own, its light comes
+/// by the window's path at the window's phase. Closed form written here: the glass (n = 1.5)
+/// reflects R = ((n − 1)/(n + 1))² = 4 %, the fabric is lit through it and seen through it
+/// again, so the window's return grows by (1 − R)² ρ / R — a 4 % lining about doubles it,
+/// light fabric (50 %) adds 11.5×, a smudge adds on top.
+#[test]
+fn fabric_pressed_on_the_window_adds_to_its_return_at_its_phase() {
+    let r_glass = (0.5f64 / 2.5).powi(2);
+    for (rho, smudge, t_us) in [(0.04, 0.0, 100.0), (0.5, 0.0, 50.0), (0.03, 1.0, 200.0)] {
+        let w = CoverWindow {
+            smudge_rel: smudge,
+            ..flat_window()
+        };
+        let mut m = ideal_with(&["signal_falloff"]);
+        w.apply(&mut m).unwrap();
+        let sim = Simulator::new(&m, window(4), 1).unwrap();
+        let got = sim
+            .expected(
+                &Scene::OnWindow { reflectivity: rho },
+                &CaptureRequest::four_phase(t_us),
+            )
+            .unwrap();
+        let contact = (1.0 - r_glass).powi(2) * rho / r_glass;
+        let a = 20.0 * (1.0 + smudge + contact) * t_us * LSB_PER_E;
+        let phi = 4.0 * PI * F_HZ * 0.004 / C;
+        assert_codes(&got, four_phase_codes(a, phi), 1e-6, "fabric on the window");
+    }
+    // without the window's path (the effect off) the fabric returns nothing at all
+    let sim = Simulator::new(&ideal_with(&["signal_falloff"]), window(4), 1).unwrap();
+    let got = sim
+        .expected(
+            &Scene::OnWindow { reflectivity: 0.5 },
+            &CaptureRequest::four_phase(100.0),
+        )
+        .unwrap();
+    assert!(got.iter().all(|&v| (v - MID).abs() < 1e-9));
+    assert!(
+        Scene::OnWindow { reflectivity: 1.5 }.validate().is_err(),
+        "a diffuse surface"
+    );
+}
+
+/// The pocket scenes: the room, the fabric coming to 2 cm, pressed on the window (the scene
+/// is `OnWindow`, the truth near: distance 0), lifted and gone (the room, far).
+#[test]
+fn pocket_scenes_press_the_fabric_on_the_window_and_leave() {
+    let scenes = phone_scenes(0.10, 0.15);
+    for (name, rho) in [("pocket_dark_fabric", 0.03), ("pocket_light_fabric", 0.5)] {
+        let s = scenes.iter().find(|s| s.name == name).expect(name);
+        let d = s.duration_s;
+        assert_eq!(d, 20.0, "{name}");
+        let expect = |t: f64| s.expect(t, 0.10, 0.15, 0.5);
+        assert_eq!(expect(0.5), Expect::Far, "{name}: the room");
+        assert_eq!(s.script.at(0.5), Scene::wall(1.5, 0.5), "{name}");
+        assert_eq!(expect(5.9), Expect::Near, "{name}: at 2 cm");
+        for t in [6.1, 10.0, 14.9] {
+            assert_eq!(expect(t), Expect::Near, "{name} pressed at {t} s");
+            assert_eq!(s.script.at(t), Scene::OnWindow { reflectivity: rho });
+        }
+        assert_eq!(s.script.object_distance_m(10.0), Some(0.0));
+        for t in [18.5, 19.9] {
+            assert_eq!(expect(t), Expect::Far, "{name} out of the pocket at {t} s");
+        }
+    }
+    // only a plane filling the view can be pressed on the window
+    let hand = SceneScript::hand().with_motion(Motion::Press);
+    assert!(hand.validate().is_err());
+    let plane = SceneScript {
+        kind: ScriptKind::Plane,
+        ..SceneScript::hand()
+    }
+    .with_motion(Motion::Press);
+    assert!(plane.validate().is_ok());
+}

@@ -1,9 +1,10 @@
 //! The judging data, reproduced: an independent simulation of a phone's scenes
 //! (`tests/independent/phone_sim.py`: numpy, its own sensor — 60 MHz, a low-passed square
-//! correlation, cos⁴ falloff, Poisson shot noise per tap, an uncalibrated cover window)
-//! writes version-1 recordings (full 224×172 array, 2-phase single acquisitions at 10 Hz)
-//! with dark and 24-phase captures beside them. `tofprox calibrate fpn` + `wiggling` make the
-//! calibration from those captures alone; each scene is replayed through the daemon's loop
+//! correlation, cos⁴ falloff, Poisson shot noise per tap, a cover window, fabric pressed on
+//! it in the pockets) writes version-1 recordings (full 224×172 array, 2-phase single
+//! acquisitions at 10 Hz) with dark, 24-phase and nothing-in-range (sky) captures beside them.
+//! `tofprox calibrate fpn` → `crosstalk` → `wiggling` (docs/calibration.md's order for a
+//! phone) make the calibration from those captures alone; each scene is replayed through the daemon's loop
 //! (`Controller` on the replay source) with the shipped defaults (`config/tofproxd.toml`).
 //! Scored against the truth the simulation wrote per capture (`conditions.truth_near`).
 
@@ -95,7 +96,7 @@ fn independent_phone_simulation_replays_without_false_or_missed_near() {
 
     let cal = tmp.path().join("cal");
     let cal_rec = sim.join("calibration");
-    for part in ["fpn", "wiggling"] {
+    for part in ["fpn", "crosstalk", "wiggling"] {
         let out = common::run(&[
             "calibrate",
             part,

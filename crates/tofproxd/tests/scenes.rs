@@ -179,3 +179,21 @@ fn retroreflectors_beyond_the_range_read_far_near_hands_stay_near() {
         assert!(r.readings >= 8, "{r:?}");
     }
 }
+
+/// Issue 34 item 7, the pocket: a dark lining (3 %) and light fabric (50 %) come over the
+/// whole view, are pressed on the cover window for 9 s (their light returns by the window's
+/// path, at its phase: `policy::window`'s object on the glass) and leave. What a phone maker
+/// expects of the screen: Near from the approach for as long as the fabric is there — one
+/// Near, never released in the pocket (no flicker) — and far once it has left.
+#[test]
+fn fabric_pressed_on_the_window_is_near_while_there_and_far_after_it_left() {
+    let b = shipped();
+    for name in ["pocket_dark_fabric", "pocket_light_fabric"] {
+        let r = run_scene(&b, &scene(&b, name), 1).expect("runs");
+        eprintln!("{r:?}");
+        assert_eq!((r.false_near, r.missed_near), (0, 0), "{r:?}");
+        assert_eq!(r.near_transitions, 2, "near once, far after it left: {r:?}");
+        assert!(r.latency_to_far_ms.is_some(), "far after it left: {r:?}");
+        assert!(r.readings * 10 >= r.cycles * 9, "readings: {r:?}");
+    }
+}

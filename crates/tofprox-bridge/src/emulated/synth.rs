@@ -238,6 +238,12 @@ impl FrameSynth for IdealSynth {
                     }
                 }
             }
+            // pressed on the cover window: no image of its own (this synthesiser has no
+            // window path; the model's `cover_window_crosstalk` carries its light)
+            Scene::OnWindow { .. } => {
+                self.phi.resize(rows * cols, 0.0);
+                self.gain.resize(rows * cols, 0.0);
+            }
         }
         out.resize_with(raws.len(), Vec::new);
         for (raw, frame) in raws.iter().zip(out.iter_mut()) {

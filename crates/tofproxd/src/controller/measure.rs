@@ -50,6 +50,9 @@ pub(super) struct Measurement {
     pub(super) window_explained: usize,
     /// What the cover-window monitor reads from the frame.
     pub(super) window: WindowView,
+    /// An object pressed on the cover window made this reading near (`policy::window`; set by
+    /// the window stage).
+    pub(super) on_the_window: bool,
     /// The depth message, when asked for.
     pub(super) depth: Option<DepthMessage>,
 }
@@ -145,6 +148,7 @@ impl<S: FrameSource> Controller<S> {
             saturated_when_longer,
             window_explained,
             window: window_view(frame, used, captured, roi, cycle),
+            on_the_window: false,
             depth,
         })
     }

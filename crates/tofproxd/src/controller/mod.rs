@@ -14,9 +14,9 @@
 //! a rail?) → `rails` (saturation as evidence) or `measure` (the frame through the one
 //! pipeline of its mode, once, and everything read from it: implausible near, the second
 //! frequency, near/far; `slots` keeps the per-window pipelines and detector) → `window` (the
-//! cover window's online estimate) → `probe` (the reference for the next probe) → `decide`
-//! (the policy units: the next cycle) → `report` (the published status). `hold`: Near held
-//! over cycles without a reading, bounded.
+//! cover window: an object pressed on it is near, else its online estimate) → `probe` (the
+//! reference for the next probe) → `decide` (the policy units: the next cycle) → `report`
+//! (the published status). `hold`: Near held over cycles without a reading, bounded.
 
 use std::time::Duration;
 
@@ -163,6 +163,9 @@ pub struct Controller<S: FrameSource> {
     /// Time since the last valid reading, for the bound on holding Near across cycles
     /// without one.
     since_valid: SinceValid,
+    /// Time from the last reading with a near candidate to the last valid reading (arms the
+    /// object-on-the-glass rule within `loop.near_hold_ms`).
+    candidate_age: Option<Duration>,
     /// The sleep scheduled after the previous step.
     last_sleep: Duration,
     /// How long the last cycles took (the hold bound allows for the next one).
@@ -335,6 +338,7 @@ impl<S: FrameSource> Controller<S> {
             amp_scale: None,
             consecutive_failures: 0,
             since_valid: SinceValid::default(),
+            candidate_age: None,
             last_sleep: Duration::ZERO,
             recent: RecentCycles::default(),
             probe,
@@ -408,6 +412,7 @@ impl<S: FrameSource> Controller<S> {
         }
         self.running = false;
         self.near = false;
+        self.candidate_age = None;
         if let Some((_, d)) = &mut self.detector {
             d.reset();
         }
@@ -523,7 +528,8 @@ impl<S: FrameSource> Controller<S> {
     }
 
     /// A frame with usable codes, through the daemon's cycle: measure (the frame through the
-    /// one pipeline of its mode, to a near/far reading) → monitor (the cover window) →
+    /// one pipeline of its mode, to a near/far reading) → window (an object on the glass is
+    /// near; the monitor of the cover window) →
     /// policies (the next cycle) → report (the published status). `depth_at_ns`: the capture time
     /// (CLOCK_BOOTTIME) when a depth message is wanted.
     fn process(
@@ -533,7 +539,8 @@ impl<S: FrameSource> Controller<S> {
         captured: Mode,
         depth_at_ns: Option<u64>,
     ) -> Result<StepOutcome, SourceError> {
-        let m = self.measure(cycle, req, captured, depth_at_ns)?;
+        let mut m = self.measure(cycle, req, captured, depth_at_ns)?;
+        self.judge_on_the_window(&mut m);
         self.monitor_window(&m);
         self.remember_for_probe(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);

@@ -72,7 +72,9 @@ impl<S: FrameSource> Controller<S> {
 
 /// The rule that decided a valid reading.
 fn reading_reason(m: &Measurement) -> Reason {
-    if m.reading.near && m.stats.saturated_fraction >= 0.5 {
+    if m.on_the_window {
+        Reason::OnTheWindow
+    } else if m.reading.near && m.stats.saturated_fraction >= 0.5 {
         Reason::Saturated
     } else if m.reading.no_target {
         Reason::NothingInRange

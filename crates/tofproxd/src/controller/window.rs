@@ -1,5 +1,8 @@
-//! Monitor: the cover window's online estimate (`policy::window`) from the readings that see
-//! only the window; [`window_view`] is what it reads of the frame, taken by `measure`.
+//! The cover window: an object pressed on it is near (`policy::window`, the pocket), else its
+//! online estimate (the monitor) from the readings that see only the window; [`window_view`]
+//! is what both read of the frame, taken by `measure`.
+
+use std::time::Duration;
 
 use tofprox_core::crosstalk::{phasor_points_at_window, residual_ratio};
 use tofprox_core::phasor::distance_to_phase_rad;
@@ -8,6 +11,7 @@ use tofprox_core::proximity::Roi;
 
 use crate::config::Mode;
 use crate::policy::WindowObservation;
+use crate::policy::window::{GlassObservation, object_on_the_window};
 use crate::source::{FrameSource, RawCycle};
 
 use super::Controller;
@@ -46,6 +50,42 @@ pub(super) fn window_view(
 }
 
 impl<S: FrameSource> Controller<S> {
+    /// An object on the glass (`policy::window`, issue 34: the pocket): while armed — Near
+    /// published, or a near candidate within `loop.near_hold_ms` — a reading that is not near
+    /// but whose ROI light points at the window with a residual above the tracked estimate by
+    /// more than `ON_THE_WINDOW_BOUND` is near (`DistanceMm` 0: on the glass), so the monitor
+    /// does not learn from it.
+    pub(super) fn judge_on_the_window(&mut self, m: &mut Measurement) {
+        let hold = Duration::from_millis(self.cfg.loop_.near_hold_ms);
+        let since_reading = self.since_valid.elapsed(self.source.now());
+        let armed =
+            self.near || (self.candidate_age).is_some_and(|age| age + since_reading <= hold);
+        if m.valid {
+            let far_mm = self.cfg.proximity.far_mm;
+            let candidate = m.reading.near || m.reading.distance_mm.is_some_and(|d| d < far_mm);
+            self.candidate_age = match candidate {
+                true => Some(Duration::ZERO),
+                false => self.candidate_age.map(|age| age + since_reading),
+            };
+        }
+        if m.reading.near {
+            return;
+        }
+        let on = object_on_the_window(GlassObservation {
+            armed,
+            points_at_window: m.window.points_at_window,
+            aliased_far: m.aliased_far,
+            residual_ratio: m.window.residual_ratio,
+        });
+        if on {
+            m.reading.near = true;
+            m.reading.no_target = false;
+            m.reading.distance_mm = None;
+            m.valid = true;
+            m.on_the_window = true;
+        }
+    }
+
     /// Monitor: with nothing in range only the cover window returns light; what is left of it
     /// after the compensation says whether the window changed since the estimate (a smudge).
     /// The online estimate (`policy::window`) learns from those readings — valid, no near

@@ -2,9 +2,11 @@
 //! scripted fake frame source, and [`synth_frames`], ideal raw frames of a flat target.
 
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::Duration;
 
 use ndarray::Array3;
+use tofprox_bridge::clock::{Clock, VirtualClock};
 use tofprox_core::SensorGeometry;
 
 use super::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
@@ -60,6 +62,8 @@ pub struct ScriptedSource {
     /// Number of `power_off` calls.
     pub power_offs: u32,
     window_support: bool,
+    /// The source's own clock ([`ScriptedSource::with_clock`]) and how long a failed cycle takes.
+    clock: Option<(Arc<VirtualClock>, Duration)>,
 }
 
 impl ScriptedSource {
@@ -80,7 +84,16 @@ impl ScriptedSource {
             requests: Vec::new(),
             power_offs: 0,
             window_support: true,
+            clock: None,
         }
+    }
+
+    /// With a clock of its own (`FrameSource::now`, virtual): each cycle moves it on by its
+    /// active states' time, a failed one by `fail_takes` (a transfer timeout, a reset that
+    /// hangs); the caller moves it on by the loop's sleeps.
+    pub fn with_clock(mut self, clock: Arc<VirtualClock>, fail_takes: Duration) -> Self {
+        self.clock = Some((clock, fail_takes));
+        self
     }
 
     /// Disable row-window support.
@@ -153,6 +166,12 @@ impl FrameSource for ScriptedSource {
             readout: Duration::from_micros(2500 * u64::from(k)),
             ..CycleTimings::default()
         };
+        if let Some((clock, fail_takes)) = &self.clock {
+            clock.advance(match step {
+                Step::Fail(_) => *fail_takes,
+                _ => timings.active(),
+            });
+        }
         let (frames, phases_deg) = match step {
             Step::Fail(kind) => return Err(SourceError::new(kind, "scripted failure")),
             Step::Target {
@@ -202,6 +221,10 @@ impl FrameSource for ScriptedSource {
 
     fn sensor(&self) -> SensorGeometry {
         SensorGeometry::full(self.rows, self.cols, SYNTH_ADC_BITS, self.modulation_hz)
+    }
+
+    fn now(&self) -> Option<Duration> {
+        self.clock.as_ref().map(|(c, _)| c.now())
     }
 
     fn describe(&self) -> String {
