@@ -132,11 +132,20 @@ impl<S: FrameSource> Controller<S> {
         let stats = frame.roi_stats(roi);
         let depth = depth_at_ns.map(|t| depth_message(frame, t));
         let reading = detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame);
+        // nothing in range is a reading too: far, DistanceMm "beyond range"
+        let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
+        // the cover-window monitor learns only from valid far readings without a near
+        // candidate or a far target found at the second frequency (`policy::window`): its
+        // view of the frame (a pass over the ROI's phasors) is taken for those alone
+        let far_mm = self.cfg.proximity.far_mm;
+        let may_learn = valid
+            && !reading.near
+            && !reading.distance_mm.is_some_and(|d| d < far_mm)
+            && !aliased_far;
         Ok(Measurement {
             roi,
             reading,
-            // nothing in range is a reading too: far, DistanceMm "beyond range"
-            valid: reading.distance_mm.is_some() || reading.near || reading.no_target,
+            valid,
             stats,
             ambient,
             aliased_far,
@@ -144,7 +153,11 @@ impl<S: FrameSource> Controller<S> {
             saturated_f2,
             saturated_when_longer,
             window_explained,
-            window: window_view(frame, used, captured, roi, cycle),
+            window: if may_learn {
+                window_view(frame, used, captured, roi, cycle)
+            } else {
+                WindowView::default()
+            },
             depth,
         })
     }
