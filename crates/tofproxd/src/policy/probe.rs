@@ -286,6 +286,41 @@ mod tests {
         );
     }
 
+    /// A probe reading every 3rd row sees the same tile means as the full image's rows
+    /// 0, 3, 6, … (summed here pixel by pixel), over the ROI moved into the rows read.
+    #[test]
+    fn a_stepped_probe_reads_the_reference_rows() {
+        let full = Array2::from_shape_fn((12, 8), |(r, c)| (100 + r * 10 + c) as u16);
+        let step = 3;
+        let sparse = full.slice(ndarray::s![..;3, ..]).to_owned();
+        let roi = Roi {
+            row0: 2,
+            col0: 0,
+            rows: 10,
+            cols: 8,
+        };
+        let sr = stepped_roi(roi, step);
+        assert_eq!((sr.row0, sr.rows), (1, 3), "rows 3, 6, 9 of the window");
+        let t = tile_means(sparse.view(), None, 100.0, sr, (2, 4));
+        // tile 0: rows 3 and 6, columns 0..4; tile 2: row 9 alone
+        let mean = |rows: &[usize], c0: usize| {
+            let v: Vec<f32> = rows
+                .iter()
+                .flat_map(|&r| (c0..c0 + 4).map(move |c| (r * 10 + c) as f32))
+                .collect();
+            v.iter().sum::<f32>() / v.len() as f32
+        };
+        assert_eq!(
+            t,
+            vec![
+                mean(&[3, 6], 0),
+                mean(&[3, 6], 4),
+                mean(&[9], 0),
+                mean(&[9], 4)
+            ]
+        );
+    }
+
     /// An unchanged scene at a shorter exposure is unchanged (the reference scales with t); a
     /// tile moved by more than the threshold is a change, and then the reference is gone; a
     /// full reading is forced after `full_every` probes.
