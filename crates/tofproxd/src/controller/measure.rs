@@ -140,7 +140,7 @@ impl<S: FrameSource> Controller<S> {
         let far_mm = self.cfg.proximity.far_mm;
         let may_learn = valid
             && !reading.near
-            && !reading.distance_mm.is_some_and(|d| d < far_mm)
+            && reading.distance_mm.is_none_or(|d| d >= far_mm)
             && !aliased_far;
         Ok(Measurement {
             roi,
