@@ -288,6 +288,14 @@ impl<T: UsbTransport> SensorDriver<T> {
             if w.cols > 0 {
                 check_columns(wr, w.col0, w.cols, m.sensor.cols, &m.sensor.name)?;
             }
+            if w.step() > usize::from(wr.row_step_max()) {
+                return Err(BridgeError::config(format!(
+                    "row step {} beyond the sequencer's {} (sensor map {})",
+                    w.step(),
+                    wr.row_step_max(),
+                    m.sensor.name
+                )));
+            }
         }
         Ok(())
     }
@@ -570,8 +578,9 @@ impl<T: UsbTransport> SensorDriver<T> {
         }
         let full_rows = usize::from(map.sensor.rows);
         let full_cols = usize::from(map.sensor.cols);
+        // the rows read: every `row_step`-th of the window
         let (row0, rows) = match req.row_window {
-            Some(w) => (usize::from(w.row0), usize::from(w.rows)),
+            Some(w) => (usize::from(w.row0), w.rows_read()),
             None => (0, full_rows),
         };
         let (col0, cols) = req
@@ -587,6 +596,9 @@ impl<T: UsbTransport> SensorDriver<T> {
             if let Some((c0_reg, cols_reg)) = wr.column_registers() {
                 regs.push([c0_reg, if nc == 0 { 0 } else { c0 }]);
                 regs.push([cols_reg, nc]);
+            }
+            if let Some(step_reg) = wr.row_step_register {
+                regs.push([step_reg, req.row_window.map_or(0, |w| w.row_step)]);
             }
         }
         // registers grouped by address so consecutive ones become bursts

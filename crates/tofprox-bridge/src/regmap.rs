@@ -152,12 +152,25 @@ pub struct RowWindowRegs {
     /// Column window start and size must be multiples of this (0 is taken as 1).
     #[serde(default)]
     pub col_align: u16,
+    /// Row step register, where the sequencer skips rows (every n-th row of the window read;
+    /// 0 or 1 = every row; absent: every row only).
+    #[serde(default)]
+    pub row_step_register: Option<u16>,
+    /// The largest row step the sequencer takes.
+    #[serde(default)]
+    pub max_row_step: u16,
 }
 
 impl RowWindowRegs {
     /// The column registers, when the sequencer reads column windows.
     pub fn column_registers(&self) -> Option<(u16, u16)> {
         self.col0_register.zip(self.cols_register)
+    }
+
+    /// The largest row step the sequencer takes (1: it reads every row).
+    pub fn row_step_max(&self) -> u16 {
+        self.row_step_register
+            .map_or(1, |_| self.max_row_step.max(1))
     }
 }
 

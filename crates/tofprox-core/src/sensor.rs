@@ -274,6 +274,16 @@ pub struct RowWindow {
     /// Number of columns; 0 = the full width.
     #[serde(default)]
     pub cols: u16,
+    /// Read every `row_step`-th row of `row0..row0 + rows` (0 or 1: every row), where the
+    /// sensor's sequencer skips rows: the rows converted, so the read-out's conversions and
+    /// data, fall by the step (thesis 3.1.2, fig. 3.12: conversion is row by row). The
+    /// presence probe's sparse image; a depth frame always reads every row.
+    #[serde(default, skip_serializing_if = "every_row")]
+    pub row_step: u16,
+}
+
+fn every_row(step: &u16) -> bool {
+    *step <= 1
 }
 
 impl RowWindow {
@@ -284,7 +294,18 @@ impl RowWindow {
             rows,
             col0: 0,
             cols: 0,
+            row_step: 0,
         }
+    }
+
+    /// The row step (1: every row).
+    pub fn step(&self) -> usize {
+        usize::from(self.row_step.max(1))
+    }
+
+    /// Rows read: `row0`, `row0 + step`, … below [`end`](Self::end).
+    pub fn rows_read(&self) -> usize {
+        usize::from(self.rows).div_ceil(self.step())
     }
 
     /// One past the last row.

@@ -37,6 +37,9 @@ impl FrameSource for Box<dyn FrameSource> {
     fn supports_single_image(&self) -> bool {
         (**self).supports_single_image()
     }
+    fn max_row_step(&self) -> u16 {
+        (**self).max_row_step()
+    }
     fn supports_mode_switch(&self) -> bool {
         (**self).supports_mode_switch()
     }
@@ -141,6 +144,10 @@ impl<T: UsbTransport> FrameSource for BridgeSource<T> {
 
     fn supports_single_image(&self) -> bool {
         true
+    }
+
+    fn max_row_step(&self) -> u16 {
+        row_step_max(&self.driver.config().map)
     }
 
     fn sensor(&self) -> SensorGeometry {
@@ -454,6 +461,9 @@ impl FrameSource for UsbSource {
     fn supports_single_image(&self) -> bool {
         true
     }
+    fn max_row_step(&self) -> u16 {
+        row_step_max(&self.dcfg.map)
+    }
     fn sensor(&self) -> SensorGeometry {
         self.dcfg.map.sensor.geometry()
     }
@@ -466,6 +476,11 @@ impl FrameSource for UsbSource {
             self.sel.vendor_id, self.sel.product_id
         )
     }
+}
+
+/// The largest row step of a map's sequencer (1: every row).
+fn row_step_max(map: &tofprox_bridge::SensorMap) -> u16 {
+    map.row_window.as_ref().map_or(1, |w| w.row_step_max())
 }
 
 /// The column alignment of a map whose sequencer reads column windows (`None`: whole rows).

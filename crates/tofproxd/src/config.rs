@@ -370,6 +370,9 @@ pub struct ProbeConfig {
     pub full_every: u32,
     /// Side of the square tiles whose mean code is compared (pixels).
     pub tile_px: u16,
+    /// The probe reads every `row_step`-th row of the read-out window, where the sequencer
+    /// skips rows (1: every row; at most `tile_px`).
+    pub row_step: u16,
 }
 
 impl Default for ProbeConfig {
@@ -379,6 +382,7 @@ impl Default for ProbeConfig {
             after_still_readings: 1,
             full_every: 8,
             tile_px: 16,
+            row_step: 4,
         }
     }
 }
@@ -394,6 +398,11 @@ impl ProbeConfig {
             "probe.tile_px",
             (1..=64).contains(&self.tile_px),
             format!("must be within 1..=64, got {}", self.tile_px),
+        )?;
+        range(
+            "probe.row_step",
+            (1..=self.tile_px).contains(&self.row_step),
+            format!("must be within 1..=probe.tile_px, got {}", self.row_step),
         )
     }
 }

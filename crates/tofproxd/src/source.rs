@@ -173,6 +173,10 @@ pub trait FrameSource: Send {
     fn supports_single_image(&self) -> bool {
         false
     }
+    /// The largest row step the source reads (`RowWindow::row_step`; 1: every row).
+    fn max_row_step(&self) -> u16 {
+        1
+    }
     /// Whether the source can capture 4-phase on request (replay cannot choose).
     fn supports_mode_switch(&self) -> bool {
         true

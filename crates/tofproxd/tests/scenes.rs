@@ -197,3 +197,35 @@ fn fabric_pressed_on_the_window_is_near_while_there_and_far_after_it_left() {
         assert!(r.readings * 10 >= r.cycles * 9, "readings: {r:?}");
     }
 }
+
+/// Where a far, still scene's energy goes: after its first full readings the loop runs
+/// presence probes, each cheaper than a full reading (one raw image at the shortest exposure:
+/// half the read-out, a fifth of the capture), and the parts the bench reports add up to the
+/// energy per reading.
+#[test]
+fn a_far_still_scene_runs_probes_and_its_energy_parts_add_up() {
+    use tofproxd::energy::ReadingKind;
+    let b = shipped();
+    let r = run_scene(&b, &scene(&b, "nothing_in_range"), 1).expect("runs");
+    let kind = |k: ReadingKind| r.energy_by_kind.iter().find(|e| e.kind == k).copied();
+    let probe = kind(ReadingKind::Probe).expect("probes ran");
+    let full = kind(ReadingKind::Full).expect("full readings ran");
+    assert!(probe.cycles > full.cycles, "{r:?}");
+    assert!(probe.mean_mj < 0.7 * full.mean_mj, "{probe:?} vs {full:?}");
+    let p = r.energy_parts_mj;
+    let sum = p.startup + p.flash + p.capture + p.readout + p.cpu + p.off;
+    assert!(
+        (sum - r.energy_per_reading_mj).abs() < 1e-9,
+        "{sum} vs {}",
+        r.energy_per_reading_mj
+    );
+    let cycles: u64 = r.energy_by_kind.iter().map(|e| e.cycles).sum();
+    assert_eq!(cycles, r.cycles, "every cycle has a kind");
+    let mean: f64 = r
+        .energy_by_kind
+        .iter()
+        .map(|e| e.mean_mj * e.cycles as f64)
+        .sum::<f64>()
+        / cycles as f64;
+    assert!((mean - r.energy_per_reading_mj).abs() < 1e-9);
+}

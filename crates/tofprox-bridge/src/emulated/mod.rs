@@ -74,6 +74,9 @@ struct Measurement {
     /// The column window: first column and count (every column: 0 and the array's width).
     col0: usize,
     cols: usize,
+    /// Every `row_step`-th row of the window is read (1: every row; ours, as the map's
+    /// `row_step_register`).
+    row_step: usize,
     /// Modulation frequency of this measurement (Hz).
     modulation_hz: f64,
     next_raw: usize,
@@ -651,6 +654,16 @@ impl EmulatedDevice {
             }
             None => (0, full_cols),
         };
+        let row_step = match self.map.row_window.as_ref() {
+            Some(w) => match w.row_step_register {
+                Some(reg) => usize::from(self.regs[usize::from(reg)].max(1)),
+                None => 1,
+            },
+            None => 1,
+        };
+        if row_step > usize::from(self.map.row_window.as_ref().map_or(1, |w| w.row_step_max())) {
+            return;
+        }
         let mut raws = Vec::with_capacity(k);
         let mut regs = Vec::with_capacity(k);
         for i in 0..k as u16 {
@@ -678,6 +691,7 @@ impl EmulatedDevice {
             rows,
             col0,
             cols,
+            row_step,
             modulation_hz,
             next_raw: 0,
             frame_counter: 0,
@@ -700,7 +714,8 @@ impl EmulatedDevice {
         let raw = m.raws[i];
         // a row's conversions are its columns read (ours: time ∝ columns)
         let row_us = t.readout_per_row_us * m.cols as f64 / full_cols.max(1) as f64;
-        let mut wait_us = raw.exposure_us + row_us * m.rows as f64;
+        let rows_read = m.rows.div_ceil(m.row_step);
+        let mut wait_us = raw.exposure_us + row_us * rows_read as f64;
         if m.first {
             wait_us += t.measurement_start_us;
             m.first = false;
@@ -722,17 +737,18 @@ impl EmulatedDevice {
             frame_counter: m.frame_counter,
             raw_index: i as u16,
             row0: m.row0 as u16,
-            rows: m.rows as u16,
+            rows: rows_read as u16,
             exposure_reg: e,
             phase_reg: p,
             illumination: il,
             crc32: 0,
         });
-        let mut bytes = if m.cols == full_cols {
+        let mut bytes = if m.cols == full_cols && m.row_step == 1 {
             encode_frame(&m.superframe[i], full_cols, st)
         } else {
             let window: Vec<u16> = m.superframe[i]
                 .chunks_exact(full_cols)
+                .step_by(m.row_step)
                 .flat_map(|row| row[m.col0..m.col0 + m.cols].iter().copied())
                 .collect();
             encode_frame(&window, m.cols, st)

@@ -135,11 +135,17 @@ impl<S: FrameSource> Controller<S> {
         let stats = frame.roi_stats(roi);
         let depth = depth_at_ns.map(|t| depth_message(frame, t));
         let reading = detector_slot(&mut self.detector, &self.cfg, g, roi)?.update(frame);
+        // nothing in range is a reading too: far, DistanceMm "beyond range"
+        let valid = reading.distance_mm.is_some() || reading.near || reading.no_target;
+        // the frame's window view (a pass over the ROI's phasors) is taken only where a stage
+        // reads it (`policy::window`): the monitor learns only from valid far readings without a
+        // near candidate, and the object-on-the-glass rule judges readings that are not near;
+        // neither reads a near reading or a far target found at the second frequency
+        let may_need_view = !reading.near && !aliased_far;
         Ok(Measurement {
             roi,
             reading,
-            // nothing in range is a reading too: far, DistanceMm "beyond range"
-            valid: reading.distance_mm.is_some() || reading.near || reading.no_target,
+            valid,
             stats,
             ambient,
             aliased_far,
@@ -147,7 +153,11 @@ impl<S: FrameSource> Controller<S> {
             saturated_f2,
             saturated_when_longer,
             window_explained,
-            window: window_view(frame, used, captured, roi, cycle),
+            window: if may_need_view {
+                window_view(frame, used, captured, roi, cycle)
+            } else {
+                WindowView::default()
+            },
             on_the_window: false,
             depth,
         })

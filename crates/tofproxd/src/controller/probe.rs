@@ -3,16 +3,16 @@
 
 use std::time::Duration;
 
-use ndarray::Axis;
-use tofprox_core::SensorGeometry;
+use ndarray::{Axis, Slice};
 use tofprox_core::readout::crop_map;
+use tofprox_core::{RowWindow, SensorGeometry};
 
 use crate::boottime::boottime_ns;
 use crate::config::Mode;
 use crate::cputime::thread_cpu;
 use crate::hub::{Reason, State, StatusUpdate};
 use crate::policy::probe::{
-    ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
+    ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, stepped_roi, tile_means,
 };
 use crate::policy::{CycleObservation, RateObservation};
 use crate::source::{FrameSource, RawCycle, RawImages, SourceErrorKind};
@@ -46,10 +46,18 @@ impl<S: FrameSource> Controller<S> {
             return None;
         }
         let last = self.last_full?;
-        let image = self.probe.due(self.near, self.rate.still_readings())?.image;
+        let due = self.probe.due(self.near, self.rate.still_readings())?;
+        let (image, step) = (due.image, due.row_step);
         let mut req = self.request(false);
         req.exposure_us = self.cfg.exposure.min_us;
         req.single_image = Some(image);
+        if step > 1 {
+            let full_rows = u16::try_from(self.source.full_size().0).unwrap_or(u16::MAX);
+            let w = req
+                .row_window
+                .get_or_insert(RowWindow::rows_only(0, full_rows));
+            w.row_step = u16::try_from(step).unwrap_or(1);
+        }
         self.since_valid.count(self.last_sleep);
         let result = self.source.cycle(&req);
         let cycle = match result {
@@ -111,10 +119,22 @@ impl<S: FrameSource> Controller<S> {
     /// The probe image against the reference: a change when the window differs or any tile
     /// moved by more than half the weakest near return ([`change_threshold_lsb`]).
     fn judge_probe(&mut self, cycle: &RawCycle) -> ProbeVerdict {
-        let same_window = self.probe_reference_geometry() == Some(cycle.geometry);
-        let cos_min = self.probe_cos_min();
-        let tiles = self.tiles_of(cycle, 0);
-        let (Some(tiles), true) = (tiles, same_window) else {
+        let Some((window, step, cos_min)) = self
+            .probe
+            .reference()
+            .map(|r| (r.geometry, r.row_step, r.cos_min))
+        else {
+            return self.probe.judge(&[], cycle.exposure_us, 0.0);
+        };
+        // the reference's window, every `step`-th row of it
+        let read = SensorGeometry {
+            rows: window.rows.div_ceil(step),
+            ..window
+        };
+        let tiles = (cycle.geometry == read)
+            .then(|| self.tiles_of(cycle, 0, window, step))
+            .flatten();
+        let Some(tiles) = tiles else {
             return self.probe.judge(&[], cycle.exposure_us, 0.0);
         };
         let threshold = change_threshold_lsb(
@@ -127,35 +147,60 @@ impl<S: FrameSource> Controller<S> {
         self.probe.judge(&tiles, cycle.exposure_us, threshold)
     }
 
-    fn probe_reference_geometry(&self) -> Option<SensorGeometry> {
-        self.probe.reference().map(|r| r.geometry)
-    }
-
-    fn probe_cos_min(&self) -> f64 {
-        self.probe.reference().map_or(0.0, |r| r.cos_min)
-    }
-
-    /// Tile means of raw image `image` of `cycle` above the dark level, over the ROI.
-    fn tiles_of(&self, cycle: &RawCycle, image: usize) -> Option<Vec<f32>> {
-        let g = cycle.geometry;
-        let roi = frame_roi(&self.cfg, g);
+    /// Tile means of raw image `image` of `cycle` above the dark level, over the ROI of
+    /// `window`, from every `step`-th row of the window: `cycle` read them all (a full reading,
+    /// the reference) or only those (a probe).
+    fn tiles_of(
+        &self,
+        cycle: &RawCycle,
+        image: usize,
+        window: SensorGeometry,
+        step: usize,
+    ) -> Option<Vec<f32>> {
+        let rows = Slice::new(0, None, isize::try_from(step.max(1)).ok()?);
+        let sparse = cycle.geometry.rows != window.rows;
+        let roi = stepped_roi(frame_roi(&self.cfg, window), step);
         let dark = self
             .calib
             .two_phase
             .offset
             .as_ref()
-            .and_then(|o| crop_map(&o.dark_lsb, g, "offset").ok());
-        let dark = dark.as_ref().map(|d| d.view());
-        let (mid, tile) = (g.mid_code() as f32, self.probe.tile_px());
+            .and_then(|o| crop_map(&o.dark_lsb, window, "offset").ok());
+        let dark = dark.as_ref().map(|d| d.slice_axis(Axis(0), rows));
+        let (mid, tile) = (window.mid_code() as f32, self.probe.tile(step));
+        let pick = |n: usize| (image < n).then_some(image);
         Some(match &cycle.frames {
-            RawImages::U16(a) if image < a.dim().0 => {
-                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            RawImages::U16(a) => {
+                let img = a.index_axis(Axis(0), pick(a.dim().0)?);
+                let img = if sparse {
+                    img
+                } else {
+                    img.slice_axis_move(Axis(0), rows)
+                };
+                tile_means(img, dark, mid, roi, tile)
             }
-            RawImages::F32(a) if image < a.dim().0 => {
-                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            RawImages::F32(a) => {
+                let img = a.index_axis(Axis(0), pick(a.dim().0)?);
+                let img = if sparse {
+                    img
+                } else {
+                    img.slice_axis_move(Axis(0), rows)
+                };
+                tile_means(img, dark, mid, roi, tile)
             }
-            _ => return None,
         })
+    }
+
+    /// The row step of the probe's read-out: `probe.row_step` where the source's sequencer
+    /// skips rows that far, else every row.
+    fn probe_row_step(&self) -> usize {
+        usize::from(
+            self.cfg
+                .probe
+                .row_step
+                .min(self.source.max_row_step())
+                .max(1),
+        )
     }
 
     /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
@@ -167,10 +212,12 @@ impl<S: FrameSource> Controller<S> {
             .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
             .flatten()
             .and_then(|(image, cos_min)| {
-                let tiles = self.tiles_of(cycle, usize::from(image))?;
+                let step = self.probe_row_step();
+                let tiles = self.tiles_of(cycle, usize::from(image), cycle.geometry, step)?;
                 let t = cycle.exposure_us as f32;
                 Some(ProbeReference {
                     geometry: cycle.geometry,
+                    row_step: step,
                     image,
                     per_us: tiles.iter().map(|v| v / t).collect(),
                     cos_min,

@@ -23,8 +23,9 @@ use super::measure::Measurement;
 /// documented limit of one frequency).
 const WINDOW_TOLERANCE_M: f64 = 0.05;
 
-/// What the monitor reads of a processed frame.
-#[derive(Debug, Clone, Copy)]
+/// What the monitor reads of a processed frame (`Default`: nothing read, the monitor learns
+/// nothing from it).
+#[derive(Debug, Clone, Copy, Default)]
 pub(super) struct WindowView {
     /// The ROI's summed phasor points at the window (within [`WINDOW_TOLERANCE_M`]).
     points_at_window: bool,

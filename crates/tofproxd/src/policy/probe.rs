@@ -34,8 +34,12 @@ use crate::config::ProbeConfig;
 /// The reference a probe is compared with: the last full far reading's probe image.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProbeReference {
-    /// The window the reference was read in (a probe must read the same).
+    /// The window the reference was read in (a probe must read the same, every
+    /// `row_step`-th row of it).
     pub geometry: SensorGeometry,
+    /// The probe reads every `row_step`-th row of the window; the reference's tiles are
+    /// taken over the same rows.
+    pub row_step: usize,
     /// Index of the probe image in the 2-phase sequence.
     pub image: u16,
     /// Tile means of `code − dark` per µs of exposure.
@@ -139,30 +143,46 @@ impl PresenceProbe {
         }
     }
 
-    /// The tile size (pixels per side).
-    pub fn tile_px(&self) -> usize {
-        usize::from(self.cfg.tile_px.max(1))
+    /// The tile `(rows, cols)` in the rows a probe of `row_step` reads: `tile_px` × `tile_px`
+    /// pixels of the window.
+    pub fn tile(&self, row_step: usize) -> (usize, usize) {
+        let px = usize::from(self.cfg.tile_px.max(1));
+        ((px / row_step.max(1)).max(1), px)
     }
 }
 
-/// Tile means of `image − dark` over `roi` (tiles of `tile` × `tile` pixels; the last row and
-/// column of tiles take what is left). `dark` is the dark level per pixel of the same window.
+/// `roi` (in a window's coordinates) in the coordinates of the rows a probe reads when it
+/// reads every `step`-th row of the window: rows `0, step, 2·step, …` become `0, 1, 2, …`.
+pub fn stepped_roi(roi: Roi, step: usize) -> Roi {
+    let step = step.max(1);
+    let row0 = roi.row0.div_ceil(step);
+    let end = (roi.row0 + roi.rows).div_ceil(step);
+    Roi {
+        row0,
+        rows: end.saturating_sub(row0),
+        ..roi
+    }
+}
+
+/// Tile means of `image − dark` over `roi` (tiles of `tile` = `(rows, cols)` pixels; the last
+/// row and column of tiles take what is left). `dark` is the dark level per pixel of the same
+/// window.
 pub fn tile_means<T: RawSample>(
     image: ArrayView2<'_, T>,
     dark: Option<ArrayView2<'_, f32>>,
     mid_code: f32,
     roi: Roi,
-    tile: usize,
+    tile: (usize, usize),
 ) -> Vec<f32> {
     let (rows, cols) = image.dim();
     let r = roi.resolve(rows, cols);
-    let tile = tile.max(1);
-    let mut out = Vec::with_capacity(r.rows.div_ceil(tile) * r.cols.div_ceil(tile));
-    for tr in (r.row0..r.row0 + r.rows).step_by(tile) {
-        for tc in (r.col0..r.col0 + r.cols).step_by(tile) {
+    let (th, tw) = (tile.0.max(1), tile.1.max(1));
+    let mut out = Vec::with_capacity(r.rows.div_ceil(th) * r.cols.div_ceil(tw));
+    for tr in (r.row0..r.row0 + r.rows).step_by(th) {
+        for tc in (r.col0..r.col0 + r.cols).step_by(tw) {
             let (re, ce) = (
-                (tr + tile).min(r.row0 + r.rows),
-                (tc + tile).min(r.col0 + r.cols),
+                (tr + th).min(r.row0 + r.rows),
+                (tc + tw).min(r.col0 + r.cols),
             );
             let mut sum = 0.0f64;
             for y in tr..re {
@@ -217,12 +237,14 @@ mod tests {
             after_still_readings: 1,
             full_every: 3,
             tile_px: 4,
+            row_step: 1,
         }
     }
 
     fn reference(per_us: Vec<f32>) -> ProbeReference {
         ProbeReference {
             geometry: SensorGeometry::full(8, 8, 12, 80e6),
+            row_step: 1,
             image: 1,
             per_us,
             cos_min: 0.8,
@@ -254,13 +276,48 @@ mod tests {
             rows: 8,
             cols: 8,
         };
-        let t = tile_means(img.view(), Some(dark.view()), 2048.0, roi, 4);
+        let t = tile_means(img.view(), Some(dark.view()), 2048.0, roi, (4, 4));
         assert_eq!(t, vec![50.0, 10.0, 10.0, 10.0]);
-        let t = tile_means(img.view(), None, 100.0, roi, 4);
+        let t = tile_means(img.view(), None, 100.0, roi, (4, 4));
         assert_eq!(
             t,
             vec![50.0, 10.0, 10.0, 10.0],
             "mid code without a dark frame"
+        );
+    }
+
+    /// A probe reading every 3rd row sees the same tile means as the full image's rows
+    /// 0, 3, 6, … (summed here pixel by pixel), over the ROI moved into the rows read.
+    #[test]
+    fn a_stepped_probe_reads_the_reference_rows() {
+        let full = Array2::from_shape_fn((12, 8), |(r, c)| (100 + r * 10 + c) as u16);
+        let step = 3;
+        let sparse = full.slice(ndarray::s![..;3, ..]).to_owned();
+        let roi = Roi {
+            row0: 2,
+            col0: 0,
+            rows: 10,
+            cols: 8,
+        };
+        let sr = stepped_roi(roi, step);
+        assert_eq!((sr.row0, sr.rows), (1, 3), "rows 3, 6, 9 of the window");
+        let t = tile_means(sparse.view(), None, 100.0, sr, (2, 4));
+        // tile 0: rows 3 and 6, columns 0..4; tile 2: row 9 alone
+        let mean = |rows: &[usize], c0: usize| {
+            let v: Vec<f32> = rows
+                .iter()
+                .flat_map(|&r| (c0..c0 + 4).map(move |c| (r * 10 + c) as f32))
+                .collect();
+            v.iter().sum::<f32>() / v.len() as f32
+        };
+        assert_eq!(
+            t,
+            vec![
+                mean(&[3, 6], 0),
+                mean(&[3, 6], 4),
+                mean(&[9], 0),
+                mean(&[9], 4)
+            ]
         );
     }
 

@@ -95,6 +95,7 @@ impl ReadoutWindow {
                     rows,
                     col0,
                     cols,
+                    row_step: 0,
                 })
             }
             _ => None,
