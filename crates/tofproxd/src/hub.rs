@@ -83,6 +83,10 @@ pub struct Status {
     pub rate_hz: f64,
     /// `PowerEstimateMw`.
     pub power_mw: f64,
+    /// `GetStatus()["EnergyMj"]`: the modelled energy of the cycles counted in `cycles`
+    /// since the daemon started (mJ; the energy meter's total, each cycle with the sleep
+    /// after it).
+    pub energy_mj: f64,
     /// `LastError`.
     pub last_error: String,
     /// Exposure per raw image (µs).
@@ -187,6 +191,8 @@ struct HubInner {
     public: Status,
     /// Cycles, valid readings and errors run for depth claims alone (left out of `public`).
     hidden_counts: [u64; 3],
+    /// The energy of those cycles (mJ).
+    hidden_energy_mj: f64,
     claims: BTreeMap<String, ClientClaims>,
     /// A valid reading exists since the loop last started.
     have_reading: bool,
@@ -296,6 +302,7 @@ impl Hub {
             mode: cfg.processing.mode,
             rate_hz: 0.0,
             power_mw: 0.0,
+            energy_mj: 0.0,
             last_error: String::new(),
             exposure_us: cfg.exposure.initial_us,
             cycles: 0,
@@ -309,6 +316,7 @@ impl Hub {
             inner: Mutex::new(HubInner {
                 public: status.clone(),
                 hidden_counts: [0; 3],
+                hidden_energy_mj: 0.0,
                 status,
                 claims: BTreeMap::new(),
                 have_reading: false,
@@ -483,6 +491,7 @@ impl Hub {
         let mut g = self.lock();
         let counts = |s: &Status| [s.cycles, s.valid_readings, s.errors];
         let counts_before = counts(&g.status);
+        let energy_before = g.status.energy_mj;
         let near_before = g.status.near;
         f(&mut g.status);
         if g.status.state == State::Off || g.status.state == State::Starting {
@@ -495,6 +504,7 @@ impl Hub {
             public.cycles -= g.hidden_counts[0];
             public.valid_readings -= g.hidden_counts[1];
             public.errors -= g.hidden_counts[2];
+            public.energy_mj -= g.hidden_energy_mj;
             // The times clients see are of what they saw: a reading counted for them, a Near
             // change of theirs (one shown only now, after a depth claim alone, is stamped now).
             if g.status.valid_readings == counts_before[1] {
@@ -509,6 +519,7 @@ impl Hub {
             g.public = public;
         } else {
             let counts_after = counts(&g.status);
+            g.hidden_energy_mj += g.status.energy_mj - energy_before;
             for (h, (a, b)) in g
                 .hidden_counts
                 .iter_mut()
@@ -548,6 +559,9 @@ impl Hub {
             }
             if let Some(v) = u.rate_hz {
                 s.rate_hz = v;
+            }
+            if let Some(v) = u.energy_mj {
+                s.energy_mj = v;
             }
             if let Some(v) = &u.last_error {
                 s.last_error.clone_from(v);
@@ -625,6 +639,8 @@ pub struct StatusUpdate {
     pub rate_hz: Option<f64>,
     /// New power estimate (the publisher limits updates to 1 Hz).
     pub power_mw: Option<f64>,
+    /// The energy meter's new total since start (mJ; [`Status::energy_mj`]).
+    pub energy_mj: Option<f64>,
     /// New last error.
     pub last_error: Option<String>,
     /// New exposure.

@@ -251,7 +251,11 @@ pub fn loop_thread<S: FrameSource>(
         if let Some(d) = out.depth {
             events.depth(d);
         }
-        events.status(out.update);
+        // the energy meter's total with the cycle's update (`GetStatus()["EnergyMj"]`)
+        events.status(StatusUpdate {
+            energy_mj: Some(ctl.energy().total_mj()),
+            ..out.update
+        });
         if out.end_of_data {
             tracing::info!("source has no more data: loop stopped");
             events.status(ctl.stop());
