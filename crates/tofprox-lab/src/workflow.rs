@@ -120,6 +120,9 @@ pub fn add_to_model(
     Ok((res, notes))
 }
 
+/// The model file's parameters held in an `add`, by name, at their values.
+pub type Held = BTreeMap<String, f64>;
+
 /// [`add_to_model`] with the model file's parameters `hold` of `effect` held ([`crate::hold`]):
 /// they keep their values (the file's where a request gives none), the others are fitted.
 /// Returns the outcome, the notes and the held parameters with their values (by the file's
@@ -131,7 +134,7 @@ pub fn add_holding(
     recording: &Path,
     hold: &[HoldRequest],
     progress: Progress<'_>,
-) -> Result<(AddOutcome, Vec<String>, BTreeMap<String, f64>), LabError> {
+) -> Result<(AddOutcome, Vec<String>, Held), LabError> {
     if hold.is_empty() {
         let (res, notes) = add_to_model(prep, m, effect, recording, progress)?;
         return Ok((res, notes, BTreeMap::new()));

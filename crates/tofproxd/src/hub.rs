@@ -560,9 +560,6 @@ impl Hub {
             if let Some(v) = u.rate_hz {
                 s.rate_hz = v;
             }
-            if let Some(v) = u.energy_mj {
-                s.energy_mj = v;
-            }
             if let Some(v) = &u.last_error {
                 s.last_error.clone_from(v);
             }
@@ -588,6 +585,12 @@ impl Hub {
                 s.valid_readings += 1;
             }
         })
+    }
+
+    /// The energy meter's total since start (mJ, [`Status::energy_mj`]); what clients see
+    /// leaves out the energy of cycles run for a depth claim alone, as `cycles` does.
+    pub fn set_energy(&self, total_mj: f64) {
+        self.update(|s| s.energy_mj = total_mj);
     }
 
     /// Note a valid reading (wakes waiting claimers).
@@ -619,6 +622,8 @@ pub enum Event {
     Status(StatusUpdate),
     /// A depth frame (sent only while a depth claim is held).
     Depth(DepthMessage),
+    /// The energy meter's total since start after a cycle (mJ; [`Status::energy_mj`]).
+    Energy(f64),
 }
 
 /// A status fragment from the loop.
@@ -639,8 +644,6 @@ pub struct StatusUpdate {
     pub rate_hz: Option<f64>,
     /// New power estimate (the publisher limits updates to 1 Hz).
     pub power_mw: Option<f64>,
-    /// The energy meter's new total since start (mJ; [`Status::energy_mj`]).
-    pub energy_mj: Option<f64>,
     /// New last error.
     pub last_error: Option<String>,
     /// New exposure.
@@ -696,6 +699,14 @@ impl EventSender {
     /// (the publisher has ended: shutting down) drops it.
     pub fn status(&self, update: StatusUpdate) {
         let _ = self.tx.blocking_send(Event::Status(update));
+    }
+
+    /// Send the energy meter's total (mJ) unless half the channel is taken: a total, so the
+    /// next one carries a dropped one's energy too, and the loop never waits for it.
+    pub fn energy(&self, total_mj: f64) {
+        if self.tx.capacity() > EVENT_CAPACITY / 2 {
+            let _ = self.tx.try_send(Event::Energy(total_mj));
+        }
     }
 
     /// Send a depth frame unless half the channel is taken; returns whether it was sent.
@@ -757,6 +768,7 @@ mod tests {
             match ev {
                 Event::Depth(d) => depth_ts.push(d.timestamp_ns),
                 Event::Status(u) => rates.extend(u.rate_hz),
+                Event::Energy(_) => {}
             }
         }
         assert_eq!(
@@ -878,6 +890,24 @@ mod tests {
             })
         })
         .await
+    }
+
+    /// `EnergyMj` is the meter's total of the cycles clients see: the energy of cycles run for
+    /// a depth claim alone is left out, as they are of `Cycles`.
+    #[test]
+    fn the_energy_total_leaves_out_cycles_run_for_a_depth_claim_alone() {
+        let h = hub();
+        h.set_claim(":1.1", Claim::Proximity, true);
+        h.set_energy(10.0);
+        assert_eq!(h.status().energy_mj, 10.0);
+        // the proximity client goes, a depth client alone: 15 mJ of its cycles stay hidden
+        h.set_claim(":1.1", Claim::Proximity, false);
+        h.set_claim(":1.2", Claim::Depth, true);
+        h.set_energy(25.0);
+        assert_eq!(h.status().energy_mj, 10.0);
+        h.set_claim(":1.3", Claim::Proximity, true);
+        h.set_energy(31.0);
+        assert_eq!(h.status().energy_mj, 16.0, "10 mJ, then 6 mJ of the proximity claim's");
     }
 
     /// A depth claim alone shows nothing in the public status: the loop runs, but clients see

@@ -251,11 +251,9 @@ pub fn loop_thread<S: FrameSource>(
         if let Some(d) = out.depth {
             events.depth(d);
         }
-        // the energy meter's total with the cycle's update (`GetStatus()["EnergyMj"]`)
-        events.status(StatusUpdate {
-            energy_mj: Some(ctl.energy().total_mj()),
-            ..out.update
-        });
+        events.status(out.update);
+        // the energy meter's total (`GetStatus()["EnergyMj"]`)
+        events.energy(ctl.energy().total_mj());
         if out.end_of_data {
             tracing::info!("source has no more data: loop stopped");
             events.status(ctl.stop());
