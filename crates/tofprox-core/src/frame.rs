@@ -3,7 +3,9 @@
 //! `radiometry`, which all read frames (it imports none of them, so none of them import each
 //! other for it).
 
-use ndarray::{Array2, ArrayView2};
+use std::ops::Range;
+
+use ndarray::{Array2, ArrayView2, s};
 
 /// Flag bit: at least one used raw image of the pixel is at a rail (0 or `2^bits − 1`).
 pub const FLAG_SATURATED: u8 = 1 << 0;
@@ -75,6 +77,50 @@ impl DepthFrame {
     pub fn median_valid_depth_m(&self) -> Option<f64> {
         median_valid_m(self.depth_m.view(), self.flags.view())
     }
+
+    /// Saturated and low-amplitude fractions of `roi` (clipped to the frame; 0 for an empty
+    /// region): what auto-exposure reads.
+    pub fn roi_stats(&self, roi: Roi) -> RoiStats {
+        let v = {
+            let (r, c) = roi.ranges_in(self.dim());
+            self.flags.slice(s![r, c])
+        };
+        let n = v.len().max(1) as f32;
+        let sat = v.iter().filter(|&&x| x & FLAG_SATURATED != 0).count() as f32;
+        let low = v
+            .iter()
+            .filter(|&&x| x & FLAG_LOW_AMPLITUDE != 0 && x & FLAG_SATURATED == 0)
+            .count() as f32;
+        RoiStats {
+            saturated_fraction: sat / n,
+            low_amplitude_fraction: low / n,
+        }
+    }
+
+    /// Median of the non-zero `depth_mm` over `roi` (clipped to the frame; the upper median of
+    /// an even count), `None` when none is valid. Allocates (not for the hot path).
+    pub fn roi_median_mm(&self, roi: Roi) -> Option<f64> {
+        let v = {
+            let (r, c) = roi.ranges_in(self.dim());
+            self.depth_mm.slice(s![r, c])
+        };
+        let mut vals: Vec<u16> = v.iter().copied().filter(|&d| d != 0).collect();
+        if vals.is_empty() {
+            return None;
+        }
+        let mid = vals.len() / 2;
+        let (_, m, _) = vals.select_nth_unstable(mid);
+        Some(f64::from(*m))
+    }
+}
+
+/// Flag fractions over a region of a frame ([`DepthFrame::roi_stats`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RoiStats {
+    /// Pixels with [`FLAG_SATURATED`].
+    pub saturated_fraction: f32,
+    /// Pixels with [`FLAG_LOW_AMPLITUDE`] and not saturated.
+    pub low_amplitude_fraction: f32,
 }
 
 /// Median of `depth_m` over the pixels whose `flags` have no [`FLAG_INVALID`] (any depth of a
@@ -150,6 +196,16 @@ impl Roi {
         }
     }
 
+    /// The ROI's rows and columns on a `(rows, cols)` array, clipped to it (empty when it lies
+    /// outside; "auto" is not resolved: see [`Roi::resolve`]).
+    pub fn ranges_in(&self, (rows, cols): (usize, usize)) -> (Range<usize>, Range<usize>) {
+        let end = |o: usize, n: usize, full: usize| o.saturating_add(n).min(full);
+        (
+            self.row0.min(rows)..end(self.row0, self.rows, rows),
+            self.col0.min(cols)..end(self.col0, self.cols, cols),
+        )
+    }
+
     /// The concrete ROI for a frame: "auto" resolved to the central half, then clipped to the frame.
     /// May be empty (0 rows or cols) if the ROI lies entirely outside.
     pub fn resolve(&self, frame_rows: usize, frame_cols: usize) -> Roi {
@@ -164,5 +220,53 @@ impl Roi {
             rows: self.rows.min(frame_rows - row0),
             cols: self.cols.min(frame_cols - col0),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 4×4 frame, flags and depths set pixel by pixel, read over its central 2×2 and over
+    /// regions that leave it.
+    #[test]
+    fn roi_statistics_count_the_regions_pixels_only() {
+        let mut f = DepthFrame::zeros(4, 4);
+        f.flags[[1, 1]] = FLAG_SATURATED | FLAG_INVALID;
+        f.flags[[1, 2]] = FLAG_SATURATED | FLAG_LOW_AMPLITUDE | FLAG_INVALID;
+        f.flags[[2, 1]] = FLAG_LOW_AMPLITUDE | FLAG_INVALID;
+        f.flags[[0, 0]] = FLAG_LOW_AMPLITUDE | FLAG_INVALID; // outside the region
+        let centre = Roi {
+            row0: 1,
+            col0: 1,
+            rows: 2,
+            cols: 2,
+        };
+        let st = f.roi_stats(centre);
+        assert_eq!(st.saturated_fraction, 0.5);
+        assert_eq!(
+            st.low_amplitude_fraction, 0.25,
+            "a saturated pixel is not also weak"
+        );
+        f.depth_mm[[1, 1]] = 300;
+        f.depth_mm[[2, 2]] = 500;
+        f.depth_mm[[2, 1]] = 400;
+        f.depth_mm[[3, 3]] = 10; // outside
+        assert_eq!(f.roi_median_mm(centre), Some(400.0));
+        let outside = Roi {
+            row0: 9,
+            col0: 0,
+            rows: 2,
+            cols: 2,
+        };
+        assert_eq!(f.roi_median_mm(outside), None);
+        assert_eq!(f.roi_stats(outside).saturated_fraction, 0.0);
+        let past_the_edge = Roi {
+            row0: 3,
+            col0: 3,
+            rows: usize::MAX,
+            cols: 5,
+        };
+        assert_eq!(f.roi_median_mm(past_the_edge), Some(10.0));
     }
 }

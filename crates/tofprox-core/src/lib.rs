@@ -21,8 +21,11 @@
 //!   zero-sized tokens that prove this CPU has one, and the eight-lane operations the kernel is
 //!   written against once (generic, AVX2, NEON).
 //! - [`proximity`]: a near/far detector with hysteresis and debounce on top of a [`pipeline::DepthFrame`].
-//! - [`radiometry`]: the `1/d²` law of the returned amplitude (2.2.1), its per-pixel calibration
-//!   and the plausibility test that keeps a wrapped phase from reading as near.
+//! - [`radiometry`]: the `1/d²` law of the returned amplitude (2.2.1), its per-pixel calibration,
+//!   the plausibility test that keeps a wrapped phase from reading as near, and the background
+//!   light's common mode in the raw images.
+//! - [`readout`]: a full-array calibration made to fit one capture: cropped to its read-out
+//!   window, its dark level over a region, moved to another modulation frequency.
 //! - [`sensor`]: the vocabulary every crate shares: [`SensorGeometry`] (window, full array, ADC,
 //!   modulation; mid/max code, phase per metre, unambiguous range), [`RowWindow`],
 //!   [`CycleRequest`], the physical constants. The measurement mode is [`Algorithm`].
@@ -44,6 +47,7 @@ pub mod phasor;
 pub mod pipeline;
 pub mod proximity;
 pub mod radiometry;
+pub mod readout;
 pub mod sensor;
 pub mod serde_exact;
 mod simd;

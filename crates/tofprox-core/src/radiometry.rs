@@ -25,7 +25,8 @@
 use ndarray::{Array2, ArrayView2, ArrayView3, Zip};
 
 use crate::CoreError;
-use crate::frame::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_SATURATED};
+use crate::frame::{DepthFrame, FLAG_IMPLAUSIBLE, FLAG_INVALID, FLAG_SATURATED, Roi};
+use crate::pipeline::RawSample;
 
 /// Darkest target reflectivity a proximity reading must still see (2 %: black velvet paper;
 /// black cards and dark hair are ≥ 5 %).
@@ -42,6 +43,29 @@ pub const DEFAULT_CALIBRATION_REFLECTIVITY: f64 = 1.0;
 /// tested at `d + δ`, so a target whose depth reads short by up to δ (calibration residual,
 /// parallax at a few centimetres, multipath) is never rejected.
 pub const DEFAULT_DEPTH_UNCERTAINTY_M: f64 = 0.03;
+
+/// The background light's level in the raw images: the mean of (up to) the first four raw
+/// images over `roi` (clipped to them) above the dark level `dark_lsb` (codes). The
+/// correlated signal cancels in the sum of images a half period apart, so this is the
+/// uncorrelated light the 4-phase evaluation removes (eq. 2.3) and the 2-phase one does not
+/// (eq. 2.2) — thesis 5.1.2.3. 0 for an empty region.
+pub fn common_mode_lsb<T: RawSample>(frames: ArrayView3<'_, T>, roi: Roi, dark_lsb: f32) -> f32 {
+    let (_, rows, cols) = frames.dim();
+    let (r, c) = roi.ranges_in((rows, cols));
+    let mut sum = 0.0f64;
+    let mut n = 0usize;
+    for img in frames.axis_iter(ndarray::Axis(0)).take(4) {
+        for &x in img.slice(ndarray::s![r.clone(), c.clone()]).iter() {
+            sum += f64::from(x.to_f32());
+            n += 1;
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum / n as f64) as f32 - dark_lsb
+    }
+}
 
 /// Expected amplitude (LSB) of a target of `reflectivity` at `distance_m` (thesis 2.2.1,
 /// `A = K·ρ·t/d²`). Non-positive distances give `+∞` (a target at the sensor saturates).
@@ -184,6 +208,29 @@ mod tests {
     use super::*;
     use crate::phasor::unambiguous_range_m;
     use ndarray::Array3;
+
+    /// Two images a half period apart over a 2×2 region: their correlated parts cancel, the
+    /// mean above the dark level is the background (40 LSB), pixels outside do not count.
+    #[test]
+    fn the_common_mode_is_the_background_above_the_dark_level() {
+        let mut raw = Array3::<u16>::from_elem((2, 3, 3), 9000);
+        for r in 0..2 {
+            for c in 0..2 {
+                let signal = 10 * (r * 2 + c) as u16;
+                raw[[0, r, c]] = 2048 + 40 + signal;
+                raw[[1, r, c]] = 2048 + 40 - signal;
+            }
+        }
+        let roi = Roi {
+            row0: 0,
+            col0: 0,
+            rows: 2,
+            cols: 2,
+        };
+        assert_eq!(common_mode_lsb(raw.view(), roi, 2048.0), 40.0);
+        let outside = Roi { row0: 5, ..roi };
+        assert_eq!(common_mode_lsb(raw.view(), outside, 2048.0), 0.0);
+    }
 
     #[test]
     fn law_and_its_inverse() {

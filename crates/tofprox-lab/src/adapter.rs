@@ -10,8 +10,9 @@ use tofprox_model::ids::{self, EffectId};
 
 use crate::data::{Capture, Dataset};
 use crate::error::LabError;
-use crate::fit::{EffectFit, LabSpec, Prepared};
+use crate::prepared::Prepared;
 use crate::signatures::{SIGNATURE_IDS, harmonic_order, held_params, waveform_effect};
+use crate::spec::{EffectFit, LabSpec};
 
 /// The conditions the lab model uses by meaning; every other numeric key of
 /// `[capture.conditions]` except the bookkeeping ones

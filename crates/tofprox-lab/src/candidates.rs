@@ -4,8 +4,10 @@
 use rayon::prelude::*;
 
 use crate::error::LabError;
-use crate::fit::{EffectFit, FOLDS, Prepared, Rec, Sample};
+use crate::prepared::{FOLDS, Prepared};
+use crate::sample::{Rec, Sample};
 use crate::signatures::{FixedMemo, ImageMemo, Signature};
+use crate::spec::EffectFit;
 use tofprox_core::lsq::{Normal, Stop, levenberg_marquardt, solve_sym};
 
 /// Result of fitting one signature.
@@ -80,7 +82,7 @@ pub fn effect_standard_errors(
 /// layout of [`accumulate`]: every linear one and nuisance shift, and the non-linear
 /// ones but the discrete ones (held at their grid value: a zero Jacobian column would
 /// make JᵀJ singular).
-fn free_params(sig: &dyn Signature) -> Vec<usize> {
+pub(crate) fn free_params(sig: &dyn Signature) -> Vec<usize> {
     let nlin = sig.n_lin() + NUISANCE;
     let held = held_layout(sig);
     (0..nlin + sig.nl_start().len())
@@ -201,8 +203,99 @@ fn step_laws<'a>(law: &'a [f64], steps: &'a [Step]) -> (Vec<&'a [f64]>, Vec<Opti
     (laws, slots)
 }
 
-/// Parameter vector layout: [signature lin…, nuisance…, signature nl…].
-fn accumulate(
+/// The Jacobian rows of a signature at one parameter vector `p` (layout
+/// [signature lin…, nuisance…, signature nl…]; the non-linear ones by finite
+/// differences when `deriv`): the laws prepared once, visited sample by
+/// sample by [`JacobianRows::visit`].
+pub(crate) struct JacobianRows<'a> {
+    sig: &'a dyn Signature,
+    prep: &'a Prepared,
+    p: &'a [f64],
+    nnl: usize,
+    steps: Vec<Step>,
+    law: Vec<f64>,
+}
+
+impl<'a> JacobianRows<'a> {
+    /// The rows of `sig` at `p`, with the non-linear columns when `deriv`.
+    pub(crate) fn new(
+        sig: &'a dyn Signature,
+        prep: &'a Prepared,
+        p: &'a [f64],
+        deriv: bool,
+    ) -> Self {
+        let nlin = sig.n_lin() + NUISANCE;
+        let nnl = if deriv { p.len() - nlin } else { 0 };
+        let steps = fd_steps(sig, &p[nlin..], nnl);
+        let law = sig.prepare(&p[nlin..]);
+        Self {
+            sig,
+            prep,
+            p,
+            nnl,
+            steps,
+            law,
+        }
+    }
+
+    /// Columns of a row: the linear ones and nuisance shifts, then the non-linear ones.
+    pub(crate) fn width(&self) -> usize {
+        self.sig.n_lin() + NUISANCE + self.nnl
+    }
+
+    /// `f(sample, row, residual − Δ(p), weight)` for each of `samples` in
+    /// order (capture, raw-image order lets the memos share each raw image's terms).
+    pub(crate) fn visit<'s>(
+        &self,
+        samples: impl Iterator<Item = &'s Sample>,
+        mut f: impl FnMut(&Rec, &[f64], f64, f64),
+    ) {
+        let (sig, prep) = (self.sig, self.prep);
+        let nsig = sig.n_lin();
+        let nlin = nsig + NUISANCE;
+        let (lin_all, nl) = self.p.split_at(nlin);
+        let (lin, nui) = lin_all.split_at(nsig);
+        let (laws, slots) = step_laws(&self.law, &self.steps);
+        let mut b = vec![0.0; nsig];
+        let mut b2 = vec![0.0; nsig];
+        let mut j = vec![0.0; self.width()];
+        let mut fx = vec![0.0; laws.len()];
+        // one memo per parameter vector: nl and each finite-difference step
+        let mut memo = ImageMemo::default();
+        let mut memo_h = vec![ImageMemo::default(); self.nnl];
+        let mut memo_fixed = FixedMemo::default();
+        for s in samples {
+            let r = &s.rec(prep);
+            let cap = &prep.caps[r.cap as usize];
+            // (a signature without linear terms has no basis to evaluate)
+            if nsig > 0 {
+                memo.basis(sig, nl, r, cap, &mut b);
+            }
+            let nu = nuisance(r);
+            let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
+            memo_fixed.fixed_all(sig, &laws, r, cap, &mut fx);
+            let d: f64 = fx[0] + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
+            j[..nsig].copy_from_slice(&b);
+            j[nsig..nlin].copy_from_slice(&nu);
+            for (i, (step, slot)) in self.steps.iter().zip(&slots).enumerate() {
+                let (Some((h, nlh, _)), Some(k)) = (step, slot) else {
+                    j[nlin + i] = 0.0;
+                    continue;
+                };
+                if nsig > 0 {
+                    memo_h[i].basis_sharing(sig, nlh, r, cap, (&memo, &b), &mut b2);
+                }
+                let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
+                j[nlin + i] = (d2 - d) / h;
+            }
+            f(r, &j, r.r - d, r.w);
+        }
+    }
+}
+
+/// The normal equations of `sig` at `p` per cross-validation fold (layout of
+/// [`JacobianRows`]), over every `stride`-th sample.
+pub(crate) fn accumulate(
     sig: &dyn Signature,
     recs: &[Sample],
     prep: &Prepared,
@@ -210,54 +303,16 @@ fn accumulate(
     deriv: bool,
     stride: usize,
 ) -> Vec<Normal> {
-    let nsig = sig.n_lin();
-    let nlin = nsig + NUISANCE;
-    let nnl = if deriv { p.len() - nlin } else { 0 };
-    let n = nlin + nnl;
-    let (lin_all, nl) = p.split_at(nlin);
-    let (lin, nui) = lin_all.split_at(nsig);
+    let rows = JacobianRows::new(sig, prep, p, deriv);
+    let n = rows.width();
     let chunk = 8192;
-    let steps = fd_steps(sig, nl, nnl);
-    let law = sig.prepare(nl);
-    let (laws, slots) = step_laws(&law, &steps);
     let parts: Vec<Vec<Normal>> = recs
         .par_chunks(chunk * stride)
         .map(|ch| {
             let mut acc: Vec<Normal> = (0..FOLDS).map(|_| Normal::zeros(n)).collect();
-            let mut b = vec![0.0; nsig];
-            let mut b2 = vec![0.0; nsig];
-            let mut j = vec![0.0; n];
-            let mut fx = vec![0.0; laws.len()];
-            // one memo per parameter vector: nl and each finite-difference step
-            let mut memo = ImageMemo::default();
-            let mut memo_h = vec![ImageMemo::default(); nnl];
-            let mut memo_fixed = FixedMemo::default();
-            for s in ch.iter().step_by(stride) {
-                let r = &s.rec(prep);
-                let cap = &prep.caps[r.cap as usize];
-                // (a signature without linear terms has no basis to evaluate)
-                if nsig > 0 {
-                    memo.basis(sig, nl, r, cap, &mut b);
-                }
-                let nu = nuisance(r);
-                let dn: f64 = nu.iter().zip(nui).map(|(x, y)| x * y).sum();
-                memo_fixed.fixed_all(sig, &laws, r, cap, &mut fx);
-                let d: f64 = fx[0] + b.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
-                j[..nsig].copy_from_slice(&b);
-                j[nsig..nlin].copy_from_slice(&nu);
-                for (i, (step, slot)) in steps.iter().zip(&slots).enumerate() {
-                    let (Some((h, nlh, _)), Some(k)) = (step, slot) else {
-                        j[nlin + i] = 0.0;
-                        continue;
-                    };
-                    if nsig > 0 {
-                        memo_h[i].basis_sharing(sig, nlh, r, cap, (&memo, &b), &mut b2);
-                    }
-                    let d2: f64 = fx[*k] + b2.iter().zip(lin).map(|(x, y)| x * y).sum::<f64>() + dn;
-                    j[nlin + i] = (d2 - d) / h;
-                }
-                acc[usize::from(r.fold) % FOLDS].add(&j, r.r - d, r.w);
-            }
+            rows.visit(ch.iter().step_by(stride), |r, j, res, w| {
+                acc[usize::from(r.fold) % FOLDS].add(j, res, w);
+            });
             acc
         })
         .collect();
@@ -273,7 +328,7 @@ fn accumulate(
     out
 }
 
-fn total(folds: &[Normal]) -> Normal {
+pub(crate) fn total(folds: &[Normal]) -> Normal {
     let mut t = Normal::zeros(folds[0].n);
     for f in folds {
         t.merge(f);

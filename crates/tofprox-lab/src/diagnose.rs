@@ -5,13 +5,16 @@ use rayon::prelude::*;
 use serde::Serialize;
 use tofprox_model::catalogue::Driver;
 
-use crate::candidates::{effect_standard_errors, fit_signature, fit_values};
+use crate::candidates::{fit_signature, fit_values};
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{EffectFit, LabModel, LabSpec, Prepared, Progress, Sample, fit_model};
+use crate::fit::{LabModel, Progress, fit_model};
 use crate::noise::NoiseSource;
+use crate::prepared::Prepared;
+use crate::sample::Sample;
 use crate::signatures::{
     SIGNATURE_IDS, cancels_in_4phase, effect_conditions, make_signature, not_identifiable,
 };
+use crate::spec::{EffectFit, LabSpec};
 use crate::stats::{bic, chi2_z};
 use crate::structure::{ConditionScore, score_all};
 
@@ -278,7 +281,7 @@ pub fn depth_residuals(
 ) -> Result<(f64, f64, Vec<CaptureDepth>), LabError> {
     let sigs = model.signatures(prep)?;
     let mm_per_rad = prep.mm_per_rad();
-    let find = |cap: &crate::fit::CapInfo, deg: f64| {
+    let find = |cap: &crate::prepared::CapInfo, deg: f64| {
         cap.phases_deg
             .iter()
             .position(|p| ((p - deg).rem_euclid(360.0)).min((deg - p).rem_euclid(360.0)) < 1e-6)
@@ -1330,6 +1333,8 @@ pub struct AddOutcome {
     pub standard_errors_note: Option<String>,
     /// The parameters fitted at the bound of their range ([`FittedEffect::at_bound`]).
     pub at_bound: Vec<String>,
+    /// Profile intervals of the non-linear parameters ([`FittedEffect::intervals`]).
+    pub intervals: BTreeMap<String, crate::uncertainty::ProfileInterval>,
 }
 
 /// Enable `effect` in the spec, refit everything, and compare before/after.
@@ -1425,6 +1430,7 @@ pub fn add_effect_to(
         standard_errors: f.standard_errors,
         standard_errors_note: f.standard_errors_note,
         at_bound: f.at_bound,
+        intervals: f.intervals,
     })
 }
 
@@ -1446,6 +1452,9 @@ pub struct FittedEffect {
     /// The parameters fitted at the bound of their range, one sentence each
     /// ([`crate::signatures::at_bounds`]).
     pub at_bound: Vec<String>,
+    /// Profile-likelihood intervals of the non-linear parameters by name
+    /// ([`crate::uncertainty::profile_intervals`]).
+    pub intervals: BTreeMap<String, crate::uncertainty::ProfileInterval>,
 }
 
 /// The standard errors rest on the noise model alone: they say how far the
@@ -1487,11 +1496,18 @@ pub fn fitted_effect(
     let mut standard_errors: BTreeMap<String, f64> =
         params.keys().map(|k| (k.clone(), f64::NAN)).collect();
     let mut at_bound = Vec::new();
+    let mut intervals = BTreeMap::new();
     if effect != tofprox_model::ids::waveform_harmonics::ID.as_str() {
         let sig = make_signature(effect, prep, &cmp.model.spec, &cmp.model.waveform)?;
-        let se = effect_standard_errors(sig.as_ref(), &cmp.recs, prep, &fit);
+        let u = crate::uncertainty::effect_uncertainty(
+            sig.as_ref(),
+            prep,
+            (&cmp.model, cmp.fit.chi2_per_dof),
+            &fit,
+        )?;
         let names = sig.lin_names().into_iter().chain(sig.nl_names());
-        standard_errors.extend(names.zip(se));
+        standard_errors.extend(names.zip(u.standard_errors));
+        intervals = u.intervals;
         at_bound = crate::signatures::at_bounds(sig.as_ref(), &fit.nl);
     }
     Ok(FittedEffect {
@@ -1500,6 +1516,7 @@ pub fn fitted_effect(
         standard_errors,
         standard_errors_note: errors_note(cmp),
         at_bound,
+        intervals,
     })
 }
 

@@ -33,12 +33,14 @@ use rayon::prelude::*;
 
 use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
 use crate::error::LabError;
-use crate::fit::{LabSpec, Prepared, Sample};
+use crate::prepared::Prepared;
+use crate::sample::Sample;
 use crate::shape::{
     KNOT_COUNTS, PHYSICAL_FORM, has_shape_form, knots_at_quantiles, make_shape_signature,
     shape_form_name,
 };
 use crate::signatures::{Signature, make_signature};
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// One form's cross-validation score.

@@ -12,7 +12,8 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use crate::error::LabError;
-use crate::fit::{LabModel, Prepared, key_f};
+use crate::fit::LabModel;
+use crate::prepared::{Prepared, key_f};
 use tofprox_core::lsq::solve_sym;
 
 /// The floor of `a`, LSB² per acquisition: the quantisation noise of one
@@ -250,7 +251,7 @@ pub fn fit_noise(prep: &Prepared, model: &LabModel) -> Result<NoiseModel, LabErr
     };
     // raw images of one capture at the same shift: residual differences
     // (the model's prediction, droop included, differs between them)
-    let repeats_shift = |c: &crate::fit::CapInfo| {
+    let repeats_shift = |c: &crate::prepared::CapInfo| {
         let mut keys: Vec<i64> = c.phases_deg.iter().map(|p| key_f(*p)).collect();
         keys.sort_unstable();
         keys.windows(2).any(|w| w[0] == w[1])

@@ -15,6 +15,7 @@ use crate::diagnose::{
     AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Explanation, Z_NULL,
 };
 use crate::signatures::cancels_in_4phase;
+use crate::uncertainty::ProfileInterval;
 
 fn num(v: f64) -> Value {
     if v.is_finite() { json!(v) } else { Value::Null }
@@ -96,6 +97,7 @@ pub fn explanation_json(ex: &Explanation) -> Value {
             "standard_errors": named(&f.standard_errors),
             "standard_errors_note": f.standard_errors_note,
             "at_bound": f.at_bound,
+            "intervals": intervals_json(&f.intervals),
         })).collect::<Vec<_>>(),
         "steps": ex.steps.iter().map(|s| json!({
             "added": s.added,
@@ -136,6 +138,7 @@ pub fn add_json(
         "standard_errors": named(&out.standard_errors),
         "standard_errors_note": out.standard_errors_note,
         "at_bound": out.at_bound,
+        "intervals": intervals_json(&out.intervals),
     })
 }
 
@@ -149,6 +152,58 @@ fn split_json(s: &DepthSplit) -> Value {
         })
     };
     json!({"2phase": one(&s.two_phase), "4phase": one(&s.four_phase)})
+}
+
+/// Profile intervals as JSON: per parameter its value, the 1σ and 2σ ends
+/// (null where none was found) and the ends that stop at its range's bound.
+fn intervals_json(m: &BTreeMap<String, ProfileInterval>) -> Value {
+    Value::Object(
+        m.iter()
+            .map(|(k, iv)| {
+                let v = json!({
+                    "value": num(iv.value),
+                    "lower_1sigma": num(iv.lower[0]),
+                    "upper_1sigma": num(iv.upper[0]),
+                    "lower_2sigma": num(iv.lower[1]),
+                    "upper_2sigma": num(iv.upper[1]),
+                    "at_range_bound": iv.at_range_bound,
+                    "refits": iv.refits,
+                });
+                (k.clone(), v)
+            })
+            .collect(),
+    )
+}
+
+/// What is said beside fitted values and their standard errors: the note of
+/// why the errors understate ([`crate::diagnose::errors_note`]), the
+/// parameters at their range's bound ([`crate::signatures::at_bounds`]) and
+/// the profile intervals ([`crate::uncertainty::profile_intervals`]).
+pub type FitNotes<'a> = (
+    Option<&'a str>,
+    &'a [String],
+    &'a BTreeMap<String, ProfileInterval>,
+);
+
+/// An interval end for text and HTML ("—" where none was found), with "≥"
+/// or "≤" where it stops at the range's bound.
+fn interval_end(iv: &ProfileInterval, side: &str, level: usize) -> String {
+    let v = if side == "lower" {
+        iv.lower[level]
+    } else {
+        iv.upper[level]
+    };
+    if !v.is_finite() {
+        return "—".into();
+    }
+    let label = format!("{side}_{}sigma", level + 1);
+    let at = iv.at_range_bound.contains(&label);
+    let mark = match (at, side) {
+        (true, "lower") => "≤ ",
+        (true, _) => "≥ ",
+        _ => "",
+    };
+    format!("{mark}{v:.5e}")
 }
 
 /// A name → number map as a JSON object (non-finite numbers as null).
@@ -235,10 +290,10 @@ pub fn fitted_text(
     effect: &str,
     params: &BTreeMap<String, f64>,
     standard_errors: &BTreeMap<String, f64>,
-    (note, at_bound): (Option<&str>, &[String]),
+    (note, at_bound, intervals): FitNotes<'_>,
 ) -> String {
     let mut s = format!(
-        "{effect} fitted (the lab's signature parameters, ± 1 standard error of the noise with the per-pixel parameters held):\n"
+        "{effect} fitted (the lab's signature parameters, ± 1 standard error with the per-pixel parameters free, scaled by χ²/dof):\n"
     );
     for (k, v) in params {
         let se = standard_errors.get(k).copied().unwrap_or(f64::NAN);
@@ -255,7 +310,73 @@ pub fn fitted_text(
     for b in at_bound {
         let _ = writeln!(s, "  at bound: {b}");
     }
+    if !intervals.is_empty() {
+        let _ = writeln!(
+            s,
+            "  profile intervals (others refitted; Δχ² = 1 and 4 in units of χ²/dof; ≤/≥: the range's bound):"
+        );
+    }
+    for (k, iv) in intervals {
+        let _ = writeln!(
+            s,
+            "  {k:<20}   1σ [{}, {}]   2σ [{}, {}]",
+            interval_end(iv, "lower", 0),
+            interval_end(iv, "upper", 0),
+            interval_end(iv, "lower", 1),
+            interval_end(iv, "upper", 1),
+        );
+    }
     s
+}
+
+/// The fitted parameters of an added effect as an HTML table: value,
+/// standard error and profile interval ends, then the notes ([`FitNotes`]).
+fn fitted_html(
+    h: &mut String,
+    effect: &str,
+    (params, standard_errors): (&BTreeMap<String, f64>, &BTreeMap<String, f64>),
+    (note, at_bound, intervals): FitNotes<'_>,
+) {
+    let _ = write!(
+        h,
+        "<h3>{} fitted</h3><p>± 1 standard error with the per-pixel parameters free, scaled by χ²/dof; \
+         profile intervals where χ² rises by 1 and 4 times χ²/dof with the others refitted \
+         (≤/≥: the parameter's range bound).</p><table><tr><th>parameter</th><th>value</th><th>± SE</th>\
+         <th>1σ lower</th><th>1σ upper</th><th>2σ lower</th><th>2σ upper</th></tr>",
+        esc(effect)
+    );
+    for (k, v) in params {
+        let se = standard_errors.get(k).copied().unwrap_or(f64::NAN);
+        let ends = intervals.get(k).map_or(
+            ["—".to_string(), "—".into(), "—".into(), "—".into()],
+            |iv| {
+                [
+                    interval_end(iv, "lower", 0),
+                    interval_end(iv, "upper", 0),
+                    interval_end(iv, "lower", 1),
+                    interval_end(iv, "upper", 1),
+                ]
+            },
+        );
+        let _ = write!(
+            h,
+            "<tr><th>{}</th><td>{v:.5e}</td><td>{}</td>",
+            esc(k),
+            if se.is_finite() {
+                format!("{se:.2e}")
+            } else {
+                "—".into()
+            }
+        );
+        for e in ends {
+            let _ = write!(h, "<td>{}</td>", esc(&e));
+        }
+        h.push_str("</tr>");
+    }
+    h.push_str("</table>");
+    for n in note.into_iter().chain(at_bound.iter().map(String::as_str)) {
+        let _ = write!(h, "<p>{}</p>", esc(n));
+    }
 }
 
 /// `compare --json`: fit statistics, RMS and the structure per condition.
@@ -558,6 +679,14 @@ pub fn html_report(
         diag,
         add.map(|(e, o)| (e, &o.before, &o.after)),
     ));
+    if let Some((e, o)) = add {
+        fitted_html(
+            &mut h,
+            e,
+            (&o.params, &o.standard_errors),
+            (o.standard_errors_note.as_deref(), &o.at_bound, &o.intervals),
+        );
+    }
     h.push_str("</body></html>\n");
     h
 }
@@ -608,6 +737,14 @@ pub fn explain_html(
         );
     }
     h.push_str("</table>");
+    for f in &ex.fitted {
+        fitted_html(
+            &mut h,
+            &f.effect,
+            (&f.params, &f.standard_errors),
+            (f.standard_errors_note.as_deref(), &f.at_bound, &f.intervals),
+        );
+    }
     for (i, st) in ex.steps.iter().enumerate() {
         let _ = write!(
             h,

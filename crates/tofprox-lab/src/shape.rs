@@ -31,9 +31,11 @@ use tofprox_model::effects::shape as law;
 use tofprox_model::effects::vcsel_droop::droop_on_time_us;
 use tofprox_model::ids::{self, EffectId};
 
-use crate::fit::{CapInfo, EffectFit, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
 use crate::signatures::sbi::{self, Sbi};
 use crate::signatures::{Signature, TermScope, phase_shift_code, quantiles};
+use crate::spec::EffectFit;
 use crate::waveform::Waveform;
 
 pub use crate::form::{

@@ -6,7 +6,8 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::fit::{Prepared, Rec, Sample};
+use crate::prepared::Prepared;
+use crate::sample::{Rec, Sample};
 use tofprox_core::lsq::solve_sym;
 
 /// The conditions every recording is scored against (when they vary); the

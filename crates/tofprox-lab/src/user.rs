@@ -32,8 +32,11 @@ use crate::diagnose::{
     fitted_effect,
 };
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Progress, Rec, Sample};
+use crate::fit::Progress;
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
 use crate::signatures::{Signature, TermScope, phase_shift_code};
+use crate::spec::{EffectFit, LabSpec};
 use crate::structure::CONDITIONS;
 use crate::waveform::Waveform;
 
@@ -481,6 +484,7 @@ pub fn add_user_to(
         standard_errors: f.standard_errors,
         standard_errors_note: f.standard_errors_note,
         at_bound: f.at_bound,
+        intervals: f.intervals,
     })
 }
 

@@ -12,9 +12,10 @@ use crate::diagnose::{
     AddOutcome, DiagnoseOptions, Explanation, add_effect, add_effect_to, compare, effect_params,
 };
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{Prepared, Progress};
+use crate::fit::Progress;
 use crate::hold::{HoldRequest, resolve};
 use crate::model_file::update_model_text;
+use crate::prepared::Prepared;
 use crate::signatures::{SIGNATURE_IDS, write_effect};
 use crate::user;
 

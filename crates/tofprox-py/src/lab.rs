@@ -100,7 +100,7 @@ fn run_with_arrays<'py>(
             } else {
                 None
             };
-            Ok((v, a))
+            Ok::<_, LabError>((v, a))
         })
         .map_err(to_py_err)?;
     let out = to_py(py, &value)?;

@@ -8,8 +8,10 @@
 //! time; powers/energies from [`EnergyConfig`] (every figure's source or "ours" in
 //! docs/daemon.md, "Energy model").
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
+
+use serde::Serialize;
 
 use tofprox_bridge::StateTimings;
 
@@ -123,8 +125,34 @@ pub fn cycle_energy(cfg: &EnergyConfig, t: &CycleTimings, w: &CycleWork) -> Cycl
     }
 }
 
+/// What a cycle captured, as the energy account tells them apart (the scene bench's
+/// breakdown: where each scene's energy goes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReadingKind {
+    /// A full 2-phase reading (2 raw images).
+    Full,
+    /// A 4-phase capture: the ambient check, a saturation confirmation or the 4-phase mode.
+    FourPhase,
+    /// A presence probe that saw no change (one raw image).
+    Probe,
+    /// A presence probe that saw a change and the full reading it started, in one cycle.
+    ProbeThenFull,
+    /// A reading with a second-frequency capture of its dim near candidates.
+    SecondFrequency,
+}
+
+/// Cycles of one kind and their energy (mJ, the sleep after each included).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct KindTotal {
+    /// Cycles of the kind.
+    pub cycles: u64,
+    /// Their energy (mJ).
+    pub total_mj: f64,
+}
+
 /// Running average power over the last `average_cycles` cycles (each cycle
-/// including the sleep after it).
+/// including the sleep after it), and the totals since start by part and by kind.
 #[derive(Debug, Clone)]
 pub struct EnergyMeter {
     cfg: EnergyConfig,
@@ -132,6 +160,9 @@ pub struct EnergyMeter {
     total_mj: f64,
     total_s: f64,
     cycles: u64,
+    parts: CycleEnergy,
+    off_mj: f64,
+    kinds: BTreeMap<ReadingKind, KindTotal>,
 }
 
 impl EnergyMeter {
@@ -143,14 +174,29 @@ impl EnergyMeter {
             total_mj: 0.0,
             total_s: 0.0,
             cycles: 0,
+            parts: CycleEnergy::default(),
+            off_mj: 0.0,
+            kinds: BTreeMap::new(),
         }
     }
 
-    /// Account one cycle and the off (reset-low) time that followed it.
-    pub fn record(&mut self, energy: &CycleEnergy, active: Duration, off: Duration) {
+    /// Account one cycle of `kind` and the off (reset-low) time that followed it.
+    pub fn record(
+        &mut self,
+        kind: ReadingKind,
+        energy: &CycleEnergy,
+        active: Duration,
+        off: Duration,
+    ) {
         let off_s = off.as_secs_f64();
-        let e = energy.total_mj() + self.cfg.off_mw * off_s; // mW × s = mJ
+        let off_mj = self.cfg.off_mw * off_s; // mW × s = mJ
+        let e = energy.total_mj() + off_mj;
         let t = active.as_secs_f64() + off_s;
+        self.parts = self.parts.plus(energy);
+        self.off_mj += off_mj;
+        let k = self.kinds.entry(kind).or_default();
+        k.cycles += 1;
+        k.total_mj += e;
         self.window.push_back((e, t));
         while self.window.len() > self.cfg.average_cycles as usize {
             self.window.pop_front();
@@ -177,6 +223,16 @@ impl EnergyMeter {
     /// Cycles accounted.
     pub fn cycles(&self) -> u64 {
         self.cycles
+    }
+
+    /// Total energy since start by part (mJ), and the energy of the sleeps in reset (mJ).
+    pub fn parts_total(&self) -> (CycleEnergy, f64) {
+        (self.parts, self.off_mj)
+    }
+
+    /// Cycles and energy since start by kind, in the order of [`ReadingKind`].
+    pub fn kinds(&self) -> impl Iterator<Item = (ReadingKind, KindTotal)> + '_ {
+        self.kinds.iter().map(|(k, v)| (*k, *v))
     }
 }
 
@@ -522,19 +578,42 @@ mod tests {
             readout_mj: 1.0,
             ..CycleEnergy::default()
         };
-        m.record(&e, Duration::from_millis(0), Duration::from_secs(1));
+        m.record(
+            ReadingKind::Full,
+            &e,
+            Duration::from_millis(0),
+            Duration::from_secs(1),
+        );
         assert!((m.average_mw() - 1.0).abs() < 1e-9);
         let e2 = CycleEnergy {
             readout_mj: 3.0,
             ..CycleEnergy::default()
         };
-        m.record(&e2, Duration::ZERO, Duration::from_secs(1));
-        m.record(&e2, Duration::ZERO, Duration::from_secs(1));
+        m.record(
+            ReadingKind::Probe,
+            &e2,
+            Duration::ZERO,
+            Duration::from_secs(1),
+        );
+        m.record(
+            ReadingKind::Probe,
+            &e2,
+            Duration::ZERO,
+            Duration::from_secs(1),
+        );
         assert!(
             (m.average_mw() - 3.0).abs() < 1e-9,
             "window drops the first cycle"
         );
         assert_eq!(m.cycles(), 3);
+        let (parts, off_mj) = m.parts_total();
+        assert!((parts.readout_mj - 7.0).abs() < 1e-12, "{parts:?}");
+        assert!(off_mj.abs() < 1e-12, "off_mw 0");
+        let kinds: Vec<_> = m.kinds().collect();
+        assert_eq!(kinds.len(), 2);
+        assert_eq!((kinds[0].0, kinds[0].1.cycles), (ReadingKind::Full, 1));
+        assert_eq!((kinds[1].0, kinds[1].1.cycles), (ReadingKind::Probe, 2));
+        assert!((kinds[1].1.total_mj - 6.0).abs() < 1e-12);
     }
 
     #[test]

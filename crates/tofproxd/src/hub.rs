@@ -907,7 +907,11 @@ mod tests {
         assert_eq!(h.status().energy_mj, 10.0);
         h.set_claim(":1.3", Claim::Proximity, true);
         h.set_energy(31.0);
-        assert_eq!(h.status().energy_mj, 16.0, "10 mJ, then 6 mJ of the proximity claim's");
+        assert_eq!(
+            h.status().energy_mj,
+            16.0,
+            "10 mJ, then 6 mJ of the proximity claim's"
+        );
     }
 
     /// A depth claim alone shows nothing in the public status: the loop runs, but clients see

@@ -28,6 +28,7 @@ use tofprox_model::{CoverWindow, Expect, PhoneScene, SceneScript};
 use crate::backends::chain;
 use crate::config::Config;
 use crate::controller::{Controller, ModeCalibrations, full_roi};
+use crate::energy::{EnergyMeter, ReadingKind};
 
 /// The bench's set-up: the daemon's configuration (with `processing.calibration` the
 /// sensor's calibration set) and the physical model of the emulated sensor.
@@ -58,12 +59,68 @@ pub struct SceneResult {
     pub latency_to_far_ms: Option<f64>,
     /// Modelled energy per reading (mJ, thesis table 3.1 model).
     pub energy_per_reading_mj: f64,
+    /// The same by part: where the scene's energy goes (mJ per reading).
+    pub energy_parts_mj: EnergyParts,
+    /// Cycles and mean energy by kind of reading (full, probe, confirmation, …).
+    pub energy_by_kind: Vec<KindEnergy>,
     /// Near transitions published.
     pub near_transitions: u64,
     /// The controller's cover-window verdict at the end (`CrosstalkStatus::message`).
     pub cover_window: String,
     /// The cover window was reported changed (a smudge) at the end.
     pub cover_window_changed: bool,
+}
+
+/// Mean energy per reading by part (mJ; `energy::cycle_energy`'s parts and the sleep in
+/// reset), summing to [`SceneResult::energy_per_reading_mj`].
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct EnergyParts {
+    /// Start-up and the imager bring-up's waits.
+    pub startup: f64,
+    /// Flash load (and write).
+    pub flash: f64,
+    /// Illuminated exposure.
+    pub capture: f64,
+    /// Read-out of the pixels read.
+    pub readout: f64,
+    /// The daemon's CPU time.
+    pub cpu: f64,
+    /// Held in reset between readings.
+    pub off: f64,
+}
+
+/// One kind of reading in a scene: how many and what each cost on average.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct KindEnergy {
+    /// The kind.
+    pub kind: ReadingKind,
+    /// Cycles of that kind.
+    pub cycles: u64,
+    /// Their mean energy (mJ, the sleep after each included).
+    pub mean_mj: f64,
+}
+
+/// Per-reading parts and kinds of a meter's totals.
+fn breakdown(meter: &EnergyMeter) -> (EnergyParts, Vec<KindEnergy>) {
+    let n = meter.cycles().max(1) as f64;
+    let (p, off_mj) = meter.parts_total();
+    let parts = EnergyParts {
+        startup: p.startup_mj / n,
+        flash: p.flash_mj / n,
+        capture: p.capture_mj / n,
+        readout: p.readout_mj / n,
+        cpu: p.cpu_mj / n,
+        off: off_mj / n,
+    };
+    let kinds = meter
+        .kinds()
+        .map(|(kind, t)| KindEnergy {
+            kind,
+            cycles: t.cycles,
+            mean_mj: t.total_mj / t.cycles.max(1) as f64,
+        })
+        .collect();
+    (parts, kinds)
 }
 
 /// Errors setting up the bench.
@@ -203,6 +260,7 @@ pub fn run_scene(bench: &Bench, scene: &PhoneScene, seed: u64) -> Result<SceneRe
     r.latency_to_near_ms = worst_near;
     r.latency_to_far_ms = worst_far;
     r.energy_per_reading_mj = ctl.energy().total_mj() / (ctl.energy().cycles().max(1) as f64);
+    (r.energy_parts_mj, r.energy_by_kind) = breakdown(ctl.energy());
     let window = ctl.crosstalk_status();
     r.cover_window = window.message();
     r.cover_window_changed = matches!(window, CrosstalkStatus::Changed { .. });

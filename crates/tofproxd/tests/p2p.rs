@@ -93,7 +93,10 @@ fn claim_waits_for_a_reading_then_near_and_far_change_once_each() {
             f64::try_from(&s[tofproxd::service::ENERGY_MJ_KEY]).unwrap()
         };
         let running_mj = energy_mj(&s);
-        assert!(running_mj > 0.0, "the cycles so far cost energy: {running_mj}");
+        assert!(
+            running_mj > 0.0,
+            "the cycles so far cost energy: {running_mj}"
+        );
         p.release_proximity().await.unwrap();
         let t0 = Instant::now();
         while p.state().await.unwrap() != "off" {

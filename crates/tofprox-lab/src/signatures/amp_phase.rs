@@ -10,7 +10,9 @@ use super::{
     Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, code_per_e, phase_shift_code,
     quantiles,
 };
-use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::{EffectFit, LabSpec};
 use crate::waveform::Waveform;
 
 /// φ0 in rad (the model's `max_rad`).

@@ -5,7 +5,9 @@ use tofprox_model::ModelConfig;
 use tofprox_model::ids::dark_current as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, not_written};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::Rec;
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// LSB of differential offset per ms of exposure at the lab's reference

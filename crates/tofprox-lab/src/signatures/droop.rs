@@ -5,7 +5,9 @@ use tofprox_model::ModelConfig;
 use tofprox_model::ids::vcsel_droop as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// D/τ: the droop per unit of τ (τ in ms^β).

@@ -6,7 +6,9 @@ use tofprox_model::ModelConfig;
 use tofprox_model::ids::{self, waveform_harmonics as p};
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::Rec;
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// Highest harmonic the extra-harmonics signature reaches (the measured VCSEL/pulse correlation has harmonics up to the 9th, docs/model.md).

@@ -5,7 +5,9 @@ use tofprox_model::ModelConfig;
 use tofprox_model::ids::adc_inl as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::Rec;
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// I: the bow of the INL in LSB (the model's `inl_lsb`).

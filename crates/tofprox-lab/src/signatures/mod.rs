@@ -20,7 +20,10 @@ use tofprox_model::catalogue::{self, ActsOn, Driver};
 use tofprox_model::ids::{self, EffectId, ParamId};
 
 use crate::error::{ErrorKind, LabError};
-use crate::fit::{CapInfo, EffectFit, LabModel, LabSpec, Prepared, Rec, Sample};
+use crate::fit::LabModel;
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::{EffectFit, LabSpec};
 use crate::waveform::Waveform;
 
 mod amp_phase;

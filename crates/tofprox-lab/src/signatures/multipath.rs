@@ -5,7 +5,9 @@ use tofprox_model::ModelConfig;
 use tofprox_model::ids::multipath as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// The lab module of `multipath`.

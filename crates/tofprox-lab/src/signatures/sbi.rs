@@ -6,7 +6,9 @@ use tofprox_model::catalogue;
 use tofprox_model::ids::{self, sbi_asymmetry as p};
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles, write_ambient};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// The linear coefficient m: LSB of differential code per lab unit of

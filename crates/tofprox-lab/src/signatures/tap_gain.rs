@@ -6,7 +6,9 @@ use tofprox_model::effects::correlation::Correlation;
 use tofprox_model::ids::{self, tap_gain_mismatch as p};
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient};
-use crate::fit::{CapInfo, LabSpec, Prepared, Rec};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::Rec;
+use crate::spec::LabSpec;
 use crate::waveform::Waveform;
 
 /// s: LSB per LSB of fundamental amplitude.

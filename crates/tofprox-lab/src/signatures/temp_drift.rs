@@ -6,7 +6,9 @@ use tofprox_model::effects::temperature_drift::{temperature_drift, temperature_d
 use tofprox_model::ids::temperature_drift as p;
 
 use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, phase_shift_code};
-use crate::fit::{CapInfo, EffectFit, LabSpec, Prepared, Rec, Sample};
+use crate::prepared::{CapInfo, Prepared};
+use crate::sample::{Rec, Sample};
+use crate::spec::{EffectFit, LabSpec};
 use crate::waveform::Waveform;
 
 /// k_g: relative signal gain per K.

@@ -360,7 +360,11 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
                 &res.effect.id,
                 &res.params,
                 &res.standard_errors,
-                (res.standard_errors_note.as_deref(), &res.at_bound),
+                (
+                    res.standard_errors_note.as_deref(),
+                    &res.at_bound,
+                    &res.intervals,
+                ),
             ));
             return Ok(t);
         }
@@ -383,7 +387,11 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
             &a.effect,
             &res.params,
             &res.standard_errors,
-            (res.standard_errors_note.as_deref(), &res.at_bound),
+            (
+                res.standard_errors_note.as_deref(),
+                &res.at_bound,
+                &res.intervals,
+            ),
         ));
         Ok(t)
     })?;
@@ -454,7 +462,7 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
                 &f.effect,
                 &f.params,
                 &f.standard_errors,
-                (f.standard_errors_note.as_deref(), &f.at_bound),
+                (f.standard_errors_note.as_deref(), &f.at_bound, &f.intervals),
             ));
         }
         if let Some(why) = &ex.stopped {

@@ -8,7 +8,7 @@
 use std::time::Duration;
 
 use crate::config::{Backend, Config, EnergyConfig};
-use crate::energy::{CycleTimings, CycleWork, EnergyMeter, cycle_energy};
+use crate::energy::{CycleTimings, CycleWork, EnergyMeter, ReadingKind, cycle_energy};
 use crate::source::RawCycle;
 
 /// Whether cycles are paced at the reading rate.
@@ -134,6 +134,13 @@ impl EnergyAccount {
         second: Option<CycleObservation>,
     ) -> EnergyDecision {
         let carried = self.carried.take();
+        let kind = match (carried.is_some(), second.is_some(), obs.raw_images) {
+            (true, _, _) => ReadingKind::ProbeThenFull,
+            (_, true, _) => ReadingKind::SecondFrequency,
+            (_, _, 1) => ReadingKind::Probe,
+            (_, _, k) if k >= 4 => ReadingKind::FourPhase,
+            _ => ReadingKind::Full,
+        };
         let extra = [second, carried]
             .into_iter()
             .flatten()
@@ -151,7 +158,7 @@ impl EnergyAccount {
             Pacing::RealTime => Duration::from_secs_f64(1.0 / obs.rate_hz).saturating_sub(active),
         };
         let e = self.energy_of(&obs).plus(&extra_e);
-        self.meter.record(&e, active, sleep);
+        self.meter.record(kind, &e, active, sleep);
         EnergyDecision {
             sleep,
             average_mw: self.meter.average_mw(),
@@ -252,6 +259,8 @@ mod tests {
             "sleep after both"
         );
         assert_eq!(two.meter().cycles(), 1, "one reading");
+        let kinds: Vec<_> = two.meter().kinds().map(|(k, t)| (k, t.cycles)).collect();
+        assert_eq!(kinds, vec![(ReadingKind::SecondFrequency, 1)]);
     }
 
     /// A probe that saw a change is part of the full reading that follows: one reading with
@@ -278,6 +287,22 @@ mod tests {
             + cfg.off_mw * d.sleep.as_secs_f64();
         assert!((a.meter().total_mj() - want).abs() < 1e-12);
         assert_eq!(a.meter().cycles(), 1);
+        let kinds: Vec<_> = a.meter().kinds().map(|(k, t)| (k, t.cycles)).collect();
+        assert_eq!(kinds, vec![(ReadingKind::ProbeThenFull, 1)]);
+        a.next(probe);
+        a.next(CycleObservation {
+            raw_images: 4,
+            ..obs(120)
+        });
+        let kinds: Vec<_> = a.meter().kinds().map(|(k, t)| (k, t.cycles)).collect();
+        assert_eq!(
+            kinds,
+            vec![
+                (ReadingKind::FourPhase, 1),
+                (ReadingKind::Probe, 1),
+                (ReadingKind::ProbeThenFull, 1)
+            ]
+        );
         assert_eq!(
             d.sleep,
             Duration::from_millis(500) - 2 * obs(120).timings.active()

@@ -1,7 +1,7 @@
 //! The controller's policies, one unit each: every unit holds only its own state and
 //! decides the next value from one observation (`fn next(&mut self, observation) ->
-//! decision`). [`crate::controller::Controller`] composes them after each cycle; none of
-//! them touches the source, the pipeline or the bus.
+//! decision`). The loop's controller composes them after each cycle (it imports them, never
+//! the other way round); none of them touches the source, the pipeline or the bus.
 //!
 //! | unit | decides | from | thesis |
 //! |---|---|---|---|

@@ -1,0 +1,186 @@
+//! The presence probe (`policy::probe`): while far and still, one raw image against the last
+//! far reading's instead of the full reading; and, after a full reading, the probe's reference.
+
+use std::time::Duration;
+
+use ndarray::Axis;
+use tofprox_core::SensorGeometry;
+use tofprox_core::readout::crop_map;
+
+use crate::boottime::boottime_ns;
+use crate::config::Mode;
+use crate::cputime::thread_cpu;
+use crate::hub::{Reason, State, StatusUpdate};
+use crate::policy::probe::{
+    ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
+};
+use crate::policy::{CycleObservation, RateObservation};
+use crate::source::{FrameSource, RawCycle, RawImages, SourceErrorKind};
+
+use super::measure::Measurement;
+use super::report::shown_distance_mm;
+use super::{Controller, StepOutcome, frame_roi};
+
+/// What a probe that saw no change publishes again: the last full reading.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct LastFull {
+    /// `DistanceMm` shown.
+    shown_mm: u32,
+    /// The detector's distance.
+    distance_mm: Option<u32>,
+    /// Nothing in range.
+    no_target: bool,
+}
+
+impl<S: FrameSource> Controller<S> {
+    /// The presence probe (`policy::probe`), when due: one raw image at `exposure.min_us`.
+    /// `Some`: the cycle's outcome (no change: the last reading again; or the failure);
+    /// `None`: no probe, or it saw a change — the full reading runs now, with the probe's
+    /// energy in it.
+    pub(super) fn presence_probe(&mut self) -> Option<StepOutcome> {
+        if self.ambient.mode() != Mode::TwoPhase
+            || self.ambient.probe_due()
+            || self.saturation.confirm_due()
+            || !self.source.supports_single_image()
+        {
+            return None;
+        }
+        let last = self.last_full?;
+        let image = self.probe.due(self.near, self.rate.still_readings())?.image;
+        let mut req = self.request(false);
+        req.exposure_us = self.cfg.exposure.min_us;
+        req.single_image = Some(image);
+        self.since_valid.count(self.last_sleep);
+        let result = self.source.cycle(&req);
+        let cycle = match result {
+            Ok(c) => c,
+            Err(e) if e.kind() == SourceErrorKind::Unsupported => {
+                tracing::warn!("presence probe refused by the source ({e}): full readings");
+                self.probe.refused();
+                self.last_sleep = Duration::ZERO;
+                return None;
+            }
+            Err(e) => return Some(self.fail(e)),
+        };
+        self.since_valid.count(cycle.timings().active());
+        let captured_ns = boottime_ns();
+        self.cpu_at_capture = thread_cpu();
+        self.source_cpu = Duration::ZERO;
+        let verdict = self.judge_probe(&cycle);
+        tracing::debug!("presence probe: {verdict:?}");
+        let rate_hz = self.rate.rate_hz();
+        let obs = CycleObservation::of(&cycle, rate_hz).with_cpu(self.reading_cpu());
+        if let ProbeVerdict::Changed { .. } = verdict {
+            self.energy.carry(obs);
+            self.last_sleep = Duration::ZERO;
+            return None;
+        }
+        // nothing changed: the last reading stands, as a reading of its own (still)
+        self.rate.next(RateObservation {
+            near: false,
+            distance_mm: last.distance_mm,
+            no_target: last.no_target,
+        });
+        let energy = self.energy.next(obs);
+        self.last_sleep = energy.sleep;
+        self.consecutive_failures = 0;
+        self.since_valid.reading(self.source.now());
+        self.state = State::Running;
+        Some(StepOutcome {
+            update: StatusUpdate {
+                state: Some(self.state),
+                near: Some(false),
+                timestamp_ns: Some(captured_ns),
+                distance_mm: Some(last.shown_mm),
+                rate_hz: Some(self.rate.rate_hz()),
+                power_mw: Some(energy.average_mw),
+                reason: Some(Reason::Probe),
+                valid_reading: true,
+                cycle: true,
+                ..StatusUpdate::default()
+            },
+            sleep: energy.sleep,
+            near: false,
+            distance_mm: last.distance_mm,
+            valid: true,
+            captured_mode: Some(Mode::TwoPhase),
+            ..StepOutcome::default()
+        })
+    }
+
+    /// The probe image against the reference: a change when the window differs or any tile
+    /// moved by more than half the weakest near return ([`change_threshold_lsb`]).
+    fn judge_probe(&mut self, cycle: &RawCycle) -> ProbeVerdict {
+        let same_window = self.probe_reference_geometry() == Some(cycle.geometry);
+        let cos_min = self.probe_cos_min();
+        let tiles = self.tiles_of(cycle, 0);
+        let (Some(tiles), true) = (tiles, same_window) else {
+            return self.probe.judge(&[], cycle.exposure_us, 0.0);
+        };
+        let threshold = change_threshold_lsb(
+            self.k_floor,
+            self.cfg.proximity.reflectivity_floor,
+            f64::from(self.cfg.proximity.near_mm) / 1e3,
+            cycle.exposure_us,
+            cos_min,
+        );
+        self.probe.judge(&tiles, cycle.exposure_us, threshold)
+    }
+
+    fn probe_reference_geometry(&self) -> Option<SensorGeometry> {
+        self.probe.reference().map(|r| r.geometry)
+    }
+
+    fn probe_cos_min(&self) -> f64 {
+        self.probe.reference().map_or(0.0, |r| r.cos_min)
+    }
+
+    /// Tile means of raw image `image` of `cycle` above the dark level, over the ROI.
+    fn tiles_of(&self, cycle: &RawCycle, image: usize) -> Option<Vec<f32>> {
+        let g = cycle.geometry;
+        let roi = frame_roi(&self.cfg, g);
+        let dark = self
+            .calib
+            .two_phase
+            .offset
+            .as_ref()
+            .and_then(|o| crop_map(&o.dark_lsb, g, "offset").ok());
+        let dark = dark.as_ref().map(|d| d.view());
+        let (mid, tile) = (g.mid_code() as f32, self.probe.tile_px());
+        Some(match &cycle.frames {
+            RawImages::U16(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            RawImages::F32(a) if image < a.dim().0 => {
+                tile_means(a.index_axis(Axis(0), image), dark, mid, roi, tile)
+            }
+            _ => return None,
+        })
+    }
+
+    /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
+    /// probe image's tile means per µs) and what a probe that sees no change publishes again;
+    /// any other reading leaves none.
+    pub(super) fn remember_for_probe(&mut self, cycle: &RawCycle, captured: Mode, m: &Measurement) {
+        let far = m.valid && !m.reading.near && !self.near && !m.aliased_far;
+        let reference = (far && captured == Mode::TwoPhase && self.cfg.probe.enabled)
+            .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
+            .flatten()
+            .and_then(|(image, cos_min)| {
+                let tiles = self.tiles_of(cycle, usize::from(image))?;
+                let t = cycle.exposure_us as f32;
+                Some(ProbeReference {
+                    geometry: cycle.geometry,
+                    image,
+                    per_us: tiles.iter().map(|v| v / t).collect(),
+                    cos_min,
+                })
+            });
+        self.last_full = far.then(|| LastFull {
+            shown_mm: shown_distance_mm(&m.reading, self.cfg.proximity.far_mm),
+            distance_mm: m.reading.distance_mm,
+            no_target: m.reading.no_target,
+        });
+        self.probe.full_reading(reference);
+    }
+}
