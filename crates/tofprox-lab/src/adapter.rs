@@ -83,6 +83,7 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .chain(m.user_effects().iter().map(|u| u.name.clone()))
             .collect(),
         held: Vec::new(),
+        holds: std::collections::BTreeMap::new(),
         dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
         shapes: crate::shape::spec_shapes(m, crate::signatures::code_per_e(m)),
         user_effects: m.user_effects().to_vec(),

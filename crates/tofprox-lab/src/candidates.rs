@@ -84,9 +84,50 @@ pub fn effect_standard_errors(
 /// make JᵀJ singular).
 pub(crate) fn free_params(sig: &dyn Signature) -> Vec<usize> {
     let nlin = sig.n_lin() + NUISANCE;
+    let held = held_layout(sig);
     (0..nlin + sig.nl_start().len())
         .filter(|&i| i < nlin || !sig.nl_discrete(i - nlin))
+        .filter(|&i| held[i].is_none())
         .collect()
+}
+
+/// The held values ([`Signature::held`], `crate::hold`) in the layout of [`accumulate`]:
+/// `Some(value)` for a parameter held, None for one fitted (the nuisance shifts always).
+fn held_layout(sig: &dyn Signature) -> Vec<Option<f64>> {
+    let nsig = sig.n_lin();
+    let mut out = vec![None; nsig + NUISANCE + sig.nl_start().len()];
+    for (i, v) in sig.held().into_iter().enumerate() {
+        let at = if i < nsig { i } else { i + NUISANCE };
+        if let Some(o) = out.get_mut(at) {
+            *o = v;
+        }
+    }
+    out
+}
+
+/// The linear parameters' least-squares solution of `t` (normal equations at zero) with
+/// those `held` (the layout's first `t.n`) at their values: the free ones solve
+/// JᵀWJ_FF·x_F = JᵀWr_F − JᵀWJ_FH·v_H.
+fn solve_linear(t: &Normal, held: &[Option<f64>]) -> Option<Vec<f64>> {
+    let held_at = |i: usize| held.get(i).copied().flatten();
+    if (0..t.n).all(|i| held_at(i).is_none()) {
+        return solve_sym(&t.jtj, &t.jtr);
+    }
+    let free: Vec<usize> = (0..t.n).filter(|&i| held_at(i).is_none()).collect();
+    let mut sub = t.select(&free);
+    for (a, &i) in free.iter().enumerate() {
+        for j in 0..t.n {
+            if let Some(v) = held_at(j) {
+                sub.jtr[a] -= t.jtj[i * t.n + j] * v;
+            }
+        }
+    }
+    let xf = solve_sym(&sub.jtj, &sub.jtr)?;
+    let mut x: Vec<f64> = (0..t.n).map(|i| held_at(i).unwrap_or(0.0)).collect();
+    for (a, &i) in free.iter().enumerate() {
+        x[i] = xf[a];
+    }
+    Some(x)
 }
 
 /// The standard errors of `f` (a [`fit_values`] of `sig` to `recs`) into its
@@ -409,6 +450,22 @@ pub fn fit_values(
     if grid.is_empty() {
         grid.push(sig.nl_start());
     }
+    // held non-linear parameters at their values on every grid point (crate::hold)
+    let held = held_layout(sig);
+    for nl in &mut grid {
+        for (i, v) in nl.iter_mut().enumerate() {
+            if let Some(h) = held.get(nlin + i).copied().flatten() {
+                *v = h;
+            }
+        }
+    }
+    let mut unique: Vec<Vec<f64>> = Vec::with_capacity(grid.len());
+    for nl in grid {
+        if !unique.contains(&nl) {
+            unique.push(nl);
+        }
+    }
+    let grid = unique;
     // The best grid point of each setting of the discrete parameters: those
     // are chosen after the continuous ones are refined, since at a coarse grid
     // point the wrong end of a family can fit better than the right one.
@@ -419,7 +476,7 @@ pub fn fit_values(
         let mut p = vec![0.0; nlin];
         p.extend_from_slice(nl);
         let t = total(&accumulate(sig, recs, prep, &p, false, stride));
-        let Some(lin) = solve_sym(&t.jtj, &t.jtr) else {
+        let Some(lin) = solve_linear(&t, &held) else {
             continue;
         };
         let chi = t.chi2_after(&lin);
@@ -480,7 +537,7 @@ pub fn fit_values(
         accumulate(sig, recs, prep, &q, false, 1)
     };
     let tot = total(&folds);
-    if let Some(lin) = solve_sym(&tot.jtj, &tot.jtr) {
+    if let Some(lin) = solve_linear(&tot, &held) {
         p[..nlin].copy_from_slice(&lin);
     }
     let chi2 = tot.chi2_after(&p[..nlin]);
@@ -490,7 +547,7 @@ pub fn fit_values(
             continue;
         }
         let train = tot.minus(f);
-        let step = solve_sym(&train.jtj, &train.jtr).unwrap_or_else(|| vec![0.0; nlin]);
+        let step = solve_linear(&train, &held).unwrap_or_else(|| vec![0.0; nlin]);
         // held-out χ² at the training optimum
         cv += f.chi2_after(&step);
     }
@@ -508,7 +565,7 @@ pub fn fit_values(
     Ok(SignatureFit {
         lin_se: vec![f64::NAN; p.len()],
         nl_se: vec![f64::NAN; nl.len()],
-        n_params: p.len() + nl.len(),
+        n_params: (p.len() + nl.len()).saturating_sub(held.iter().flatten().count()),
         lin: p,
         nl,
         chi2,

@@ -97,6 +97,7 @@ pub fn choose_form(
     let illuminated = prep.caps.iter().filter(|c| c.illum && c.used).count();
     if !has_shape_form(id)
         || spec.held.iter().any(|h| h.id == id)
+        || spec.holds.contains_key(id)
         || illuminated < MIN_CAPTURES_FOR_FORMS
         || fit.chi2_before - fit.chi2 < MIN_SHARE_FOR_FORMS * excess
     {

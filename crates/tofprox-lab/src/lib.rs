@@ -9,12 +9,14 @@ pub mod adapter;
 pub mod arrays;
 pub mod candidates;
 pub mod data;
+pub mod depth_error;
 pub mod diagnose;
 pub mod error;
 mod evidence;
 
 pub mod fit;
 pub mod form;
+pub mod hold;
 pub mod model_file;
 pub mod noise;
 pub mod prepared;

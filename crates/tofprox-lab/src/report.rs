@@ -10,6 +10,7 @@ use tofprox_chart::{
     Bar, BarChart, Heatmap, LineChart, Series, bar_chart, heatmap, line_chart, mean_per_x,
 };
 
+use crate::depth_error::{DepthErrorSplit, DepthSplit};
 use crate::diagnose::{
     AddOutcome, CaptureDepth, Comparison, Diagnosis, ErrorSummary, Explanation, Z_NULL,
 };
@@ -117,19 +118,40 @@ fn summary_json(s: &ErrorSummary) -> Value {
     })
 }
 
-/// `add --json` (docs/lab.md).
-pub fn add_json(effect: &str, out: &AddOutcome) -> Value {
+/// `add --json` (docs/lab.md): with the depth error's split before and after
+/// ([`crate::depth_error`]) and the parameters held at given values (`held`, by the model
+/// file's names).
+pub fn add_json(
+    effect: &str,
+    out: &AddOutcome,
+    (split_before, split_after): (&DepthSplit, &DepthSplit),
+    held: &BTreeMap<String, f64>,
+) -> Value {
     json!({
         "effect": effect,
         "name": out.effect.id,
         "before": summary_json(&ErrorSummary::of(&out.before)),
         "after": summary_json(&ErrorSummary::of(&out.after)),
+        "depth_error": {"before": split_json(split_before), "after": split_json(split_after)},
+        "held": named(held),
         "params": named(&out.params),
         "standard_errors": named(&out.standard_errors),
         "standard_errors_note": out.standard_errors_note,
         "at_bound": out.at_bound,
         "intervals": intervals_json(&out.intervals),
     })
+}
+
+fn split_json(s: &DepthSplit) -> Value {
+    let one = |e: &DepthErrorSplit| {
+        json!({
+            "rms_mm": num(e.rms_mm),
+            "noise_mm": num(e.noise_mm),
+            "systematic_mm": num(e.systematic_mm),
+            "systematic_share": num(e.systematic_share),
+        })
+    };
+    json!({"2phase": one(&s.two_phase), "4phase": one(&s.four_phase)})
 }
 
 /// Profile intervals as JSON: per parameter its value, the 1σ and 2σ ends
@@ -187,6 +209,62 @@ fn interval_end(iv: &ProfileInterval, side: &str, level: usize) -> String {
 /// A name → number map as a JSON object (non-finite numbers as null).
 fn named(m: &BTreeMap<String, f64>) -> Value {
     Value::Object(m.iter().map(|(k, v)| (k.clone(), num(*v))).collect())
+}
+
+/// The errors before and after adding effects, as a terminal table: raw and depth RMS and
+/// χ²/dof, then how much of each depth RMS is systematic — √max(rms² − noise², 0) with its
+/// share of rms² — and the noise floor ([`crate::depth_error`]; docs/lab.md).
+pub fn before_after_text(
+    (before, after): (&Comparison, &Comparison),
+    (split_before, split_after): (&DepthSplit, &DepthSplit),
+) -> String {
+    let mut t = format!(
+        "{:<12} {:>12} {:>14} {:>14} {:>10}\n",
+        "", "raw [LSB]", "2-phase [mm]", "4-phase [mm]", "χ²/dof"
+    );
+    for (n, e) in [
+        ("before", ErrorSummary::of(before)),
+        ("after", ErrorSummary::of(after)),
+    ] {
+        let _ = writeln!(
+            t,
+            "{:<12} {:>12.3} {:>14.2} {:>14.2} {:>10.3}",
+            n, e.raw_lsb, e.depth_2phase_mm, e.depth_4phase_mm, e.chi2_per_dof
+        );
+    }
+    let _ = writeln!(
+        t,
+        "systematic part of the depth rms, √(rms² − noise²) (share of rms²; docs/lab.md):"
+    );
+    let part = |s: &DepthErrorSplit| {
+        if s.rms_mm.is_finite() && s.noise_mm.is_finite() {
+            format!(
+                "{:.2} ({:.0} %)",
+                s.systematic_mm,
+                100.0 * s.systematic_share
+            )
+        } else {
+            "—".to_string()
+        }
+    };
+    for (n, s) in [("before", split_before), ("after", split_after)] {
+        let _ = writeln!(
+            t,
+            "{:<12} {:>12} {:>14} {:>14}",
+            n,
+            "",
+            part(&s.two_phase),
+            part(&s.four_phase)
+        );
+    }
+    for (n, s) in [("noise before", split_before), ("noise after", split_after)] {
+        let _ = writeln!(
+            t,
+            "{:<12} {:>12} {:>14.2} {:>14.2}",
+            n, "", s.two_phase.noise_mm, s.four_phase.noise_mm
+        );
+    }
+    t
 }
 
 /// The information criteria before and after `add`, one terminal line: the

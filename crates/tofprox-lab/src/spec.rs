@@ -20,6 +20,9 @@ pub struct LabSpec {
     /// --hold-effects`: the model file's physics); only the per-pixel and
     /// per-unit parameters are fitted around them.
     pub held: Vec<EffectFit>,
+    /// Effects fitted with some of their parameters held (`lab add --hold`,
+    /// [`crate::hold`]): per parameter, in `lin` then `nl` order, the value it is held at.
+    pub holds: std::collections::BTreeMap<String, crate::hold::HoldMask>,
     /// The dark current's doubling ΔT₂ in K (`dark_current.doubling_c` of the
     /// model file; the registry's typical value by default).
     pub dark_doubling_k: f64,
@@ -40,6 +43,7 @@ impl Default for LabSpec {
             per_pixel_phase: true,
             effects: Vec::new(),
             held: Vec::new(),
+            holds: std::collections::BTreeMap::new(),
             dark_doubling_k: tofprox_model::catalogue::typical(
                 tofprox_model::ids::dark_current::DOUBLING_C,
             ),

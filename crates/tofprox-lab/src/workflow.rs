@@ -2,14 +2,18 @@
 //! what `add` is asked before fitting, and write fitted effects back into the user's model file
 //! with its comments and layout kept. `tofprox lab` and the Python package are thin adapters
 //! over these functions and [`mod@crate::diagnose`]; neither has lab logic of its own.
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use tofprox_model::ModelConfig;
 
 use crate::adapter::{load_recording, spec_from_model};
-use crate::diagnose::{AddOutcome, DiagnoseOptions, Explanation, add_effect, effect_params};
+use crate::diagnose::{
+    AddOutcome, DiagnoseOptions, Explanation, add_effect, add_effect_to, compare, effect_params,
+};
 use crate::error::{ErrorKind, LabError};
 use crate::fit::Progress;
+use crate::hold::{HoldRequest, resolve};
 use crate::model_file::update_model_text;
 use crate::prepared::Prepared;
 use crate::signatures::{SIGNATURE_IDS, write_effect};
@@ -115,6 +119,39 @@ pub fn add_to_model(
     let res = add_effect(prep, &spec_from_model(m), effect, progress)?;
     let notes = write_effect(m, effect, &res.params, &res.after.model, prep)?;
     Ok((res, notes))
+}
+
+/// The model file's parameters held in an `add`, by name, at their values.
+pub type Held = BTreeMap<String, f64>;
+
+/// [`add_to_model`] with the model file's parameters `hold` of `effect` held ([`crate::hold`]):
+/// they keep their values (the file's where a request gives none), the others are fitted.
+/// Returns the outcome, the notes and the held parameters with their values (by the file's
+/// names). Without `hold`, exactly [`add_to_model`].
+pub fn add_holding(
+    prep: &Prepared,
+    m: &mut ModelConfig,
+    effect: &str,
+    recording: &Path,
+    hold: &[HoldRequest],
+    progress: Progress<'_>,
+) -> Result<(AddOutcome, Vec<String>, Held), LabError> {
+    if hold.is_empty() {
+        let (res, notes) = add_to_model(prep, m, effect, recording, progress)?;
+        return Ok((res, notes, BTreeMap::new()));
+    }
+    check_addable(effect)?;
+    let spec = spec_from_model(m);
+    let mut before = compare(prep, &spec, progress)?;
+    let held = resolve(effect, hold, m, prep, &before.model)?;
+    before
+        .model
+        .spec
+        .holds
+        .insert(effect.to_string(), held.mask);
+    let res = add_effect_to(prep, before, effect, None, progress)?;
+    let notes = write_effect(m, effect, &res.params, &res.after.model, prep)?;
+    Ok((res, notes, held.held))
 }
 
 /// Write every effect `ex` added, as fitted in its final model, into `m`; notes as

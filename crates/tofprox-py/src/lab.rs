@@ -4,14 +4,16 @@ use std::path::{Path, PathBuf};
 
 use numpy::PyArray;
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
-use tofprox_lab::arrays::ComparisonArrays;
+use tofprox_lab::arrays::{CaptureArrays, CaptureRow, ComparisonArrays, per_capture};
+use tofprox_lab::depth_error::depth_split;
 use tofprox_lab::diagnose::{compare as fit, diagnose_with, explain as explain_lab};
+use tofprox_lab::hold::HoldRequest;
 use tofprox_lab::workflow::{
-    add_to_model, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
+    add_holding, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
 };
-use tofprox_lab::{Comparison, LabError, Prepared, report};
+use tofprox_lab::{Comparison, ErrorKind, LabError, Prepared, report};
 
 use crate::errors::to_py_err;
 use crate::to_py;
@@ -28,19 +30,58 @@ fn run<'py>(
     to_py(py, &value)
 }
 
+/// A comparison's arrays: the dense ones, and per capture its own arrays and table row.
+struct Arrays {
+    dense: ComparisonArrays,
+    captures: Vec<CaptureArrays>,
+    table: Vec<CaptureRow>,
+}
+
+/// The arrays of `cmp` on `prep` ([`ComparisonArrays::of`], [`per_capture`]).
+fn arrays_of(prep: &Prepared, cmp: &Comparison) -> Result<Arrays, LabError> {
+    let (captures, table) = per_capture(prep, cmp)?;
+    Ok(Arrays {
+        dense: ComparisonArrays::of(prep, cmp),
+        captures,
+        table,
+    })
+}
+
 /// The comparison's arrays as a dict of numpy arrays (moved, not copied): `residual_lsb`,
 /// `residual_z` (float32, captures × K × rows × cols, NaN where a code is not in the fit),
-/// `pixel_chi2`, `offset_lsb`, `gain_lsb`, `phase_rad` (float64, rows × cols).
-fn arrays_to_py<'py>(py: Python<'py>, a: ComparisonArrays) -> PyResult<Bound<'py, PyDict>> {
+/// `pixel_chi2`, `offset_lsb`, `gain_lsb`, `phase_rad` (float64, rows × cols); per capture,
+/// unpadded, the lists `predicted_codes` (float32 K × rows × cols), `measured_depth_mm` and
+/// `predicted_depth_mm` (float32 rows × cols); and `captures`, the per-capture table (a list
+/// of dicts).
+fn arrays_to_py<'py>(py: Python<'py>, a: Arrays) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
-    if let (Some(r), Some(z)) = (a.residual_lsb, a.residual_z) {
+    let dense = a.dense;
+    if let (Some(r), Some(z)) = (dense.residual_lsb, dense.residual_z) {
         d.set_item("residual_lsb", PyArray::from_owned_array(py, r))?;
         d.set_item("residual_z", PyArray::from_owned_array(py, z))?;
     }
-    d.set_item("pixel_chi2", PyArray::from_owned_array(py, a.pixel_chi2))?;
-    d.set_item("offset_lsb", PyArray::from_owned_array(py, a.offset_lsb))?;
-    d.set_item("gain_lsb", PyArray::from_owned_array(py, a.gain_lsb))?;
-    d.set_item("phase_rad", PyArray::from_owned_array(py, a.phase_rad))?;
+    d.set_item(
+        "pixel_chi2",
+        PyArray::from_owned_array(py, dense.pixel_chi2),
+    )?;
+    d.set_item(
+        "offset_lsb",
+        PyArray::from_owned_array(py, dense.offset_lsb),
+    )?;
+    d.set_item("gain_lsb", PyArray::from_owned_array(py, dense.gain_lsb))?;
+    d.set_item("phase_rad", PyArray::from_owned_array(py, dense.phase_rad))?;
+    let (codes, measured, predicted) = (PyList::empty(py), PyList::empty(py), PyList::empty(py));
+    for c in a.captures {
+        codes.append(PyArray::from_owned_array(py, c.predicted_codes))?;
+        measured.append(PyArray::from_owned_array(py, c.measured_depth_mm))?;
+        predicted.append(PyArray::from_owned_array(py, c.predicted_depth_mm))?;
+    }
+    d.set_item("predicted_codes", codes)?;
+    d.set_item("measured_depth_mm", measured)?;
+    d.set_item("predicted_depth_mm", predicted)?;
+    let table = serde_json::to_value(&a.table)
+        .map_err(|e| to_py_err(LabError::new(ErrorKind::Numerical, e.to_string())))?;
+    d.set_item("captures", to_py(py, &table)?)?;
     Ok(d)
 }
 
@@ -52,7 +93,15 @@ fn run_with_arrays<'py>(
     f: impl FnOnce() -> Result<(serde_json::Value, Prepared, Comparison), LabError> + Send,
 ) -> PyResult<Bound<'py, PyAny>> {
     let (value, a) = py
-        .detach(|| f().map(|(v, prep, cmp)| (v, arrays.then(|| ComparisonArrays::of(&prep, &cmp)))))
+        .detach(|| {
+            let (v, prep, cmp) = f()?;
+            let a = if arrays {
+                Some(arrays_of(&prep, &cmp)?)
+            } else {
+                None
+            };
+            Ok::<_, LabError>((v, a))
+        })
         .map_err(to_py_err)?;
     let out = to_py(py, &value)?;
     if let Some(a) = a {
@@ -125,14 +174,45 @@ fn write_out(
     }
 }
 
+/// The `hold` argument of `add`: a dict name → value, or a list of names (held at the model
+/// file's values).
+fn hold_requests(hold: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<HoldRequest>> {
+    let Some(h) = hold else {
+        return Ok(Vec::new());
+    };
+    if let Ok(d) = h.cast::<PyDict>() {
+        return d
+            .iter()
+            .map(|(k, v)| {
+                Ok(HoldRequest {
+                    name: k.extract()?,
+                    value: Some(v.extract()?),
+                })
+            })
+            .collect();
+    }
+    let names: Vec<String> = h.extract().map_err(|_| {
+        to_py_err(LabError::new(
+            ErrorKind::InvalidModel,
+            "hold must be a dict {name: value} or a list of names (held at the model file's values)",
+        ))
+    })?;
+    Ok(names
+        .into_iter()
+        .map(|name| HoldRequest { name, value: None })
+        .collect())
+}
+
 /// Enable the catalogue effect `effect` (or add the condition response `"condition:KEY"`, or
 /// fit the user effect `"user:NAME"` the file declares: docs/lab.md, "An effect the catalogue
 /// lacks") in the model file `model`, fit it on the recording in
-/// `data` and return the dict `tofprox lab add --json` prints (errors before and after, the
-/// fitted parameters). With `out`, the model with the effect is written there (the file's
-/// comments kept); an existing `out` is replaced only with `force=True`.
+/// `data` and return the dict `tofprox lab add --json` prints (errors before and after, how
+/// much of the depth error is systematic, the fitted parameters, the held ones). With `out`,
+/// the model with the effect is written there (the file's comments kept); an existing `out`
+/// is replaced only with `force=True`. `hold`: the effect's model-file parameters to hold
+/// while the others are fitted — `{"tau_us": 800.0}`, or `["tau_us"]` at the file's value.
 #[pyfunction]
-#[pyo3(signature = (effect, model, data, out=None, force=false))]
+#[pyo3(signature = (effect, model, data, out=None, force=false, hold=None))]
 fn add<'py>(
     py: Python<'py>,
     effect: String,
@@ -140,14 +220,25 @@ fn add<'py>(
     data: PathBuf,
     out: Option<PathBuf>,
     force: bool,
+    hold: Option<Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let hold = hold_requests(hold.as_ref())?;
     run(py, || {
         check_addable(&effect)?;
         check_out(out.as_deref(), force)?;
         let (prep, mut m) = load(&data, &model)?;
-        let (res, _notes) = add_to_model(&prep, &mut m, &effect, &data, &quiet)?;
+        let (res, _notes, held) = add_holding(&prep, &mut m, &effect, &data, &hold, &quiet)?;
         write_out(&model, &m, std::slice::from_ref(&effect), out.as_deref())?;
-        Ok(report::add_json(&effect, &res))
+        let splits = (
+            depth_split(&prep, &res.before),
+            depth_split(&prep, &res.after),
+        );
+        Ok(report::add_json(
+            &effect,
+            &res,
+            (&splits.0, &splits.1),
+            &held,
+        ))
     })
 }
 

@@ -152,6 +152,57 @@ fn diagnose_add_report_end_to_end() {
         "droop_rate {got} ± {se}, truth {want}"
     );
 
+    // the depth error split: systematic² = max(rms² − noise², 0), its share of rms²
+    for when in ["before", "after"] {
+        for alg in ["2phase", "4phase"] {
+            let e = &a["depth_error"][when][alg];
+            let f = |k: &str| e[k].as_f64().unwrap();
+            let (rms, noise, sys) = (f("rms_mm"), f("noise_mm"), f("systematic_mm"));
+            assert!(rms > 0.0 && noise > 0.0, "{when} {alg}: {e}");
+            let want = (rms * rms - noise * noise).max(0.0).sqrt();
+            assert!(
+                (sys - want).abs() < 1e-9 * rms.max(1.0),
+                "{when} {alg}: {e}"
+            );
+            assert!((f("systematic_share") - sys * sys / (rms * rms)).abs() < 1e-9);
+        }
+    }
+    // --hold: τ held at the truth's value, the rate fitted around it (and τ written as held)
+    let m3 = tmp.path().join("m3.toml");
+    let tau_us = tau_ms * 1000.0;
+    let o = run(&[
+        "lab",
+        "add",
+        "vcsel_droop",
+        "--model",
+        &base,
+        "--data",
+        &rec,
+        "--hold",
+        &format!("tau_us={tau_us}"),
+        "--out",
+        m3.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let h: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(h["held"]["tau_us"].as_f64(), Some(tau_us));
+    assert!((h["params"]["ln_tau"].as_f64().unwrap() - tau_ms.ln()).abs() < 1e-9);
+    assert!(h["standard_errors"]["ln_tau"].is_null(), "held: no error");
+    let (rate, se) = (
+        h["params"]["droop_rate"].as_f64().unwrap(),
+        h["standard_errors"]["droop_rate"].as_f64().unwrap(),
+    );
+    // (its SE, with τ no longer free, is 20× smaller than the free fit's: the 3 % the
+    // rate is off at 0.06 droop is the first-order law's, not noise; within 5 % of the truth)
+    assert!(
+        (rate - want).abs() < 0.05 * want && se > 0.0,
+        "held τ: rate {rate} ± {se}, truth {want}"
+    );
+    let m = ModelConfig::load(&m3).unwrap();
+    assert!((m.param("vcsel_droop", "tau_us").unwrap() - tau_us).abs() < 1e-6 * tau_us);
+    assert!(h["after"]["raw_lsb"].as_f64().unwrap() < 0.8 * before);
+
     let o = run(&[
         "lab",
         "diagnose",

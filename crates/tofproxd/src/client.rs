@@ -5,6 +5,8 @@ use std::collections::HashMap;
 
 use zbus::{OwnedVariant, proxy};
 
+use crate::controller::DISTANCE_BEYOND_RANGE_MM;
+
 /// `org.tofprox.Proximity1`.
 #[proxy(
     interface = "org.tofprox.Proximity1",
@@ -71,4 +73,32 @@ pub trait Proximity {
         depth_mm_u16_le: Vec<u8>,
         amplitude_u16_le: Vec<u8>,
     ) -> zbus::Result<()>;
+}
+
+/// `DistanceMm` in words for a person (the demo, `tofprox monitor`): a distance, or what the
+/// special values mean — 0 is "saturated" while near (the ROI was too close or bright to
+/// measure) and "unknown" otherwise; [`DISTANCE_BEYOND_RANGE_MM`] is a valid reading with
+/// nothing in range.
+pub fn distance_words(distance_mm: u32, near: bool) -> String {
+    match (distance_mm, near) {
+        (DISTANCE_BEYOND_RANGE_MM, _) => "nothing in range".to_string(),
+        (0, true) => "distance saturated (too close or too bright to measure)".to_string(),
+        (0, false) => "distance unknown".to_string(),
+        (d, _) => format!("distance {d} mm"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn special_distances_are_said_in_words() {
+        assert_eq!(distance_words(u32::MAX, false), "nothing in range");
+        assert_eq!(distance_words(u32::MAX, true), "nothing in range");
+        assert_eq!(distance_words(0, false), "distance unknown");
+        assert!(distance_words(0, true).starts_with("distance saturated"));
+        assert_eq!(distance_words(982, false), "distance 982 mm");
+        assert_eq!(distance_words(96, true), "distance 96 mm");
+    }
 }

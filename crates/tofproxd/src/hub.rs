@@ -83,6 +83,10 @@ pub struct Status {
     pub rate_hz: f64,
     /// `PowerEstimateMw`.
     pub power_mw: f64,
+    /// `GetStatus()["EnergyMj"]`: the modelled energy of the cycles counted in `cycles`
+    /// since the daemon started (mJ; the energy meter's total, each cycle with the sleep
+    /// after it).
+    pub energy_mj: f64,
     /// `LastError`.
     pub last_error: String,
     /// Exposure per raw image (µs).
@@ -187,6 +191,8 @@ struct HubInner {
     public: Status,
     /// Cycles, valid readings and errors run for depth claims alone (left out of `public`).
     hidden_counts: [u64; 3],
+    /// The energy of those cycles (mJ).
+    hidden_energy_mj: f64,
     claims: BTreeMap<String, ClientClaims>,
     /// A valid reading exists since the loop last started.
     have_reading: bool,
@@ -296,6 +302,7 @@ impl Hub {
             mode: cfg.processing.mode,
             rate_hz: 0.0,
             power_mw: 0.0,
+            energy_mj: 0.0,
             last_error: String::new(),
             exposure_us: cfg.exposure.initial_us,
             cycles: 0,
@@ -309,6 +316,7 @@ impl Hub {
             inner: Mutex::new(HubInner {
                 public: status.clone(),
                 hidden_counts: [0; 3],
+                hidden_energy_mj: 0.0,
                 status,
                 claims: BTreeMap::new(),
                 have_reading: false,
@@ -483,6 +491,7 @@ impl Hub {
         let mut g = self.lock();
         let counts = |s: &Status| [s.cycles, s.valid_readings, s.errors];
         let counts_before = counts(&g.status);
+        let energy_before = g.status.energy_mj;
         let near_before = g.status.near;
         f(&mut g.status);
         if g.status.state == State::Off || g.status.state == State::Starting {
@@ -495,6 +504,7 @@ impl Hub {
             public.cycles -= g.hidden_counts[0];
             public.valid_readings -= g.hidden_counts[1];
             public.errors -= g.hidden_counts[2];
+            public.energy_mj -= g.hidden_energy_mj;
             // The times clients see are of what they saw: a reading counted for them, a Near
             // change of theirs (one shown only now, after a depth claim alone, is stamped now).
             if g.status.valid_readings == counts_before[1] {
@@ -509,6 +519,7 @@ impl Hub {
             g.public = public;
         } else {
             let counts_after = counts(&g.status);
+            g.hidden_energy_mj += g.status.energy_mj - energy_before;
             for (h, (a, b)) in g
                 .hidden_counts
                 .iter_mut()
@@ -576,6 +587,12 @@ impl Hub {
         })
     }
 
+    /// The energy meter's total since start (mJ, [`Status::energy_mj`]); what clients see
+    /// leaves out the energy of cycles run for a depth claim alone, as `cycles` does.
+    pub fn set_energy(&self, total_mj: f64) {
+        self.update(|s| s.energy_mj = total_mj);
+    }
+
     /// Note a valid reading (wakes waiting claimers).
     pub fn note_valid_reading(&self) {
         self.lock().have_reading = true;
@@ -605,6 +622,8 @@ pub enum Event {
     Status(StatusUpdate),
     /// A depth frame (sent only while a depth claim is held).
     Depth(DepthMessage),
+    /// The energy meter's total since start after a cycle (mJ; [`Status::energy_mj`]).
+    Energy(f64),
 }
 
 /// A status fragment from the loop.
@@ -682,6 +701,14 @@ impl EventSender {
         let _ = self.tx.blocking_send(Event::Status(update));
     }
 
+    /// Send the energy meter's total (mJ) unless half the channel is taken: a total, so the
+    /// next one carries a dropped one's energy too, and the loop never waits for it.
+    pub fn energy(&self, total_mj: f64) {
+        if self.tx.capacity() > EVENT_CAPACITY / 2 {
+            let _ = self.tx.try_send(Event::Energy(total_mj));
+        }
+    }
+
     /// Send a depth frame unless half the channel is taken; returns whether it was sent.
     pub fn depth(&mut self, frame: DepthMessage) -> bool {
         let sent = self.tx.capacity() > EVENT_CAPACITY / 2
@@ -741,6 +768,7 @@ mod tests {
             match ev {
                 Event::Depth(d) => depth_ts.push(d.timestamp_ns),
                 Event::Status(u) => rates.extend(u.rate_hz),
+                Event::Energy(_) => {}
             }
         }
         assert_eq!(
@@ -862,6 +890,28 @@ mod tests {
             })
         })
         .await
+    }
+
+    /// `EnergyMj` is the meter's total of the cycles clients see: the energy of cycles run for
+    /// a depth claim alone is left out, as they are of `Cycles`.
+    #[test]
+    fn the_energy_total_leaves_out_cycles_run_for_a_depth_claim_alone() {
+        let h = hub();
+        h.set_claim(":1.1", Claim::Proximity, true);
+        h.set_energy(10.0);
+        assert_eq!(h.status().energy_mj, 10.0);
+        // the proximity client goes, a depth client alone: 15 mJ of its cycles stay hidden
+        h.set_claim(":1.1", Claim::Proximity, false);
+        h.set_claim(":1.2", Claim::Depth, true);
+        h.set_energy(25.0);
+        assert_eq!(h.status().energy_mj, 10.0);
+        h.set_claim(":1.3", Claim::Proximity, true);
+        h.set_energy(31.0);
+        assert_eq!(
+            h.status().energy_mj,
+            16.0,
+            "10 mJ, then 6 mJ of the proximity claim's"
+        );
     }
 
     /// A depth claim alone shows nothing in the public status: the loop runs, but clients see

@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use anyhow::{Context, bail};
 use clap::Parser;
+use tofproxd::client::distance_words;
 use tofproxd::config::{Config, PublisherKind};
 use tofproxd::run::{BusChoice, Daemon, notify};
 use tofproxd::signals::StopSignals;
@@ -342,7 +343,7 @@ async fn demo(
         )
     );
     let average_mw = match demo_events(&proxy, &mut near_changes, t0, seconds, stop).await {
-        Ok(power) => power.mean_mw(),
+        Ok(run) => run.average_mw(),
         Err(e) => {
             daemon.shutdown().await;
             return Err(e);
@@ -352,84 +353,84 @@ async fn demo(
     let s = daemon.hub().status();
     println!(
         "demo: {} cycles, {} valid readings, {} errors, modelled power {} over the run \
-         (PowerEstimateMw sampled every second)",
+         (GetStatus EnergyMj over the run's time)",
         s.cycles,
         s.valid_readings,
         s.errors,
-        average_mw.map_or_else(|| "not sampled".to_string(), |p| format!("{p:.2} mW"))
+        average_mw.map_or_else(|| "not measured".to_string(), |p| format!("{p:.2} mW"))
     );
     daemon.shutdown().await;
     drop(private);
     Ok(())
 }
 
-/// The demo's own average of the modelled power over its run: `PowerEstimateMw` (a running
-/// value over the last cycles) sampled once a second, so runs of different lengths each print
-/// the average of their own run.
-#[derive(Default)]
-struct PowerSamples {
-    sum_mw: f64,
-    n: u32,
+/// The demo's run as the daemon's energy meter saw it: `GetStatus()["EnergyMj"]` (the
+/// modelled energy since start) at the claim and at the end, and the wall time between.
+struct EnergyRun {
+    start_mj: f64,
+    end_mj: f64,
+    seconds: f64,
 }
 
-impl PowerSamples {
-    fn push(&mut self, mw: f64) {
-        if mw.is_finite() && mw > 0.0 {
-            self.sum_mw += mw;
-            self.n += 1;
-        }
-    }
-
-    fn mean_mw(&self) -> Option<f64> {
-        (self.n > 0).then(|| self.sum_mw / f64::from(self.n))
+impl EnergyRun {
+    /// The run's exact average modelled power (mJ / s = mW); `None` for a run of no time or
+    /// without the key.
+    fn average_mw(&self) -> Option<f64> {
+        let mw = (self.end_mj - self.start_mj) / self.seconds;
+        (self.seconds > 0.0 && mw.is_finite()).then_some(mw)
     }
 }
 
-/// `DistanceMm` for a person: its special values in words.
-fn distance_words(distance_mm: u32) -> String {
-    match distance_mm {
-        0 => "unknown".to_string(),
-        u32::MAX => "nothing in range".to_string(),
-        d => format!("{d} mm"),
-    }
+/// `GetStatus()["EnergyMj"]` (NaN when the daemon does not say).
+async fn energy_mj(proxy: &tofproxd::client::ProximityProxy<'_>) -> f64 {
+    proxy
+        .get_status()
+        .await
+        .ok()
+        .and_then(|m| m.get(tofproxd::service::ENERGY_MJ_KEY).cloned())
+        .and_then(|v| f64::try_from(v).ok())
+        .unwrap_or(f64::NAN)
 }
 
-/// Claim, then print near/far changes until the deadline or a stop signal.
+/// Claim, then print near/far changes until the deadline or a stop signal: the run's energy.
 async fn demo_events(
     proxy: &tofproxd::client::ProximityProxy<'_>,
     near_changes: &mut zbus::proxy::PropertyStream<'_, bool>,
     t0: std::time::Instant,
     seconds: u64,
     stop: &mut StopSignals,
-) -> anyhow::Result<PowerSamples> {
+) -> anyhow::Result<EnergyRun> {
     proxy.claim_proximity().await?;
+    let (claimed, start_mj) = (std::time::Instant::now(), energy_mj(proxy).await);
+    let near = proxy.near().await?;
     println!(
-        "{:7.2}s  claimed: near={} distance={} state={}",
+        "{:7.2}s  claimed: near={near} {} state={}",
         t0.elapsed().as_secs_f64(),
-        proxy.near().await?,
-        distance_words(proxy.distance_mm().await?),
+        distance_words(proxy.distance_mm().await?, near),
         proxy.state().await?
     );
     let deadline = tokio::time::Instant::now() + Duration::from_secs(seconds);
-    let mut power = PowerSamples::default();
-    let mut each_second = tokio::time::interval(Duration::from_secs(1));
+    let end = |end_mj| EnergyRun {
+        start_mj,
+        end_mj,
+        seconds: claimed.elapsed().as_secs_f64(),
+    };
     loop {
         tokio::select! {
-            _ = tokio::time::sleep_until(deadline) => return Ok(power),
+            _ = tokio::time::sleep_until(deadline) => return Ok(end(energy_mj(proxy).await)),
             name = stop.recv() => {
                 eprintln!("demo: {name} received: stopping");
-                return Ok(power);
+                return Ok(end(energy_mj(proxy).await));
             }
-            _ = each_second.tick() => power.push(proxy.power_estimate_mw().await.unwrap_or(0.0)),
             ch = tofproxd::service::next_item(near_changes) => {
-                let Some(ch) = ch else { return Ok(power) };
+                let Some(ch) = ch else { return Ok(end(energy_mj(proxy).await)) };
                 let near = ch.get().await.unwrap_or(false);
-                let d = distance_words(proxy.distance_mm().await.unwrap_or(0));
+                let d = distance_words(proxy.distance_mm().await.unwrap_or(0), near);
                 let p = proxy.power_estimate_mw().await.unwrap_or(0.0);
                 let rate = proxy.rate_hz().await.unwrap_or(0.0);
                 let why = proxy.reason().await.unwrap_or_default();
                 println!(
-                    "{:7.2}s  {}  distance={d}  rate={rate:.1} Hz  power≈{p:.2} mW  ({why})",
+                    "{:7.2}s  {}  {d}  rate={rate:.1} Hz  power≈{p:.2} mW  ({why})",
                     t0.elapsed().as_secs_f64(),
                     if near { "NEAR" } else { "far " }
                 );
@@ -443,20 +444,30 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_demo_says_special_distances_in_words() {
-        assert_eq!(distance_words(u32::MAX), "nothing in range");
-        assert_eq!(distance_words(0), "unknown");
-        assert_eq!(distance_words(982), "982 mm");
-    }
-
-    #[test]
-    fn the_demo_averages_its_own_run() {
-        let mut p = PowerSamples::default();
-        assert_eq!(p.mean_mw(), None);
-        for mw in [2.0, 4.0, f64::NAN, 0.0, 6.0] {
-            p.push(mw);
-        }
-        // NaN and 0 (no estimate yet) are not samples of the run
-        assert_eq!(p.mean_mw(), Some(4.0));
+    fn the_demo_averages_its_own_run_from_the_energy_total() {
+        // 300 mJ over a minute is 5 mW, whatever the cycles did within it
+        let run = EnergyRun {
+            start_mj: 100.0,
+            end_mj: 400.0,
+            seconds: 60.0,
+        };
+        assert_eq!(run.average_mw(), Some(5.0));
+        // no time, or a daemon that did not say: no average
+        assert_eq!(
+            EnergyRun {
+                seconds: 0.0,
+                ..run
+            }
+            .average_mw(),
+            None
+        );
+        assert_eq!(
+            EnergyRun {
+                end_mj: f64::NAN,
+                ..run
+            }
+            .average_mw(),
+            None
+        );
     }
 }

@@ -252,6 +252,8 @@ pub fn loop_thread<S: FrameSource>(
             events.depth(d);
         }
         events.status(out.update);
+        // the energy meter's total (`GetStatus()["EnergyMj"]`)
+        events.energy(ctl.energy().total_mj());
         if out.end_of_data {
             tracing::info!("source has no more data: loop stopped");
             events.status(ctl.stop());

@@ -30,6 +30,10 @@ pub const COMPAT_PATH: &str = "/net/hadess/SensorProxy";
 /// iio-sensor-proxy compass object path.
 pub const COMPAT_COMPASS_PATH: &str = "/net/hadess/SensorProxy/Compass";
 
+/// `GetStatus()`'s key of the modelled energy since the daemon started (mJ,
+/// [`crate::hub::Status::energy_mj`]): divided by a run's time, the run's exact average power.
+pub const ENERGY_MJ_KEY: &str = "EnergyMj";
+
 /// The D-Bus property names, spelled once: the publisher's `PropertiesChanged` and
 /// `GetStatus` use these; zbus derives the served names from the getters below
 /// (`fn near_threshold_mm` → `NearThresholdMm`), and a test holds the two together.
@@ -310,6 +314,7 @@ impl Proximity {
         );
         m.insert(property::LAST_ERROR.into(), variant_str(&s.last_error));
         m.insert("ExposureUs".into(), OwnedVariant::from(s.exposure_us));
+        m.insert(ENERGY_MJ_KEY.into(), OwnedVariant::from(s.energy_mj));
         m.insert("Cycles".into(), OwnedVariant::from(s.cycles));
         m.insert("ValidReadings".into(), OwnedVariant::from(s.valid_readings));
         m.insert("Errors".into(), OwnedVariant::from(s.errors));

@@ -89,6 +89,14 @@ fn claim_waits_for_a_reading_then_near_and_far_change_once_each() {
         assert_eq!(seen, vec![false, true, false]);
         let s = p.get_status().await.unwrap();
         assert_eq!(u32::try_from(&s["ProximityClaims"]).unwrap(), 1);
+        let energy_mj = |s: &std::collections::HashMap<String, zbus::zvariant::OwnedVariant>| {
+            f64::try_from(&s[tofproxd::service::ENERGY_MJ_KEY]).unwrap()
+        };
+        let running_mj = energy_mj(&s);
+        assert!(
+            running_mj > 0.0,
+            "the cycles so far cost energy: {running_mj}"
+        );
         p.release_proximity().await.unwrap();
         let t0 = Instant::now();
         while p.state().await.unwrap() != "off" {
@@ -98,6 +106,12 @@ fn claim_waits_for_a_reading_then_near_and_far_change_once_each() {
             );
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
+        // stopped: the total stands (no cycle, no energy)
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let stopped_mj = energy_mj(&p.get_status().await.unwrap());
+        assert!(stopped_mj >= running_mj);
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert_eq!(energy_mj(&p.get_status().await.unwrap()), stopped_mj);
         daemon.shutdown().await;
     });
 }

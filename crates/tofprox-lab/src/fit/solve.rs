@@ -239,7 +239,13 @@ pub(crate) fn param_count(model: &LabModel, npix: usize) -> usize {
             .effects
             .iter()
             .filter(|e| !spec.held.iter().any(|h| h.id == e.id))
-            .map(|e| e.lin.len() + e.nl.len())
+            .map(|e| {
+                let held = spec
+                    .holds
+                    .get(&e.id)
+                    .map_or(0, |m| m.iter().flatten().count());
+                (e.lin.len() + e.nl.len()).saturating_sub(held)
+            })
             .sum::<usize>()
 }
 

@@ -140,6 +140,11 @@ pub trait Signature: Send + Sync {
     fn basis_image(&self, nl: &[f64], r: &Rec, cap: &CapInfo, _image: f64, out: &mut [f64]) {
         self.basis(nl, r, cap, out);
     }
+    /// The parameters held at a value, in `lin` then `nl` order (`Some(value)`; empty, the
+    /// default: none), which the fit leaves at those values ([`crate::hold`]).
+    fn held(&self) -> crate::hold::HoldMask {
+        Vec::new()
+    }
 }
 
 /// Evaluates a signature's basis sample by sample, computing its per-raw-image
@@ -465,7 +470,15 @@ pub fn make_signature(
     {
         return Ok(sig);
     }
-    Ok(effect.signature(prep, spec, waveform))
+    let sig = effect.signature(prep, spec, waveform);
+    // parameters held (`lab add --hold`, crate::hold): the fit leaves them at their values
+    Ok(match spec.holds.get(id) {
+        Some(mask) => Box::new(crate::hold::Held {
+            inner: sig,
+            mask: mask.clone(),
+        }),
+        None => sig,
+    })
 }
 
 /// The note for an effect whose fitted values the model file does not take.

@@ -427,7 +427,8 @@ impl Monitor {
             }
             MonitorOut::Text => println!("{}", live::event_line(t_s, near, d, &state)),
             MonitorOut::Live(s) => {
-                s.view.set_distance(live::distance_words(d, near));
+                s.view
+                    .set_distance(tofproxd::client::distance_words(d, near));
                 s.view.push_event(live::event_line(t_s, near, d, &state));
                 s.draw(frame_ref(&self.last_frame));
             }
@@ -461,7 +462,8 @@ impl Monitor {
                     p.distance_mm().await.unwrap_or(0),
                     p.near().await.unwrap_or(false),
                 );
-                s.view.set_distance(live::distance_words(d, near));
+                s.view
+                    .set_distance(tofproxd::client::distance_words(d, near));
             }
             s.draw(frame_ref(&self.last_frame));
         }

@@ -6,11 +6,13 @@ use std::process::ExitCode;
 use anyhow::Context as _;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tofprox_lab::adapter::{spec_from_model, spec_holding_model};
+use tofprox_lab::depth_error::depth_split;
 use tofprox_lab::diagnose::{compare, diagnose_with, explain};
+use tofprox_lab::hold::HoldRequest;
 use tofprox_lab::report;
 use tofprox_lab::signatures::{SIGNATURE_IDS, cancels_in_4phase};
 use tofprox_lab::workflow::{
-    add_to_model, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
+    add_holding, apply_explained, check_addable, check_out, diagnose_options, load, write_model,
 };
 use tofprox_lab::{Comparison, Prepared};
 
@@ -146,6 +148,11 @@ pub struct AddArgs {
     /// Write a self-contained HTML report with the before/after error curves.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Hold one of the effect's model-file parameters while the others are fitted: at VALUE,
+    /// or at the model file's value without one (repeatable; docs/lab.md, "Holding
+    /// parameters").
+    #[arg(long, value_name = "NAME[=VALUE]")]
+    pub hold: Vec<String>,
 }
 
 pub fn run(c: LabCommand) -> anyhow::Result<ExitCode> {
@@ -312,10 +319,15 @@ fn run_diagnose(a: DiagnoseArgs) -> anyhow::Result<ExitCode> {
 fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     check_addable(&a.effect)?;
     check_out(a.out.as_deref(), a.force)?;
+    let hold = a
+        .hold
+        .iter()
+        .map(|h| HoldRequest::parse(h))
+        .collect::<Result<Vec<_>, _>>()?;
     let (prep, mut m) = load(&a.data, &a.model)?;
     let pb = progress_bar();
     let cb = on_progress(&pb);
-    let (res, notes) = add_to_model(&prep, &mut m, &a.effect, &a.data, &cb)?;
+    let (res, notes, held) = add_holding(&prep, &mut m, &a.effect, &a.data, &hold, &cb)?;
     pb.finish_and_clear();
     if let Some(p) = &a.out {
         write_model(&a.model, &m, std::slice::from_ref(&a.effect), p)?;
@@ -324,18 +336,17 @@ fn run_add(a: AddArgs) -> anyhow::Result<ExitCode> {
     for n in &notes {
         eprintln!("note: {n}");
     }
-    emit(a.json, &report::add_json(&a.effect, &res), || {
+    let splits = (
+        depth_split(&prep, &res.before),
+        depth_split(&prep, &res.after),
+    );
+    let json = report::add_json(&a.effect, &res, (&splits.0, &splits.1), &held);
+    emit(a.json, &json, || {
         let b = tofprox_lab::diagnose::ErrorSummary::of(&res.before);
         let f = tofprox_lab::diagnose::ErrorSummary::of(&res.after);
-        let mut t = format!(
-            "{:<8} {:>12} {:>14} {:>14} {:>10}\n",
-            "", "raw [LSB]", "2-phase [mm]", "4-phase [mm]", "χ²/dof"
-        );
-        for (n, e) in [("before", &b), ("after", &f)] {
-            t.push_str(&format!(
-                "{:<8} {:>12.3} {:>14.2} {:>14.2} {:>10.3}\n",
-                n, e.raw_lsb, e.depth_2phase_mm, e.depth_4phase_mm, e.chi2_per_dof
-            ));
+        let mut t = report::before_after_text((&res.before, &res.after), (&splits.0, &splits.1));
+        for (k, v) in &held {
+            t.push_str(&format!("held: {k} = {v:.6} (not fitted)\n"));
         }
         // what the model file holds (the file's names and units), not the
         // lab's internal fit parameters
@@ -437,6 +448,15 @@ fn run_explain(a: ExplainArgs) -> anyhow::Result<ExitCode> {
             ex.verdict().as_str(),
             ex.added.join(", ")
         ));
+        if let (Some(first), Some(last)) = (ex.steps.first(), ex.steps.last())
+            && !ex.added.is_empty()
+        {
+            let (b, f) = (&first.comparison, &last.comparison);
+            t.push_str(&report::before_after_text(
+                (b, f),
+                (&depth_split(&prep, b), &depth_split(&prep, f)),
+            ));
+        }
         for f in &ex.fitted {
             t.push_str(&report::fitted_text(
                 &f.effect,

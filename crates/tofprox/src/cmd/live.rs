@@ -11,6 +11,7 @@
 use std::fmt::Write as _;
 
 use tofprox_chart::viridis;
+use tofproxd::client::distance_words;
 use tofproxd::controller::DISTANCE_BEYOND_RANGE_MM;
 
 /// Enter: alternate screen, cursor hidden, screen cleared.
@@ -23,18 +24,6 @@ pub const WAITING: &str = "waiting for the first reading";
 
 /// Events kept in the status region.
 const EVENTS: usize = 4;
-
-/// `DistanceMm` in words: a distance, or what the special values mean — 0 is
-/// "saturated" when near (the ROI was too close or bright to measure) and "unknown"
-/// otherwise; [`DISTANCE_BEYOND_RANGE_MM`] is a valid reading with nothing in range.
-pub fn distance_words(distance_mm: u32, near: bool) -> String {
-    match (distance_mm, near) {
-        (DISTANCE_BEYOND_RANGE_MM, _) => "nothing in range".to_string(),
-        (0, true) => "distance saturated (too close or too bright to measure)".to_string(),
-        (0, false) => "distance unknown".to_string(),
-        (d, _) => format!("distance {d} mm"),
-    }
-}
 
 /// One reading or near/far transition as a line of text: time, NEAR/far, distance in
 /// words ([`distance_words`]), state.

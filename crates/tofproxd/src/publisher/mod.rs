@@ -148,6 +148,7 @@ pub async fn run_publishers(
                     }
                 }
             }
+            Event::Energy(total_mj) => hub.set_energy(total_mj),
             Event::Status(u) => {
                 let (before, mut after) = hub.apply(&u);
                 if let Some(p) = u.power_mw
