@@ -320,15 +320,44 @@ def readme_lab(cli, tmp_path_factory):
     return droop_sweep(cli, tmp_path_factory.mktemp("lab"), "0.15:1.80:0.05")
 
 
+PER_CAPTURE = {"predicted_codes", "measured_depth_mm", "predicted_depth_mm", "captures"}
+
+
 def assert_arrays_are_the_export(arrays, export):
-    """The arrays Python returns equal the .npy files `--export DIR` writes (NaN where NaN)."""
+    """The dense arrays Python returns equal the .npy files `--export DIR` writes (NaN where
+    NaN); the per-capture ones (issue 37 item 8) agree with them capture by capture."""
     names = {p.stem for p in export.glob("*.npy")}
-    assert set(arrays) == names == {"residual_lsb", "residual_z", "pixel_chi2", "offset_lsb",
-                                    "gain_lsb", "phase_rad"}
-    for name, a in arrays.items():
+    dense = set(arrays) - PER_CAPTURE
+    assert set(arrays) & PER_CAPTURE == PER_CAPTURE
+    assert dense == names == {"residual_lsb", "residual_z", "pixel_chi2", "offset_lsb",
+                              "gain_lsb", "phase_rad"}
+    assert_per_capture_agrees(arrays)
+    for name in dense:
+        a = arrays[name]
         on_disk = np.load(export / f"{name}.npy")
         assert a.dtype == on_disk.dtype and a.shape == on_disk.shape
         np.testing.assert_array_equal(a, on_disk)
+
+
+def assert_per_capture_agrees(arrays):
+    """Unpadded per capture: one entry per capture, K raw images each, and the table's RMS
+    residual is the padded residual array's own RMS over that capture's codes in the fit."""
+    res = arrays["residual_lsb"]
+    rows = arrays["captures"]
+    n = res.shape[0]
+    assert len(rows) == len(arrays["predicted_codes"]) == len(arrays["measured_depth_mm"]) == n
+    assert abs(sum(r["chi2_share"] for r in rows) - 1.0) < 1e-6
+    for i, (row, codes) in enumerate(zip(rows, arrays["predicted_codes"])):
+        assert row["capture"] == i
+        k = row["raw_images"]
+        assert codes.shape == (k,) + res.shape[2:]
+        assert np.all(np.isnan(res[i, k:]))  # the padding only
+        r = res[i, :k]
+        assert np.count_nonzero(np.isfinite(r)) == row["samples"]
+        if row["samples"]:
+            rms = float(np.sqrt(np.nanmean(r.astype(np.float64) ** 2)))
+            assert abs(rms - row["rms_residual_lsb"]) <= 1e-4 * max(1.0, rms)
+        assert arrays["predicted_depth_mm"][i].shape == res.shape[2:]
 
 
 def test_diagnose_equals_the_cli_and_names_the_droop(cli, readme_lab):
