@@ -271,7 +271,9 @@ impl Proximity {
     }
 
     /// Every property plus counters, as a dictionary (public: nothing in it tells whether
-    /// anyone holds a depth claim; `Clients` counts clients holding a proximity claim).
+    /// anyone holds a depth claim; `Clients` counts clients holding a proximity claim;
+    /// `EnergyMj` is the modelled energy of the counted cycles since the daemon started, in mJ:
+    /// two calls' difference over the time between them is the average power).
     async fn get_status(
         &self,
         #[zbus(header)] hdr: Header<'_>,
