@@ -169,31 +169,39 @@ class Sensor:
 # --- scenes: per pixel true range and reflectivity at time t ------------------
 
 
+def _ease(x):
+    """A cosine ease from 0 to 1 over x in [0, 1]."""
+    return 0.5 - 0.5 * math.cos(math.pi * min(max(x, 0.0), 1.0))
+
+
+def _phases(u, phases):
+    """The range at cycle fraction u: the first phase (until_u, range_of_u) with u < until_u;
+    None (absent) past the last."""
+    for until, range_m in phases:
+        if u < until:
+            return range_m(u)
+    return None
+
+
 def approach(t, period, near, far=0.6):
     """Absent 15 %, approaches far -> near (30 %), holds (20 %), leaves (20 %), absent."""
-    u = (t / period) % 1.0
-    s = lambda x: 0.5 - 0.5 * math.cos(math.pi * min(max(x, 0.0), 1.0))
-    if u < 0.15 or u >= 0.85:
-        return None
-    if u < 0.45:
-        return far + (near - far) * s((u - 0.15) / 0.30)
-    if u < 0.65:
-        return near
-    return near + (far - near) * s((u - 0.65) / 0.20)
+    return _phases((t / period) % 1.0, [
+        (0.15, lambda u: None),
+        (0.45, lambda u: far + (near - far) * _ease((u - 0.15) / 0.30)),
+        (0.65, lambda u: near),
+        (0.85, lambda u: near + (far - near) * _ease((u - 0.65) / 0.20)),
+    ])
 
 
 def pocket(t, period, near=0.02, far=0.6):
     """Into a pocket: absent 10 %, the fabric comes far -> near (25 %), is pressed on
     the glass (0.0, 40 %), lifted and gone near -> far (15 %), absent (10 %)."""
-    u = (t / period) % 1.0
-    s = lambda x: 0.5 - 0.5 * math.cos(math.pi * min(max(x, 0.0), 1.0))
-    if u < 0.10 or u >= 0.90:
-        return None
-    if u < 0.35:
-        return far + (near - far) * s((u - 0.10) / 0.25)
-    if u < 0.75:
-        return 0.0
-    return near + (far - near) * s((u - 0.75) / 0.15)
+    return _phases((t / period) % 1.0, [
+        (0.10, lambda u: None),
+        (0.35, lambda u: far + (near - far) * _ease((u - 0.10) / 0.25)),
+        (0.75, lambda u: 0.0),
+        (0.90, lambda u: near + (far - near) * _ease((u - 0.75) / 0.15)),
+    ])
 
 
 class Scene:
