@@ -151,6 +151,12 @@ pub fn add_holding(
         .insert(effect.to_string(), held.mask);
     let res = add_effect_to(prep, before, effect, None, progress)?;
     let notes = write_effect(m, effect, &res.params, &res.after.model, prep)?;
+    // a held parameter is written as asked, not as its round trip through the lab's
+    // parameterisation (τ = exp(ln τ) would write 3000.0000000000005 for 3000)
+    for (name, v) in &held.held {
+        m.set_param(effect, name, *v)
+            .map_err(|err| LabError::model(format!("writing the held {name}"), err))?;
+    }
     Ok((res, notes, held.held))
 }
 

@@ -413,6 +413,30 @@ def test_compare_equals_the_cli(cli, small_lab):
             assert chi2_per_dof == pytest.approx(c["fit"]["chi2_per_dof"], rel=1e-3)
 
 
+def test_add_with_hold_equals_the_cli_and_keeps_the_held_value(cli, small_lab):
+    """hold= is --hold NAME=VALUE: the same result and model file as the CLI; the held
+    parameter is written at its value and has no standard error; a list of names holds
+    them at the file's values (the baseline's τ, 3000 µs, is the truth's here)."""
+    tmp, base, rec = small_lab
+    a = tofprox.lab.add("vcsel_droop", model=base, data=rec, out=tmp / "held-py.toml",
+                        hold={"tau_us": 3000.0})
+    expected = json.loads(run_cli(cli, "lab", "add", "vcsel_droop", "--model", base, "--data", rec,
+                                  "--hold", "tau_us=3000", "--out", tmp / "held-cli.toml", "--json"))
+    assert a == expected
+    assert (tmp / "held-py.toml").read_text() == (tmp / "held-cli.toml").read_text()
+    assert a["held"] == {"tau_us": 3000.0}
+    assert a["standard_errors"]["ln_tau"] is None
+    assert a["params"]["ln_tau"] == pytest.approx(np.log(3.0), abs=1e-9)  # τ in ms
+    rate, se = a["params"]["droop_rate"], a["standard_errors"]["droop_rate"]
+    assert se > 0 and a["after"]["chi2_per_dof"] < 0.5 * a["before"]["chi2_per_dof"]
+    assert re.search(r"tau_us = 3000(\.0)?\b", (tmp / "held-py.toml").read_text())
+    by_name = tofprox.lab.add("vcsel_droop", model=base, data=rec, hold=["tau_us"])
+    assert by_name["held"] == a["held"] and by_name["params"] == a["params"]
+    assert by_name["standard_errors"]["droop_rate"] == se
+    with pytest.raises(tofprox.Error, match="tau"):
+        tofprox.lab.add("vcsel_droop", model=base, data=rec, hold={"tau": 1.0})
+
+
 def test_explain_equals_the_cli(cli, small_lab):
     tmp, base, rec = small_lab
     ex = tofprox.lab.explain(rec, model=base, out=tmp / "py.toml")
@@ -425,10 +449,11 @@ def test_explain_equals_the_cli(cli, small_lab):
 
 # ---- the documented example ---------------------------------------------------------------
 
-def test_docs_example(cli, tmp_path):
-    """docs/python.md's worked example runs as written and prints the output shown there."""
+def run_docs_example(cli, tmp_path, title):
+    """Runs docs/python.md's example under `## {title}` as written, from a directory that
+    holds only `config`; returns the lines it printed and the lines the docs show."""
     md = (REPO / "docs" / "python.md").read_text()
-    section = md[md.index("## Worked example"):]
+    section = md[md.index(f"## {title}"):]
     blocks = re.findall(r"```(\w+)\n(.*?)```", section, re.S)
     script = next(b for lang, b in blocks if lang == "python")
     shown = next(b for lang, b in blocks if lang == "text").splitlines()
@@ -437,14 +462,30 @@ def test_docs_example(cli, tmp_path):
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env,
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
-    printed = out.stdout.splitlines()
+    # the example wrote nothing into the directory it ran in (a clone stays clean)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["config"]
+    return out.stdout.splitlines(), shown
+
+
+def test_docs_example(cli, tmp_path):
+    """docs/python.md's worked example runs as written and prints the output shown there."""
+    printed, shown = run_docs_example(cli, tmp_path, "Worked example: the droop")
     plot = ("plot written to /tmp/droop-example/error.png", "matplotlib is not installed: no plot")
     assert printed[:-1] == shown[:-1]
     assert printed[-1] in plot and shown[-1] in plot
     if printed[-1] == plot[0]:
         assert Path("/tmp/droop-example/error.png").stat().st_size > 10_000
-    # the example wrote nothing into the directory it ran in (a clone stays clean)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["config"]
+
+
+def test_docs_example_per_capture_and_hold(cli, tmp_path):
+    """docs/python.md's second example (the per-capture table, a held τ) prints what the
+    docs show: the held value written as given, the rate within 15 % of the truth."""
+    printed, shown = run_docs_example(cli, tmp_path, "Worked example: capture by capture")
+    assert printed == shown
+    held = next(line for line in printed if line.startswith("held"))
+    rate = float(re.search(r"droop_rate ([0-9.]+)", held).group(1))
+    assert abs(rate / (0.05 / 3) - 1) < 0.15
+    assert printed[-1].startswith("m2.toml: tau_us = 3000.0,")
 
 
 # ---- hostile inputs: a clear exception, never a crash or a hang of the interpreter ---------
