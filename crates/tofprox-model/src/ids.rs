@@ -3,7 +3,7 @@
 //! The model's code names an effect or a parameter through these constants
 //! (`m.get(adc_gain::GAIN_ERROR_PCT_FSR)`, `m.is_enabled(vcsel_droop::ID)`), so a misspelt
 //! identifier does not compile; a test checks that every constant names an entry of
-//! [`crate::catalogue::catalogue()`] (the registry [`crate::effects::REGISTRY`]) (or of [`crate::catalogue::SENSOR_PARAMS`]) and that every
+//! `catalogue::catalogue()` (the registry `effects::REGISTRY`) (or of `catalogue::SENSOR_PARAMS`) and that every
 //! catalogue entry has a constant. Strings from outside (model files, the command line) are
 //! checked against the catalogue when they are read (`ModelConfig::set_param`, model loading).
 
@@ -52,7 +52,7 @@ impl ParamId {
 
 impl fmt::Display for ParamId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.section == crate::catalogue::SENSOR_SECTION {
+        if self.section == sensor::SECTION {
             write!(f, "{}.{}", self.section, self.name)
         } else {
             write!(f, "effects.{}.{}", self.section, self.name)

@@ -23,6 +23,7 @@
 pub mod catalogue;
 pub mod config;
 pub mod effects;
+pub mod entry;
 pub mod error;
 pub mod figures;
 pub mod geometry;

@@ -4,7 +4,7 @@
 //! its drivers) and its registry entry; its law is applied
 //! by the converter the ADC effects make up together ([`crate::effects::adc::Adc`]).
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The catalogue entry of `adc_dnl`.

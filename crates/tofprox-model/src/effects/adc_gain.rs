@@ -5,8 +5,8 @@
 //! the converter's slope factor ([`gain_factor`]), which the converter
 //! ([`crate::effects::adc::Adc`]) and the lab call.
 
-use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, EffectInfo, param as p};
 use crate::ids;
 
 /// The converter's slope factor k = 1/(1 + e_gain) (eq. 3.2, `adc_gain`; 1

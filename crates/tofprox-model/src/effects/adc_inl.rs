@@ -7,7 +7,7 @@
 
 use std::f64::consts::TAU;
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The shape of the differential converter's INL (`adc_inl`, 3.2.1, fig. 3.4):

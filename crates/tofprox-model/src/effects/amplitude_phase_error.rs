@@ -5,8 +5,8 @@
 //! Δφ(A) in its saturating form ([`amplitude_phase_shape`]) or the file's shape
 //! ([`AmpPhaseLaw`]), which the simulator and the lab's fit call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The saturating law of `amplitude_phase_error` (2.3.1.2, fig. 2.9) as the

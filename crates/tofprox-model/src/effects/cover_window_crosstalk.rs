@@ -5,9 +5,9 @@
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
 //! its drivers) and its registry entry; its law is evaluated inline by the
-//! simulator ([`crate::sim`]), where the signal chain combines it.
+//! simulator (`Simulator` in `sim.rs`), where the signal chain combines it.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The catalogue entry of `cover_window_crosstalk`.

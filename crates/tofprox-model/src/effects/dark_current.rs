@@ -5,7 +5,7 @@
 //! the dark current's temperature factor ([`dark_current_temperature_factor`]),
 //! which the simulator and the lab's fit call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The temperature factor of the dark current (`dark_current`, eq. 2.17 with

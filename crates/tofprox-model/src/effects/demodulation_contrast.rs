@@ -4,7 +4,7 @@
 //! its drivers) and its registry entry; its law, the
 //! correlation scaled by K, is evaluated inline by the simulator ([`crate::sim`]).
 
-use crate::catalogue::{ActsOn, EffectInfo, param as p};
+use crate::entry::{ActsOn, EffectInfo, param as p};
 use crate::ids;
 
 /// The catalogue entry of `demodulation_contrast`.

@@ -9,8 +9,8 @@
 //! Every random draw is a pure function of (seed, effect tag, full-array position),
 //! so a read-out window sees exactly the same pixels as the full array.
 
-use crate::catalogue::{ActsOn, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, EffectInfo, param as p};
 use crate::geometry::SensorGeometry;
 use crate::ids;
 

@@ -16,7 +16,7 @@
 //! form of `amplitude_phase_error`, `temperature_drift`, `sbi_asymmetry` and
 //! `vcsel_droop`).
 
-use crate::catalogue::EffectInfo;
+use crate::entry::EffectInfo;
 use crate::ids::EffectId;
 
 /// An effect module's registry entry: the unit struct `$name` implementing
@@ -28,7 +28,7 @@ macro_rules! effect {
         pub struct $name;
 
         impl $crate::effects::Effect for $name {
-            fn info(&self) -> &'static $crate::catalogue::EffectInfo {
+            fn info(&self) -> &'static $crate::entry::EffectInfo {
                 &$info
             }
             fn id(&self) -> $crate::ids::EffectId {
@@ -73,7 +73,7 @@ pub trait Effect: Sync {
 }
 
 /// Every effect of the model, in signal-chain order (the order of
-/// `tofprox model effects`, model files and [`crate::catalogue()`]).
+/// `tofprox model effects`, model files and `tofprox_model::catalogue()`).
 pub static REGISTRY: &[&dyn Effect] = &[
     &signal_falloff::SignalFalloff,
     &demodulation_contrast::DemodulationContrast,

@@ -5,7 +5,7 @@
 //! its drivers) and its registry entry; its law: the second return's phase offset
 //! ([`multipath_phase_offset_rad`]), which the simulator and the lab's fit call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The phase offset of the multipath's second return (`multipath`): an extra

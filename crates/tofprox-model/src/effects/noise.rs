@@ -5,7 +5,7 @@
 //! - `read_noise`: Read-out noise (thesis 2.3.2.4, 2.3.2.6)
 //! - `ktc_noise`: Reset (kTC) noise (thesis 2.3.2.1 eq. 2.14-2.15)
 
-use crate::catalogue::{ActsOn, EffectInfo, param as p};
+use crate::entry::{ActsOn, EffectInfo, param as p};
 use crate::ids;
 
 /// The catalogue entry of `shot_noise`.

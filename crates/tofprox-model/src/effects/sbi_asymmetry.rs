@@ -5,8 +5,8 @@
 //! the charge the circuit removes from each tap ([`sbi_injected_e`]) or the
 //! file's shape of it ([`SbiLaw`]), which the simulator and the lab's fit call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// Charge the SBI circuit injects into each tap (2.2.2.1, fig. 2.7, 5.1.2.3),

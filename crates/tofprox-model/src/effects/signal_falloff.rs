@@ -5,7 +5,7 @@
 //! its drivers) and its registry entry; its law is evaluated inline by the
 //! simulator ([`crate::sim`]), where the signal chain combines it.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The catalogue entry of `signal_falloff`.

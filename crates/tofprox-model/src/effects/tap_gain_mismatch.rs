@@ -6,7 +6,7 @@
 //! mismatch leaks ([`tap_gain_leak_e`]), which the simulator and the lab's fit
 //! call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The differential charge a tap gain mismatch ε leaks from the total charge

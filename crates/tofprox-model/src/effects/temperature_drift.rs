@@ -6,8 +6,8 @@
 //! temperature ([`temperature_drift`], [`temperature_drift_of`] with the file's
 //! shape), which the simulator and the lab's fit call.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The powers of ΔT = T − T_ref the temperature drift is a polynomial in:

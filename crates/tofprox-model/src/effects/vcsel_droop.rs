@@ -9,8 +9,8 @@
 
 use std::collections::BTreeMap;
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, param as p};
 use crate::config::ModelConfig;
+use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
 use crate::ids;
 
 /// The capture condition (`[capture.conditions]`) that gives the VCSEL's

@@ -6,7 +6,7 @@
 //! ([`crate::effects::correlation::Correlation`]); its parameters
 //! ([`HARMONIC_PARAMS`]) and optional waveform files are here.
 
-use crate::catalogue::{ActsOn, Driver, EffectInfo, ParamInfo, param as p};
+use crate::entry::{ActsOn, Driver, EffectInfo, ParamInfo, param as p};
 use crate::ids;
 
 /// Harmonic parameters `h2_rel … h9_rel`, `h2_phase_deg … h9_phase_deg`.
