@@ -68,7 +68,7 @@ fn monitor_depth_keeps_status_visible_and_restores_the_terminal() {
     ]);
     assert!(o.status.success(), "{}", text(&o.stderr));
     let line = "dbus-run-session -- bash -c 'tofproxd --config config/tofproxd-emulated.toml --bus session 2>/dev/null & \
-                tofprox monitor --bus session --depth --seconds 25; kill %1'; echo MONITOR-\"\"EXITED";
+                tofprox monitor --bus session --depth --seconds 15; kill %1'; echo MONITOR-\"\"EXITED";
     assert!(
         t.cmd(&["send-keys", "-t", "ux", line, "Enter"])
             .status
