@@ -31,34 +31,22 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.abspath(os.path.join(HERE, "..", "..", ".."))
 GENERATOR = os.path.join(HERE, "independent_recording.py")
 
-# (name, target wall s, generator arguments)
+# name, target wall s, rows, cols, captures, phases, conditions, effects
 SHAPES = [
-    (
-        "16x16_4phase_exposure_none",
-        2.0,
-        ["--rows", "16", "--cols", "16", "--captures", "900", "--phases", "4",
-         "--conditions", "exposure", "--effects", ""],
-    ),
-    (
-        "16x16_2phase_temperature_drift",
-        2.0,
-        ["--rows", "16", "--cols", "16", "--captures", "900", "--phases", "2",
-         "--conditions", "exposure,temperature", "--effects", "temperature"],
-    ),
-    (
-        "16x16_mixed_3cond_droop_drift",
-        2.0,
-        ["--rows", "16", "--cols", "16", "--captures", "900", "--phases", "2,4",
-         "--conditions", "exposure,temperature,ambient", "--effects", "droop,temperature"],
-    ),
-    (
-        "12x20_4phase_4cond_3effects",
-        10.0,
-        ["--rows", "12", "--cols", "20", "--captures", "700", "--phases", "4",
-         "--conditions", "exposure,temperature,ambient,supply",
-         "--effects", "droop,temperature,supply"],
-    ),
+    ("16x16_4phase_exposure_none", 2.0, 16, 16, 900, "4", "exposure", ""),
+    ("16x16_2phase_temperature_drift", 2.0, 16, 16, 900, "2", "exposure,temperature",
+     "temperature"),
+    ("16x16_mixed_3cond_droop_drift", 2.0, 16, 16, 900, "2,4", "exposure,temperature,ambient",
+     "droop,temperature"),
+    ("12x20_4phase_4cond_3effects", 10.0, 12, 20, 700, "4",
+     "exposure,temperature,ambient,supply", "droop,temperature,supply"),
 ]
+
+
+def generator_args(rows, cols, captures, phases, conditions, effects):
+    """The arguments of `independent_recording.py` for one row of SHAPES."""
+    return ["--rows", str(rows), "--cols", str(cols), "--captures", str(captures),
+            "--phases", phases, "--conditions", conditions, "--effects", effects]
 
 
 def cpu_model():
@@ -118,11 +106,11 @@ def main():
     print(f"CPU: {cpu_model()}")
     print("load average before: %.2f %.2f %.2f" % os.getloadavg())
     print(f"{'shape':34} {'wall s (median, range)':>24} {'CPU s':>7} {'target':>7}  verdict")
-    for name, target, args in SHAPES:
+    for name, target, *spec in SHAPES:
         if a.only and name != a.only:
             continue
         rec = os.path.join(a.dir, name)
-        ensure_recording(rec, args)
+        ensure_recording(rec, generator_args(*spec))
         runs = [diagnose(a.bin, rec, a.model) for _ in range(max(1, a.runs))]
         walls = [w for w, _, _ in runs]
         cpu = statistics.median(c for _, c, _ in runs)

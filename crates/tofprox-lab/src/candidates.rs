@@ -349,8 +349,8 @@ pub const CV_SUBSAMPLE: usize = 30_000;
 /// non-linear ones too, which [`SignatureFit::cv_chi2`] holds at the fit on
 /// all blocks): per held-out block, the signature refitted on the other
 /// blocks (started from `f`, the fit on all of them) and its χ² on the
-/// held-out block (large tables: both on a subsample). Returns (Σ over
-/// blocks, the same held-out samples' χ² without the effect). Σ over blocks; what compares
+/// held-out block (large tables: both on a subsample). Returns Σ over
+/// blocks ([`HeldOut`]): what compares
 /// forms with different numbers of non-linear parameters
 /// (`crate::shape::choose_form`). The blocks are whole captures, pairs of
 /// consecutive ones (a capture and its repeat together) dealt round the
@@ -365,7 +365,7 @@ pub fn cv_refit(
     recs: &[Sample],
     prep: &Prepared,
     f: &SignatureFit,
-) -> Result<(f64, f64), LabError> {
+) -> Result<HeldOut, LabError> {
     // large tables: a subsample of ≤ 30 000 samples for training and scoring
     // (a choice between forms, not the fit: ~6 000 samples per block)
     let stride = (recs.len() / CV_SUBSAMPLE).max(1);
@@ -375,7 +375,7 @@ pub fn cv_refit(
         nl: f.nl.clone(),
     };
     // the blocks in parallel, summed in block order
-    let per_block: Vec<Option<(f64, f64)>> = (0..FOLDS)
+    let per_block: Vec<Option<(f64, f64, usize)>> = (0..FOLDS)
         .into_par_iter()
         .map(|fold| {
             let held: Vec<Sample> = recs
@@ -398,15 +398,28 @@ pub fn cv_refit(
             p.extend_from_slice(&t.nuisance);
             p.extend_from_slice(&t.nl);
             let cv = total(&accumulate(sig, &held, prep, &p, false, 1)).chi2;
-            Ok(Some((cv, held.iter().map(Sample::chi2).sum::<f64>())))
+            let before = held.iter().map(Sample::chi2).sum::<f64>();
+            Ok(Some((cv, before, held.len())))
         })
         .collect::<Result<_, LabError>>()?;
-    let (mut cv, mut before) = (0.0, 0.0);
-    for (c, b) in per_block.into_iter().flatten() {
-        cv += c;
-        before += b;
+    let mut out = HeldOut::default();
+    for (c, b, n) in per_block.into_iter().flatten() {
+        out.chi2 += c;
+        out.chi2_before += b;
+        out.samples += n;
     }
-    Ok((cv, before))
+    Ok(out)
+}
+
+/// What [`cv_refit`] scores: Σ over held-out blocks.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct HeldOut {
+    /// χ² of the held-out samples with the form fitted on the other blocks.
+    pub chi2: f64,
+    /// Their χ² without the effect.
+    pub chi2_before: f64,
+    /// How many samples were held out (each of the scored ones once).
+    pub samples: usize,
 }
 
 /// Fit `sig` to the residuals in `recs` (r = measured − current model), with the

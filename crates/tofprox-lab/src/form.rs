@@ -31,7 +31,7 @@
 
 use rayon::prelude::*;
 
-use crate::candidates::{SignatureFit, add_standard_errors, cv_refit, fit_values};
+use crate::candidates::{HeldOut, SignatureFit, add_standard_errors, cv_refit, fit_values};
 use crate::error::LabError;
 use crate::prepared::Prepared;
 use crate::sample::Sample;
@@ -77,13 +77,17 @@ pub struct FormChoice {
 /// look-alike within the noise, nor for one that absorbs a little of a
 /// residual that is not this effect's (the candidates are fitted before the
 /// per-pixel parameters are refitted, so their residual holds more than the
-/// effect).
+/// effect). `noise_floor`: the χ² per sample of the noise alone (dof/n of
+/// the model fitted without the effect) where the noise was measured —
+/// then the shapes are not fitted where none could win
+/// ([`shapes_can_win`]); `None`: always fitted.
 pub fn choose_form(
     id: &str,
     prep: &Prepared,
     spec: &LabSpec,
     waveform: &Waveform,
     recs: &[Sample],
+    noise_floor: Option<f64>,
 ) -> Result<FormChoice, LabError> {
     let mut plain = spec.clone();
     plain.shapes.remove(id);
@@ -109,75 +113,99 @@ pub fn choose_form(
             scores: Vec::new(),
         });
     }
-    let (cv, _) = cv_refit(sig.as_ref(), recs, prep, &fit)?;
-    let physical = FormChoice {
-        knots: None,
-        fit,
-        signature: sig,
-        scores: vec![FormScore {
-            form: PHYSICAL_FORM.into(),
-            cv_chi2: cv,
-        }],
+    let knot_sets = shape_knot_sets(id, prep, waveform, recs);
+    let mut best = if knot_sets.is_empty() {
+        // no shape form here (the SBI's where the ambient light varies, a
+        // driver of one value): nothing to compare the physical form with
+        FormChoice {
+            knots: None,
+            fit,
+            signature: sig,
+            scores: Vec::new(),
+        }
+    } else {
+        let held_out = cv_refit(sig.as_ref(), recs, prep, &fit)?;
+        let physical = FormChoice {
+            knots: None,
+            fit,
+            signature: sig,
+            scores: vec![FormScore {
+                form: PHYSICAL_FORM.into(),
+                cv_chi2: held_out.chi2,
+            }],
+        };
+        if shapes_can_win(&held_out, noise_floor) {
+            best_shape(id, prep, waveform, recs, (physical, knot_sets))
+        } else {
+            physical
+        }
     };
-    let mut best = best_shape(id, prep, waveform, recs, physical);
     // the standard errors of the chosen form only
     add_standard_errors(best.signature.as_ref(), recs, prep, &mut best.fit);
     Ok(best)
 }
 
-/// `physical` (scored) against the shapes with each of [`KNOT_COUNTS`]
-/// knots: the best by held-out χ² under the margins of [`choose_form`],
-/// every form's score in its `scores`.
+/// The knots of effect `id`'s shape form with each of [`KNOT_COUNTS`] (each
+/// length once: fewer where the driver has fewer values) where it has one
+/// here.
+fn shape_knot_sets(
+    id: &str,
+    prep: &Prepared,
+    waveform: &Waveform,
+    recs: &[Sample],
+) -> Vec<Vec<f64>> {
+    let mut sets: Vec<Vec<f64>> = Vec::new();
+    for &k in KNOT_COUNTS {
+        if let Some(q) = knots_at_quantiles(id, k, recs, prep, waveform)
+            && !sets.iter().any(|p| p.len() == q.len())
+            && make_shape_signature(id, &q, prep, waveform).is_some()
+        {
+            sets.push(q);
+        }
+    }
+    sets
+}
+
+/// `physical` (scored) against the shapes of `knot_sets`: the best by
+/// held-out χ² under the margins of [`choose_form`], every scored form in
+/// its `scores` (a shape whose in-sample χ² already rules it out
+/// — [`could_win`] — is fitted but not scored).
 fn best_shape(
     id: &str,
     prep: &Prepared,
     waveform: &Waveform,
     recs: &[Sample],
-    physical: FormChoice,
+    (physical, knot_sets): (FormChoice, Vec<Vec<f64>>),
 ) -> FormChoice {
     let mut scores = physical.scores.clone();
     let mut best_cv = scores[0].cv_chi2;
     let mut best = physical;
-    let knot_sets: Vec<Option<Vec<f64>>> = KNOT_COUNTS
-        .iter()
-        .map(|&k| knots_at_quantiles(id, k, recs, prep, waveform))
-        .collect();
-    // the shapes fitted in parallel (the first set of each length: the
-    // others are tried below only if it failed), then chosen in order
-    let first_of_len =
-        |i: usize, q: &[f64]| !knot_sets[..i].iter().flatten().any(|p| p.len() == q.len());
-    // (outer `None`: not fitted yet)
-    let mut fitted: Vec<Option<Option<ShapeTry>>> = knot_sets
+    // the shapes fitted in parallel, then scored and chosen in order
+    let fitted: Vec<Option<(SignatureFit, Box<dyn Signature>)>> = knot_sets
         .par_iter()
-        .enumerate()
-        .map(|(i, q)| {
-            let q = q.as_ref().filter(|q| first_of_len(i, q))?;
-            Some(try_shape(id, q, prep, waveform, recs))
-        })
+        .map(|q| try_shape(id, q, prep, waveform, recs))
         .collect();
-    for (i, knots) in knot_sets.into_iter().enumerate() {
-        // (fewer knots where the driver has fewer values: each K once)
-        let Some(knots) =
-            knots.filter(|q| !scores.iter().any(|s| s.form == shape_form_name(q.len())))
-        else {
+    let share = cv_sample_share(recs.len());
+    for (knots, fit) in knot_sets.into_iter().zip(fitted) {
+        let Some((f, s)) = fit else {
             continue;
         };
-        let Some((f, s, c)) = fitted[i]
-            .take()
-            .unwrap_or_else(|| try_shape(id, &knots, prep, waveform, recs))
-        else {
+        let extra = f.n_params.saturating_sub(best.fit.n_params);
+        let d_sub = (best.fit.chi2 - f.chi2) * share;
+        let mut margin = form_margin(d_sub, extra);
+        if best.knots.is_none() {
+            margin = margin.max(MIN_REL_GAIN_OVER_PHYSICAL * best_cv);
+        }
+        if !could_win(f.chi2 * share, best_cv - margin) {
+            continue;
+        }
+        let Ok(c) = cv_refit(s.as_ref(), recs, prep, &f).map(|h| h.chi2) else {
             continue;
         };
         scores.push(FormScore {
             form: shape_form_name(knots.len()),
             cv_chi2: c,
         });
-        let extra = f.n_params.saturating_sub(best.fit.n_params);
-        let d_sub = (best.fit.chi2 - f.chi2) * cv_sample_share(recs.len());
-        let mut margin = form_margin(d_sub, extra);
-        if best.knots.is_none() {
-            margin = margin.max(MIN_REL_GAIN_OVER_PHYSICAL * best_cv);
-        }
         if c < best_cv - margin {
             best_cv = c;
             best = FormChoice {
@@ -192,22 +220,49 @@ fn best_shape(
     best
 }
 
-/// The shape form of effect `id` with `knots` fitted to `recs`: its fit,
-/// signature and held-out χ² ([`cv_refit`]); `None` when it cannot be fitted.
-/// A fitted shape form: its fit, signature and held-out χ².
-type ShapeTry = (SignatureFit, Box<dyn Signature>, f64);
+/// Whether a form whose in-sample χ² scaled to the held-out samples is
+/// `in_sample` could score below `needed` on them: a form fitted on the
+/// other blocks predicts a sample no better than one fitted on all of them
+/// (the held-out χ² exceeds the in-sample one by the fit's optimism, ≥ 0 in
+/// expectation), but for the scatter of a subsample's χ², [`FORM_Z`]·√(2χ²).
+/// A shape that cannot win is not refitted on the blocks (five fits each).
+fn could_win(in_sample: f64, needed: f64) -> bool {
+    in_sample - FORM_Z * (2.0 * in_sample.max(0.0)).sqrt() - FORM_Z * FORM_Z < needed
+}
 
+/// The shape form of effect `id` with `knots` fitted to `recs` and its
+/// signature; `None` when it cannot be fitted.
 fn try_shape(
     id: &str,
     knots: &[f64],
     prep: &Prepared,
     waveform: &Waveform,
     recs: &[Sample],
-) -> Option<ShapeTry> {
+) -> Option<(SignatureFit, Box<dyn Signature>)> {
     let s = make_shape_signature(id, knots, prep, waveform)?;
     let f = fit_values(s.as_ref(), recs, prep, None).ok()?;
-    let (c, _) = cv_refit(s.as_ref(), recs, prep, &f).ok()?;
-    Some((f, s, c))
+    Some((f, s))
+}
+
+/// Whether a shape could replace the physical form that scored `physical`
+/// on the held-out blocks, the noise alone giving `noise_floor` χ² per
+/// sample (`None`: not measured — always). A shape must predict the
+/// held-out samples [`MIN_REL_GAIN_OVER_PHYSICAL`] of the physical form's
+/// χ² better, and no form fitted on the other blocks predicts them better
+/// than their noise: its held-out χ² Σ w·(e + d)² = Σ w·e² + D + 2·Σ w·e·d
+/// (d its leftover, independent of the held-out noise e) is at least
+/// Σ w·e² − [`FORM_Z`]² at the significance of the form choice, and Σ w·e²
+/// of n held-out samples at least n·floor − [`FORM_Z`]·√(2n). Below that a
+/// physical form that explains all but the noise needs no shape, and its
+/// shapes — three of the four refits of [`choose_form`] — are not fitted
+/// (issue 33: most of a diagnosis' time was spent there).
+pub fn shapes_can_win(physical: &HeldOut, noise_floor: Option<f64>) -> bool {
+    let Some(floor) = noise_floor else {
+        return true;
+    };
+    let n = physical.samples as f64;
+    let least = floor * n - FORM_Z * (2.0 * n).sqrt() - FORM_Z * FORM_Z;
+    (1.0 - MIN_REL_GAIN_OVER_PHYSICAL) * physical.chi2 > least
 }
 
 /// The fewest illuminated captures on which the forms are compared (two per

@@ -253,7 +253,8 @@ fn layout(fit: &EffectFit) -> Vec<f64> {
 /// The profile-likelihood interval of one non-linear parameter.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ProfileInterval {
-    /// The fitted value.
+    /// The fitted value (held into the parameter's range, where its law
+    /// holds it: [`Signature::nl_bounds`]).
     pub value: f64,
     /// Lower ends at Δχ² = 1 and 4 (1σ, 2σ); NaN where none was found.
     pub lower: [f64; 2],
@@ -370,16 +371,24 @@ pub fn profile_intervals(
             stride,
             refits: 0,
         };
-        let Some(chi0) = prof.chi2_at(fit.nl[i]) else {
+        // a value the fit left beyond its range is the law's at the bound
+        // (the signatures clamp their parameters into `nl_bounds`: χ² is
+        // flat beyond it), so the profile starts there — else an end on the
+        // flat side would lie beyond the value (`[≤ 0, −0.096]` for a
+        // `first_image_index` fitted at −0.096 in [0, 8])
+        let bound = bounds.get(i).copied().flatten();
+        let value = bound.map_or(fit.nl[i], |(lo, hi)| fit.nl[i].clamp(lo, hi));
+        prof.start[held] = value;
+        prof.warm = prof.start.clone();
+        let Some(chi0) = prof.chi2_at(value) else {
             continue;
         };
         // Δχ² of the subsample back to all samples, in units of χ²/dof and
         // with the per-pixel parameters' freedom put back: `free_se` is the
         // scaled error with them free, `held_se` the unscaled one held
         let factor = stride as f64 * (held_se / free_se).powi(2);
-        let bound = bounds.get(i).copied().flatten();
         let mut iv = ProfileInterval {
-            value: fit.nl[i],
+            value,
             lower: [f64::NAN; 2],
             upper: [f64::NAN; 2],
             at_range_bound: Vec::new(),
@@ -393,7 +402,7 @@ pub fn profile_intervals(
                 let label = format!("{side}_{}sigma", l + 1);
                 let found = find_end(
                     &mut prof,
-                    (fit.nl[i], free_se),
+                    (value, free_se),
                     (sign, *level, limit),
                     (chi0, factor),
                     inside,
@@ -447,7 +456,7 @@ fn find_end(
     inside: ProfilePoint,
 ) -> Option<(f64, bool, ProfilePoint)> {
     let target = level.sqrt();
-    let room = limit.map_or(f64::INFINITY, |b| sign * (b - value));
+    let room = limit.map_or(f64::INFINITY, |b| (sign * (b - value)).max(0.0));
     let (mut lo, mut hi) = (inside, None::<ProfilePoint>);
     let mut dist = if lo.1 > 0.0 {
         lo.0 * target / lo.1
@@ -473,15 +482,36 @@ fn find_end(
             hi = Some((dist, root));
         }
         dist = match hi {
-            Some(h) => lo.0 + (target - lo.1) * (h.0 - lo.0) / (h.1 - lo.1),
+            Some(h) => bracket_step(lo, h, target),
             // not yet beyond the level: extrapolate through the origin's line
             None if root > 0.0 => (dist * target / root).max(1.2 * dist),
             None => 2.0 * dist,
         };
     }
     let h = hi?;
-    let d = lo.0 + (target - lo.1) * (h.0 - lo.0) / (h.1 - lo.1);
+    // not converged: the bracket's outer end where it is still wide (the
+    // interval overstated, never understated), else its interpolation
+    let d = if h.0 - lo.0 > 0.1 * h.0 {
+        h.0
+    } else {
+        bracket_step(lo, h, target)
+    };
     Some((value + sign * d, false, (d, target)))
+}
+
+/// The next distance inside the bracket `lo` (below the level `target`) –
+/// `hi` (beyond it): regula falsi on √Δχ², or the bracket's middle where
+/// that stays within a tenth of either end (a profile flat at first and
+/// steep later — a parameter at its range's bound — made regula falsi creep
+/// from the flat end: `first_image_index`'s upper end 10⁻¹⁰ from its value).
+fn bracket_step(lo: ProfilePoint, hi: ProfilePoint, target: f64) -> f64 {
+    let d = lo.0 + (target - lo.1) * (hi.0 - lo.0) / (hi.1 - lo.1);
+    let tenth = 0.1 * (hi.0 - lo.0);
+    if d < lo.0 + tenth || d > hi.0 - tenth {
+        0.5 * (lo.0 + hi.0)
+    } else {
+        d
+    }
 }
 
 /// A fitted effect's uncertainty: [`profiled_standard_errors`] and

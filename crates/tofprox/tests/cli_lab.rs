@@ -28,6 +28,17 @@ fn params_with_errors(v: &serde_json::Value) -> (&Named, &Named) {
     (params, ses)
 }
 
+/// `tofprox lab add vcsel_droop --model base --data rec [extra…] --out out --json`: its JSON
+/// (asserting it exits 0).
+fn add_droop(base: &str, rec: &str, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["lab", "add", "vcsel_droop", "--model", base, "--data", rec];
+    args.extend_from_slice(extra);
+    args.extend(["--out", out.to_str().unwrap(), "--json"]);
+    let o = run(&args);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 #[test]
 fn diagnose_add_report_end_to_end() {
     let tmp = tempfile::tempdir().unwrap();
@@ -111,20 +122,7 @@ fn diagnose_add_report_end_to_end() {
     );
 
     let m2 = tmp.path().join("m2.toml");
-    let o = run(&[
-        "lab",
-        "add",
-        "vcsel_droop",
-        "--model",
-        &base,
-        "--data",
-        &rec,
-        "--out",
-        m2.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let a: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let a = add_droop(&base, &rec, &m2, &[]);
     assert_eq!(a["effect"], "vcsel_droop");
     let before = a["before"]["raw_lsb"].as_f64().unwrap();
     let after = a["after"]["raw_lsb"].as_f64().unwrap();
@@ -170,22 +168,7 @@ fn diagnose_add_report_end_to_end() {
     // --hold: τ held at the truth's value, the rate fitted around it (and τ written as held)
     let m3 = tmp.path().join("m3.toml");
     let tau_us = tau_ms * 1000.0;
-    let o = run(&[
-        "lab",
-        "add",
-        "vcsel_droop",
-        "--model",
-        &base,
-        "--data",
-        &rec,
-        "--hold",
-        &format!("tau_us={tau_us}"),
-        "--out",
-        m3.to_str().unwrap(),
-        "--json",
-    ]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let h: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let h = add_droop(&base, &rec, &m3, &["--hold", &format!("tau_us={tau_us}")]);
     assert_eq!(h["held"]["tau_us"].as_f64(), Some(tau_us));
     assert!((h["params"]["ln_tau"].as_f64().unwrap() - tau_ms.ln()).abs() < 1e-9);
     assert!(h["standard_errors"]["ln_tau"].is_null(), "held: no error");

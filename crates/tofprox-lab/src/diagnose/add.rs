@@ -123,6 +123,7 @@ pub fn add_effect_to(
                 &spec,
                 &before.model.waveform,
                 &before.recs,
+                before.noise_floor(),
             )?;
             let fit = EffectFit {
                 id: effect.to_string(),

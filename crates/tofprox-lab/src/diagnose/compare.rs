@@ -127,6 +127,14 @@ impl Comparison {
     pub fn default_tolerance_mm(&self) -> f64 {
         TOLERANCE_NOISE_SHARE * self.noise_single.mm
     }
+
+    /// The χ² per sample of the noise alone, dof/n, where the noise was
+    /// measured (`None` where it was estimated from these residuals: their
+    /// χ² per sample is then near 1 whatever they hold); what
+    /// `crate::form::shapes_can_win` measures a form against.
+    pub fn noise_floor(&self) -> Option<f64> {
+        (self.model.noise.source.measured() && self.n > 0).then(|| self.dof / self.n as f64)
+    }
 }
 
 /// Fit the lab model of `spec` to the recording and compare it with the data.

@@ -297,9 +297,18 @@ pub(super) fn screen_candidate(
     significant: bool,
 ) -> Result<CandidateScore, LabError> {
     let share = |x: f64| if significant { x } else { f64::NAN };
-    let (sig, f, knots, form_scores) = if crate::shape::has_shape_form(id) {
-        let c =
-            crate::shape::choose_form(id, prep, &cmp.model.spec, &cmp.model.waveform, &cmp.recs)?;
+    // (no excess over the noise: no form explains more than noise, and the
+    // verdict is `nothing_missing` whatever they score — the forms are not
+    // compared, as for an effect that explains little of an excess)
+    let (sig, f, knots, form_scores) = if crate::shape::has_shape_form(id) && significant {
+        let c = crate::shape::choose_form(
+            id,
+            prep,
+            &cmp.model.spec,
+            &cmp.model.waveform,
+            &cmp.recs,
+            cmp.noise_floor(),
+        )?;
         (c.signature, c.fit, c.knots, c.scores)
     } else {
         let sig = make_signature(id, prep, &cmp.model.spec, &cmp.model.waveform)?;
