@@ -430,17 +430,7 @@ pub fn residual_ratio(
     roi: Roi,
     exposure_us: f64,
 ) -> Option<f32> {
-    let (rows, cols) = frame.dim();
-    if calibration.lsb_per_us.dim() != (4, rows, cols) || !(exposure_us.is_finite()) {
-        return None;
-    }
-    let (mut proj, mut reference) = (0.0f64, 0.0f64);
-    for (row, col, a, ph) in usable_phasors(frame, roi) {
-        let (x, y) = calibration.phasor_per_us(algorithm, row, col);
-        proj += a * ph.cos();
-        reference += f64::from(x.hypot(y)) * exposure_us;
-    }
-    (reference > 0.0).then(|| (proj / reference) as f32)
+    RoiPhasorSums::of(frame, roi, Some((calibration, algorithm, exposure_us))).residual_ratio()
 }
 
 /// Whether the ROI's light comes from the cover window alone: the sum of its unsaturated
@@ -454,12 +444,54 @@ pub fn residual_ratio(
 /// unambiguous range is indistinguishable from it with one frequency (a documented limit).
 /// `false` when the ROI has no usable pixel.
 pub fn phasor_points_at_window(frame: &DepthFrame, roi: Roi, tolerance_rad: f64) -> bool {
-    let (mut re, mut im) = (0.0f64, 0.0f64);
-    for (_, _, a, ph) in usable_phasors(frame, roi) {
-        re += a * ph.cos();
-        im += a * ph.sin();
+    RoiPhasorSums::of(frame, roi, None).points_at_window(tolerance_rad)
+}
+
+/// The sums over the ROI's unsaturated, finite pixels that [`phasor_points_at_window`] and
+/// [`residual_ratio`] read, taken in one pass (each pixel's `cos φ`, `sin φ` once): the summed
+/// phasor `Σ A·e^{iφ}` (eq. 2.2/2.3) and, with a crosstalk calibration, `Σ |X| t`.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RoiPhasorSums {
+    /// `Σ A cos φ` (LSB).
+    re_lsb: f64,
+    /// `Σ A sin φ` (LSB).
+    im_lsb: f64,
+    /// `Σ |X| t` (LSB); 0 without a usable calibration.
+    reference_lsb: f64,
+}
+
+impl RoiPhasorSums {
+    /// The sums over `roi` of `frame`; `crosstalk`: the calibration, the frame's algorithm and
+    /// exposure (µs) — ignored when its shape is not the frame's or the exposure is not finite.
+    pub fn of(
+        frame: &DepthFrame,
+        roi: Roi,
+        crosstalk: Option<(&CrosstalkCalibration, Algorithm, f64)>,
+    ) -> Self {
+        let (rows, cols) = frame.dim();
+        let crosstalk =
+            crosstalk.filter(|(x, _, t)| x.lsb_per_us.dim() == (4, rows, cols) && t.is_finite());
+        let mut s = RoiPhasorSums::default();
+        for (row, col, a, ph) in usable_phasors(frame, roi) {
+            s.re_lsb += a * ph.cos();
+            s.im_lsb += a * ph.sin();
+            if let Some((x, algorithm, exposure_us)) = crosstalk {
+                let (x, y) = x.phasor_per_us(algorithm, row, col);
+                s.reference_lsb += f64::from(x.hypot(y)) * exposure_us;
+            }
+        }
+        s
     }
-    re > 0.0 && im.atan2(re).abs() <= tolerance_rad
+
+    /// The summed phasor points at the window: `|arg| ≤ tolerance_rad` ([`phasor_points_at_window`]).
+    pub fn points_at_window(&self, tolerance_rad: f64) -> bool {
+        self.re_lsb > 0.0 && self.im_lsb.atan2(self.re_lsb).abs() <= tolerance_rad
+    }
+
+    /// `Σ A cos φ / Σ |X| t` ([`residual_ratio`]); `None` without a calibration or a usable pixel.
+    pub fn residual_ratio(&self) -> Option<f32> {
+        (self.reference_lsb > 0.0).then(|| (self.re_lsb / self.reference_lsb) as f32)
+    }
 }
 
 /// Near pixels the cover window alone can explain (issue 21: a window that changes). The

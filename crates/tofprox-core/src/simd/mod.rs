@@ -8,7 +8,7 @@
 //! baseline, confirmed at run time). The token implements [`Simd`], so every vector operation is
 //! a method of the proof (`s.add(a, b)`): an `unsafe` intrinsic call inside is sound by
 //! construction, and its SAFETY comment only has to argue the memory access, if any. The
-//! `#[target_feature]` entry points of a kernel (`pipeline::kernel_avx2`, the ROI pass of
+//! `#[target_feature]` entry points of a kernel (`pipeline::kernel::kernel_avx2`, the ROI pass of
 //! `proximity`) take their token as an argument, so the one `unsafe` call into each names the
 //! proof it relies on.
 //!

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use tofprox_core::crosstalk::{phasor_points_at_window, residual_ratio};
+use tofprox_core::crosstalk::RoiPhasorSums;
 use tofprox_core::phasor::distance_to_phase_rad;
 use tofprox_core::pipeline::{Calibration, DepthFrame};
 use tofprox_core::proximity::Roi;
@@ -43,10 +43,12 @@ pub(super) fn window_view(
     cycle: &RawCycle,
 ) -> WindowView {
     let tolerance_rad = distance_to_phase_rad(WINDOW_TOLERANCE_M, cycle.geometry.modulation_hz);
+    // one pass over the ROI's phasors for both
+    let crosstalk = (used.crosstalk.as_ref()).map(|x| (x, captured, cycle.exposure_us));
+    let sums = RoiPhasorSums::of(frame, roi, crosstalk);
     WindowView {
-        points_at_window: phasor_points_at_window(frame, roi, tolerance_rad),
-        residual_ratio: (used.crosstalk.as_ref())
-            .and_then(|x| residual_ratio(frame, x, captured, roi, cycle.exposure_us)),
+        points_at_window: sums.points_at_window(tolerance_rad),
+        residual_ratio: sums.residual_ratio(),
     }
 }
 
