@@ -160,7 +160,14 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
     };
     let k = mode.raw_images() as u32;
     let (full, _) = modelled_reading(&cfg.energy, &nominal, k, exposure);
-    let (probe, _) = modelled_reading(&cfg.energy, &nominal, 1, cfg.exposure.min_us);
+    // the probe reads every `probe.row_step`-th row where the sequencer skips rows that far
+    // (the daemon's `probe_row_step`; the emulated sensor's map says how far it does)
+    let probe_step = probe_row_step(&cfg);
+    let probe_nominal = Nominal {
+        readout_fraction: nominal.readout_fraction / f64::from(probe_step),
+        ..nominal
+    };
+    let (probe, _) = modelled_reading(&cfg.energy, &probe_nominal, 1, cfg.exposure.min_us);
     let low = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, true);
     let powered = modelled_average_mw(&cfg.energy, &nominal, k, exposure, rate, false);
     let slow = modelled_average_mw(
@@ -196,6 +203,7 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
             "fast_rate_hz": cfg.loop_.fast_rate_hz, "fast_average_mw": fast,
             "reading_parts_mj": parts_json(&full), "probe_parts_mj": parts_json(&probe),
             "readout_fraction": nominal.readout_fraction,
+            "probe_row_step": probe_step, "probe_readout_fraction": probe_nominal.readout_fraction,
             "table_2_1": refs,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
@@ -224,10 +232,11 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         parts_line(&full)
     );
     println!(
-        "  one presence probe  {:.3} mJ: {} (1 raw image at {:.0} µs, while far and still)",
+        "  one presence probe  {:.3} mJ: {} (1 raw image at {:.0} µs, {} of the window, while far and still)",
         probe.total_mj(),
         parts_line(&probe),
-        cfg.exposure.min_us
+        cfg.exposure.min_us,
+        rows_read(probe_step)
     );
     println!(
         "  assumptions: start-up {:.1} ms at {} mW + bring-up {:.1} ms at {} mW, flash load {:.1} ms at {} mW, read-out {:.1} ms/image of {:.0} % of the pixels, CPU {:.2} ms at {} mW, reset {} mW",
@@ -292,6 +301,28 @@ fn shipped_readout_fraction(cfg: &Config) -> f64 {
             f64::from(w.rows) * n as f64 / (rows * cols) as f64
         }
         None => 1.0,
+    }
+}
+
+/// The probe's row step on the emulated sensor at `cfg`: `probe.row_step`, at most what its
+/// sequencer skips (`RowWindowRegs::row_step_max`; 1 without a row window).
+fn probe_row_step(cfg: &Config) -> u16 {
+    let map = tofprox_bridge::SensorMap::emulated();
+    let max = map.row_window.as_ref().map_or(1, |w| w.row_step_max());
+    cfg.probe.row_step.clamp(1, max)
+}
+
+/// "every row", "every 2nd row", "every 4th row", …
+fn rows_read(step: u16) -> String {
+    let suffix = match (step % 10, step % 100) {
+        (1, r) if r != 11 => "st",
+        (2, r) if r != 12 => "nd",
+        (3, r) if r != 13 => "rd",
+        _ => "th",
+    };
+    match step {
+        1 => "every row".to_string(),
+        _ => format!("every {step}{suffix} row"),
     }
 }
 

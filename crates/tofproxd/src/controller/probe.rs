@@ -3,7 +3,9 @@
 
 use std::time::Duration;
 
-use ndarray::{Axis, Slice};
+use ndarray::{ArrayView2, ArrayView3, Axis, Slice};
+use tofprox_core::pipeline::RawSample;
+use tofprox_core::proximity::Roi;
 use tofprox_core::readout::crop_map;
 use tofprox_core::{RowWindow, SensorGeometry};
 
@@ -168,27 +170,11 @@ impl<S: FrameSource> Controller<S> {
             .and_then(|o| crop_map(&o.dark_lsb, window, "offset").ok());
         let dark = dark.as_ref().map(|d| d.slice_axis(Axis(0), rows));
         let (mid, tile) = (window.mid_code() as f32, self.probe.tile(step));
-        let pick = |n: usize| (image < n).then_some(image);
-        Some(match &cycle.frames {
-            RawImages::U16(a) => {
-                let img = a.index_axis(Axis(0), pick(a.dim().0)?);
-                let img = if sparse {
-                    img
-                } else {
-                    img.slice_axis_move(Axis(0), rows)
-                };
-                tile_means(img, dark, mid, roi, tile)
-            }
-            RawImages::F32(a) => {
-                let img = a.index_axis(Axis(0), pick(a.dim().0)?);
-                let img = if sparse {
-                    img
-                } else {
-                    img.slice_axis_move(Axis(0), rows)
-                };
-                tile_means(img, dark, mid, roi, tile)
-            }
-        })
+        let rows = (!sparse).then_some(rows);
+        match &cycle.frames {
+            RawImages::U16(a) => image_tile_means(a.view(), image, rows, dark, mid, roi, tile),
+            RawImages::F32(a) => image_tile_means(a.view(), image, rows, dark, mid, roi, tile),
+        }
     }
 
     /// The row step of the probe's read-out: `probe.row_step` where the source's sequencer
@@ -230,4 +216,23 @@ impl<S: FrameSource> Controller<S> {
         });
         self.probe.full_reading(reference);
     }
+}
+
+/// [`tile_means`] of raw image `image` of `frames` (None past the last), from the rows `rows`
+/// selects (None: the frames hold only the rows read, a probe's sparse read-out).
+fn image_tile_means<T: RawSample>(
+    frames: ArrayView3<'_, T>,
+    image: usize,
+    rows: Option<Slice>,
+    dark: Option<ArrayView2<'_, f32>>,
+    mid_code: f32,
+    roi: Roi,
+    tile: (usize, usize),
+) -> Option<Vec<f32>> {
+    let img = frames.index_axis_move(Axis(0), (image < frames.dim().0).then_some(image)?);
+    let img = match rows {
+        Some(rows) => img.slice_axis_move(Axis(0), rows),
+        None => img,
+    };
+    Some(tile_means(img, dark, mid_code, roi, tile))
 }
