@@ -27,7 +27,7 @@ pub enum Event {
     Status(StatusUpdate),
     /// A depth frame (sent only while a depth claim is held).
     Depth(DepthMessage),
-    /// The energy meter's total since start after a cycle (mJ; [`Status::energy_mj`]).
+    /// The energy meter's total since start after a cycle (mJ; [`crate::hub::Status::energy_mj`]).
     Energy(f64),
 }
 
@@ -55,7 +55,7 @@ pub struct StatusUpdate {
     pub exposure_us: Option<f64>,
     /// New has_sensor.
     pub has_sensor: Option<bool>,
-    /// How near readings are checked (see [`Status::amplitude_check`]).
+    /// How near readings are checked (see [`crate::hub::Status::amplitude_check`]).
     pub amplitude_check: Option<&'static str>,
     /// The rule that decided this update's reading.
     pub reason: Option<Reason>,
