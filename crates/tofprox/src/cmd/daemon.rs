@@ -308,8 +308,8 @@ fn shipped_readout_fraction(cfg: &Config) -> f64 {
 /// sequencer skips (`RowWindowRegs::row_step_max`; 1 without a row window).
 fn probe_row_step(cfg: &Config) -> u16 {
     let map = tofprox_bridge::SensorMap::emulated();
-    let max = map.row_window.as_ref().map_or(1, |w| w.row_step_max());
-    cfg.probe.row_step.clamp(1, max)
+    cfg.probe
+        .row_step_for(map.row_window.as_ref().map_or(1, |w| w.row_step_max()))
 }
 
 /// "every row", "every 2nd row", "every 4th row", …

@@ -185,6 +185,12 @@ impl Default for ProbeConfig {
 }
 
 impl ProbeConfig {
+    /// The row step a probe reads with: `row_step`, at most what the source's sequencer skips
+    /// (`max_row_step`; 1: every row).
+    pub fn row_step_for(&self, max_row_step: u16) -> u16 {
+        self.row_step.min(max_row_step).max(1)
+    }
+
     pub(super) fn validate(&self) -> Result<(), ConfigError> {
         range(
             "probe.full_every",

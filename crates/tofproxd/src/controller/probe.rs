@@ -180,13 +180,7 @@ impl<S: FrameSource> Controller<S> {
     /// The row step of the probe's read-out: `probe.row_step` where the source's sequencer
     /// skips rows that far, else every row.
     fn probe_row_step(&self) -> usize {
-        usize::from(
-            self.cfg
-                .probe
-                .row_step
-                .min(self.source.max_row_step())
-                .max(1),
-        )
+        usize::from(self.cfg.probe.row_step_for(self.source.max_row_step()))
     }
 
     /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
