@@ -138,7 +138,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
             let lut = extract_wiggling(
                 data.view(),
                 &ExtractionOptions::new(alg, &c.phases_deg, FPPN_AT_M, 80e6, 12)
-                    .offset(set.offset.as_ref())
+                    .offset(set.offset())
                     .rays(rays.as_ref())
                     .lut_size(256),
             )
@@ -147,7 +147,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
             let fppn = extract_fppn(
                 flat_data.view(),
                 &ExtractionOptions::new(alg, &flat.phases_deg, FPPN_AT_M, 80e6, 12)
-                    .offset(set.offset.as_ref())
+                    .offset(set.offset())
                     .wiggling(set.wiggling(alg))
                     .rays(rays.as_ref()),
             )
@@ -165,7 +165,7 @@ fn flat_wall_through_a_wide_lens_calibrates_below_1_cm_everywhere() {
     let with_lens = calibrate_k(Some(fit.intrinsics));
     let today = calibrate_k(None);
     assert_eq!(
-        with_lens.intrinsics.map(|k| k.fx_px as f32),
+        with_lens.intrinsics().map(|k| k.fx_px as f32),
         Some(fit.intrinsics.fx_px as f32)
     );
 

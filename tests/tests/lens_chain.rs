@@ -406,9 +406,9 @@ fn calibrate_documented(rec: &Recording) -> (CalibrationSet, Vec<String>) {
 /// p2 have standard errors of 4–7 % of their values: a ray factor sees only how far a pixel's
 /// ray is from the axis, and k1/k2 trade off over a field of normalised radius ≤ 0.75.)
 fn assert_lens_within_1_percent(set: &CalibrationSet, report: &[String]) {
-    let k = set.intrinsics.unwrap();
+    let k = set.intrinsics().unwrap();
     let se = fit_standard_errors(report);
-    for (name, got, want) in fitted_and_true(&k) {
+    for (name, got, want) in fitted_and_true(k) {
         let rel = (got - want).abs() / want.abs();
         let sigma = se[name];
         eprintln!(
@@ -573,7 +573,7 @@ fn lens_fit_refuses_data_that_cannot_pin_it_and_says_what_to_capture() {
         let rec = record(&t.path().join(name), &sensor, &layout, 4);
         let mut set = CalibrationSet::new(rec.sensor());
         let err = extract(&rec, &mut set, &Extract::Intrinsics, &opts(), &mut |_| {}).unwrap_err();
-        assert!(set.intrinsics.is_none());
+        assert!(set.intrinsics().is_none());
         let msg = err.to_string();
         eprintln!("{name}: {msg}");
         assert!(msg.contains("≥ 3 distinct distances"), "{msg}");
@@ -632,7 +632,7 @@ fn noise_free_lens_recovers_every_coefficient_within_0_1_percent() {
         let rec = record(&t.path().join(name), &Sensor::new(), &layout, 5);
         let mut set = CalibrationSet::new(rec.sensor());
         run(&rec, &mut set, Extract::Intrinsics);
-        for (value, got, want) in fitted_and_true(&set.intrinsics.unwrap()) {
+        for (value, got, want) in fitted_and_true(set.intrinsics().unwrap()) {
             let rel = (got - want).abs() / want.abs();
             assert!(rel < 0.001, "{name}: {value}: fitted {got}, truth {want}");
         }

@@ -14,7 +14,6 @@
 //! [`CalibrationSet::set_wiggling`] drop the parts that were derived from what they replace.
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::{Path, PathBuf};
 
@@ -22,7 +21,7 @@ use ndarray::{Array1, Array2, Array3, Ix1, Ix2, Ix3};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use tofprox_core::calib::{FppnMap, OffsetCalibration, WigglingLut};
-use tofprox_core::camera::{Distortion, Intrinsics, RayGrid};
+use tofprox_core::camera::{Intrinsics, RayGrid};
 use tofprox_core::crosstalk::CrosstalkCalibration;
 use tofprox_core::pipeline::Calibration;
 use tofprox_core::radiometry::AmplitudeScale;
@@ -35,9 +34,12 @@ use crate::fsutil;
 
 mod chain;
 mod files;
+mod part;
 use crate::limits;
 use crate::npy::{self, NpyArray, shape_str};
 pub use chain::{ChainEntry, Dropped, PartState};
+pub use part::{CalibPart, PartValue};
+use part::{INTRINSICS_LEN, intrinsics_array, intrinsics_from_array};
 
 /// `format` value of a calibration set.
 pub const CALIBRATION_FORMAT: &str = "tofprox-calibration";
@@ -45,95 +47,6 @@ pub const CALIBRATION_FORMAT: &str = "tofprox-calibration";
 pub const CALIBRATION_VERSION: i64 = 1;
 /// File name of the calibration header.
 pub const CALIBRATION_TOML: &str = "calibration.toml";
-
-/// One part of a calibration set.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum CalibPart {
-    /// Lens intrinsics and distortion, `[fx, fy, cx, cy, k1, k2, p1, p2, k3]` (OpenCV order).
-    Intrinsics,
-    /// Per-pixel dark frame (FPN).
-    Offset,
-    /// Cover-window crosstalk per raw image (0°, 90°, 180°, 270°), LSB per µs.
-    Crosstalk,
-    /// Wiggling LUT for 2-phase evaluation.
-    Wiggling2Phase,
-    /// Wiggling LUT for 4-phase evaluation.
-    Wiggling4Phase,
-    /// Per-pixel phase offsets (FPPN) for 4-phase evaluation (absolute w.r.t. the 4-phase LUT).
-    Fppn,
-    /// Per-pixel phase offsets (FPPN) for 2-phase evaluation (absolute w.r.t. the 2-phase LUT).
-    Fppn2Phase,
-    /// Per-pixel amplitude scale `K` of `A = K·ρ·t/d²` (thesis 2.2.1), LSB·m²/µs.
-    Amplitude,
-}
-
-impl CalibPart {
-    /// All parts, in order of application.
-    pub const ALL: [CalibPart; 8] = [
-        CalibPart::Intrinsics,
-        CalibPart::Offset,
-        CalibPart::Crosstalk,
-        CalibPart::Wiggling2Phase,
-        CalibPart::Wiggling4Phase,
-        CalibPart::Fppn,
-        CalibPart::Fppn2Phase,
-        CalibPart::Amplitude,
-    ];
-    /// The table name in `calibration.toml` (also the array's file stem).
-    pub fn name(self) -> &'static str {
-        match self {
-            CalibPart::Intrinsics => "intrinsics",
-            CalibPart::Offset => "offset",
-            CalibPart::Crosstalk => "crosstalk",
-            CalibPart::Wiggling2Phase => "wiggling_2phase",
-            CalibPart::Wiggling4Phase => "wiggling_4phase",
-            CalibPart::Fppn => "fppn",
-            CalibPart::Fppn2Phase => "fppn_2phase",
-            CalibPart::Amplitude => "amplitude",
-        }
-    }
-    /// The array file name.
-    pub fn file_name(self) -> String {
-        format!("{}.npy", self.name())
-    }
-    /// The wiggling part for an algorithm.
-    pub fn wiggling(algorithm: Algorithm) -> CalibPart {
-        match algorithm {
-            Algorithm::TwoPhase => CalibPart::Wiggling2Phase,
-            Algorithm::FourPhase => CalibPart::Wiggling4Phase,
-        }
-    }
-    /// The FPPN part for an algorithm.
-    pub fn fppn(algorithm: Algorithm) -> CalibPart {
-        match algorithm {
-            Algorithm::TwoPhase => CalibPart::Fppn2Phase,
-            Algorithm::FourPhase => CalibPart::Fppn,
-        }
-    }
-    /// The algorithm a wiggling or FPPN part belongs to.
-    pub fn algorithm(self) -> Option<Algorithm> {
-        match self {
-            CalibPart::Intrinsics
-            | CalibPart::Offset
-            | CalibPart::Amplitude
-            | CalibPart::Crosstalk => None,
-            CalibPart::Wiggling2Phase | CalibPart::Fppn2Phase => Some(Algorithm::TwoPhase),
-            CalibPart::Wiggling4Phase | CalibPart::Fppn => Some(Algorithm::FourPhase),
-        }
-    }
-
-    /// A phase correction (a wiggling table, an FPPN map): within one period, and extracted
-    /// through the lens, so it records the lens's checksum where the set holds one.
-    fn phase_correction(self) -> bool {
-        self.algorithm().is_some()
-    }
-}
-
-impl fmt::Display for CalibPart {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.name())
-    }
-}
 
 /// Where a part came from.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -160,23 +73,14 @@ pub struct PartSource {
 /// A loaded (or being built) calibration set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationSet {
-    /// Lens intrinsics and distortion (full-array pixel coordinates), stored as float32.
-    pub intrinsics: Option<Intrinsics>,
-    /// Per-pixel dark frame.
-    pub offset: Option<OffsetCalibration>,
-    /// Cover-window crosstalk (extracted after the offset).
-    pub crosstalk: Option<CrosstalkCalibration>,
-    /// 2-phase wiggling LUT.
-    pub wiggling_2phase: Option<WigglingLut>,
-    /// 4-phase wiggling LUT.
-    pub wiggling_4phase: Option<WigglingLut>,
-    /// FPPN map for 4-phase evaluation (extracted after the 4-phase wiggling
-    /// LUT; also applied to 2-phase when `fppn_2phase` is absent).
-    pub fppn: Option<FppnMap>,
-    /// FPPN map for 2-phase evaluation (extracted after the 2-phase wiggling LUT).
-    pub fppn_2phase: Option<FppnMap>,
-    /// Amplitude scale of the `1/d²` law (from the correlation capture).
-    pub amplitude: Option<AmplitudeScale>,
+    /// The parts present, keyed by which part they are (the lens intrinsics in full-array
+    /// pixel coordinates and stored as float32; the offset; the crosstalk, extracted after the
+    /// offset; the 2- and 4-phase wiggling tables; the FPPN maps, each extracted after its
+    /// algorithm's table, the 4-phase one also applied to 2-phase when the 2-phase one is
+    /// absent; the amplitude scale of the `1/d²` law). Set through the `set_*` methods, which
+    /// check a part and drop what was derived from the part it replaces; read through
+    /// [`CalibrationSet::get`] or the typed accessors.
+    parts: BTreeMap<CalibPart, PartValue>,
     /// What the set is valid for: the sensor setup and window it was extracted on (the
     /// `[valid_for]` table). Applying it to anything else is refused.
     pub validity: SensorGeometry,
@@ -223,14 +127,7 @@ impl CalibrationSet {
     /// An empty set for data of `sensor`.
     pub fn new(sensor: &SensorGeometry) -> Self {
         CalibrationSet {
-            intrinsics: None,
-            offset: None,
-            crosstalk: None,
-            wiggling_2phase: None,
-            wiggling_4phase: None,
-            fppn: None,
-            fppn_2phase: None,
-            amplitude: None,
+            parts: BTreeMap::new(),
             validity: *sensor,
             sources: BTreeMap::new(),
             description: None,
@@ -240,76 +137,86 @@ impl CalibrationSet {
         }
     }
 
+    /// A part's value, if the set holds it.
+    pub fn get(&self, part: CalibPart) -> Option<&PartValue> {
+        self.parts.get(&part)
+    }
+
+    /// The lens intrinsics.
+    pub fn intrinsics(&self) -> Option<&Intrinsics> {
+        match self.get(CalibPart::Intrinsics) {
+            Some(PartValue::Intrinsics(k)) => Some(k),
+            _ => None,
+        }
+    }
+
+    /// The per-pixel dark frame.
+    pub fn offset(&self) -> Option<&OffsetCalibration> {
+        match self.get(CalibPart::Offset) {
+            Some(PartValue::Offset(o)) => Some(o),
+            _ => None,
+        }
+    }
+
+    /// The cover-window crosstalk.
+    pub fn crosstalk(&self) -> Option<&CrosstalkCalibration> {
+        match self.get(CalibPart::Crosstalk) {
+            Some(PartValue::Crosstalk(x)) => Some(x),
+            _ => None,
+        }
+    }
+
+    /// The amplitude scale of the `1/d²` law.
+    pub fn amplitude(&self) -> Option<&AmplitudeScale> {
+        match self.get(CalibPart::Amplitude) {
+            Some(PartValue::Amplitude(a)) => Some(a),
+            _ => None,
+        }
+    }
+
     /// The wiggling LUT for an algorithm.
     pub fn wiggling(&self, algorithm: Algorithm) -> Option<&WigglingLut> {
-        match algorithm {
-            Algorithm::TwoPhase => self.wiggling_2phase.as_ref(),
-            Algorithm::FourPhase => self.wiggling_4phase.as_ref(),
+        match self.get(CalibPart::wiggling(algorithm)) {
+            Some(PartValue::Wiggling(w)) => Some(w),
+            _ => None,
         }
     }
 
-    /// The FPPN map for an algorithm (2-phase falls back to the 4-phase map).
+    /// The FPPN map extracted for an algorithm (no fallback: [`CalibrationSet::fppn_for`]).
+    pub fn fppn(&self, algorithm: Algorithm) -> Option<&FppnMap> {
+        match self.get(CalibPart::fppn(algorithm)) {
+            Some(PartValue::Fppn(f)) => Some(f),
+            _ => None,
+        }
+    }
+
+    /// The FPPN map applied for an algorithm (2-phase falls back to the 4-phase map).
     pub fn fppn_for(&self, algorithm: Algorithm) -> Option<&FppnMap> {
         match algorithm {
-            Algorithm::TwoPhase => self.fppn_2phase.as_ref().or(self.fppn.as_ref()),
-            Algorithm::FourPhase => self.fppn.as_ref(),
+            Algorithm::TwoPhase => self
+                .fppn(Algorithm::TwoPhase)
+                .or(self.fppn(Algorithm::FourPhase)),
+            Algorithm::FourPhase => self.fppn(Algorithm::FourPhase),
         }
     }
 
-    /// Which parts are present.
+    /// Which parts are present, in order of application.
     pub fn parts(&self) -> Vec<CalibPart> {
-        CalibPart::ALL
-            .into_iter()
-            .filter(|p| self.has(*p))
-            .collect()
+        self.parts.keys().copied().collect()
     }
 
     /// Whether a part is present.
     pub fn has(&self, part: CalibPart) -> bool {
-        match part {
-            CalibPart::Intrinsics => self.intrinsics.is_some(),
-            CalibPart::Offset => self.offset.is_some(),
-            CalibPart::Crosstalk => self.crosstalk.is_some(),
-            CalibPart::Wiggling2Phase => self.wiggling_2phase.is_some(),
-            CalibPart::Wiggling4Phase => self.wiggling_4phase.is_some(),
-            CalibPart::Fppn => self.fppn.is_some(),
-            CalibPart::Fppn2Phase => self.fppn_2phase.is_some(),
-            CalibPart::Amplitude => self.amplitude.is_some(),
-        }
+        self.parts.contains_key(&part)
     }
 
     fn part_bytes(&self, part: CalibPart) -> Option<Vec<u8>> {
-        match part {
-            CalibPart::Intrinsics => self
-                .intrinsics
-                .as_ref()
-                .map(|k| npy::encode_f32(&intrinsics_array(k))),
-            CalibPart::Offset => self.offset.as_ref().map(|o| npy::encode_f32(&o.dark_lsb)),
-            CalibPart::Crosstalk => self
-                .crosstalk
-                .as_ref()
-                .map(|x| npy::encode_f32(&x.lsb_per_us)),
-            CalibPart::Wiggling2Phase => self
-                .wiggling_2phase
-                .as_ref()
-                .map(|w| npy::encode_f32(&w.correction_rad)),
-            CalibPart::Wiggling4Phase => self
-                .wiggling_4phase
-                .as_ref()
-                .map(|w| npy::encode_f32(&w.correction_rad)),
-            CalibPart::Fppn => self
-                .fppn
-                .as_ref()
-                .map(|f| npy::encode_f32(&f.phase_offset_rad)),
-            CalibPart::Fppn2Phase => self
-                .fppn_2phase
-                .as_ref()
-                .map(|f| npy::encode_f32(&f.phase_offset_rad)),
-            CalibPart::Amplitude => self
-                .amplitude
-                .as_ref()
-                .map(|a| npy::encode_f32(&a.lsb_m2_per_us)),
-        }
+        self.get(part).map(PartValue::npy_bytes)
+    }
+
+    /// Hold `value` as `part` (the caller has checked it).
+    fn insert(&mut self, part: CalibPart, value: PartValue) {
+        self.parts.insert(part, value);
     }
 
     /// SHA-256 (hex) of a part's array file as it would be saved.
@@ -322,16 +229,7 @@ impl CalibrationSet {
     }
 
     fn remove(&mut self, part: CalibPart) {
-        match part {
-            CalibPart::Intrinsics => self.intrinsics = None,
-            CalibPart::Offset => self.offset = None,
-            CalibPart::Crosstalk => self.crosstalk = None,
-            CalibPart::Wiggling2Phase => self.wiggling_2phase = None,
-            CalibPart::Wiggling4Phase => self.wiggling_4phase = None,
-            CalibPart::Fppn => self.fppn = None,
-            CalibPart::Fppn2Phase => self.fppn_2phase = None,
-            CalibPart::Amplitude => self.amplitude = None,
-        }
+        self.parts.remove(&part);
         self.sources.remove(&part);
         self.deps.remove(&part);
     }
@@ -406,13 +304,13 @@ impl CalibrationSet {
             .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
         self.rays_of(&k)
             .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))?;
-        self.intrinsics = Some(k);
+        self.insert(CalibPart::Intrinsics, PartValue::Intrinsics(k));
         Ok(self.record_part(CalibPart::Intrinsics, source, Deps::default()))
     }
 
     /// The unit rays of the set's window through its intrinsics (`None` without intrinsics).
     pub fn rays(&self) -> Option<Result<RayGrid, FormatError>> {
-        self.intrinsics.as_ref().map(|k| {
+        self.intrinsics().map(|k| {
             self.rays_of(k)
                 .map_err(|e| invalid(e.to_string()).key(CalibPart::Intrinsics.name()))
         })
@@ -431,7 +329,7 @@ impl CalibrationSet {
         source: PartSource,
     ) -> Result<Vec<CalibPart>, FormatError> {
         self.check_map(&offset.dark_lsb, "dark level", CalibPart::Offset.name())?;
-        self.offset = Some(offset);
+        self.insert(CalibPart::Offset, PartValue::Offset(offset));
         Ok(self.record_part(CalibPart::Offset, source, Deps::default()))
     }
 
@@ -451,10 +349,7 @@ impl CalibrationSet {
             intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
             crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
-        match lut.algorithm {
-            Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
-            Algorithm::FourPhase => self.wiggling_4phase = Some(lut),
-        }
+        self.insert(part, PartValue::Wiggling(lut));
         Ok(self.record_part(part, source, deps))
     }
 
@@ -484,10 +379,7 @@ impl CalibrationSet {
             intrinsics: Some(self.checksum_or_none(CalibPart::Intrinsics)),
             crosstalk: Some(self.checksum_or_none(CalibPart::Crosstalk)),
         };
-        match algorithm {
-            Algorithm::TwoPhase => self.fppn_2phase = Some(fppn),
-            Algorithm::FourPhase => self.fppn = Some(fppn),
-        }
+        self.insert(part, PartValue::Fppn(fppn));
         Ok(self.record_part(part, source, deps))
     }
 
@@ -503,7 +395,7 @@ impl CalibrationSet {
         if let Some(problem) = amplitude_scale_problem(&scale.lsb_m2_per_us, &self.validity) {
             return Err(invalid(problem).key(key));
         }
-        self.amplitude = Some(scale);
+        self.insert(CalibPart::Amplitude, PartValue::Amplitude(scale));
         Ok(self.record_part(CalibPart::Amplitude, source, Deps::default()))
     }
 
@@ -529,7 +421,7 @@ impl CalibrationSet {
             offset: Some(self.checksum_or_none(CalibPart::Offset)),
             ..Deps::default()
         };
-        self.crosstalk = Some(crosstalk);
+        self.insert(CalibPart::Crosstalk, PartValue::Crosstalk(crosstalk));
         Ok(self.record_part(CalibPart::Crosstalk, source, deps))
     }
 
@@ -622,10 +514,10 @@ impl CalibrationSet {
     /// The calibration the pipeline applies for `algorithm`.
     pub fn to_pipeline_calibration(&self, algorithm: Algorithm) -> Calibration {
         Calibration {
-            offset: self.offset.clone(),
+            offset: self.offset().cloned(),
             wiggling: self.wiggling(algorithm).cloned(),
             fppn: self.fppn_for(algorithm).cloned(),
-            crosstalk: self.crosstalk.clone(),
+            crosstalk: self.crosstalk().cloned(),
         }
     }
 }
@@ -648,38 +540,6 @@ fn amplitude_scale_problem(a: &Array2<f32>, sensor: &SensorGeometry) -> Option<S
             "amplitude scale {v} LSB·m²/µs (element {i}) is beyond its physical range: a white target at 1 m would exceed full scale ({max} LSB) within 1 µs"
         )
     })
-}
-
-/// Number of values of the intrinsics array.
-const INTRINSICS_LEN: usize = 9;
-
-/// `[fx, fy, cx, cy, k1, k2, p1, p2, k3]`: OpenCV's camera-matrix entries, then its
-/// `distCoeffs` order.
-fn intrinsics_array(k: &Intrinsics) -> Array1<f32> {
-    let d = &k.distortion;
-    Array1::from_iter(
-        [
-            k.fx_px, k.fy_px, k.cx_px, k.cy_px, d.k1, d.k2, d.p1, d.p2, d.k3,
-        ]
-        .map(|v| v as f32),
-    )
-}
-
-fn intrinsics_from_array(a: &Array1<f32>) -> Intrinsics {
-    let v = |i: usize| a.get(i).copied().map_or(f64::NAN, f64::from);
-    Intrinsics {
-        fx_px: v(0),
-        fy_px: v(1),
-        cx_px: v(2),
-        cy_px: v(3),
-        distortion: Distortion {
-            k1: v(4),
-            k2: v(5),
-            p1: v(6),
-            p2: v(7),
-            k3: v(8),
-        },
-    }
 }
 
 fn first_non_finite(a: &Array2<f32>) -> Option<(usize, usize)> {

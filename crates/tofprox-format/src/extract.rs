@@ -309,7 +309,7 @@ impl<'a> Extractor<'a> {
         i: usize,
     ) -> Result<Array3<f64>, ExtractError> {
         let mut data = self.rec.load(i)?.to_f64();
-        if let Some(x) = &set.crosstalk {
+        if let Some(x) = set.crosstalk() {
             self.note("subtracting the set's cover-window crosstalk before the extraction");
             let rec: &'a Recording = self.rec;
             let c = &rec.captures()[i];
@@ -383,7 +383,7 @@ impl<'a> Extractor<'a> {
             },
         )?;
         let data = self.load_without_crosstalk(set, i)?;
-        if set.offset.is_none() {
+        if set.offset().is_none() {
             self.note(
                 "no offset (FPN) in the calibration set: the wiggling tables are extracted with the mid code subtracted; run `tofprox calibrate fpn` first for the best 2-phase result",
             );
@@ -401,7 +401,7 @@ impl<'a> Extractor<'a> {
                     sensor.modulation_hz,
                     sensor.adc_bits,
                 )
-                .offset(set.offset.as_ref())
+                .offset(set.offset())
                 .rays(rays.as_ref())
                 .lut_size(self.opts.lut_size),
             )
@@ -506,7 +506,7 @@ impl<'a> Extractor<'a> {
                     sensor.modulation_hz,
                     sensor.adc_bits,
                 )
-                .offset(set.offset.as_ref())
+                .offset(set.offset())
                 .wiggling(set.wiggling(alg))
                 .rays(rays.as_ref()),
             )
@@ -548,7 +548,7 @@ impl<'a> Extractor<'a> {
                         .is_some_and(|v| *v >= 0.5)
             },
         )?;
-        if set.offset.is_none() {
+        if set.offset().is_none() {
             self.note(
                 "no offset (FPN) in the calibration set: the crosstalk is measured against the mid code; run `tofprox calibrate fpn` first",
             );
@@ -568,9 +568,9 @@ impl<'a> Extractor<'a> {
                 exposure_us: caps[i].exposure_us,
             })
             .collect();
-        let x = extract_crosstalk(&captures, set.offset.as_ref(), sensor.adc_bits).map_err(
-            core(format!("extracting the crosstalk from captures {idx:?}")),
-        )?;
+        let x = extract_crosstalk(&captures, set.offset(), sensor.adc_bits).map_err(core(
+            format!("extracting the crosstalk from captures {idx:?}"),
+        ))?;
         let amp = x.mean_amplitude_lsb(Algorithm::TwoPhase, Roi::default(), 1.0);
         let (px, py) = (0..x.lsb_per_us.dim().1)
             .flat_map(|r| (0..x.lsb_per_us.dim().2).map(move |c| (r, c)))

@@ -268,7 +268,7 @@ impl Processing {
                         opts.algo
                     ));
                 }
-                if set.offset.is_none() {
+                if set.offset().is_none() {
                     notes.push(format!(
                         "{} has no offset (FPN): the mid code is subtracted instead",
                         dir.display()

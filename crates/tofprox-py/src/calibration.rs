@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use numpy::PyArray;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use tofprox_core::Algorithm;
 use tofprox_format::{CalibPart, CalibrationSet};
 
 use crate::errors::to_py_err;
@@ -60,7 +61,7 @@ impl Calibration {
     /// The lens intrinsics (`fx`, `fy`, `cx`, `cy`, distortion) as a dict, None without them.
     #[getter]
     fn intrinsics<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_py(py, &self.set.intrinsics)
+        to_py(py, &self.set.intrinsics())
     }
 
     /// Part name → its provenance: `recording`, `recording_description`, `captures`,
@@ -97,32 +98,30 @@ impl Calibration {
         };
         let arr2 = |a: &numpy::ndarray::Array2<f32>| PyArray::from_array(py, a).into_any();
         let arr1 = |a: &numpy::ndarray::Array1<f32>| PyArray::from_array(py, a).into_any();
-        put(
-            CalibPart::Offset,
-            s.offset.as_ref().map(|o| arr2(&o.dark_lsb)),
-        )?;
-        let xt = s.crosstalk.as_ref();
+        put(CalibPart::Offset, s.offset().map(|o| arr2(&o.dark_lsb)))?;
+        let xt = s.crosstalk();
         put(
             CalibPart::Crosstalk,
             xt.map(|x| PyArray::from_array(py, &x.lsb_per_us).into_any()),
         )?;
-        let w2 = s.wiggling_2phase.as_ref();
+        let w2 = s.wiggling(Algorithm::TwoPhase);
         put(
             CalibPart::Wiggling2Phase,
             w2.map(|w| arr1(&w.correction_rad)),
         )?;
-        let w4 = s.wiggling_4phase.as_ref();
+        let w4 = s.wiggling(Algorithm::FourPhase);
         put(
             CalibPart::Wiggling4Phase,
             w4.map(|w| arr1(&w.correction_rad)),
         )?;
         put(
             CalibPart::Fppn,
-            s.fppn.as_ref().map(|f| arr2(&f.phase_offset_rad)),
+            s.fppn(Algorithm::FourPhase)
+                .map(|f| arr2(&f.phase_offset_rad)),
         )?;
-        let f2 = s.fppn_2phase.as_ref();
+        let f2 = s.fppn(Algorithm::TwoPhase);
         put(CalibPart::Fppn2Phase, f2.map(|f| arr2(&f.phase_offset_rad)))?;
-        let amp = s.amplitude.as_ref();
+        let amp = s.amplitude();
         put(CalibPart::Amplitude, amp.map(|a| arr2(&a.lsb_m2_per_us)))?;
         Ok(d)
     }

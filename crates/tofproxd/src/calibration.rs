@@ -71,16 +71,16 @@ pub fn load_for(
         return Err(mismatch(format!("its lens does not fit its array: {e}")));
     }
     let needed = match cfg.processing.mode {
-        Algorithm::TwoPhase => set.wiggling_2phase.is_some(),
-        Algorithm::FourPhase => set.wiggling_4phase.is_some(),
+        Algorithm::TwoPhase => set.wiggling(Algorithm::TwoPhase).is_some(),
+        Algorithm::FourPhase => set.wiggling(Algorithm::FourPhase).is_some(),
     };
-    if cfg.processing.require_calibration && (!needed || set.offset.is_none()) {
+    if cfg.processing.require_calibration && (!needed || set.offset().is_none()) {
         return Err(mismatch(format!(
             "has no offset + wiggling calibration for processing.mode = {} (required)",
             cfg.processing.mode.as_str()
         )));
     }
-    if set.amplitude.is_none() {
+    if set.amplitude().is_none() {
         tracing::warn!(
             "calibration {} has no amplitude part (`tofprox calibrate wiggling` writes it): near readings are checked against the nominal amplitude scale proximity.nominal_amplitude_scale = {}",
             dir.display(),
@@ -90,6 +90,6 @@ pub fn load_for(
     Ok(ModeCalibrations {
         two_phase: set.to_pipeline_calibration(Algorithm::TwoPhase),
         four_phase: set.to_pipeline_calibration(Algorithm::FourPhase),
-        amplitude: set.amplitude.clone(),
+        amplitude: set.amplitude().cloned(),
     })
 }

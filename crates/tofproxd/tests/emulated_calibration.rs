@@ -79,8 +79,7 @@ fn shipped_offset_matches_the_emulated_dark_frame() {
     set.check_compatible(&geom)
         .unwrap_or_else(|e| panic!("{e}\n{REGENERATE}"));
     let offset = set
-        .offset
-        .as_ref()
+        .offset()
         .unwrap_or_else(|| panic!("calib/emulated has no offset\n{REGENERATE}"));
     let sim = Simulator::new(&model, geom, seed).expect("simulator");
     let dark = sim

@@ -109,50 +109,21 @@ impl CalibrationSet {
             amplitude: None,
             dropped: self.dropped_toml(),
         };
-        for part in CalibPart::ALL {
-            let Some(bytes) = self.part_bytes(part) else {
-                continue;
-            };
+        for (&part, value) in &self.parts {
+            let bytes = value.npy_bytes();
             let file = part.file_name();
             fsutil::write_atomic(&dir.join(&file), &bytes)?;
             let src = self.sources.get(&part).cloned().unwrap_or_default();
             let deps = self.deps.get(&part).cloned().unwrap_or_default();
-            let (shape, algorithm, lut_size) = match part {
-                CalibPart::Intrinsics => (Some(vec![INTRINSICS_LEN]), None, None),
-                CalibPart::Offset => (
-                    self.offset.as_ref().map(|o| o.dark_lsb.shape().to_vec()),
-                    None,
-                    None,
-                ),
-                CalibPart::Crosstalk => (
-                    self.crosstalk
-                        .as_ref()
-                        .map(|x| x.lsb_per_us.shape().to_vec()),
-                    None,
-                    None,
-                ),
-                CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase => {
-                    let w = match part {
-                        CalibPart::Wiggling2Phase => self.wiggling_2phase.as_ref(),
-                        _ => self.wiggling_4phase.as_ref(),
-                    };
-                    (
-                        w.map(|w| vec![w.len()]),
-                        w.map(|w| w.algorithm),
-                        w.map(|w| w.len()),
-                    )
-                }
-                CalibPart::Fppn | CalibPart::Fppn2Phase | CalibPart::Amplitude => (
-                    Some(vec![self.validity.rows, self.validity.cols]),
-                    part.algorithm(),
-                    None,
-                ),
+            let lut_size = match value {
+                PartValue::Wiggling(w) => Some(w.len()),
+                _ => None,
             };
             let pt = PartToml {
                 file,
                 sha256: sha256_hex(&bytes),
-                shape: shape.unwrap_or_default(),
-                algorithm,
+                shape: value.shape(),
+                algorithm: part.algorithm(),
                 lut_size,
                 distance_m: src.distance_m,
                 reflectivity: src.reflectivity,
@@ -259,17 +230,19 @@ impl CalibrationSet {
                 let k = intrinsics_from_array(&a);
                 k.validate().map_err(|e| at_file(e.to_string()))?;
                 self.rays_of(&k).map_err(|e| at_file(e.to_string()))?;
-                self.intrinsics = Some(k);
+                self.insert(part, PartValue::Intrinsics(k));
             }
             (CalibPart::Offset, LoadedArray::Map(a)) => {
-                self.offset = Some(OffsetCalibration { dark_lsb: a })
+                self.insert(part, PartValue::Offset(OffsetCalibration { dark_lsb: a }))
             }
-            (CalibPart::Amplitude, LoadedArray::Map(a)) => {
-                self.amplitude = Some(AmplitudeScale { lsb_m2_per_us: a })
-            }
-            (CalibPart::Crosstalk, LoadedArray::Cube(a)) => {
-                self.crosstalk = Some(CrosstalkCalibration { lsb_per_us: a })
-            }
+            (CalibPart::Amplitude, LoadedArray::Map(a)) => self.insert(
+                part,
+                PartValue::Amplitude(AmplitudeScale { lsb_m2_per_us: a }),
+            ),
+            (CalibPart::Crosstalk, LoadedArray::Cube(a)) => self.insert(
+                part,
+                PartValue::Crosstalk(CrosstalkCalibration { lsb_per_us: a }),
+            ),
             (CalibPart::Fppn | CalibPart::Fppn2Phase, LoadedArray::Map(a)) => {
                 let want = part.algorithm().unwrap_or(Algorithm::FourPhase);
                 if pt.algorithm != Some(want) {
@@ -279,21 +252,17 @@ impl CalibrationSet {
                     .at(toml_path)
                     .key(format!("{key}.algorithm")));
                 }
-                let map = Some(FppnMap {
-                    phase_offset_rad: a,
-                });
-                match want {
-                    Algorithm::TwoPhase => self.fppn_2phase = map,
-                    Algorithm::FourPhase => self.fppn = map,
-                }
+                self.insert(
+                    part,
+                    PartValue::Fppn(FppnMap {
+                        phase_offset_rad: a,
+                    }),
+                );
             }
             (CalibPart::Wiggling2Phase | CalibPart::Wiggling4Phase, LoadedArray::Lut(a)) => {
                 let lut = wiggling_from_loaded(toml_path, part, pt, a)?;
                 lut.validate().map_err(|e| at_file(e.to_string()))?;
-                match lut.algorithm {
-                    Algorithm::TwoPhase => self.wiggling_2phase = Some(lut),
-                    Algorithm::FourPhase => self.wiggling_4phase = Some(lut),
-                }
+                self.insert(CalibPart::wiggling(lut.algorithm), PartValue::Wiggling(lut));
             }
             _ => {
                 return Err(invalid("internal: array kind mismatch")

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use serde_json::json;
+use tofprox_core::Algorithm;
 use tofprox_core::phasor::unambiguous_range_m;
 use tofprox_format::{
     CalibPart, CalibrationSet, DepthRecording, PartSource, PartState, Recording, RecordingKind,
@@ -315,12 +316,12 @@ impl PartSummary {
     fn of(set: &CalibrationSet, part: CalibPart) -> Self {
         let values: Vec<f32> = match part {
             CalibPart::Intrinsics => set
-                .intrinsics
+                .intrinsics()
                 .iter()
                 .flat_map(|k| [k.fx_px as f32, k.fy_px as f32])
                 .collect(),
             CalibPart::Offset => set
-                .offset
+                .offset()
                 .iter()
                 .flat_map(|o| o.dark_lsb.iter().copied())
                 .collect(),
@@ -331,18 +332,18 @@ impl PartSummary {
                 .flat_map(|w| w.correction_rad.iter().copied())
                 .collect(),
             CalibPart::Amplitude => set
-                .amplitude
+                .amplitude()
                 .iter()
                 .flat_map(|a| a.lsb_m2_per_us.iter().copied())
                 .collect(),
             CalibPart::Crosstalk => set
-                .crosstalk
+                .crosstalk()
                 .iter()
                 .flat_map(|x| x.lsb_per_us.iter().copied())
                 .collect(),
             CalibPart::Fppn | CalibPart::Fppn2Phase => match part {
-                CalibPart::Fppn => set.fppn.as_ref(),
-                _ => set.fppn_2phase.as_ref(),
+                CalibPart::Fppn => set.fppn(Algorithm::FourPhase),
+                _ => set.fppn(Algorithm::TwoPhase),
             }
             .into_iter()
             .flat_map(|f| f.phase_offset_rad.iter().copied())
@@ -461,7 +462,7 @@ fn print_part(set: &CalibrationSet, p: &PartSummary) {
         }
     };
     let size = match p.part {
-        CalibPart::Intrinsics => set.intrinsics.as_ref().map_or(String::new(), |k| {
+        CalibPart::Intrinsics => set.intrinsics().map_or(String::new(), |k| {
             let d = &k.distortion;
             format!(
                 "; principal point ({:.2}, {:.2}) px, k1 {:.4}, k2 {:.4}, k3 {:.4}, p1 {:.5}, p2 {:.5}",

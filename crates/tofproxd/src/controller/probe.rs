@@ -1,5 +1,5 @@
-//! The presence probe (`policy::probe`): while far and still, one raw image against the last
-//! far reading's instead of the full reading; and, after a full reading, the probe's reference.
+//! The presence probe (`policy::probe`): while far and still (or near and still), one raw image
+//! against the last such reading's instead of the full reading; and, after a full reading, the probe's reference.
 
 use std::time::Duration;
 
@@ -32,6 +32,8 @@ pub(super) struct LastFull {
     distance_mm: Option<u32>,
     /// Nothing in range.
     no_target: bool,
+    /// Near was published.
+    near: bool,
 }
 
 impl<S: FrameSource> Controller<S> {
@@ -87,7 +89,7 @@ impl<S: FrameSource> Controller<S> {
         }
         // nothing changed: the last reading stands, as a reading of its own (still)
         self.rate.next(RateObservation {
-            near: false,
+            near: last.near,
             distance_mm: last.distance_mm,
             no_target: last.no_target,
         });
@@ -99,7 +101,7 @@ impl<S: FrameSource> Controller<S> {
         Some(StepOutcome {
             update: StatusUpdate {
                 state: Some(self.state),
-                near: Some(false),
+                near: Some(last.near),
                 timestamp_ns: Some(captured_ns),
                 distance_mm: Some(last.shown_mm),
                 rate_hz: Some(self.rate.rate_hz()),
@@ -110,7 +112,7 @@ impl<S: FrameSource> Controller<S> {
                 ..StatusUpdate::default()
             },
             sleep: energy.sleep,
-            near: false,
+            near: last.near,
             distance_mm: last.distance_mm,
             valid: true,
             captured_mode: Some(Mode::TwoPhase),
@@ -185,10 +187,21 @@ impl<S: FrameSource> Controller<S> {
 
     /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
     /// probe image's tile means per µs) and what a probe that sees no change publishes again;
-    /// any other reading leaves none.
+    /// any other reading leaves none. A far the second frequency decided (a retroreflector
+    /// one range further, eq. 2.7–2.9) is a far like any other: the probe asks only whether the
+    /// scene changed since it was proved far, and a scene that did not change is still far.
+    ///
+    /// Near after near leaves one too when no pixel of the ROI saturated (a saturated code
+    /// does not scale with the exposure, 3.1.2): a near probe compares with it, and a probe
+    /// that sees no change publishes the Near again.
     pub(super) fn remember_for_probe(&mut self, cycle: &RawCycle, captured: Mode, m: &Measurement) {
-        let far = m.valid && !m.reading.near && !self.near && !m.aliased_far;
-        let reference = (far && captured == Mode::TwoPhase && self.cfg.probe.enabled)
+        let far = m.valid && !m.reading.near && !self.near;
+        let near = m.valid
+            && m.reading.near
+            && self.near
+            && m.stats.saturated_fraction == 0.0
+            && m.saturated_f2 == 0.0;
+        let reference = ((far || near) && captured == Mode::TwoPhase && self.cfg.probe.enabled)
             .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
             .flatten()
             .and_then(|(image, cos_min)| {
@@ -201,12 +214,14 @@ impl<S: FrameSource> Controller<S> {
                     image,
                     per_us: tiles.iter().map(|v| v / t).collect(),
                     cos_min,
+                    near,
                 })
             });
-        self.last_full = far.then(|| LastFull {
+        self.last_full = (far || near).then(|| LastFull {
             shown_mm: shown_distance_mm(&m.reading, self.cfg.proximity.far_mm),
             distance_mm: m.reading.distance_mm,
             no_target: m.reading.no_target,
+            near,
         });
         self.probe.full_reading(reference);
     }

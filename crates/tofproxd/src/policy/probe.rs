@@ -1,4 +1,4 @@
-//! The presence probe (issue 34): while far and still, one short capture of a **single raw
+//! The presence probe (issue 34): while far and still, or near and still, one short capture of a **single raw
 //! image** decides whether anything changed; the full 2-phase reading runs only when it did.
 //! The detect-only mode of dedicated ToF proximity sensors is the anchor.
 //!
@@ -46,6 +46,8 @@ pub struct ProbeReference {
     pub per_us: Vec<f32>,
     /// The smallest share of a near target's amplitude the image sees (`cos_min`).
     pub cos_min: f64,
+    /// Taken from a near reading: it serves probes while near only, a far one while far only.
+    pub near: bool,
 }
 
 /// The probe's verdict.
@@ -89,11 +91,13 @@ impl PresenceProbe {
         self.reference = None;
     }
 
-    /// Whether the next cycle is a probe: far, still for `probe.after_still_readings`
-    /// readings, a reference held, and no more than `probe.full_every` probes since the last
-    /// full reading.
+    /// Whether the next cycle is a probe: still for `probe.after_still_readings` readings, a
+    /// reference held that was taken in the state published now (near or far), and no more
+    /// than `probe.full_every` probes since the last full reading. Near and still is probed
+    /// like far and still: the target leaving changes its tiles by its whole return, more
+    /// than the weakest near target returns, so the full reading runs at once.
     pub fn due(&self, near: bool, still_readings: u32) -> Option<&ProbeReference> {
-        if !self.cfg.enabled || self.refused || near {
+        if !self.cfg.enabled || self.refused {
             return None;
         }
         if still_readings < self.cfg.after_still_readings
@@ -101,7 +105,7 @@ impl PresenceProbe {
         {
             return None;
         }
-        self.reference.as_ref()
+        self.reference.as_ref().filter(|r| r.near == near)
     }
 
     /// The reference held, if any.
@@ -248,6 +252,7 @@ mod tests {
             image: 1,
             per_us,
             cos_min: 0.8,
+            near: false,
         }
     }
 
@@ -329,7 +334,10 @@ mod tests {
         let mut p = PresenceProbe::new(cfg());
         assert!(p.due(false, 5).is_none(), "no reference yet");
         p.full_reading(Some(reference(vec![0.5, 0.1, 0.0, 0.2])));
-        assert!(p.due(true, 5).is_none(), "never while near");
+        assert!(
+            p.due(true, 5).is_none(),
+            "a far reference never serves while near"
+        );
         assert!(p.due(false, 0).is_none(), "not yet still");
         assert!(p.due(false, 1).is_some());
         // at 20 µs the reference predicts 10, 2, 0, 4 LSB
@@ -355,10 +363,17 @@ mod tests {
             "a change: no reference until the next full reading"
         );
         p.full_reading(None);
+        assert!(p.due(false, 9).is_none(), "an unclear reading leaves none");
+        p.full_reading(Some(ProbeReference {
+            near: true,
+            ..reference(vec![0.5; 4])
+        }));
         assert!(
             p.due(false, 9).is_none(),
-            "a near or unclear reading leaves none"
+            "a near reference never serves while far"
         );
+        assert!(p.due(true, 0).is_none(), "near, not yet still");
+        assert!(p.due(true, 1).is_some(), "near and still");
         p.full_reading(Some(reference(vec![0.0; 4])));
         p.refused();
         assert!(

@@ -49,7 +49,7 @@ impl AdaptiveRate {
     }
 
     /// Readings in a row that moved less than `loop.still_tolerance_mm` (nothing in range
-    /// after nothing in range included).
+    /// after nothing in range included; near readings count too, near after near).
     pub fn still_readings(&self) -> u32 {
         self.still_count
     }
@@ -66,7 +66,14 @@ impl AdaptiveRate {
         let period_s = 1.0 / self.rate_hz;
         let distance_mm = obs.distance_mm.or(obs.no_target.then_some(BEYOND_RANGE_MM));
         let new_rate = if obs.near {
-            self.still_count = 0;
+            // near stays fast; it is still while its distance holds (the near probe's count)
+            let held = matches!((distance_mm, self.last_distance_mm),
+                (Some(d), Some(prev)) if d.abs_diff(prev) <= l.still_tolerance_mm);
+            self.still_count = if held {
+                self.still_count.saturating_add(1)
+            } else {
+                0
+            };
             l.fast_rate_hz
         } else if let (Some(d), Some(prev)) = (distance_mm, self.last_distance_mm) {
             let speed = (f64::from(prev) - f64::from(d)) / period_s; // + = approaching
@@ -131,6 +138,15 @@ mod tests {
             no_target: false,
         };
         assert_eq!(r.next(near), 10.0);
+        assert_eq!(r.still_readings(), 0, "near after 690 mm: moved");
+        assert_eq!(r.next(near), 10.0, "near and still: still fast");
+        assert_eq!(r.still_readings(), 1, "near after near at 40 mm: still");
+        let closer = RateObservation {
+            distance_mm: Some(5),
+            ..near
+        };
+        r.next(closer);
+        assert_eq!(r.still_readings(), 0, "35 mm closer: moved");
     }
 
     #[test]
