@@ -215,6 +215,7 @@ impl<S: FrameSource> Controller<S> {
                     per_us: tiles.iter().map(|v| v / t).collect(),
                     cos_min,
                     near,
+                    nothing_in_range: far && m.reading.no_target,
                 })
             });
         self.last_full = (far || near).then(|| LastFull {

@@ -48,6 +48,9 @@ pub struct ProbeReference {
     pub cos_min: f64,
     /// Taken from a near reading: it serves probes while near only, a far one while far only.
     pub near: bool,
+    /// Taken from a reading with nothing in range: nothing there can move, so it serves the
+    /// next cycle already (no still readings needed).
+    pub nothing_in_range: bool,
 }
 
 /// The probe's verdict.
@@ -71,8 +74,13 @@ pub struct PresenceProbe {
     cfg: ProbeConfig,
     reference: Option<ProbeReference>,
     probes_since_full: u32,
+    /// Probes in a row that saw a change (each one a probe's energy spent for nothing).
+    changed_in_row: u32,
     refused: bool,
 }
+
+/// The most extra still readings a probe waits after probes that saw a change.
+const MAX_BACKOFF_READINGS: u32 = 7;
 
 impl PresenceProbe {
     /// New policy.
@@ -81,6 +89,7 @@ impl PresenceProbe {
             cfg,
             reference: None,
             probes_since_full: 0,
+            changed_in_row: 0,
             refused: false,
         }
     }
@@ -91,21 +100,29 @@ impl PresenceProbe {
         self.reference = None;
     }
 
-    /// Whether the next cycle is a probe: still for `probe.after_still_readings` readings, a
-    /// reference held that was taken in the state published now (near or far), and no more
-    /// than `probe.full_every` probes since the last full reading. Near and still is probed
-    /// like far and still: the target leaving changes its tiles by its whole return, more
-    /// than the weakest near target returns, so the full reading runs at once.
+    /// Whether the next cycle is a probe: a reference held that was taken in the state
+    /// published now (near or far), still for `probe.after_still_readings` readings (none
+    /// after nothing in range: nothing there moves), plus the back-off, and no more than
+    /// `probe.full_every` probes since the last full reading. Near and still is probed like
+    /// far and still: the target leaving changes its tiles by its whole return, more than the
+    /// weakest near target returns, so the full reading runs at once.
+    ///
+    /// **Back-off.** A probe that sees a change costs its energy on top of the full reading
+    /// it leads to. After `n` such probes in a row the next one waits `2ⁿ − 1` more still
+    /// readings (at most [`MAX_BACKOFF_READINGS`]); a probe that sees none ends it. A moving
+    /// hand thus gets full readings, a still scene probes.
     pub fn due(&self, near: bool, still_readings: u32) -> Option<&ProbeReference> {
-        if !self.cfg.enabled || self.refused {
+        if !self.cfg.enabled || self.refused || self.probes_since_full >= self.cfg.full_every {
             return None;
         }
-        if still_readings < self.cfg.after_still_readings
-            || self.probes_since_full >= self.cfg.full_every
-        {
-            return None;
-        }
-        self.reference.as_ref().filter(|r| r.near == near)
+        let r = self.reference.as_ref().filter(|r| r.near == near)?;
+        let base = if r.nothing_in_range {
+            0
+        } else {
+            self.cfg.after_still_readings
+        };
+        let backoff = (1u32 << self.changed_in_row.min(3)) - 1;
+        (still_readings >= base + backoff.min(MAX_BACKOFF_READINGS)).then_some(r)
     }
 
     /// The reference held, if any.
@@ -141,8 +158,10 @@ impl PresenceProbe {
             .fold(0.0f32, f32::max);
         if f64::from(worst_lsb) > threshold_lsb || !worst_lsb.is_finite() {
             self.reference = None;
+            self.changed_in_row = self.changed_in_row.saturating_add(1);
             ProbeVerdict::Changed { worst_lsb }
         } else {
+            self.changed_in_row = 0;
             ProbeVerdict::Unchanged { worst_lsb }
         }
     }
@@ -253,6 +272,7 @@ mod tests {
             per_us,
             cos_min: 0.8,
             near: false,
+            nothing_in_range: false,
         }
     }
 
@@ -372,14 +392,56 @@ mod tests {
             p.due(false, 9).is_none(),
             "a near reference never serves while far"
         );
-        assert!(p.due(true, 0).is_none(), "near, not yet still");
-        assert!(p.due(true, 1).is_some(), "near and still");
+        assert!(
+            p.due(true, 1).is_none(),
+            "near, not yet still (the change's back-off: 1 more)"
+        );
+        assert!(p.due(true, 2).is_some(), "near and still");
         p.full_reading(Some(reference(vec![0.0; 4])));
         p.refused();
         assert!(
             p.due(false, 9).is_none(),
             "a source without single images: never"
         );
+    }
+
+    /// A reference from nothing in range serves the very next cycle; one with a target waits
+    /// `after_still_readings`. Probes that keep seeing a change wait 1, 3, 7, 7 more still
+    /// readings; a probe that sees none ends the back-off.
+    #[test]
+    fn nothing_in_range_probes_at_once_and_changes_back_off() {
+        let mut p = PresenceProbe::new(ProbeConfig {
+            full_every: 100,
+            ..cfg()
+        });
+        let empty = || ProbeReference {
+            nothing_in_range: true,
+            ..reference(vec![0.0; 4])
+        };
+        p.full_reading(Some(empty()));
+        assert!(p.due(false, 0).is_some(), "nothing in range: at once");
+        let mut waits = Vec::new();
+        for _ in 0..4 {
+            // a change: the reference is gone; the next full reading leaves one again
+            assert!(matches!(
+                p.judge(&[9.0; 4], 20.0, 1.0),
+                ProbeVerdict::Changed { .. }
+            ));
+            p.full_reading(Some(reference(vec![0.0; 4])));
+            waits.push((0..20).find(|&n| p.due(false, n).is_some()));
+        }
+        // after_still_readings = 1 plus the back-off 1, 3, 7 (capped at 7)
+        assert_eq!(waits, vec![Some(2), Some(4), Some(8), Some(8)]);
+        assert!(matches!(
+            p.judge(&[0.0; 4], 20.0, 1.0),
+            ProbeVerdict::Unchanged { .. }
+        ));
+        assert!(
+            p.due(false, 1).is_some(),
+            "an unchanged probe ends the back-off"
+        );
+        p.full_reading(Some(empty()));
+        assert!(p.due(false, 0).is_some());
     }
 
     /// The threshold is half of what a 2 % target at near_mm returns in the image, computed
