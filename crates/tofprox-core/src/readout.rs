@@ -3,9 +3,10 @@
 //! set moved to another modulation frequency (the second frequency of the dim-near
 //! confirmation, thesis 2.2.1 / eqs. 2.8–2.9). Pure; the daemon applies it per window.
 
-use ndarray::{Array2, Axis, s};
+use ndarray::{Array2, ArrayBase, ArrayView2, Axis, Data, Ix2, s};
 
-use crate::calib::OffsetCalibration;
+use crate::calib::{FppnMap, OffsetCalibration};
+use crate::crosstalk::CrosstalkCalibration;
 use crate::frame::Roi;
 use crate::pipeline::Calibration;
 use crate::sensor::SensorGeometry;
@@ -38,14 +39,14 @@ pub enum CropError {
 
 /// A full-array per-pixel map cropped to the window of `g` (the map itself when it is the
 /// window already).
-pub fn crop_map(
-    a: &Array2<f32>,
+pub fn crop_map<S: Data<Elem = f32>>(
+    a: &ArrayBase<S, Ix2>,
     g: SensorGeometry,
     what: &'static str,
 ) -> Result<Array2<f32>, CropError> {
     let [r0, c0] = g.roi_origin;
     if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
-        return Ok(a.clone());
+        return Ok(a.to_owned());
     }
     let fits = |o: usize, n: usize, full: usize| o.checked_add(n).is_some_and(|e| e <= full);
     if !(fits(r0, g.rows, a.nrows()) && fits(c0, g.cols, a.ncols())) {
@@ -64,24 +65,64 @@ pub fn crop_map(
 /// Every per-pixel part of a calibration set (offset, FPPN, crosstalk planes) cropped to the
 /// window of `g`; the wiggling table is per sensor and kept.
 pub fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, CropError> {
-    let mut out = full.clone();
-    if let Some(o) = &mut out.offset {
-        o.dark_lsb = crop_map(&o.dark_lsb, g, "offset")?;
-    }
-    if let Some(f) = &mut out.fppn {
-        f.phase_offset_rad = crop_map(&f.phase_offset_rad, g, "fppn")?;
-    }
-    if let Some(x) = &mut out.crosstalk {
-        let planes = x
-            .lsb_per_us
-            .outer_iter()
-            .map(|p| crop_map(&p.to_owned(), g, "crosstalk"))
-            .collect::<Result<Vec<_>, _>>()?;
-        let views: Vec<_> = planes.iter().map(|p| p.view()).collect();
-        x.lsb_per_us =
-            ndarray::stack(Axis(0), &views).map_err(|e| CropError::Stack(e.to_string()))?;
-    }
-    Ok(out)
+    map_per_pixel(full, |a, what| crop_map(&a, g, what))
+}
+
+/// A full-array per-pixel map as a sensor that reads every `step`-th row sees it: rows
+/// `0, step, 2·step, …` (a read-out that skips rows, thesis 3.1.2: the rows converted fall by
+/// the step; the pixels read keep their own calibration).
+pub fn every_nth_row<S: Data<Elem = f32>>(a: &ArrayBase<S, Ix2>, step: usize) -> Array2<f32> {
+    let step = isize::try_from(step.max(1)).unwrap_or(isize::MAX);
+    a.slice(s![..;step, ..]).to_owned()
+}
+
+/// Every per-pixel part of a calibration set at every `step`-th row of the array
+/// ([`every_nth_row`]); the wiggling table is per sensor and kept.
+pub fn calibration_every_nth_row(full: &Calibration, step: usize) -> Calibration {
+    let out: Result<Calibration, CropError> =
+        map_per_pixel(full, |a, _| Ok(every_nth_row(&a, step)));
+    // the planes of one crosstalk part are sliced alike and always stack
+    out.unwrap_or_else(|_| full.clone())
+}
+
+/// `f` applied to every per-pixel map of `full` (offset, FPPN, each crosstalk plane), the
+/// full-array maps read in place (only the results are allocated).
+fn map_per_pixel(
+    full: &Calibration,
+    f: impl Fn(ArrayView2<'_, f32>, &'static str) -> Result<Array2<f32>, CropError>,
+) -> Result<Calibration, CropError> {
+    let offset = match &full.offset {
+        Some(o) => Some(OffsetCalibration {
+            dark_lsb: f(o.dark_lsb.view(), "offset")?,
+        }),
+        None => None,
+    };
+    let fppn = match &full.fppn {
+        Some(p) => Some(FppnMap {
+            phase_offset_rad: f(p.phase_offset_rad.view(), "fppn")?,
+        }),
+        None => None,
+    };
+    let crosstalk = match &full.crosstalk {
+        Some(x) => {
+            let planes = x
+                .lsb_per_us
+                .outer_iter()
+                .map(|p| f(p, "crosstalk"))
+                .collect::<Result<Vec<_>, _>>()?;
+            let views: Vec<_> = planes.iter().map(|p| p.view()).collect();
+            let lsb_per_us =
+                ndarray::stack(Axis(0), &views).map_err(|e| CropError::Stack(e.to_string()))?;
+            Some(CrosstalkCalibration { lsb_per_us })
+        }
+        None => None,
+    };
+    Ok(Calibration {
+        offset,
+        fppn,
+        crosstalk,
+        wiggling: full.wiggling.clone(),
+    })
 }
 
 /// The mean dark level (codes, mid code included) over `roi` of a frame of window `g`
@@ -129,8 +170,6 @@ pub fn at_frequency_ratio(full: &Calibration, frequency_ratio: f64) -> Calibrati
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::FppnMap;
-    use crate::crosstalk::CrosstalkCalibration;
 
     fn window(rows: usize, cols: usize, origin: [usize; 2]) -> SensorGeometry {
         SensorGeometry {
@@ -147,6 +186,24 @@ mod tests {
     /// A map whose value names its pixel: `row · 100 + col`.
     fn named(rows: usize, cols: usize) -> Array2<f32> {
         Array2::from_shape_fn((rows, cols), |(r, c)| (r * 100 + c) as f32)
+    }
+
+    /// A 6 × 8 set whose maps name their pixels, with `planes` crosstalk planes (plane k adds
+    /// k · 10 000).
+    fn named_set(planes: usize) -> Calibration {
+        let planes = ndarray::Array3::from_shape_fn((planes, 6, 8), |(k, r, c)| {
+            (k * 10_000 + r * 100 + c) as f32
+        });
+        Calibration {
+            offset: Some(OffsetCalibration {
+                dark_lsb: named(6, 8),
+            }),
+            fppn: Some(FppnMap {
+                phase_offset_rad: named(6, 8),
+            }),
+            crosstalk: Some(CrosstalkCalibration { lsb_per_us: planes }),
+            wiggling: None,
+        }
     }
 
     #[test]
@@ -172,19 +229,7 @@ mod tests {
 
     #[test]
     fn every_per_pixel_part_is_cropped_the_wiggling_table_kept() {
-        let planes = ndarray::Array3::from_shape_fn((4, 6, 8), |(k, r, c)| {
-            (k * 10_000 + r * 100 + c) as f32
-        });
-        let full = Calibration {
-            offset: Some(OffsetCalibration {
-                dark_lsb: named(6, 8),
-            }),
-            fppn: Some(FppnMap {
-                phase_offset_rad: named(6, 8),
-            }),
-            crosstalk: Some(CrosstalkCalibration { lsb_per_us: planes }),
-            wiggling: None,
-        };
+        let full = named_set(4);
         let g = window(2, 2, [1, 3]);
         let c = crop_calibration(&full, g).unwrap();
         assert_eq!(c.offset.unwrap().dark_lsb[[1, 1]], 204.0);
@@ -192,6 +237,31 @@ mod tests {
         let x = c.crosstalk.unwrap().lsb_per_us;
         assert_eq!(x.dim(), (4, 2, 2));
         assert_eq!(x[[3, 1, 0]], 30_203.0);
+    }
+
+    /// Every 2nd row of the array, then the window of the stepped sensor: each value still
+    /// names its own pixel (array row 2·r, and the window's rows 1, 2 are array rows 2, 4).
+    #[test]
+    fn every_nth_row_keeps_each_pixels_calibration() {
+        let c = calibration_every_nth_row(&named_set(2), 2);
+        let dark = c.offset.as_ref().unwrap().dark_lsb.clone();
+        assert_eq!(dark.dim(), (3, 8));
+        assert_eq!(dark.column(5).to_vec(), vec![5.0, 205.0, 405.0]);
+        let x = &c.crosstalk.as_ref().unwrap().lsb_per_us;
+        assert_eq!((x.dim(), x[[1, 2, 7]]), ((2, 3, 8), 10_407.0));
+        let stepped = SensorGeometry {
+            full_rows: 3,
+            ..window(2, 8, [1, 0])
+        };
+        let w = crop_calibration(&c, stepped).unwrap();
+        assert_eq!(
+            w.offset.unwrap().dark_lsb.column(0).to_vec(),
+            vec![200.0, 400.0]
+        );
+        assert_eq!(
+            every_nth_row(&named(5, 2), 3).column(1).to_vec(),
+            vec![1.0, 301.0]
+        );
     }
 
     #[test]

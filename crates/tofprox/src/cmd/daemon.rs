@@ -154,17 +154,17 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
     if !(exposure.is_finite() && exposure > 0.0 && exposure <= 10_000.0) {
         bail!("--exposure-us must be within (0, 10000], got {exposure}");
     }
+    // a reading reads every `readout.row_step`-th row where the sequencer skips rows (the
+    // daemon's `read_step`), the probe every `probe.row_step`-th
+    let (reading_step, probe_step) = row_steps(&cfg);
     let nominal = Nominal {
-        readout_fraction: shipped_readout_fraction(&cfg),
+        readout_fraction: shipped_readout_fraction(&cfg, reading_step),
         ..Nominal::default()
     };
     let k = mode.raw_images() as u32;
     let (full, _) = modelled_reading(&cfg.energy, &nominal, k, exposure);
-    // the probe reads every `probe.row_step`-th row where the sequencer skips rows that far
-    // (the daemon's `probe_row_step`; the emulated sensor's map says how far it does)
-    let probe_step = probe_row_step(&cfg);
     let probe_nominal = Nominal {
-        readout_fraction: nominal.readout_fraction / f64::from(probe_step),
+        readout_fraction: shipped_readout_fraction(&cfg, probe_step),
         ..nominal
     };
     let (probe, _) = modelled_reading(&cfg.energy, &probe_nominal, 1, cfg.exposure.min_us);
@@ -202,7 +202,7 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
             "slow_rate_hz": cfg.loop_.slow_rate_hz, "slow_average_mw": slow,
             "fast_rate_hz": cfg.loop_.fast_rate_hz, "fast_average_mw": fast,
             "reading_parts_mj": parts_json(&full), "probe_parts_mj": parts_json(&probe),
-            "readout_fraction": nominal.readout_fraction,
+            "readout_fraction": nominal.readout_fraction, "reading_row_step": reading_step,
             "probe_row_step": probe_step, "probe_readout_fraction": probe_nominal.readout_fraction,
             "table_2_1": refs,
         });
@@ -227,9 +227,10 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
         cfg.loop_.slow_rate_hz, cfg.loop_.fast_rate_hz
     );
     println!(
-        "  one reading         {:.3} mJ: {}",
+        "  one reading         {:.3} mJ: {} ({} of the window)",
         full.total_mj(),
-        parts_line(&full)
+        parts_line(&full),
+        rows_read(reading_step)
     );
     println!(
         "  one presence probe  {:.3} mJ: {} (1 raw image at {:.0} µs, {} of the window, while far and still)",
@@ -279,10 +280,11 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Share of the array the shipped ROI's read-out window reads on the shipped (emulated
-/// IRS1645-class) sensor map: the ROI's rows ± `readout.margin_rows` and, where the map reads a
-/// column window, its columns ± `readout.margin_cols`, aligned as the map requires.
-fn shipped_readout_fraction(cfg: &Config) -> f64 {
+/// Share of the array's pixels read on the shipped (emulated IRS1645-class) sensor map when
+/// every `step`-th row of the shipped ROI's read-out window is read: the ROI's rows ±
+/// `readout.margin_rows` and, where the map reads a column window, its columns ±
+/// `readout.margin_cols`, aligned as the map requires (the daemon's `ReadoutWindow`).
+fn shipped_readout_fraction(cfg: &Config, step: u16) -> f64 {
     use tofproxd::policy::{ReadoutObservation, ReadoutWindow};
     let map = tofprox_bridge::SensorMap::emulated();
     let (rows, cols) = (usize::from(map.sensor.rows), usize::from(map.sensor.cols));
@@ -294,22 +296,45 @@ fn shipped_readout_fraction(cfg: &Config) -> f64 {
         align_rows: window.map_or(1, |w| w.align),
         full_cols: cols,
         align_cols: window.and_then(|w| w.column_registers().map(|_| w.col_align.max(1))),
+        row_step: cfg.readout.row_step_for(max_row_step(), rows),
     });
+    let read = |n: usize| n.div_ceil(usize::from(step.max(1)));
     match w {
         Some(w) => {
             let (_, n) = w.columns(cols);
-            f64::from(w.rows) * n as f64 / (rows * cols) as f64
+            (read(usize::from(w.rows)) * n) as f64 / (rows * cols) as f64
         }
-        None => 1.0,
+        None => read(rows) as f64 / rows as f64,
     }
 }
 
-/// The probe's row step on the emulated sensor at `cfg`: `probe.row_step`, at most what its
-/// sequencer skips (`RowWindowRegs::row_step_max`; 1 without a row window).
-fn probe_row_step(cfg: &Config) -> u16 {
+/// How far the emulated sensor's sequencer skips rows (`RowWindowRegs::row_step_max`; 1
+/// without a row window).
+fn max_row_step() -> u16 {
     let map = tofprox_bridge::SensorMap::emulated();
-    cfg.probe
-        .row_step_for(map.row_window.as_ref().map_or(1, |w| w.row_step_max()))
+    map.row_window.as_ref().map_or(1, |w| w.row_step_max())
+}
+
+/// The row steps on the emulated sensor at `cfg`, as the daemon reads: a reading's
+/// (`readout.row_step` where the sequencer skips that far and the rows divide by it) and the
+/// probe's (`probe.row_step` at most the sequencer's, a multiple of the reading's).
+fn row_steps(cfg: &Config) -> (u16, u16) {
+    let map = tofprox_bridge::SensorMap::emulated();
+    let reading = if cfg.readout.partial && map.row_window.is_some() {
+        cfg.readout
+            .row_step_for(max_row_step(), usize::from(map.sensor.rows))
+    } else {
+        1
+    };
+    let probe = cfg.probe.row_step_for(max_row_step());
+    (
+        reading,
+        if probe.is_multiple_of(reading) {
+            probe
+        } else {
+            reading
+        },
+    )
 }
 
 /// "every row", "every 2nd row", "every 4th row", …

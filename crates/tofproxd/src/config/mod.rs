@@ -191,6 +191,17 @@ impl Config {
         self.ambient.validate()?;
         self.exposure.validate()?;
         self.probe.validate()?;
+        self.readout.validate()?;
+        error::range(
+            "probe.row_step",
+            self.probe
+                .row_step
+                .is_multiple_of(self.readout.row_step.max(1)),
+            format!(
+                "must be a multiple of readout.row_step ({}), got {}",
+                self.readout.row_step, self.probe.row_step
+            ),
+        )?;
         self.energy.validate()?;
         self.dbus.validate()?;
         self.socket.validate()?;

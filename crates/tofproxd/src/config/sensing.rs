@@ -141,6 +141,10 @@ pub struct ReadoutConfig {
     pub margin_rows: u16,
     /// Extra columns left and right of the ROI, where the sensor reads a column window too.
     pub margin_cols: u16,
+    /// A reading reads every `row_step`-th row of its window where the sensor's sequencer
+    /// skips rows (1: every row; a depth frame always reads every row): the near/far
+    /// decision is a share of the ROI's pixels, which every 2nd row measures alike.
+    pub row_step: u16,
 }
 
 impl Default for ReadoutConfig {
@@ -149,7 +153,29 @@ impl Default for ReadoutConfig {
             partial: true,
             margin_rows: 2,
             margin_cols: 0,
+            row_step: 2,
         }
+    }
+}
+
+impl ReadoutConfig {
+    /// The row step a reading is read with: `row_step` where the source's sequencer skips rows
+    /// that far (`max_row_step`) and the array's rows are a multiple of it, else every row.
+    pub fn row_step_for(&self, max_row_step: u16, full_rows: usize) -> u16 {
+        let step = self.row_step.max(1);
+        if step <= max_row_step && full_rows.is_multiple_of(usize::from(step)) {
+            step
+        } else {
+            1
+        }
+    }
+
+    pub(super) fn validate(&self) -> Result<(), ConfigError> {
+        range(
+            "readout.row_step",
+            (1..=4).contains(&self.row_step),
+            format!("must be within 1..=4, got {}", self.row_step),
+        )
     }
 }
 

@@ -1,6 +1,6 @@
 //! Policies: the decisions for the next cycle, each by its own unit of [`crate::policy`].
 
-use crate::policy::{CycleObservation, EnergyDecision, ExposureObservation, RateObservation};
+use crate::policy::{EnergyDecision, ExposureObservation, RateObservation};
 use crate::source::{FrameSource, RawCycle};
 
 use super::Controller;
@@ -29,10 +29,8 @@ impl<S: FrameSource> Controller<S> {
         });
         let rate_hz = self.rate.rate_hz();
         self.energy.next_with(
-            CycleObservation::of(cycle, rate_hz).with_cpu(self.reading_cpu()),
-            m.second
-                .as_ref()
-                .map(|c2| CycleObservation::of(c2, rate_hz)),
+            self.observe(cycle, rate_hz).with_cpu(self.reading_cpu()),
+            m.second.as_ref().map(|c2| self.observe(c2, rate_hz)),
         )
     }
 }

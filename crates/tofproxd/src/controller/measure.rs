@@ -19,11 +19,11 @@ use crate::policy::window::WINDOW_CHANGE_BOUND;
 use crate::policy::{AmbientObservation, CandidateObservation, saturating_fraction_at};
 use crate::source::{CycleRequest, FrameSource, RawCycle, RawImages, SourceError, SourceErrorKind};
 
+use super::Controller;
 use super::capture::check_cycle;
 use super::report::depth_message;
 use super::slots::{detector_slot, mode_index, pipeline_slot, process_images};
 use super::window::{WindowView, window_view};
-use super::{Controller, frame_roi};
 
 /// What the measure stage read from one frame: all that the later stages (window, probe,
 /// decide, report) need of it.
@@ -71,7 +71,7 @@ impl<S: FrameSource> Controller<S> {
         depth_at_ns: Option<u64>,
     ) -> Result<Measurement, SourceError> {
         let g = cycle.geometry;
-        let roi = frame_roi(&self.cfg, g);
+        let roi = self.roi_of(g);
         if roi.rows == 0 || roi.cols == 0 {
             return Err(SourceError::new(
                 SourceErrorKind::Unsupported,
@@ -83,7 +83,7 @@ impl<S: FrameSource> Controller<S> {
         let i = mode_index(captured);
         pipeline_slot(
             &mut self.pipes[i],
-            self.calib.for_mode(captured),
+            self.calib.of(g).for_mode(captured),
             self.cfg.processing.min_amplitude_lsb,
             captured,
             g,
@@ -191,7 +191,7 @@ impl<S: FrameSource> Controller<S> {
 
     /// The dark level over the ROI (the 4-phase set's offset: the raw codes' level).
     fn dark_level(&self, g: SensorGeometry, roi: Roi) -> f32 {
-        mean_dark_lsb(self.calib.four_phase.offset.as_ref(), g, roi)
+        mean_dark_lsb(self.calib.of(g).four_phase.offset.as_ref(), g, roi)
     }
 
     /// The ambient switch's cross-check of a 4-phase frame (when the switch is on): its first
@@ -208,7 +208,7 @@ impl<S: FrameSource> Controller<S> {
         let four = four_phase.roi_median_mm(roi);
         let p2 = pipeline_slot(
             &mut self.pipes[mode_index(Mode::TwoPhase)],
-            &self.calib.two_phase,
+            &self.calib.of(cycle.geometry).two_phase,
             self.cfg.processing.min_amplitude_lsb,
             Mode::TwoPhase,
             cycle.geometry,
@@ -252,7 +252,7 @@ impl<S: FrameSource> Controller<S> {
         };
         let scale = super::slots::amplitude_scale_slot(
             &mut self.amp_scale,
-            self.calib.amplitude.as_ref(),
+            self.calib.of(g).amplitude.as_ref(),
             self.cfg.proximity.nominal_amplitude_scale,
             g,
         )?;
@@ -321,7 +321,7 @@ impl<S: FrameSource> Controller<S> {
         let captured2 = self.source.cycle(&req2);
         self.source_cpu += thread_cpu().saturating_sub(cpu_before);
         let c2 = match captured2 {
-            Ok(c) => c,
+            Ok(c) => self.on_array(c, &req2),
             Err(e) if e.kind() == SourceErrorKind::Unsupported => {
                 self.second.refused(&e.to_string());
                 return Ok(None);
@@ -350,7 +350,7 @@ impl<S: FrameSource> Controller<S> {
             *slot = None;
         }
         let calib = if slot.is_none() {
-            at_frequency_ratio(self.calib.for_mode(mode2), f2_hz / g.modulation_hz)
+            at_frequency_ratio(self.calib.of(g).for_mode(mode2), f2_hz / g.modulation_hz)
         } else {
             Calibration::default()
         };

@@ -36,9 +36,9 @@ use crate::energy::EnergyMeter;
 use crate::hub::{DepthMessage, Reason, State, StatusUpdate};
 use crate::policy::probe::PresenceProbe;
 use crate::policy::{
-    AdaptiveRate, AmbientSwitch, AutoExposure, EnergyAccount, Pacing, RailsDecision,
-    ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency, WindowTracker,
-    decision_exposure_us,
+    AdaptiveRate, AmbientSwitch, AutoExposure, CycleObservation, EnergyAccount, Pacing,
+    RailsDecision, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
+    WindowTracker, decision_exposure_us,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
 
@@ -50,6 +50,7 @@ mod probe;
 mod rails;
 mod report;
 mod slots;
+mod stepped;
 #[cfg(test)]
 mod tests;
 mod window;
@@ -58,6 +59,7 @@ use capture::{check_cycle, rails_only};
 use hold::{RecentCycles, SinceValid};
 use probe::LastFull;
 use slots::{PipelineSlot, detector_config};
+use stepped::{Calibrations, on_stepped_array};
 
 /// Full-frame calibrations per mode (cropped to the read-out window on use).
 #[derive(Debug, Clone, Default)]
@@ -141,7 +143,11 @@ pub struct StepOutcome {
 pub struct Controller<S: FrameSource> {
     cfg: Config,
     source: S,
-    calib: ModeCalibrations,
+    /// The calibration sets: the array's and, where readings skip rows, the stepped array's.
+    calib: Calibrations,
+    /// A reading reads every `read_step`-th row (`readout.row_step` where the source can;
+    /// 1: every row; a depth frame always reads every row).
+    read_step: usize,
     /// The pipelines (2-phase, 4-phase), each for the window it was built for.
     pipes: [PipelineSlot; 2],
     /// The second frequency's pipelines (2-phase, 4-phase).
@@ -259,9 +265,13 @@ fn near_phase_rad(cfg: &Config, calib: &ModeCalibrations, modulation_hz: f64) ->
     (delay, delay + distance_to_phase_rad(near_m, modulation_hz))
 }
 
-/// The configured ROI in the coordinates of a frame of window `g` (clipped to it).
-fn frame_roi(cfg: &Config, g: SensorGeometry) -> Roi {
-    let roi_full = full_roi(cfg, g.full_rows, g.full_cols);
+/// The configured ROI in the coordinates of a frame of window `g` (clipped to it), on an
+/// array of `array_rows` rows: a window of the stepped array (`g.full_rows` a step below
+/// it, `stepped`) sees the ROI's rows that the step reads.
+fn frame_roi(cfg: &Config, g: SensorGeometry, array_rows: usize) -> Roi {
+    let step = row_step_of(g, array_rows);
+    let roi_full =
+        crate::policy::probe::stepped_roi(full_roi(cfg, g.full_rows * step, g.full_cols), step);
     Roi {
         row0: roi_full.row0.saturating_sub(g.roi_origin[0]),
         col0: roi_full.col0.saturating_sub(g.roi_origin[1]),
@@ -269,6 +279,16 @@ fn frame_roi(cfg: &Config, g: SensorGeometry) -> Roi {
         cols: roi_full.cols,
     }
     .resolve(g.rows, g.cols)
+}
+
+/// The row step of a frame of window `g` on an array of `array_rows` rows: 1 for a window of
+/// the array itself, `array_rows / g.full_rows` for one of the stepped array.
+fn row_step_of(g: SensorGeometry, array_rows: usize) -> usize {
+    if g.full_rows > 0 && g.full_rows < array_rows && array_rows.is_multiple_of(g.full_rows) {
+        array_rows / g.full_rows
+    } else {
+        1
+    }
 }
 
 impl<S: FrameSource> Controller<S> {
@@ -314,6 +334,13 @@ impl<S: FrameSource> Controller<S> {
         ));
         let near_phase_rad = near_phase_rad(&cfg, &calib, source.sensor().modulation_hz);
         let probe = PresenceProbe::new(cfg.probe.clone());
+        let full_rows = source.full_size().0;
+        let read_step = if cfg.readout.partial && source.supports_row_window() {
+            usize::from(cfg.readout.row_step_for(source.max_row_step(), full_rows))
+        } else {
+            1
+        };
+        let calib = Calibrations::new(calib, read_step, full_rows);
         Ok(Self {
             ambient: AmbientSwitch::new(
                 cfg.ambient.clone(),
@@ -332,6 +359,7 @@ impl<S: FrameSource> Controller<S> {
             cfg,
             source,
             calib,
+            read_step,
             pipes: [None, None],
             pipes_f2: [None, None],
             detector: None,
@@ -386,7 +414,7 @@ impl<S: FrameSource> Controller<S> {
     /// a crosstalk calibration, `Changed` once the compensated residual stays beyond ±50 % of
     /// the calibrated crosstalk (a smudge doubling it reads ≈ +100 %; also in `LastError`).
     pub fn crosstalk_status(&self) -> CrosstalkStatus {
-        let calibrated = [&self.calib.two_phase, &self.calib.four_phase]
+        let calibrated = [&self.calib.full.two_phase, &self.calib.full.four_phase]
             .iter()
             .any(|c| c.crosstalk.is_some());
         if calibrated {
@@ -429,7 +457,9 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    fn request(&mut self, probe: bool) -> CycleRequest {
+    /// The next cycle's request: `probe` the ambient switch's 4-phase probe, `row_step` the
+    /// rows to read (1: every row).
+    fn request(&mut self, probe: bool, row_step: usize) -> CycleRequest {
         let (full_rows, full_cols) = self.source.full_size();
         let row_window = self.readout.next(ReadoutObservation {
             full_rows,
@@ -438,6 +468,7 @@ impl<S: FrameSource> Controller<S> {
             align_rows: self.source.row_window_align(),
             full_cols,
             align_cols: self.source.column_window_align(),
+            row_step: u16::try_from(row_step).unwrap_or(1),
         });
         CycleRequest {
             mode: if probe {
@@ -463,7 +494,8 @@ impl<S: FrameSource> Controller<S> {
         }
         let probe = self.ambient.probe_due();
         let confirm = self.saturation.confirm_due();
-        let mut req = self.request(probe || confirm);
+        let step = if want_depth { 1 } else { self.read_step };
+        let mut req = self.request(probe || confirm, step);
         if confirm {
             // the confirmation of a saturated 2-phase frame: 4-phase at the shortest exposure
             req.exposure_us = self.cfg.exposure.min_us;
@@ -478,7 +510,7 @@ impl<S: FrameSource> Controller<S> {
         let cycle = match result {
             Ok(c) => {
                 self.since_valid.count(c.timings().active());
-                c
+                self.on_array(c, &req)
             }
             Err(e) => {
                 if e.kind() == SourceErrorKind::Unsupported && req.row_window.is_some() {
@@ -545,6 +577,38 @@ impl<S: FrameSource> Controller<S> {
         self.remember_for_probe(cycle, captured, &m);
         let energy = self.decide_next(cycle, &m);
         Ok(self.report(m, energy, captured))
+    }
+
+    /// A capture of `req` as the loop processes it: read every `read_step`-th row (or a
+    /// multiple: the probe), a frame of the stepped array ([`on_stepped_array`]).
+    fn on_array(&self, cycle: RawCycle, req: &CycleRequest) -> RawCycle {
+        let stepped = req.row_window.is_some_and(|w| w.step() > 1);
+        on_stepped_array(cycle, if stepped { self.read_step } else { 1 })
+    }
+
+    /// The ROI in the coordinates of a frame of window `g` ([`frame_roi`]).
+    fn roi_of(&self, g: SensorGeometry) -> Roi {
+        frame_roi(&self.cfg, g, self.source.full_size().0)
+    }
+
+    /// The row step of a frame of window `g` (1: every row of the array).
+    fn step_of(&self, g: SensorGeometry) -> usize {
+        row_step_of(g, self.source.full_size().0)
+    }
+
+    /// The energy model's view of a capture at `rate_hz`: the pixels read against the
+    /// array's (a frame of the stepped array reads a share of the array's rows).
+    fn observe(&self, cycle: &RawCycle, rate_hz: f64) -> CycleObservation {
+        let (rows, cols) = self.source.full_size();
+        let obs = CycleObservation::of(cycle, rate_hz);
+        if rows * cols > 0 {
+            CycleObservation {
+                full_pixels: rows * cols,
+                ..obs
+            }
+        } else {
+            obs
+        }
     }
 
     /// The loop thread's CPU time for this cycle's reading so far: from its frames being in

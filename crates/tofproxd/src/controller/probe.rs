@@ -13,15 +13,15 @@ use crate::boottime::boottime_ns;
 use crate::config::Mode;
 use crate::cputime::thread_cpu;
 use crate::hub::{Reason, State, StatusUpdate};
+use crate::policy::RateObservation;
 use crate::policy::probe::{
     ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, stepped_roi, tile_means,
 };
-use crate::policy::{CycleObservation, RateObservation};
 use crate::source::{FrameSource, RawCycle, RawImages, SourceErrorKind};
 
 use super::measure::Measurement;
 use super::report::shown_distance_mm;
-use super::{Controller, StepOutcome, frame_roi};
+use super::{Controller, StepOutcome};
 
 /// What a probe that saw no change publishes again: the last full reading.
 #[derive(Debug, Clone, Copy)]
@@ -51,8 +51,9 @@ impl<S: FrameSource> Controller<S> {
         }
         let last = self.last_full?;
         let due = self.probe.due(self.near, self.rate.still_readings())?;
-        let (image, step) = (due.image, due.row_step);
-        let mut req = self.request(false);
+        let image = due.image;
+        let step = self.probe_row_step();
+        let mut req = self.request(false, self.read_step);
         req.exposure_us = self.cfg.exposure.min_us;
         req.single_image = Some(image);
         if step > 1 {
@@ -65,7 +66,7 @@ impl<S: FrameSource> Controller<S> {
         self.since_valid.count(self.last_sleep);
         let result = self.source.cycle(&req);
         let cycle = match result {
-            Ok(c) => c,
+            Ok(c) => self.on_array(c, &req),
             Err(e) if e.kind() == SourceErrorKind::Unsupported => {
                 tracing::warn!("presence probe refused by the source ({e}): full readings");
                 self.probe.refused();
@@ -81,7 +82,7 @@ impl<S: FrameSource> Controller<S> {
         let verdict = self.judge_probe(&cycle);
         tracing::debug!("presence probe: {verdict:?}");
         let rate_hz = self.rate.rate_hz();
-        let obs = CycleObservation::of(&cycle, rate_hz).with_cpu(self.reading_cpu());
+        let obs = self.observe(&cycle, rate_hz).with_cpu(self.reading_cpu());
         if let ProbeVerdict::Changed { .. } = verdict {
             self.energy.carry(obs);
             self.last_sleep = Duration::ZERO;
@@ -163,15 +164,19 @@ impl<S: FrameSource> Controller<S> {
     ) -> Option<Vec<f32>> {
         let rows = Slice::new(0, None, isize::try_from(step.max(1)).ok()?);
         let sparse = cycle.geometry.rows != window.rows;
-        let roi = stepped_roi(frame_roi(&self.cfg, window), step);
+        let roi = stepped_roi(self.roi_of(window), step);
         let dark = self
             .calib
+            .of(window)
             .two_phase
             .offset
             .as_ref()
             .and_then(|o| crop_map(&o.dark_lsb, window, "offset").ok());
         let dark = dark.as_ref().map(|d| d.slice_axis(Axis(0), rows));
-        let (mid, tile) = (window.mid_code() as f32, self.probe.tile(step));
+        // tiles of `probe.tile_px` rows of the array: `step` rows of the frame apart, each
+        // row of the frame `step_of(window)` rows of the array
+        let array_step = step * self.step_of(window);
+        let (mid, tile) = (window.mid_code() as f32, self.probe.tile(array_step));
         let rows = (!sparse).then_some(rows);
         match &cycle.frames {
             RawImages::U16(a) => image_tile_means(a.view(), image, rows, dark, mid, roi, tile),
@@ -179,10 +184,16 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    /// The row step of the probe's read-out: `probe.row_step` where the source's sequencer
-    /// skips rows that far, else every row.
+    /// The row step of the probe's read-out on the array: `probe.row_step` where the source's
+    /// sequencer skips rows that far, a multiple of the readings' step (`read_step`), else the
+    /// readings' own step.
     fn probe_row_step(&self) -> usize {
-        usize::from(self.cfg.probe.row_step_for(self.source.max_row_step()))
+        let step = usize::from(self.cfg.probe.row_step_for(self.source.max_row_step()));
+        if step.is_multiple_of(self.read_step) {
+            step
+        } else {
+            self.read_step
+        }
     }
 
     /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
@@ -205,7 +216,9 @@ impl<S: FrameSource> Controller<S> {
             .then(|| probe_image(&cycle.phases_deg, self.near_phase_rad))
             .flatten()
             .and_then(|(image, cos_min)| {
-                let step = self.probe_row_step();
+                // the probe's rows in this frame's rows (a frame of the stepped array has
+                // every `step_of`-th row of the array already)
+                let step = self.probe_row_step() / self.step_of(cycle.geometry);
                 let tiles = self.tiles_of(cycle, usize::from(image), cycle.geometry, step)?;
                 let t = cycle.exposure_us as f32;
                 Some(ProbeReference {

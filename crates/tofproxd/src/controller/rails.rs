@@ -4,20 +4,19 @@
 use crate::config::Mode;
 use crate::hub::{Reason, StatusUpdate};
 use crate::policy::{
-    CycleObservation, ExposureObservation, RailsDecision, RailsObservation,
-    rails_point_at_zero_distance,
+    ExposureObservation, RailsDecision, RailsObservation, rails_point_at_zero_distance,
 };
 use crate::source::{FrameSource, RawCycle, RawImages};
 
-use super::{Controller, StepOutcome, frame_roi};
+use super::{Controller, StepOutcome};
 
 impl<S: FrameSource> Controller<S> {
     /// Saturation is evidence ([`SaturationCheck`]): whether an all-rails frame is the sensor's
     /// own return from something too close to measure (near), to be confirmed first, or no data.
     pub(super) fn rails_decision(&mut self, cycle: &RawCycle, captured: Mode) -> RailsDecision {
         let g = cycle.geometry;
-        let roi = frame_roi(&self.cfg, g);
-        let lut = self.calib.for_mode(captured).wiggling.as_ref();
+        let roi = self.roi_of(g);
+        let lut = self.calib.full.for_mode(captured).wiggling.as_ref();
         let max = g.max_code() as f32;
         let ph = &cycle.phases_deg;
         let return_pattern = match &cycle.frames {
@@ -43,9 +42,10 @@ impl<S: FrameSource> Controller<S> {
     /// shortened so a real target becomes measurable in the next cycle.
     pub(super) fn rails_cycle(&mut self, cycle: &RawCycle) -> StepOutcome {
         self.exposure.next(ExposureObservation::Rails);
-        let energy = self
-            .energy
-            .next(CycleObservation::of(cycle, self.rate.rate_hz()).with_cpu(self.reading_cpu()));
+        let energy = self.energy.next(
+            self.observe(cycle, self.rate.rate_hz())
+                .with_cpu(self.reading_cpu()),
+        );
         let sleep = energy.sleep;
         let near_update = self.no_reading(sleep);
         self.last_sleep = sleep;

@@ -48,7 +48,7 @@ impl<S: FrameSource> Controller<S> {
                 last_error: last_error_changed.then(|| self.last_error.clone()),
                 exposure_us: Some(self.exposure.exposure_us()),
                 has_sensor: Some(true),
-                amplitude_check: Some(if self.calib.amplitude.is_some() {
+                amplitude_check: Some(if self.calib.full.amplitude.is_some() {
                     "calibrated"
                 } else {
                     "nominal"

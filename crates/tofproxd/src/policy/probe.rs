@@ -109,7 +109,7 @@ impl PresenceProbe {
     ///
     /// **Back-off.** A probe that sees a change costs its energy on top of the full reading
     /// it leads to. After `n` such probes in a row the next one waits `2ⁿ − 1` more still
-    /// readings (at most [`MAX_BACKOFF_READINGS`]); a probe that sees none ends it. A moving
+    /// readings (at most 7); a probe that sees none ends it. A moving
     /// hand thus gets full readings, a still scene probes.
     pub fn due(&self, near: bool, still_readings: u32) -> Option<&ProbeReference> {
         if !self.cfg.enabled || self.refused || self.probes_since_full >= self.cfg.full_every {

@@ -23,6 +23,9 @@ pub struct ReadoutObservation {
     pub full_cols: usize,
     /// Column alignment of the source's column window (`None`: whole rows only).
     pub align_cols: Option<u16>,
+    /// Read every `row_step`-th row (0 or 1: every row; `ReadoutConfig::row_step_for`): the
+    /// window then starts on a row the step reads, so its rows are rows of the stepped array.
+    pub row_step: u16,
 }
 
 /// `first..first + len` widened by `margin`, aligned outwards to `align`, clipped to the last
@@ -36,6 +39,15 @@ fn span(first: usize, len: usize, margin: usize, align: usize, full: usize) -> (
         end
     };
     (start, end.saturating_sub(start))
+}
+
+/// The least common multiple of two alignments (both ≥ 1).
+fn lcm(a: usize, b: usize) -> usize {
+    let (mut x, mut y) = (a, b);
+    while y != 0 {
+        (x, y) = (y, x % y);
+    }
+    a / x.max(1) * b
 }
 
 /// The read-out window policy.
@@ -65,7 +77,8 @@ impl ReadoutWindow {
             return None;
         }
         let roi = obs.roi;
-        let align = usize::from(obs.align_rows.max(1));
+        let step = obs.row_step.max(1);
+        let align = lcm(usize::from(obs.align_rows.max(1)), usize::from(step));
         let m = usize::from(self.cfg.margin_rows);
         let (row0, rows) = span(roi.row0, roi.rows, m, align, obs.full_rows);
         let (col0, cols) = match obs.align_cols {
@@ -95,7 +108,7 @@ impl ReadoutWindow {
                     rows,
                     col0,
                     cols,
-                    row_step: 0,
+                    row_step: if step > 1 { step } else { 0 },
                 })
             }
             _ => None,
@@ -120,6 +133,7 @@ mod tests {
             align_rows,
             full_cols: 160,
             align_cols: None,
+            row_step: 0,
         }
     }
 
@@ -133,6 +147,7 @@ mod tests {
             partial: true,
             margin_rows: 2,
             margin_cols: 0,
+            row_step: 1,
         });
         assert_eq!(window(r.next(obs(30, 60, 1))), Some((28, 64)));
         assert_eq!(
@@ -158,12 +173,14 @@ mod tests {
             partial: false,
             margin_rows: 2,
             margin_cols: 0,
+            row_step: 1,
         });
         assert_eq!(off.next(obs(30, 60, 1)), None);
         let mut r = ReadoutWindow::new(ReadoutConfig {
             partial: true,
             margin_rows: 2,
             margin_cols: 0,
+            row_step: 1,
         });
         let unsupported = ReadoutObservation {
             source_supports: false,
@@ -187,6 +204,7 @@ mod tests {
             partial: true,
             margin_rows: 2,
             margin_cols: 3,
+            row_step: 1,
         });
         let with_cols = ReadoutObservation {
             align_cols: Some(8),
@@ -208,5 +226,23 @@ mod tests {
         assert_eq!((w.col0, w.cols), (0, 0), "every column: whole rows");
         let w = r.next(obs(30, 60, 1)).expect("rows only");
         assert_eq!(w.cols, 0, "no column window where the source has none");
+    }
+
+    /// A stepped read starts on a row the step reads: row0 aligned to lcm(align, step), the
+    /// step carried in the window; step 1 (or 0) reads every row.
+    #[test]
+    fn a_stepped_window_starts_on_a_stepped_row() {
+        let mut r = ReadoutWindow::new(ReadoutConfig::default());
+        let stepped = |row0, align, row_step| ReadoutObservation {
+            row_step,
+            ..obs(row0, 60, align)
+        };
+        let w = r.next(stepped(31, 1, 2)).expect("a window");
+        assert_eq!((w.row0, w.rows, w.row_step, w.rows_read()), (28, 66, 2, 33));
+        let w = r.next(stepped(31, 4, 3)).expect("a window");
+        assert_eq!((w.row0 % 12, w.row_step), (0, 3), "lcm(4, 3) = 12");
+        let w = r.next(stepped(31, 1, 1)).expect("a window");
+        assert_eq!((w.row0, w.row_step), (29, 0), "every row");
+        assert_eq!((lcm(4, 6), lcm(1, 2), lcm(8, 2)), (12, 2, 8));
     }
 }
