@@ -229,3 +229,43 @@ fn a_far_still_scene_runs_probes_and_its_energy_parts_add_up() {
         / cycles as f64;
     assert!((mean - r.energy_per_reading_mj).abs() < 1e-9);
 }
+
+/// A reading that reads every 2nd row (`readout.row_step = 2`, the shipped default) decides
+/// as one that reads every row: over scenes with a hand, a finger over a third of the field,
+/// a black card, fabric pressed on the window and nothing in range, both publish the same
+/// near transitions, no false and no missed near, and the stepped read reaches near no later
+/// (its read-out is shorter).
+/// The read-out energy of the hand's scene (almost only full readings) falls to about half
+/// (the probe's read-out, every 4th row, is the same in both).
+#[test]
+fn every_second_row_decides_as_every_row_at_half_the_read_out() {
+    let stepped = shipped();
+    assert_eq!(stepped.config.readout.row_step, 2, "the shipped default");
+    let mut every = shipped();
+    every.config.readout.row_step = 1;
+    for name in [
+        "hand_approach_05cm",
+        "finger_third_of_field_04cm",
+        "black_card_05cm",
+        "pocket_light_fabric",
+        "nothing_in_range",
+    ] {
+        let a = run_scene(&every, &scene(&every, name), 1).expect("every row");
+        let b = run_scene(&stepped, &scene(&stepped, name), 1).expect("every 2nd row");
+        for r in [&a, &b] {
+            assert_eq!((r.false_near, r.missed_near), (0, 0), "{name}: {r:?}");
+        }
+        assert_eq!(a.near_transitions, b.near_transitions, "{name}");
+        if let (Some(x), Some(y)) = (a.latency_to_near_ms, b.latency_to_near_ms) {
+            // the shorter read-out only brings near earlier (≈ 1.4 ms of read-out per image)
+            assert!(y <= x + 0.5, "{name}: to near {x} (every row) vs {y} ms");
+        }
+        if name == "hand_approach_05cm" {
+            let ratio = b.energy_parts_mj.readout / a.energy_parts_mj.readout;
+            assert!(
+                (0.45..0.6).contains(&ratio),
+                "{name}: read-out ratio {ratio}"
+            );
+        }
+    }
+}
