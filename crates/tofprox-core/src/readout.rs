@@ -3,7 +3,7 @@
 //! set moved to another modulation frequency (the second frequency of the dim-near
 //! confirmation, thesis 2.2.1 / eqs. 2.8–2.9). Pure; the daemon applies it per window.
 
-use ndarray::{Array2, ArrayBase, ArrayView2, Axis, Data, Ix2, s};
+use ndarray::{Array2, ArrayBase, Data, Ix2, Slice, s};
 
 use crate::calib::{FppnMap, OffsetCalibration};
 use crate::crosstalk::CrosstalkCalibration;
@@ -32,9 +32,6 @@ pub enum CropError {
         /// The window's first row and column on the array.
         origin: [usize; 2],
     },
-    /// The cropped crosstalk planes could not be stacked again (never for planes cut alike).
-    #[error("crosstalk: {0}")]
-    Stack(String),
 }
 
 /// A full-array per-pixel map cropped to the window of `g` (the map itself when it is the
@@ -48,81 +45,86 @@ pub fn crop_map<S: Data<Elem = f32>>(
     if a.nrows() == g.rows && a.ncols() == g.cols && r0 == 0 && c0 == 0 {
         return Ok(a.to_owned());
     }
+    let (rows, cols) = window_of(a.dim(), g, what)?;
+    Ok(a.slice(s![rows, cols]).to_owned())
+}
+
+/// The rows and columns of a `map` (rows, cols) that the window of `g` covers, or the error
+/// naming `what` when it does not fit.
+fn window_of(
+    map: (usize, usize),
+    g: SensorGeometry,
+    what: &'static str,
+) -> Result<(Slice, Slice), CropError> {
+    let [r0, c0] = g.roi_origin;
     let fits = |o: usize, n: usize, full: usize| o.checked_add(n).is_some_and(|e| e <= full);
-    if !(fits(r0, g.rows, a.nrows()) && fits(c0, g.cols, a.ncols())) {
+    if !(fits(r0, g.rows, map.0) && fits(c0, g.cols, map.1)) {
         return Err(CropError::Outside {
             what,
-            map_rows: a.nrows(),
-            map_cols: a.ncols(),
+            map_rows: map.0,
+            map_cols: map.1,
             rows: g.rows,
             cols: g.cols,
             origin: g.roi_origin,
         });
     }
-    Ok(a.slice(s![r0..r0 + g.rows, c0..c0 + g.cols]).to_owned())
+    let span = |o: usize, n: usize| Slice::from(o..o + n);
+    Ok((span(r0, g.rows), span(c0, g.cols)))
 }
 
 /// Every per-pixel part of a calibration set (offset, FPPN, crosstalk planes) cropped to the
 /// window of `g`; the wiggling table is per sensor and kept.
 pub fn crop_calibration(full: &Calibration, g: SensorGeometry) -> Result<Calibration, CropError> {
-    map_per_pixel(full, |a, what| crop_map(&a, g, what))
+    let dims = [
+        full.offset.as_ref().map(|o| (o.dark_lsb.dim(), "offset")),
+        full.fppn
+            .as_ref()
+            .map(|f| (f.phase_offset_rad.dim(), "fppn")),
+        full.crosstalk.as_ref().map(|x| {
+            let (_, r, c) = x.lsb_per_us.dim();
+            ((r, c), "crosstalk")
+        }),
+    ];
+    let mut cut = (Slice::from(..), Slice::from(..));
+    for (dim, what) in dims.into_iter().flatten() {
+        cut = window_of(dim, g, what)?;
+    }
+    Ok(cut_per_pixel(full, cut))
 }
 
 /// A full-array per-pixel map as a sensor that reads every `step`-th row sees it: rows
 /// `0, step, 2·step, …` (a read-out that skips rows, thesis 3.1.2: the rows converted fall by
 /// the step; the pixels read keep their own calibration).
 pub fn every_nth_row<S: Data<Elem = f32>>(a: &ArrayBase<S, Ix2>, step: usize) -> Array2<f32> {
-    let step = isize::try_from(step.max(1)).unwrap_or(isize::MAX);
-    a.slice(s![..;step, ..]).to_owned()
+    a.slice(s![nth_rows(step), ..]).to_owned()
+}
+
+/// Every `step`-th row (0 or 1: every row).
+fn nth_rows(step: usize) -> Slice {
+    Slice::new(0, None, isize::try_from(step.max(1)).unwrap_or(isize::MAX))
 }
 
 /// Every per-pixel part of a calibration set at every `step`-th row of the array
 /// ([`every_nth_row`]); the wiggling table is per sensor and kept.
 pub fn calibration_every_nth_row(full: &Calibration, step: usize) -> Calibration {
-    let out: Result<Calibration, CropError> =
-        map_per_pixel(full, |a, _| Ok(every_nth_row(&a, step)));
-    // the planes of one crosstalk part are sliced alike and always stack
-    out.unwrap_or_else(|_| full.clone())
+    cut_per_pixel(full, (nth_rows(step), Slice::from(..)))
 }
 
-/// `f` applied to every per-pixel map of `full` (offset, FPPN, each crosstalk plane), the
-/// full-array maps read in place (only the results are allocated).
-fn map_per_pixel(
-    full: &Calibration,
-    f: impl Fn(ArrayView2<'_, f32>, &'static str) -> Result<Array2<f32>, CropError>,
-) -> Result<Calibration, CropError> {
-    let offset = match &full.offset {
-        Some(o) => Some(OffsetCalibration {
-            dark_lsb: f(o.dark_lsb.view(), "offset")?,
+/// The rows and columns `(rows, cols)` of every per-pixel map of `full` (offset, FPPN, the
+/// crosstalk planes), read in place: only the results are allocated.
+fn cut_per_pixel(full: &Calibration, (rows, cols): (Slice, Slice)) -> Calibration {
+    Calibration {
+        offset: full.offset.as_ref().map(|o| OffsetCalibration {
+            dark_lsb: o.dark_lsb.slice(s![rows, cols]).to_owned(),
         }),
-        None => None,
-    };
-    let fppn = match &full.fppn {
-        Some(p) => Some(FppnMap {
-            phase_offset_rad: f(p.phase_offset_rad.view(), "fppn")?,
+        fppn: full.fppn.as_ref().map(|f| FppnMap {
+            phase_offset_rad: f.phase_offset_rad.slice(s![rows, cols]).to_owned(),
         }),
-        None => None,
-    };
-    let crosstalk = match &full.crosstalk {
-        Some(x) => {
-            let planes = x
-                .lsb_per_us
-                .outer_iter()
-                .map(|p| f(p, "crosstalk"))
-                .collect::<Result<Vec<_>, _>>()?;
-            let views: Vec<_> = planes.iter().map(|p| p.view()).collect();
-            let lsb_per_us =
-                ndarray::stack(Axis(0), &views).map_err(|e| CropError::Stack(e.to_string()))?;
-            Some(CrosstalkCalibration { lsb_per_us })
-        }
-        None => None,
-    };
-    Ok(Calibration {
-        offset,
-        fppn,
-        crosstalk,
+        crosstalk: full.crosstalk.as_ref().map(|x| CrosstalkCalibration {
+            lsb_per_us: x.lsb_per_us.slice(s![.., rows, cols]).to_owned(),
+        }),
         wiggling: full.wiggling.clone(),
-    })
+    }
 }
 
 /// The mean dark level (codes, mid code included) over `roi` of a frame of window `g`

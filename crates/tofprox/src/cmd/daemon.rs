@@ -285,6 +285,7 @@ pub fn power(a: PowerArgs) -> anyhow::Result<ExitCode> {
 /// `readout.margin_rows` and, where the map reads a column window, its columns ±
 /// `readout.margin_cols`, aligned as the map requires (the daemon's `ReadoutWindow`).
 fn shipped_readout_fraction(cfg: &Config, step: u16) -> f64 {
+    let (reading_step, _) = row_steps(cfg);
     use tofproxd::policy::{ReadoutObservation, ReadoutWindow};
     let map = tofprox_bridge::SensorMap::emulated();
     let (rows, cols) = (usize::from(map.sensor.rows), usize::from(map.sensor.cols));
@@ -296,7 +297,7 @@ fn shipped_readout_fraction(cfg: &Config, step: u16) -> f64 {
         align_rows: window.map_or(1, |w| w.align),
         full_cols: cols,
         align_cols: window.and_then(|w| w.column_registers().map(|_| w.col_align.max(1))),
-        row_step: cfg.readout.row_step_for(max_row_step(), rows),
+        row_step: reading_step,
     });
     let read = |n: usize| n.div_ceil(usize::from(step.max(1)));
     match w {
@@ -308,32 +309,15 @@ fn shipped_readout_fraction(cfg: &Config, step: u16) -> f64 {
     }
 }
 
-/// How far the emulated sensor's sequencer skips rows (`RowWindowRegs::row_step_max`; 1
-/// without a row window).
-fn max_row_step() -> u16 {
-    let map = tofprox_bridge::SensorMap::emulated();
-    map.row_window.as_ref().map_or(1, |w| w.row_step_max())
-}
-
-/// The row steps on the emulated sensor at `cfg`, as the daemon reads: a reading's
-/// (`readout.row_step` where the sequencer skips that far and the rows divide by it) and the
-/// probe's (`probe.row_step` at most the sequencer's, a multiple of the reading's).
+/// The row steps `(reading, probe)` on the emulated sensor at `cfg`, as the daemon reads
+/// ([`Config::row_steps`] with the map's row window and how far its sequencer skips rows).
 fn row_steps(cfg: &Config) -> (u16, u16) {
     let map = tofprox_bridge::SensorMap::emulated();
-    let reading = if cfg.readout.partial && map.row_window.is_some() {
-        cfg.readout
-            .row_step_for(max_row_step(), usize::from(map.sensor.rows))
-    } else {
-        1
-    };
-    let probe = cfg.probe.row_step_for(max_row_step());
-    (
-        reading,
-        if probe.is_multiple_of(reading) {
-            probe
-        } else {
-            reading
-        },
+    let window = map.row_window.as_ref();
+    cfg.row_steps(
+        window.is_some(),
+        window.map_or(1, |w| w.row_step_max()),
+        usize::from(map.sensor.rows),
     )
 }
 

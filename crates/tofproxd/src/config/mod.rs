@@ -125,6 +125,34 @@ impl Default for Config {
 }
 
 impl Config {
+    /// The rows read, as row steps on the array `(reading, probe)`, on a source that reads row
+    /// windows (`reads_windows`) and skips rows up to `max_row_step`, of `full_rows` rows: a
+    /// reading's `readout.row_step` with partial read-out where the sequencer skips that far
+    /// and the rows divide by it (else every row); the probe's `probe.row_step` at most the
+    /// sequencer's, when a multiple of the reading's (else the reading's). The daemon's loop
+    /// and `tofprox power` read with these.
+    pub fn row_steps(
+        &self,
+        reads_windows: bool,
+        max_row_step: u16,
+        full_rows: usize,
+    ) -> (u16, u16) {
+        let reading = if self.readout.partial && reads_windows {
+            self.readout.row_step_for(max_row_step, full_rows)
+        } else {
+            1
+        };
+        let probe = self.probe.row_step_for(max_row_step);
+        (
+            reading,
+            if probe.is_multiple_of(reading) {
+                probe
+            } else {
+                reading
+            },
+        )
+    }
+
     /// The shipped defaults replaying `recording` as fast as the data comes, at the recording's
     /// own exposure (no auto-exposure): a recording read back reading by reading.
     pub fn replay_as_fast_as_possible(recording: &Path) -> Config {

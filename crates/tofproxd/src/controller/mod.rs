@@ -38,7 +38,7 @@ use crate::policy::probe::PresenceProbe;
 use crate::policy::{
     AdaptiveRate, AmbientSwitch, AutoExposure, CycleObservation, EnergyAccount, Pacing,
     RailsDecision, ReadoutObservation, ReadoutWindow, SaturationCheck, SecondFrequency,
-    WindowTracker, decision_exposure_us,
+    WindowTracker, decision_exposure_us, stepped_roi,
 };
 use crate::source::{CycleRequest, FrameSource, RawCycle, SourceError, SourceErrorKind};
 
@@ -148,6 +148,8 @@ pub struct Controller<S: FrameSource> {
     /// A reading reads every `read_step`-th row (`readout.row_step` where the source can;
     /// 1: every row; a depth frame always reads every row).
     read_step: usize,
+    /// The presence probe reads every `probe_step`-th row of the array (`Config::row_steps`).
+    probe_step: usize,
     /// The pipelines (2-phase, 4-phase), each for the window it was built for.
     pipes: [PipelineSlot; 2],
     /// The second frequency's pipelines (2-phase, 4-phase).
@@ -270,8 +272,7 @@ fn near_phase_rad(cfg: &Config, calib: &ModeCalibrations, modulation_hz: f64) ->
 /// it, `stepped`) sees the ROI's rows that the step reads.
 fn frame_roi(cfg: &Config, g: SensorGeometry, array_rows: usize) -> Roi {
     let step = row_step_of(g, array_rows);
-    let roi_full =
-        crate::policy::probe::stepped_roi(full_roi(cfg, g.full_rows * step, g.full_cols), step);
+    let roi_full = stepped_roi(full_roi(cfg, g.full_rows * step, g.full_cols), step);
     Roi {
         row0: roi_full.row0.saturating_sub(g.roi_origin[0]),
         col0: roi_full.col0.saturating_sub(g.roi_origin[1]),
@@ -335,11 +336,12 @@ impl<S: FrameSource> Controller<S> {
         let near_phase_rad = near_phase_rad(&cfg, &calib, source.sensor().modulation_hz);
         let probe = PresenceProbe::new(cfg.probe.clone());
         let full_rows = source.full_size().0;
-        let read_step = if cfg.readout.partial && source.supports_row_window() {
-            usize::from(cfg.readout.row_step_for(source.max_row_step(), full_rows))
-        } else {
-            1
-        };
+        let (read_step, probe_step) = cfg.row_steps(
+            source.supports_row_window(),
+            source.max_row_step(),
+            full_rows,
+        );
+        let (read_step, probe_step) = (usize::from(read_step), usize::from(probe_step));
         let calib = Calibrations::new(calib, read_step, full_rows);
         Ok(Self {
             ambient: AmbientSwitch::new(
@@ -360,6 +362,7 @@ impl<S: FrameSource> Controller<S> {
             source,
             calib,
             read_step,
+            probe_step,
             pipes: [None, None],
             pipes_f2: [None, None],
             detector: None,

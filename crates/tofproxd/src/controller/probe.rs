@@ -13,10 +13,10 @@ use crate::boottime::boottime_ns;
 use crate::config::Mode;
 use crate::cputime::thread_cpu;
 use crate::hub::{Reason, State, StatusUpdate};
-use crate::policy::RateObservation;
 use crate::policy::probe::{
-    ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, stepped_roi, tile_means,
+    ProbeReference, ProbeVerdict, change_threshold_lsb, probe_image, tile_means,
 };
+use crate::policy::{RateObservation, stepped_roi};
 use crate::source::{FrameSource, RawCycle, RawImages, SourceErrorKind};
 
 use super::measure::Measurement;
@@ -52,7 +52,7 @@ impl<S: FrameSource> Controller<S> {
         let last = self.last_full?;
         let due = self.probe.due(self.near, self.rate.still_readings())?;
         let image = due.image;
-        let step = self.probe_row_step();
+        let step = self.probe_step;
         let mut req = self.request(false, self.read_step);
         req.exposure_us = self.cfg.exposure.min_us;
         req.single_image = Some(image);
@@ -184,18 +184,6 @@ impl<S: FrameSource> Controller<S> {
         }
     }
 
-    /// The row step of the probe's read-out on the array: `probe.row_step` where the source's
-    /// sequencer skips rows that far, a multiple of the readings' step (`read_step`), else the
-    /// readings' own step.
-    fn probe_row_step(&self) -> usize {
-        let step = usize::from(self.cfg.probe.row_step_for(self.source.max_row_step()));
-        if step.is_multiple_of(self.read_step) {
-            step
-        } else {
-            self.read_step
-        }
-    }
-
     /// After a full reading: a far, valid 2-phase reading leaves the probe its reference (the
     /// probe image's tile means per µs) and what a probe that sees no change publishes again;
     /// any other reading leaves none. A far the second frequency decided (a retroreflector
@@ -218,7 +206,7 @@ impl<S: FrameSource> Controller<S> {
             .and_then(|(image, cos_min)| {
                 // the probe's rows in this frame's rows (a frame of the stepped array has
                 // every `step_of`-th row of the array already)
-                let step = self.probe_row_step() / self.step_of(cycle.geometry);
+                let step = self.probe_step / self.step_of(cycle.geometry);
                 let tiles = self.tiles_of(cycle, usize::from(image), cycle.geometry, step)?;
                 let t = cycle.exposure_us as f32;
                 Some(ProbeReference {

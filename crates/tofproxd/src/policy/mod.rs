@@ -31,7 +31,7 @@ pub use exposure::{
     AutoExposure, ExposureObservation, decision_exposure_us, saturating_fraction_at,
 };
 pub use rate::{AdaptiveRate, RateObservation};
-pub use readout::{ReadoutObservation, ReadoutWindow};
+pub use readout::{ReadoutObservation, ReadoutWindow, stepped_roi};
 pub use saturation::{
     RailsDecision, RailsObservation, SaturationCheck, rails_point_at_zero_distance,
 };

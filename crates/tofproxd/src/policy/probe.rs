@@ -174,19 +174,6 @@ impl PresenceProbe {
     }
 }
 
-/// `roi` (in a window's coordinates) in the coordinates of the rows a probe reads when it
-/// reads every `step`-th row of the window: rows `0, step, 2·step, …` become `0, 1, 2, …`.
-pub fn stepped_roi(roi: Roi, step: usize) -> Roi {
-    let step = step.max(1);
-    let row0 = roi.row0.div_ceil(step);
-    let end = (roi.row0 + roi.rows).div_ceil(step);
-    Roi {
-        row0,
-        rows: end.saturating_sub(row0),
-        ..roi
-    }
-}
-
 /// Tile means of `image − dark` over `roi` (tiles of `tile` = `(rows, cols)` pixels; the last
 /// row and column of tiles take what is left). `dark` is the dark level per pixel of the same
 /// window.
@@ -252,6 +239,7 @@ pub fn change_threshold_lsb(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::stepped_roi;
     use ndarray::Array2;
 
     fn cfg() -> ProbeConfig {

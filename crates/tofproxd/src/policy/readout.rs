@@ -41,6 +41,20 @@ fn span(first: usize, len: usize, margin: usize, align: usize, full: usize) -> (
     (start, end.saturating_sub(start))
 }
 
+/// `roi` (in a window's coordinates) in the coordinates of the rows read when every
+/// `step`-th row of the window is read (a reading of the stepped array, a probe): rows
+/// `0, step, 2·step, …` become `0, 1, 2, …`.
+pub fn stepped_roi(roi: Roi, step: usize) -> Roi {
+    let step = step.max(1);
+    let row0 = roi.row0.div_ceil(step);
+    let end = (roi.row0 + roi.rows).div_ceil(step);
+    Roi {
+        row0,
+        rows: end.saturating_sub(row0),
+        ..roi
+    }
+}
+
 /// The least common multiple of two alignments (both ≥ 1).
 fn lcm(a: usize, b: usize) -> usize {
     let (mut x, mut y) = (a, b);
