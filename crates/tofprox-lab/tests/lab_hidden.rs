@@ -330,6 +330,29 @@ fn hidden_adc_inl() {
     assert_written(&written, &[("adc_inl", "inl_lsb", -8.0)], 0.02);
 }
 
+/// An effect the lab has no module of its own for: the model's `adc_sar_mismatch` carries its
+/// law on the codes, from which the lab fits it (tofprox_lab::signatures, the code laws).
+#[test]
+fn hidden_adc_sar_mismatch() {
+    let truth = [
+        ("msb_lsb", 6.0),
+        ("msb1_lsb", -3.0),
+        ("msb2_lsb", 2.0),
+        ("msb3_lsb", 1.5),
+    ];
+    let written = check_hidden(
+        "adc_sar_mismatch",
+        with("adc_sar_mismatch", &truth),
+        112,
+        Vary::None,
+    );
+    let truth: Vec<_> = truth
+        .iter()
+        .map(|&(p, v)| ("adc_sar_mismatch", p, v))
+        .collect();
+    assert_written(&written, &truth, 0.05);
+}
+
 #[test]
 fn control_says_nothing_missing_through_the_recording_format() {
     let under = model_under_test();

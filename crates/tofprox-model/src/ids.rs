@@ -180,6 +180,8 @@ effect_ids! {
     adc_inl { INL_LSB = "inl_lsb" }
     /// ADC differential non-linearity.
     adc_dnl { DNL_LSB = "dnl_lsb" }
+    /// SAR capacitor-weight mismatch of the top four bits.
+    adc_sar_mismatch { MSB_LSB = "msb_lsb", MSB1_LSB = "msb1_lsb", MSB2_LSB = "msb2_lsb", MSB3_LSB = "msb3_lsb" }
     /// Quantisation to integer codes.
     quantization {  }
     /// Photon shot noise.

@@ -14,6 +14,7 @@
 //! and one line in the registry.
 
 use std::collections::BTreeMap;
+use std::sync::LazyLock;
 
 use tofprox_model::ModelConfig;
 use tofprox_model::catalogue::{self, ActsOn, Driver};
@@ -27,6 +28,7 @@ use crate::spec::{EffectFit, LabSpec};
 use crate::waveform::Waveform;
 
 mod amp_phase;
+mod code_law;
 mod dark;
 mod droop;
 mod harmonics;
@@ -371,9 +373,8 @@ pub struct Entry {
     pub effect: &'static dyn LabEffect,
 }
 
-/// Every effect the lab has a signature for, in catalogue order — the one
-/// place that pairs a model effect with its lab module.
-pub const REGISTRY: &[Entry] = &[
+/// The lab modules of the lab's own signatures, in catalogue order.
+const OWN: &[Entry] = &[
     entry(ids::sbi_asymmetry::ID, &sbi::Effect),
     entry(ids::tap_gain_mismatch::ID, &tap_gain::Effect),
     entry(ids::vcsel_droop::ID, &droop::Effect),
@@ -385,20 +386,39 @@ pub const REGISTRY: &[Entry] = &[
     entry(ids::multipath::ID, &multipath::Effect),
 ];
 
+/// The lab modules of the model's effects with a code law (`tofprox_model::effects::CodeLaw`),
+/// built from the model's registry: such an effect needs no line in the lab.
+static CODE_LAWS: LazyLock<Vec<code_law::CodeLawEffect>> = LazyLock::new(|| {
+    tofprox_model::effects::REGISTRY
+        .iter()
+        .filter_map(|&effect| {
+            effect
+                .code_law()
+                .map(|law| code_law::CodeLawEffect { effect, law })
+        })
+        .collect()
+});
+
+/// Every effect the lab has a signature for: its own modules, then the model's code laws —
+/// the one place that pairs a model effect with its lab module.
+pub static REGISTRY: LazyLock<Vec<Entry>> = LazyLock::new(|| {
+    let code_laws = CODE_LAWS.iter().map(|e| Entry {
+        id: e.effect.id(),
+        effect: e,
+    });
+    OWN.iter()
+        .map(|e| entry(e.id, e.effect))
+        .chain(code_laws)
+        .collect()
+});
+
 const fn entry(id: EffectId, effect: &'static dyn LabEffect) -> Entry {
     Entry { id, effect }
 }
 
 /// The ids of [`REGISTRY`], in its order.
-pub const SIGNATURE_IDS: &[&str] = &{
-    let mut out = [""; REGISTRY.len()];
-    let mut i = 0;
-    while i < out.len() {
-        out[i] = REGISTRY[i].id.as_str();
-        i += 1;
-    }
-    out
-};
+pub static SIGNATURE_IDS: LazyLock<Vec<&'static str>> =
+    LazyLock::new(|| REGISTRY.iter().map(|e| e.id.as_str()).collect());
 
 /// The lab module of effect `id`, if the lab has one.
 pub fn lab_effect(id: &str) -> Option<&'static dyn LabEffect> {
@@ -686,7 +706,7 @@ mod tests {
     /// effects are exactly the registry's `phasor` entries among them.
     #[test]
     fn every_signature_is_a_registry_entry_with_drivers() {
-        for id in SIGNATURE_IDS {
+        for id in SIGNATURE_IDS.iter() {
             let e = catalogue::effect(id).unwrap_or_else(|| panic!("{id}: not in the registry"));
             assert!(!e.drivers.is_empty(), "{id}: no drivers");
             assert!(!effect_conditions(id).is_empty());
@@ -723,7 +743,7 @@ mod tests {
         let prep = Prepared::new(&ds).unwrap();
         let spec = LabSpec::default();
         let mut seen = Vec::new();
-        for e in REGISTRY {
+        for e in REGISTRY.iter() {
             assert!(!seen.contains(&e.id), "{}: listed twice", e.id.as_str());
             seen.push(e.id);
             let sig = make_signature(e.id.as_str(), &prep, &spec, &Waveform::sinusoid()).unwrap();

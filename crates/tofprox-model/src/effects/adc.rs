@@ -27,6 +27,8 @@ pub struct Adc {
     inl_lsb: f64,
     /// INL(x) sampled at every LSB of x ∈ [−2^N, 2^N] (linear interpolation between).
     inl_table: Option<Vec<f32>>,
+    /// Δcode(k) of the enabled code laws ([`super::CodeLaw`]) at every code k, summed.
+    law_table: Option<Vec<f32>>,
     /// Step centres (T_k + T_{k+1})/2 of the DNL table.
     centres: Option<Vec<f64>>,
     /// 1 / (c_{k+1} − c_k) (0 for coincident centres of missing codes).
@@ -83,6 +85,7 @@ impl Adc {
                 .map(|i| (inl_lsb * inl_shape((i * INL_STEP) as f64 - full, full)) as f32)
                 .collect()
         });
+        let law_table = code_law_table(model, bits);
         let centres = thresholds
             .as_ref()
             .map(|t: &Vec<f64>| t.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect());
@@ -133,6 +136,7 @@ impl Adc {
             offset_lsb,
             inl_lsb,
             inl_table,
+            law_table,
             centres,
             inv_width,
             quantize: model.is_enabled(ids::quantization::ID),
@@ -156,10 +160,24 @@ impl Adc {
     }
 
     /// Continuous transfer (before quantisation) of an input `u` in LSB around mid:
-    /// y = mid + k u + o + INL(k u + o), INL(x) = I sin(2π x / 2^N) (fig. 3.4).
+    /// y = mid + k u + o + INL(k u + o) + Δcode(mid + k u + o), INL(x) = I sin(2π x / 2^N)
+    /// (fig. 3.4), Δcode the enabled code laws at the ideal code (rounded, at the rails clamped).
     #[inline]
     pub fn transfer(&self, u: f64) -> f64 {
         let x = self.k_gain * u + self.offset_lsb;
+        let law = match &self.law_table {
+            Some(t) => {
+                let code = fast_floor(self.mid + x + 0.5).clamp(0.0, self.max_code) as usize;
+                t.get(code).map_or(0.0, |&d| f64::from(d))
+            }
+            None => 0.0,
+        };
+        self.inl_transfer(x) + law
+    }
+
+    /// mid + x + INL(x) for x = k u + o.
+    #[inline]
+    fn inl_transfer(&self, x: f64) -> f64 {
         let inl = match &self.inl_table {
             Some(t) => {
                 let full = 2.0 * self.mid;
@@ -247,6 +265,28 @@ impl Adc {
     }
 }
 
+/// Δcode(k) of `model`'s enabled code laws ([`super::active_code_laws`]) at every code k of an
+/// N-bit converter; `None` when there is none.
+fn code_law_table(model: &ModelConfig, bits: u8) -> Option<Vec<f32>> {
+    let laws = super::active_code_laws(model);
+    if laws.is_empty() {
+        return None;
+    }
+    let mut basis = Vec::new();
+    let table = (0..1u32 << bits)
+        .map(|code| {
+            let mut sum = 0.0;
+            for (law, values) in &laws {
+                basis.resize(values.len(), 0.0);
+                law.basis(code, bits, &mut basis);
+                sum += basis.iter().zip(values).map(|(b, v)| b * v).sum::<f64>();
+            }
+            sum as f32
+        })
+        .collect();
+    Some(table)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -297,5 +337,36 @@ mod tests {
         assert_eq!(ideal.quantize(5000.0), 4095.0);
         assert_eq!(ideal.quantize(-7.0), 0.0);
         assert_eq!(ideal.quantize(2048.0), 2048.0);
+    }
+
+    /// A code law (here `adc_sar_mismatch`) adds its Δcode at the input's ideal code: the
+    /// same converter without it, plus −Σ_b (bit_b(k) − ½)·δ_b written out for k = round(mid + x).
+    #[test]
+    fn the_converter_adds_the_enabled_code_laws_at_the_ideal_code() {
+        let mut m = ModelConfig::baseline();
+        let plain = Adc::new(&m, 12, 1);
+        m.enable(ids::adc_sar_mismatch::ID, true).unwrap();
+        let delta = [6.0, -3.0, 2.0, 1.5];
+        let params = [
+            ids::adc_sar_mismatch::MSB_LSB,
+            ids::adc_sar_mismatch::MSB1_LSB,
+            ids::adc_sar_mismatch::MSB2_LSB,
+            ids::adc_sar_mismatch::MSB3_LSB,
+        ];
+        for (p, d) in params.iter().zip(delta) {
+            m.set(*p, d).unwrap();
+        }
+        let sar = Adc::new(&m, 12, 1);
+        for i in 0..4000 {
+            let u = -2000.0 + f64::from(i) + 0.37;
+            let ideal = plain.transfer(u);
+            let k = (ideal.round() as u32).min(4095);
+            let want: f64 = (0..4)
+                .map(|j| (0.5 - f64::from((k >> (11 - j)) & 1)) * delta[j as usize])
+                .sum();
+            // the ideal code is the converter's before its INL (off in the baseline)
+            assert!((sar.transfer(u) - ideal - want).abs() < 1e-9, "u = {u}");
+        }
+        assert!(Adc::new(&ModelConfig::ideal(), 12, 1).law_table.is_none());
     }
 }

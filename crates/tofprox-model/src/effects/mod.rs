@@ -9,6 +9,10 @@
 //! patterns drawn once from one seed) and [`noise`] (`shot_noise`, `read_noise`,
 //! `ktc_noise`: no law on expected codes, only variances the simulator sums).
 //!
+//! An effect on the converter's codes carries its law with it ([`Effect::code_law`]):
+//! the converter and the lab apply it from there, so adding one (such as
+//! [`adc_sar_mismatch`]) is its module and its line here.
+//!
 //! Shared machinery of several effects: [`correlation`] (the correlation
 //! waveform of `demodulation_contrast` and `waveform_harmonics`), [`pixel`] (a
 //! pixel's parameters resolved from the model), [`adc`] (the ADC transfer the
@@ -16,14 +20,17 @@
 //! form of `amplitude_phase_error`, `temperature_drift`, `sbi_asymmetry` and
 //! `vcsel_droop`).
 
+use crate::config::ModelConfig;
 use crate::entry::EffectInfo;
-use crate::ids::EffectId;
+use crate::ids::{EffectId, ParamId};
 
 /// An effect module's registry entry: the unit struct `$name` implementing
 /// [`Effect`] with the module's catalogue entry `$info` and the id
 /// `ids::$id::ID`.
+/// With `code_law = $law`, the effect also carries a law on the converter's codes
+/// ([`Effect::code_law`]), which the converter and the lab apply without code of their own.
 macro_rules! effect {
-    ($name:ident, $info:ident, $id:ident) => {
+    ($name:ident, $info:ident, $id:ident $(, code_law = $law:expr)?) => {
         #[doc = concat!("The effect `", stringify!($id), "` in [`crate::effects::REGISTRY`].")]
         pub struct $name;
 
@@ -34,6 +41,11 @@ macro_rules! effect {
             fn id(&self) -> $crate::ids::EffectId {
                 $crate::ids::$id::ID
             }
+            $(
+                fn code_law(&self) -> Option<&'static dyn $crate::effects::CodeLaw> {
+                    Some(&$law)
+                }
+            )?
         }
     };
 }
@@ -43,6 +55,7 @@ pub mod adc_dnl;
 pub mod adc_gain;
 pub mod adc_inl;
 pub mod adc_offset;
+pub mod adc_sar_mismatch;
 pub mod ambient_light;
 pub mod amplitude_phase_error;
 pub mod correlation;
@@ -70,6 +83,42 @@ pub trait Effect: Sync {
     fn info(&self) -> &'static EffectInfo;
     /// Its id (`[effects.<id>]` in a model file).
     fn id(&self) -> EffectId;
+    /// Its law on the converter's output codes, if it has one: then the converter
+    /// ([`adc::Adc`]) applies it and the lab fits it (`tofprox_lab`'s code-law signature)
+    /// from this one law, so such an effect is its module and nothing else.
+    fn code_law(&self) -> Option<&'static dyn CodeLaw> {
+        None
+    }
+}
+
+/// A law on the converter's codes, linear in its parameters (the converter stage of 3.2.1):
+/// Δcode(k) = Σ_j p_j · b_j(k) for k the ideal output code (0 … 2^N − 1) of an N-bit
+/// converter, p_j the values of [`CodeLaw::params`] in LSB.
+pub trait CodeLaw: Sync {
+    /// Its parameters (each in LSB), in the order of [`CodeLaw::basis`]'s outputs.
+    fn params(&self) -> &'static [ParamId];
+    /// b_j(k) for every parameter j into `out` (of length `params().len()`).
+    fn basis(&self, code: u32, bits: u8, out: &mut [f64]);
+}
+
+/// The enabled code laws of `model` with their parameter values (an effect whose
+/// parameters are all zero left out).
+pub fn active_code_laws(model: &ModelConfig) -> Vec<(&'static dyn CodeLaw, Vec<f64>)> {
+    REGISTRY
+        .iter()
+        .filter(|e| model.is_enabled(e.id()))
+        .filter_map(|e| e.code_law())
+        .map(|law| {
+            (
+                law,
+                law.params()
+                    .iter()
+                    .map(|&p| model.get(p))
+                    .collect::<Vec<f64>>(),
+            )
+        })
+        .filter(|(_, v)| v.iter().any(|&x| x != 0.0))
+        .collect()
 }
 
 /// Every effect of the model, in signal-chain order (the order of
@@ -94,6 +143,7 @@ pub static REGISTRY: &[&dyn Effect] = &[
     &adc_offset::AdcOffset,
     &adc_inl::AdcInl,
     &adc_dnl::AdcDnl,
+    &adc_sar_mismatch::AdcSarMismatch,
     &quantization::Quantization,
     &noise::ShotNoise,
     &noise::ReadNoise,
