@@ -265,10 +265,10 @@ impl Adc {
     }
 }
 
-/// Δcode(k) of `model`'s enabled code laws ([`super::active_code_laws`]) at every code k of an
+/// Δcode(k) of `model`'s enabled code laws ([`active_code_laws`]) at every code k of an
 /// N-bit converter; `None` when there is none.
 fn code_law_table(model: &ModelConfig, bits: u8) -> Option<Vec<f32>> {
-    let laws = super::active_code_laws(model);
+    let laws = active_code_laws(model);
     if laws.is_empty() {
         return None;
     }
@@ -285,6 +285,26 @@ fn code_law_table(model: &ModelConfig, bits: u8) -> Option<Vec<f32>> {
         })
         .collect();
     Some(table)
+}
+
+/// The enabled code laws of `model` with their parameter values (an effect whose
+/// parameters are all zero left out).
+fn active_code_laws(model: &ModelConfig) -> Vec<(&'static dyn super::CodeLaw, Vec<f64>)> {
+    super::REGISTRY
+        .iter()
+        .filter(|e| model.is_enabled(e.id()))
+        .filter_map(|e| e.code_law())
+        .map(|law| {
+            (
+                law,
+                law.params()
+                    .iter()
+                    .map(|&p| model.get(p))
+                    .collect::<Vec<f64>>(),
+            )
+        })
+        .filter(|(_, v)| v.iter().any(|&x| x != 0.0))
+        .collect()
 }
 
 #[cfg(test)]

@@ -20,7 +20,6 @@
 //! form of `amplitude_phase_error`, `temperature_drift`, `sbi_asymmetry` and
 //! `vcsel_droop`).
 
-use crate::config::ModelConfig;
 use crate::entry::EffectInfo;
 use crate::ids::{EffectId, ParamId};
 
@@ -99,26 +98,6 @@ pub trait CodeLaw: Sync {
     fn params(&self) -> &'static [ParamId];
     /// b_j(k) for every parameter j into `out` (of length `params().len()`).
     fn basis(&self, code: u32, bits: u8, out: &mut [f64]);
-}
-
-/// The enabled code laws of `model` with their parameter values (an effect whose
-/// parameters are all zero left out).
-pub fn active_code_laws(model: &ModelConfig) -> Vec<(&'static dyn CodeLaw, Vec<f64>)> {
-    REGISTRY
-        .iter()
-        .filter(|e| model.is_enabled(e.id()))
-        .filter_map(|e| e.code_law())
-        .map(|law| {
-            (
-                law,
-                law.params()
-                    .iter()
-                    .map(|&p| model.get(p))
-                    .collect::<Vec<f64>>(),
-            )
-        })
-        .filter(|(_, v)| v.iter().any(|&x| x != 0.0))
-        .collect()
 }
 
 /// Every effect of the model, in signal-chain order (the order of
