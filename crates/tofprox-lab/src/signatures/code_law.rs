@@ -80,13 +80,13 @@ impl Signature for CodeLawSignature {
         let max_code = 2.0 * self.mid - 1.0;
         let code = |x: f64| (self.mid + x + 0.5).floor().clamp(0.0, max_code) as u32;
         let sigma = r.w.recip().sqrt();
-        if !(sigma > MIN_SIGMA_LSB && sigma.is_finite()) {
+        if !(sigma > MIN_SIGMA_LSB && sigma.is_finite()) || out.len() > MAX_PARAMS {
             self.law.basis(code(r.x), self.bits, out);
             return;
         }
         out.fill(0.0);
         let mut at = [0.0; MAX_PARAMS];
-        let at = &mut at[..out.len().min(MAX_PARAMS)];
+        let at = &mut at[..out.len()];
         for z in NORMAL_NINTHS {
             self.law.basis(code(r.x + sigma * z), self.bits, at);
             for (o, a) in out.iter_mut().zip(at.iter()) {
