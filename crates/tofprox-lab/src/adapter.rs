@@ -3,10 +3,11 @@
 //! each effect's model-file parameters mean to the lab is its module's in
 //! [`crate::signatures`]; editing the model file's text is [`crate::model_file`]'s.
 use std::path::Path;
+use tofprox_model::effects;
 
 use tofprox_format::Recording;
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::{self, EffectId};
+use tofprox_model::ids::EffectId;
 
 use crate::data::{Capture, Dataset};
 use crate::error::LabError;
@@ -72,9 +73,10 @@ pub fn dataset_from_recording(rec: &Recording) -> Result<Dataset, LabError> {
 pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
     LabSpec {
         harmonic_order: harmonic_order(m),
-        per_pixel_offset: m.is_enabled(ids::fpn_offset::ID) || m.is_enabled(ids::adc_offset::ID),
-        per_pixel_gain: m.is_enabled(ids::prnu::ID),
-        per_pixel_phase: m.is_enabled(ids::fppn::ID),
+        per_pixel_offset: m.is_enabled(effects::fpn_offset::ID)
+            || m.is_enabled(effects::adc_offset::ID),
+        per_pixel_gain: m.is_enabled(effects::prnu::ID),
+        per_pixel_phase: m.is_enabled(effects::fppn::ID),
         effects: SIGNATURE_IDS
             .iter()
             .filter_map(|id| EffectId::parse(id))
@@ -84,7 +86,7 @@ pub fn spec_from_model(m: &ModelConfig) -> LabSpec {
             .collect(),
         held: Vec::new(),
         holds: std::collections::BTreeMap::new(),
-        dark_doubling_k: m.get(ids::dark_current::DOUBLING_C),
+        dark_doubling_k: m.get(effects::dark_current::DOUBLING_C),
         shapes: crate::shape::spec_shapes(m, crate::signatures::code_per_e(m)),
         user_effects: m.user_effects().to_vec(),
     }

@@ -165,7 +165,7 @@ mod tests {
     use super::*;
     use crate::diagnose::{FitStats, Rms, Size};
     use crate::noise::NoiseSource;
-    use tofprox_model::ids;
+    use tofprox_model::effects;
 
     fn candidate(effect: &str, share: f64, mm: f64, z_after: f64) -> CandidateScore {
         let mut c = crate::diagnose::tests::cand(effect, share, share, z_after, -100.0);
@@ -177,12 +177,12 @@ mod tests {
     fn ambiguous() -> Diagnosis {
         Diagnosis {
             verdict: Verdict::Ambiguous,
-            effect: Some(ids::adc_inl::ID.as_str().into()),
-            runner_up: Some(ids::tap_gain_mismatch::ID.as_str().into()),
+            effect: Some(effects::adc_inl::ID.as_str().into()),
+            runner_up: Some(effects::tap_gain_mismatch::ID.as_str().into()),
             separate_by: Some("exposure_us".into()),
             candidates: vec![
-                candidate(ids::adc_inl::ID.as_str(), 0.81, 0.52, 30.5),
-                candidate(ids::tap_gain_mismatch::ID.as_str(), 0.77, 0.49, 35.25),
+                candidate(effects::adc_inl::ID.as_str(), 0.81, 0.52, 30.5),
+                candidate(effects::tap_gain_mismatch::ID.as_str(), 0.77, 0.49, 35.25),
             ],
             skipped: Vec::new(),
             fit: FitStats {

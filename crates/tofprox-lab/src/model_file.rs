@@ -113,23 +113,23 @@ fn write_shape_keys(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tofprox_model::ids;
+    use tofprox_model::effects;
 
     #[test]
     fn update_keeps_comments_and_sets_fitted_values() {
         let text = "# my sensor\ndescription = \"bench unit 3\"\n\n[effects.vcsel_droop]\n\
                     enabled = false  # off until measured\ndroop_rel = 0.03\n";
         let mut m = ModelConfig::from_toml_str(text).unwrap();
-        m.enable(ids::vcsel_droop::ID, true).unwrap();
-        m.set(ids::vcsel_droop::DROOP_REL, 0.071).unwrap();
-        m.enable(ids::adc_inl::ID, true).unwrap();
-        m.set(ids::adc_inl::INL_LSB, -3.5).unwrap();
+        m.enable(effects::vcsel_droop::ID, true).unwrap();
+        m.set(effects::vcsel_droop::DROOP_REL, 0.071).unwrap();
+        m.enable(effects::adc_inl::ID, true).unwrap();
+        m.set(effects::adc_inl::INL_LSB, -3.5).unwrap();
         let out = update_model_text(
             text,
             &m,
             &[
-                ids::vcsel_droop::ID.as_str().into(),
-                ids::adc_inl::ID.as_str().into(),
+                effects::vcsel_droop::ID.as_str().into(),
+                effects::adc_inl::ID.as_str().into(),
             ],
         )
         .unwrap();
@@ -139,16 +139,17 @@ mod tests {
             "{out}"
         );
         let back = ModelConfig::from_toml_str(&out).unwrap();
-        assert_eq!(back.get(ids::vcsel_droop::DROOP_REL), 0.071);
-        assert!(back.is_enabled(ids::vcsel_droop::ID) && back.is_enabled(ids::adc_inl::ID));
-        assert_eq!(back.get(ids::adc_inl::INL_LSB), -3.5);
+        assert_eq!(back.get(effects::vcsel_droop::DROOP_REL), 0.071);
+        assert!(back.is_enabled(effects::vcsel_droop::ID) && back.is_enabled(effects::adc_inl::ID));
+        assert_eq!(back.get(effects::adc_inl::INL_LSB), -3.5);
         assert!(update_model_text("[effects", &m, &[]).is_err());
     }
 
     #[test]
     fn update_writes_the_chosen_form_only() {
-        use tofprox_model::effects::shape::{DRIFT_PHASE_RAD, EffectShape};
-        let id = ids::temperature_drift::ID;
+        use tofprox_model::effects::shape::EffectShape;
+        use tofprox_model::effects::temperature_drift::DRIFT_PHASE_RAD;
+        let id = effects::temperature_drift::ID;
         let text = "[effects.temperature_drift]\nenabled = true  # measured\n\
                     phase_mrad_per_k = 2.0\n";
         let mut m = ModelConfig::from_toml_str(text).unwrap();

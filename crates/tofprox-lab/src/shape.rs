@@ -26,9 +26,10 @@
 //! `crate::form`'s ([`choose_form`]).
 
 use std::collections::BTreeMap;
+use tofprox_model::effects;
 
 use tofprox_model::effects::shape as law;
-use tofprox_model::ids::{self, EffectId};
+use tofprox_model::ids::EffectId;
 
 use crate::prepared::{CapInfo, Prepared};
 use crate::sample::{Rec, Sample};
@@ -81,14 +82,14 @@ fn temperatures(cap: &CapInfo) -> Option<(f64, f64)> {
 /// amplitude-phase error): the `phasor_shift` of `signatures.rs` for shapes.
 pub fn shape_phasor(e: &EffectFit, knots: &[f64], cap: &CapInfo, a_lsb: f64) -> (f64, f64) {
     match EffectId::parse(&e.id) {
-        Some(ids::temperature_drift::ID) => match temperatures(cap) {
+        Some(effects::temperature_drift::ID) => match temperatures(cap) {
             Some((t, t_ref)) => (
                 (1.0 + rel_shape(knots, &e.lin, t, t_ref)).max(0.0),
                 rel_shape(knots, &e.nl, t, t_ref),
             ),
             None => (1.0, 0.0),
         },
-        Some(ids::amplitude_phase_error::ID) if cap.illum => {
+        Some(effects::amplitude_phase_error::ID) if cap.illum => {
             (1.0, rel_shape(knots, &e.nl, a_lsb.max(0.0), knots[0]))
         }
         _ => (1.0, 0.0),
@@ -179,7 +180,7 @@ fn grid_from(start: Option<Vec<f64>>, n: usize) -> Vec<Vec<f64>> {
 
 impl Signature for AmpPhaseShape {
     fn id(&self) -> &'static str {
-        ids::amplitude_phase_error::ID.as_str()
+        effects::amplitude_phase_error::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         0
@@ -222,7 +223,7 @@ impl DriftShape {
 
 impl Signature for DriftShape {
     fn id(&self) -> &'static str {
-        ids::temperature_drift::ID.as_str()
+        effects::temperature_drift::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         self.knots.len() - 1
@@ -289,7 +290,7 @@ struct SbiShape {
 fn sbi_mismatch_bound() -> f64 {
     static BOUND: std::sync::OnceLock<f64> = std::sync::OnceLock::new();
     *BOUND.get_or_init(|| {
-        tofprox_model::catalogue::param_info(ids::sbi_asymmetry::MISMATCH_REL)
+        tofprox_model::catalogue::param_info(effects::sbi_asymmetry::MISMATCH_REL)
             .map_or(1.0, |p| p.max.abs().min(p.min.abs()))
     })
 }
@@ -307,7 +308,7 @@ impl SbiShape {
 
 impl Signature for SbiShape {
     fn id(&self) -> &'static str {
-        ids::sbi_asymmetry::ID.as_str()
+        effects::sbi_asymmetry::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         0
@@ -317,7 +318,7 @@ impl Signature for SbiShape {
     }
     fn nl_names(&self) -> Vec<String> {
         let mut v: Vec<String> = per_knot(&self.knots, |k| format!("removed_at_{k:.1}_units"));
-        v.push(ids::sbi_asymmetry::MISMATCH_REL.name().into());
+        v.push(effects::sbi_asymmetry::MISMATCH_REL.name().into());
         v
     }
     /// The clamp R = N_max − N_first (the parametric family's clamp end with
@@ -325,7 +326,7 @@ impl Signature for SbiShape {
     fn nl_start(&self) -> Vec<f64> {
         let mut v: Vec<f64> = self.knots[1..].iter().map(|k| k - self.knots[0]).collect();
         v.push(tofprox_model::catalogue::typical(
-            ids::sbi_asymmetry::MISMATCH_REL,
+            effects::sbi_asymmetry::MISMATCH_REL,
         ));
         v
     }
@@ -395,7 +396,7 @@ struct DroopShape {
 
 impl Signature for DroopShape {
     fn id(&self) -> &'static str {
-        ids::vcsel_droop::ID.as_str()
+        effects::vcsel_droop::ID.as_str()
     }
     fn n_lin(&self) -> usize {
         self.knots.len() - 1
@@ -430,19 +431,19 @@ pub fn make_shape_signature(
     let knots = knots.to_vec();
     let waveform_ = || waveform.clone();
     match EffectId::parse(id)? {
-        ids::amplitude_phase_error::ID => Some(Box::new(AmpPhaseShape {
+        effects::amplitude_phase_error::ID => Some(Box::new(AmpPhaseShape {
             knots,
             waveform: waveform_(),
         })),
-        ids::temperature_drift::ID => Some(Box::new(DriftShape {
+        effects::temperature_drift::ID => Some(Box::new(DriftShape {
             knots,
             waveform: waveform_(),
         })),
-        ids::sbi_asymmetry::ID if !prep.ambient_varies => Some(Box::new(SbiShape {
+        effects::sbi_asymmetry::ID if !prep.ambient_varies => Some(Box::new(SbiShape {
             knots,
             taps: Sbi::new(prep, waveform),
         })),
-        ids::vcsel_droop::ID => Some(Box::new(DroopShape { knots })),
+        effects::vcsel_droop::ID => Some(Box::new(DroopShape { knots })),
         _ => None,
     }
 }
@@ -466,7 +467,7 @@ pub fn knots_at_quantiles(
         .map(|i| 0.02 + 0.96 * i as f64 / (k - 1).max(1) as f64)
         .collect();
     match EffectId::parse(id)? {
-        ids::amplitude_phase_error::ID => {
+        effects::amplitude_phase_error::ID => {
             // where the data pin a phase law: its information per sample is
             // w·(A·C′)² ∝ w·A², so the knots sit at quantiles of the
             // amplitude weighted by w·A² (dense where the bright samples are)
@@ -478,7 +479,7 @@ pub fn knots_at_quantiles(
                 .collect();
             strictly_increasing(weighted_quantiles(a, &qs), k)
         }
-        ids::temperature_drift::ID => ranked(
+        effects::temperature_drift::ID => ranked(
             prep.caps
                 .iter()
                 .filter(|c| c.illum && c.used)
@@ -486,8 +487,8 @@ pub fn knots_at_quantiles(
                 .collect(),
             k,
         ),
-        ids::vcsel_droop::ID => on_time_knots(prep, k),
-        ids::sbi_asymmetry::ID if !prep.ambient_varies => {
+        effects::vcsel_droop::ID => on_time_knots(prep, k),
+        effects::sbi_asymmetry::ID if !prep.ambient_varies => {
             // the circuit acts on the fuller taps: the knots sit at quantiles
             // of N_max weighted by w·N_max² (dense where the full taps are,
             // as the amplitude's)
@@ -646,14 +647,14 @@ pub fn model_shape(
         curves: vec![(key, values)],
     };
     match EffectId::parse(id)? {
-        ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some(law::EffectShape {
+        effects::amplitude_phase_error::ID if code_per_e > 0.0 => Some(law::EffectShape {
             knots: knots.iter().map(|k| k / code_per_e).collect(),
             curves: vec![(
-                law::AMPLITUDE_PHASE_RAD,
+                effects::amplitude_phase_error::AMPLITUDE_PHASE_RAD,
                 law::monotone_projection(&with0(&fit.nl)),
             )],
         }),
-        ids::temperature_drift::ID => {
+        effects::temperature_drift::ID => {
             // relative to T_ref: G(T_ref) = 0 makes the file's 1 + G(T) the lab's factor
             let at_ref = |c: &[f64]| {
                 let v = with0(c);
@@ -663,27 +664,27 @@ pub fn model_shape(
             Some(law::EffectShape {
                 knots: knots.to_vec(),
                 curves: vec![
-                    (law::DRIFT_PHASE_RAD, at_ref(&fit.nl)),
-                    (law::DRIFT_GAIN_REL, at_ref(&fit.lin)),
+                    (effects::temperature_drift::DRIFT_PHASE_RAD, at_ref(&fit.nl)),
+                    (effects::temperature_drift::DRIFT_GAIN_REL, at_ref(&fit.lin)),
                 ],
             })
         }
-        ids::sbi_asymmetry::ID if code_per_e > 0.0 && fit.nl.len() == knots.len() => {
+        effects::sbi_asymmetry::ID if code_per_e > 0.0 && fit.nl.len() == knots.len() => {
             let u = sbi::signal_e_per_unit(code_per_e);
             let (v, _) = sbi_split(&fit.nl);
             let r = law::monotone_projection(&with0(&v));
             Some(law::EffectShape {
                 knots: knots.iter().map(|k| k * u).collect(),
                 curves: vec![(
-                    law::SBI_REMOVED_E,
+                    effects::sbi_asymmetry::SBI_REMOVED_E,
                     r.iter().map(|x| (x * u).max(0.0)).collect(),
                 )],
             })
         }
-        ids::vcsel_droop::ID if fit.lin.len() + 1 == knots.len() => {
+        effects::vcsel_droop::ID if fit.lin.len() + 1 == knots.len() => {
             let l = law::monotone_projection(&with0(&fit.lin));
             Some(one(
-                law::DROOP_LOSS_REL,
+                effects::vcsel_droop::DROOP_LOSS_REL,
                 l.iter().map(|v| v.min(MAX_LOSS_REL)).collect(),
             ))
         }
@@ -735,32 +736,35 @@ pub fn held_shape(
     let rel =
         |v: &[f64], scale: f64| -> Vec<f64> { v[1..].iter().map(|x| (x - v[0]) / scale).collect() };
     match id {
-        ids::amplitude_phase_error::ID if code_per_e > 0.0 => Some((
+        effects::amplitude_phase_error::ID if code_per_e > 0.0 => Some((
             s.knots.iter().map(|k| k * code_per_e).collect(),
             Vec::new(),
-            rel(&curve(law::AMPLITUDE_PHASE_RAD), 1.0),
+            rel(
+                &curve(effects::amplitude_phase_error::AMPLITUDE_PHASE_RAD),
+                1.0,
+            ),
         )),
-        ids::temperature_drift::ID => {
-            let g = curve(law::DRIFT_GAIN_REL);
+        effects::temperature_drift::ID => {
+            let g = curve(effects::temperature_drift::DRIFT_GAIN_REL);
             let g_ref = (1.0 + law::eval(&s.knots, &g, temp_ref_c)).max(1e-9);
             Some((
                 s.knots.clone(),
                 rel(&g, g_ref),
-                rel(&curve(law::DRIFT_PHASE_RAD), 1.0),
+                rel(&curve(effects::temperature_drift::DRIFT_PHASE_RAD), 1.0),
             ))
         }
-        ids::sbi_asymmetry::ID if code_per_e > 0.0 => {
+        effects::sbi_asymmetry::ID if code_per_e > 0.0 => {
             let u = sbi::signal_e_per_unit(code_per_e);
-            let r = curve(law::SBI_REMOVED_E);
-            let m_rel = m.get(ids::sbi_asymmetry::MISMATCH_REL);
+            let r = curve(effects::sbi_asymmetry::SBI_REMOVED_E);
+            let m_rel = m.get(effects::sbi_asymmetry::MISMATCH_REL);
             Some((
                 s.knots.iter().map(|k| k / u).collect(),
                 Vec::new(),
                 r[1..].iter().map(|v| v / u).chain([m_rel]).collect(),
             ))
         }
-        ids::vcsel_droop::ID => {
-            let l = curve(law::DROOP_LOSS_REL);
+        effects::vcsel_droop::ID => {
+            let l = curve(effects::vcsel_droop::DROOP_LOSS_REL);
             Some((s.knots.clone(), rel(&l, 1.0 - l[0]), Vec::new()))
         }
         _ => None,
@@ -770,8 +774,7 @@ pub fn held_shape(
 /// The lab's knots of every enabled effect the model file gives as a shape
 /// (`code_per_e`: the file's output codes per electron).
 pub fn spec_shapes(m: &tofprox_model::ModelConfig, code_per_e: f64) -> BTreeMap<String, Vec<f64>> {
-    law::SHAPE_LAWS
-        .iter()
+    law::shape_laws()
         .filter(|l| m.is_enabled(l.effect))
         .filter_map(|l| {
             let (knots, _, _) = held_shape(l.effect, m, code_per_e, 0.0)?;

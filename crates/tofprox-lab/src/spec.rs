@@ -45,7 +45,7 @@ impl Default for LabSpec {
             held: Vec::new(),
             holds: std::collections::BTreeMap::new(),
             dark_doubling_k: tofprox_model::catalogue::typical(
-                tofprox_model::ids::dark_current::DOUBLING_C,
+                tofprox_model::effects::dark_current::DOUBLING_C,
             ),
             shapes: std::collections::BTreeMap::new(),
             user_effects: Vec::new(),

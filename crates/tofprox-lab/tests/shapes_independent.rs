@@ -327,7 +327,7 @@ fn sigmoid_amplitude_phase_error_is_fitted_as_a_shape() {
     let (prep, out) = named_in_form(law, &[25.0], 51, "amplitude_phase_error", true);
     let written = written_file_reproduces(&prep, &out, "amplitude_phase_error");
     let s = written
-        .shape(tofprox_model::ids::amplitude_phase_error::ID)
+        .shape(tofprox_model::effects::amplitude_phase_error::ID)
         .expect("the shape form is written");
     // in the model's units: electrons of differential amplitude K·S/2; the
     // phase rises between the outer knots as the law does
@@ -351,7 +351,7 @@ fn exponential_temperature_drift_is_fitted_as_a_shape() {
     let (prep, out) = named_in_form(law, &temps, 52, "temperature_drift", true);
     let written = written_file_reproduces(&prep, &out, "temperature_drift");
     let s = written
-        .shape(tofprox_model::ids::temperature_drift::ID)
+        .shape(tofprox_model::effects::temperature_drift::ID)
         .expect("the shape form is written");
     let phase = |t: f64| s.eval("shape_phase_rad", t);
     let truth = |t: f64| 0.06 * ((0.07 * (t - 25.0)).exp() - 1.0);
@@ -392,11 +392,11 @@ fn saturating_sbi_is_fitted_as_a_shape() {
     let (prep, out) = named_in_form(law, &[25.0], 55, "sbi_asymmetry", true);
     let written = written_file_reproduces(&prep, &out, "sbi_asymmetry");
     let s = written
-        .shape(tofprox_model::ids::sbi_asymmetry::ID)
+        .shape(tofprox_model::effects::sbi_asymmetry::ID)
         .expect("the shape form is written");
     // the error m·R the written file makes, against the law's, at the
     // outer knots (the scale of R alone is not pinned where no tap empties)
-    let m_file = written.get(tofprox_model::ids::sbi_asymmetry::MISMATCH_REL);
+    let m_file = written.get(tofprox_model::effects::sbi_asymmetry::MISMATCH_REL);
     let (k, v) = (&s.knots, &s.curves[0].1);
     let logistic = |n: f64| r_max / (1.0 + (-(n - q) / w).exp());
     let want = m * (logistic(k[k.len() - 1]) - logistic(k[0]));
@@ -415,7 +415,7 @@ fn rollover_droop_is_fitted_as_a_shape() {
     let (prep, out) = named_in_form(law, &[25.0], 56, "vcsel_droop", true);
     let written = written_file_reproduces(&prep, &out, "vcsel_droop");
     let s = written
-        .shape(tofprox_model::ids::vcsel_droop::ID)
+        .shape(tofprox_model::effects::vcsel_droop::ID)
         .expect("the shape form is written");
     let loss = |t: f64| 1.0 - law.power(1, t);
     for (t, l) in s.knots.iter().zip(&s.curves[0].1) {

@@ -61,19 +61,21 @@ pub fn closest<'a>(given: &str, candidates: impl IntoIterator<Item = &'a str>) -
 #[cfg(test)]
 mod closest_tests {
     use super::*;
-    use crate::ids;
 
     #[test]
     fn misspelled_effects_find_their_id_and_strangers_find_none() {
         let ids = || catalogue().iter().map(|e| e.id);
         assert_eq!(
             closest("vcsel_drop", ids()),
-            Some(ids::vcsel_droop::ID.as_str())
+            Some(effects::vcsel_droop::ID.as_str())
         );
-        assert_eq!(closest("adcinl", ids()), Some(ids::adc_inl::ID.as_str()));
+        assert_eq!(
+            closest("adcinl", ids()),
+            Some(effects::adc_inl::ID.as_str())
+        );
         assert_eq!(
             closest("quantisation", ids()),
-            Some(ids::quantization::ID.as_str())
+            Some(effects::quantization::ID.as_str())
         );
         assert_eq!(closest("banana", ids()), None);
     }

@@ -11,7 +11,12 @@ use crate::catalogue::{self, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::effects::shape::{self, EffectShape, ShapeLaw};
 use crate::effects::user::{self, UserEffect};
 use crate::error::{ErrorKind, ModelError};
-use crate::ids::{self, EffectId, ParamId};
+use crate::ids::{EffectId, ParamId};
+
+/// The effect whose table holds the waveform files (`[effects.waveform_harmonics]`:
+/// `illumination_file`, `modulation_file`): `effects::waveform_harmonics::ID`, spelt out
+/// here because the effects import this module (a test checks the two agree).
+const WAVEFORM_EFFECT: &str = "waveform_harmonics";
 use tofprox_core::camera::Intrinsics;
 
 /// The model file's lens section: intrinsics in full-array pixels and OpenCV distortion.
@@ -326,7 +331,7 @@ impl ModelConfig {
             if law.is_some_and(|l| shape::is_shape_key(l, name)) {
                 continue;
             }
-            if info.id == ids::waveform_harmonics::ID.as_str() {
+            if info.id == WAVEFORM_EFFECT {
                 let key = format!("{section}.{name}");
                 match name.as_str() {
                     "illumination_file" | "modulation_file" => {
@@ -373,7 +378,7 @@ impl ModelConfig {
                 }
             }
             let pinfo = info.param(name).ok_or_else(|| {
-                let extra = if info.id == ids::waveform_harmonics::ID.as_str() {
+                let extra = if info.id == WAVEFORM_EFFECT {
                     ", illumination_file, modulation_file, illumination, modulation".to_string()
                 } else if let Some(l) = law {
                     format!(", {}, {}", l.driver, l.curves.join(", "))
@@ -484,7 +489,8 @@ impl ModelConfig {
             let _ = writeln!(out, "enabled = {}", s.enabled);
             for p in e.params {
                 let v = s.params.get(p.name).copied().unwrap_or(p.typical);
-                let unit = if p.unit.is_empty() {
+                // dimensionless ("" or "1") parameters carry no unit comment
+                let unit = if p.unit.is_empty() || p.unit == "1" {
                     String::new()
                 } else {
                     format!("  # {}", p.unit)
@@ -498,10 +504,7 @@ impl ModelConfig {
                     let _ = writeln!(out, "{k} = {v:?}");
                 }
             }
-            if let (true, Some(w)) = (
-                e.id == ids::waveform_harmonics::ID.as_str(),
-                &self.waveforms,
-            ) {
+            if let (true, Some(w)) = (e.id == WAVEFORM_EFFECT, &self.waveforms) {
                 write_wave(
                     &mut out,
                     "illumination",

@@ -10,6 +10,7 @@ use rand::SeedableRng;
 use rand::rngs::SmallRng;
 
 use crate::ModelConfig;
+use crate::effects;
 use crate::effects::correlation::measured_like_waveforms;
 use crate::error::ModelError;
 use crate::geometry::{CaptureRequest, SensorGeometry};
@@ -130,9 +131,9 @@ fn codes_of(a: &ndarray::Array3<f64>) -> Vec<f64> {
 /// Ideal sensor + `signal_falloff` + `adc_offset` = 30 LSB, t_exp = 0.5 ms.
 pub fn fig_3_7() -> Result<Figure, ModelError> {
     let mut m = ModelConfig::ideal();
-    m.enable(ids::signal_falloff::ID, true)?;
-    m.enable(ids::adc_offset::ID, true)?;
-    m.set(ids::adc_offset::OFFSET_LSB, 30.0)?;
+    m.enable(effects::signal_falloff::ID, true)?;
+    m.enable(effects::adc_offset::ID, true)?;
+    m.set(effects::adc_offset::OFFSET_LSB, 30.0)?;
     let sim = Simulator::new(&m, centre_geometry()?, 1)?;
     let req = CaptureRequest::four_phase(500.0);
     let (mut s2, mut s4) = (Vec::new(), Vec::new());
@@ -172,8 +173,8 @@ pub fn fig_3_8() -> Result<Figure, ModelError> {
     let mut series = Vec::new();
     for inl in [-200.0, -1.744] {
         let mut m = ModelConfig::ideal();
-        m.enable(ids::adc_inl::ID, true)?;
-        m.set(ids::adc_inl::INL_LSB, inl)?;
+        m.enable(effects::adc_inl::ID, true)?;
+        m.set(effects::adc_inl::INL_LSB, inl)?;
         // amplitude 1024 LSB = half of the positive/negative range (3.3.4)
         let t = 1000.0;
         let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
@@ -211,8 +212,8 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
     let mut series = Vec::new();
     for (name, dnl) in [("DNL 1.906 LSB", true), ("quantisation only", false)] {
         let mut m = ModelConfig::ideal();
-        m.enable(ids::quantization::ID, true)?;
-        m.enable(ids::adc_dnl::ID, dnl)?;
+        m.enable(effects::quantization::ID, true)?;
+        m.enable(effects::adc_dnl::ID, dnl)?;
         let t = 1000.0;
         let lsb_per_e = m.get(ids::sensor::LSB_PER_KE) * 1e-3;
         m.set(ids::sensor::SIGNAL_E_PER_US, 300.0 / (t * lsb_per_e))?;
@@ -248,17 +249,17 @@ pub fn fig_3_9() -> Result<Figure, ModelError> {
 pub fn fig_5_1_model() -> Result<ModelConfig, ModelError> {
     let mut m = ModelConfig::ideal();
     for id in [
-        ids::signal_falloff::ID,
-        ids::demodulation_contrast::ID,
-        ids::waveform_harmonics::ID,
-        ids::adc_gain::ID,
-        ids::adc_inl::ID,
-        ids::adc_dnl::ID,
-        ids::quantization::ID,
-        ids::shot_noise::ID,
-        ids::read_noise::ID,
-        ids::ktc_noise::ID,
-        ids::dark_current::ID,
+        effects::signal_falloff::ID,
+        effects::demodulation_contrast::ID,
+        effects::waveform_harmonics::ID,
+        effects::adc_gain::ID,
+        effects::adc_inl::ID,
+        effects::adc_dnl::ID,
+        effects::quantization::ID,
+        effects::shot_noise::ID,
+        effects::read_noise::ID,
+        effects::ktc_noise::ID,
+        effects::dark_current::ID,
     ] {
         m.enable(id, true)?;
     }
@@ -329,10 +330,10 @@ pub const FIG_5_8_AMBIENT_KLUX: f64 = 40.0;
 pub fn fig_5_8_model() -> Result<ModelConfig, ModelError> {
     let mut m = ModelConfig::ideal();
     for id in [
-        ids::signal_falloff::ID,
-        ids::demodulation_contrast::ID,
-        ids::ambient_light::ID,
-        ids::sbi_asymmetry::ID,
+        effects::signal_falloff::ID,
+        effects::demodulation_contrast::ID,
+        effects::ambient_light::ID,
+        effects::sbi_asymmetry::ID,
     ] {
         m.enable(id, true)?;
     }

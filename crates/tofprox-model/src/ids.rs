@@ -1,11 +1,13 @@
-//! Typed identifiers of the catalogue's effects and parameters.
+//! The types of the catalogue's typed identifiers, [`EffectId`] and [`ParamId`], the
+//! `sensor` constants, and the macro an effect module declares its own with
+//! (`effect_ids!`: `effects::vcsel_droop::ID`, `effects::adc_gain::GAIN_ERROR_PCT_FSR`).
 //!
-//! The model's code names an effect or a parameter through these constants
+//! The model's code names an effect or a parameter through those constants
 //! (`m.get(adc_gain::GAIN_ERROR_PCT_FSR)`, `m.is_enabled(vcsel_droop::ID)`), so a misspelt
-//! identifier does not compile; a test checks that every constant names an entry of
-//! `catalogue::catalogue()` (the registry `effects::REGISTRY`) (or of `catalogue::SENSOR_PARAMS`) and that every
-//! catalogue entry has a constant. Strings from outside (model files, the command line) are
-//! checked against the catalogue when they are read (`ModelConfig::set_param`, model loading).
+//! identifier does not compile; a test checks every registry entry's parameters against its
+//! catalogue entry (`effects::REGISTRY`). Strings from outside (model files, the command
+//! line) are checked against the catalogue when they are read (`EffectId::parse`,
+//! `ModelConfig::set_param`, model loading).
 
 use std::fmt;
 
@@ -18,10 +20,9 @@ impl EffectId {
     pub const fn as_str(self) -> &'static str {
         self.0
     }
-    /// The effect a string from outside (a model file, the command line, a
-    /// report) names, if any.
-    pub fn parse(id: &str) -> Option<Self> {
-        ALL_EFFECTS.iter().copied().find(|e| e.0 == id)
+    /// The id of an effect module (through [`effect_ids`], so only the crate makes one).
+    pub(crate) const fn new(id: &'static str) -> Self {
+        Self(id)
     }
 }
 
@@ -48,6 +49,10 @@ impl ParamId {
     pub const fn name(self) -> &'static str {
         self.name
     }
+    /// A parameter of section `section` (through [`effect_ids`], so only the crate makes one).
+    pub(crate) const fn new(section: &'static str, name: &'static str) -> Self {
+        Self { section, name }
+    }
 }
 
 impl fmt::Display for ParamId {
@@ -60,28 +65,22 @@ impl fmt::Display for ParamId {
     }
 }
 
-/// One module per effect: `ID` and a constant per parameter; the module's name is the id.
+/// An effect module's typed ids, declared in the module itself (its one home): `ID` and a
+/// constant per parameter (`effects::vcsel_droop::DROOP_REL`); the effect's id is the module's
+/// name. `effects::Effect::id` and its catalogue entry use them, and a test checks every
+/// registry entry's parameters against its catalogue entry.
 macro_rules! effect_ids {
-    ($( $(#[$doc:meta])* $effect:ident { $($param:ident = $name:literal),* $(,)? } )*) => {
+    ($effect:ident { $($param:ident = $name:literal),* $(,)? }) => {
+        /// The effect's id.
+        pub const ID: $crate::ids::EffectId = $crate::ids::EffectId::new(stringify!($effect));
         $(
-            $(#[$doc])*
-            pub mod $effect {
-                #[allow(unused_imports)]
-                use super::{EffectId, ParamId};
-                /// The effect.
-                pub const ID: EffectId = EffectId(stringify!($effect));
-                $(
-                    #[doc = concat!("`[effects.", stringify!($effect), "] ", $name, "`")]
-                    pub const $param: ParamId = ParamId { section: stringify!($effect), name: $name };
-                )*
-            }
+            #[doc = concat!("`[effects.", stringify!($effect), "] ", $name, "`")]
+            pub const $param: $crate::ids::ParamId =
+                $crate::ids::ParamId::new(stringify!($effect), $name);
         )*
-        /// Every effect, in catalogue order.
-        pub const ALL_EFFECTS: &[EffectId] = &[$($effect::ID),*];
-        /// Every named effect parameter constant.
-        pub const ALL_EFFECT_PARAMS: &[ParamId] = &[$($($effect::$param,)*)*];
     };
 }
+pub(crate) use effect_ids;
 
 /// The always-on sensor constants (`[sensor]` in a model file).
 pub mod sensor {
@@ -102,122 +101,20 @@ pub mod sensor {
     pub const ALL: &[ParamId] = &[SIGNAL_E_PER_US, LSB_PER_KE];
 }
 
-const fn harmonic_param(name: &'static str) -> ParamId {
-    ParamId {
-        section: waveform_harmonics::ID.as_str(),
-        name,
-    }
-}
-
-/// `waveform_harmonics` amplitudes relative to the fundamental, `h2_rel … h9_rel`.
-pub const HARMONIC_REL: [ParamId; 8] = [
-    harmonic_param("h2_rel"),
-    harmonic_param("h3_rel"),
-    harmonic_param("h4_rel"),
-    harmonic_param("h5_rel"),
-    harmonic_param("h6_rel"),
-    harmonic_param("h7_rel"),
-    harmonic_param("h8_rel"),
-    harmonic_param("h9_rel"),
-];
-
-/// `waveform_harmonics` phases, `h2_phase_deg … h9_phase_deg`.
-pub const HARMONIC_PHASE_DEG: [ParamId; 8] = [
-    harmonic_param("h2_phase_deg"),
-    harmonic_param("h3_phase_deg"),
-    harmonic_param("h4_phase_deg"),
-    harmonic_param("h5_phase_deg"),
-    harmonic_param("h6_phase_deg"),
-    harmonic_param("h7_phase_deg"),
-    harmonic_param("h8_phase_deg"),
-    harmonic_param("h9_phase_deg"),
-];
-
-/// Harmonic `n` (2..=9) of `waveform_harmonics`: amplitude relative to the fundamental
-/// (`h<n>_rel`) and phase (`h<n>_phase_deg`); `None` outside 2..=9.
-pub fn harmonic(n: usize) -> Option<(ParamId, ParamId)> {
-    let i = n.checked_sub(2)?;
-    Some((*HARMONIC_REL.get(i)?, *HARMONIC_PHASE_DEG.get(i)?))
-}
-
-effect_ids! {
-    /// Reflected signal vs distance.
-    signal_falloff { EXPONENT = "exponent" }
-    /// Demodulation contrast.
-    demodulation_contrast { CONTRAST = "contrast" }
-    /// Non-sinusoidal correlation (wiggling).
-    /// Parameters by harmonic: [`harmonic`].
-    waveform_harmonics {}
-    /// Multipath return.
-    multipath { RELATIVE_AMPLITUDE = "relative_amplitude", EXTRA_PATH_M = "extra_path_m" }
-    /// Cover-window crosstalk.
-    cover_window_crosstalk { E_PER_US = "e_per_us", SMUDGE_REL = "smudge_rel", WINDOW_DISTANCE_MM = "window_distance_mm", GRADIENT_REL = "gradient_rel" }
-    /// VCSEL power droop over successive raw images.
-    vcsel_droop { DROOP_REL = "droop_rel", TAU_US = "tau_us", EXPOSURE_POWER = "exposure_power", FIRST_IMAGE_INDEX = "first_image_index" }
-    /// Photo-response non-uniformity incl. vignetting.
-    prnu { SIGMA_REL = "sigma_rel", VIGNETTING_REL = "vignetting_rel" }
-    /// Fixed-pattern phase noise and global delay.
-    fppn { GLOBAL_DELAY_NS = "global_delay_ns", COLUMN_DELAY_PS = "column_delay_ps", PIXEL_SIGMA_PS = "pixel_sigma_ps" }
-    /// Amplitude-dependent phase error.
-    amplitude_phase_error { MAX_RAD = "max_rad", REFERENCE_E = "reference_e", SHAPE = "shape" }
-    /// Temperature drift of phase and gain.
-    temperature_drift { PHASE_MRAD_PER_K = "phase_mrad_per_k", GAIN_REL_PER_K = "gain_rel_per_k", PHASE_MRAD_PER_K2 = "phase_mrad_per_k2", GAIN_REL_PER_K2 = "gain_rel_per_k2", REFERENCE_C = "reference_c" }
-    /// Uncorrelated background light.
-    ambient_light { E_PER_US_PER_KLUX = "e_per_us_per_klux" }
-    /// Dark current and its shot noise.
-    dark_current { E_PER_US = "e_per_us", DOUBLING_C = "doubling_c" }
-    /// SBI circuit with mismatch.
-    sbi_asymmetry { THRESHOLD_E = "threshold_e", MISMATCH_REL = "mismatch_rel", CLAMP_SHARE = "clamp_share" }
-    /// Tap gain mismatch (A/B).
-    tap_gain_mismatch { MISMATCH_REL = "mismatch_rel" }
-    /// Fixed-pattern offset (FPN) of the read-out.
-    fpn_offset { ADC_CHANNEL_SIGMA_LSB = "adc_channel_sigma_lsb", COLUMN_SIGMA_LSB = "column_sigma_lsb", PIXEL_SIGMA_LSB = "pixel_sigma_lsb", COLUMN_LINE_LSB = "column_line_lsb", MEAN_LSB = "mean_lsb" }
-    /// ADC gain error.
-    adc_gain { GAIN_ERROR_PCT_FSR = "gain_error_pct_fsr" }
-    /// ADC offset error.
-    adc_offset { OFFSET_LSB = "offset_lsb" }
-    /// ADC integral non-linearity.
-    adc_inl { INL_LSB = "inl_lsb" }
-    /// ADC differential non-linearity.
-    adc_dnl { DNL_LSB = "dnl_lsb" }
-    /// SAR capacitor-weight mismatch of the top four bits.
-    adc_sar_mismatch { MSB_LSB = "msb_lsb", MSB1_LSB = "msb1_lsb", MSB2_LSB = "msb2_lsb", MSB3_LSB = "msb3_lsb" }
-    /// Quantisation to integer codes.
-    quantization {  }
-    /// Photon shot noise.
-    shot_noise { EXCESS_NOISE_FACTOR = "excess_noise_factor" }
-    /// Read-out noise.
-    read_noise { SIGMA_LSB = "sigma_lsb" }
-    /// Reset (kTC) noise.
-    ktc_noise { C_INT_FF = "c_int_ff" }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::catalogue::{SENSOR_PARAMS, catalogue, effect};
+    use crate::catalogue::SENSOR_PARAMS;
 
     #[test]
-    fn every_constant_names_a_catalogue_entry_and_back() {
-        let ids: Vec<&str> = ALL_EFFECTS.iter().map(|e| e.as_str()).collect();
-        let cat: Vec<&str> = catalogue().iter().map(|e| e.id).collect();
-        assert_eq!(ids, cat, "ids.rs and the catalogue list different effects");
-        let mut named = ALL_EFFECT_PARAMS.to_vec();
-        named.extend((2..=9).flat_map(|n| {
-            let (r, p) = harmonic(n).unwrap();
-            [r, p]
-        }));
-        for p in &named {
-            let info = effect(p.section()).unwrap_or_else(|| panic!("{p}: no such effect"));
-            assert!(info.param(p.name()).is_some(), "{p}: not in the catalogue");
-        }
-        let n_cat: usize = catalogue().iter().map(|e| e.params.len()).sum();
-        assert_eq!(named.len(), n_cat, "a catalogue parameter has no constant");
+    fn the_sensor_constants_are_the_catalogue_s() {
         let sensor: Vec<&str> = sensor::ALL.iter().map(|p| p.name()).collect();
         let sensor_cat: Vec<&str> = SENSOR_PARAMS.iter().map(|p| p.name).collect();
         assert_eq!(sensor, sensor_cat);
-        assert!(harmonic(1).is_none() && harmonic(10).is_none());
-        assert_eq!(EffectId::parse("vcsel_droop"), Some(vcsel_droop::ID));
-        assert_eq!(EffectId::parse("vcsel_drop"), None);
+        assert_eq!(sensor::LSB_PER_KE.to_string(), "sensor.lsb_per_ke");
+        assert_eq!(
+            ParamId::new("vcsel_droop", "tau_us").to_string(),
+            "effects.vcsel_droop.tau_us"
+        );
     }
 }

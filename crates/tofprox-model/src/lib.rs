@@ -28,6 +28,7 @@ pub mod error;
 pub mod figures;
 pub mod geometry;
 pub mod ids;
+pub mod preset;
 pub mod scene;
 pub mod sim;
 pub mod summary;

@@ -5,6 +5,7 @@ use rand::Rng;
 use rand_distr::StandardNormal;
 
 use crate::config::ModelConfig;
+use crate::effects;
 use crate::effects::adc::Adc;
 use crate::effects::correlation::Correlation;
 use crate::effects::cover_window_crosstalk::on_glass_return_rel;
@@ -215,30 +216,30 @@ impl Simulator {
             } else {
                 0.0
             },
-            ambient_e: if m.is_enabled(ids::ambient_light::ID) {
-                m.get(ids::ambient_light::E_PER_US_PER_KLUX) * req.ambient_klux * t
+            ambient_e: if m.is_enabled(effects::ambient_light::ID) {
+                m.get(effects::ambient_light::E_PER_US_PER_KLUX) * req.ambient_klux * t
             } else {
                 0.0
             },
-            contrast: if m.is_enabled(ids::demodulation_contrast::ID) {
-                m.get(ids::demodulation_contrast::CONTRAST)
+            contrast: if m.is_enabled(effects::demodulation_contrast::ID) {
+                m.get(effects::demodulation_contrast::CONTRAST)
             } else {
                 1.0
             },
             falloff_n: m
-                .is_enabled(ids::signal_falloff::ID)
-                .then(|| m.get(ids::signal_falloff::EXPONENT)),
-            multipath: m.is_enabled(ids::multipath::ID).then(|| {
+                .is_enabled(effects::signal_falloff::ID)
+                .then(|| m.get(effects::signal_falloff::EXPONENT)),
+            multipath: m.is_enabled(effects::multipath::ID).then(|| {
                 (
-                    m.get(ids::multipath::RELATIVE_AMPLITUDE),
+                    m.get(effects::multipath::RELATIVE_AMPLITUDE),
                     multipath_phase_offset_rad(
                         self.geometry.phase_rad_per_m(),
-                        m.get(ids::multipath::EXTRA_PATH_M),
+                        m.get(effects::multipath::EXTRA_PATH_M),
                     ),
                 )
             }),
-            crosstalk: (illum && m.is_enabled(ids::cover_window_crosstalk::ID)).then(|| {
-                use ids::cover_window_crosstalk as xt;
+            crosstalk: (illum && m.is_enabled(effects::cover_window_crosstalk::ID)).then(|| {
+                use crate::effects::cover_window_crosstalk as xt;
                 (
                     // a surface on the glass returns by the window's path (its contact law)
                     m.get(xt::E_PER_US)
@@ -252,8 +253,8 @@ impl Simulator {
             }),
             var_const_lsb2,
             user,
-            tap_eps: if m.is_enabled(ids::tap_gain_mismatch::ID) {
-                m.get(ids::tap_gain_mismatch::MISMATCH_REL)
+            tap_eps: if m.is_enabled(effects::tap_gain_mismatch::ID) {
+                m.get(effects::tap_gain_mismatch::MISMATCH_REL)
             } else {
                 0.0
             },

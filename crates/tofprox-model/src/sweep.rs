@@ -318,7 +318,7 @@ fn simulate_one(
     index: usize,
 ) -> Result<RawFrames, ModelError> {
     let mut rng = capture_rng(seed, index);
-    if p.request.averaged == 1 && sim.model().is_enabled(crate::ids::quantization::ID) {
+    if p.request.averaged == 1 && sim.model().is_enabled(crate::effects::quantization::ID) {
         Ok(RawFrames::U16(
             sim.capture_u16(&p.scene, &p.request, &mut rng)?,
         ))

@@ -1,10 +1,10 @@
 //! Model files, validation, determinism, windows, and effect isolation.
 
 use std::path::PathBuf;
+use tofprox_model::effects;
 
 use rand::SeedableRng;
 use rand::rngs::SmallRng;
-use tofprox_model::ids;
 use tofprox_model::{
     CaptureRequest, ErrorKind, ModelConfig, Scene, SceneScript, SensorGeometry, Simulator,
     catalogue,
@@ -79,21 +79,28 @@ fn catalogue_has_exactly_the_issue_ids_with_documented_params() {
 
 #[test]
 fn shipped_model_files_are_baseline_full_and_ideal() {
-    for (name, want) in [
-        ("baseline", ModelConfig::baseline()),
-        ("full", ModelConfig::full()),
-        ("ideal", ModelConfig::ideal()),
-    ] {
-        let got = ModelConfig::load(&repo_file(&format!("config/model/{name}.toml"))).unwrap();
+    // generated from the registry, byte for byte: a new effect's section is in them once
+    // they are regenerated, and a file edited by hand (or not regenerated) fails here
+    for p in tofprox_model::preset::Preset::ALL {
+        let name = p.name();
+        let path = repo_file(&format!("config/model/{name}.toml"));
+        let shipped = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            shipped == p.file_text(),
+            "{} is not the registry's {name} preset: run `tofprox model preset {name} > config/model/{name}.toml`",
+            path.display()
+        );
+        let got = ModelConfig::load(&path).unwrap();
+        let want = p.model();
         assert_eq!(got.enabled_effects(), want.enabled_effects(), "{name}");
         for e in catalogue() {
-            for p in e.params {
+            for q in e.params {
                 assert_eq!(
-                    got.param(e.id, p.name),
-                    want.param(e.id, p.name),
+                    got.param(e.id, q.name),
+                    want.param(e.id, q.name),
                     "{name}: {}.{}",
                     e.id,
-                    p.name
+                    q.name
                 );
             }
         }
@@ -108,7 +115,7 @@ fn shipped_model_files_are_baseline_full_and_ideal() {
             "baseline lacks {id}"
         );
     }
-    assert!(!b.is_enabled(ids::sbi_asymmetry::ID) && !b.is_enabled(ids::vcsel_droop::ID));
+    assert!(!b.is_enabled(effects::sbi_asymmetry::ID) && !b.is_enabled(effects::vcsel_droop::ID));
     assert!(ModelConfig::ideal().enabled_effects().is_empty());
     assert_eq!(
         ModelConfig::full().enabled_effects().len(),
@@ -417,7 +424,7 @@ fn registry_four_phase_flags_hold_in_the_simulator() {
         ..CaptureRequest::four_phase(1000.0)
     };
     let mut base = ModelConfig::ideal();
-    for id in [ids::signal_falloff::ID, ids::ambient_light::ID] {
+    for id in [effects::signal_falloff::ID, effects::ambient_light::ID] {
         base.enable(id, true).unwrap();
     }
     let flagged: Vec<_> = catalogue()
@@ -528,7 +535,7 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
                 shape_temperature_c = [20.0, 60.0]\nshape_phase_rad = [0.0, 0.4]\n\
                 shape_gain_rel = [0.0, 0.5]\n";
     let m = ModelConfig::from_toml_str(text).unwrap();
-    let s = m.shape(ids::temperature_drift::ID).unwrap();
+    let s = m.shape(effects::temperature_drift::ID).unwrap();
     assert_eq!(s.knots, [20.0, 60.0]);
     assert_eq!(ModelConfig::from_toml_str(&m.to_toml_string()).unwrap(), m);
     // the simulator: at 40 °C half the way: Δφ = 0.2 rad, gain × 1.25; at
@@ -570,8 +577,8 @@ fn shape_form_is_validated_round_trips_and_is_what_the_simulator_evaluates() {
                 shape_amplitude_e = [0.0, 1.0]\nshape_phase_rad = [0.3, 0.3]\n";
     let shaped = ModelConfig::from_toml_str(text).unwrap();
     ap.set_shape(
-        ids::amplitude_phase_error::ID,
-        shaped.shape(ids::amplitude_phase_error::ID).cloned(),
+        effects::amplitude_phase_error::ID,
+        shaped.shape(effects::amplitude_phase_error::ID).cloned(),
     )
     .unwrap();
     let (x, y) = run(&ap, 40.0);
@@ -704,13 +711,13 @@ fn docs_shape_example_loads() {
         .find(|b| b.contains("shape_amplitude_e"))
         .expect("the shape example");
     let m = ModelConfig::from_toml_str(block).unwrap();
-    let ap = m.shape(ids::amplitude_phase_error::ID).unwrap();
+    let ap = m.shape(effects::amplitude_phase_error::ID).unwrap();
     assert_eq!(ap.knots.len(), 4);
-    let td = m.shape(ids::temperature_drift::ID).unwrap();
+    let td = m.shape(effects::temperature_drift::ID).unwrap();
     assert_eq!(td.curves.len(), 2);
     assert!((td.eval("shape_phase_rad", 55.0) - 0.43).abs() < 1e-12);
-    let sbi = m.shape(ids::sbi_asymmetry::ID).unwrap();
+    let sbi = m.shape(effects::sbi_asymmetry::ID).unwrap();
     assert_eq!(sbi.eval("shape_removed_e", 50_000.0), 3000.0);
-    let droop = m.shape(ids::vcsel_droop::ID).unwrap();
+    let droop = m.shape(effects::vcsel_droop::ID).unwrap();
     assert_eq!(droop.eval("shape_loss_rel", 300.0), 0.03);
 }

@@ -132,7 +132,7 @@ fn diagnose_add_report_end_to_end() {
             < a["before"]["chi2_per_dof"].as_f64().unwrap()
     );
     let m = ModelConfig::load(&m2).unwrap();
-    assert!(m.is_enabled(tofprox_model::ids::vcsel_droop::ID));
+    assert!(m.is_enabled(tofprox_model::effects::vcsel_droop::ID));
     // each fitted parameter with a finite positive standard error, and the truth's droop
     // rate (droop_rel/τ, τ in ms: the lab's signature) within 4 of them of the fit
     let (params, ses) = params_with_errors(&a);

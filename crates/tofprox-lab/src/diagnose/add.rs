@@ -240,7 +240,7 @@ pub fn fitted_effect(
         params.keys().map(|k| (k.clone(), f64::NAN)).collect();
     let mut at_bound = Vec::new();
     let mut intervals = BTreeMap::new();
-    if effect != tofprox_model::ids::waveform_harmonics::ID.as_str() {
+    if effect != tofprox_model::effects::waveform_harmonics::ID.as_str() {
         let sig = make_signature(effect, prep, &cmp.model.spec, &cmp.model.waveform)?;
         let u = crate::uncertainty::effect_uncertainty(
             sig.as_ref(),

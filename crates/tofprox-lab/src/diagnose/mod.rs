@@ -58,7 +58,7 @@ pub const REMAINDER_RATIO: f64 = 3.0;
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use tofprox_model::ids;
+    use tofprox_model::effects;
 
     /// A scored candidate with the given evidence (the other fields empty).
     pub(crate) fn cand(
@@ -98,7 +98,7 @@ pub(crate) mod tests {
             1.5,
             1.001,
             3.0,
-            &[cand(ids::adc_inl::ID.as_str(), 0.9, 0.8, 0.5, -30.0)],
+            &[cand(effects::adc_inl::ID.as_str(), 0.9, 0.8, 0.5, -30.0)],
         );
         assert_eq!(d.verdict, Verdict::NothingMissing);
         assert!(d.effect.is_none());
@@ -107,29 +107,32 @@ pub(crate) mod tests {
     #[test]
     fn clear_winner_is_named() {
         let c = [
-            cand(ids::vcsel_droop::ID.as_str(), 0.97, 0.95, 2.0, -9e5),
-            cand(ids::sbi_asymmetry::ID.as_str(), 0.2, 0.1, 800.0, -1e5),
+            cand(effects::vcsel_droop::ID.as_str(), 0.97, 0.95, 2.0, -9e5),
+            cand(effects::sbi_asymmetry::ID.as_str(), 0.2, 0.1, 800.0, -1e5),
         ];
         let d = decide(1000.0, 5.0, 3000.0, &c);
         assert_eq!(d.verdict, Verdict::MissingEffect);
-        assert_eq!(d.effect.as_deref(), Some(ids::vcsel_droop::ID.as_str()));
+        assert_eq!(d.effect.as_deref(), Some(effects::vcsel_droop::ID.as_str()));
     }
 
     #[test]
     fn two_close_candidates_are_ambiguous() {
         let c = [
             cand(
-                ids::amplitude_phase_error::ID.as_str(),
+                effects::amplitude_phase_error::ID.as_str(),
                 0.95,
                 0.93,
                 3.0,
                 -9e4,
             ),
-            cand(ids::multipath::ID.as_str(), 0.93, 0.90, 3.5, -8.9e4),
+            cand(effects::multipath::ID.as_str(), 0.93, 0.90, 3.5, -8.9e4),
         ];
         let d = decide(300.0, 2.0, 900.0, &c);
         assert_eq!(d.verdict, Verdict::Ambiguous);
-        assert_eq!(d.runner_up.as_deref(), Some(ids::multipath::ID.as_str()));
+        assert_eq!(
+            d.runner_up.as_deref(),
+            Some(effects::multipath::ID.as_str())
+        );
     }
 
     #[test]
@@ -137,8 +140,8 @@ pub(crate) mod tests {
         // every candidate has a hugely negative ΔBIC but none explains most of
         // the excess on held-out blocks: unexplained, no effect named
         let c = [
-            cand(ids::multipath::ID.as_str(), 0.3, 0.25, 700.0, -5e5),
-            cand(ids::adc_inl::ID.as_str(), 0.1, -0.2, 900.0, -2e5),
+            cand(effects::multipath::ID.as_str(), 0.3, 0.25, 700.0, -5e5),
+            cand(effects::adc_inl::ID.as_str(), 0.1, -0.2, 900.0, -2e5),
         ];
         let d = decide(1000.0, 4.0, 5000.0, &c);
         assert_eq!(d.verdict, Verdict::Unexplained);
@@ -148,7 +151,7 @@ pub(crate) mod tests {
     #[test]
     fn overfitting_candidate_fails_cross_validation() {
         let c = [cand(
-            ids::waveform_harmonics::ID.as_str(),
+            effects::waveform_harmonics::ID.as_str(),
             0.8,
             -0.3,
             3.0,
@@ -168,16 +171,16 @@ pub(crate) mod tests {
         // temperature was not varied: it separates drift from amplitude-phase error
         assert_eq!(
             separating_condition(
-                ids::temperature_drift::ID.as_str(),
-                ids::amplitude_phase_error::ID.as_str(),
+                effects::temperature_drift::ID.as_str(),
+                effects::amplitude_phase_error::ID.as_str(),
                 &prep
             ),
             "temperature_c"
         );
         assert_eq!(
             separating_condition(
-                ids::sbi_asymmetry::ID.as_str(),
-                ids::dark_current::ID.as_str(),
+                effects::sbi_asymmetry::ID.as_str(),
+                effects::dark_current::ID.as_str(),
                 &prep
             ),
             "ambient_klux"
@@ -220,14 +223,14 @@ pub(crate) mod tests {
     #[test]
     fn a_clear_partial_leader_is_added_on_trial() {
         let (drift_id, droop_id) = (
-            ids::temperature_drift::ID.as_str(),
-            ids::vcsel_droop::ID.as_str(),
+            effects::temperature_drift::ID.as_str(),
+            effects::vcsel_droop::ID.as_str(),
         );
         let drift = cand(drift_id, 0.29, 0.29, 9000.0, -1e5);
         let mut d = unexplained(
             vec![
                 drift.clone(),
-                cand(ids::multipath::ID.as_str(), 0.04, 0.03, 9500.0, -10.0),
+                cand(effects::multipath::ID.as_str(), 0.04, 0.03, 9500.0, -10.0),
             ],
             true,
         );
@@ -247,7 +250,7 @@ pub(crate) mod tests {
         assert!(none(
             vec![
                 drift.clone(),
-                cand(ids::adc_inl::ID.as_str(), 0.25, 0.24, 9100.0, -1e5)
+                cand(effects::adc_inl::ID.as_str(), 0.25, 0.24, 9100.0, -1e5)
             ],
             true
         ));

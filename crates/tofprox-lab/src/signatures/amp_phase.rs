@@ -4,7 +4,7 @@
 
 use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
-use tofprox_model::ids::amplitude_phase_error as p;
+use tofprox_model::effects::amplitude_phase_error as p;
 
 use super::{
     Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, code_per_e, phase_shift_code,

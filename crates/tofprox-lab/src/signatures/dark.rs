@@ -2,7 +2,7 @@
 //! parameters.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::dark_current as p;
+use tofprox_model::effects::dark_current as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, not_written};
 use crate::prepared::{CapInfo, Prepared};

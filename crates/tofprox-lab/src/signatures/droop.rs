@@ -2,7 +2,7 @@
 //! `[effects.vcsel_droop]` of a model file.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::vcsel_droop as p;
+use tofprox_model::effects::vcsel_droop as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
 use crate::prepared::{CapInfo, Prepared};

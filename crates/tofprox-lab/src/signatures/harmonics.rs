@@ -3,7 +3,8 @@
 //! model file.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::{self, waveform_harmonics as p};
+use tofprox_model::effects;
+use tofprox_model::effects::waveform_harmonics as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
 use crate::prepared::{CapInfo, Prepared};
@@ -34,7 +35,7 @@ impl LabEffect for Effect {
     fn write(&self, _: &Fitted, m: &mut ModelConfig, ctx: &WriteCtx<'_>) -> Vec<String> {
         let mut w = Writer::new(m);
         for (i, gm) in ctx.model.waveform.gamma.iter().enumerate().skip(1) {
-            if let Some((rel, phase)) = ids::harmonic(i + 1) {
+            if let Some((rel, phase)) = effects::waveform_harmonics::harmonic(i + 1) {
                 w.set(rel, gm[0].hypot(gm[1]));
                 w.set(phase, gm[1].atan2(gm[0]).to_degrees());
             }
@@ -90,7 +91,9 @@ pub fn harmonic_order(m: &ModelConfig) -> usize {
     }
     (2..=MAX_HARMONIC)
         .rev()
-        .find(|h| ids::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0))
+        .find(|h| {
+            effects::waveform_harmonics::harmonic(*h).is_some_and(|(rel, _)| m.get(rel).abs() > 0.0)
+        })
         .unwrap_or(1)
 }
 

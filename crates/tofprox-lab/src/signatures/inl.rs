@@ -2,7 +2,7 @@
 //! onto `[effects.adc_inl]` of a model file.
 
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::adc_inl as p;
+use tofprox_model::effects::adc_inl as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
 use crate::prepared::{CapInfo, Prepared};

@@ -15,6 +15,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::LazyLock;
+use tofprox_model::effects;
 
 use tofprox_model::ModelConfig;
 use tofprox_model::catalogue::{self, ActsOn, Driver};
@@ -375,15 +376,15 @@ pub struct Entry {
 
 /// The lab modules of the lab's own signatures, in catalogue order.
 const OWN: &[Entry] = &[
-    entry(ids::sbi_asymmetry::ID, &sbi::Effect),
-    entry(ids::tap_gain_mismatch::ID, &tap_gain::Effect),
-    entry(ids::vcsel_droop::ID, &droop::Effect),
-    entry(ids::amplitude_phase_error::ID, &amp_phase::Effect),
-    entry(ids::temperature_drift::ID, &temp_drift::Effect),
-    entry(ids::waveform_harmonics::ID, &harmonics::Effect),
-    entry(ids::adc_inl::ID, &inl::Effect),
-    entry(ids::dark_current::ID, &dark::Effect),
-    entry(ids::multipath::ID, &multipath::Effect),
+    entry(effects::sbi_asymmetry::ID, &sbi::Effect),
+    entry(effects::tap_gain_mismatch::ID, &tap_gain::Effect),
+    entry(effects::vcsel_droop::ID, &droop::Effect),
+    entry(effects::amplitude_phase_error::ID, &amp_phase::Effect),
+    entry(effects::temperature_drift::ID, &temp_drift::Effect),
+    entry(effects::waveform_harmonics::ID, &harmonics::Effect),
+    entry(effects::adc_inl::ID, &inl::Effect),
+    entry(effects::dark_current::ID, &dark::Effect),
+    entry(effects::multipath::ID, &multipath::Effect),
 ];
 
 /// The lab modules of the model's effects with a code law (`tofprox_model::effects::CodeLaw`),
@@ -554,10 +555,10 @@ fn write_shape(
         w.notes.push(format!("{effect}: shape not written ({e})"));
     }
     // the SBI's shape form keeps the parametric mismatch
-    if let (Some(_), Some(f), ids::sbi_asymmetry::ID) = (&shape, fit, id)
+    if let (Some(_), Some(f), effects::sbi_asymmetry::ID) = (&shape, fit, id)
         && let Some(v) = crate::shape::shape_mismatch_rel(f)
     {
-        w.set(ids::sbi_asymmetry::MISMATCH_REL, v);
+        w.set(effects::sbi_asymmetry::MISMATCH_REL, v);
     }
     shape.is_some().then_some(w.notes)
 }
@@ -598,7 +599,7 @@ pub fn phasor_shift(
     let (mut f, mut ph) = (1.0, 0.0);
     for e in effects
         .iter()
-        .filter(|e| e.id == ids::temperature_drift::ID.as_str())
+        .filter(|e| e.id == effects::temperature_drift::ID.as_str())
     {
         let (gain, dphi) = match shapes.get(&e.id) {
             Some(k) => crate::shape::shape_phasor(e, k, cap, a_lsb),
@@ -609,7 +610,7 @@ pub fn phasor_shift(
     }
     for e in effects
         .iter()
-        .filter(|e| e.id == ids::amplitude_phase_error::ID.as_str())
+        .filter(|e| e.id == effects::amplitude_phase_error::ID.as_str())
     {
         ph += match shapes.get(&e.id) {
             Some(k) => crate::shape::shape_phasor(e, k, cap, a_lsb * f).1,
@@ -673,9 +674,9 @@ pub(crate) fn code_per_e(m: &ModelConfig) -> f64 {
 /// responsivity `v` (e⁻/µs/klux), so that the file held reproduces the fit;
 /// `why` says what the fit measured.
 fn write_ambient(w: &mut Writer<'_>, v: f64, why: &str) {
-    let a = ids::ambient_light::E_PER_US_PER_KLUX;
+    let a = effects::ambient_light::E_PER_US_PER_KLUX;
     if let Err(e) =
-        w.m.enable(ids::ambient_light::ID, true)
+        w.m.enable(effects::ambient_light::ID, true)
             .and_then(|()| w.m.set(a, v))
     {
         w.notes.push(format!(
@@ -690,8 +691,8 @@ fn write_ambient(w: &mut Writer<'_>, v: f64, why: &str) {
 
 /// The demodulation contrast K of the model file (1 when the effect is off).
 fn contrast(m: &ModelConfig) -> f64 {
-    if m.is_enabled(ids::demodulation_contrast::ID) {
-        m.get(ids::demodulation_contrast::CONTRAST)
+    if m.is_enabled(effects::demodulation_contrast::ID) {
+        m.get(effects::demodulation_contrast::CONTRAST)
     } else {
         1.0
     }
@@ -716,14 +717,18 @@ mod tests {
         };
         assert_eq!(
             ids_where(acts_on_phasor),
-            [ids::amplitude_phase_error::ID, ids::temperature_drift::ID].map(EffectId::as_str)
+            [
+                effects::amplitude_phase_error::ID,
+                effects::temperature_drift::ID
+            ]
+            .map(EffectId::as_str)
         );
         assert_eq!(
             ids_where(cancels_in_4phase),
             [
-                ids::sbi_asymmetry::ID,
-                ids::tap_gain_mismatch::ID,
-                ids::dark_current::ID
+                effects::sbi_asymmetry::ID,
+                effects::tap_gain_mismatch::ID,
+                effects::dark_current::ID
             ]
             .map(EffectId::as_str)
         );
@@ -762,9 +767,14 @@ mod tests {
             assert_eq!(uniq.len(), names.len(), "{}: {names:?}", e.id.as_str());
         }
         assert_eq!(SIGNATURE_IDS.len(), REGISTRY.len());
-        let err = make_signature(ids::prnu::ID.as_str(), &prep, &spec, &Waveform::sinusoid())
-            .err()
-            .unwrap();
+        let err = make_signature(
+            effects::prnu::ID.as_str(),
+            &prep,
+            &spec,
+            &Waveform::sinusoid(),
+        )
+        .err()
+        .unwrap();
         assert_eq!(err.kind(), ErrorKind::UnknownEffect);
     }
 }

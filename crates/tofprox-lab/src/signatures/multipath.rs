@@ -2,7 +2,7 @@
 //! model file (the signature's parameters are the model file's).
 
 use tofprox_model::ModelConfig;
-use tofprox_model::ids::multipath as p;
+use tofprox_model::effects::multipath as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer};
 use crate::prepared::{CapInfo, Prepared};

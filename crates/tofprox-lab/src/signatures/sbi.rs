@@ -3,7 +3,8 @@
 
 use tofprox_model::ModelConfig;
 use tofprox_model::catalogue;
-use tofprox_model::ids::{self, sbi_asymmetry as p};
+use tofprox_model::effects;
+use tofprox_model::effects::sbi_asymmetry as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, quantiles, write_ambient};
 use crate::prepared::{CapInfo, Prepared};
@@ -103,7 +104,7 @@ impl Sbi {
         // typical demodulation contrast (0.8)
         Self {
             ambient_varies: prep.ambient_varies,
-            g: waveform.peak() / catalogue::typical(ids::demodulation_contrast::CONTRAST),
+            g: waveform.peak() / catalogue::typical(effects::demodulation_contrast::CONTRAST),
         }
     }
     /// Index of the clamp share in `nl`.
@@ -251,10 +252,10 @@ impl SbiUnits {
     fn from_model(m: &ModelConfig, prep: &Prepared) -> Option<Self> {
         let lsb_per_e = Self::lsb_per_e(m)?;
         let u = if prep.ambient_varies {
-            if !m.is_enabled(ids::ambient_light::ID) {
+            if !m.is_enabled(effects::ambient_light::ID) {
                 return None;
             }
-            1000.0 * m.get(ids::ambient_light::E_PER_US_PER_KLUX)
+            1000.0 * m.get(effects::ambient_light::E_PER_US_PER_KLUX)
         } else {
             signal_e_per_unit(lsb_per_e)
         };

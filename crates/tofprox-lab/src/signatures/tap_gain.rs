@@ -2,8 +2,9 @@
 //! `[effects.tap_gain_mismatch]` of a model file.
 
 use tofprox_model::ModelConfig;
+use tofprox_model::effects;
 use tofprox_model::effects::correlation::Correlation;
-use tofprox_model::ids::{self, tap_gain_mismatch as p};
+use tofprox_model::effects::tap_gain_mismatch as p;
 
 use super::{Fitted, LabEffect, Signature, WriteCtx, Writer, code_per_e, contrast, write_ambient};
 use crate::prepared::{CapInfo, Prepared};
@@ -71,8 +72,8 @@ impl LabEffect for Effect {
         let eps = m.get(p::MISMATCH_REL);
         let mut lin = vec![eps / (a1 * 2.0 * contrast(m).max(1e-9))];
         if prep.ambient_varies {
-            let amb = if m.is_enabled(ids::ambient_light::ID) {
-                m.get(ids::ambient_light::E_PER_US_PER_KLUX)
+            let amb = if m.is_enabled(effects::ambient_light::ID) {
+                m.get(effects::ambient_light::E_PER_US_PER_KLUX)
             } else {
                 0.0
             };

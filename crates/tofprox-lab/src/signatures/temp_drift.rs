@@ -2,8 +2,8 @@
 //! model, and its mapping onto `[effects.temperature_drift]` of a model file.
 
 use tofprox_model::ModelConfig;
+use tofprox_model::effects::temperature_drift as p;
 use tofprox_model::effects::temperature_drift::{temperature_drift, temperature_drift_terms};
-use tofprox_model::ids::temperature_drift as p;
 
 use super::{Fitted, LabEffect, Signature, TermScope, WriteCtx, Writer, phase_shift_code};
 use crate::prepared::{CapInfo, Prepared};

@@ -3,12 +3,11 @@
 //! rails (always): one converter built from the model, its DNL table drawn once.
 //! Each effect's entry and its own law are in its module.
 
-use super::adc_gain::gain_factor;
-use super::adc_inl::inl_shape;
+use crate::effects::adc_gain::gain_factor;
+use crate::effects::adc_inl::inl_shape;
 use super::correlation::fast_floor;
 use super::fixed_pattern::{TAG_DNL, hashed_normal};
 use crate::config::ModelConfig;
-use crate::ids;
 
 /// Front padding of the windowed DNL searches.
 const PAD: usize = 3;
@@ -48,19 +47,19 @@ impl Adc {
         let full = f64::from(1u32 << bits);
         let mid = full / 2.0;
         let k_gain = gain_factor(model);
-        let offset_lsb = if model.is_enabled(ids::adc_offset::ID) {
-            model.get(ids::adc_offset::OFFSET_LSB)
+        let offset_lsb = if model.is_enabled(crate::effects::adc_offset::ID) {
+            model.get(crate::effects::adc_offset::OFFSET_LSB)
         } else {
             0.0
         };
-        let inl_lsb = if model.is_enabled(ids::adc_inl::ID) {
-            model.get(ids::adc_inl::INL_LSB)
+        let inl_lsb = if model.is_enabled(crate::effects::adc_inl::ID) {
+            model.get(crate::effects::adc_inl::INL_LSB)
         } else {
             0.0
         };
         let thresholds =
-            if model.is_enabled(ids::adc_dnl::ID) && model.get(ids::adc_dnl::DNL_LSB) > 0.0 {
-                let dnl = model.get(ids::adc_dnl::DNL_LSB);
+            if model.is_enabled(crate::effects::adc_dnl::ID) && model.get(crate::effects::adc_dnl::DNL_LSB) > 0.0 {
+                let dnl = model.get(crate::effects::adc_dnl::DNL_LSB);
                 let sigma = dnl / (3.0 * std::f64::consts::SQRT_2);
                 let n = 1usize << bits;
                 let mut t = Vec::with_capacity(n + 1);
@@ -139,7 +138,7 @@ impl Adc {
             law_table,
             centres,
             inv_width,
-            quantize: model.is_enabled(ids::quantization::ID),
+            quantize: model.is_enabled(crate::effects::quantization::ID),
             thresholds,
         }
     }
@@ -313,9 +312,9 @@ mod tests {
 
     fn dnl_adc(dnl: f64, seed: u64) -> Adc {
         let mut m = ModelConfig::ideal();
-        m.enable(ids::adc_dnl::ID, true).unwrap();
-        m.enable(ids::quantization::ID, true).unwrap();
-        m.set(ids::adc_dnl::DNL_LSB, dnl).unwrap();
+        m.enable(crate::effects::adc_dnl::ID, true).unwrap();
+        m.enable(crate::effects::quantization::ID, true).unwrap();
+        m.set(crate::effects::adc_dnl::DNL_LSB, dnl).unwrap();
         Adc::new(&m, 12, seed)
     }
 
@@ -365,13 +364,13 @@ mod tests {
     fn the_converter_adds_the_enabled_code_laws_at_the_ideal_code() {
         let mut m = ModelConfig::baseline();
         let plain = Adc::new(&m, 12, 1);
-        m.enable(ids::adc_sar_mismatch::ID, true).unwrap();
+        m.enable(crate::effects::adc_sar_mismatch::ID, true).unwrap();
         let delta = [6.0, -3.0, 2.0, 1.5];
         let params = [
-            ids::adc_sar_mismatch::MSB_LSB,
-            ids::adc_sar_mismatch::MSB1_LSB,
-            ids::adc_sar_mismatch::MSB2_LSB,
-            ids::adc_sar_mismatch::MSB3_LSB,
+            crate::effects::adc_sar_mismatch::MSB_LSB,
+            crate::effects::adc_sar_mismatch::MSB1_LSB,
+            crate::effects::adc_sar_mismatch::MSB2_LSB,
+            crate::effects::adc_sar_mismatch::MSB3_LSB,
         ];
         for (p, d) in params.iter().zip(delta) {
             m.set(*p, d).unwrap();

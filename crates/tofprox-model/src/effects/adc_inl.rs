@@ -3,12 +3,15 @@
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
 //! its drivers) and its registry entry; its law:
 //! the INL's shape ([`inl_shape`]), which the converter
-//! ([`crate::effects::adc::Adc`]) and the lab's fit call.
+//! (`effects::adc::Adc`) and the lab's fit call.
 
 use std::f64::consts::TAU;
 
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(adc_inl {
+    INL_LSB = "inl_lsb",
+});
 
 /// The shape of the differential converter's INL (`adc_inl`, 3.2.1, fig. 3.4):
 /// INL(x) = I · inl_shape(x), inl_shape(x) = sin(2π x / 2^N) for x the input in LSB
@@ -22,13 +25,13 @@ pub fn inl_shape(x_lsb: f64, full_codes: f64) -> f64 {
 
 /// The catalogue entry of `adc_inl`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::adc_inl::ID.as_str(),
+    id: ID.as_str(),
     title: "ADC integral non-linearity",
     explanation: "The differential converter's INL has opposite sign on the two half-ranges (fig. 3.4): INL(u) = I · sin(2π u / 2^N) for u the input in LSB around mid, zero at mid and at the rails, extremes ±I at half of each half-range. It distorts large phase-image voltages and gives a wiggling-like error with extremes at 22.5°/67.5° and zeros at multiples of 45° (fig. 3.8).",
     thesis_ref: "3.2.1, 3.3.1, 3.3.4 (fig. 3.4, 3.8), table 3.2",
     signature: "raw residual odd in (code − mid) with period 2^N; depth error with period π/2 growing with amplitude",
     params: &[p(
-        ids::adc_inl::INL_LSB,
+        INL_LSB,
         "LSB",
         -1.744,
         -500.0,
@@ -41,4 +44,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(AdcInl, INFO, adc_inl);
+effect!(AdcInl, INFO, ID, chain = 180);

@@ -2,20 +2,23 @@
 //!
 //! Its catalogue entry (physics, parameters with units and ranges, what it acts on,
 //! its drivers) and its registry entry; its law is applied
-//! by the converter the ADC effects make up together ([`crate::effects::adc::Adc`]).
+//! by the converter the ADC effects make up together (`effects::adc::Adc`).
 
 use crate::entry::{ActsOn, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(adc_offset {
+    OFFSET_LSB = "offset_lsb",
+});
 
 /// The catalogue entry of `adc_offset`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::adc_offset::ID.as_str(),
+    id: ID.as_str(),
     title: "ADC offset error",
     explanation: "A constant added to the transfer function: code = mid + k·u + o (3.2.1). Equal in all raw images, it adds a 45° phasor in 2-phase (eq. 3.4, fig. 3.7) and cancels in 4-phase; it is part of what dark frames measure.",
     thesis_ref: "3.2.1, 3.3.3 eq. 3.4, fig. 3.7, table 3.2",
     signature: "constant code offset; 2-phase depth error growing with distance (45° phasor)",
     params: &[p(
-        ids::adc_offset::OFFSET_LSB,
+        OFFSET_LSB,
         "LSB",
         -10.84,
         -500.0,
@@ -28,4 +31,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-effect!(AdcOffset, INFO, adc_offset);
+effect!(AdcOffset, INFO, ID, chain = 170);

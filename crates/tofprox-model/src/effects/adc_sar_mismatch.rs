@@ -7,10 +7,17 @@
 
 use crate::effects::CodeLaw;
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids::{self, ParamId, adc_sar_mismatch as sar};
+use crate::ids::ParamId;
+
+crate::ids::effect_ids!(adc_sar_mismatch {
+    MSB_LSB = "msb_lsb",
+    MSB1_LSB = "msb1_lsb",
+    MSB2_LSB = "msb2_lsb",
+    MSB3_LSB = "msb3_lsb",
+});
 
 /// The parameters, the weight errors δ of bits N−1 … N−4 in LSB.
-const PARAMS: &[ParamId] = &[sar::MSB_LSB, sar::MSB1_LSB, sar::MSB2_LSB, sar::MSB3_LSB];
+const PARAMS: &[ParamId] = &[MSB_LSB, MSB1_LSB, MSB2_LSB, MSB3_LSB];
 
 /// The law of a successive-approximation converter whose bit b weighs 2^b + δ_b LSB
 /// instead of 2^b (standard SAR analysis; the converter of 2.3.2.5): code k is decided where
@@ -37,14 +44,14 @@ impl CodeLaw for SarLaw {
 
 /// The catalogue entry of `adc_sar_mismatch`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::adc_sar_mismatch::ID.as_str(),
+    id: ID.as_str(),
     title: "SAR capacitor mismatch",
     explanation: "A successive-approximation converter weighs bit b with a capacitor of 2^b unit capacitors; a mismatch δ_b (in LSB) of the top bits shifts every code with that bit set by −δ_b: Δcode(k) = −Σ_b (bit_b(k) − ½)·δ_b (bits N−1 … N−4; the constant −½ Σ δ_b is an offset, `adc_offset`). A staircase over the code range with its largest step at mid scale: the DNL of a real converter, structured by its capacitors rather than the Gaussian of `adc_dnl` (3.3.5).",
     thesis_ref: "2.3.2.5, 3.2.1, 3.3.5",
     signature: "raw residual a staircase in the code, jumping where a top bit flips (mid, quarter and eighth scale); depth error jumping with the phase images' signs",
     params: &[
         p(
-            sar::MSB_LSB,
+            MSB_LSB,
             "LSB",
             1.0,
             -64.0,
@@ -52,7 +59,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "weight error of bit N−1 (the MSB)",
         ),
         p(
-            sar::MSB1_LSB,
+            MSB1_LSB,
             "LSB",
             0.5,
             -32.0,
@@ -60,7 +67,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "weight error of bit N−2",
         ),
         p(
-            sar::MSB2_LSB,
+            MSB2_LSB,
             "LSB",
             -0.3,
             -16.0,
@@ -68,7 +75,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "weight error of bit N−3",
         ),
         p(
-            sar::MSB3_LSB,
+            MSB3_LSB,
             "LSB",
             0.2,
             -8.0,
@@ -82,7 +89,7 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(AdcSarMismatch, INFO, adc_sar_mismatch, code_law = SarLaw);
+effect!(AdcSarMismatch, INFO, ID, chain = 200, code_law = SarLaw);
 
 #[cfg(test)]
 mod tests {

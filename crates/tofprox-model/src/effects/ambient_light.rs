@@ -5,17 +5,20 @@
 //! inline by the simulator ([`crate::sim`]), where the signal chain combines it.
 
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(ambient_light {
+    E_PER_US_PER_KLUX = "e_per_us_per_klux",
+});
 
 /// The catalogue entry of `ambient_light`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::ambient_light::ID.as_str(),
+    id: ID.as_str(),
     title: "Uncorrelated background light",
     explanation: "Background light (sunlight, lamps) is not modulated: it adds N_amb = k · E · t_exp electrons equally to both taps (E in klux, after the optical filter). It carries no phase but adds shot noise and drives the taps towards the SBI threshold.",
     thesis_ref: "2.2.2.1, 5.1.2.3",
     signature: "noise grows with ambient_klux; with SBI mismatch a 2-phase-only depth error",
     params: &[p(
-        ids::ambient_light::E_PER_US_PER_KLUX,
+        E_PER_US_PER_KLUX,
         "e-/us/klux",
         3.0,
         0.0,
@@ -28,4 +31,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(AmbientLight, INFO, ambient_light);
+effect!(AmbientLight, INFO, ID, chain = 110);

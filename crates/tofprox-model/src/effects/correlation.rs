@@ -6,7 +6,6 @@
 use std::f64::consts::TAU;
 
 use crate::config::ModelConfig;
-use crate::ids;
 use crate::waveform::fourier;
 
 /// Number of table entries per period of the correlation function.
@@ -123,14 +122,14 @@ impl Correlation {
 
     /// Build the correlation the model asks for.
     pub fn from_model(model: &ModelConfig) -> Self {
-        if !model.is_enabled(ids::waveform_harmonics::ID) {
+        if !model.is_enabled(crate::effects::waveform_harmonics::ID) {
             return Self::cosine();
         }
         if let Some(w) = model.waveforms() {
             return Self::from_waveforms(&w.illumination, &w.modulation);
         }
         let rel: Vec<(f64, f64)> = (2..=9)
-            .filter_map(ids::harmonic)
+            .filter_map(crate::effects::waveform_harmonics::harmonic)
             .map(|(rel, phase)| (model.get(rel), model.get(phase)))
             .collect();
         Self::from_harmonics(&rel)

@@ -6,7 +6,11 @@
 //! which the simulator and the lab's fit call.
 
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(dark_current {
+    E_PER_US = "e_per_us",
+    DOUBLING_C = "doubling_c",
+});
 
 /// The temperature factor of the dark current (`dark_current`, eq. 2.17 with
 /// i_d(T) = i_d,ref · 2^(ΔT/ΔT₂)): 2^(ΔT/ΔT₂) for ΔT = T − T_ref kelvin and the
@@ -18,14 +22,14 @@ pub fn dark_current_temperature_factor(dt_k: f64, doubling_k: f64) -> f64 {
 
 /// The catalogue entry of `dark_current`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::dark_current::ID.as_str(),
+    id: ID.as_str(),
     title: "Dark current and its shot noise",
     explanation: "Thermally generated electrons add N_dark = i_d · t_exp to both taps, doubling every ΔT_2 kelvin: i_d(T) = i_d,25 · 2^((T − 25 °C)/ΔT_2). Their Poisson noise σ² = N_dark per tap (eq. 2.17) is part of this effect.",
     thesis_ref: "2.3.2.3, eq. 2.17",
     signature: "noise floor growing with exposure and temperature; common mode only",
     params: &[
         p(
-            ids::dark_current::E_PER_US,
+            E_PER_US,
             "e-/us",
             0.05,
             0.0,
@@ -33,7 +37,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "dark electrons per µs per tap at 25 °C",
         ),
         p(
-            ids::dark_current::DOUBLING_C,
+            DOUBLING_C,
             "K",
             7.0,
             1.0,
@@ -47,4 +51,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-effect!(DarkCurrent, INFO, dark_current);
+effect!(DarkCurrent, INFO, ID, chain = 120);

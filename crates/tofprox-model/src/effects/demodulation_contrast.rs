@@ -5,17 +5,20 @@
 //! correlation scaled by K, is evaluated inline by the simulator ([`crate::sim`]).
 
 use crate::entry::{ActsOn, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(demodulation_contrast {
+    CONTRAST = "contrast",
+});
 
 /// The catalogue entry of `demodulation_contrast`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::demodulation_contrast::ID.as_str(),
+    id: ID.as_str(),
     title: "Demodulation contrast",
     explanation: "Only a share K of the photo-generated charge is separated by the modulation gates; the rest adds equally to both taps: N_A,B = N/2 · (1 ± K·C(φ−θ)). K is eq. 2.10/2.11's demodulation contrast. Disabled, K = 1.",
     thesis_ref: "2.2.2.2, eq. 2.10-2.11",
     signature: "amplitude scales by K at constant intensity; no phase change",
     params: &[p(
-        ids::demodulation_contrast::CONTRAST,
+        CONTRAST,
         "",
         0.8,
         0.05,
@@ -28,4 +31,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(DemodulationContrast, INFO, demodulation_contrast);
+effect!(DemodulationContrast, INFO, ID, chain = 20);

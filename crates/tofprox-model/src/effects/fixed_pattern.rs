@@ -12,7 +12,34 @@
 use crate::config::ModelConfig;
 use crate::entry::{ActsOn, EffectInfo, param as p};
 use crate::geometry::SensorGeometry;
-use crate::ids;
+
+/// The typed ids of `fpn_offset`.
+pub mod fpn_offset {
+    crate::ids::effect_ids!(fpn_offset {
+        ADC_CHANNEL_SIGMA_LSB = "adc_channel_sigma_lsb",
+        COLUMN_SIGMA_LSB = "column_sigma_lsb",
+        PIXEL_SIGMA_LSB = "pixel_sigma_lsb",
+        COLUMN_LINE_LSB = "column_line_lsb",
+        MEAN_LSB = "mean_lsb",
+    });
+}
+
+/// The typed ids of `fppn`.
+pub mod fppn {
+    crate::ids::effect_ids!(fppn {
+        GLOBAL_DELAY_NS = "global_delay_ns",
+        COLUMN_DELAY_PS = "column_delay_ps",
+        PIXEL_SIGMA_PS = "pixel_sigma_ps",
+    });
+}
+
+/// The typed ids of `prnu`.
+pub mod prnu {
+    crate::ids::effect_ids!(prnu {
+        SIGMA_REL = "sigma_rel",
+        VIGNETTING_REL = "vignetting_rel",
+    });
+}
 
 /// SplitMix64 step: a well-mixed 64-bit hash.
 pub(crate) fn mix64(mut z: u64) -> u64 {
@@ -76,25 +103,25 @@ impl FixedPatterns {
         let (cr, cc) = (fr / 2.0, fc / 2.0);
         let corner2 = cr * cr + cc * cc;
 
-        let fpn = model.is_enabled(ids::fpn_offset::ID);
+        let fpn = model.is_enabled(fpn_offset::ID);
         let (s_ch, s_col, s_pix, line, mean) = (
-            model.get(ids::fpn_offset::ADC_CHANNEL_SIGMA_LSB),
-            model.get(ids::fpn_offset::COLUMN_SIGMA_LSB),
-            model.get(ids::fpn_offset::PIXEL_SIGMA_LSB),
-            model.get(ids::fpn_offset::COLUMN_LINE_LSB),
-            model.get(ids::fpn_offset::MEAN_LSB),
+            model.get(fpn_offset::ADC_CHANNEL_SIGMA_LSB),
+            model.get(fpn_offset::COLUMN_SIGMA_LSB),
+            model.get(fpn_offset::PIXEL_SIGMA_LSB),
+            model.get(fpn_offset::COLUMN_LINE_LSB),
+            model.get(fpn_offset::MEAN_LSB),
         );
-        let prnu = model.is_enabled(ids::prnu::ID);
+        let prnu = model.is_enabled(prnu::ID);
         let (s_gain, vig) = (
-            model.get(ids::prnu::SIGMA_REL),
-            model.get(ids::prnu::VIGNETTING_REL),
+            model.get(prnu::SIGMA_REL),
+            model.get(prnu::VIGNETTING_REL),
         );
-        let fppn = model.is_enabled(ids::fppn::ID);
+        let fppn = model.is_enabled(fppn::ID);
         let w = std::f64::consts::TAU * g.modulation_hz;
         let (tg, tc, tp) = (
-            model.get(ids::fppn::GLOBAL_DELAY_NS) * 1e-9,
-            model.get(ids::fppn::COLUMN_DELAY_PS) * 1e-12,
-            model.get(ids::fppn::PIXEL_SIGMA_PS) * 1e-12,
+            model.get(fppn::GLOBAL_DELAY_NS) * 1e-9,
+            model.get(fppn::COLUMN_DELAY_PS) * 1e-12,
+            model.get(fppn::PIXEL_SIGMA_PS) * 1e-12,
         );
 
         for r in 0..g.rows {
@@ -140,14 +167,14 @@ impl FixedPatterns {
 
 /// The catalogue entry of `prnu`.
 pub static PRNU: EffectInfo = EffectInfo {
-    id: ids::prnu::ID.as_str(),
+    id: prnu::ID.as_str(),
     title: "Photo-response non-uniformity incl. vignetting",
     explanation: "Each pixel converts light with its own gain g_p ~ N(1, σ) (fill factor, micro-lens, QE variation) and the lens and illumination profile fall off towards the corners: g_p · (1 − v · r²) with r the distance from the optical centre normalised to the corner. Multiplies signal and background electrons of both taps; never changes the phase.",
     thesis_ref: "2.3.1.3 (PRNU)",
     signature: "per-pixel amplitude ratio fixed over all captures, radial falloff; no depth effect",
     params: &[
         p(
-            ids::prnu::SIGMA_REL,
+            prnu::SIGMA_REL,
             "",
             0.01,
             0.0,
@@ -155,7 +182,7 @@ pub static PRNU: EffectInfo = EffectInfo {
             "per-pixel gain standard deviation",
         ),
         p(
-            ids::prnu::VIGNETTING_REL,
+            prnu::VIGNETTING_REL,
             "",
             0.25,
             0.0,
@@ -169,18 +196,18 @@ pub static PRNU: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(Prnu, PRNU, prnu);
+effect!(Prnu, PRNU, prnu::ID, chain = 70);
 
 /// The catalogue entry of `fppn`.
 pub static FPPN: EffectInfo = EffectInfo {
-    id: ids::fppn::ID.as_str(),
+    id: fppn::ID.as_str(),
     title: "Fixed-pattern phase noise and global delay",
     explanation: "The modulation signal reaches each pixel with its own delay: a global delay τ_g of driver and cabling, a delay growing along the distributed RC line of the column, τ(x) = τ_c · x (2 − x) (Elmore delay of a distributed line driven at x = 0, x = row/(rows − 1)), and a per-pixel random part. The phase offset is φ_delay = 2π f τ, added to φ_tof.",
     thesis_ref: "2.3.1.4",
     signature: "constant depth offset per pixel, growing down the columns; independent of distance",
     params: &[
         p(
-            ids::fppn::GLOBAL_DELAY_NS,
+            fppn::GLOBAL_DELAY_NS,
             "ns",
             1.5,
             -20.0,
@@ -188,7 +215,7 @@ pub static FPPN: EffectInfo = EffectInfo {
             "global delay of driver and cabling",
         ),
         p(
-            ids::fppn::COLUMN_DELAY_PS,
+            fppn::COLUMN_DELAY_PS,
             "ps",
             120.0,
             0.0,
@@ -196,7 +223,7 @@ pub static FPPN: EffectInfo = EffectInfo {
             "extra delay at the far end of the column RC line",
         ),
         p(
-            ids::fppn::PIXEL_SIGMA_PS,
+            fppn::PIXEL_SIGMA_PS,
             "ps",
             15.0,
             0.0,
@@ -210,18 +237,18 @@ pub static FPPN: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(Fppn, FPPN, fppn);
+effect!(Fppn, FPPN, fppn::ID, chain = 80);
 
 /// The catalogue entry of `fpn_offset`.
 pub static FPN_OFFSET: EffectInfo = EffectInfo {
-    id: ids::fpn_offset::ID.as_str(),
+    id: fpn_offset::ID.as_str(),
     title: "Fixed-pattern offset (FPN) of the read-out",
     explanation: "Every pixel's differential code carries a fixed offset from its read-out path (fig. 3.12): 16 ADCs with even/odd ping-pong channels (column c maps to ADC channel by the 32-column mirrored pattern of 3.3.7.1: col 0 → ADC0 odd, col 15 → ADC0 even, col 31 ≡ col 0), the column source follower/amplifier, a term growing along the column line, and the pixel's reset transistor. offset = ch(c) + col(c) + line · row/(rows−1) + pix(r, c); overall σ ≈ 34 LSB (fig. 3.13). It is what a dark frame measures and what the offset calibration subtracts.",
     thesis_ref: "2.3.1.3, 3.3.3, 3.3.7.1 (fig. 3.12-3.16)",
     signature: "constant per-pixel code offset, present in dark frames; column stripes; 2-phase depth error growing with distance",
     params: &[
         p(
-            ids::fpn_offset::ADC_CHANNEL_SIGMA_LSB,
+            fpn_offset::ADC_CHANNEL_SIGMA_LSB,
             "LSB",
             8.0,
             0.0,
@@ -229,7 +256,7 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
             "offset standard deviation between ADC channels",
         ),
         p(
-            ids::fpn_offset::COLUMN_SIGMA_LSB,
+            fpn_offset::COLUMN_SIGMA_LSB,
             "LSB",
             15.0,
             0.0,
@@ -237,7 +264,7 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
             "offset standard deviation between column amplifiers",
         ),
         p(
-            ids::fpn_offset::PIXEL_SIGMA_LSB,
+            fpn_offset::PIXEL_SIGMA_LSB,
             "LSB",
             29.0,
             0.0,
@@ -245,7 +272,7 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
             "per-pixel offset standard deviation",
         ),
         p(
-            ids::fpn_offset::COLUMN_LINE_LSB,
+            fpn_offset::COLUMN_LINE_LSB,
             "LSB",
             4.0,
             -500.0,
@@ -253,7 +280,7 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
             "offset change from the top to the bottom of a column line",
         ),
         p(
-            ids::fpn_offset::MEAN_LSB,
+            fpn_offset::MEAN_LSB,
             "LSB",
             0.0,
             -1000.0,
@@ -267,4 +294,4 @@ pub static FPN_OFFSET: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-effect!(FpnOffset, FPN_OFFSET, fpn_offset);
+effect!(FpnOffset, FPN_OFFSET, fpn_offset::ID, chain = 150);

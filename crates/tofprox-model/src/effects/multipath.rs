@@ -6,7 +6,11 @@
 //! ([`multipath_phase_offset_rad`]), which the simulator and the lab's fit call.
 
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(multipath {
+    RELATIVE_AMPLITUDE = "relative_amplitude",
+    EXTRA_PATH_M = "extra_path_m",
+});
 
 /// The phase offset of the multipath's second return (`multipath`): an extra
 /// round-trip path L arrives like an extra distance L/2 (eq. 2.6 inverted),
@@ -20,14 +24,14 @@ pub fn multipath_phase_offset_rad(phase_rad_per_m: f64, extra_path_m: f64) -> f6
 
 /// The catalogue entry of `multipath`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::multipath::ID.as_str(),
+    id: ID.as_str(),
     title: "Multipath return",
     explanation: "A second, weaker return travels a longer path (e.g. via the floor or a side wall) and mixes into the pixel: N_2 = a · N_sig at phase φ₂ = 4π f (d + Δ/2) / c. The measured phasor is the sum of both, so the depth is pulled towards the longer path by an amount oscillating with distance.",
     thesis_ref: "not treated in the thesis (extension; standard iToF error)",
     signature: "depth error oscillating with distance with period c/(2f) scaled by path difference; same in 2- and 4-phase",
     params: &[
         p(
-            ids::multipath::RELATIVE_AMPLITUDE,
+            RELATIVE_AMPLITUDE,
             "",
             0.08,
             0.0,
@@ -35,7 +39,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "amplitude of the second return relative to the direct one",
         ),
         p(
-            ids::multipath::EXTRA_PATH_M,
+            EXTRA_PATH_M,
             "m",
             0.4,
             0.0,
@@ -49,4 +53,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(Multipath, INFO, multipath);
+effect!(Multipath, INFO, ID, chain = 40);

@@ -42,45 +42,45 @@ impl PixelParams {
     /// Constants for one capture at `exposure_us` and `temperature_c`.
     pub fn new(model: &ModelConfig, exposure_us: f64, temperature_c: f64) -> Self {
         let on = |id: ids::EffectId| model.is_enabled(id);
-        let sbi = on(ids::sbi_asymmetry::ID).then(|| {
+        let sbi = on(crate::effects::sbi_asymmetry::ID).then(|| {
             (
-                model.get(ids::sbi_asymmetry::MISMATCH_REL),
+                model.get(crate::effects::sbi_asymmetry::MISMATCH_REL),
                 SbiLaw::of(model),
             )
         });
-        let amp_phase = on(ids::amplitude_phase_error::ID).then(|| AmpPhaseLaw::of(model));
-        let (drift_rad, drift_gain) = if on(ids::temperature_drift::ID) {
+        let amp_phase = on(crate::effects::amplitude_phase_error::ID).then(|| AmpPhaseLaw::of(model));
+        let (drift_rad, drift_gain) = if on(crate::effects::temperature_drift::ID) {
             let (phase, gain) = temperature_drift_of(model, temperature_c);
             (phase, (1.0 + gain).max(0.0))
         } else {
             (0.0, 1.0)
         };
         // eq. 2.17 with i_d(T) = i_d,25 · 2^((T − 25)/ΔT₂)
-        let dark_e = if on(ids::dark_current::ID) {
-            model.get(ids::dark_current::E_PER_US)
+        let dark_e = if on(crate::effects::dark_current::ID) {
+            model.get(crate::effects::dark_current::E_PER_US)
                 * exposure_us
                 * dark_current_temperature_factor(
                     temperature_c - 25.0,
-                    model.get(ids::dark_current::DOUBLING_C),
+                    model.get(crate::effects::dark_current::DOUBLING_C),
                 )
         } else {
             0.0
         };
-        let shot_f = if on(ids::shot_noise::ID) {
-            model.get(ids::shot_noise::EXCESS_NOISE_FACTOR)
+        let shot_f = if on(crate::effects::shot_noise::ID) {
+            model.get(crate::effects::shot_noise::EXCESS_NOISE_FACTOR)
         } else {
             0.0
         };
         // eq. 2.15: σ_kTC = √(k T C) / e
-        let ktc_var_e2 = if on(ids::ktc_noise::ID) {
+        let ktc_var_e2 = if on(crate::effects::ktc_noise::ID) {
             let t_k = temperature_c + 273.15;
-            BOLTZMANN_J_PER_K * t_k * model.get(ids::ktc_noise::C_INT_FF) * 1e-15
+            BOLTZMANN_J_PER_K * t_k * model.get(crate::effects::ktc_noise::C_INT_FF) * 1e-15
                 / (ELEMENTARY_CHARGE_C * ELEMENTARY_CHARGE_C)
         } else {
             0.0
         };
-        let read_var_lsb2 = if on(ids::read_noise::ID) {
-            model.get(ids::read_noise::SIGMA_LSB).powi(2)
+        let read_var_lsb2 = if on(crate::effects::read_noise::ID) {
+            model.get(crate::effects::read_noise::SIGMA_LSB).powi(2)
         } else {
             0.0
         };
@@ -91,7 +91,7 @@ impl PixelParams {
             drift_gain,
             dark_e,
             shot_f,
-            dark_shot: on(ids::dark_current::ID),
+            dark_shot: on(crate::effects::dark_current::ID),
             ktc_var_e2,
             read_var_lsb2,
         }

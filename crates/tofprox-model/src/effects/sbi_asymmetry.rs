@@ -6,8 +6,14 @@
 //! file's shape of it ([`SbiLaw`]), which the simulator and the lab's fit call.
 
 use crate::config::ModelConfig;
+use crate::effects::shape::ShapeLaw;
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(sbi_asymmetry {
+    THRESHOLD_E = "threshold_e",
+    MISMATCH_REL = "mismatch_rel",
+    CLAMP_SHARE = "clamp_share",
+});
 
 /// Charge the SBI circuit injects into each tap (2.2.2.1, fig. 2.7, 5.1.2.3),
 /// for tap charges `n_a`, `n_b` collected at constant rates: the fuller tap
@@ -41,20 +47,19 @@ pub enum SbiLaw {
     /// The circuit of [`sbi_injected_e`]: (threshold Q_th in e⁻, clamp share s).
     Circuit(f64, f64),
     /// The removed charge as a monotone shape of the fuller tap's charge
-    /// ([`crate::effects::shape::SBI_ASYMMETRY`]): knots (e⁻) and values (e⁻).
+    /// ([`SHAPE_LAW`]): knots (e⁻) and values (e⁻).
     Shape(Vec<f64>, Vec<f64>),
 }
 
 impl SbiLaw {
     /// The law of `model`'s `sbi_asymmetry` (its shape when the file gives one).
     pub fn of(model: &ModelConfig) -> Self {
-        use crate::effects::shape::SBI_REMOVED_E;
-        if let Some(s) = model.shape(ids::sbi_asymmetry::ID) {
+        if let Some(s) = model.shape(ID) {
             return Self::Shape(s.knots.clone(), s.values(SBI_REMOVED_E));
         }
         Self::Circuit(
-            model.get(ids::sbi_asymmetry::THRESHOLD_E),
-            model.get(ids::sbi_asymmetry::CLAMP_SHARE),
+            model.get(THRESHOLD_E),
+            model.get(CLAMP_SHARE),
         )
     }
 
@@ -73,14 +78,14 @@ impl SbiLaw {
 
 /// The catalogue entry of `sbi_asymmetry`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::sbi_asymmetry::ID.as_str(),
+    id: ID.as_str(),
     title: "SBI circuit with mismatch",
     explanation: "The suppression-of-background-illumination circuit (fig. 2.7) monitors both taps; once the fuller tap passes the threshold Q_th (at t_on = Q_th / r_max) it injects a common current into both taps: the smaller photo-current (clamp_share s = 0, the thesis' circuit: it subtracts the common part) or, towards s = 1, the larger one (a clamp that holds the fuller tap at Q_th); r_inj = (1 − s)·r_min + s·r_max, never removing more charge than the emptier tap holds (N_inj ≤ N_min). Mismatch m between the two injection transistors leaves a differential error ΔN = −m · r_inj · (t_exp − t_on). The error depends on |C(φ−θ)| and is identical in the 0°/180° (90°/270°) images, so 4-phase cancels it and 2-phase does not (fig. 5.6-5.8). Second form, a clamp with a knee of any shape: the charge removed from each tap as a monotone shape of the fuller tap's charge, `shape_tap_charge_e` (knots, e⁻) and `shape_removed_e` (values, e⁻, 0 at the first knot where the circuit starts, non-decreasing), linear between the knots, never more than the emptier tap holds; it replaces threshold_e and clamp_share (the mismatch m stays).",
     thesis_ref: "2.2.2.1, 5.1.2.3 (fig. 5.6-5.8)",
     signature: "2-phase-only depth error rising with ambient_klux and exposure above a threshold; 4-phase unaffected",
     params: &[
         p(
-            ids::sbi_asymmetry::THRESHOLD_E,
+            THRESHOLD_E,
             "e-",
             60000.0,
             100.0,
@@ -88,7 +93,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "tap charge Q_th at which the SBI starts to inject",
         ),
         p(
-            ids::sbi_asymmetry::MISMATCH_REL,
+            MISMATCH_REL,
             "",
             0.03,
             -0.3,
@@ -96,7 +101,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "relative mismatch m of the injected currents between tap A and B",
         ),
         p(
-            ids::sbi_asymmetry::CLAMP_SHARE,
+            CLAMP_SHARE,
             "",
             0.0,
             0.0,
@@ -110,7 +115,40 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-effect!(SbiAsymmetry, INFO, sbi_asymmetry);
+/// `sbi_asymmetry`: the charge R(N_max) in electrons the SBI circuit removes
+/// from each tap (2.2.2.1, 5.1.2.3) as a function of the fuller tap's charge
+/// N_max in electrons — a clamp with a knee of any shape (the clamp end of
+/// the parametric family is R = N_max − Q_th). The first knot is where the
+/// circuit starts: its value is 0 and the curve does not decrease, so
+/// nothing is removed below it. As in the parametric law the removal is
+/// common to both taps and never more than the emptier tap holds
+/// ([`crate::effects::shape::sbi_removed_e`]); the mismatch `mismatch_rel` leaves −m·R in the
+/// differential charge (`threshold_e` and `clamp_share` are unused).
+pub const SHAPE_LAW: ShapeLaw = ShapeLaw {
+    effect: ID,
+    driver: "shape_tap_charge_e",
+    driver_doc: "the fuller tap's charge N_max in electrons",
+    curves: &[SBI_REMOVED_E],
+    bounds: sbi_bounds,
+};
+/// `sbi_asymmetry`'s curve: the charge removed from each tap, e⁻.
+pub const SBI_REMOVED_E: &str = "shape_removed_e";
+
+/// The removed charge's bounds: 0 on the first knot (where the circuit starts) and not
+/// decreasing (the circuit removes more from a fuller tap).
+fn sbi_bounds(_key: &str, v: &[f64]) -> Result<(), String> {
+    if let Some(r) = v.first().filter(|r| **r != 0.0) {
+        return Err(format!(
+            "must start at 0 on the first knot (where the circuit starts), found {r}"
+        ));
+    }
+    if v.windows(2).any(|w| w[1] < w[0]) {
+        return Err("must not decrease: the circuit removes more from a fuller tap".into());
+    }
+    Ok(())
+}
+
+effect!(SbiAsymmetry, INFO, ID, chain = 130, shape = SHAPE_LAW);
 
 #[cfg(test)]
 mod tests {

@@ -22,11 +22,11 @@
 //! crates (`splines`: linear / Catmull-Rom / Bézier keys; `enterpolation`:
 //! B-splines / NURBS) neither offer a monotone form nor expose the basis.
 
-use crate::ids::{self, EffectId};
+use crate::ids::EffectId;
 
 /// The keys of one effect's shape form: the driver's knots and the value
 /// curves (each in the effect's units, a curve missing from the file is 0).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 pub struct ShapeLaw {
     /// The effect the shape belongs to.
     pub effect: EffectId,
@@ -36,81 +36,24 @@ pub struct ShapeLaw {
     pub driver_doc: &'static str,
     /// Keys of the value curves, one value per knot, each monotone.
     pub curves: &'static [&'static str],
+    /// The physical bounds of a curve beyond monotone (its key and values; the effect's
+    /// module states them: a gain above −1, a loss below 1, …).
+    pub bounds: fn(&str, &[f64]) -> Result<(), String>,
 }
 
-/// `amplitude_phase_error`: Δφ(A) with A the differential signal amplitude
-/// in electrons (the driver of the parametric law φ_max·s(A/A_ref; n)).
-pub const AMPLITUDE_PHASE: ShapeLaw = ShapeLaw {
-    effect: ids::amplitude_phase_error::ID,
-    driver: "shape_amplitude_e",
-    driver_doc: "differential signal amplitude A in electrons",
-    curves: &[AMPLITUDE_PHASE_RAD],
-};
-/// `amplitude_phase_error`'s curve: Δφ in rad at each amplitude knot.
-pub const AMPLITUDE_PHASE_RAD: &str = "shape_phase_rad";
+/// No bounds beyond monotone.
+pub fn monotone_only(_key: &str, _values: &[f64]) -> Result<(), String> {
+    Ok(())
+}
 
-/// `temperature_drift`: Δφ(T) and the relative gain change G(T) (gain
-/// ×(1 + G)) at the capture's temperature T in °C — absolute temperatures,
-/// so the shape needs no reference (`reference_c` belongs to the polynomial).
-pub const TEMPERATURE_DRIFT: ShapeLaw = ShapeLaw {
-    effect: ids::temperature_drift::ID,
-    driver: "shape_temperature_c",
-    driver_doc: "the capture's temperature T in °C",
-    curves: &[DRIFT_PHASE_RAD, DRIFT_GAIN_REL],
-};
-/// `temperature_drift`'s phase curve Δφ in rad.
-pub const DRIFT_PHASE_RAD: &str = "shape_phase_rad";
-/// `temperature_drift`'s gain curve G (gain ×(1 + G), G > −1).
-pub const DRIFT_GAIN_REL: &str = "shape_gain_rel";
-
-/// `sbi_asymmetry`: the charge R(N_max) in electrons the SBI circuit removes
-/// from each tap (2.2.2.1, 5.1.2.3) as a function of the fuller tap's charge
-/// N_max in electrons — a clamp with a knee of any shape (the clamp end of
-/// the parametric family is R = N_max − Q_th). The first knot is where the
-/// circuit starts: its value is 0 and the curve does not decrease, so
-/// nothing is removed below it. As in the parametric law the removal is
-/// common to both taps and never more than the emptier tap holds
-/// ([`sbi_removed_e`]); the mismatch `mismatch_rel` leaves −m·R in the
-/// differential charge (`threshold_e` and `clamp_share` are unused).
-pub const SBI_ASYMMETRY: ShapeLaw = ShapeLaw {
-    effect: ids::sbi_asymmetry::ID,
-    driver: "shape_tap_charge_e",
-    driver_doc: "the fuller tap's charge N_max in electrons",
-    curves: &[SBI_REMOVED_E],
-};
-/// `sbi_asymmetry`'s curve: the charge removed from each tap, e⁻.
-pub const SBI_REMOVED_E: &str = "shape_removed_e";
-
-/// `vcsel_droop`: the thermal step response Z(τ) of the VCSEL's power — the
-/// relative loss after τ µs of continuous emission from cold — superposed
-/// over the raw images' on- and off-times
-/// ([`crate::effects::vcsel_droop::DutyCycle`]; 3.3.7.2: the VCSEL heats
-/// *while it emits* and cools in the gaps between raw images): P_k =
-/// P·(1 − L_k), L_k = Z(0) + Σ_{j<k} [Z(t_k − t_j) − Z(t_k − t_j − t_exp)].
-/// Without gaps L_k = Z(k·t_exp), the on-time law (the parametric law with
-/// β = 1, k₀ = 0 has the same driver). Not the image index: one curve
-/// serves every exposure and gap of a recording, where a curve of k would
-/// need one per exposure; a droop per image whatever the exposure (β = 0)
-/// stays the parametric form's.
-pub const VCSEL_DROOP: ShapeLaw = ShapeLaw {
-    effect: ids::vcsel_droop::ID,
-    driver: "shape_on_time_us",
-    driver_doc: "the time τ in µs since a step of the VCSEL's emission (its thermal step response Z(τ))",
-    curves: &[DROOP_LOSS_REL],
-};
-/// `vcsel_droop`'s curve: the relative power loss L (< 1).
-pub const DROOP_LOSS_REL: &str = "shape_loss_rel";
-
-/// Every effect with a shape form.
-pub const SHAPE_LAWS: &[ShapeLaw] = &[
-    SBI_ASYMMETRY,
-    VCSEL_DROOP,
-    AMPLITUDE_PHASE,
-    TEMPERATURE_DRIFT,
-];
+/// Every effect with a shape form, in registry order (each effect module carries its own,
+/// [`super::Effect::shape_law`]).
+pub fn shape_laws() -> impl Iterator<Item = &'static ShapeLaw> {
+    super::REGISTRY.iter().filter_map(|e| e.shape_law())
+}
 
 /// The charge the SBI removes from each tap by the shape `knots` →
-/// `removed_e` ([`SBI_ASYMMETRY`]) for tap charges `n_a`, `n_b` (e⁻): the
+/// `removed_e` (`sbi_asymmetry::SHAPE`) for tap charges `n_a`, `n_b` (e⁻): the
 /// curve at the fuller tap's charge, never more than the emptier tap holds
 /// (the invariant of `sbi_asymmetry::sbi_injected_e`). The simulator and the lab's
 /// fit both use it.
@@ -122,7 +65,7 @@ pub fn sbi_removed_e(knots: &[f64], removed_e: &[f64], n_a: f64, n_b: f64) -> f6
 
 /// The shape form of effect `id`, if it has one.
 pub fn shape_law(id: &str) -> Option<&'static ShapeLaw> {
-    SHAPE_LAWS.iter().find(|l| l.effect.as_str() == id)
+    shape_laws().find(|l| l.effect.as_str() == id)
 }
 
 /// Whether `key` is one of the keys of a shape law.
@@ -277,39 +220,17 @@ impl EffectShape {
                 return Err((key.to_string(), format!("not a curve of {}", law.effect)));
             }
             check_values(v, self.knots.len()).map_err(|e| (key.to_string(), e))?;
-            check_curve(key, v).map_err(|e| (key.to_string(), e))?;
+            (law.bounds)(key, v).map_err(|e| (key.to_string(), e))?;
         }
         Ok(())
-    }
-}
-
-/// The physical bounds of one curve (beyond monotone): a gain change above
-/// −1, a power loss below 1, a removed charge that starts at 0 on the first
-/// knot and does not decrease.
-fn check_curve(key: &str, v: &[f64]) -> Result<(), String> {
-    match key {
-        DRIFT_GAIN_REL => match v.iter().find(|g| **g <= -1.0) {
-            Some(g) => Err(format!("gain change {g} would make the gain 1 + G ≤ 0")),
-            None => Ok(()),
-        },
-        DROOP_LOSS_REL => match v.iter().find(|l| **l >= 1.0) {
-            Some(l) => Err(format!("power loss {l} would make the power 1 − L ≤ 0")),
-            None => Ok(()),
-        },
-        SBI_REMOVED_E if v.first().is_some_and(|r| *r != 0.0) => Err(format!(
-            "must start at 0 on the first knot (where the circuit starts), found {}",
-            v[0]
-        )),
-        SBI_REMOVED_E if v.windows(2).any(|w| w[1] < w[0]) => {
-            Err("must not decrease: the circuit removes more from a fuller tap".into())
-        }
-        _ => Ok(()),
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::effects::sbi_asymmetry::{SBI_REMOVED_E, SHAPE_LAW as SBI_ASYMMETRY};
+    use crate::effects::vcsel_droop::{DROOP_LOSS_REL, SHAPE_LAW as VCSEL_DROOP};
 
     #[test]
     fn interpolates_linearly_and_clamps_flat_outside() {
@@ -349,6 +270,7 @@ mod tests {
                 .contains("monotone")
         );
         assert!(check_values(&[1.0, 1.0, 0.5], 3).is_ok());
+        use crate::effects::temperature_drift::{DRIFT_GAIN_REL, SHAPE_LAW as TEMPERATURE_DRIFT};
         let s = EffectShape {
             knots: vec![0.0, 10.0],
             curves: vec![(DRIFT_GAIN_REL, vec![0.0, -1.5])],
@@ -391,8 +313,13 @@ mod tests {
         let e = s(vec![0.0, 0.5, 1.0]).check(&VCSEL_DROOP).unwrap_err();
         assert!(e.0 == DROOP_LOSS_REL && e.1.contains("1 − L ≤ 0"), "{e:?}");
         assert!((s(vec![0.0, 0.02, 0.05]).eval(DROOP_LOSS_REL, 2000.0) - 0.035).abs() < 1e-12);
-        assert_eq!(shape_law("vcsel_droop"), Some(&VCSEL_DROOP));
-        assert_eq!(shape_law("sbi_asymmetry"), Some(&SBI_ASYMMETRY));
+        assert_eq!(shape_law("vcsel_droop").map(|l| l.driver), Some(VCSEL_DROOP.driver));
+        assert_eq!(shape_law("sbi_asymmetry").map(|l| l.driver), Some(SBI_ASYMMETRY.driver));
+        let with_shape: Vec<&str> = shape_laws().map(|l| l.effect.as_str()).collect();
+        assert_eq!(
+            with_shape,
+            ["vcsel_droop", "amplitude_phase_error", "temperature_drift", "sbi_asymmetry"]
+        );
     }
 
     #[test]

@@ -7,7 +7,10 @@
 //! call.
 
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(tap_gain_mismatch {
+    MISMATCH_REL = "mismatch_rel",
+});
 
 /// The differential charge a tap gain mismatch ε leaks from the total charge
 /// (`tap_gain_mismatch`, eq. 2.1): D = (1 + ε/2)·N_A − (1 − ε/2)·N_B adds
@@ -19,13 +22,13 @@ pub fn tap_gain_leak_e(mismatch_rel: f64, total_e: f64) -> f64 {
 
 /// The catalogue entry of `tap_gain_mismatch`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::tap_gain_mismatch::ID.as_str(),
+    id: ID.as_str(),
     title: "Tap gain mismatch (A/B)",
     explanation: "The two taps of a pixel convert charge with slightly different gains (storage capacitance, source follower): D = (1 + ε/2)·N_A − (1 − ε/2)·N_B = (N_A − N_B) + ε/2·(N_A + N_B). A share of the total charge (signal, background light, dark current) leaks into the differential code, the same in every raw image: 4-phase cancels it (0° − 180°), 2-phase does not (it moves the phasor's origin like an offset that grows with the signal, cf. eq. 3.4).",
     thesis_ref: "2.2.2 (two-tap pixel, eq. 2.1), 3.3.3 eq. 3.4",
     signature: "common-mode code ∝ total charge (signal and ambient), equal in all raw images; 2-phase depth error, 4-phase unaffected",
     params: &[p(
-        ids::tap_gain_mismatch::MISMATCH_REL,
+        MISMATCH_REL,
         "1",
         0.002,
         -0.1,
@@ -38,4 +41,4 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: true,
 };
 
-effect!(TapGainMismatch, INFO, tap_gain_mismatch);
+effect!(TapGainMismatch, INFO, ID, chain = 140);

@@ -383,7 +383,7 @@ impl UserEffect {
         ];
         only_keys(&at, t, &keys)?;
         let name = text(&at, t, "name")?.to_string();
-        if !is_identifier(&name) || crate::ids::ALL_EFFECTS.iter().any(|e| e.as_str() == name) {
+        if !is_identifier(&name) || crate::ids::EffectId::parse(&name).is_some() {
             return Err(bad(
                 &format!("{at}.name"),
                 format!("`{name}` must be a lower-case identifier and not a catalogue effect id"),

@@ -10,8 +10,15 @@
 use std::collections::BTreeMap;
 
 use crate::config::ModelConfig;
+use crate::effects::shape::ShapeLaw;
 use crate::entry::{ActsOn, Driver, EffectInfo, param as p};
-use crate::ids;
+
+crate::ids::effect_ids!(vcsel_droop {
+    DROOP_REL = "droop_rel",
+    TAU_US = "tau_us",
+    EXPOSURE_POWER = "exposure_power",
+    FIRST_IMAGE_INDEX = "first_image_index",
+});
 
 /// The capture condition (`[capture.conditions]`) that gives the VCSEL's
 /// off-time between two raw images of one acquisition in µs — read-out and
@@ -85,27 +92,27 @@ impl DutyCycle {
 /// Relative optical power of raw image `k` (acquisition order) under
 /// `vcsel_droop` for the acquisition's `duty` cycle: 1 − L_k with the
 /// file's shape as the thermal step response Z(τ) of the on-time
-/// ([`crate::effects::shape::VCSEL_DROOP`]) superposed over the raw images'
+/// ([`SHAPE_LAW`]) superposed over the raw images'
 /// heating and cooling ([`DutyCycle::superpose`]) when it gives one, else
 /// 1 − D·[`droop_loss`] (the parametric law counts on-time only: it ignores
 /// the gaps).
 pub fn droop_factor(model: &ModelConfig, k: usize, duty: DutyCycle) -> f64 {
-    if !model.is_enabled(ids::vcsel_droop::ID) {
+    if !model.is_enabled(ID) {
         return 1.0;
     }
-    if let Some(s) = model.shape(ids::vcsel_droop::ID) {
+    if let Some(s) = model.shape(ID) {
         return 1.0
             - duty.superpose(k, |tau_us| {
-                s.eval(crate::effects::shape::DROOP_LOSS_REL, tau_us)
+                s.eval(DROOP_LOSS_REL, tau_us)
             });
     }
-    let d = model.get(ids::vcsel_droop::DROOP_REL);
+    let d = model.get(DROOP_REL);
     1.0 - d * droop_loss(
         k as f64,
         duty.exposure_us,
-        model.get(ids::vcsel_droop::TAU_US),
-        model.get(ids::vcsel_droop::EXPOSURE_POWER),
-        model.get(ids::vcsel_droop::FIRST_IMAGE_INDEX),
+        model.get(TAU_US),
+        model.get(EXPOSURE_POWER),
+        model.get(FIRST_IMAGE_INDEX),
     )
 }
 
@@ -127,14 +134,14 @@ pub fn droop_loss(
 
 /// The catalogue entry of `vcsel_droop`.
 pub static INFO: EffectInfo = EffectInfo {
-    id: ids::vcsel_droop::ID.as_str(),
+    id: ID.as_str(),
     title: "VCSEL power droop over successive raw images",
     explanation: "The VCSEL heats while it emits; its optical power falls over successive raw images of one acquisition: P_k = P · (1 − D · (1 − exp(−(k + k₀) · s / τ))) for raw image k in acquisition order, with heating per image s = 1 ms · (t_exp / 1 ms)^β (β = 1: heating by on-time, s = t_exp; β = 0: by image count) and k₀ images of heating before the first one (k₀ = 1: the first image is already drooped). Unequal amplitudes of the images used together distort the phasor; 4-phase loses its 0/180 symmetry. Second form: the thermal step response Z(τ) — the loss after τ µs of continuous emission from cold — as a monotone shape, given by `shape_on_time_us` (knots, µs) and `shape_loss_rel` (values, Z < 1), linear between the knots and flat outside them; it replaces the parametric law. The loss of image k superposes the heating and cooling steps of the acquisition's duty cycle (each acquisition starting cold, raw image j lit during [j·(t_exp + g), j·(t_exp + g) + t_exp]): L_k = Z(0) + Σ_{j<k} [Z(t_k − t_j) − Z(t_k − t_j − t_exp)], P_k = P·(1 − L_k); the gap g is the capture condition `image_gap_us` (0 when the recording does not state it: then L_k = Z(k·t_exp), a shape of the on-time). The parametric law ignores the gaps.",
     thesis_ref: "3.3.7.2, 5.1.2.1 ('varying emission power during exposure of several raw images')",
     signature: "raw residual grows with raw-image index and with exposure; depth error with period 2π in phase",
     params: &[
         p(
-            ids::vcsel_droop::DROOP_REL,
+            DROOP_REL,
             "",
             0.03,
             0.0,
@@ -142,7 +149,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "asymptotic relative power loss D",
         ),
         p(
-            ids::vcsel_droop::TAU_US,
+            TAU_US,
             "us",
             3000.0,
             1.0,
@@ -150,7 +157,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "thermal time constant τ of the droop (in accumulated exposure)",
         ),
         p(
-            ids::vcsel_droop::EXPOSURE_POWER,
+            EXPOSURE_POWER,
             "1",
             1.0,
             0.0,
@@ -158,7 +165,7 @@ pub static INFO: EffectInfo = EffectInfo {
             "β: heating per raw image ∝ exposure^β (1: on-time, 0: image count)",
         ),
         p(
-            ids::vcsel_droop::FIRST_IMAGE_INDEX,
+            FIRST_IMAGE_INDEX,
             "1",
             0.0,
             0.0,
@@ -172,4 +179,33 @@ pub static INFO: EffectInfo = EffectInfo {
     cancels_in_four_phase: false,
 };
 
-effect!(VcselDroop, INFO, vcsel_droop);
+/// `vcsel_droop`: the thermal step response Z(τ) of the VCSEL's power — the
+/// relative loss after τ µs of continuous emission from cold — superposed
+/// over the raw images' on- and off-times
+/// ([`DutyCycle`]; 3.3.7.2: the VCSEL heats
+/// *while it emits* and cools in the gaps between raw images): P_k =
+/// P·(1 − L_k), L_k = Z(0) + Σ_{j<k} [Z(t_k − t_j) − Z(t_k − t_j − t_exp)].
+/// Without gaps L_k = Z(k·t_exp), the on-time law (the parametric law with
+/// β = 1, k₀ = 0 has the same driver). Not the image index: one curve
+/// serves every exposure and gap of a recording, where a curve of k would
+/// need one per exposure; a droop per image whatever the exposure (β = 0)
+/// stays the parametric form's.
+pub const SHAPE_LAW: ShapeLaw = ShapeLaw {
+    effect: ID,
+    driver: "shape_on_time_us",
+    driver_doc: "the time τ in µs since a step of the VCSEL's emission (its thermal step response Z(τ))",
+    curves: &[DROOP_LOSS_REL],
+    bounds: droop_bounds,
+};
+/// `vcsel_droop`'s curve: the relative power loss L (< 1).
+pub const DROOP_LOSS_REL: &str = "shape_loss_rel";
+
+/// The loss curve's bound: a power loss below 1 (the power 1 − L stays positive).
+fn droop_bounds(_key: &str, v: &[f64]) -> Result<(), String> {
+    match v.iter().find(|l| **l >= 1.0) {
+        Some(l) => Err(format!("power loss {l} would make the power 1 − L ≤ 0")),
+        None => Ok(()),
+    }
+}
+
+effect!(VcselDroop, INFO, ID, chain = 60, shape = SHAPE_LAW);

@@ -27,7 +27,7 @@ pub struct CoverWindow {
 }
 
 /// Catalogue id of the effect a [`CoverWindow`] sets.
-pub const COVER_WINDOW_EFFECT: &str = crate::ids::cover_window_crosstalk::ID.as_str();
+pub const COVER_WINDOW_EFFECT: &str = crate::effects::cover_window_crosstalk::ID.as_str();
 
 impl Default for CoverWindow {
     /// The catalogue's typical clean window.

@@ -36,6 +36,20 @@ pub enum ModelCommand {
     Effects(EffectsArgs),
     /// Validate a model file and show its effects and parameters.
     Show(ShowArgs),
+    /// Print a preset's model file as shipped in config/model (generated from the registry).
+    Preset(PresetArgs),
+}
+
+#[derive(clap::Args, Debug)]
+pub struct PresetArgs {
+    /// The preset: baseline, full or ideal.
+    #[arg(value_parser = parse_preset)]
+    pub preset: tofprox_model::preset::Preset,
+}
+
+fn parse_preset(name: &str) -> Result<tofprox_model::preset::Preset, String> {
+    tofprox_model::preset::Preset::parse(name)
+        .ok_or_else(|| format!("`{name}` is not a preset (baseline, full, ideal)"))
 }
 
 #[derive(clap::Args, Debug)]
@@ -179,6 +193,10 @@ pub fn run_model(c: ModelCommand) -> anyhow::Result<ExitCode> {
     match c {
         ModelCommand::Effects(a) => effects(a),
         ModelCommand::Show(a) => show(a),
+        ModelCommand::Preset(a) => {
+            print!("{}", a.preset.file_text());
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 
@@ -534,7 +552,7 @@ fn show(a: ShowArgs) -> anyhow::Result<ExitCode> {
                     p.unit
                 );
             }
-            if e.id == tofprox_model::ids::waveform_harmonics::ID.as_str()
+            if e.id == tofprox_model::effects::waveform_harmonics::ID.as_str()
                 && m.waveforms().is_some()
             {
                 println!("      (correlation from measured illumination/modulation waveforms)");
