@@ -333,3 +333,32 @@ fn unmeasured_noise_is_warned_once() {
         text(&o.stdout)
     );
 }
+
+/// `tofprox model preset <name>` prints the shipped model file byte for byte (the files are
+/// generated from the effect registry, docs/model.md); a name that is no preset is refused
+/// with the three that are.
+#[test]
+fn model_preset_prints_the_shipped_file_and_refuses_an_unknown_name() {
+    for name in ["baseline", "full", "ideal"] {
+        let out = run(&["model", "preset", name]);
+        assert!(out.status.success(), "{name}: {}", text(&out.stderr));
+        let shipped =
+            std::fs::read_to_string(repo_file(&format!("config/model/{name}.toml"))).unwrap();
+        assert_eq!(text(&out.stdout), shipped, "{name}");
+        assert!(shipped.contains(&format!("description = \"{name}:")));
+    }
+    let full = text(&run(&["model", "preset", "full"]).stdout);
+    let n_effects = tofprox_model::catalogue().len();
+    assert_eq!(
+        full.matches("\n[effects.").count(),
+        n_effects,
+        "one table per effect"
+    );
+    let out = run(&["model", "preset", "fulll"]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("`fulll` is not a preset (baseline, full, ideal)"),
+        "{err}"
+    );
+}

@@ -94,6 +94,33 @@ effect!(AdcSarMismatch, INFO, ID, chain = 200, code_law = SarLaw);
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::ModelConfig;
+    use crate::effects::adc::Adc;
+
+    /// The converter applies this law through the registry, as every code law: it adds its
+    /// Δcode at the input's ideal code — the same converter without it, plus
+    /// −Σ_b (bit_b(k) − ½)·δ_b written out for k = round(mid + x).
+    #[test]
+    fn the_converter_adds_the_enabled_code_laws_at_the_ideal_code() {
+        let mut m = ModelConfig::baseline();
+        let plain = Adc::new(&m, 12, 1);
+        m.enable(ID, true).unwrap();
+        let delta = [6.0, -3.0, 2.0, 1.5];
+        for (p, d) in PARAMS.iter().zip(delta) {
+            m.set(*p, d).unwrap();
+        }
+        let sar = Adc::new(&m, 12, 1);
+        for i in 0..4000 {
+            let u = -2000.0 + f64::from(i) + 0.37;
+            let ideal = plain.transfer(u);
+            let k = (ideal.round() as u32).min(4095);
+            let want: f64 = (0..4)
+                .map(|j| (0.5 - f64::from((k >> (11 - j)) & 1)) * delta[j as usize])
+                .sum();
+            // the ideal code is the converter's before its INL (off in the baseline)
+            assert!((sar.transfer(u) - ideal - want).abs() < 1e-9, "u = {u}");
+        }
+    }
 
     /// The law against a SAR conversion written out: a binary search of the input, one
     /// bit after the other, against the DAC levels of the mismatched weights. Away from the
