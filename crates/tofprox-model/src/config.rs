@@ -10,13 +10,9 @@ use std::path::{Path, PathBuf};
 use crate::catalogue::{self, ParamInfo, SENSOR_PARAMS, SENSOR_SECTION};
 use crate::effects::shape::{self, EffectShape, ShapeLaw};
 use crate::effects::user::{self, UserEffect};
+use crate::effects::waveform_harmonics;
 use crate::error::{ErrorKind, ModelError};
 use crate::ids::{EffectId, ParamId};
-
-/// The effect whose table holds the waveform files (`[effects.waveform_harmonics]`:
-/// `illumination_file`, `modulation_file`): `effects::waveform_harmonics::ID`, spelt out
-/// here because the effects import this module (a test checks the two agree).
-const WAVEFORM_EFFECT: &str = "waveform_harmonics";
 use tofprox_core::camera::Intrinsics;
 
 /// The model file's lens section: intrinsics in full-array pixels and OpenCV distortion.
@@ -331,7 +327,7 @@ impl ModelConfig {
             if law.is_some_and(|l| shape::is_shape_key(l, name)) {
                 continue;
             }
-            if info.id == WAVEFORM_EFFECT {
+            if info.id == waveform_harmonics::ID.as_str() {
                 let key = format!("{section}.{name}");
                 match name.as_str() {
                     "illumination_file" | "modulation_file" => {
@@ -378,7 +374,7 @@ impl ModelConfig {
                 }
             }
             let pinfo = info.param(name).ok_or_else(|| {
-                let extra = if info.id == WAVEFORM_EFFECT {
+                let extra = if info.id == waveform_harmonics::ID.as_str() {
                     ", illumination_file, modulation_file, illumination, modulation".to_string()
                 } else if let Some(l) = law {
                     format!(", {}, {}", l.driver, l.curves.join(", "))
@@ -504,7 +500,7 @@ impl ModelConfig {
                     let _ = writeln!(out, "{k} = {v:?}");
                 }
             }
-            if let (true, Some(w)) = (e.id == WAVEFORM_EFFECT, &self.waveforms) {
+            if let (true, Some(w)) = (e.id == waveform_harmonics::ID.as_str(), &self.waveforms) {
                 write_wave(
                     &mut out,
                     "illumination",

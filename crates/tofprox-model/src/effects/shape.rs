@@ -53,7 +53,7 @@ pub fn shape_laws() -> impl Iterator<Item = &'static ShapeLaw> {
 }
 
 /// The charge the SBI removes from each tap by the shape `knots` →
-/// `removed_e` (`sbi_asymmetry::SHAPE`) for tap charges `n_a`, `n_b` (e⁻): the
+/// `removed_e` (`sbi_asymmetry::SHAPE_LAW`) for tap charges `n_a`, `n_b` (e⁻): the
 /// curve at the fuller tap's charge, never more than the emptier tap holds
 /// (the invariant of `sbi_asymmetry::sbi_injected_e`). The simulator and the lab's
 /// fit both use it.

@@ -41,23 +41,21 @@ pub fn temperature_drift(dt: f64, phase_rad_per_k: [f64; 2], gain_per_k: [f64; 2
 /// shape of T when it gives one ([`SHAPE_LAW`]),
 /// else by the polynomial in ΔT = T − T_ref ([`temperature_drift`]).
 pub fn temperature_drift_of(model: &ModelConfig, temperature_c: f64) -> (f64, f64) {
-    
-    use crate::effects::temperature_drift as td;
-    if let Some(s) = model.shape(td::ID) {
+    if let Some(s) = model.shape(ID) {
         return (
             s.eval(DRIFT_PHASE_RAD, temperature_c),
             s.eval(DRIFT_GAIN_REL, temperature_c),
         );
     }
     temperature_drift(
-        temperature_c - model.get(td::REFERENCE_C),
+        temperature_c - model.get(REFERENCE_C),
         [
-            model.get(td::PHASE_MRAD_PER_K) * 1e-3,
-            model.get(td::PHASE_MRAD_PER_K2) * 1e-3,
+            model.get(PHASE_MRAD_PER_K) * 1e-3,
+            model.get(PHASE_MRAD_PER_K2) * 1e-3,
         ],
         [
-            model.get(td::GAIN_REL_PER_K),
-            model.get(td::GAIN_REL_PER_K2),
+            model.get(GAIN_REL_PER_K),
+            model.get(GAIN_REL_PER_K2),
         ],
     )
 }
